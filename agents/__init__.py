@@ -1,0 +1,1 @@
+"""Trained agents (PPO/SAC) against the impact_env environment."""

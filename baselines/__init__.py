@@ -1,0 +1,1 @@
+"""Classic controllers (baselines) with the stable-baselines3 predict interface."""

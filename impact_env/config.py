@@ -1,0 +1,199 @@
+"""Typed, frozen configuration records: dict/TOML round trip, unknown keys rejected, dotted overrides.
+
+Every config section is a frozen dataclass whose ``__post_init__`` validates its fields with
+:func:`check_range` (naming the field, the value, the unit and the allowed range).  This module
+turns such dataclasses into and out of plain dicts and TOML, and applies ``a.b=value`` overrides.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import tomllib
+import types
+import typing
+from typing import Any
+
+
+class ConfigError(ValueError):
+    """A configuration value or key is invalid; the message names the field."""
+
+
+def check_range(name: str, value: float, unit: str, lo: float | None = None, hi: float | None = None,
+                lo_open: bool = False, hi_open: bool = False) -> None:
+    """Raise ConfigError unless ``value`` is a finite number in the given range."""
+    u = f" {unit}" if unit else ""
+    lo_s = "" if lo is None else (f"> {lo:g}{u}" if lo_open else f">= {lo:g}{u}")
+    hi_s = "" if hi is None else (f"< {hi:g}{u}" if hi_open else f"<= {hi:g}{u}")
+    allowed = " and ".join(s for s in (lo_s, hi_s) if s) or "finite"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{name} must be a number ({allowed}), got {value!r}")
+    bad = not math.isfinite(value)
+    if lo is not None and (value <= lo if lo_open else value < lo):
+        bad = True
+    if hi is not None and (value >= hi if hi_open else value > hi):
+        bad = True
+    if bad:
+        raise ConfigError(f"{name} = {value!r}{u} is out of range: must be {allowed}")
+
+
+def check_choice(name: str, value: str, choices: typing.Iterable[str]) -> None:
+    choices = list(choices)
+    if value not in choices:
+        hint = difflib.get_close_matches(str(value), choices, n=1)
+        near = f" (did you mean {hint[0]!r}?)" if hint else ""
+        raise ConfigError(f"{name} = {value!r} is not one of {', '.join(choices)}{near}")
+
+
+def _unknown_key(path: str, key: str, valid: list[str]) -> ConfigError:
+    hint = difflib.get_close_matches(key, valid, n=1, cutoff=0.5)
+    near = f"; did you mean {hint[0]!r}?" if hint else ""
+    where = f"{path}.{key}" if path else key
+    return ConfigError(f"unknown key {where!r}{near} (valid keys here: {', '.join(valid)})")
+
+
+def _hints(cls) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _coerce(tp: Any, value: Any, where: str) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _coerce(args[0], value, where)
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where} must be a table of keys, got {value!r}")
+        return from_dict(tp, value, where)
+    if origin is tuple:
+        (inner, *_rest) = typing.get_args(tp)
+        if isinstance(value, str):
+            value = [v.strip() for v in value.split(",") if v.strip()]
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where} must be a list, got {value!r}")
+        return tuple(_coerce(inner, v, f"{where}[{i}]") for i, v in enumerate(value))
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where} must be a number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
+            raise ConfigError(f"{where} must be an integer, got {value!r}")
+        return int(value)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where} must be true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where} must be a string, got {value!r}")
+        return value
+    return value
+
+
+def from_dict(cls, data: dict, path: str = ""):
+    """Build dataclass ``cls`` from a nested dict; unknown keys raise with the nearest valid one."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path or cls.__name__} must be a table, got {data!r}")
+    hints = _hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    kwargs = {}
+    for key, value in data.items():
+        if key not in names:
+            raise _unknown_key(path, key, names)
+        where = f"{path}.{key}" if path else key
+        kwargs[key] = _coerce(hints[key], value, where)
+    return cls(**kwargs)
+
+
+def to_dict(obj) -> dict:
+    """Nested plain dict of a config dataclass (None values are left out)."""
+    out = {}
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if v is None:
+            continue
+        if dataclasses.is_dataclass(v):
+            v = to_dict(v)
+        elif isinstance(v, tuple):
+            v = [to_dict(x) if dataclasses.is_dataclass(x) else x for x in v]
+        out[f.name] = v
+    return out
+
+
+def parse_value(text: str) -> Any:
+    """Parse the right-hand side of ``--set key=value`` as a TOML value, else a bare string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        low = text.strip().lower()
+        if low in ("none", "null"):
+            return None
+        return text.strip()
+
+
+def set_dotted(obj, key: str, value: Any, path: str = ""):
+    """Return a copy of config ``obj`` with the dotted ``key`` set to ``value`` (re-validated)."""
+    head, _, rest = key.partition(".")
+    names = [f.name for f in dataclasses.fields(obj)]
+    if head not in names:
+        raise _unknown_key(path, head, names)
+    where = f"{path}.{head}" if path else head
+    current = getattr(obj, head)
+    if rest:
+        if not dataclasses.is_dataclass(current):
+            raise ConfigError(f"{where} is a value, not a table: cannot set {where}.{rest}")
+        new = set_dotted(current, rest, value, where)
+    else:
+        if dataclasses.is_dataclass(current) and not isinstance(value, dict):
+            raise ConfigError(f"{where} is a table: set one of its keys, e.g. {where}.<key>=value")
+        tp = _hints(type(obj))[head]
+        new = _coerce(tp, value, where)
+    fields = {head: new}
+    hook = getattr(obj, "_on_set", None)
+    if hook is not None:
+        fields = hook(head, new)
+    return dataclasses.replace(obj, **fields)
+
+
+def _toml_scalar(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_scalar(x) for x in v) + "]"
+    raise TypeError(f"cannot write {v!r} as TOML")
+
+
+def dumps_toml(data: dict, comments: dict[str, str] | None = None) -> str:
+    """Write a nested dict of scalars/lists as TOML; ``comments`` maps dotted keys to a comment."""
+    comments = comments or {}
+    lines: list[str] = []
+
+    def emit(d: dict, prefix: str):
+        scalars = [(k, v) for k, v in d.items() if not isinstance(v, dict)]
+        tables = [(k, v) for k, v in d.items() if isinstance(v, dict)]
+        for k, v in scalars:
+            full = f"{prefix}.{k}" if prefix else k
+            c = comments.get(full)
+            lines.append(f"{k} = {_toml_scalar(v)}" + (f"  # {c}" if c else ""))
+        for k, v in tables:
+            full = f"{prefix}.{k}" if prefix else k
+            lines.append("")
+            lines.append(f"[{full}]")
+            emit(v, full)
+
+    emit(data, "")
+    return "\n".join(lines).lstrip("\n") + "\n"

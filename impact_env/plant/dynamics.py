@@ -1,0 +1,81 @@
+"""Right-hand side of the two-body impact (thesis eq 2.7/2.8) with a Hertz-Tsuji contact.
+
+Contact force on body 1 (N, positive when it pushes the bodies apart), penetration d = x1 - x2:
+
+    F = c d^1.5 + b d^0.25 d'      for d > 0            (Tsuji et al. 1992; b = 0 is pure Hertz, eq 2.2)
+
+With ``b = zeta * sqrt(m c)`` (m the effective mass) the coefficient of restitution depends on
+zeta alone, for every m, c and impact speed: see :mod:`impact_env.plant.restitution`.
+The force is never negative in the physical model.  How the switch between contact and free
+flight is handled depends on the mode:
+
+* ``AUTO``: the force is clipped at 0 and switched off for d <= 0 inside the right-hand side
+  (the thesis's way, eq 3.2/3.3).  Simple, but a fixed step straddles each switch.
+* ``CONTACT`` / ``FREE``: the mode is fixed for a whole step and the event locator
+  (:mod:`impact_env.plant.integrators`) finds the switch.  In ``CONTACT`` the force is the
+  smooth odd extension ``c d |d|^0.5`` for d <= 0 (reached only by trial steps that overshoot
+  the switch), so no power of a negative number is ever taken.
+"""
+
+from __future__ import annotations
+
+from math import sqrt
+
+from impact_env._jit import jit
+from impact_env.plant.layout import AUTO, CONTACT, FREE
+
+
+@jit
+def contact_force(d, dd, mode, c, b):
+    """Return ``(F, Fe)``: the contact force and its elastic part (both N) for penetration d (m),
+    penetration rate dd (m/s) and contact mode."""
+    if d > 0.0:
+        s = sqrt(d)
+        fe = c * d * s
+        if mode == FREE:
+            return 0.0, fe
+        f = fe + b * sqrt(s) * dd
+        if mode == AUTO and f < 0.0:
+            f = 0.0
+        return f, fe
+    if mode == CONTACT:
+        f = c * d * sqrt(-d)
+        return f, f
+    return 0.0, 0.0
+
+
+@jit
+def event_value(x1, v1, x2, v2, c, b):
+    """Switching function: positive in contact, negative in free flight, continuous.
+
+    ``min(d, (d^1.25 + (b/c) d')^0.8)`` with signed powers: its first factor switches at the
+    touch (d = 0), its second where the damped force falls to zero while still d > 0.  Both
+    are lengths (m), which keeps the root finder well scaled.
+    """
+    d = x1 - x2
+    if d <= 0.0 or b == 0.0:
+        return d
+    q = d * sqrt(sqrt(d)) + (b / c) * (v1 - v2)
+    if q >= 0.0:
+        r = q**0.8
+    else:
+        r = -((-q) ** 0.8)
+    return d if d < r else r
+
+
+@jit
+def deriv(x1, v1, x2, v2, mode, f2, m1, m2, c, b, g, k2, c2):
+    """Time derivative of (x1, v1, x2, v2, W_ext, W_diss) under a shaker force f2 (N, upwards).
+
+    W_ext' is the shaker's power into the system, W_diss' the power lost in the pad's damping
+    (including elastic energy released while the damped force is clipped) and the suspension
+    damper; with them the energy balance ``E + W_diss - W_ext = const`` holds exactly.
+    """
+    d = x1 - x2
+    dd = v1 - v2
+    f, fe = contact_force(d, dd, mode, c, b)
+    a1 = g - f / m1
+    a2 = (f - f2 - k2 * x2 - c2 * v2) / m2
+    pext = -f2 * v2
+    pdiss = (f - fe) * dd + c2 * v2 * v2
+    return v1, a1, v2, a2, pext, pdiss

@@ -1,0 +1,39 @@
+"""Energies of the two-body system (numpy, vectorised over samples).  All in J, thesis frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def elastic_energy(d, c):
+    """Energy stored in the Hertz contact, ``(2/5) c d^2.5`` for d > 0 (J)."""
+    dp = np.maximum(np.asarray(d, dtype=float), 0.0)
+    return 0.4 * c * dp * dp * np.sqrt(dp)
+
+
+def catch_energy(x1, v1, x2, m1, c, g):
+    """Body 1's energy above resting on body 2 (J): ``m1 v1^2 / 2 + U(d)`` with
+
+    ``U(d) = m1 g (3/5 d_s - d) + (2/5) c d_+^2.5``, ``d_s = (m1 g / c)^(2/3)``:
+
+    gravitational energy relative to resting on body 2's surface plus the pad's elastic
+    energy, shifted so that U(d_s) = 0 at rest; U >= 0 everywhere.
+    The kinetic part is body 1's absolute kinetic energy, as in the thesis's E1 (eq 4.5).
+    """
+    d = np.asarray(x1, dtype=float) - np.asarray(x2, dtype=float)
+    ds = (m1 * g / c) ** (2.0 / 3.0)
+    return 0.5 * m1 * np.asarray(v1) ** 2 + m1 * g * (0.6 * ds - d) + elastic_energy(d, c)
+
+
+def energies(x1, v1, x2, v2, m1, m2, c, g, k2):
+    """Dict of the system's energies (J): kinetic1, kinetic2, gravity (of body 1, zero at
+    x1 = 0), elastic (pad), suspension, total."""
+    e = {
+        "kinetic1": 0.5 * m1 * np.asarray(v1) ** 2,
+        "kinetic2": 0.5 * m2 * np.asarray(v2) ** 2,
+        "gravity": -m1 * g * np.asarray(x1),
+        "elastic": elastic_energy(np.asarray(x1) - np.asarray(x2), c),
+        "suspension": 0.5 * k2 * np.asarray(x2) ** 2,
+    }
+    e["total"] = e["kinetic1"] + e["kinetic2"] + e["gravity"] + e["elastic"] + e["suspension"]
+    return e

@@ -1,0 +1,327 @@
+"""Integrators over one span of constant shaker force, with optional contact-event location.
+
+Methods (``layout``): explicit Euler (thesis eq 3.8), semi-implicit (symplectic) Euler, classic
+RK4 (all fixed step ``dt``) and Dormand-Prince 5(4) with adaptive steps (``rtol``).
+
+Event location: in ``FREE``/``CONTACT`` mode a step never integrates across a switch.  When a
+step ends on the other side of the switching function (:func:`dynamics.event_value`), the
+step length that lands exactly on the switch is found by the Illinois variant of regula falsi
+on re-taken steps of the same method from the same start, the state on the far side of that
+bracket (width <= ``EVENT_TOL`` times the step) is kept, the mode flips, and the rest of the
+step is taken in the new mode.  Fixed-step methods therefore keep their grid (the control
+sampling stays aligned) and the adaptive method keeps its error control.
+
+All kernels take plain float64 arrays and floats and keep no global state.
+"""
+
+from __future__ import annotations
+
+from math import sqrt
+
+import numpy as np
+
+from impact_env._jit import jit
+from impact_env.plant.dynamics import contact_force, deriv, event_value
+from impact_env.plant.layout import (
+    AUTO,
+    B,
+    C,
+    C2,
+    CONTACT,
+    DIVERGED,
+    DOPRI5,
+    EULER,
+    EVENT_OVERFLOW,
+    FREE,
+    G,
+    K2,
+    M1,
+    M2,
+    OK,
+    RK4,
+    STEP_UNDERFLOW,
+    SYMPLECTIC_EULER,
+    W_DISS,
+    W_EXT,
+    X1,
+    X2,
+    V1,
+    V2,
+)
+
+EVENT_TOL = 1e-13  # event bracket width, relative to the step being split
+MAX_EVENT_ITER = 200
+DIVERGENCE_BOUND = 1e9  # |x1|+|x2|+|v1|+|v2| beyond this (or NaN) is reported as divergence
+
+
+@jit
+def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, m1, m2, c, b, g, k2, c2):
+    """One step of a fixed-step method; returns the new (x1, v1, x2, v2, W_ext, W_diss)."""
+    k1 = deriv(x1, v1, x2, v2, mode, f2, m1, m2, c, b, g, k2, c2)
+    if method == EULER:
+        return (x1 + h * k1[0], v1 + h * k1[1], x2 + h * k1[2], v2 + h * k1[3],
+                we + h * k1[4], wd + h * k1[5])
+    if method == SYMPLECTIC_EULER:
+        nv1 = v1 + h * k1[1]
+        nv2 = v2 + h * k1[3]
+        return x1 + h * nv1, nv1, x2 + h * nv2, nv2, we + h * k1[4], wd + h * k1[5]
+    hh = 0.5 * h
+    k2_ = deriv(x1 + hh * k1[0], v1 + hh * k1[1], x2 + hh * k1[2], v2 + hh * k1[3],
+                mode, f2, m1, m2, c, b, g, k2, c2)
+    k3 = deriv(x1 + hh * k2_[0], v1 + hh * k2_[1], x2 + hh * k2_[2], v2 + hh * k2_[3],
+               mode, f2, m1, m2, c, b, g, k2, c2)
+    k4 = deriv(x1 + h * k3[0], v1 + h * k3[1], x2 + h * k3[2], v2 + h * k3[3],
+               mode, f2, m1, m2, c, b, g, k2, c2)
+    h6 = h / 6.0
+    return (x1 + h6 * (k1[0] + 2.0 * (k2_[0] + k3[0]) + k4[0]),
+            v1 + h6 * (k1[1] + 2.0 * (k2_[1] + k3[1]) + k4[1]),
+            x2 + h6 * (k1[2] + 2.0 * (k2_[2] + k3[2]) + k4[2]),
+            v2 + h6 * (k1[3] + 2.0 * (k2_[3] + k3[3]) + k4[3]),
+            we + h6 * (k1[4] + 2.0 * (k2_[4] + k3[4]) + k4[4]),
+            wd + h6 * (k1[5] + 2.0 * (k2_[5] + k3[5]) + k4[5]))
+
+
+# Dormand-Prince 5(4) tableau
+A21 = 1.0 / 5.0
+A31, A32 = 3.0 / 40.0, 9.0 / 40.0
+A41, A42, A43 = 44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0
+A51, A52, A53, A54 = 19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0
+A61, A62, A63, A64, A65 = 9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0
+B1, B3, B4, B5, B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
+E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0,
+                          22.0 / 525.0, -1.0 / 40.0)
+
+
+@jit
+def _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2):
+    """One Dormand-Prince step from y; writes the 5th-order result to ``out`` and the
+    embedded error estimate to ``err`` (both length 6)."""
+    k = np.empty((7, 6))
+    r = deriv(y[0], y[1], y[2], y[3], mode, f2, m1, m2, c, b, g, k2, c2)
+    for j in range(6):
+        k[0, j] = r[j]
+    t = np.empty(6)
+    for s in range(1, 7):
+        for j in range(6):
+            if s == 1:
+                acc = A21 * k[0, j]
+            elif s == 2:
+                acc = A31 * k[0, j] + A32 * k[1, j]
+            elif s == 3:
+                acc = A41 * k[0, j] + A42 * k[1, j] + A43 * k[2, j]
+            elif s == 4:
+                acc = A51 * k[0, j] + A52 * k[1, j] + A53 * k[2, j] + A54 * k[3, j]
+            elif s == 5:
+                acc = A61 * k[0, j] + A62 * k[1, j] + A63 * k[2, j] + A64 * k[3, j] + A65 * k[4, j]
+            else:
+                acc = B1 * k[0, j] + B3 * k[2, j] + B4 * k[3, j] + B5 * k[4, j] + B6 * k[5, j]
+            t[j] = y[j] + h * acc
+        if s == 6:
+            for j in range(6):
+                out[j] = t[j]
+        r = deriv(t[0], t[1], t[2], t[3], mode, f2, m1, m2, c, b, g, k2, c2)
+        for j in range(6):
+            k[s, j] = r[j]
+    for j in range(6):
+        err[j] = h * (E1 * k[0, j] + E3 * k[2, j] + E4 * k[3, j] + E5 * k[4, j]
+                      + E6 * k[5, j] + E7 * k[6, j])
+
+
+@jit
+def _trial(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
+    """Take one step of length h from y into out (no error control)."""
+    if method == DOPRI5:
+        _dopri_step(y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2)
+    else:
+        r = _fixed_step(method, y[0], y[1], y[2], y[3], y[4], y[5], mode, f2, h,
+                        m1, m2, c, b, g, k2, c2)
+        for j in range(6):
+            out[j] = r[j]
+
+
+@jit
+def _crossed(mode, gv):
+    return (mode == CONTACT and gv < 0.0) or (mode == FREE and gv > 0.0)
+
+
+@jit
+def _locate(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
+    """Find the step length in (0, h] that lands on the switch; writes the state at the far
+    side of the final bracket into ``out`` and returns that step length."""
+    lo = 0.0
+    glo = event_value(y[0], y[1], y[2], y[3], c, b)
+    hi = h
+    _trial(method, y, out, scratch, mode, f2, hi, m1, m2, c, b, g, k2, c2)
+    ghi = event_value(out[0], out[1], out[2], out[3], c, b)
+    trial = np.empty(6)
+    side = 0
+    tol = EVENT_TOL * h
+    for _ in range(MAX_EVENT_ITER):
+        if hi - lo <= tol:
+            break
+        if glo != ghi:
+            hm = (lo * ghi - hi * glo) / (ghi - glo)
+        else:
+            hm = 0.5 * (lo + hi)
+        # keep the trial strictly inside, and bisect when regula falsi stalls at an end
+        w = hi - lo
+        if not (lo + 0.01 * w < hm < hi - 0.01 * w):
+            hm = min(max(hm, lo + 0.01 * w), hi - 0.01 * w)
+        _trial(method, y, trial, scratch, mode, f2, hm, m1, m2, c, b, g, k2, c2)
+        gm = event_value(trial[0], trial[1], trial[2], trial[3], c, b)
+        if _crossed(mode, gm) or gm == 0.0:
+            hi = hm
+            ghi = gm
+            for j in range(6):
+                out[j] = trial[j]
+            if side == 1:
+                glo *= 0.5
+            side = 1
+        else:
+            lo = hm
+            glo = gm
+            if side == -1:
+                ghi *= 0.5
+            side = -1
+    return hi
+
+
+@jit
+def _log_event(ev, evn, t, kind, y):
+    n = evn[0]
+    if n < ev.shape[0]:
+        ev[n, 0] = t
+        ev[n, 1] = kind
+        ev[n, 2] = y[X1]
+        ev[n, 3] = y[V1]
+        ev[n, 4] = y[X2]
+        ev[n, 5] = y[V2]
+    evn[0] = n + 1
+
+
+@jit
+def _diverged(y):
+    s = abs(y[X1]) + abs(y[X2]) + abs(y[V1]) + abs(y[V2]) + abs(y[W_EXT]) + abs(y[W_DISS])
+    return not (s < DIVERGENCE_BOUND)
+
+
+@jit
+def _force_now(y, mode, p):
+    f, _ = contact_force(y[X1] - y[X2], y[V1] - y[V2], mode, p[C], p[B])
+    return f
+
+
+@jit
+def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, peak):
+    """Integrate y (float64[6], in place) over ``span`` seconds from time t0 under the constant
+    shaker force f2 (N).
+
+    mode: ``AUTO`` (no event location) or the current ``FREE``/``CONTACT`` mode.
+    dt: step for the fixed-step methods (span must be a whole number of steps).
+    rtol, scale: DOPRI5's relative tolerance and the per-component scale (float64[6]) that
+    sets its absolute tolerance ``rtol * scale``.
+    hstate: float64[1], DOPRI5's step size carried between calls.
+    ev, evn: event buffer (n, 6) and its fill count (int64[1]); events past its size are counted.
+    peak: float64[1], raised to the largest contact force seen at step ends and events.
+    Returns ``(status, mode)``.
+    """
+    m1 = p[M1]
+    m2 = p[M2]
+    c = p[C]
+    b = p[B]
+    g = p[G]
+    k2 = p[K2]
+    c2 = p[C2]
+    out = np.empty(6)
+    scratch = np.empty(6)
+    status = OK
+    if method != DOPRI5:
+        n = int(round(span / dt))
+        for i in range(n):
+            ts = t0 + i * dt
+            if mode == AUTO:
+                d_before = y[X1] - y[X2]
+                _trial(method, y, out, scratch, mode, f2, dt, m1, m2, c, b, g, k2, c2)
+                for j in range(6):
+                    y[j] = out[j]
+                d_after = y[X1] - y[X2]
+                if (d_before > 0.0) != (d_after > 0.0):
+                    _log_event(ev, evn, ts + dt, 1.0 if d_after > 0.0 else -1.0, y)
+            else:
+                rem = dt
+                tt = ts
+                for _ev in range(16):
+                    _trial(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
+                    gv = event_value(out[0], out[1], out[2], out[3], c, b)
+                    if not _crossed(mode, gv):
+                        for j in range(6):
+                            y[j] = out[j]
+                        break
+                    hs = _locate(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
+                    for j in range(6):
+                        y[j] = out[j]
+                    tt += hs
+                    rem -= hs
+                    mode = FREE if mode == CONTACT else CONTACT
+                    _log_event(ev, evn, tt, 1.0 if mode == CONTACT else -1.0, y)
+                    if rem <= EVENT_TOL * dt:
+                        break
+                else:
+                    status = EVENT_OVERFLOW
+            if _diverged(y):
+                return DIVERGED, mode
+            f = _force_now(y, mode, p)
+            if f > peak[0]:
+                peak[0] = f
+            if status != OK:
+                return status, mode
+        return status, mode
+
+    # adaptive Dormand-Prince 5(4)
+    err = np.empty(6)
+    t = 0.0
+    h = hstate[0]
+    if not (h > 0.0):
+        h = min(span, 1e-5)
+    hmin = 1e-15 * max(span, abs(t0) + span)
+    while span - t > 1e-12 * span:
+        if h > span - t:
+            h = span - t
+        _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2)
+        en = 0.0
+        for j in range(6):
+            sc = rtol * scale[j] + rtol * max(abs(y[j]), abs(out[j]))
+            en += (err[j] / sc) ** 2
+        en = sqrt(en / 6.0)
+        if not (en == en):
+            en = 1e10
+        if en <= 1.0:
+            gv = event_value(out[0], out[1], out[2], out[3], c, b)
+            if mode != AUTO and _crossed(mode, gv):
+                hs = _locate(DOPRI5, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2)
+                for j in range(6):
+                    y[j] = out[j]
+                t += hs
+                mode = FREE if mode == CONTACT else CONTACT
+                _log_event(ev, evn, t0 + t, 1.0 if mode == CONTACT else -1.0, y)
+            else:
+                if mode == AUTO and ((y[X1] - y[X2] > 0.0) != (out[X1] - out[X2] > 0.0)):
+                    _log_event(ev, evn, t0 + t + h, 1.0 if out[X1] - out[X2] > 0.0 else -1.0, out)
+                for j in range(6):
+                    y[j] = out[j]
+                t += h
+            if _diverged(y):
+                hstate[0] = h
+                return DIVERGED, mode
+            f = _force_now(y, mode, p)
+            if f > peak[0]:
+                peak[0] = f
+            fac = 5.0 if en < 1e-4 else min(5.0, 0.9 * en ** -0.2)
+            h *= fac
+        else:
+            h *= max(0.1, 0.9 * en ** -0.25)
+            if h < hmin:
+                hstate[0] = h
+                return STEP_UNDERFLOW, mode
+    hstate[0] = h
+    return status, mode

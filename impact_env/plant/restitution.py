@@ -1,0 +1,76 @@
+"""Calibrating the damped contact so that it delivers a requested coefficient of restitution.
+
+The Tsuji et al. (1992) law ``F = c d^1.5 + b d^0.25 d'`` (force clipped at zero) has a
+property that Hunt-Crossley lacks: in the scaled variables ``d = D s``, ``t = (D/v) tau`` with
+``D = (m v^2 / c)^(2/5)`` (m the effective mass, v the impact speed), the collision reads
+
+    s'' = -max(0, s^1.5 + zeta s^0.25 s'),    s(0) = 0, s'(0) = 1,    zeta = b / sqrt(m c)
+
+so the restitution ``e = -s'(separation)`` is a function of zeta alone: one zeta gives the same
+e for every m, c and v (exact for the free two-body collision; gravity, the suspension and the
+shaker act on top of that during contact).  We solve that scaled problem with
+``scipy.integrate.solve_ivp`` and invert it with ``brentq``; Hunt-Crossley's
+``chi = 3(1 - e)/(2 v)`` is only right near e = 1 and needs the impact speed latched.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from math import sqrt
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
+
+_S0 = 1e-12  # start just after the touch: s ~ tau there, so s0 = tau0 = 1e-12
+
+
+def restitution_of_zeta(zeta: float) -> float:
+    """Coefficient of restitution delivered by the scaled Tsuji collision with damping zeta."""
+    if zeta < 0.0 or not np.isfinite(zeta):
+        raise ValueError(f"zeta must be a finite number >= 0, got {zeta!r}")
+    if zeta == 0.0:
+        return 1.0
+
+    def rhs(_t, y):
+        s = max(y[0], 0.0)
+        return [y[1], -max(0.0, s**1.5 + zeta * s**0.25 * y[1])]
+
+    def force_zero(_t, y):  # s^1.25 + zeta s' changes sign where the damped force vanishes
+        s = max(y[0], 0.0)
+        return s**1.25 + zeta * y[1]
+
+    force_zero.terminal = True
+    force_zero.direction = -1
+
+    def touch(_t, y):
+        return y[0]
+
+    touch.terminal = True
+    touch.direction = -1
+    sol = solve_ivp(rhs, (0.0, 50.0), [_S0, 1.0], method="DOP853", rtol=1e-12, atol=1e-15,
+                    events=(force_zero, touch))
+    if sol.status != 1:
+        raise RuntimeError(f"scaled collision with zeta={zeta} did not end by tau=50")
+    return float(-sol.y[1, -1])
+
+
+@lru_cache(maxsize=256)
+def zeta_for_restitution(e: float) -> float:
+    """The scaled damping zeta whose collision delivers restitution ``e`` in (0, 1]."""
+    if not (0.0 < e <= 1.0):
+        raise ValueError(f"restitution must be in (0, 1], got {e!r}")
+    if e == 1.0:
+        return 0.0
+    hi = 1.0
+    while restitution_of_zeta(hi) > e:
+        hi *= 4.0
+        if hi > 1e8:
+            raise ValueError(f"restitution {e} is too small to calibrate (needs zeta > 1e8)")
+    return float(brentq(lambda z: restitution_of_zeta(z) - e, 0.0, hi, xtol=1e-14, rtol=1e-13))
+
+
+def tsuji_damping(e: float, m1: float, m2: float, c: float) -> float:
+    """Damping coefficient b (N s/m^1.25) that makes the pad deliver restitution ``e``."""
+    m = m1 * m2 / (m1 + m2)
+    return zeta_for_restitution(e) * sqrt(m * c)

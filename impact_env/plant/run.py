@@ -1,0 +1,32 @@
+"""Recording loop: many control periods of constant force in one compiled call."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from impact_env._jit import jit
+from impact_env.plant.integrators import advance
+from impact_env.plant.layout import OK
+
+
+@jit
+def run_periods(y, mode, f2, t0, period, n, p, method, dt, rtol, scale, hstate, ev, evn,
+                out_y, out_mode, out_peak, k0):
+    """Advance y over ``n`` control periods of ``period`` s under the constant force f2 (N),
+    writing the state at each period end into ``out_y[k0 + k]`` (and the mode and the peak
+    contact force within the period into ``out_mode``/``out_peak``).
+
+    Returns ``(status, mode, periods_done)``.
+    """
+    peak = np.zeros(1)
+    for k in range(n):
+        peak[0] = 0.0
+        status, mode = advance(y, mode, f2, t0 + k * period, period, p, method, dt, rtol, scale,
+                               hstate, ev, evn, peak)
+        for j in range(y.shape[0]):
+            out_y[k0 + k, j] = y[j]
+        out_mode[k0 + k] = mode
+        out_peak[k0 + k] = peak[0]
+        if status != OK:
+            return status, mode, k + 1
+    return OK, mode, n

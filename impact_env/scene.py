@@ -1,0 +1,236 @@
+"""The scene: every number a simulation needs, as typed, frozen, validated records.
+
+A :class:`Scene` is declarative: plant parameters, initial condition, integrator, control rate
+and episode settings.  It is loaded from presets (:mod:`impact_env.presets`), TOML files or dicts,
+and changed with dotted overrides (``scene.with_overrides({"plant.m1": 0.05})``).  Unknown keys
+raise an error that names the key and its nearest valid neighbour; every value is range-checked
+at construction, before anything is simulated.
+
+Units are SI throughout and are named in each field's ``unit`` metadata, which
+``impact-env scene show`` prints next to the value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from impact_env.config import (
+    ConfigError,
+    check_choice,
+    check_range,
+    dumps_toml,
+    from_dict,
+    parse_value,
+    set_dotted,
+    to_dict,
+)
+
+METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
+
+
+def _f(default, unit: str, doc: str):
+    return field(default=default, metadata={"unit": unit, "doc": doc})
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """The two bodies, the pad contact between them and body 2's suspension."""
+
+    m1: float = _f(0.1, "kg", "falling body (thesis gives only m2 = 10 m1; notes' start value)")
+    m2: float = _f(1.0, "kg", "body 2: shaker armature + pad + fixture (thesis sec 4.4: 10 m1)")
+    c: float = _f(2.0e6, "N/m^1.5", "Hertz contact stiffness of the pad (thesis sec 4.1, eq 4.1-4.2)")
+    restitution: float = _f(1.0, "", "delivered coefficient of restitution of the pad, in (0, 1]; 1 = elastic Hertz")
+    gravity: float = _f(9.81, "m/s^2", "gravity on body 1 (body 2's weight is carried by its suspension)")
+    suspension_stiffness: float = _f(0.0, "N/m", "spring pulling body 2 back to x2 = 0")
+    suspension_damping: float = _f(0.0, "N s/m", "damper on body 2's motion")
+
+    def __post_init__(self):
+        check_range("plant.m1", self.m1, "kg", 0.0, None, lo_open=True)
+        check_range("plant.m2", self.m2, "kg", 0.0, None, lo_open=True)
+        check_range("plant.c", self.c, "N/m^1.5", 0.0, None, lo_open=True)
+        check_range("plant.restitution", self.restitution, "", 0.0, 1.0, lo_open=True)
+        check_range("plant.gravity", self.gravity, "m/s^2", 0.0)
+        check_range("plant.suspension_stiffness", self.suspension_stiffness, "N/m", 0.0)
+        check_range("plant.suspension_damping", self.suspension_damping, "N s/m", 0.0)
+
+    @property
+    def effective_mass(self) -> float:
+        """m1 m2 / (m1 + m2), kg."""
+        return self.m1 * self.m2 / (self.m1 + self.m2)
+
+    @property
+    def static_penetration(self) -> float:
+        """Penetration with body 1 resting on body 2, ``(m1 g / c)^(2/3)`` (eq 2.11), m."""
+        return (self.m1 * self.gravity / self.c) ** (2.0 / 3.0)
+
+
+@dataclass(frozen=True)
+class InitialConfig:
+    """How body 1 arrives: from a drop height, or at a given impact speed (give one of the two).
+
+    Setting one of them (``--set initial.impact_speed=2``) clears the other.  The free fall is
+    solved in closed form: the simulation starts ``pre_contact_time`` before the first touch
+    (or at the release, if the fall is shorter), with body 2 at rest at x2 = 0.
+    """
+
+    drop_height: float | None = _f(0.05, "m", "gap between the facing surfaces at release (notes' start value)")
+    impact_speed: float | None = _f(None, "m/s", "speed of body 1 at the first touch, instead of drop_height")
+    pre_contact_time: float = _f(1.0e-3, "s", "simulated time before the first touch")
+
+    def __post_init__(self):
+        if (self.drop_height is None) == (self.impact_speed is None):
+            raise ConfigError("initial: give exactly one of drop_height (m) or impact_speed (m/s)")
+        if self.drop_height is not None:
+            check_range("initial.drop_height", self.drop_height, "m", 0.0, 100.0)
+        if self.impact_speed is not None:
+            check_range("initial.impact_speed", self.impact_speed, "m/s", 0.0, 1000.0)
+        check_range("initial.pre_contact_time", self.pre_contact_time, "s", 0.0, 10.0)
+
+    def _on_set(self, key: str, value: Any) -> dict:
+        if key == "drop_height" and value is not None:
+            return {"drop_height": value, "impact_speed": None}
+        if key == "impact_speed" and value is not None:
+            return {"impact_speed": value, "drop_height": None}
+        return {key: value}
+
+
+@dataclass(frozen=True)
+class IntegratorConfig:
+    """Time integration of the plant."""
+
+    method: str = _f("rk4", "", "euler (thesis eq 3.8) | symplectic-euler | rk4 | dopri5 (adaptive)")
+    dt: float = _f(1.0e-6, "s", "step of the fixed-step methods")
+    rtol: float = _f(1.0e-9, "", "relative tolerance of dopri5")
+    event_location: bool = _f(True, "", "locate contact onset/separation instead of stepping across them")
+
+    def __post_init__(self):
+        check_choice("integrator.method", self.method, METHODS)
+        check_range("integrator.dt", self.dt, "s", 0.0, 1e-2, lo_open=True)
+        check_range("integrator.rtol", self.rtol, "", 1e-14, 1e-2)
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """Digital control: the law is sampled at ``rate`` and held (zero-order hold) in between."""
+
+    rate: float = _f(1.0e6, "Hz", "control (and recording) rate; must divide the integration grid")
+
+    def __post_init__(self):
+        check_range("control.rate", self.rate, "Hz", 0.0, 1e8, lo_open=True)
+
+    @property
+    def period(self) -> float:
+        return 1.0 / self.rate
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    """Length of a run."""
+
+    horizon: float = _f(0.3, "s", "simulated time after the start (thesis fig 4.8 spans about 0.3 s)")
+
+    def __post_init__(self):
+        check_range("episode.horizon", self.horizon, "s", 0.0, 1e4, lo_open=True)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Everything one simulation needs.  Build with :func:`load_scene` or the presets."""
+
+    name: str = "custom"
+    description: str = ""
+    plant: PlantConfig = field(default_factory=PlantConfig)
+    initial: InitialConfig = field(default_factory=InitialConfig)
+    integrator: IntegratorConfig = field(default_factory=IntegratorConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+
+    def __post_init__(self):
+        if self.initial.drop_height is not None and self.initial.drop_height > 0 and self.plant.gravity == 0:
+            raise ConfigError("initial.drop_height needs plant.gravity > 0; with no gravity give "
+                              "initial.impact_speed (m/s) instead")
+        if self.integrator.method != "dopri5":
+            ratio = self.control.period / self.integrator.dt
+            if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+                raise ConfigError(
+                    f"control.rate = {self.control.rate:g} Hz does not divide the integration grid: "
+                    f"the control period {self.control.period:g} s must be a whole multiple of "
+                    f"integrator.dt = {self.integrator.dt:g} s")
+
+    # -- derived quantities -------------------------------------------------------------
+    @property
+    def impact_speed(self) -> float:
+        """Speed of body 1 at the first touch, m/s."""
+        if self.initial.impact_speed is not None:
+            return self.initial.impact_speed
+        return math.sqrt(2.0 * self.plant.gravity * self.initial.drop_height)
+
+    def with_overrides(self, overrides: dict[str, Any] | None = None, **kw) -> "Scene":
+        """A copy with dotted keys set, e.g. ``{"plant.m1": 0.05, "integrator.method": "dopri5"}``.
+
+        String values are parsed as TOML values (``"1e-6"`` -> 1e-6).
+        """
+        scene = self
+        items = dict(overrides or {})
+        items.update(kw)
+        for key, value in items.items():
+            if isinstance(value, str):
+                value = parse_value(value)
+            scene = set_dotted(scene, key, value)
+        return scene
+
+    def to_dict(self) -> dict:
+        return to_dict(self)
+
+    def to_toml(self) -> str:
+        return dumps_toml(self.to_dict(), _field_comments(Scene))
+
+
+def _field_comments(cls, prefix: str = "") -> dict[str, str]:
+    out = {}
+    for f in dataclasses.fields(cls):
+        key = f"{prefix}.{f.name}" if prefix else f.name
+        tp = f.default_factory if f.default_factory is not dataclasses.MISSING else None
+        if tp is not None and dataclasses.is_dataclass(tp):
+            out.update(_field_comments(tp, key))
+        elif "doc" in f.metadata:
+            unit = f.metadata.get("unit", "")
+            out[key] = f"[{unit}] {f.metadata['doc']}" if unit else f.metadata["doc"]
+    return out
+
+
+def scene_from_dict(data: dict) -> Scene:
+    return from_dict(Scene, data)
+
+
+def load_scene(spec: "str | Path | Scene | dict", overrides: dict[str, Any] | None = None) -> Scene:
+    """A scene from a preset name, a TOML path, a dict or a Scene, with dotted overrides applied."""
+    from impact_env.presets import PRESETS
+
+    if isinstance(spec, Scene):
+        scene = spec
+    elif isinstance(spec, dict):
+        scene = scene_from_dict(spec)
+    else:
+        text = str(spec)
+        if text in PRESETS:
+            scene = PRESETS[text]()
+        elif text.endswith(".toml") or Path(text).is_file():
+            import tomllib
+
+            with open(text, "rb") as fh:
+                scene = scene_from_dict(tomllib.load(fh))
+        else:
+            import difflib
+
+            hint = difflib.get_close_matches(text, list(PRESETS), n=1)
+            near = f"; did you mean {hint[0]!r}?" if hint else ""
+            raise ConfigError(f"unknown scene {text!r}{near} (presets: {', '.join(PRESETS)}; "
+                              "or give a path to a .toml file)")
+    if overrides:
+        scene = scene.with_overrides(overrides)
+    return scene
