@@ -137,28 +137,51 @@ def parse_value(text: str) -> Any:
         return text.strip()
 
 
-def set_dotted(obj, key: str, value: Any, path: str = ""):
-    """Return a copy of config ``obj`` with the dotted ``key`` set to ``value`` (re-validated)."""
+def set_dotted(cls, data: dict, key: str, value: Any, path: str = "") -> None:
+    """Set the dotted ``key`` of the plain dict ``data`` (shaped like dataclass ``cls``) in place.
+
+    The key is checked against the schema (unknown keys raise with the nearest valid one); the
+    value is checked when the dataclass is built.  A class may define ``_override_clears``,
+    a dict from a field to the sibling fields that setting it clears.
+    """
     head, _, rest = key.partition(".")
-    names = [f.name for f in dataclasses.fields(obj)]
+    names = [f.name for f in dataclasses.fields(cls)]
     if head not in names:
         raise _unknown_key(path, head, names)
     where = f"{path}.{head}" if path else head
-    current = getattr(obj, head)
+    tp = _hints(cls)[head]
+    sub = _dataclass_of(tp)
     if rest:
-        if not dataclasses.is_dataclass(current):
+        if sub is None:
             raise ConfigError(f"{where} is a value, not a table: cannot set {where}.{rest}")
-        new = set_dotted(current, rest, value, where)
-    else:
-        if dataclasses.is_dataclass(current) and not isinstance(value, dict):
-            raise ConfigError(f"{where} is a table: set one of its keys, e.g. {where}.<key>=value")
-        tp = _hints(type(obj))[head]
-        new = _coerce(tp, value, where)
-    fields = {head: new}
-    hook = getattr(obj, "_on_set", None)
-    if hook is not None:
-        fields = hook(head, new)
-    return dataclasses.replace(obj, **fields)
+        set_dotted(sub, data.setdefault(head, {}), rest, value, where)
+        return
+    if sub is not None and not isinstance(value, dict):
+        raise ConfigError(f"{where} is a table: set one of its keys, e.g. {where}.<key>=value")
+    data[head] = value
+    for other in getattr(cls, "_override_clears", {}).get(head, ()):
+        if value is not None:
+            data[other] = None
+
+
+def _dataclass_of(tp: Any):
+    if dataclasses.is_dataclass(tp):
+        return tp
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        for a in typing.get_args(tp):
+            if dataclasses.is_dataclass(a):
+                return a
+    return None
+
+
+def with_overrides(obj, overrides: dict[str, Any]):
+    """A copy of config ``obj`` with all dotted overrides applied at once, then validated."""
+    data = to_dict(obj)
+    for key, value in overrides.items():
+        if isinstance(value, str):
+            value = parse_value(value)
+        set_dotted(type(obj), data, key, value)
+    return from_dict(type(obj), data)
 
 
 def _toml_scalar(v: Any) -> str:

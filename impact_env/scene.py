@@ -24,9 +24,8 @@ from impact_env.config import (
     check_range,
     dumps_toml,
     from_dict,
-    parse_value,
-    set_dotted,
     to_dict,
+    with_overrides,
 )
 
 METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
@@ -90,12 +89,7 @@ class InitialConfig:
             check_range("initial.impact_speed", self.impact_speed, "m/s", 0.0, 1000.0)
         check_range("initial.pre_contact_time", self.pre_contact_time, "s", 0.0, 10.0)
 
-    def _on_set(self, key: str, value: Any) -> dict:
-        if key == "drop_height" and value is not None:
-            return {"drop_height": value, "impact_speed": None}
-        if key == "impact_speed" and value is not None:
-            return {"impact_speed": value, "drop_height": None}
-        return {key: value}
+    _override_clears = {"drop_height": ("impact_speed",), "impact_speed": ("drop_height",)}
 
 
 @dataclass(frozen=True)
@@ -174,14 +168,9 @@ class Scene:
 
         String values are parsed as TOML values (``"1e-6"`` -> 1e-6).
         """
-        scene = self
         items = dict(overrides or {})
         items.update(kw)
-        for key, value in items.items():
-            if isinstance(value, str):
-                value = parse_value(value)
-            scene = set_dotted(scene, key, value)
-        return scene
+        return with_overrides(self, items) if items else self
 
     def to_dict(self) -> dict:
         return to_dict(self)

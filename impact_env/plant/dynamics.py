@@ -25,7 +25,7 @@ from impact_env._jit import jit
 from impact_env.plant.layout import AUTO, CONTACT, FREE
 
 
-@jit
+@jit(inline="always")
 def contact_force(d, dd, mode, c, b):
     """Return ``(F, Fe)``: the contact force and its elastic part (both N) for penetration d (m),
     penetration rate dd (m/s) and contact mode."""
@@ -34,6 +34,8 @@ def contact_force(d, dd, mode, c, b):
         fe = c * d * s
         if mode == FREE:
             return 0.0, fe
+        if b == 0.0:
+            return fe, fe
         f = fe + b * sqrt(s) * dd
         if mode == AUTO and f < 0.0:
             f = 0.0
@@ -44,7 +46,7 @@ def contact_force(d, dd, mode, c, b):
     return 0.0, 0.0
 
 
-@jit
+@jit(inline="always")
 def event_value(x1, v1, x2, v2, c, b):
     """Switching function: positive in contact, negative in free flight, continuous.
 
@@ -63,19 +65,21 @@ def event_value(x1, v1, x2, v2, c, b):
     return d if d < r else r
 
 
-@jit
-def deriv(x1, v1, x2, v2, mode, f2, m1, m2, c, b, g, k2, c2):
+@jit(inline="always")
+def deriv(x1, v1, x2, v2, mode, f2, im1, im2, c, b, g, k2, c2):
     """Time derivative of (x1, v1, x2, v2, W_ext, W_diss) under a shaker force f2 (N, upwards).
 
     W_ext' is the shaker's power into the system, W_diss' the power lost in the pad's damping
     (including elastic energy released while the damped force is clipped) and the suspension
     damper; with them the energy balance ``E + W_diss - W_ext = const`` holds exactly.
+    im1, im2 are the inverse masses (1/kg): a multiplication keeps the RK stages' dependency
+    chain free of divisions.
     """
     d = x1 - x2
     dd = v1 - v2
     f, fe = contact_force(d, dd, mode, c, b)
-    a1 = g - f / m1
-    a2 = (f - f2 - k2 * x2 - c2 * v2) / m2
+    a1 = g - f * im1
+    a2 = (f - f2 - k2 * x2 - c2 * v2) * im2
     pext = -f2 * v2
     pdiss = (f - fe) * dd + c2 * v2 * v2
     return v1, a1, v2, a2, pext, pdiss

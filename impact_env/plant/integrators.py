@@ -54,17 +54,21 @@ MAX_EVENT_ITER = 200
 DIVERGENCE_BOUND = 1e9  # |x1|+|x2|+|v1|+|v2| beyond this (or NaN) is reported as divergence
 
 
-@jit
+@jit(inline="always")
 def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, m1, m2, c, b, g, k2, c2):
     """One step of a fixed-step method; returns the new (x1, v1, x2, v2, W_ext, W_diss)."""
     k1 = deriv(x1, v1, x2, v2, mode, f2, m1, m2, c, b, g, k2, c2)
+    # W_ext' = -f2 v2 with f2 constant over the step, so every method's W_ext update is
+    # exactly -f2 times its x2 update: computed that way, off the stages' dependency chain
     if method == EULER:
-        return (x1 + h * k1[0], v1 + h * k1[1], x2 + h * k1[2], v2 + h * k1[3],
-                we + h * k1[4], wd + h * k1[5])
+        nx2 = x2 + h * k1[2]
+        return (x1 + h * k1[0], v1 + h * k1[1], nx2, v2 + h * k1[3],
+                we - f2 * (nx2 - x2), wd + h * k1[5])
     if method == SYMPLECTIC_EULER:
         nv1 = v1 + h * k1[1]
         nv2 = v2 + h * k1[3]
-        return x1 + h * nv1, nv1, x2 + h * nv2, nv2, we + h * k1[4], wd + h * k1[5]
+        nx2 = x2 + h * nv2
+        return x1 + h * nv1, nv1, nx2, nv2, we - f2 * (nx2 - x2), wd + h * k1[5]
     hh = 0.5 * h
     k2_ = deriv(x1 + hh * k1[0], v1 + hh * k1[1], x2 + hh * k1[2], v2 + hh * k1[3],
                 mode, f2, m1, m2, c, b, g, k2, c2)
@@ -73,11 +77,12 @@ def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, m1, m2, c, b, g, k2
     k4 = deriv(x1 + h * k3[0], v1 + h * k3[1], x2 + h * k3[2], v2 + h * k3[3],
                mode, f2, m1, m2, c, b, g, k2, c2)
     h6 = h / 6.0
+    nx2 = x2 + h6 * (k1[2] + 2.0 * (k2_[2] + k3[2]) + k4[2])
     return (x1 + h6 * (k1[0] + 2.0 * (k2_[0] + k3[0]) + k4[0]),
             v1 + h6 * (k1[1] + 2.0 * (k2_[1] + k3[1]) + k4[1]),
-            x2 + h6 * (k1[2] + 2.0 * (k2_[2] + k3[2]) + k4[2]),
+            nx2,
             v2 + h6 * (k1[3] + 2.0 * (k2_[3] + k3[3]) + k4[3]),
-            we + h6 * (k1[4] + 2.0 * (k2_[4] + k3[4]) + k4[4]),
+            we - f2 * (nx2 - x2),
             wd + h6 * (k1[5] + 2.0 * (k2_[5] + k3[5]) + k4[5]))
 
 
@@ -139,7 +144,7 @@ def _trial(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
             out[j] = r[j]
 
 
-@jit
+@jit(inline="always")
 def _crossed(mode, gv):
     return (mode == CONTACT and gv < 0.0) or (mode == FREE and gv > 0.0)
 
@@ -212,6 +217,72 @@ def _force_now(y, mode, p):
 
 
 @jit
+def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
+    """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
+    at a contact switch."""
+    m1 = 1.0 / p[M1]  # inverse masses from here on
+    m2 = 1.0 / p[M2]
+    c = p[C]
+    b = p[B]
+    g = p[G]
+    k2 = p[K2]
+    c2 = p[C2]
+    x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
+    pk = peak[0]
+    n = int(round(span / dt))
+    out = np.empty(6)
+    scratch = np.empty(6)
+    for i in range(n):
+        r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, m1, m2, c, b, g, k2, c2)
+        if mode == AUTO:
+            if (x1 - x2 > 0.0) != (r[0] - r[2] > 0.0):
+                y[0], y[1], y[2], y[3], y[4], y[5] = r
+                _log_event(ev, evn, t0 + (i + 1) * dt, 1.0 if r[0] - r[2] > 0.0 else -1.0, y)
+            x1, v1, x2, v2, we, wd = r
+        elif not _crossed(mode, event_value(r[0], r[1], r[2], r[3], c, b)):
+            x1, v1, x2, v2, we, wd = r
+        else:
+            y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+            rem = dt
+            tt = t0 + i * dt
+            for _ev in range(16):
+                hs = _locate(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
+                for j in range(6):
+                    y[j] = out[j]
+                tt += hs
+                rem -= hs
+                mode = FREE if mode == CONTACT else CONTACT
+                _log_event(ev, evn, tt, 1.0 if mode == CONTACT else -1.0, y)
+                if rem <= EVENT_TOL * dt:
+                    break
+                _trial(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
+                if not _crossed(mode, event_value(out[0], out[1], out[2], out[3], c, b)):
+                    for j in range(6):
+                        y[j] = out[j]
+                    break
+            else:
+                peak[0] = pk
+                return EVENT_OVERFLOW, mode
+            x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
+        # a diverging state stays non-finite, so a check every 64 steps and at the end suffices
+        if (i & 63) == 63 or i == n - 1:
+            s = abs(x1) + abs(x2) + abs(v1) + abs(v2) + abs(we) + abs(wd)
+        else:
+            s = 0.0
+        if not (s < DIVERGENCE_BOUND):
+            y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+            peak[0] = pk
+            return DIVERGED, mode
+        if mode != FREE and x1 > x2:
+            f, _fe = contact_force(x1 - x2, v1 - v2, mode, c, b)
+            if f > pk:
+                pk = f
+    y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+    peak[0] = pk
+    return OK, mode
+
+
+@jit
 def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, peak):
     """Integrate y (float64[6], in place) over ``span`` seconds from time t0 under the constant
     shaker force f2 (N).
@@ -225,8 +296,8 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     peak: float64[1], raised to the largest contact force seen at step ends and events.
     Returns ``(status, mode)``.
     """
-    m1 = p[M1]
-    m2 = p[M2]
+    m1 = 1.0 / p[M1]  # inverse masses from here on
+    m2 = 1.0 / p[M2]
     c = p[C]
     b = p[B]
     g = p[G]
@@ -236,46 +307,7 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     scratch = np.empty(6)
     status = OK
     if method != DOPRI5:
-        n = int(round(span / dt))
-        for i in range(n):
-            ts = t0 + i * dt
-            if mode == AUTO:
-                d_before = y[X1] - y[X2]
-                _trial(method, y, out, scratch, mode, f2, dt, m1, m2, c, b, g, k2, c2)
-                for j in range(6):
-                    y[j] = out[j]
-                d_after = y[X1] - y[X2]
-                if (d_before > 0.0) != (d_after > 0.0):
-                    _log_event(ev, evn, ts + dt, 1.0 if d_after > 0.0 else -1.0, y)
-            else:
-                rem = dt
-                tt = ts
-                for _ev in range(16):
-                    _trial(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
-                    gv = event_value(out[0], out[1], out[2], out[3], c, b)
-                    if not _crossed(mode, gv):
-                        for j in range(6):
-                            y[j] = out[j]
-                        break
-                    hs = _locate(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
-                    for j in range(6):
-                        y[j] = out[j]
-                    tt += hs
-                    rem -= hs
-                    mode = FREE if mode == CONTACT else CONTACT
-                    _log_event(ev, evn, tt, 1.0 if mode == CONTACT else -1.0, y)
-                    if rem <= EVENT_TOL * dt:
-                        break
-                else:
-                    status = EVENT_OVERFLOW
-            if _diverged(y):
-                return DIVERGED, mode
-            f = _force_now(y, mode, p)
-            if f > peak[0]:
-                peak[0] = f
-            if status != OK:
-                return status, mode
-        return status, mode
+        return _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak)
 
     # adaptive Dormand-Prince 5(4)
     err = np.empty(6)
