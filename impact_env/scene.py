@@ -111,14 +111,12 @@ class IntegratorConfig:
 class ControlConfig:
     """Digital control: the law is sampled at ``rate`` and held (zero-order hold) in between."""
 
-    rate: float = _f(1.0e6, "Hz", "control (and recording) rate; must divide the integration grid")
+    rate: float | None = _f(None, "Hz", "control (and default recording) rate; none = every integration "
+                            "step (fixed-step methods only); must divide the integration grid")
 
     def __post_init__(self):
-        check_range("control.rate", self.rate, "Hz", 0.0, 1e8, lo_open=True)
-
-    @property
-    def period(self) -> float:
-        return 1.0 / self.rate
+        if self.rate is not None:
+            check_range("control.rate", self.rate, "Hz", 0.0, 1e8, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -147,15 +145,27 @@ class Scene:
         if self.initial.drop_height is not None and self.initial.drop_height > 0 and self.plant.gravity == 0:
             raise ConfigError("initial.drop_height needs plant.gravity > 0; with no gravity give "
                               "initial.impact_speed (m/s) instead")
-        if self.integrator.method != "dopri5":
-            ratio = self.control.period / self.integrator.dt
+        if self.control.rate is None and self.integrator.method == "dopri5":
+            raise ConfigError("control.rate (Hz) must be given with integrator.method = dopri5, "
+                              "which has no fixed step to sample at")
+        if self.integrator.method != "dopri5" and self.control.rate is not None:
+            ratio = self.control_period / self.integrator.dt
             if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
                 raise ConfigError(
                     f"control.rate = {self.control.rate:g} Hz does not divide the integration grid: "
-                    f"the control period {self.control.period:g} s must be a whole multiple of "
+                    f"the control period {self.control_period:g} s must be a whole multiple of "
                     f"integrator.dt = {self.integrator.dt:g} s")
 
     # -- derived quantities -------------------------------------------------------------
+    @property
+    def control_period(self) -> float:
+        """Control (sample-and-hold) period, s."""
+        return self.integrator.dt if self.control.rate is None else 1.0 / self.control.rate
+
+    @property
+    def control_rate(self) -> float:
+        return 1.0 / self.control_period
+
     @property
     def impact_speed(self) -> float:
         """Speed of body 1 at the first touch, m/s."""

@@ -218,8 +218,8 @@ def simulate(scene: "Scene | str", controller: Controller | None = None, t_end: 
     check_stability(scene)
     integ = scene.integrator
     method = METHOD_CODES[integ.method]
-    ctrl_period = scene.control.period
-    record_rate = scene.control.rate if record_rate is None else float(record_rate)
+    ctrl_period = scene.control_period
+    record_rate = scene.control_rate if record_rate is None else float(record_rate)
     if not (record_rate > 0 and math.isfinite(record_rate)):
         raise ValueError(f"record_rate = {record_rate!r} Hz must be > 0 Hz")
     rec_period = 1.0 / record_rate
@@ -233,7 +233,7 @@ def simulate(scene: "Scene | str", controller: Controller | None = None, t_end: 
         ratio = rec_period / ctrl_period
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
             raise ValueError(f"record_rate = {record_rate:g} Hz must divide control.rate = "
-                             f"{scene.control.rate:g} Hz")
+                             f"{scene.control_rate:g} Hz")
         sub = int(round(ratio))
     n = int(round(t_end / rec_period))
     if n < 1:
