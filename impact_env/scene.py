@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from impact_env.effects_config import EffectsConfig
 from impact_env.config import (
     ConfigError,
     check_choice,
@@ -140,6 +141,7 @@ class Scene:
     integrator: IntegratorConfig = field(default_factory=IntegratorConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    effects: EffectsConfig = field(default_factory=EffectsConfig)
 
     def __post_init__(self):
         if self.initial.drop_height is not None and self.initial.drop_height > 0 and self.plant.gravity == 0:
@@ -155,6 +157,15 @@ class Scene:
                     f"control.rate = {self.control.rate:g} Hz does not divide the integration grid: "
                     f"the control period {self.control_period:g} s must be a whole multiple of "
                     f"integrator.dt = {self.integrator.dt:g} s")
+        self._check_effects_at_rate()
+
+    def _check_effects_at_rate(self) -> None:
+        rate = 1.0 / self.control_period
+        fx = self.effects
+        if fx.on("filters"):
+            fx.filters.check_rate(rate)
+        if fx.on("sensor_delay") or fx.on("actuator_delay"):
+            fx.delay.samples(rate)
 
     # -- derived quantities -------------------------------------------------------------
     @property

@@ -1,0 +1,221 @@
+"""Per-channel digital filters on the sensor readings: Butterworth band-pass or low-pass.
+
+The thesis bandpassed its sensor signals to the band that carries the control information,
+20-1000 Hz (sec 4.3, 5), and notes that the filters' delay limited the controller (sec 4.2).
+Its filter order is not given: ``order = 2`` is an **assumption**.
+
+Design: ``scipy.signal.butter(order, band, btype, output="sos", fs=rate)`` at the control rate.
+``order`` is butter's N: a band-pass of order N has 2N poles (N second-order sections), a
+low-pass ceil(N/2) sections.  For ``kind = "lowpass"`` the cut-off is ``high_hz`` and ``low_hz``
+is ignored; ``kind = "none"`` passes the channel through unchanged.
+
+Run: every channel is a cascade of second-order sections in transposed direct form II, the
+same recursion as ``scipy.signal.sosfilt`` (so the two agree to rounding), with its state kept
+in an explicit float64 array.  Channels with fewer sections are padded with identity sections
+(``[1, 0, 0, 1, 0, 0]``), which pass the signal exactly.
+
+Defaults: accelerometer and force transducer band-pass 20-1000 Hz (thesis); potentiometer and
+body-1 displacement low-pass 1000 Hz (**assumption**: a band-pass would remove the static
+position the controller needs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from impact_env._jit import jit
+from impact_env.config import ConfigError, check_choice, check_range
+from impact_env.effects.sensors import CHANNELS, N_CHANNELS
+
+KINDS = ("bandpass", "lowpass", "none")
+IDENTITY_SECTION = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+
+
+def _f(default, unit: str, doc: str):
+    return field(default=default, metadata={"unit": unit, "doc": doc})
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """One channel's filter.  Subclasses fix the channel (config key and default kind)."""
+
+    _key: ClassVar[str] = ""
+
+    kind: str = _f("bandpass", "", "bandpass | lowpass (cut-off high_hz) | none")
+    low_hz: float = _f(20.0, "Hz", "lower band edge (-3 dB) of the band-pass (thesis sec 4.3: 20 Hz)")
+    high_hz: float = _f(1000.0, "Hz", "upper band edge / low-pass cut-off (thesis sec 4.3: 1000 Hz)")
+    order: int = _f(2, "", "Butterworth order N (band-pass: 2N poles); ASSUMED, thesis gives none")
+
+    @property
+    def path(self) -> str:
+        return f"effects.filters.{self._key}" if self._key else "effects.filter"
+
+    def __post_init__(self):
+        p = self.path
+        check_choice(f"{p}.kind", self.kind, KINDS)
+        check_range(f"{p}.low_hz", self.low_hz, "Hz", 0.0, None, lo_open=True)
+        check_range(f"{p}.high_hz", self.high_hz, "Hz", 0.0, None, lo_open=True)
+        if isinstance(self.order, bool) or not isinstance(self.order, int):
+            raise ConfigError(f"{p}.order must be an integer (1 to 10), got {self.order!r}")
+        check_range(f"{p}.order", self.order, "", 1, 10)
+        if self.kind == "bandpass" and self.low_hz >= self.high_hz:
+            raise ConfigError(f"{p}.low_hz = {self.low_hz:g} Hz is out of range: must be below "
+                              f"{p}.high_hz = {self.high_hz:g} Hz")
+
+    def check_rate(self, rate: float) -> None:
+        """Raise ConfigError unless the band lies below the Nyquist frequency ``rate / 2``."""
+        if self.kind == "none":
+            return
+        nyq = 0.5 * rate
+        for name in (("low_hz", "high_hz") if self.kind == "bandpass" else ("high_hz",)):
+            v = getattr(self, name)
+            if v >= nyq:
+                raise ConfigError(f"{self.path}.{name} = {v:g} Hz is out of range: must be < {nyq:g} Hz, "
+                                  f"the Nyquist frequency at the control rate {rate:g} Hz")
+
+
+@dataclass(frozen=True)
+class AccelerometerFilter(FilterConfig):
+    _key: ClassVar[str] = "accelerometer"
+
+
+@dataclass(frozen=True)
+class ForceFilter(FilterConfig):
+    _key: ClassVar[str] = "force"
+
+
+@dataclass(frozen=True)
+class PotentiometerFilter(FilterConfig):
+    _key: ClassVar[str] = "potentiometer"
+    kind: str = _f("lowpass", "", "bandpass | lowpass (cut-off high_hz) | none; ASSUMED lowpass: keeps DC")
+
+
+@dataclass(frozen=True)
+class Body1DisplacementFilter(FilterConfig):
+    _key: ClassVar[str] = "body1_displacement"
+    kind: str = _f("lowpass", "", "bandpass | lowpass (cut-off high_hz) | none; ASSUMED lowpass: keeps DC")
+
+
+@dataclass(frozen=True)
+class FiltersConfig:
+    """The filter of each sensor channel, in the order of the sensor vector."""
+
+    accelerometer: AccelerometerFilter = field(default_factory=AccelerometerFilter)
+    force: ForceFilter = field(default_factory=ForceFilter)
+    potentiometer: PotentiometerFilter = field(default_factory=PotentiometerFilter)
+    body1_displacement: Body1DisplacementFilter = field(default_factory=Body1DisplacementFilter)
+
+    def channels(self) -> tuple[FilterConfig, ...]:
+        return tuple(getattr(self, name) for name in CHANNELS)
+
+    @property
+    def active(self) -> bool:
+        """False when every channel's kind is ``none`` (the stage can be left out)."""
+        return any(ch.kind != "none" for ch in self.channels())
+
+    def check_rate(self, rate: float) -> None:
+        for ch in self.channels():
+            ch.check_rate(rate)
+
+
+def design_sos(cfg: FilterConfig, rate: float) -> np.ndarray:
+    """Second-order sections float64[n_sections, 6] of one channel's filter at ``rate`` (Hz).
+
+    ``kind = "none"`` gives one identity section.  Raises ConfigError for a band at or above
+    the Nyquist frequency.
+    """
+    from scipy import signal
+
+    check_range("control.rate", rate, "Hz", 0.0, None, lo_open=True)
+    cfg.check_rate(rate)
+    if cfg.kind == "none":
+        return np.array([IDENTITY_SECTION])
+    if cfg.kind == "bandpass":
+        sos = signal.butter(cfg.order, [cfg.low_hz, cfg.high_hz], btype="bandpass", output="sos", fs=rate)
+    else:
+        sos = signal.butter(cfg.order, cfg.high_hz, btype="lowpass", output="sos", fs=rate)
+    return np.ascontiguousarray(sos, dtype=np.float64)
+
+
+def design_filters(cfg: FiltersConfig, rate: float) -> np.ndarray:
+    """float64[N_CHANNELS, n_sections, 6]: every channel's sections, padded with identity sections."""
+    per = [design_sos(ch, rate) for ch in cfg.channels()]
+    n = max(s.shape[0] for s in per)
+    sos = np.empty((N_CHANNELS, n, 6))
+    sos[:] = IDENTITY_SECTION
+    for i, s in enumerate(per):
+        sos[i, : s.shape[0]] = s
+    return sos
+
+
+def make_filter_state(sos: np.ndarray) -> np.ndarray:
+    """Zero state float64[n_channels, n_sections, 2] for the sections ``sos``."""
+    return np.zeros((sos.shape[0], sos.shape[1], 2))
+
+
+def reset_filter_state(state: np.ndarray, sos: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+    """Reset in place: zeros, or (``x0`` given, float64[n_channels]) the steady state for a constant
+    input x0 per channel (``scipy.signal.sosfilt_zi`` scaled), so a constant reading passes without
+    a start-up transient.  Returns ``state``."""
+    if x0 is None:
+        state[:] = 0.0
+        return state
+    from scipy import signal
+
+    x0 = np.asarray(x0, dtype=np.float64)
+    for i in range(sos.shape[0]):
+        state[i] = signal.sosfilt_zi(sos[i]) * x0[i]
+    return state
+
+
+def group_delay_s(cfg: FilterConfig, rate: float, freq_hz: float | np.ndarray | None = None):
+    """Group delay (s) the filter adds at ``freq_hz`` (Hz; default: :func:`passband_centre_hz`).
+
+    Sum of the sections' group delays from ``scipy.signal.group_delay`` (delays of a cascade
+    add), divided by the rate.  Returns a float for a scalar frequency, else an array.
+    """
+    from scipy import signal
+
+    f = passband_centre_hz(cfg) if freq_hz is None else freq_hz
+    fa = np.atleast_1d(np.asarray(f, dtype=np.float64))
+    total = np.zeros_like(fa)
+    for sec in design_sos(cfg, rate):
+        _, gd = signal.group_delay((sec[:3], sec[3:]), w=fa, fs=rate)
+        total += gd
+    total /= rate
+    return float(total[0]) if np.ndim(f) == 0 else total
+
+
+def passband_centre_hz(cfg: FilterConfig) -> float:
+    """Band-pass: geometric centre sqrt(low high) (where a Butterworth band-pass has unit gain);
+    low-pass and none: 0 Hz (DC)."""
+    return float(np.sqrt(cfg.low_hz * cfg.high_hz)) if cfg.kind == "bandpass" else 0.0
+
+
+@jit(inline="always")
+def filter_step(sos, zi, x, out):
+    """One sample through every channel's SOS cascade (transposed direct form II, as sosfilt).
+
+    sos: float64[n_ch, n_sec, 6]; zi: float64[n_ch, n_sec, 2], updated in place;
+    x, out: float64[n_ch].  Returns ``out``.
+    """
+    for c in range(sos.shape[0]):
+        v = x[c]
+        for s in range(sos.shape[1]):
+            y = sos[c, s, 0] * v + zi[c, s, 0]
+            zi[c, s, 0] = sos[c, s, 1] * v - sos[c, s, 4] * y + zi[c, s, 1]
+            zi[c, s, 1] = sos[c, s, 2] * v - sos[c, s, 5] * y
+            v = y
+        out[c] = v
+    return out
+
+
+@jit
+def filter_block(sos, zi, x, out):
+    """:func:`filter_step` over a block: x, out float64[n_steps, n_ch].  Returns ``out``."""
+    for k in range(x.shape[0]):
+        filter_step(sos, zi, x[k], out[k])
+    return out

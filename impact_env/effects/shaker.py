@@ -1,0 +1,147 @@
+"""Shaker (amplifier + electrodynamic exciter) response: force demand (N) -> force on body 2 (N).
+
+Model ``coil`` (default): a voltage amplifier with the exciter's usable band (LDS V406 with
+PA 100E: 5-9000 Hz, thesis sec 4.3) driving the coil, whose current follows the voltage through
+the electrical pole R/L; the force is ``Bl i``.  The command is scaled so that the mid-band gain
+is 1 N/N:
+
+    H(s) = s/(s + w_hp) * w_lp/(s + w_lp) * w_e/(s + w_e),   w_e = R/L
+
+The armature's back-EMF (``Bl v``) is left out: with body 2's speeds (< 1 m/s) and Bl = 14 N/A
+it is below 14 V against the tens of volts the amplifier supplies for 100-200 N; it is the
+first thing to add for a closer model.  The V406's coil values are not in the thesis:
+R = 1 ohm, L = 50 uH (pole at 3.2 kHz), Bl = 14 N/A (98 N at 7 A) are assumptions in the range of
+published small-shaker data, marked as such; replace them with identified values.
+
+Model ``measured``: a response measured on the rig, given as FIR taps at the control rate
+(the thesis convolved its commands with the measured response, sec 4.3).
+
+``inverse_filter`` (both models): the thesis's approximate inverse: the command is pre-filtered by
+``(s + w_e)/w_e * w_i/(s + w_i)`` (w_i = 2 pi inverse_rolloff_hz), which cancels the coil pole and
+keeps the filter proper.
+
+The continuous model is discretised exactly for a zero-order-hold command at the control rate
+(``scipy.signal.cont2discrete``), so the force held over period k is the exact response of the
+continuous model to the held command.  The numba kernel steps a state-space model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+from impact_env._jit import jit
+from impact_env.config import ConfigError, check_choice, check_range
+
+
+def _f(default, unit, doc):
+    return field(default=default, metadata={"unit": unit, "doc": doc})
+
+
+@dataclass(frozen=True)
+class ShakerConfig:
+    enabled: bool = _f(False, "", "model the amplifier/shaker response (off: applied force = demand)")
+    model: str = _f("coil", "", "coil (parametric) | measured (FIR taps)")
+    highpass_hz: float = _f(5.0, "Hz", "lower band edge of amplifier + shaker (V406/PA 100E data: 5 Hz)")
+    lowpass_hz: float = _f(9000.0, "Hz", "upper band edge (V406 data: 9 kHz)")
+    coil_resistance: float = _f(1.0, "ohm", "ASSUMED coil resistance R (not in the thesis)")
+    coil_inductance: float = _f(50e-6, "H", "ASSUMED coil inductance L (not in the thesis); pole R/(2 pi L)")
+    force_factor: float = _f(14.0, "N/A", "ASSUMED Bl (98 N rated at about 7 A)")
+    fir_taps: tuple[float, ...] = _f((), "N/N", "measured impulse response at the control rate (model = measured)")
+    inverse_filter: bool = _f(False, "", "pre-filter the demand by an approximate inverse of the coil pole")
+    inverse_rolloff_hz: float = _f(20000.0, "Hz", "roll-off that keeps the inverse filter proper")
+
+    def __post_init__(self):
+        check_choice("effects.shaker.model", self.model, ("coil", "measured"))
+        check_range("effects.shaker.highpass_hz", self.highpass_hz, "Hz", 0.0)
+        check_range("effects.shaker.lowpass_hz", self.lowpass_hz, "Hz", 0.0, None, lo_open=True)
+        check_range("effects.shaker.coil_resistance", self.coil_resistance, "ohm", 0.0, None, lo_open=True)
+        check_range("effects.shaker.coil_inductance", self.coil_inductance, "H", 0.0, None, lo_open=True)
+        check_range("effects.shaker.force_factor", self.force_factor, "N/A", 0.0, None, lo_open=True)
+        check_range("effects.shaker.inverse_rolloff_hz", self.inverse_rolloff_hz, "Hz", 0.0, None, lo_open=True)
+        if self.highpass_hz >= self.lowpass_hz:
+            raise ConfigError(f"effects.shaker.highpass_hz = {self.highpass_hz:g} Hz must be below "
+                              f"effects.shaker.lowpass_hz = {self.lowpass_hz:g} Hz")
+        if self.model == "measured" and len(self.fir_taps) == 0:
+            raise ConfigError("effects.shaker.fir_taps must hold the measured impulse response "
+                              "when effects.shaker.model = measured")
+
+    @property
+    def electrical_pole_hz(self) -> float:
+        return self.coil_resistance / (2 * np.pi * self.coil_inductance)
+
+
+def continuous_tf(cfg: ShakerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(num, den) of the coil model H(s), force per force demand, mid-band gain 1."""
+    wh = 2 * np.pi * cfg.highpass_hz
+    wl = 2 * np.pi * cfg.lowpass_hz
+    we = cfg.coil_resistance / cfg.coil_inductance
+    if wh > 0:
+        num = np.array([wl * we, 0.0])
+        den = np.polymul(np.polymul([1.0, wh], [1.0, wl]), [1.0, we])
+    else:
+        num = np.array([wl * we])
+        den = np.polymul([1.0, wl], [1.0, we])
+    return num, den
+
+
+def inverse_tf(cfg: ShakerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(num, den) of the approximate inverse pre-filter."""
+    we = cfg.coil_resistance / cfg.coil_inductance
+    wi = 2 * np.pi * cfg.inverse_rolloff_hz
+    return np.array([wi / we, wi]), np.array([1.0, wi])
+
+
+def discrete_model(cfg: ShakerConfig, rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(A, B, C, D) of the discretised shaker (with the inverse pre-filter if enabled) at ``rate``."""
+    if cfg.model == "measured":
+        taps = np.asarray(cfg.fir_taps, dtype=float)
+        n = max(len(taps) - 1, 1)
+        A = np.eye(n, k=-1)  # shift register of the last n inputs
+        B = np.zeros((n, 1))
+        B[0, 0] = 1.0
+        C = np.zeros((1, n))
+        C[0, : len(taps) - 1] = taps[1:]
+        sys_d = (A, B, C, np.array([[taps[0]]]))
+    else:
+        num, den = continuous_tf(cfg)
+        sys_d = signal.cont2discrete(signal.tf2ss(num, den), 1.0 / rate, method="zoh")[:4]
+    if cfg.inverse_filter:
+        ni, di = inverse_tf(cfg)
+        inv = signal.cont2discrete(signal.tf2ss(ni, di), 1.0 / rate, method="bilinear")[:4]
+        sys_d = _series(inv, sys_d)
+    A, B, C, D = (np.ascontiguousarray(np.atleast_2d(m), dtype=float) for m in sys_d)
+    if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
+        raise ConfigError("effects.shaker: the discretised model is not stable at this control rate")
+    return A, B[:, 0].copy(), C[0].copy(), float(D[0, 0])
+
+
+def _series(first, second):
+    """State-space of ``second(first(u))``."""
+    A1, B1, C1, D1 = (np.atleast_2d(m) for m in first)
+    A2, B2, C2, D2 = (np.atleast_2d(m) for m in second)
+    n1, n2 = A1.shape[0], A2.shape[0]
+    A = np.block([[A1, np.zeros((n1, n2))], [B2 @ C1, A2]])
+    B = np.vstack([B1, B2 @ D1])
+    C = np.hstack([D2 @ C1, C2])
+    return A, B, C, D2 @ D1
+
+
+@jit
+def shaker_step(A, B, C, D, x, u):
+    """Force held over this period for the demand u (N); advances the state x in place."""
+    n = x.shape[0]
+    y = D * u
+    for i in range(n):
+        y += C[i] * x[i]
+    xn = np.empty(n)
+    for i in range(n):
+        acc = B[i] * u
+        for j in range(n):
+            acc += A[i, j] * x[j]
+        xn[i] = acc
+    for i in range(n):
+        x[i] = xn[i]
+    return y

@@ -1,0 +1,166 @@
+"""Simulator: a batch of N rigs of one scene, stepped one control period at a time.
+
+The Python layer validates, builds every array the kernel needs from the scene (only the
+stages the scene names are switched on) and draws all randomness from numpy Generators that
+the caller owns; :func:`impact_env.pipeline_kernel.control_step_batch` does the work.
+A single environment is a batch of one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from impact_env import pipeline_kernel as K
+from impact_env.effects.delay import make_delay_state
+from impact_env.effects.detector import detector_params, make_detector_state
+from impact_env.effects.filters import design_filters, make_filter_state
+from impact_env.effects.saturation import saturation_params
+from impact_env.effects.sensors import N_CHANNELS, sensor_params
+from impact_env.effects.shaker import discrete_model
+from impact_env.plant import layout as L
+from impact_env.plant.dynamics import event_value
+from impact_env.plant.energy import catch_energy
+from impact_env.scene import Scene, load_scene
+from impact_env.simulate import METHOD_CODES, _error_scale, check_stability, initial_state, plant_params
+
+NOISE_BLOCK = 256  # control steps of noise drawn at once per env
+
+
+class Simulator:
+    """N copies of a scene's rig.  ``reset(rngs, mask)`` starts drops, ``step(actions)`` advances.
+
+    Attributes after each step (arrays over envs): ``readings`` (float64[N, 4]: accelerometer
+    m/s^2, force transducer N, potentiometer m, body-1 sensor m), ``info`` (float64[N, N_INFO],
+    columns in :mod:`impact_env.pipeline_kernel`), ``Y`` (true state rows x1, v1, x2, v2,
+    W_ext, W_diss), ``t`` (s since the episode start).
+    """
+
+    def __init__(self, scene: "Scene | str", num_envs: int = 1, events_per_env: int = 64):
+        scene = load_scene(scene)
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs = {num_envs!r} must be >= 1")
+        check_stability(scene)
+        self.scene = scene
+        self.n = n = int(num_envs)
+        fx = scene.effects
+        self.period = scene.control_period
+        rate = 1.0 / self.period
+        self.method = METHOD_CODES[scene.integrator.method]
+        self.flags = 0
+        for name, bit in (("actuator_delay", K.F_ACT_DELAY), ("shaker", K.F_SHAKER),
+                          ("saturation", K.F_SATURATION), ("sensors", K.F_SENSORS),
+                          ("filters", K.F_FILTERS), ("sensor_delay", K.F_SENS_DELAY),
+                          ("detector", K.F_DETECTOR)):
+            if fx.on(name):
+                self.flags |= bit
+        self.command_scale = fx.command_scale
+        p = plant_params(scene)
+        self.P = np.tile(p, (n, 1))
+        self.Y = np.zeros((n, L.N_STATE))
+        self.modes = np.zeros(n, dtype=np.int64)
+        self.H = np.zeros((n, 1))
+        self.scale = np.tile(_error_scale(scene, p), (n, 1))
+        self.EV = np.zeros((n, events_per_env, L.N_EVENT_COLS))
+        self.EVN = np.zeros((n, 1), dtype=np.int64)
+        k_sens, k_act = fx.delay.samples(rate)
+        self.act_buf = np.zeros((n, k_act if fx.on("actuator_delay") else 0, 1))
+        self.act_head = np.zeros((n, 1))
+        if fx.on("shaker"):
+            A, B, C, D = discrete_model(fx.shaker, rate)
+        else:
+            A, B, C, D = np.zeros((1, 1)), np.zeros(1), np.zeros(1), 0.0
+        self.sh = (A, B, C, float(D))
+        self.sh_X = np.zeros((n, A.shape[0]))
+        self.sat_params = saturation_params(fx.saturation, rate)
+        self.sat_state = np.zeros((n, 2))
+        self.sens_params = sensor_params(fx.sensors)
+        self.top_mass = fx.sensors.force.top_mass
+        self.sos = design_filters(fx.filters, rate) if fx.on("filters") else np.zeros((N_CHANNELS, 1, 6))
+        self.filt_state = np.zeros((n,) + make_filter_state(self.sos).shape)
+        self.sd_buf = np.zeros((n, k_sens if fx.on("sensor_delay") else 0, N_CHANNELS))
+        self.sd_head = np.zeros((n, 1))
+        self.det_params = detector_params(fx.detector, rate)
+        self.det_state = np.zeros((n, 2))
+        self.readings = np.zeros((n, N_CHANNELS))
+        self.info = np.zeros((n, K.N_INFO))
+        self.t = np.zeros(n)
+        self.t_touch = np.zeros(n)
+        self.impact_energy = np.ones(n)
+        self._noise = np.zeros((n, NOISE_BLOCK, N_CHANNELS))
+        self._cursor = np.full(n, NOISE_BLOCK)
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        self._z = np.zeros((n, N_CHANNELS))
+
+    # -- episodes --------------------------------------------------------------------------
+    def reset(self, rngs, mask=None) -> None:
+        """Start a new drop in the envs where ``mask`` is true (all if None); ``rngs[i]`` is env
+        i's Generator (sensor noise and, for randomised scenes, the drop)."""
+        idx = range(self.n) if mask is None else np.nonzero(mask)[0]
+        y0, t_touch = initial_state(self.scene)
+        p = self.P[0]
+        mode0 = L.AUTO
+        if self.scene.integrator.event_location or self.scene.integrator.method == "dopri5":
+            mode0 = L.CONTACT if event_value(y0[0], y0[1], y0[2], y0[3], p[L.C], p[L.B]) > 0 else L.FREE
+            if not self.scene.integrator.event_location:
+                mode0 = L.AUTO
+        e0 = float(catch_energy(y0[0], y0[1], y0[2], p[L.M1], p[L.C], p[L.G]))
+        for i in idx:
+            self._rngs[i] = rngs[i]
+            self.Y[i] = y0
+            self.modes[i] = mode0
+            self.H[i] = 0.0
+            self.EVN[i] = 0
+            self.EV[i] = 0.0
+            self.act_buf[i] = 0.0
+            self.act_head[i] = 0.0
+            self.sh_X[i] = 0.0
+            self.sat_state[i] = 0.0
+            self.filt_state[i] = 0.0
+            self.sd_buf[i] = 0.0
+            self.sd_head[i] = 0.0
+            self.det_state[i] = 0.0
+            self.t[i] = 0.0
+            self.t_touch[i] = t_touch
+            self.impact_energy[i] = max(e0, 1e-300)
+            self._cursor[i] = NOISE_BLOCK
+            self.info[i] = 0.0
+        self._refresh_readings(idx)
+
+    def _refresh_readings(self, idx) -> None:
+        """Readings at the reset state: the true values passed through a zero-action step's
+        sensor stages would advance time; instead report the true, noise-free values."""
+        for i in idx:
+            y = self.Y[i]
+            self.readings[i] = (0.0, 0.0, y[L.X2], y[L.X1])
+
+    def _draw_noise(self) -> np.ndarray:
+        if self.flags & K.F_SENSORS:
+            for i in np.nonzero(self._cursor >= NOISE_BLOCK)[0]:
+                self._noise[i] = self._rngs[i].standard_normal((NOISE_BLOCK, N_CHANNELS))
+                self._cursor[i] = 0
+            self._z[:] = self._noise[np.arange(self.n), self._cursor]
+            self._cursor += 1
+        return self._z
+
+    def step(self, actions: np.ndarray) -> None:
+        """Advance every env by one control period; ``actions`` float64[N] in [-1, 1]."""
+        a = np.ascontiguousarray(actions, dtype=np.float64).reshape(self.n)
+        z = self._draw_noise()
+        A, B, C, D = self.sh
+        K.control_step_batch(a, 0.0, self.period, self.flags, self.command_scale,
+                             self.Y, self.modes, self.P, self.H, self.method, self.scene.integrator.dt,
+                             self.scene.integrator.rtol, self.scale, self.EV, self.EVN,
+                             self.act_buf, self.act_head, A, B, C, D, self.sh_X,
+                             self.sat_params, self.sat_state, self.sens_params, self.top_mass, z,
+                             self.sos, self.filt_state, self.sd_buf, self.sd_head,
+                             self.det_params, self.det_state, self.readings, self.info)
+        self.t += self.period
+
+    # -- derived readings ---------------------------------------------------------------------
+    def catch_energy(self) -> np.ndarray:
+        """Body 1's catch energy per env (J)."""
+        P = self.P
+        return catch_energy(self.Y[:, L.X1], self.Y[:, L.V1], self.Y[:, L.X2], P[:, L.M1], P[:, L.C], P[:, L.G])
+
+    def diverged(self) -> np.ndarray:
+        return (self.info[:, K.I_STATUS] != L.OK) | ~np.all(np.isfinite(self.Y), axis=1)
