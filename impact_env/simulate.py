@@ -57,7 +57,7 @@ def initial_state(scene: Scene) -> tuple[np.ndarray, float]:
     g = scene.plant.gravity
     v = scene.impact_speed
     tau = scene.initial.pre_contact_time
-    if scene.initial.drop_height is not None and g > 0:
+    if g > 0:  # a body released from rest has fallen for v/g only
         tau = min(tau, v / g)
     y = np.zeros(L.N_STATE)
     y[L.X1] = -(v * tau - 0.5 * g * tau * tau)
