@@ -1,0 +1,345 @@
+"""Hard cases for the plant: stiff and soft pads, light and heavy bodies, tiny and tall drops,
+grazing contact, a body resting for 10 s, 100 kN shaker forces, and steps beyond stability.
+
+Every case either ends finite and matches a reference (closed-form Hertz, a static
+equilibrium, or ``naive.reference_drop``: solve_ivp DOP853 at rtol 1e-12 with event
+restarts) to the tolerance stated next to it, or, with a fixed step beyond the stability
+limit, raises ValueError before simulating or SimulationDiverged while simulating; a NaN
+never comes back.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import impact_env
+from impact_env import SimulationDiverged
+from impact_env.plant import hertz
+from impact_env.simulate import STABILITY_LIMIT, initial_state, plant_params
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from naive import Params, hertz_drop, reference_drop, sim_overrides  # noqa: E402
+
+G = 9.81
+
+
+def rel(a: float, b: float) -> float:
+    return abs(a - b) / abs(b)
+
+
+def finite(tr) -> bool:
+    return all(np.isfinite(getattr(tr, k)).all() for k in ("x1", "v1", "x2", "v2", "work_shaker",
+                                                          "dissipated", "contact_force", "events"))
+
+
+def check_hertz(tr, m, c, v, tc, tol_time=1e-8, tol_force=1e-6):
+    """Closed-form Hertz at gravity 0.  Contact time, restitution and d_max are at rounding
+    level for both methods at t_c/dt >= 2000 (measured <= 2e-11); the peak force is sampled at
+    step ends, which misses the top by up to ~(pi dt / 2 t_c)^2 / 2 (measured <= 1e-7)."""
+    assert finite(tr)
+    mt = tr.metrics()
+    assert mt["n_contacts"] == 1
+    assert rel(mt["first_contact_duration_s"], tc) < tol_time
+    assert abs(mt["restitution"] - 1.0) < tol_time
+    assert rel(mt["max_penetration_m"], hertz.max_penetration(m, c, v)) < tol_time
+    assert rel(mt["peak_contact_force_N"], hertz.peak_force(m, c, v)) < tol_force
+
+
+# --------------------------------------------------------------------------------------------
+# stiff and soft pads, light and heavy bodies (gravity 0: closed form)
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("c", [1e4, 1e6, 1e8, 1e10, 1e11])
+def test_stiff_and_soft_pads(c, method):
+    """c from 1e4 to 1e11 N/m^1.5 (contact 31 ms to 49 us); rk4's step scales with t_c."""
+    tr, m, tc, _dt = hertz_drop(0.1, 1.0, c, 1.0, method, rtol=1e-10)
+    check_hertz(tr, m, c, 1.0, tc)
+
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("m1,m2", [(1e-3, 1e-3), (1e-3, 10.0), (10.0, 1e-3), (10.0, 10.0),
+                                   (10.0, 1e6)])
+def test_light_and_heavy_bodies(m1, m2, method):
+    """1 g to 10 kg (and a 1000 t anvil): mass ratios 1e-4 to 1e8."""
+    tr, m, tc, _dt = hertz_drop(m1, m2, 2e6, 1.0, method, rtol=1e-10)
+    check_hertz(tr, m, 2e6, 1.0, tc)
+
+
+def test_fixed_step_not_scaled_to_a_stiff_contact():
+    """RK4 at the default 1 us on c = 1e11 (t_c = 49 us, 49 steps a contact): stable (omega dt
+    = 0.08) and still accurate to a few 1e-6 (measured: contact time 9e-7, restitution 1.5e-6,
+    d_max 2.7e-6 from a parabola through the 1 us records, peak force 7e-4 from sampling the
+    top at 1 us)."""
+    ov = sim_overrides("rk4", plant_c=1e11, plant_gravity=0.0, initial_impact_speed=1.0,
+                       initial_pre_contact_time=1e-5)
+    tr = impact_env.simulate("ideal", t_end=1e-4, overrides=ov)
+    m = 1 / 11
+    check_hertz(tr, m, 1e11, 1.0, hertz.contact_time(m, 1e11, 1.0), tol_time=1e-5, tol_force=3e-3)
+
+
+# --------------------------------------------------------------------------------------------
+# drops from 0.1 mm to 2 m (gravity on: solve_ivp reference)
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("height", [1e-4, 1e-2, 2.0])
+def test_drop_heights(height, method):
+    """First contact of a drop from 0.1 mm (gravity is 40 % of the peak pad force) to 2 m
+    (6.3 m/s) against solve_ivp: restitution, contact time, d_max, peak force and the state
+    0.5 t_c after the separation.  Measured <= 1.1e-10 (restitution, contact time, d_max),
+    <= 2e-10 (state, relative to d_max and v), <= 2.2e-7 (peak force, sampled at 1 us steps
+    and records); tolerances about 10x that."""
+    v = math.sqrt(2 * G * height)
+    m = 1.0 / 11.0
+    tc = hertz.contact_time(m, 2e6, v)
+    ov = sim_overrides(method, rtol=1e-10, initial_drop_height=height)
+    scene = impact_env.load_scene("ideal", ov)
+    y0, t_touch = initial_state(scene)
+    t_end = round((t_touch + 1.5 * tc) * 1e6) * 1e-6
+    ref = reference_drop(Params.from_array(plant_params(scene)), y0, t_end)
+    tr = impact_env.simulate(scene, t_end=t_end, record_rate=1e6)
+    assert finite(tr)
+    assert tr.events[:, 1].tolist() == ref.events[:, 1].tolist() == [1.0, -1.0]
+    assert abs(tr.restitution() - ref.restitution()) < 1e-9
+    assert rel(tr.first_contact_duration(), ref.first_contact_duration()) < 1e-9
+    assert rel(tr.max_penetration(), ref.max_penetration) < 1e-9
+    assert rel(tr.metrics()["peak_contact_force_N"], ref.peak_force) < 3e-6
+    dmax = hertz.max_penetration(m, 2e6, v)
+    y = np.array([tr.x1[-1], tr.v1[-1], tr.x2[-1], tr.v2[-1]])
+    assert np.all(np.abs(y - ref.y_end[:4]) / np.array([dmax, v, dmax, v]) < 1e-8)
+
+
+# --------------------------------------------------------------------------------------------
+# grazing contact
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("v", [1e-6, 1e-4])
+def test_grazing_impact_closed_form(v, method):
+    """Impact at 1 um/s (d_max = 22 nm, a 65 ms contact) at the default 1 us step: still
+    Hertz to 1e-8 (measured 1e-12; the peak force to 3e-10)."""
+    m = 1.0 / 11.0
+    tc = hertz.contact_time(m, 2e6, v)
+    ov = sim_overrides(method, rtol=1e-10, control_rate=1e5, plant_gravity=0.0,
+                       initial_impact_speed=v, initial_pre_contact_time=1e-4)
+    tr = impact_env.simulate("ideal", t_end=round(1.2 * tc, 5), record_rate=1e5, overrides=ov)
+    check_hertz(tr, m, 2e6, v, tc)
+
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "euler", "symplectic-euler"])
+def test_touching_at_zero_speed_without_gravity_stays_put(method):
+    """Surfaces touching, nothing moving, no gravity: exactly nothing happens."""
+    ov = sim_overrides(method, control_rate=1e4, plant_gravity=0.0, initial_impact_speed=0.0)
+    tr = impact_env.simulate("ideal", t_end=0.05, record_rate=1e4, overrides=ov)
+    assert len(tr.events) == 0
+    for k in ("x1", "v1", "x2", "v2", "contact_force", "work_shaker", "dissipated"):
+        assert np.all(getattr(tr, k) == 0.0), k
+
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+def test_grazing_landing_with_gravity(method):
+    """A 1 pm drop (4.4 um/s at the touch) under gravity: body 1 settles into an oscillation
+    between d = 0 and 1.84 d_static, leaving the pad each period for a hop of only
+    2 v / g = 0.9 us; the relative motion is conservative, so every hop must last that long.
+    A hop shorter than a step is seen only if a step ends inside it: rk4's 1 us grid catches
+    both hops in 30 ms here, dopri5's long steps (like solve_ivp's) step over them, which
+    changes nothing measurable.  The state at 30 ms matches solve_ivp to 1e-8 of d_static
+    and the impact speed (measured 7e-10)."""
+    h = 1e-12
+    v = math.sqrt(2 * G * h)
+    ov = sim_overrides(method, rtol=1e-10, control_rate=1e5, initial_drop_height=h)
+    scene = impact_env.load_scene("ideal", ov)
+    y0, _ = initial_state(scene)
+    ref = reference_drop(Params.from_array(plant_params(scene)), y0, 0.03)
+    tr = impact_env.simulate(scene, t_end=0.03, record_rate=1e5)
+    assert finite(tr)
+    kinds = tr.events[:, 1].tolist()
+    assert kinds[0] == 1.0 and all(a == -b for a, b in zip(kinds, kinds[1:]))
+    seps = np.nonzero(tr.events[:, 1] < 0)[0]
+    if method == "rk4":
+        assert len(seps) == 2  # one hop per period of about 13 ms
+    for k in seps:
+        dd = tr.events[k, 3] - tr.events[k, 5]  # relative speed at separation (< 0)
+        assert rel(-dd, v) < 1e-4  # the relative motion is conservative
+        hop = tr.events[k + 1, 0] - tr.events[k, 0]
+        assert rel(hop, 2 * -dd / G) < 1e-6
+    ds = scene.plant.static_penetration
+    y = np.array([tr.x1[-1], tr.v1[-1], tr.x2[-1], tr.v2[-1]])
+    assert np.all(np.abs(y - ref.y_end[:4]) / np.array([ds, v, ds, v]) < 1e-8)
+
+
+def test_small_impact_speed_with_gravity_starts_clear_of_the_pad():
+    ov = sim_overrides("rk4", initial_impact_speed=1e-6)
+    tr = impact_env.simulate("ideal", t_end=2e-3, record_rate=1e5, overrides=ov)
+    assert tr.x1[0] <= tr.x2[0]
+    on = tr.onsets()
+    assert len(on) >= 1 and abs(on[0, 3] - 1e-6) < 1e-9
+
+
+# --------------------------------------------------------------------------------------------
+# body 1 resting on body 2 for 10 s
+# --------------------------------------------------------------------------------------------
+
+def resting(method, restitution, c2):
+    dt = 1e-5 if method == "rk4" else 1e-6
+    ov = sim_overrides(method, dt=dt, rtol=1e-10, control_rate=1e3 if method == "dopri5" else 1 / dt,
+                       initial_drop_height=0.0, plant_suspension_stiffness=1e4,
+                       plant_suspension_damping=c2, plant_restitution=restitution)
+    return impact_env.simulate("ideal", t_end=10.0, record_rate=1e3, overrides=ov)
+
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+def test_resting_damped_settles_to_static_equilibrium(method):
+    """Released touching (drop height 0) on a damped pad (e = 0.5) and a damped suspension:
+    after 10 s body 1 rests at d_static = (m1 g / c)^(2/3) with body 2 at m1 g / k2 (measured
+    to 1e-14; tolerance 1e-9), in contact all along."""
+    tr = resting(method, 0.5, 20.0)
+    assert finite(tr)
+    pl = tr.scene.plant
+    assert tr.events[:, 1].tolist() == [1.0]
+    assert rel(tr.x1[-1] - tr.x2[-1], pl.static_penetration) < 1e-9
+    assert rel(tr.x2[-1], pl.m1 * pl.gravity / pl.suspension_stiffness) < 1e-9
+    assert abs(tr.v1[-1]) < 1e-9 and abs(tr.v2[-1]) < 1e-9
+    assert tr.energy_balance_error() < 1e-6  # measured 1e-11 (rk4), 4e-10 (dopri5)
+
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+def test_resting_elastic_keeps_its_energy_for_10s(method):
+    """The same without damping: body 1 oscillates on the pad for 10 s (about 800 periods)
+    between d = 0 and 1.84 d_static.  The energy ledger closes to 1e-8 (rk4, measured 2e-10)
+    or 1e-5 (dopri5 rtol 1e-10, measured 8e-7) of the catch energy; the state at 100 ms
+    matches solve_ivp to 1e-9 (rk4 10 us, measured 3.5e-10) or 2e-7 (dopri5, measured 2.3e-8)
+    of d_static and 1 cm/s."""
+    tr = resting(method, 1.0, 0.0)
+    assert finite(tr)
+    ds = tr.scene.plant.static_penetration
+    d = tr.x1 - tr.x2
+    assert d.min() > -1e-12 * ds and d.max() < 1.85 * ds
+    assert tr.energy_balance_error() < (1e-8 if method == "rk4" else 1e-5)
+    y0, _ = initial_state(tr.scene)
+    ref = reference_drop(Params.from_array(tr.params), y0, 0.1)
+    y = np.array([tr.x1[100], tr.v1[100], tr.x2[100], tr.v2[100]])
+    tol = 1e-9 if method == "rk4" else 2e-7
+    assert np.all(np.abs(y - ref.y_end[:4]) / np.array([ds, 0.01, ds, 0.01]) < tol)
+
+
+# --------------------------------------------------------------------------------------------
+# 100 kN shaker forces
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("force", [1e5, -1e5])
+def test_shaker_100kN(force, method):
+    """+1e5 N drives body 2 into body 1 and both to 500 m/s in 5 ms (three contact events);
+    -1e5 N pulls body 2 away before the touch.  The states at 0.1 ms records match solve_ivp
+    under the same constant force, relative to each variable's range (measured 3e-12 rk4,
+    5e-10 dopri5 rtol 1e-10), and the energy ledger closes relative to the shaker's work."""
+    ov = sim_overrides(method, rtol=1e-10, control_rate=1e4, initial_impact_speed=1.0)
+    tr = impact_env.simulate("ideal", controller=lambda t, y: force, t_end=5e-3, record_rate=1e4,
+                             overrides=ov)
+    assert finite(tr)
+    y0, _ = initial_state(tr.scene)
+    ref = reference_drop(Params.from_array(tr.params), y0, 5e-3, f2=force, t_eval=tr.t)
+    got = np.column_stack([tr.x1, tr.v1, tr.x2, tr.v2])
+    scale = np.abs(ref.y[:, :4]).max(axis=0)
+    assert np.all(np.abs(got - ref.y[:, :4]) <= (1e-10 if method == "rk4" else 1e-8) * scale)
+    assert tr.events[:, 1].tolist() == ref.events[:, 1].tolist()
+    e = tr.energies()["total"]
+    resid = e + tr.dissipated - tr.work_shaker - e[0]
+    assert np.abs(resid).max() < 1e-10 * np.abs(tr.work_shaker).max()
+    if force < 0:
+        t = tr.t  # body 2 in free flight from rest: x2 = (f/m2) t^2 / 2
+        np.testing.assert_allclose(tr.x2, 0.5 * (-force / 1.0) * t * t, rtol=1e-12, atol=1e-18)
+        assert len(tr.events) == 0
+
+
+# --------------------------------------------------------------------------------------------
+# fixed steps beyond the stability limit
+# --------------------------------------------------------------------------------------------
+
+STIFF = dict(plant_m1=1e-3, plant_m2=1e-3, plant_c=1e11, initial_impact_speed=1.0,
+             initial_pre_contact_time=1e-5)  # t_c = 6 us
+
+
+def stiff_limit(method):
+    """Largest stable step for the STIFF drop (s): the method's omega*dt limit over the
+    frequency of the Hertz contact at its deepest."""
+    m = 0.5e-3
+    d = hertz.max_penetration(m, 1e11, 1.0)
+    return STABILITY_LIMIT[method] / hertz.max_contact_frequency(m, 1e11, d)
+
+
+@pytest.mark.parametrize("method", ["euler", "symplectic-euler", "rk4"])
+def test_step_beyond_stability_is_refused_up_front(method):
+    dt = 1.2 * stiff_limit(method)
+    with pytest.raises(ValueError, match="integrator.dt"):
+        impact_env.simulate("ideal", t_end=200 * dt, overrides=sim_overrides(method, dt=dt, **STIFF))
+    # just inside the limit the run goes ahead and ends finite (however inaccurate)
+    dt = 0.8 * stiff_limit(method)
+    tr = impact_env.simulate("ideal", t_end=200 * dt, overrides=sim_overrides(method, dt=dt, **STIFF))
+    assert finite(tr) and tr.events[:2, 1].tolist() == [1.0, -1.0]
+
+
+def test_shaker_pushing_past_stability_raises_diverged():
+    """The drop alone passes the up-front check at dt = 4 us (omega dt = 2.6 < 2.83), but a
+    100 kN push presses the pad deeper, where omega dt = 6: RK4 blows up, and simulate says so
+    with the last finite state instead of returning NaN."""
+    dt = 4e-6
+    assert dt < stiff_limit("rk4")
+    with pytest.raises(SimulationDiverged) as err:
+        impact_env.simulate("ideal", controller=lambda t, y: 1e5, t_end=2e-3, record_rate=1 / (50 * dt),
+                            overrides=sim_overrides("rk4", dt=dt, **STIFF))
+    assert np.all(np.isfinite(err.value.state)) and math.isfinite(err.value.t)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(method=st.sampled_from(["euler", "symplectic-euler", "rk4", "dopri5"]),
+       logc=st.floats(4.0, 11.0), logm1=st.floats(-3.0, 1.0), logm2=st.floats(-3.0, 1.0),
+       v=st.floats(0.0, 5.0), factor=st.floats(0.05, 3.0),
+       force=st.sampled_from([0.0, 1e5, -1e5, "sine"]))
+def test_never_nan(method, logc, logm1, logm2, v, factor, force):
+    """Random pads, bodies, speeds, steps (a factor of the stability limit) and forces up to
+    100 kN: a step beyond the limit is refused up front, and every run either raises
+    SimulationDiverged or comes back finite."""
+    m1, m2, c = 10.0**logm1, 10.0**logm2, 10.0**logc
+    m = m1 * m2 / (m1 + m2)
+    # the stiffest contact the drop excites (as simulate's up-front check sees it)
+    d = max(hertz.max_penetration(m, c, v) if v > 0 else 0.0, (m1 * G / c) ** (2 / 3))
+    omega = hertz.max_contact_frequency(m, c, d)
+    if method == "dopri5":
+        dt = 1e-6
+        ratio = 0.0
+    else:
+        dt = min(max(factor * STABILITY_LIMIT[method] / omega, 1e-8), 1e-3)
+        ratio = dt * omega / STABILITY_LIMIT[method]  # factor, unless dt was clamped
+    tc = hertz.contact_time(m, c, max(v, 1e-3))
+    n = 400
+    ctrl = None
+    if force == "sine":
+        def ctrl(t, y):
+            return 1e5 * math.sin(2 * math.pi * t / (n * dt))
+    elif force:
+        def ctrl(t, y):
+            return force
+    ov = sim_overrides(method, dt=dt, rtol=1e-8, control_rate=1 / dt, plant_m1=m1, plant_m2=m2,
+                       plant_c=c, initial_impact_speed=v,
+                       initial_pre_contact_time=min(0.1 * tc, 10.0))
+    try:
+        tr = impact_env.simulate("ideal", controller=ctrl, t_end=n * dt, record_rate=1 / (10 * dt),
+                                 overrides=ov)
+    except SimulationDiverged as err:
+        assert np.all(np.isfinite(err.state)) and math.isfinite(err.t)
+        return
+    except ValueError as err:
+        assert ratio > 0.999 and "integrator.dt" in str(err), str(err)
+        return
+    assert ratio <= 1.001
+    assert finite(tr)
