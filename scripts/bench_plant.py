@@ -4,7 +4,8 @@
    run (the ideal drop from 5 cm, bouncing on a free body 2), timed
    two ways: calling the kernel ``impact_env.plant.integrators.advance`` directly on one
    span, and through ``impact_env.simulate`` on a prebuilt Scene (its ``wall_time_s``: the
-   compiled loop only, and the whole call).  The run is recorded 10 times, so recording costs nothing.  dopri5 is reported per simulated second.
+   compiled loop only, and the whole call).  The run is recorded 10 times, so recording
+   costs nothing.  dopri5 is reported per simulated second.
 2. Equal accuracy: for one elastic collision (gravity 0, the ideal rig: m1 = 0.1 kg,
    m2 = 1 kg, c = 2e6 N/m^1.5, 1 m/s) the cheapest setting of rk4+events (dt), dopri5 (rtol)
    and scipy's ``solve_ivp`` DOP853 with event restarts (rtol; ``tests/naive.py``) that
@@ -13,7 +14,7 @@
 Timings are the minimum over repeats after a warm-up call (numba compiles on first use).
 The issue's goal is RK4 >= 40 M substeps/s on one core; this script reports what it measures.
 
-    .venv/bin/python scripts/bench_plant.py            # about a minute
+    .venv/bin/python scripts/bench_plant.py            # about 5 s
     .venv/bin/python scripts/bench_plant.py --quick    # a few seconds
 """
 
@@ -32,12 +33,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from naive import Params, free_fall_start, reference_drop, sim_overrides  # noqa: E402
+
 import impact_env  # noqa: E402
 from impact_env.plant import layout as L  # noqa: E402
 from impact_env.plant.hertz import contact_time  # noqa: E402
 from impact_env.plant.integrators import advance  # noqa: E402
 from impact_env.simulate import METHOD_CODES, initial_state, plant_params  # noqa: E402
-from naive import Params, free_fall_start, reference_drop, sim_overrides  # noqa: E402
 
 FIXED = [("euler", True), ("euler", False), ("symplectic-euler", True), ("symplectic-euler", False),
          ("rk4", True), ("rk4", False)]
@@ -208,7 +210,8 @@ def main(argv=None) -> int:
         r = next(x for x in acc if x["method"] == name)
         print(f"{name} / solve_ivp wall-time ratio at equal accuracy: {r['call'] / ref['call']:.4f} "
               f"(simulate() call on a prebuilt scene; compiled loop alone {r['kernel'] / ref['call']:.4f})")
-    print(f"(building the Scene from the preset and 7 overrides adds {scene_build_time(repeats) * 1e3:.1f} ms "
+    build_ms = scene_build_time(repeats) * 1e3
+    print(f"(building the Scene from the preset and 7 overrides adds {build_ms:.1f} ms "
           "per call when simulate() is given overrides)")
     return 0
 

@@ -38,7 +38,7 @@ class Params:
     c2: float = 0.0
 
     @classmethod
-    def from_array(cls, p) -> "Params":
+    def from_array(cls, p) -> Params:
         """From the plant's parameter array (``Trajectory.params``)."""
         from impact_env.plant import layout as L
 

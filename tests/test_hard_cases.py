@@ -162,7 +162,7 @@ def test_grazing_landing_with_gravity(method):
     tr = impact_env.simulate(scene, t_end=0.03, record_rate=1e5)
     assert finite(tr)
     kinds = tr.events[:, 1].tolist()
-    assert kinds[0] == 1.0 and all(a == -b for a, b in zip(kinds, kinds[1:]))
+    assert kinds[0] == 1.0 and all(a == -b for a, b in zip(kinds[:-1], kinds[1:], strict=True))
     seps = np.nonzero(tr.events[:, 1] < 0)[0]
     if method == "rk4":
         assert len(seps) == 2  # one hop per period of about 13 ms
@@ -177,6 +177,9 @@ def test_grazing_landing_with_gravity(method):
 
 
 def test_small_impact_speed_with_gravity_starts_clear_of_the_pad():
+    """impact_speed = 1 um/s under gravity: the free fall is never extrapolated past the
+    release (v / g = 0.1 us before the touch), so body 1 starts above the pad and touches at
+    the requested speed (before the fix it started 4.9 um inside the pad, moving up)."""
     ov = sim_overrides("rk4", initial_impact_speed=1e-6)
     tr = impact_env.simulate("ideal", t_end=2e-3, record_rate=1e5, overrides=ov)
     assert tr.x1[0] <= tr.x2[0]

@@ -111,10 +111,10 @@ def test_kernel_matches_naive_stepper(method):
     ref = naive.run_fixed(y0, p, dt, 5000, method, f2=ctrl, control_every=4)[::4]
     got = state(tr)
     assert got.shape == ref.shape
-    if method == "symplectic-euler":
-        # the kernel books the shaker's work as -f2 * (x2 update), exact for the discrete motion;
-        # the naive stepper books h * (-f2 v2_old): the ledgers differ by design, the motion not
-        got, ref = got[:, :4], ref[:, :4]
+    # all six columns, the shaker-work ledger included: both book -f2 times the x2 update,
+    # which for symplectic Euler is -f2 h v2_new.  (A W_ext that lags one step here, about
+    # 1e-3 of its range, is what a stale numba cache of run.run_periods, compiled before
+    # integrators.py booked the work that way, produces: see impact_env._jit.)
     scale = np.abs(ref).max(axis=0)
     assert np.all(np.abs(got - ref) <= 1e-12 * scale), np.abs(got - ref).max(axis=0) / scale
     # one touch and one separation, logged at the end of the straddling step
@@ -146,7 +146,7 @@ def test_advance_matches_naive_stepper(method):
     cross = np.nonzero((d[1:] > 0) != (d[:-1] > 0))[0] + 1
     assert evn[0] == len(cross) >= 2
     np.testing.assert_allclose(ev[: evn[0], 0], cross * dt, rtol=1e-13)
-    for row, k in zip(ev[: evn[0]], cross):
+    for row, k in zip(ev[: evn[0]], cross, strict=True):
         assert row[1] == (1.0 if d[k] > 0 else -1.0)
         assert np.all(np.abs(row[2:6] - ref[k, :4]) <= 1e-12 * scale[:4])
     forces = [naive.pad_force(r[0] - r[2], r[1] - r[3], p)[0] for r in ref[1:]]
