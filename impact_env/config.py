@@ -10,10 +10,16 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
-import tomllib
 import types
 import typing
 from typing import Any
+
+import tomllib
+
+
+def doc_field(default, unit: str, doc: str):
+    """A dataclass field whose unit and documentation ``scene show`` prints beside the value."""
+    return dataclasses.field(default=default, metadata={"unit": unit, "doc": doc})
 
 
 class ConfigError(ValueError):

@@ -20,7 +20,7 @@ from impact_env.effects.sensors import sense, true_readings
 from impact_env.effects.shaker import shaker_step
 from impact_env.plant.dynamics import contact_force, deriv
 from impact_env.plant.integrators import advance
-from impact_env.plant.layout import AUTO, B, C, C2, G, K2, M1, M2, OK
+from impact_env.plant.layout import AUTO, C2, K2, M1, M2, B, C, G
 
 # flag bits
 F_ACT_DELAY = 1

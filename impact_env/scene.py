@@ -18,22 +18,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from impact_env.effects_config import EffectsConfig
 from impact_env.config import (
     ConfigError,
     check_choice,
     check_range,
+    doc_field,
     dumps_toml,
     from_dict,
     to_dict,
     with_overrides,
 )
+from impact_env.effects_config import EffectsConfig
 
 METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
 
 
-def _f(default, unit: str, doc: str):
-    return field(default=default, metadata={"unit": unit, "doc": doc})
+_f = doc_field
 
 
 @dataclass(frozen=True)
@@ -184,7 +184,7 @@ class Scene:
             return self.initial.impact_speed
         return math.sqrt(2.0 * self.plant.gravity * self.initial.drop_height)
 
-    def with_overrides(self, overrides: dict[str, Any] | None = None, **kw) -> "Scene":
+    def with_overrides(self, overrides: dict[str, Any] | None = None, **kw) -> Scene:
         """A copy with dotted keys set, e.g. ``{"plant.m1": 0.05, "integrator.method": "dopri5"}``.
 
         String values are parsed as TOML values (``"1e-6"`` -> 1e-6).
@@ -217,7 +217,7 @@ def scene_from_dict(data: dict) -> Scene:
     return from_dict(Scene, data)
 
 
-def load_scene(spec: "str | Path | Scene | dict", overrides: dict[str, Any] | None = None) -> Scene:
+def load_scene(spec: str | Path | Scene | dict, overrides: dict[str, Any] | None = None) -> Scene:
     """A scene from a preset name, a TOML path, a dict or a Scene, with dotted overrides applied."""
     from impact_env.presets import PRESETS
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -200,7 +200,7 @@ class Trajectory:
 Controller = Callable[[float, np.ndarray], float]
 
 
-def simulate(scene: "Scene | str", controller: Controller | None = None, t_end: float | None = None,
+def simulate(scene: Scene | str, controller: Controller | None = None, t_end: float | None = None,
              record_rate: float | None = None, max_events: int = 100_000, overrides=None) -> Trajectory:
     """Simulate one drop.
 

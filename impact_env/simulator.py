@@ -11,8 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from impact_env import pipeline_kernel as K
-from impact_env.effects.delay import make_delay_state
-from impact_env.effects.detector import detector_params, make_detector_state
+from impact_env.effects.detector import detector_params
 from impact_env.effects.filters import design_filters, make_filter_state
 from impact_env.effects.saturation import saturation_params
 from impact_env.effects.sensors import N_CHANNELS, sensor_params
@@ -35,7 +34,7 @@ class Simulator:
     W_ext, W_diss), ``t`` (s since the episode start).
     """
 
-    def __init__(self, scene: "Scene | str", num_envs: int = 1, events_per_env: int = 64):
+    def __init__(self, scene: Scene | str, num_envs: int = 1, events_per_env: int = 64):
         scene = load_scene(scene)
         if int(num_envs) < 1:
             raise ValueError(f"num_envs = {num_envs!r} must be >= 1")

@@ -21,18 +21,17 @@ read and overwrite next, an integer stored as float64 so that all effect state i
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.config import ConfigError, check_range
+from impact_env.config import ConfigError, check_range, doc_field
 
 REL_TOL = 1e-6
 
 
-def _f(default, unit: str, doc: str):
-    return field(default=default, metadata={"unit": unit, "doc": doc})
+_f = doc_field
 
 
 @dataclass(frozen=True)

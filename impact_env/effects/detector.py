@@ -23,20 +23,19 @@ State: float64[2] = (s at the previous sample N, latched contact 0/1).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.config import ConfigError, check_range
+from impact_env.config import ConfigError, check_range, doc_field
 
 PREV_S, LATCH = 0, 1
 N_STATE = 2
 P_MASS, P_THRESH, P_USE_DERIV, P_DTHRESH, P_RATE = range(5)
 
 
-def _f(default, unit: str, doc: str):
-    return field(default=default, metadata={"unit": unit, "doc": doc})
+_f = doc_field
 
 
 @dataclass(frozen=True)

@@ -27,15 +27,14 @@ from typing import ClassVar
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.config import ConfigError, check_choice, check_range
+from impact_env.config import ConfigError, check_choice, check_range, doc_field
 from impact_env.effects.sensors import CHANNELS, N_CHANNELS
 
 KINDS = ("bandpass", "lowpass", "none")
 IDENTITY_SECTION = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
 
 
-def _f(default, unit: str, doc: str):
-    return field(default=default, metadata={"unit": unit, "doc": doc})
+_f = doc_field
 
 
 @dataclass(frozen=True)

@@ -26,12 +26,12 @@ even with the budget off (sqrt(ms) is the running RMS of the applied force).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.config import check_range
+from impact_env.config import check_range, doc_field
 
 MS, PREV = 0, 1
 N_STATE = 2
@@ -39,8 +39,7 @@ N_STATE = 2
 P_PEAK, P_RMS2, P_ALPHA, P_STEP = range(4)
 
 
-def _f(default, unit: str, doc: str):
-    return field(default=default, metadata={"unit": unit, "doc": doc})
+_f = doc_field
 
 
 @dataclass(frozen=True)

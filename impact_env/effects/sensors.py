@@ -54,7 +54,7 @@ from typing import ClassVar
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.config import ConfigError, check_choice, check_range
+from impact_env.config import ConfigError, check_choice, check_range, doc_field
 
 CHANNELS = ("accelerometer", "force", "potentiometer", "body1_displacement")
 UNITS = ("m/s^2", "N", "m", "m")
@@ -66,8 +66,7 @@ P_ENABLED, P_GAIN, P_OFFSET, P_NOISE, P_STEP, P_LO, P_HI = range(7)
 N_PARAM = 7
 
 
-def _f(default, unit: str, doc: str):
-    return field(default=default, metadata={"unit": unit, "doc": doc})
+_f = doc_field
 
 
 def channel_index(name: str, where: str = "effects.sensors.channel") -> int:

@@ -27,17 +27,15 @@ continuous model to the held command.  The numba kernel steps a state-space mode
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
 
 from impact_env._jit import jit
-from impact_env.config import ConfigError, check_choice, check_range
+from impact_env.config import ConfigError, check_choice, check_range, doc_field
 
-
-def _f(default, unit, doc):
-    return field(default=default, metadata={"unit": unit, "doc": doc})
+_f = doc_field
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,6 @@ from impact_env._jit import jit
 from impact_env.plant.dynamics import contact_force, deriv, event_value
 from impact_env.plant.layout import (
     AUTO,
-    B,
-    C,
     C2,
     CONTACT,
     DIVERGED,
@@ -33,20 +31,21 @@ from impact_env.plant.layout import (
     EULER,
     EVENT_OVERFLOW,
     FREE,
-    G,
     K2,
     M1,
     M2,
     OK,
-    RK4,
     STEP_UNDERFLOW,
     SYMPLECTIC_EULER,
+    V1,
+    V2,
     W_DISS,
     W_EXT,
     X1,
     X2,
-    V1,
-    V2,
+    B,
+    C,
+    G,
 )
 
 EVENT_TOL = 1e-13  # event bracket width, relative to the step being split
