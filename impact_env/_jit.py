@@ -1,14 +1,21 @@
 """The project's one numba jit helper.
 
-Every kernel in ``impact_env`` is decorated with :func:`jit`, so caching and compilation
-flags are set in one place.  Nothing is compiled at import time: numba compiles a kernel
-lazily on its first call, and with caching on the machine code is reused across processes.
+Every kernel in ``impact_env`` (and in ``baselines``) is decorated with :func:`jit`, so caching
+and compilation flags are set in one place.  Nothing is compiled at import time: numba compiles
+a kernel lazily on its first call, and with caching on the machine code is reused across
+processes.
+
+Why a custom cache key: numba's own on-disk cache is keyed on the stamp (mtime, size) of the
+file that holds the decorated function only.  A kernel that inlines or calls kernels from other
+files (``run_periods`` calls ``advance``, which calls ``deriv``) would keep running stale
+machine code after those files change.  :class:`_ProjectCacheLocator` keys every project kernel
+on a hash of *all* project sources instead, so any edit invalidates every cached kernel.
 
 Environment variables
 ---------------------
 ``IMPACT_ENV_NUMBA_CACHE``
-    ``1`` (default) caches compiled kernels on disk (``__pycache__`` next to the source);
-    ``0`` turns the cache off, e.g. when a stale or broken cache is suspected.
+    ``1`` (default) caches compiled kernels on disk (``__pycache__`` next to the source, or
+    under ``NUMBA_CACHE_DIR`` if set); ``0`` turns the cache off.
 ``NUMBA_DISABLE_JIT``
     numba's own switch; ``1`` runs every kernel as plain Python (slow, but coverage and
     debuggers see the code).
@@ -16,11 +23,52 @@ Environment variables
 
 from __future__ import annotations
 
+import hashlib
 import os
+from pathlib import Path
 
 import numba
+from numba.core import caching, config
 
 CACHE = os.environ.get("IMPACT_ENV_NUMBA_CACHE", "1").strip().lower() not in ("0", "false", "no", "off")
+
+_ROOT = Path(__file__).resolve().parent.parent
+_PACKAGES = tuple(str(_ROOT / name) + os.sep for name in ("impact_env", "baselines"))
+
+
+def _sources_hash() -> str:
+    h = hashlib.sha256()
+    for pkg in _PACKAGES:
+        for path in sorted(Path(pkg).rglob("*.py")):
+            h.update(str(path.relative_to(_ROOT)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+_STAMP = _sources_hash() if CACHE else ""
+
+
+class _ProjectCacheLocator(caching.InTreeCacheLocator):
+    """Numba cache locator for project kernels: the source stamp is the hash of every project
+    source file, so a change anywhere in the project recompiles every cached kernel."""
+
+    def __init__(self, py_func, py_file):
+        super().__init__(py_func, py_file)
+        if config.CACHE_DIR:
+            self._cache_path = os.path.join(config.CACHE_DIR, self.get_suitable_cache_subpath(py_file))
+
+    def get_source_stamp(self):
+        return _STAMP
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if not os.path.abspath(py_file).startswith(_PACKAGES):
+            return None
+        return super().from_function(py_func, py_file)
+
+
+if _ProjectCacheLocator not in caching.CacheImpl._locator_classes:
+    caching.CacheImpl._locator_classes.insert(0, _ProjectCacheLocator)
 
 
 def jit(func=None, **options):
