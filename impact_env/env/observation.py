@@ -21,6 +21,9 @@ randomised scenes, so that one policy reads every episode in the same units.
 With ``history = k > 1`` the observation is ``[frame_t, frame_t-1, ..., frame_t-k+1,
 action_t-1, ..., action_t-k]`` (frames and actions before the episode start are zeros), which
 lets a memoryless policy see through delays.
+
+Every entry is clipped to +-``OBS_LIMIT`` (1e4 reference units), so that observations stay in
+the (finite) observation space whatever happens.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ OBSERVATIONS = ("sensors", "privileged", "both")
 PRIVILEGED = ("x1", "v1", "x2", "v2")
 PRIVILEGED_UNITS = ("m", "m/s", "m", "m/s")
 MIN_REF_SPEED = 0.1  # m/s
+OBS_LIMIT = 1.0e4  # |obs| bound: entries are clipped to it (that large means a runaway or a huge drop)
 
 
 @dataclass(frozen=True)
@@ -134,4 +138,5 @@ def fill_frames(layout: ObservationLayout, readings: np.ndarray, detected: np.nd
     if layout.privileged:
         out[:, j:j + 4] = Y[:, :4]
     out /= layout.scales
+    np.clip(out, -OBS_LIMIT, OBS_LIMIT, out=out)
     return out

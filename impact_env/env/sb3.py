@@ -1,0 +1,95 @@
+"""Stable-Baselines3 ``VecEnv`` adapter for the native vector env.
+
+SB3 does not take Gymnasium vector envs.  :class:`SB3VecEnv` runs an
+:class:`~impact_env.env.vector.ImpactCatchVectorEnv` in ``SAME_STEP`` autoreset mode, which is
+SB3's own convention: a finished env is reset within the step, ``dones[i]`` is
+``terminated or truncated``, ``infos[i]["terminal_observation"]`` holds the last observation and
+``infos[i]["TimeLimit.truncated"]`` says whether the end was the horizon.  To keep a step cheap
+with thousands of envs, ``infos[i]`` of an env that did not finish is an empty dict; a finished
+env's dict also carries the final ``caught``, ``diverged``, ``catch_energy_ratio`` and ``t``.
+
+Seeding follows SB3: ``env.seed(s)`` (what ``model.set_random_seed`` calls) makes the next
+``reset()`` seed env i with ``s + i``.
+
+    >>> from stable_baselines3 import PPO
+    >>> from impact_env.env.sb3 import make_sb3_vec_env
+    >>> env = make_sb3_vec_env("rig", num_envs=64)
+    >>> model = PPO("MlpPolicy", env)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+from impact_env.env.vector import ImpactCatchVectorEnv
+
+FINAL_KEYS = ("caught", "diverged", "catch_energy_ratio", "t")
+
+
+class SB3VecEnv(VecEnv):
+    """An :class:`ImpactCatchVectorEnv` as an SB3 ``VecEnv`` (see the module docstring)."""
+
+    def __init__(self, venv: ImpactCatchVectorEnv):
+        if venv.metadata["autoreset_mode"] != AutoresetMode.SAME_STEP:
+            raise ValueError("SB3VecEnv needs the vector env in autoreset_mode SAME_STEP; "
+                             "build it with make_sb3_vec_env() or autoreset_mode='SameStep'")
+        self.venv = venv
+        self.render_mode = venv.render_mode
+        super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
+        self._actions: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        seed = self._seeds[0]
+        seeds = None if seed is None else [s if s is not None else seed + i for i, s in enumerate(self._seeds)]
+        obs, _ = self.venv.reset(seed=seeds)
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [{} for _ in range(self.num_envs)]
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self):
+        obs, rewards, terminated, truncated, infos = self.venv.step(self._actions)
+        dones = terminated | truncated
+        out: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        if dones.any():
+            final = infos["final_info"]
+            for i in np.nonzero(dones)[0]:
+                d = out[i]
+                d["terminal_observation"] = infos["final_obs"][i]
+                d["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+                for k in FINAL_KEYS:
+                    d[k] = final[k][i].item()
+        return obs, rewards.astype(np.float32), dones, out
+
+    def close(self) -> None:
+        self.venv.close()
+
+    # -- attribute access (one env object underneath: every index sees the same value) ---------
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        return [getattr(self.venv, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        setattr(self.venv, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        method = getattr(self.venv, method_name)
+        return [method(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self):
+        frames = self.venv.render()
+        return list(frames) if frames is not None else [None] * self.num_envs
+
+
+def make_sb3_vec_env(scene="rig", num_envs: int = 16, **kwargs) -> SB3VecEnv:
+    """An SB3 ``VecEnv`` of ``num_envs`` rigs; ``kwargs`` as for ``ImpactCatch-v0``."""
+    return SB3VecEnv(ImpactCatchVectorEnv(num_envs, scene, autoreset_mode=AutoresetMode.SAME_STEP, **kwargs))
