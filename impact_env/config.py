@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import types
 import typing
@@ -59,8 +60,9 @@ def _unknown_key(path: str, key: str, valid: list[str]) -> ConfigError:
     return ConfigError(f"unknown key {where!r}{near} (valid keys here: {', '.join(valid)})")
 
 
+@functools.cache
 def _hints(cls) -> dict[str, Any]:
-    return typing.get_type_hints(cls)
+    return typing.get_type_hints(cls)  # cached: resolving the hints dominated building a scene
 
 
 def _coerce(tp: Any, value: Any, where: str) -> Any:

@@ -29,6 +29,7 @@ from impact_env.config import (
     with_overrides,
 )
 from impact_env.effects_config import EffectsConfig
+from impact_env.randomize import RandomizeConfig, check_scene_ranges, overrides_for
 
 METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
 
@@ -142,6 +143,7 @@ class Scene:
     control: ControlConfig = field(default_factory=ControlConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
     effects: EffectsConfig = field(default_factory=EffectsConfig)
+    randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
 
     def __post_init__(self):
         if self.initial.drop_height is not None and self.initial.drop_height > 0 and self.plant.gravity == 0:
@@ -158,6 +160,7 @@ class Scene:
                     f"the control period {self.control_period:g} s must be a whole multiple of "
                     f"integrator.dt = {self.integrator.dt:g} s")
         self._check_effects_at_rate()
+        check_scene_ranges(self)
 
     def _check_effects_at_rate(self) -> None:
         rate = 1.0 / self.control_period
@@ -166,6 +169,8 @@ class Scene:
             fx.filters.check_rate(rate)
         if fx.on("sensor_delay") or fx.on("actuator_delay"):
             fx.delay.samples(rate)
+        if fx.on("shaker"):
+            fx.shaker.check_coupling(self.plant.m2, rate)
 
     # -- derived quantities -------------------------------------------------------------
     @property
@@ -192,6 +197,25 @@ class Scene:
         items = dict(overrides or {})
         items.update(kw)
         return with_overrides(self, items) if items else self
+
+    # -- randomisation (see impact_env.randomize for the ranges and the seed policy) ----------
+    @property
+    def randomized(self) -> bool:
+        """True when ``[randomize]`` gives any range."""
+        return self.randomize.any()
+
+    def draw(self, rng) -> dict[str, float]:
+        """One episode's values of the ranged fields, drawn from the numpy Generator ``rng``
+        (nothing is drawn when the scene has no ranges)."""
+        return self.randomize.draw(rng, self.control_rate)
+
+    def with_draws(self, values: dict[str, float]) -> Scene:
+        """The fixed scene with the given values of ranged fields, and no ranges left."""
+        return self.with_overrides(overrides_for(self, values))
+
+    def sample(self, rng) -> Scene:
+        """A fixed scene drawn from this one's ranges with ``rng`` (itself if it has none)."""
+        return self.with_draws(self.draw(rng)) if self.randomized else self
 
     def to_dict(self) -> dict:
         return to_dict(self)

@@ -38,12 +38,22 @@ class SimulationDiverged(RuntimeError):
         self.state = state
 
 
-def plant_params(scene: Scene) -> np.ndarray:
-    """The plant's parameter array for a scene (see :mod:`impact_env.plant.layout`)."""
+def plant_params(scene: Scene, zeta_of: Callable[[float], float] | None = None) -> np.ndarray:
+    """The plant's parameter array for a scene (see :mod:`impact_env.plant.layout`).
+
+    ``zeta_of``: the scaled damping for a restitution (default: the exact solve,
+    :func:`~impact_env.plant.restitution.zeta_for_restitution`; the Simulator passes a
+    :class:`~impact_env.plant.restitution.ZetaTable` for drawn restitutions).
+    """
     pl = scene.plant
     p = np.zeros(L.N_PARAM)
     p[L.M1], p[L.M2], p[L.C], p[L.G] = pl.m1, pl.m2, pl.c, pl.gravity
-    p[L.B] = tsuji_damping(pl.restitution, pl.m1, pl.m2, pl.c) if pl.restitution < 1.0 else 0.0
+    if pl.restitution >= 1.0:
+        p[L.B] = 0.0
+    elif zeta_of is None:
+        p[L.B] = tsuji_damping(pl.restitution, pl.m1, pl.m2, pl.c)
+    else:
+        p[L.B] = zeta_of(pl.restitution) * math.sqrt(pl.effective_mass * pl.c)
     p[L.K2], p[L.C2] = pl.suspension_stiffness, pl.suspension_damping
     return p
 
@@ -54,9 +64,11 @@ def initial_state(scene: Scene) -> tuple[np.ndarray, float]:
     Free fall is solved in closed form; the run starts ``pre_contact_time`` before the touch,
     or at the release if the fall is shorter.
     """
-    g = scene.plant.gravity
-    v = scene.impact_speed
-    tau = scene.initial.pre_contact_time
+    return free_fall_state(scene.impact_speed, scene.plant.gravity, scene.initial.pre_contact_time)
+
+
+def free_fall_state(v: float, g: float, tau: float) -> tuple[np.ndarray, float]:
+    """:func:`initial_state` from the impact speed v (m/s), gravity g and pre-contact time tau."""
     if g > 0:  # a body released from rest has fallen for v/g only
         tau = min(tau, v / g)
     y = np.zeros(L.N_STATE)
@@ -201,10 +213,14 @@ Controller = Callable[[float, np.ndarray], float]
 
 
 def simulate(scene: Scene | str, controller: Controller | None = None, t_end: float | None = None,
-             record_rate: float | None = None, max_events: int = 100_000, overrides=None) -> Trajectory:
+             record_rate: float | None = None, max_events: int = 100_000, overrides=None,
+             rng: np.random.Generator | int | None = None) -> Trajectory:
     """Simulate one drop.
 
     scene: a Scene or preset name (``overrides``: dotted keys applied on top).
+    rng: for a scene with ``[randomize]`` ranges, the numpy Generator (or an int seed) that draws
+        this drop's values (:meth:`Scene.sample`, the seed policy of :mod:`impact_env.randomize`);
+        without it the scene's nominal values are used.  ``traj.scene`` is the drawn scene.
     controller: ``f(t, y) -> f2``, the shaker force (N, upwards) from the time (s) and the true
         state ``y = [x1, v1, x2, v2]``; sampled once per control period and held.  None: no force.
     t_end: simulated time (s); default ``scene.episode.horizon``.
@@ -212,6 +228,8 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
         (or, without a controller, any rate whose period is a whole number of integration steps).
     """
     scene = load_scene(scene, overrides)
+    if rng is not None and scene.randomized:
+        scene = scene.sample(rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng))
     t_end = scene.episode.horizon if t_end is None else float(t_end)
     if not (t_end > 0 and math.isfinite(t_end)):
         raise ValueError(f"t_end = {t_end!r} s must be a finite time > 0 s")

@@ -11,14 +11,16 @@ from __future__ import annotations
 import numpy as np
 
 from impact_env import pipeline_kernel as K
+from impact_env.effects.delay import delay_samples
 from impact_env.effects.detector import detector_params
 from impact_env.effects.filters import design_filters, make_filter_state
 from impact_env.effects.saturation import saturation_params
 from impact_env.effects.sensors import N_CHANNELS, sensor_params
-from impact_env.effects.shaker import discrete_model
+from impact_env.effects.shaker import discrete_emf_model
 from impact_env.plant import layout as L
 from impact_env.plant.dynamics import event_value
 from impact_env.plant.energy import catch_energy
+from impact_env.plant.restitution import zeta_table
 from impact_env.scene import Scene, load_scene
 from impact_env.simulate import METHOD_CODES, _error_scale, check_stability, initial_state, plant_params
 
@@ -32,6 +34,13 @@ class Simulator:
     m/s^2, force transducer N, potentiometer m, body-1 sensor m), ``info`` (float64[N, N_INFO],
     columns in :mod:`impact_env.pipeline_kernel`), ``Y`` (true state rows x1, v1, x2, v2,
     W_ext, W_diss), ``t`` (s since the episode start).
+
+    Randomised scenes (``scene.randomize``): at each reset env i draws its values from
+    ``rngs[i]`` (the seed policy of :mod:`impact_env.randomize`) and gets exactly the arrays of
+    the fixed scene ``scene.with_draws(values)`` (``drawn[i]`` holds the values): its plant row
+    ``P[i]`` (the pad damping of a drawn restitution from a :class:`ZetaTable`, equal to the exact
+    solve to about 1e-10), initial state, impact energy, command scale, noise levels, shaker
+    model and delay lengths.  Envs of one batch thus differ; the kernel is the same.
     """
 
     def __init__(self, scene: Scene | str, num_envs: int = 1, events_per_env: int = 64):
@@ -43,7 +52,7 @@ class Simulator:
         self.n = n = int(num_envs)
         fx = scene.effects
         self.period = scene.control_period
-        rate = 1.0 / self.period
+        self.rate = rate = 1.0 / self.period
         self.method = METHOD_CODES[scene.integrator.method]
         self.flags = 0
         for name, bit in (("actuator_delay", K.F_ACT_DELAY), ("shaker", K.F_SHAKER),
@@ -52,61 +61,91 @@ class Simulator:
                           ("detector", K.F_DETECTOR)):
             if fx.on(name):
                 self.flags |= bit
-        self.command_scale = fx.command_scale
-        p = plant_params(scene)
-        self.P = np.tile(p, (n, 1))
+        if fx.on("shaker") and fx.shaker.back_emf:
+            self.flags |= K.F_BACK_EMF
+        rz = scene.randomize
+        self.randomized = rz.any()
+        self._zeta = None
+        if self.randomized:
+            check_stability(scene.with_draws(rz.stiffest()))  # the stiffest drop the ranges allow
+            if "restitution" in rz.ranged():
+                lo, hi = rz.restitution
+                self._zeta = zeta_table(lo, hi)
+        self.drawn: list[dict[str, float]] = [{} for _ in range(n)]
         self.Y = np.zeros((n, L.N_STATE))
         self.modes = np.zeros(n, dtype=np.int64)
         self.H = np.zeros((n, 1))
-        self.scale = np.tile(_error_scale(scene, p), (n, 1))
         self.EV = np.zeros((n, events_per_env, L.N_EVENT_COLS))
         self.EVN = np.zeros((n, 1), dtype=np.int64)
+        # delay lines sized for the longest delay the scene (or its ranges) can ask for
         k_sens, k_act = fx.delay.samples(rate)
-        self.act_buf = np.zeros((n, k_act if fx.on("actuator_delay") else 0, 1))
+        k_sens_max = max([k_sens] + [delay_samples(v, rate) for v in rz.sensor_delay_s])
+        k_act_max = max([k_act] + [delay_samples(v, rate) for v in rz.actuator_delay_s])
+        self.act_buf = np.zeros((n, k_act_max if fx.on("actuator_delay") else 0, 1))
         self.act_head = np.zeros((n, 1))
-        if fx.on("shaker"):
-            A, B, C, D = discrete_model(fx.shaker, rate)
-        else:
-            A, B, C, D = np.zeros((1, 1)), np.zeros(1), np.zeros(1), 0.0
-        self.sh = (A, B, C, float(D))
-        self.sh_X = np.zeros((n, A.shape[0]))
-        self.sat_params = saturation_params(fx.saturation, rate)
-        self.sat_state = np.zeros((n, 2))
-        self.sens_params = sensor_params(fx.sensors)
-        self.top_mass = fx.sensors.force.top_mass
+        self.sd_buf = np.zeros((n, k_sens_max if fx.on("sensor_delay") else 0, N_CHANNELS))
+        self.sd_head = np.zeros((n, 1))
         self.sos = design_filters(fx.filters, rate) if fx.on("filters") else np.zeros((N_CHANNELS, 1, 6))
         self.filt_state = np.zeros((n,) + make_filter_state(self.sos).shape)
-        self.sd_buf = np.zeros((n, k_sens if fx.on("sensor_delay") else 0, N_CHANNELS))
-        self.sd_head = np.zeros((n, 1))
-        self.det_params = detector_params(fx.detector, rate)
+        # per-env parameters, filled from the nominal scene now (and per draw at reset)
+        base = self._env_arrays(scene, exact=True)
+        self._base = base
+        for name, value in base.items():
+            setattr(self, name, np.repeat(np.asarray(value)[None], n, axis=0))
+        self.sh_X = np.zeros((n, self.sh_A.shape[1]))
+        self.sat_state = np.zeros((n, 2))
         self.det_state = np.zeros((n, 2))
         self.readings = np.zeros((n, N_CHANNELS))
         self.info = np.zeros((n, K.N_INFO))
         self.t = np.zeros(n)
-        self.t_touch = np.zeros(n)
-        self.impact_energy = np.ones(n)
         self._noise = np.zeros((n, NOISE_BLOCK, N_CHANNELS))
         self._cursor = np.full(n, NOISE_BLOCK)
         self._rngs: list[np.random.Generator | None] = [None] * n
         self._z = np.zeros((n, N_CHANNELS))
 
+    def _env_arrays(self, scene: Scene, exact: bool = False) -> dict[str, np.ndarray]:
+        """One env's parameter rows and start values for the fixed ``scene`` (attribute -> row)."""
+        fx = scene.effects
+        rate = self.rate
+        p = plant_params(scene, None if exact or self._zeta is None else self._zeta)
+        y0, t_touch = initial_state(scene)
+        mode0 = L.AUTO
+        if scene.integrator.event_location or scene.integrator.method == "dopri5":
+            mode0 = L.CONTACT if event_value(y0[0], y0[1], y0[2], y0[3], p[L.C], p[L.B]) > 0 else L.FREE
+            if not scene.integrator.event_location:
+                mode0 = L.AUTO
+        e0 = float(catch_energy(y0[0], y0[1], y0[2], p[L.M1], p[L.C], p[L.G]))
+        if fx.on("shaker"):
+            A, B, C, D, E = discrete_emf_model(fx.shaker, rate)
+        else:
+            A, B, C, D, E = np.zeros((1, 1)), np.zeros(1), np.zeros(1), 0.0, np.zeros(1)
+        k_sens, k_act = fx.delay.samples(rate)
+        return {
+            "P": p, "scale": _error_scale(scene, p), "command_scale": fx.command_scale,
+            "y0": y0, "t_touch": t_touch, "mode0": mode0, "impact_energy": max(e0, 1e-300),
+            "sh_A": A, "sh_B": B, "sh_C": C, "sh_D": D, "sh_E": E,
+            "sat_params": saturation_params(fx.saturation, rate),
+            "sens_params": sensor_params(fx.sensors), "top_mass": fx.sensors.force.top_mass,
+            "det_params": detector_params(fx.detector, rate),
+            "act_len": np.int64(k_act if fx.on("actuator_delay") else 0),
+            "sd_len": np.int64(k_sens if fx.on("sensor_delay") else 0),
+        }
+
     # -- episodes --------------------------------------------------------------------------
     def reset(self, rngs, mask=None) -> None:
         """Start a new drop in the envs where ``mask`` is true (all if None); ``rngs[i]`` is env
-        i's Generator (sensor noise and, for randomised scenes, the drop)."""
+        i's Generator: a randomised scene first draws env i's values from it, then the sensor
+        noise comes from it as the episode runs (see :mod:`impact_env.randomize`)."""
         idx = range(self.n) if mask is None else np.nonzero(mask)[0]
-        y0, t_touch = initial_state(self.scene)
-        p = self.P[0]
-        mode0 = L.AUTO
-        if self.scene.integrator.event_location or self.scene.integrator.method == "dopri5":
-            mode0 = L.CONTACT if event_value(y0[0], y0[1], y0[2], y0[3], p[L.C], p[L.B]) > 0 else L.FREE
-            if not self.scene.integrator.event_location:
-                mode0 = L.AUTO
-        e0 = float(catch_energy(y0[0], y0[1], y0[2], p[L.M1], p[L.C], p[L.G]))
         for i in idx:
-            self._rngs[i] = rngs[i]
-            self.Y[i] = y0
-            self.modes[i] = mode0
+            rng = rngs[i]
+            self._rngs[i] = rng
+            if self.randomized:  # (a fixed scene's rows were filled once, in __init__)
+                self.drawn[i] = values = self.scene.draw(rng)
+                for name, value in self._env_arrays(self.scene.with_draws(values)).items():
+                    getattr(self, name)[i] = value
+            self.Y[i] = self.y0[i]
+            self.modes[i] = self.mode0[i]
             self.H[i] = 0.0
             self.EVN[i] = 0
             self.EV[i] = 0.0
@@ -119,8 +158,6 @@ class Simulator:
             self.sd_head[i] = 0.0
             self.det_state[i] = 0.0
             self.t[i] = 0.0
-            self.t_touch[i] = t_touch
-            self.impact_energy[i] = max(e0, 1e-300)
             self._cursor[i] = NOISE_BLOCK
             self.info[i] = 0.0
         self._refresh_readings(idx)
@@ -145,13 +182,13 @@ class Simulator:
         """Advance every env by one control period; ``actions`` float64[N] in [-1, 1]."""
         a = np.ascontiguousarray(actions, dtype=np.float64).reshape(self.n)
         z = self._draw_noise()
-        A, B, C, D = self.sh
         K.control_step_batch(a, 0.0, self.period, self.flags, self.command_scale,
                              self.Y, self.modes, self.P, self.H, self.method, self.scene.integrator.dt,
                              self.scene.integrator.rtol, self.scale, self.EV, self.EVN,
-                             self.act_buf, self.act_head, A, B, C, D, self.sh_X,
+                             self.act_buf, self.act_len, self.act_head,
+                             self.sh_A, self.sh_B, self.sh_C, self.sh_D, self.sh_E, self.sh_X,
                              self.sat_params, self.sat_state, self.sens_params, self.top_mass, z,
-                             self.sos, self.filt_state, self.sd_buf, self.sd_head,
+                             self.sos, self.filt_state, self.sd_buf, self.sd_len, self.sd_head,
                              self.det_params, self.det_state, self.readings, self.info)
         self.t += self.period
 

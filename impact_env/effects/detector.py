@@ -120,6 +120,8 @@ class DetectionScore:
     n_releases: int  # true releases (falling edges)
     missed_onsets: int  # true onsets with no detected onset in their window
     missed_releases: int
+    false_onsets: int = 0  # detected onsets matched with no true onset (spurious detections)
+    n_detected_onsets: int = 0
 
 
 def _edges(x: np.ndarray, rising: bool) -> np.ndarray:
@@ -129,8 +131,9 @@ def _edges(x: np.ndarray, rising: bool) -> np.ndarray:
 
 def _lateness(true_edges, det_edges, all_true_edges, n):
     """Match each true edge with the nearest detected edge of the same kind lying strictly
-    between the neighbouring true edges (of either kind); returns (lateness in samples, misses)."""
-    late, missed = [], 0
+    between the neighbouring true edges (of either kind); returns (lateness in samples, misses,
+    number of detected edges matched with no true edge)."""
+    late, missed, matched = [], 0, set()
     for i in true_edges:
         j = np.searchsorted(all_true_edges, i)
         lo = all_true_edges[j - 1] if j > 0 else -1
@@ -139,8 +142,10 @@ def _lateness(true_edges, det_edges, all_true_edges, n):
         if cand.size == 0:
             missed += 1
             continue
-        late.append(cand[np.argmin(np.abs(cand - i))] - i)
-    return np.asarray(late, dtype=np.float64), missed
+        best = cand[np.argmin(np.abs(cand - i))]
+        matched.add(int(best))
+        late.append(best - i)
+    return np.asarray(late, dtype=np.float64), missed, int(det_edges.size - len(matched))
 
 
 def score_detection(true_contact, detected, rate: float) -> DetectionScore:
@@ -148,7 +153,8 @@ def score_detection(true_contact, detected, rate: float) -> DetectionScore:
 
     An edge at index i means the value changed between samples i-1 and i.  Each true onset
     (release) is matched with the nearest detected onset (release) between the true edges
-    before and after it; an unmatched true edge counts as missed.
+    before and after it; an unmatched true edge counts as missed, an unmatched detected onset
+    as a false one.
     """
     t = np.asarray(true_contact, dtype=bool)
     d = np.asarray(detected, dtype=bool)
@@ -161,8 +167,9 @@ def score_detection(true_contact, detected, rate: float) -> DetectionScore:
     mc = float(np.sum(~d & t) / n_contact) if n_contact else float("nan")
     t_on, t_off = _edges(t, True), _edges(t, False)
     all_t = np.sort(np.concatenate([t_on, t_off]))
-    on_late, on_miss = _lateness(t_on, _edges(d, True), all_t, t.size)
-    off_late, off_miss = _lateness(t_off, _edges(d, False), all_t, t.size)
+    d_on = _edges(d, True)
+    on_late, on_miss, on_false = _lateness(t_on, d_on, all_t, t.size)
+    off_late, off_miss, _off_false = _lateness(t_off, _edges(d, False), all_t, t.size)
 
     def stats(x):
         return (float(np.mean(x)) / rate, float(np.max(x)) / rate) if x.size else (float("nan"),) * 2
@@ -170,4 +177,4 @@ def score_detection(true_contact, detected, rate: float) -> DetectionScore:
     on_mean, on_max = stats(on_late)
     off_mean, off_max = stats(off_late)
     return DetectionScore(fc, mc, on_mean, on_max, off_mean, off_max,
-                          int(t_on.size), int(t_off.size), on_miss, off_miss)
+                          int(t_on.size), int(t_off.size), on_miss, off_miss, on_false, int(d_on.size))
