@@ -1,4 +1,4 @@
-"""Command line: ``impact-env drop | scenes | scene show``.
+"""Command line: ``impact-env drop | scenes | scene show | compare | sweep``.
 
 Every command takes ``--set KEY=VALUE`` (repeatable) through :func:`add_scene_arguments` and
 builds its scene with :func:`scene_from_args`; new commands should use the same two helpers.
@@ -155,6 +155,12 @@ def build_parser() -> argparse.ArgumentParser:
     q = ssub.add_parser("show", help="print a scene as TOML")
     add_scene_arguments(q, positional=True)
     q.set_defaults(func=cmd_scene_show)
+
+    # policies and gains (impact_env.compare / impact_env.sweep import baselines only when run)
+    from impact_env import compare, sweep
+
+    compare.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
+    sweep.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
     return ap
 
 

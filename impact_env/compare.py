@@ -1,0 +1,390 @@
+"""``impact-env compare``: policies side by side on the same seeded drops.
+
+Every policy runs the same episodes: episode ``j`` is seeded ``seed + j`` (as env ``j`` of the
+vector env reset with ``seed``), so drops and sensor noise are identical across policies and
+across runs.  Episodes of a policy run batched (:func:`impact_env.rollout.rollout`); policies
+(and chunks of episodes, when there are more cores than policies) run in parallel processes.
+Results are merged in episode order, so the table does not depend on the number of workers.
+
+Policies are baselines by name (``passive``, ``thesis-rig:h01=2.3e6,h11=18``, see
+:mod:`baselines`) or saved stable-baselines3 models (``PATH.zip``, ``ppo:PATH.zip``).  The
+baselines package is imported only inside the workers and the command, never when
+:mod:`impact_env` is imported.
+
+Aggregates (one row per policy; per-episode values in ``episodes.csv``):
+
+* ``time_to_catch_median_s``, ``time_to_catch_q25_s``, ``time_to_catch_q75_s``,
+  ``time_to_catch_iqr_s``: over episodes, an episode not caught within the horizon counting as
+  infinitely long (so a median of ``inf``, printed as ``>H`` and written as null in JSON, means
+  that half the episodes or more were not caught); ``caught_fraction``.
+* the means over episodes of every other per-episode metric of :mod:`impact_env.rollout`
+  (``residual_energy_50ms``, ``exit_speed_ratio``, ``bounces``, ``peak_force_N``, ...).
+* ``episodes``, ``failed_episodes``, ``failures`` (episode, seed, time, error), ``wall_time_s``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+SUMMARY_KEYS = ("time_to_catch_median_s", "time_to_catch_q25_s", "time_to_catch_q75_s", "time_to_catch_iqr_s",
+                "caught_fraction", "residual_energy_10ms", "residual_energy_50ms", "residual_energy_100ms",
+                "exit_speed_ratio", "exit_velocity_ratio", "bounces", "peak_force_N", "rms_force_N",
+                "peak_demand_N", "contact_fraction", "saturation_time_s", "impact_speed_mps")
+ENERGY_CURVE_RATE = 2000.0  # Hz, samples of the catch-energy curves kept for every episode
+
+
+# -- policy lists ---------------------------------------------------------------------------------
+def split_policies(text: str) -> list[str]:
+    """``"passive,thesis-rig:h01=2.3e6,h11=18,pd-penetration"`` -> three specs.
+
+    Items are separated by commas (or semicolons); an item ``KEY=VALUE`` without a ``:`` continues
+    the previous policy's parameters."""
+    specs: list[str] = []
+    for item in (s.strip() for s in text.replace(";", ",").split(",")):
+        if not item:
+            continue
+        if "=" in item and ":" not in item and specs:
+            last = specs[-1]
+            specs[-1] = last + ("" if last.endswith(":") else "," if ":" in last else ":") + item
+        else:
+            specs.append(item)
+    return specs
+
+
+# -- one task: a chunk of one policy's episodes ---------------------------------------------------
+@dataclass
+class Task:
+    spec: str
+    scene: object
+    episodes: list[int]
+    seed: int
+    horizon: float
+    trace_rate: float
+
+
+@dataclass
+class PolicyRun:
+    """One policy's merged results: per-episode metrics (float64[E] each), failures, the traces
+    of the first episode (for the plots) and the catch-energy ratio of every episode."""
+
+    spec: str
+    episodes: object
+    metrics: dict
+    failures: list
+    trace_t: object
+    trace0: dict | None
+    t_touch0: float
+    impact_energy0: float
+    energy_t: object
+    energy_ratio: object  # float64[T, E]
+    control_period: float
+    wall_time_s: float = 0.0
+    summary: dict = field(default_factory=dict)
+
+
+def _run_task(task: Task):
+    import numpy as np
+
+    from impact_env.parallel import report
+    from impact_env.rollout import rollout
+
+    seeds = [task.seed + j for j in task.episodes]
+    try:
+        from baselines import make_policy
+
+        policy = make_policy(task.spec, task.scene)
+    except Exception as exc:  # a policy that cannot be built fails its episodes, not the run
+        n_steps = int(round(task.horizon / task.scene.control_period))
+        report(n_steps)
+        return {"error": f"{type(exc).__name__}: {exc}", "episodes": task.episodes, "seeds": seeds}
+    r = rollout(task.scene, policy, seeds, horizon=task.horizon, episodes=task.episodes,
+                trace_rate=task.trace_rate, name=task.spec, progress=report)
+    stride = max(1, int(round(task.trace_rate / ENERGY_CURVE_RATE)))
+    ratio = r.traces["catch_energy"][::stride] / r.impact_energy[None, :]
+    keep0 = 0 in task.episodes
+    return {"metrics": r.metrics, "failures": r.failures, "trace_t": r.trace_t,
+            "trace0": {k: v[:, 0].copy() for k, v in r.traces.items()} if keep0 else None,
+            "t_touch0": float(r.t_touch[0]), "impact_energy0": float(r.impact_energy[0]),
+            "energy_t": r.trace_t[::stride], "energy_ratio": ratio.astype(np.float32),
+            "control_period": r.control_period, "wall_time_s": r.wall_time_s, "episodes": task.episodes}
+
+
+# -- the comparison --------------------------------------------------------------------------------
+def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon: float | None = None,
+            workers: int | None = None, progress: bool = True,
+            trace_rate: float = 1.0e4) -> dict[str, PolicyRun]:
+    """Run every policy spec on ``episodes`` seeded drops of ``scene``; returns spec -> PolicyRun
+    (with ``summary`` filled in).  Policies are validated before anything runs."""
+    import numpy as np
+
+    from impact_env.parallel import default_workers, run_tasks
+    from impact_env.scene import load_scene
+
+    scene = load_scene(scene)
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes = {episodes!r} must be an integer >= 1")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed = {seed!r} must be an integer >= 0")
+    horizon = scene.episode.horizon if horizon is None else float(horizon)
+    if not (horizon > 0 and math.isfinite(horizon)):
+        raise ValueError(f"horizon = {horizon!r} s must be a finite time > 0 s")
+    if not specs:
+        raise ValueError("no policy given (e.g. --policies passive,thesis-rig)")
+    if len(set(specs)) != len(specs):
+        raise ValueError(f"policy listed twice: {specs}")
+    _validate_specs(specs, scene)
+    workers = default_workers() if workers is None else max(1, int(workers))
+    # chunks of episodes so that every worker has work; results do not depend on the chunking
+    per_policy = max(1, math.ceil(workers / len(specs))) if workers > 1 else 1
+    per_policy = min(per_policy, episodes)
+    bounds = np.linspace(0, episodes, per_policy + 1).round().astype(int)
+    tasks = [Task(spec, scene, list(range(bounds[c], bounds[c + 1])), seed, horizon, trace_rate)
+             for spec in specs for c in range(per_policy)]
+    if workers > 1:
+        _warm_up(scene, horizon)
+    n_steps = int(round(horizon / scene.control_period))
+    t0 = time.perf_counter()
+    outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),
+                     desc=f"compare ({len(specs)} policies x {episodes} episodes)", progress=progress)
+    wall = time.perf_counter() - t0
+    runs = {}
+    for spec in specs:
+        parts = [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec]
+        runs[spec] = _merge(spec, parts, scene)
+        runs[spec].summary = summarize(runs[spec])
+    for run in runs.values():
+        run.summary["wall_time_total_s"] = wall
+    return runs
+
+
+def _validate_specs(specs, scene) -> None:
+    from baselines import make_policy
+    from baselines.registry import is_model_spec
+
+    for spec in specs:
+        if is_model_spec(spec):
+            from baselines.sb3 import parse_model_spec
+
+            parse_model_spec(spec)  # checks syntax and that the file exists; loading waits for the worker
+        else:
+            make_policy(spec, scene)
+
+
+def _warm_up(scene, horizon) -> None:
+    """Compile (or load) the kernels once in the parent, so that forked workers inherit them."""
+    from baselines import make_policy
+    from impact_env.rollout import rollout
+
+    rollout(scene, make_policy("passive", scene), [0], horizon=2 * scene.control_period, trace_rate=0.0)
+
+
+def _merge(spec, parts, scene) -> PolicyRun:
+    import numpy as np
+
+    from impact_env.rollout import EPISODE_METRICS
+
+    episodes = np.concatenate([np.asarray(p["episodes"], dtype=np.int64) for p in parts])
+    metrics: dict = {}
+    failures: list = []
+    ratio_blocks = []
+    energy_t = None
+    trace_t, trace0, t_touch0, e00 = None, None, float("nan"), float("nan")
+    wall = 0.0
+    period = scene.control_period
+    for p in parts:
+        if "error" in p:
+            n = len(p["episodes"])
+            for key in EPISODE_METRICS:
+                metrics.setdefault(key, []).append(np.full(n, np.nan))
+            pairs = enumerate(zip(p["episodes"], p["seeds"], strict=True))
+            failures += [{"policy": spec, "episode": int(j), "seed": int(s), "row": i, "t_s": 0.0,
+                          "error": p["error"]} for i, (j, s) in pairs]
+            continue
+        for key in EPISODE_METRICS:
+            metrics.setdefault(key, []).append(p["metrics"][key])
+        failures += p["failures"]
+        ratio_blocks.append(p["energy_ratio"])
+        energy_t = p["energy_t"]
+        trace_t = p["trace_t"]
+        wall += p["wall_time_s"]
+        period = p["control_period"]
+        if p["trace0"] is not None:
+            trace0, t_touch0, e00 = p["trace0"], p["t_touch0"], p["impact_energy0"]
+    metrics = {k: np.concatenate(v) for k, v in metrics.items()}
+    ratio = np.concatenate(ratio_blocks, axis=1) if ratio_blocks else None
+    return PolicyRun(spec=spec, episodes=episodes, metrics=metrics, failures=failures, trace_t=trace_t,
+                     trace0=trace0, t_touch0=t_touch0, impact_energy0=e00, energy_t=energy_t,
+                     energy_ratio=ratio, control_period=period, wall_time_s=wall)
+
+
+def summarize(run: PolicyRun) -> dict:
+    """The table's numbers for one policy (see the module doc)."""
+    import numpy as np
+
+    m = run.metrics
+    ok = ~np.isnan(m["time_to_catch_s"])
+    out: dict = {"episodes": int(len(run.episodes)), "failed_episodes": int((~ok).sum())}
+    ttc = m["time_to_catch_s"][ok]
+    if ttc.size:
+        # not caught = inf; interpolating with inf gives NaN, so a huge stand-in is mapped back
+        big = np.where(np.isinf(ttc), 1e300, ttc)
+        q25, q50, q75 = (float(x) if x < 1e299 else math.inf for x in np.quantile(big, [0.25, 0.5, 0.75]))
+        out.update(time_to_catch_median_s=q50, time_to_catch_q25_s=q25, time_to_catch_q75_s=q75,
+                   time_to_catch_iqr_s=q75 - q25 if math.isfinite(q75) else math.inf,
+                   caught_fraction=float(np.mean(np.isfinite(ttc))))
+    else:
+        keys = ("time_to_catch_median_s", "time_to_catch_q25_s", "time_to_catch_q75_s", "time_to_catch_iqr_s",
+                "caught_fraction")
+        out.update(dict.fromkeys(keys, math.nan))
+    for key, v in m.items():
+        if key == "time_to_catch_s":
+            continue
+        vals = v[ok & ~np.isnan(v)]
+        out[key] = float(np.mean(vals)) if vals.size else math.nan
+    out["wall_time_s"] = run.wall_time_s
+    out["failures"] = run.failures
+    return out
+
+
+# -- output -----------------------------------------------------------------------------------------
+def _fmt_time(x: float, horizon: float) -> str:
+    if math.isnan(x):
+        return "n/a"
+    return f">{horizon:g}" if math.isinf(x) else f"{x:.3f}"
+
+
+def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
+    cols = ("policy", "catch s: median (IQR)", "caught", "E 10ms", "E 50ms", "E 100ms", "exit v/v0",
+            "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
+    rows = []
+    for spec, run in runs.items():
+        s = run.summary
+        iqr = s["time_to_catch_iqr_s"]
+        iqr_s = "inf" if math.isinf(iqr) else ("n/a" if math.isnan(iqr) else f"{iqr:.3f}")
+        rows.append((spec, f"{_fmt_time(s['time_to_catch_median_s'], horizon)} ({iqr_s})",
+                     f"{s['caught_fraction']:.0%}" if not math.isnan(s["caught_fraction"]) else "n/a",
+                     *(f"{s[k]:.4f}" for k in ("residual_energy_10ms", "residual_energy_50ms",
+                                               "residual_energy_100ms")),
+                     f"{s['exit_speed_ratio']:.3f}", f"{s['bounces']:.1f}", f"{s['peak_force_N']:.1f}",
+                     f"{s['rms_force_N']:.1f}", f"{s['contact_fraction']:.3f}",
+                     f"{1e3 * s['saturation_time_s']:.2f}", f"{s['failed_episodes']}/{s['episodes']}"))
+    widths = [max(len(c), *(len(r[i]) for r in rows)) for i, c in enumerate(cols)]
+    line = lambda r: "  ".join(x.ljust(w) if i == 0 else x.rjust(w)
+                               for i, (x, w) in enumerate(zip(r, widths, strict=True)))
+    return "\n".join([line(cols), line(tuple("-" * w for w in widths))] + [line(r) for r in rows])
+
+
+def _json_value(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def summary_json(runs: dict[str, PolicyRun]) -> dict:
+    """{policy: {metric: value}} with non-finite numbers as null."""
+    out = {}
+    for spec, run in runs.items():
+        d = {}
+        for k, v in run.summary.items():
+            d[k] = [dict(f) for f in v] if k == "failures" else _json_value(v)
+        out[spec] = d
+    return out
+
+
+def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, horizon: float) -> list[Path]:
+    """summary.csv, summary.json, episodes.csv and the plots into ``out_dir``; returns the paths."""
+    import csv
+
+    from impact_env.compare_plots import plot_energy, plot_force, plot_motion
+    from impact_env.rollout import EPISODE_METRICS
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    p = out_dir / "summary.csv"
+    with open(p, "w", newline="") as fh:
+        w = csv.writer(fh)
+        keys = ["episodes", "failed_episodes", *SUMMARY_KEYS, "wall_time_s"]
+        w.writerow(["policy", *keys])
+        for spec, run in runs.items():
+            w.writerow([spec, *(run.summary.get(k) for k in keys)])
+    paths.append(p)
+    p = out_dir / "summary.json"
+    p.write_text(json.dumps({"scene": scene.name, "seed": seed, "horizon_s": horizon,
+                             "policies": summary_json(runs)}, indent=2))
+    paths.append(p)
+    p = out_dir / "episodes.csv"
+    with open(p, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["policy", "episode", "seed", *EPISODE_METRICS])
+        for spec, run in runs.items():
+            for i, j in enumerate(run.episodes):
+                w.writerow([spec, int(j), seed + int(j),
+                            *(float(run.metrics[k][i]) for k in EPISODE_METRICS)])
+    paths.append(p)
+    paths.append(plot_energy(runs, out_dir / "energy.png", scene))
+    paths.append(plot_force(runs, out_dir / "force.png", scene))
+    paths.append(plot_motion(runs, out_dir / "motion.png", scene))
+    return paths
+
+
+# -- command line -------------------------------------------------------------------------------------
+def add_parser(sub, scene_args) -> None:
+    """Register ``compare`` on the CLI's subparsers (``scene_args`` adds --scene/--set)."""
+    p = sub.add_parser("compare", help="run policies on the same seeded drops and tabulate catch metrics")
+    scene_args(p)
+    p.add_argument("--policies", action="append", metavar="LIST",
+                   help="comma-separated policy specs, e.g. "
+                        "passive,thesis-rig:h01=2.3e6,h11=18,pd-penetration "
+                        "or a saved SB3 model (PATH.zip, ppo:PATH.zip); repeatable")
+    p.add_argument("--episodes", type=int, default=100, help="episodes per policy (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="episode j is seeded seed + j (default 0)")
+    p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: episode.horizon)")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
+    p.add_argument("--out", metavar="DIR", help="write summary.csv/json, episodes.csv and plots here")
+    p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--list", action="store_true", help="list the baselines and their parameters, then exit")
+    p.set_defaults(func=cmd_compare)
+
+
+def cmd_compare(args) -> int:
+    from impact_env.cli import scene_from_args
+
+    if args.list:
+        from baselines.registry import describe_policies
+
+        print(describe_policies())
+        return 0
+    scene = scene_from_args(args)
+    texts = args.policies or ["passive,thesis-rig,pd-penetration"]
+    specs = [s for text in texts for s in split_policies(text)]
+    runs = compare(scene, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
+                   workers=args.workers, progress=not args.no_progress and not args.json)
+    horizon = scene.episode.horizon if args.horizon is None else args.horizon
+    if args.json:
+        print(json.dumps(summary_json(runs)))
+    else:
+        wall = next(iter(runs.values())).summary["wall_time_total_s"]
+        print(f"scene {scene.name}: {args.episodes} episodes of {horizon:g} s, seed {args.seed} "
+              f"(episode j seeded {args.seed} + j), impact speed {scene.impact_speed:.3g} m/s, "
+              f"{len(specs)} policies in {wall:.1f} s")
+        print("E: body 1's catch energy over its impact value (mean); exit v/v0: body 1's speed at the first "
+              "separation over the impact speed (mean); catch: catch energy below 1 % for good")
+        print(format_table(runs, horizon))
+    failures = [f for run in runs.values() for f in run.failures]
+    for f in failures[:20]:
+        print(f"impact-env compare: policy {f['policy']!r} failed in episode {f['episode']} "
+              f"(seed {f['seed']}) "
+              f"at t = {f['t_s']:.6g} s: {f['error']}", file=sys.stderr)
+    if len(failures) > 20:
+        print(f"impact-env compare: ... and {len(failures) - 20} more failed episodes", file=sys.stderr)
+    if args.out:
+        paths = write_outputs(runs, Path(args.out), scene, args.seed, horizon)
+        if not args.json:
+            print("written: " + ", ".join(str(p) for p in paths))
+    return 0

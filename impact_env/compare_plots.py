@@ -1,0 +1,130 @@
+"""Plots of a comparison in the style of the thesis's figures (matplotlib, imported lazily).
+
+* ``energy.png`` (thesis fig 4.8): body 1's catch energy over time for the first episode of
+  every policy (control off = ``passive``), and the median with the interquartile band of the
+  energy ratio over all episodes (log scale).
+* ``force.png`` (fig 3.2e-f): the force applied to body 2 over time (first episode, first
+  30 ms after the touch) and its amplitude spectrum over the episode, with the thesis's
+  20-1000 Hz band shaded.
+* ``motion.png`` (fig 3.2c-d): velocities and displacements of both bodies (first episode),
+  upwards positive as in the thesis's plots.
+
+Time is measured from the first touch.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _t_ms(run):
+    return (run.trace_t - run.t_touch0) * 1e3
+
+
+def plot_energy(runs, path: Path, scene) -> Path:
+    plt = _plt()
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    for spec, run in runs.items():
+        if run.trace0 is None:
+            continue
+        (line,) = ax[0].plot(_t_ms(run), run.trace0["catch_energy"] * 1e3, lw=1, label=spec)
+        if run.energy_ratio is not None and run.energy_ratio.size:
+            t = (run.energy_t - run.t_touch0) * 1e3
+            q25, q50, q75 = np.quantile(run.energy_ratio, [0.25, 0.5, 0.75], axis=1)
+            floor = 1e-6
+            ax[1].semilogy(t, np.maximum(q50, floor), color=line.get_color(), lw=1, label=spec)
+            ax[1].fill_between(t, np.maximum(q25, floor), np.maximum(q75, floor), color=line.get_color(),
+                               alpha=0.2)
+    ax[0].set_title("body 1's catch energy, episode 0 (cf. thesis fig 4.8a)", fontsize=9)
+    ax[0].set_ylabel("energy, mJ")
+    n = max((len(r.episodes) for r in runs.values()), default=0)
+    ax[1].set_title(f"catch energy / impact energy: median and IQR of {n} episodes", fontsize=9)
+    ax[1].axhline(0.01, color="k", lw=0.6, ls=":")
+    for a in ax:
+        a.set_xlabel("time from first touch, ms")
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7)
+    fig.suptitle(f"scene {scene.name}: energy of the falling body", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def force_spectrum(force: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(frequency Hz, amplitude N) of a force record: |rfft| * 2 / n, i.e. the amplitude of each
+    sinusoidal component (a 1 N sine at a bin frequency reads 1 N)."""
+    n = len(force)
+    amp = np.abs(np.fft.rfft(force)) * 2.0 / max(n, 1)
+    return np.fft.rfftfreq(n, dt), amp
+
+
+def plot_force(runs, path: Path, scene, window_ms: float = 30.0) -> Path:
+    plt = _plt()
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    for spec, run in runs.items():
+        if run.trace0 is None:
+            continue
+        t = _t_ms(run)
+        f = run.trace0["force_applied"]
+        sel = (t >= -1.0) & (t <= window_ms)
+        ax[0].plot(t[sel], f[sel], lw=1, label=spec)
+        if np.any(f != 0):
+            dt = float(run.trace_t[1] - run.trace_t[0]) if len(run.trace_t) > 1 else run.control_period
+            freq, amp = force_spectrum(f, dt)
+            ax[1].loglog(freq[1:], np.maximum(amp[1:], 1e-6), lw=0.8, label=spec)
+    ax[0].set_title("force on body 2 (up positive), episode 0 (cf. thesis fig 3.2e)", fontsize=9)
+    ax[0].set_xlabel("time from first touch, ms")
+    ax[0].set_ylabel("force, N")
+    ax[1].axvspan(20, 1000, color="0.85", zorder=0, label="20-1000 Hz")
+    ax[1].set_title("its amplitude spectrum over the episode (cf. fig 3.2f)", fontsize=9)
+    ax[1].set_xlabel("frequency, Hz")
+    ax[1].set_ylabel("amplitude, N")
+    for a in ax:
+        a.grid(alpha=0.3, which="both")
+        a.legend(fontsize=7)
+    fig.suptitle(f"scene {scene.name}: shaker force", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def plot_motion(runs, path: Path, scene, window_ms: float = 100.0) -> Path:
+    plt = _plt()
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    for spec, run in runs.items():
+        if run.trace0 is None:
+            continue
+        t = _t_ms(run)
+        sel = t <= window_ms
+        tr = run.trace0
+        (line,) = ax[0].plot(t[sel], -tr["v1"][sel], lw=1, label=f"{spec}: body 1")
+        ax[0].plot(t[sel], -tr["v2"][sel], lw=1, ls="--", color=line.get_color(), label=f"{spec}: body 2")
+        ax[1].plot(t[sel], -tr["x1"][sel] * 1e3, lw=1, color=line.get_color(), label=f"{spec}: body 1")
+        ax[1].plot(t[sel], -tr["x2"][sel] * 1e3, lw=1, ls="--", color=line.get_color(),
+                   label=f"{spec}: body 2")
+    ax[0].set_title("velocities, up positive (cf. thesis fig 3.2c)", fontsize=9)
+    ax[0].set_ylabel("velocity, m/s")
+    ax[1].set_title("surface positions, up positive (cf. fig 3.2d)", fontsize=9)
+    ax[1].set_ylabel("height, mm")
+    for a in ax:
+        a.set_xlabel("time from first touch, ms")
+        a.grid(alpha=0.3)
+        a.legend(fontsize=6)
+    fig.suptitle(f"scene {scene.name}: motion of the bodies, episode 0", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
