@@ -147,7 +147,7 @@ def test_bad_actions_and_bad_arguments():
         strict.step(np.array([1.5]))
     with pytest.raises(ConfigError, match="presets"):
         ImpactCatchEnv("rigg")
-    with pytest.raises(ConfigError, match="plant.m1"):
+    with pytest.raises(ConfigError, match="did you mean .m1."):
         ImpactCatchEnv("rig", overrides={"plant.mass1": 0.1})
     with pytest.raises(ConfigError, match="observation"):
         ImpactCatchEnv("rig", observation="everything")
