@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from impact_env import pipeline_kernel as K
+from impact_env._jit import jit
 from impact_env.effects.delay import delay_samples
 from impact_env.effects.detector import detector_params
 from impact_env.effects.filters import design_filters, make_filter_state
@@ -100,6 +101,7 @@ class Simulator:
         self.t = np.zeros(n)
         self._noise = np.zeros((n, NOISE_BLOCK, N_CHANNELS))
         self._cursor = np.full(n, NOISE_BLOCK)
+        self._refill_in = 0  # steps until some env's noise block runs out
         self._rngs: list[np.random.Generator | None] = [None] * n
         self._z = np.zeros((n, N_CHANNELS))
 
@@ -159,6 +161,7 @@ class Simulator:
             self.det_state[i] = 0.0
             self.t[i] = 0.0
             self._cursor[i] = NOISE_BLOCK
+            self._refill_in = 0
             self.info[i] = 0.0
         self._refresh_readings(idx)
 
@@ -171,11 +174,13 @@ class Simulator:
 
     def _draw_noise(self) -> np.ndarray:
         if self.flags & K.F_SENSORS:
-            for i in np.nonzero(self._cursor >= NOISE_BLOCK)[0]:
-                self._noise[i] = self._rngs[i].standard_normal((NOISE_BLOCK, N_CHANNELS))
-                self._cursor[i] = 0
-            self._z[:] = self._noise[np.arange(self.n), self._cursor]
-            self._cursor += 1
+            if self._refill_in <= 0:  # some env has used up its block (or was just reset)
+                for i in np.nonzero(self._cursor >= NOISE_BLOCK)[0]:
+                    self._noise[i] = self._rngs[i].standard_normal((NOISE_BLOCK, N_CHANNELS))
+                    self._cursor[i] = 0
+                self._refill_in = NOISE_BLOCK - int(self._cursor.max())
+            self._refill_in -= 1
+            _next_noise(self._noise, self._cursor, self._z)
         return self._z
 
     def step(self, actions: np.ndarray) -> None:
@@ -200,3 +205,14 @@ class Simulator:
 
     def diverged(self) -> np.ndarray:
         return (self.info[:, K.I_STATUS] != L.OK) | ~np.all(np.isfinite(self.Y), axis=1)
+
+
+@jit
+def _next_noise(noise, cursor, z):
+    """z[i] = noise[i, cursor[i]]; cursor += 1 (a numpy gather costs more than the plant step)."""
+    for i in range(z.shape[0]):
+        if cursor[i] >= noise.shape[1]:
+            raise IndexError("noise block used up: Simulator._refill_in is out of step")
+        for j in range(z.shape[1]):
+            z[i, j] = noise[i, cursor[i], j]
+        cursor[i] += 1

@@ -106,6 +106,7 @@ class CatchTask:
         self.terminated = np.zeros(n, dtype=bool)
         self.truncated = np.zeros(n, dtype=bool)
         self.rows = np.zeros((n, TK.N_ROW))
+        self._a1 = np.zeros(1)
         self._obs_args = (lay.sensor_channels, lay.detector, lay.privileged, lay.scales, tp,
                           self.frames, self.past_actions, self.obs, self.steps, self.below, self.diverged,
                           self.energy)
@@ -125,6 +126,11 @@ class CatchTask:
     def check_actions(self, actions) -> np.ndarray:
         """float64[N] actions from what the caller gave; NaN or a wrong shape raises ValueError;
         values outside [-1, 1] are clipped (``action_bounds = "clip"``) or raise."""
+        if self.n == 1 and type(actions) is np.ndarray and actions.shape == (1,):
+            x = float(actions[0])  # the common single-env case, without numpy reductions
+            if -1.0 <= x <= 1.0:
+                self._a1[0] = x
+                return self._a1
         a = np.asarray(actions, dtype=np.float64)
         if a.size != self.n or (a.ndim > 1 and a.shape[-1] != 1) or a.ndim > 2:
             raise ValueError(f"action has shape {np.shape(actions)}; expected ({self.n}, 1) "
@@ -171,6 +177,7 @@ class CatchTask:
                     self.sim._rngs[i].bit_generator.state = state
             else:
                 getattr(obj, name)[idx] = rows
+        self.sim._refill_in = 0  # restored noise cursors may point past their blocks again
 
     # -- info ---------------------------------------------------------------------------------
     def info_arrays(self) -> dict[str, np.ndarray]:
@@ -187,10 +194,9 @@ class CatchTask:
     def info_dict(self, i: int) -> dict:
         """Env i's info as Python scalars (and ``state`` as float64[4])."""
         vals = self.rows[i].tolist()
-        out = dict(zip(TK.INFO_KEYS[:TK.R_X1], vals[:TK.R_X1]))
-        for key in ("contact", "saturated", "detected"):
+        out = dict(zip(TK.INFO_KEYS, vals))
+        for key in TK.BOOL_KEYS:
             out[key] = out[key] > 0.5
-        out["state"] = self.rows[i, TK.R_X1:TK.R_V2 + 1].copy()
-        out["diverged"] = vals[TK.R_DIV] > 0.5
-        out["caught"] = vals[TK.R_CAUGHT] > 0.5
+        del out["x1"], out["v1"], out["x2"], out["v2"]
+        out["state"] = np.array(vals[TK.R_X1:TK.R_V2 + 1])
         return out

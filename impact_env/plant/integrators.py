@@ -233,14 +233,27 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
     scratch = np.empty(6)
     for i in range(n):
         r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, m1, m2, c, b, g, k2, c2)
+        fnew = -1.0  # contact force at the new state, when it is computed for the crossing test
+        if mode != AUTO:
+            # the crossing test needs only the sign of event_value: for d > 0 that is the sign
+            # of the damped force f = c d^0.25 q, which the peak tracking needs anyway
+            side = r[0] - r[2]
+            if side > 0.0:
+                sd = sqrt(side)
+                fnew = c * side * sd
+                if b != 0.0:
+                    fnew += b * sqrt(sd) * (r[1] - r[3])
+                if fnew <= 0.0:
+                    side = fnew
         if mode == AUTO:
             if (x1 - x2 > 0.0) != (r[0] - r[2] > 0.0):
                 y[0], y[1], y[2], y[3], y[4], y[5] = r
                 _log_event(ev, evn, t0 + (i + 1) * dt, 1.0 if r[0] - r[2] > 0.0 else -1.0, y)
             x1, v1, x2, v2, we, wd = r
-        elif not _crossed(mode, event_value(r[0], r[1], r[2], r[3], c, b)):
+        elif not _crossed(mode, side):
             x1, v1, x2, v2, we, wd = r
         else:
+            fnew = -1.0
             y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
             rem = dt
             tt = t0 + i * dt
@@ -273,7 +286,10 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
             peak[0] = pk
             return DIVERGED, mode
         if mode != FREE and x1 > x2:
-            f, _fe = contact_force(x1 - x2, v1 - v2, mode, c, b)
+            if fnew >= 0.0 and mode == CONTACT:
+                f = fnew
+            else:
+                f, _fe = contact_force(x1 - x2, v1 - v2, mode, c, b)
             if f > pk:
                 pk = f
     y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
