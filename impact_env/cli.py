@@ -82,8 +82,9 @@ def cmd_drop(args) -> int:
     if args.json:
         print(json.dumps(m))
     else:
-        print(f"scene {scene.name}: m1 {scene.plant.m1:g} kg, m2 {scene.plant.m2:g} kg, c {scene.plant.c:g} N/m^1.5, "
-              f"impact speed {scene.impact_speed:g} m/s, {scene.integrator.method}")
+        print(f"scene {scene.name}: m1 {scene.plant.m1:g} kg, m2 {scene.plant.m2:g} kg, "
+              f"c {scene.plant.c:g} N/m^1.5, impact speed {scene.impact_speed:g} m/s, "
+              f"{scene.integrator.method}")
         for k, v in m.items():
             if isinstance(v, dict):
                 v = ", ".join(f"{name} {x:.6g}" for name, x in v.items())
@@ -141,7 +142,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, help="fixed step, s")
     p.add_argument("--rtol", type=float, help="dopri5 relative tolerance")
     p.add_argument("--t-end", type=float, default=None, help="simulated time, s (default: episode.horizon)")
-    p.add_argument("--record-rate", type=float, default=None, help="samples per second (default: control.rate)")
+    p.add_argument("--record-rate", type=float, default=None,
+                   help="samples per second (default: control.rate)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", metavar="FILE.png", help="write positions, velocities, forces and energies")
     p.set_defaults(func=cmd_drop)

@@ -11,10 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from impact_env import pipeline_kernel as K
-from impact_env._jit import jit
 from impact_env.effects.delay import delay_samples
 from impact_env.effects.detector import detector_params
-from impact_env.effects.filters import design_filters, make_filter_state
+from impact_env.effects.filters import design_filters
 from impact_env.effects.saturation import saturation_params
 from impact_env.effects.sensors import N_CHANNELS, sensor_params
 from impact_env.effects.shaker import discrete_emf_model
@@ -42,6 +41,13 @@ class Simulator:
     ``P[i]`` (the pad damping of a drawn restitution from a :class:`ZetaTable`, equal to the exact
     solve to about 1e-10), initial state, impact energy, command scale, noise levels, shaker
     model and delay lengths.  Envs of one batch thus differ; the kernel is the same.
+
+    The effects' per-env parameters and state live packed in ``PR`` and ``ST`` (one row per env,
+    layout :func:`impact_env.pipeline_kernel.row_layout`, sizes ``dims``); their pieces are
+    readable and writable as views over envs by name: ``command_scale``, ``sh_A`` .. ``sh_E``,
+    ``sat_params``, ``sens_params``, ``top_mass``, ``det_params``, ``act_len``, ``sd_len``,
+    ``scale``, and the state ``sh_X``, ``sat_state``, ``filt_state``, ``act_buf``, ``sd_buf``,
+    ``det_state``, ``H``, ...
     """
 
     def __init__(self, scene: Scene | str, num_envs: int = 1, events_per_env: int = 64):
@@ -75,35 +81,44 @@ class Simulator:
         self.drawn: list[dict[str, float]] = [{} for _ in range(n)]
         self.Y = np.zeros((n, L.N_STATE))
         self.modes = np.zeros(n, dtype=np.int64)
-        self.H = np.zeros((n, 1))
         self.EV = np.zeros((n, events_per_env, L.N_EVENT_COLS))
         self.EVN = np.zeros((n, 1), dtype=np.int64)
+        self.sos = design_filters(fx.filters, rate) if fx.on("filters") else np.zeros((N_CHANNELS, 1, 6))
+        # per-env effect parameters and state, packed into one row each (pipeline_kernel's layout);
         # delay lines sized for the longest delay the scene (or its ranges) can ask for
+        base = self._env_arrays(scene, exact=True)
         k_sens, k_act = fx.delay.samples(rate)
         k_sens_max = max([k_sens] + [delay_samples(v, rate) for v in rz.sensor_delay_s])
         k_act_max = max([k_act] + [delay_samples(v, rate) for v in rz.actuator_delay_s])
-        self.act_buf = np.zeros((n, k_act_max if fx.on("actuator_delay") else 0, 1))
-        self.act_head = np.zeros((n, 1))
-        self.sd_buf = np.zeros((n, k_sens_max if fx.on("sensor_delay") else 0, N_CHANNELS))
-        self.sd_head = np.zeros((n, 1))
-        self.sos = design_filters(fx.filters, rate) if fx.on("filters") else np.zeros((N_CHANNELS, 1, 6))
-        self.filt_state = np.zeros((n,) + make_filter_state(self.sos).shape)
-        # per-env parameters, filled from the nominal scene now (and per draw at reset)
-        base = self._env_arrays(scene, exact=True)
+        self.dims = np.array([base["sh_A"].shape[0], self.sos.shape[1],
+                              k_act_max if fx.on("actuator_delay") else 0,
+                              k_sens_max if fx.on("sensor_delay") else 0], dtype=np.int64)
+        pr, q, st, s = K.row_layout(*(int(v) for v in self.dims))
+        self.PR = np.zeros((n, q))
+        self.ST = np.zeros((n, s))
+        self._views = {name: _column_view(self.PR, off, shape) for name, (off, shape) in pr.items()}
+        self._views.update({name: _column_view(self.ST, off, shape) for name, (off, shape) in st.items()})
         self._base = base
         for name, value in base.items():
-            setattr(self, name, np.repeat(np.asarray(value)[None], n, axis=0))
-        self.sh_X = np.zeros((n, self.sh_A.shape[1]))
-        self.sat_state = np.zeros((n, 2))
-        self.det_state = np.zeros((n, 2))
+            if name in self._views:
+                self._views[name][:] = value
+            else:
+                setattr(self, name, np.repeat(np.asarray(value)[None], n, axis=0))
         self.readings = np.zeros((n, N_CHANNELS))
         self.info = np.zeros((n, K.N_INFO))
         self.t = np.zeros(n)
         self._noise = np.zeros((n, NOISE_BLOCK, N_CHANNELS))
-        self._cursor = np.full(n, NOISE_BLOCK)
+        self._cursor = np.full(n, NOISE_BLOCK, dtype=np.int64)
         self._refill_in = 0  # steps until some env's noise block runs out
         self._rngs: list[np.random.Generator | None] = [None] * n
-        self._z = np.zeros((n, N_CHANNELS))
+
+    def __getattr__(self, name):
+        """The named pieces of the packed rows (``sh_A``, ``sens_params``, ``filt_state``, ...:
+        see :func:`impact_env.pipeline_kernel.row_layout`) as views over envs."""
+        views = self.__dict__.get("_views")
+        if views is not None and name in views:
+            return views[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def _env_arrays(self, scene: Scene, exact: bool = False) -> dict[str, np.ndarray]:
         """One env's parameter rows and start values for the fixed ``scene`` (attribute -> row)."""
@@ -129,8 +144,8 @@ class Simulator:
             "sat_params": saturation_params(fx.saturation, rate),
             "sens_params": sensor_params(fx.sensors), "top_mass": fx.sensors.force.top_mass,
             "det_params": detector_params(fx.detector, rate),
-            "act_len": np.int64(k_act if fx.on("actuator_delay") else 0),
-            "sd_len": np.int64(k_sens if fx.on("sensor_delay") else 0),
+            "act_len": float(k_act if fx.on("actuator_delay") else 0),
+            "sd_len": float(k_sens if fx.on("sensor_delay") else 0),
         }
 
     # -- episodes --------------------------------------------------------------------------
@@ -148,17 +163,9 @@ class Simulator:
                     getattr(self, name)[i] = value
             self.Y[i] = self.y0[i]
             self.modes[i] = self.mode0[i]
-            self.H[i] = 0.0
             self.EVN[i] = 0
             self.EV[i] = 0.0
-            self.act_buf[i] = 0.0
-            self.act_head[i] = 0.0
-            self.sh_X[i] = 0.0
-            self.sat_state[i] = 0.0
-            self.filt_state[i] = 0.0
-            self.sd_buf[i] = 0.0
-            self.sd_head[i] = 0.0
-            self.det_state[i] = 0.0
+            self.ST[i] = 0.0  # every effect's state, the delay lines and dopri5's step size
             self.t[i] = 0.0
             self._cursor[i] = NOISE_BLOCK
             self._refill_in = 0
@@ -172,7 +179,9 @@ class Simulator:
             y = self.Y[i]
             self.readings[i] = (0.0, 0.0, y[L.X2], y[L.X1])
 
-    def _draw_noise(self) -> np.ndarray:
+    def _refill_noise(self) -> None:
+        """Refill the noise block of every env that has used its block up (the kernel reads
+        ``_noise[i, _cursor[i]]`` and advances the cursor)."""
         if self.flags & K.F_SENSORS:
             if self._refill_in <= 0:  # some env has used up its block (or was just reset)
                 for i in np.nonzero(self._cursor >= NOISE_BLOCK)[0]:
@@ -180,22 +189,17 @@ class Simulator:
                     self._cursor[i] = 0
                 self._refill_in = NOISE_BLOCK - int(self._cursor.max())
             self._refill_in -= 1
-            _next_noise(self._noise, self._cursor, self._z)
-        return self._z
 
     def step(self, actions: np.ndarray) -> None:
         """Advance every env by one control period; ``actions`` float64[N] in [-1, 1]."""
-        a = np.ascontiguousarray(actions, dtype=np.float64).reshape(self.n)
-        z = self._draw_noise()
-        K.control_step_batch(a, 0.0, self.period, self.flags, self.command_scale,
-                             self.Y, self.modes, self.P, self.H, self.method, self.scene.integrator.dt,
-                             self.scene.integrator.rtol, self.scale, self.EV, self.EVN,
-                             self.act_buf, self.act_len, self.act_head,
-                             self.sh_A, self.sh_B, self.sh_C, self.sh_D, self.sh_E, self.sh_X,
-                             self.sat_params, self.sat_state, self.sens_params, self.top_mass, z,
-                             self.sos, self.filt_state, self.sd_buf, self.sd_len, self.sd_head,
-                             self.det_params, self.det_state, self.readings, self.info)
-        self.t += self.period
+        a = actions if (type(actions) is np.ndarray and actions.dtype == np.float64 and actions.ndim == 1
+                        and actions.shape[0] == self.n and actions.flags.c_contiguous) \
+            else np.ascontiguousarray(actions, dtype=np.float64).reshape(self.n)
+        self._refill_noise()
+        integ = self.scene.integrator
+        K.control_step_batch(a, 0.0, self.period, self.flags, self.method, integ.dt, integ.rtol, self.dims,
+                             self.Y, self.modes, self.P, self.EV, self.EVN, self.PR, self.ST, self.sos,
+                             self._noise, self._cursor, self.t, self.readings, self.info)
 
     # -- derived readings ---------------------------------------------------------------------
     def catch_energy(self) -> np.ndarray:
@@ -207,12 +211,9 @@ class Simulator:
         return (self.info[:, K.I_STATUS] != L.OK) | ~np.all(np.isfinite(self.Y), axis=1)
 
 
-@jit
-def _next_noise(noise, cursor, z):
-    """z[i] = noise[i, cursor[i]]; cursor += 1 (a numpy gather costs more than the plant step)."""
-    for i in range(z.shape[0]):
-        if cursor[i] >= noise.shape[1]:
-            raise IndexError("noise block used up: Simulator._refill_in is out of step")
-        for j in range(z.shape[1]):
-            z[i, j] = noise[i, cursor[i], j]
-        cursor[i] += 1
+def _column_view(rows: np.ndarray, off: int, shape: tuple) -> np.ndarray:
+    """The columns ``off .. off + prod(shape)`` of every row, as a view of shape (n, *shape)."""
+    size = int(np.prod(shape)) if shape else 1
+    v = rows[:, off] if not shape else rows[:, off:off + size].reshape((rows.shape[0],) + tuple(shape))
+    assert np.shares_memory(v, rows) or v.size == 0
+    return v

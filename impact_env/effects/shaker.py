@@ -222,16 +222,21 @@ def _series(first, second):
 @jit
 def shaker_step(A, B, C, D, x, u):
     """Force held over this period for the demand u (N); advances the state x in place."""
+    return shaker_step_into(A, B, C, D, x, u, np.empty(x.shape[0]))
+
+
+@jit(inline="always")
+def shaker_step_into(A, B, C, D, x, u, scratch):
+    """:func:`shaker_step` with a caller-owned scratch array (float64[n]) instead of an allocation."""
     n = x.shape[0]
     y = D * u
     for i in range(n):
         y += C[i] * x[i]
-    xn = np.empty(n)
     for i in range(n):
         acc = B[i] * u
         for j in range(n):
             acc += A[i, j] * x[j]
-        xn[i] = acc
+        scratch[i] = acc
     for i in range(n):
-        x[i] = xn[i]
+        x[i] = scratch[i]
     return y
