@@ -34,7 +34,8 @@ from pathlib import Path
 SUMMARY_KEYS = ("time_to_catch_median_s", "time_to_catch_q25_s", "time_to_catch_q75_s", "time_to_catch_iqr_s",
                 "caught_fraction", "residual_energy_10ms", "residual_energy_50ms", "residual_energy_100ms",
                 "exit_speed_ratio", "exit_velocity_ratio", "bounces", "peak_force_N", "rms_force_N",
-                "peak_demand_N", "contact_fraction", "saturation_time_s", "impact_speed_mps")
+                "peak_demand_N", "energy_integral_ms", "contact_fraction", "saturation_time_s",
+                "impact_speed_mps")
 ENERGY_CURVE_RATE = 2000.0  # Hz, samples of the catch-energy curves kept for every episode
 
 
@@ -259,8 +260,8 @@ def _fmt_time(x: float, horizon: float) -> str:
 
 
 def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
-    cols = ("policy", "catch s: median (IQR)", "caught", "E 10ms", "E 50ms", "E 100ms", "exit v/v0",
-            "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
+    cols = ("policy", "catch s: median (IQR)", "caught", "E 10ms", "E 50ms", "E 100ms", "int E ms",
+            "exit v/v0", "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
     rows = []
     for spec, run in runs.items():
         s = run.summary
@@ -270,7 +271,8 @@ def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
                      f"{s['caught_fraction']:.0%}" if not math.isnan(s["caught_fraction"]) else "n/a",
                      *(f"{s[k]:.4f}" for k in ("residual_energy_10ms", "residual_energy_50ms",
                                                "residual_energy_100ms")),
-                     f"{s['exit_speed_ratio']:.3f}", f"{s['bounces']:.1f}", f"{s['peak_force_N']:.1f}",
+                     f"{s['energy_integral_ms']:.2f}", f"{s['exit_speed_ratio']:.3f}", f"{s['bounces']:.1f}",
+                     f"{s['peak_force_N']:.1f}",
                      f"{s['rms_force_N']:.1f}", f"{s['contact_fraction']:.3f}",
                      f"{1e3 * s['saturation_time_s']:.2f}", f"{s['failed_episodes']}/{s['episodes']}"))
     widths = [max(len(c), *(len(r[i]) for r in rows)) for i, c in enumerate(cols)]

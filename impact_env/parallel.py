@@ -37,13 +37,14 @@ def _init(q) -> None:
 
 
 class Progress:
-    """A progress bar: tqdm if installed, else ``desc: 45% (1234/2730)`` rewritten on stderr.
-    Silent when ``enabled`` is false."""
+    """A progress bar: tqdm if installed, else ``desc: 45% (1234/2730)`` rewritten on stderr (one
+    line per tenth when stderr is not a terminal).  Silent when ``enabled`` is false."""
 
     def __init__(self, total: int, desc: str, enabled: bool = True):
         self.total, self.desc, self.done, self.enabled = max(int(total), 1), desc, 0, enabled
         self._bar = None
         self._last = 0.0
+        self._tty = sys.stderr.isatty()
         if enabled:
             try:
                 from tqdm import tqdm
@@ -59,10 +60,15 @@ class Progress:
         if self._bar is not None:
             self._bar.update(n)
             return
+        pct = 100.0 * self.done / self.total
+        if not self._tty:  # a log file: one line per tenth, no carriage returns
+            if int(pct // 10) > self._last or self.done >= self.total:
+                self._last = int(pct // 10)
+                print(f"{self.desc}: {pct:5.1f}% ({self.done}/{self.total})", file=sys.stderr, flush=True)
+            return
         now = time.monotonic()
         if now - self._last > 0.5 or self.done >= self.total:
             self._last = now
-            pct = 100.0 * self.done / self.total
             print(f"\r{self.desc}: {pct:5.1f}% ({self.done}/{self.total})", end="", file=sys.stderr,
                   flush=True)
 
@@ -71,7 +77,7 @@ class Progress:
             return
         if self._bar is not None:
             self._bar.close()
-        else:
+        elif self._tty:
             print("\r" + " " * (len(self.desc) + 40) + "\r", end="", file=sys.stderr, flush=True)
 
 
