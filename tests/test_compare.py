@@ -147,3 +147,25 @@ def test_sweep_small_grid_batches_the_pairs(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["pairs"] == 4 and out["force_limit_N"] == 200.0
     assert (tmp_path / "sweep.csv").exists() and (tmp_path / "sweep.png").exists()
+
+
+@pytest.mark.slow
+def test_a_saved_sb3_model_joins_the_table(tmp_path):
+    """A PPO model saved by stable-baselines3 (untrained: only the plumbing is tested) runs
+    through compare like a baseline; its observation is named in the spec, or in PATH.json."""
+    from stable_baselines3 import PPO
+
+    from impact_env.env.sb3 import make_sb3_vec_env
+
+    env = make_sb3_vec_env("rig", num_envs=1)
+    path = tmp_path / "agent.zip"
+    PPO("MlpPolicy", env, n_steps=64, batch_size=32, policy_kwargs={"net_arch": [8]}, seed=0).save(path)
+    # on rig the sensor frame and the true state both have 4 entries: the spec must say which
+    with pytest.raises(Exception, match="say which"):
+        registry.make_policy(str(path), RIG)
+    spec = f"ppo:{path}:observation=sensors"
+    runs = compare(RIG, ["passive", spec], episodes=2, seed=0, horizon=0.005, workers=1, progress=False)
+    s = runs[spec].summary
+    assert s["failed_episodes"] == 0 and s["peak_demand_N"] <= 200.0 + 1e-9
+    (tmp_path / "agent.json").write_text(json.dumps({"observation": "sensors", "history": 1}))
+    assert registry.make_policy(str(path), RIG).observation == "sensors"
