@@ -248,7 +248,8 @@ def write_markdown(path: Path, rows, n: int) -> None:
              "prose.",
              "", "| claim | thesis | ours | command |", "| --- | --- | --- | --- |"]
     for claim, thesis, ours, cmd in rows:
-        lines.append(f"| {claim} | {thesis} | {ours} | `{cmd}` |")
+        cells = (x.replace("|", "\\|") for x in (claim, thesis, ours))  # a pipe would end the cell
+        lines.append("| {} | {} | {} | ".format(*cells) + f"`{cmd}` |")
     lines += ["", f"Rig numbers are over {n} seeded drops (episode j seeded j); the rig's drop is fixed, so "
               "drops differ only in sensor noise.", "", notes]
     path.write_text("\n".join(lines))
