@@ -66,6 +66,13 @@ def test_one_kernel_specialisation_for_every_scene():
         sim.reset([np.random.default_rng(1), np.random.default_rng(2)])
         sim.step(np.array([0.1, -0.1]))
     assert len(K.control_step_batch.signatures) == 1
+    # and the headless path: one recording-loop specialisation for every scene and method
+    from impact_env.plant.run import run_periods
+
+    simulate("ideal", t_end=1e-4)
+    simulate("rig", controller=lambda t, y: 1.0, t_end=1e-3)
+    simulate("ideal", t_end=1e-4, overrides={"integrator.method": "dopri5", "control.rate": 1e4})
+    assert len(run_periods.signatures) == 1
 
 
 # -- the randomize section: validation ---------------------------------------------------------------
