@@ -119,7 +119,7 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     venv = ImpactCatchVectorEnv(n, scene, autoreset_mode=AutoresetMode.DISABLED, observation=observation,
                                 history=history, horizon=n_steps * period, terminate_on_catch=False)
     obs, info = venv.reset(seed=[int(x) for x in seeds])
-    t_touch = venv.task.sim.t_touch.copy()
+    t_touch = info["t_touch"].copy()
     v_imp = info["impact_speed"].copy()
     e0 = info["impact_energy"].copy()
 

@@ -72,10 +72,11 @@ def test_step_types_and_info_contents():
     assert env.observation_space.contains(obs)
     for key in ("catch_energy", "catch_energy_ratio", "impact_energy", "impact_speed", "contact",
                 "contact_force", "force_demand", "force_applied", "saturated", "detected", "state",
-                "diverged", "caught", "t"):
+                "diverged", "caught", "t", "t_touch"):
         assert key in info
     assert info["force_demand"] == pytest.approx(0.5 * env.scene.effects.command_scale)
     assert info["t"] == pytest.approx(env.scene.control_period)
+    assert info["t_touch"] == pytest.approx(env.scene.initial.pre_contact_time)
 
 
 def test_reward_is_minus_the_normalised_catch_energy_from_an_independent_formula():

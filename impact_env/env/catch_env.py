@@ -82,7 +82,7 @@ class ImpactCatchEnv(gym.Env):
     ``info`` holds (SI): ``t``, ``catch_energy``, ``catch_energy_ratio``, ``impact_energy``,
     ``impact_speed``, ``contact`` (true contact), ``contact_force``, ``force_demand``,
     ``force_applied``, ``saturated``, ``detected``, ``state`` (x1, v1, x2, v2), ``diverged``,
-    ``caught``.
+    ``caught``, ``t_touch`` (time of the first touch after the episode start, from the free fall).
 
     ## Version History
 

@@ -120,6 +120,7 @@ class CatchTask:
         g = sim.P[idx, L.G]
         gap = np.maximum(y[:, L.X2] - y[:, L.X1], 0.0)
         self.impact_speed[idx] = np.sqrt(np.maximum(y[:, L.V1] - y[:, L.V2], 0.0) ** 2 + 2.0 * g * gap)
+        self.rows[idx, TK.R_TTOUCH] = sim.t_touch[idx]  # kept by the kernels, which skip this column
         TK.task_reset_rows(idx, sim.readings, sim.info, sim.Y, sim.P, sim.t, sim.impact_energy,
                            self.impact_speed, *self._obs_args, self.rows)
 
@@ -189,6 +190,7 @@ class CatchTask:
         out["state"] = rows[:, TK.R_X1:TK.R_V2 + 1].copy()
         out["diverged"] = rows[:, TK.R_DIV] > 0.5
         out["caught"] = rows[:, TK.R_CAUGHT] > 0.5
+        out["t_touch"] = rows[:, TK.R_TTOUCH].copy()
         return out
 
     def info_dict(self, i: int) -> dict:

@@ -20,10 +20,10 @@ N_TASK = 9
 # columns of the per-env info row
 INFO_KEYS = ("t", "catch_energy", "catch_energy_ratio", "impact_energy", "impact_speed", "contact",
              "contact_force", "force_demand", "force_applied", "saturated", "detected", "x1", "v1", "x2",
-             "v2", "diverged", "caught")
+             "v2", "diverged", "caught", "t_touch")
 BOOL_KEYS = ("contact", "saturated", "detected", "diverged", "caught")
 (R_T, R_E, R_RATIO, R_E0, R_V0, R_CONTACT, R_FC, R_FD, R_FA, R_SAT, R_DET, R_X1, R_V1, R_X2, R_V2, R_DIV,
- R_CAUGHT) = range(len(INFO_KEYS))
+ R_CAUGHT, R_TTOUCH) = range(len(INFO_KEYS))
 N_ROW = len(INFO_KEYS)
 
 
