@@ -96,12 +96,14 @@ class Simulator:
         pr, q, st, s = K.row_layout(*(int(v) for v in self.dims))
         self.PR = np.zeros((n, q))
         self.ST = np.zeros((n, s))
-        self._views = {name: _column_view(self.PR, off, shape) for name, (off, shape) in pr.items()}
-        self._views.update({name: _column_view(self.ST, off, shape) for name, (off, shape) in st.items()})
+        # name -> (packed array, offset, shape); views are made on access (so copies and pickles
+        # of a Simulator stay consistent)
+        self._pieces = {name: ("PR", off, shape) for name, (off, shape) in pr.items()}
+        self._pieces.update({name: ("ST", off, shape) for name, (off, shape) in st.items()})
         self._base = base
         for name, value in base.items():
-            if name in self._views:
-                self._views[name][:] = value
+            if name in self._pieces:
+                getattr(self, name)[:] = value
             else:
                 setattr(self, name, np.repeat(np.asarray(value)[None], n, axis=0))
         self.readings = np.zeros((n, N_CHANNELS))
@@ -115,9 +117,10 @@ class Simulator:
     def __getattr__(self, name):
         """The named pieces of the packed rows (``sh_A``, ``sens_params``, ``filt_state``, ...:
         see :func:`impact_env.pipeline_kernel.row_layout`) as views over envs."""
-        views = self.__dict__.get("_views")
-        if views is not None and name in views:
-            return views[name]
+        pieces = self.__dict__.get("_pieces")
+        if pieces is not None and name in pieces:
+            rows, off, shape = pieces[name]
+            return _column_view(self.__dict__[rows], off, shape)
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def _env_arrays(self, scene: Scene, exact: bool = False) -> dict[str, np.ndarray]:
@@ -205,7 +208,8 @@ class Simulator:
     def catch_energy(self) -> np.ndarray:
         """Body 1's catch energy per env (J)."""
         P = self.P
-        return catch_energy(self.Y[:, L.X1], self.Y[:, L.V1], self.Y[:, L.X2], P[:, L.M1], P[:, L.C], P[:, L.G])
+        Y = self.Y
+        return catch_energy(Y[:, L.X1], Y[:, L.V1], Y[:, L.X2], P[:, L.M1], P[:, L.C], P[:, L.G])
 
     def diverged(self) -> np.ndarray:
         return (self.info[:, K.I_STATUS] != L.OK) | ~np.all(np.isfinite(self.Y), axis=1)

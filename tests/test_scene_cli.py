@@ -4,10 +4,10 @@ effects pipeline's agreement with the bare plant."""
 from __future__ import annotations
 
 import json
-import tomllib
 
 import numpy as np
 import pytest
+import tomllib
 
 from impact_env.cli import main
 from impact_env.config import ConfigError
@@ -92,7 +92,8 @@ def test_cli_scene_show_and_list(capsys):
     assert tomllib.loads(capsys.readouterr().out)["name"] == "rig"
 
 
-@pytest.mark.parametrize("argv", [["scenes"], ["scene", "show", "rig"], ["drop", "--t-end", "1e-4", "--json"]])
+@pytest.mark.parametrize("argv", [["scenes"], ["scene", "show", "rig"],
+                                  ["drop", "--t-end", "1e-4", "--json"]])
 def test_cli_set_works_on_every_command(argv, capsys):
     assert main(argv + ["--set", "plant.m1=0.05", "--set", "effects.command_scale=150"]) == 0
     out = capsys.readouterr().out
@@ -109,8 +110,15 @@ def test_cli_set_works_on_every_command(argv, capsys):
     assert "did you mean 'm1'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("command", ["compare", "sweep"])
+def test_cli_later_commands_share_the_set_option(command, capsys):
+    assert main([command, "--set", "plant.m11=0.05"]) == 2
+    assert "did you mean 'm1'" in capsys.readouterr().err
+
+
 def test_cli_drop_randomized_scene_with_seed(capsys):
-    argv = ["drop", "--scene", "rig-randomized", "--set", "randomize.restitution=[]", "--t-end", "2e-3", "--json"]
+    argv = ["drop", "--scene", "rig-randomized", "--set", "randomize.restitution=[]", "--t-end", "2e-3",
+            "--json"]
     assert main(argv + ["--seed", "3"]) == 0
     drawn = json.loads(capsys.readouterr().out)["drawn"]
     scene = load_scene("rig-randomized", {"randomize.restitution": "[]"})
