@@ -251,3 +251,19 @@ def test_ppo_and_sac_train_on_the_sb3_adapter():
     obs = env.reset()
     action, _ = ppo.predict(obs, deterministic=True)
     assert action.shape == (4, 1)
+
+
+def test_render_human_draws_into_a_matplotlib_window():
+    import matplotlib
+
+    matplotlib.use("Agg")  # headless: the window is an off-screen figure
+    env = ImpactCatchEnv("rig", render_mode="human")
+    env.reset(seed=0)
+    assert env.render() is None
+    env.step(np.zeros(1, np.float32))
+    env.render()
+    fig = env._viewer[0]
+    env.close()
+    import matplotlib.pyplot as plt
+
+    assert not plt.fignum_exists(fig.number)
