@@ -60,8 +60,8 @@ def test_same_seed_same_episode_bitwise_and_different_seed_different_noise():
     a = rollout(ImpactCatchEnv("rig"), 3, 300)
     b = rollout(ImpactCatchEnv("rig"), 3, 300)
     c = rollout(ImpactCatchEnv("rig"), 4, 300)
-    assert all(np.array_equal(x, y) for x, y in zip(a, b)) and len(a) == len(b)
-    assert not all(np.array_equal(x, y) for x, y in zip(a[1:], c[1:]))
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True)) and len(a) == len(b)
+    assert not all(np.array_equal(x, y) for x, y in zip(a[1:], c[1:], strict=False))
 
 
 def test_step_types_and_info_contents():

@@ -35,9 +35,10 @@ class ImpactCatchEnv(gym.Env):
 
     ## Observation Space
 
-    ``Box(-1e4, 1e4, (k,), float32)`` (entries clipped to it), layout in ``env.unwrapped.layout.describe()``.  With the
-    default ``observation="sensors"``: the scene's enabled sensor channels as its controller would
-    read them after noise, quantisation, filters and delay (thesis frame: x down)
+    ``Box(-1e4, 1e4, (k,), float32)`` (entries clipped to it), layout in
+    ``env.unwrapped.layout.describe()``.  With the default ``observation="sensors"``: the
+    scene's enabled sensor channels as its controller would read them after noise,
+    quantisation, filters and delay (thesis frame: x down)
 
     | name               | unit  | scale (divides the value)                   |
     |--------------------|-------|---------------------------------------------|
@@ -101,7 +102,8 @@ class ImpactCatchEnv(gym.Env):
                          terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
                          limit_weight=limit_weight, action_bounds=action_bounds)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode = {render_mode!r}; expected one of {self.metadata['render_modes']} or None")
+            raise ValueError(f"render_mode = {render_mode!r}; expected one of "
+                             f"{self.metadata['render_modes']} or None")
         self.task = CatchTask(scene, 1, cfg, overrides)
         self.scene = self.task.scene
         self.layout = self.task.layout

@@ -89,13 +89,15 @@ class ObservationLayout:
 
     def describe(self) -> list[tuple[int, str, str, float]]:
         """(index, name, unit, scale) for every entry of the current frame."""
-        return [(i, n, u, float(s)) for i, (n, u, s) in enumerate(zip(self.names, self.units, self.scales))]
+        rows = zip(self.names, self.units, self.scales, strict=True)
+        return [(i, n, u, float(s)) for i, (n, u, s) in enumerate(rows)]
 
 
 def make_layout(scene: Scene, observation: str = "sensors", history: int = 1) -> ObservationLayout:
     check_choice("observation", observation, OBSERVATIONS)
     if isinstance(history, bool) or not isinstance(history, (int, np.integer)) or not 1 <= history <= 64:
-        raise ConfigError(f"history = {history!r} is out of range: an integer number of control steps in [1, 64]")
+        raise ConfigError(f"history = {history!r} is out of range: an integer number of control steps "
+                          "in [1, 64]")
     refs = References.of(scene)
     unit_scale = {"m/s^2": refs.accel, "N": refs.force, "m": refs.length, "m/s": refs.speed, "": 1.0}
     names: list[str] = []

@@ -45,7 +45,8 @@ def draw_frame(task, i: int = 0) -> np.ndarray:
     _rect(img, 0, WIDTH, SURFACE_Y, SURFACE_Y + 1, BLACK)  # rest level of the surface
     mid, half = HEIGHT // 2, HEIGHT // 2 - 10
     scale = task.command_scale
-    for x, value, colour in ((240, sim.info[i, K.I_F_APPLIED], ORANGE), (280, sim.info[i, K.I_CONTACT_FORCE], RED)):
+    bars = ((240, sim.info[i, K.I_F_APPLIED], ORANGE), (280, sim.info[i, K.I_CONTACT_FORCE], RED))
+    for x, value, colour in bars:
         h = float(np.clip(np.nan_to_num(value) / scale, -1.0, 1.0)) * half
         _rect(img, x, x + 20, mid, mid - h, colour)
         _rect(img, x - 4, x + 24, mid, mid + 1, BLACK)

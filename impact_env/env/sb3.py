@@ -44,7 +44,9 @@ class SB3VecEnv(VecEnv):
 
     def reset(self) -> np.ndarray:
         seed = self._seeds[0]
-        seeds = None if seed is None else [s if s is not None else seed + i for i, s in enumerate(self._seeds)]
+        seeds = None
+        if seed is not None:
+            seeds = [s if s is not None else seed + i for i, s in enumerate(self._seeds)]
         obs, _ = self.venv.reset(seed=seeds)
         self._reset_seeds()
         self._reset_options()

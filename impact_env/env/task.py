@@ -174,7 +174,7 @@ class CatchTask:
     def restore_rows(self, idx, saved) -> None:
         for obj, name, rows in saved:
             if obj is None:
-                for i, state in zip(idx, rows):
+                for i, state in zip(idx, rows, strict=True):
                     self.sim._rngs[i].bit_generator.state = state
             else:
                 getattr(obj, name)[idx] = rows
@@ -196,7 +196,7 @@ class CatchTask:
     def info_dict(self, i: int) -> dict:
         """Env i's info as Python scalars (and ``state`` as float64[4])."""
         vals = self.rows[i].tolist()
-        out = dict(zip(TK.INFO_KEYS, vals))
+        out = dict(zip(TK.INFO_KEYS, vals, strict=True))
         for key in TK.BOOL_KEYS:
             out[key] = out[key] > 0.5
         del out["x1"], out["v1"], out["x2"], out["v2"]

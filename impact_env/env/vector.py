@@ -45,7 +45,8 @@ class ImpactCatchVectorEnv(VectorEnv):
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
         mode = AutoresetMode(autoreset_mode) if isinstance(autoreset_mode, str) else autoreset_mode
         if not isinstance(mode, AutoresetMode):
-            raise ValueError(f"autoreset_mode = {autoreset_mode!r}; expected one of {[m.value for m in AutoresetMode]}")
+            raise ValueError(f"autoreset_mode = {autoreset_mode!r}; expected one of "
+                             f"{[m.value for m in AutoresetMode]}")
         cfg = TaskConfig(observation=observation, history=history, horizon=horizon,
                          catch_threshold=catch_threshold, catch_hold=catch_hold,
                          terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
