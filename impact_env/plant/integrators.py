@@ -215,7 +215,7 @@ def _force_now(y, mode, p):
     return f
 
 
-@jit
+@jit(inline="always")
 def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
     """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
     at a contact switch."""
@@ -229,8 +229,6 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
     x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
     pk = peak[0]
     n = int(round(span / dt))
-    out = np.empty(6)
-    scratch = np.empty(6)
     for i in range(n):
         r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, m1, m2, c, b, g, k2, c2)
         fnew = -1.0  # contact force at the new state, when it is computed for the crossing test
@@ -255,6 +253,8 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
         else:
             fnew = -1.0
             y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+            out = np.empty(6)  # allocated only here: a switch is rare, a step is not
+            scratch = np.empty(6)
             rem = dt
             tt = t0 + i * dt
             for _ev in range(16):
@@ -318,11 +318,11 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     g = p[G]
     k2 = p[K2]
     c2 = p[C2]
-    out = np.empty(6)
-    scratch = np.empty(6)
     status = OK
     if method != DOPRI5:
         return _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak)
+    out = np.empty(6)
+    scratch = np.empty(6)
 
     # adaptive Dormand-Prince 5(4)
     err = np.empty(6)
