@@ -6,10 +6,9 @@ Importing this package compiles nothing; kernels compile on first use (and are c
 It registers the Gymnasium env ``ImpactCatch-v0``.
 """
 
+from impact_env.env import ENV_ID, register_envs
 from impact_env.scene import Scene, load_scene
 from impact_env.simulate import SimulationDiverged, Trajectory, simulate
-
-from impact_env.env import ENV_ID, register_envs
 
 register_envs()
 

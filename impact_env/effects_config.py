@@ -21,7 +21,8 @@ class EffectsConfig:
     pipeline's order, :mod:`impact_env.pipeline_kernel`).  The other sections hold parameters;
     those of an effect that is not active are validated but not used."""
 
-    active: tuple[str, ...] = field(default=(), metadata={"unit": "", "doc": "effects that run: " + ", ".join(EFFECTS)})
+    active: tuple[str, ...] = field(default=(), metadata={
+        "unit": "", "doc": "effects that run: " + ", ".join(EFFECTS)})
     command_scale: float = field(default=200.0, metadata={
         "unit": "N", "doc": "force demanded by action +1 (thesis sec 4.3: about 200 N pulses)"})
     shaker: ShakerConfig = field(default_factory=ShakerConfig)

@@ -44,7 +44,8 @@ class PlantConfig:
     m1: float = _f(0.1, "kg", "falling body (thesis gives only m2 = 10 m1; notes' start value)")
     m2: float = _f(1.0, "kg", "body 2: shaker armature + pad + fixture (thesis sec 4.4: 10 m1)")
     c: float = _f(2.0e6, "N/m^1.5", "Hertz contact stiffness of the pad (thesis sec 4.1, eq 4.1-4.2)")
-    restitution: float = _f(1.0, "", "delivered coefficient of restitution of the pad, in (0, 1]; 1 = elastic Hertz")
+    restitution: float = _f(1.0, "", "delivered coefficient of restitution of the pad, in (0, 1]; "
+                            "1 = elastic Hertz")
     gravity: float = _f(9.81, "m/s^2", "gravity on body 1 (body 2's weight is carried by its suspension)")
     suspension_stiffness: float = _f(0.0, "N/m", "spring pulling body 2 back to x2 = 0")
     suspension_damping: float = _f(0.0, "N s/m", "damper on body 2's motion")
@@ -78,7 +79,8 @@ class InitialConfig:
     (or at the release, if the fall is shorter), with body 2 at rest at x2 = 0.
     """
 
-    drop_height: float | None = _f(0.05, "m", "gap between the facing surfaces at release (notes' start value)")
+    drop_height: float | None = _f(0.05, "m",
+                                   "gap between the facing surfaces at release (notes' start value)")
     impact_speed: float | None = _f(None, "m/s", "speed of body 1 at the first touch, instead of drop_height")
     pre_contact_time: float = _f(1.0e-3, "s", "simulated time before the first touch")
 

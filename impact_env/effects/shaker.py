@@ -67,7 +67,8 @@ class ShakerConfig:
     coil_resistance: float = _f(1.0, "ohm", "ASSUMED coil resistance R (not in the thesis)")
     coil_inductance: float = _f(50e-6, "H", "ASSUMED coil inductance L (not in the thesis); pole R/(2 pi L)")
     force_factor: float = _f(14.0, "N/A", "ASSUMED Bl (98 N rated at about 7 A)")
-    fir_taps: tuple[float, ...] = _f((), "N/N", "measured impulse response at the control rate (model = measured)")
+    fir_taps: tuple[float, ...] = _f((), "N/N",
+                                     "measured impulse response at the control rate (model = measured)")
     inverse_filter: bool = _f(False, "", "pre-filter the demand by an approximate inverse of the coil pole")
     inverse_rolloff_hz: float = _f(20000.0, "Hz", "roll-off that keeps the inverse filter proper")
 
@@ -78,7 +79,8 @@ class ShakerConfig:
         check_range("effects.shaker.coil_resistance", self.coil_resistance, "ohm", 0.0, None, lo_open=True)
         check_range("effects.shaker.coil_inductance", self.coil_inductance, "H", 0.0, None, lo_open=True)
         check_range("effects.shaker.force_factor", self.force_factor, "N/A", 0.0, None, lo_open=True)
-        check_range("effects.shaker.inverse_rolloff_hz", self.inverse_rolloff_hz, "Hz", 0.0, None, lo_open=True)
+        check_range("effects.shaker.inverse_rolloff_hz", self.inverse_rolloff_hz, "Hz", 0.0, None,
+                    lo_open=True)
         if self.highpass_hz >= self.lowpass_hz:
             raise ConfigError(f"effects.shaker.highpass_hz = {self.highpass_hz:g} Hz must be below "
                               f"effects.shaker.lowpass_hz = {self.lowpass_hz:g} Hz")
