@@ -267,3 +267,14 @@ def test_render_human_draws_into_a_matplotlib_window():
     import matplotlib.pyplot as plt
 
     assert not plt.fignum_exists(fig.number)
+
+
+def test_same_step_infos_describe_the_new_episode_and_final_info_the_old():
+    venv = ImpactCatchVectorEnv(2, "rig", horizon=0.001, autoreset_mode=AutoresetMode.SAME_STEP)
+    venv.reset(seed=0)
+    for _ in range(10):
+        obs, _, _, tr, info = venv.step(np.zeros((2, 1), np.float32))
+    assert tr.all()
+    np.testing.assert_array_equal(info["t"], [0.0, 0.0])
+    np.testing.assert_allclose(info["final_info"]["t"], [0.001, 0.001])
+    assert info["_final_obs"].all() and info["final_obs"][0].shape == obs[0].shape

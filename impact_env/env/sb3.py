@@ -57,7 +57,7 @@ class SB3VecEnv(VecEnv):
         self._actions = actions
 
     def step_wait(self):
-        obs, rewards, terminated, truncated, infos = self.venv.step(self._actions)
+        obs, rewards, terminated, truncated, infos = self.venv.step_arrays(self._actions, infos=False)
         dones = terminated | truncated
         out: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         if dones.any():

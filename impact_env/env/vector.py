@@ -101,6 +101,12 @@ class ImpactCatchVectorEnv(VectorEnv):
 
     # -- stepping ---------------------------------------------------------------------------------
     def step(self, actions):
+        return self.step_arrays(actions, infos=True)
+
+    def step_arrays(self, actions, infos: bool = True):
+        """:meth:`step`; with ``infos=False`` the info dict is left empty except, in SAME_STEP
+        mode, ``final_obs`` and ``final_info`` of the envs that ended (what SB3 needs: building
+        every info array each step would cost more than the rest of a small batch's step)."""
         if not self._started:
             raise RuntimeError("call reset() before step()")
         task = self.task
@@ -119,18 +125,23 @@ class ImpactCatchVectorEnv(VectorEnv):
             terminated[pending] = False
             truncated[pending] = False
         ended = terminated | truncated
-        infos = self._infos()
+        out: dict[str, Any] = {}
         if mode == AutoresetMode.SAME_STEP and ended.any():
             final_obs = np.full(self.num_envs, None, dtype=object)
             for i in np.nonzero(ended)[0]:
                 final_obs[i] = task.obs[i].copy()
-            infos["final_obs"] = final_obs
-            infos["_final_obs"] = ended.copy()
-            infos["final_info"] = {k: v for k, v in infos.items() if k not in ("final_obs", "_final_obs")}
-            infos["_final_info"] = ended.copy()
+            final_info = self._infos()
             task.reset(self._rngs, ended)
+            if infos:
+                out = self._infos()  # the new episodes' first infos where envs were reset
+            out["final_obs"] = final_obs
+            out["_final_obs"] = ended.copy()
+            out["final_info"] = final_info
+            out["_final_info"] = ended.copy()
+        elif infos:
+            out = self._infos()
         self._done = ended
-        return task.obs.copy(), rewards, terminated, truncated, infos
+        return task.obs.copy(), rewards, terminated, truncated, out
 
     def _infos(self) -> dict[str, Any]:
         infos: dict[str, Any] = {}
