@@ -311,6 +311,8 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     peak: float64[1], raised to the largest contact force seen at step ends and events.
     Returns ``(status, mode)``.
     """
+    if method != DOPRI5:
+        return _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak)
     m1 = 1.0 / p[M1]  # inverse masses from here on
     m2 = 1.0 / p[M2]
     c = p[C]
@@ -319,8 +321,6 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     k2 = p[K2]
     c2 = p[C2]
     status = OK
-    if method != DOPRI5:
-        return _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak)
     out = np.empty(6)
     scratch = np.empty(6)
 
