@@ -28,6 +28,24 @@ def _plt():
     return plt
 
 
+TOUCH_MS = "time from first touch, ms"
+
+
+def _finish(plt, fig, ax, title: str, path: Path, legend_size: int, xlabel: str | None = None,
+            which: str = "major") -> Path:
+    """Grid, legend and x label on every panel, the title, then write the figure and close it."""
+    for a in ax:
+        if xlabel:
+            a.set_xlabel(xlabel)
+        a.grid(alpha=0.3, which=which)
+        a.legend(fontsize=legend_size)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
 def _t_ms(run):
     return (run.trace_t - run.t_touch0) * 1e3
 
@@ -51,15 +69,7 @@ def plot_energy(runs, path: Path, scene) -> Path:
     n = max((len(r.episodes) for r in runs.values()), default=0)
     ax[1].set_title(f"catch energy / impact energy: median and IQR of {n} episodes", fontsize=9)
     ax[1].axhline(0.01, color="k", lw=0.6, ls=":")
-    for a in ax:
-        a.set_xlabel("time from first touch, ms")
-        a.grid(alpha=0.3)
-        a.legend(fontsize=7)
-    fig.suptitle(f"scene {scene.name}: energy of the falling body", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _finish(plt, fig, ax, f"scene {scene.name}: energy of the falling body", path, 7, TOUCH_MS)
 
 
 def force_spectrum(force: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -91,14 +101,7 @@ def plot_force(runs, path: Path, scene, window_ms: float = 30.0) -> Path:
     ax[1].set_title("its amplitude spectrum over the episode (cf. fig 3.2f)", fontsize=9)
     ax[1].set_xlabel("frequency, Hz")
     ax[1].set_ylabel("amplitude, N")
-    for a in ax:
-        a.grid(alpha=0.3, which="both")
-        a.legend(fontsize=7)
-    fig.suptitle(f"scene {scene.name}: shaker force", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _finish(plt, fig, ax, f"scene {scene.name}: shaker force", path, 7, which="both")
 
 
 def plot_motion(runs, path: Path, scene, window_ms: float = 100.0) -> Path:
@@ -119,12 +122,4 @@ def plot_motion(runs, path: Path, scene, window_ms: float = 100.0) -> Path:
     ax[0].set_ylabel("velocity, m/s")
     ax[1].set_title("surface positions, up positive (cf. fig 3.2d)", fontsize=9)
     ax[1].set_ylabel("height, mm")
-    for a in ax:
-        a.set_xlabel("time from first touch, ms")
-        a.grid(alpha=0.3)
-        a.legend(fontsize=6)
-    fig.suptitle(f"scene {scene.name}: motion of the bodies, episode 0", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return _finish(plt, fig, ax, f"scene {scene.name}: motion of the bodies, episode 0", path, 6, TOUCH_MS)
