@@ -8,7 +8,8 @@ It registers the Gymnasium env ``ImpactCatch-v0``.
 
 from impact_env.env import ENV_ID, register_envs
 from impact_env.scene import Scene, load_scene
-from impact_env.simulate import SimulationDiverged, Trajectory, simulate
+from impact_env.sim.drop import SimulationDiverged, simulate
+from impact_env.sim.trajectory import Trajectory
 
 register_envs()
 

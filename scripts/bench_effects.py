@@ -4,7 +4,7 @@
     .venv/bin/python scripts/bench_effects.py --quick    # fewer repeats, one cold compile
 
 1. Kernel cost per control step.  For each scene a compiled loop calls the pipeline kernel
-   ``impact_env.pipeline_kernel.control_step_batch`` (a batch of one env, action 0) once per
+   ``impact_env.sim.pipeline_kernel.control_step_batch`` (a batch of one env, action 0) once per
    control period; the *bare plant* is the same loop calling only the plant's integrator
    ``impact_env.plant.integrators.advance`` over the period (what ``simulate`` and
    ``run_periods`` do).  Both run the same drop over the same span (ideal: 10 ms at 1 us
@@ -43,10 +43,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from impact_env import pipeline_kernel as K  # noqa: E402
 from impact_env.plant.integrators import advance  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
-from impact_env.simulator import Simulator  # noqa: E402
+from impact_env.sim import pipeline_kernel as K  # noqa: E402
+from impact_env.sim.simulator import Simulator  # noqa: E402
 
 RIG_EFFECTS = ("shaker", "saturation", "sensors", "filters", "detector")
 
@@ -194,8 +194,8 @@ CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
 import numpy as np
-from impact_env.simulator import Simulator
-from impact_env import pipeline_kernel as K
+from impact_env.sim.simulator import Simulator
+from impact_env.sim import pipeline_kernel as K
 t1 = time.perf_counter()
 sim = Simulator(sys.argv[1], 1)
 sim.reset([np.random.default_rng(0)])

@@ -39,7 +39,7 @@ import impact_env  # noqa: E402
 from impact_env.plant import layout as L  # noqa: E402
 from impact_env.plant.hertz import contact_time  # noqa: E402
 from impact_env.plant.integrators import advance  # noqa: E402
-from impact_env.simulate import METHOD_CODES, initial_state, plant_params  # noqa: E402
+from impact_env.sim.arrays import METHOD_CODES, initial_state, plant_params  # noqa: E402
 
 FIXED = [("euler", True), ("euler", False), ("symplectic-euler", True), ("symplectic-euler", False),
          ("rk4", True), ("rk4", False)]

@@ -2,7 +2,7 @@
 
     python scripts/detector_quality.py [--seeds 5] [--quick] [--set effects.detector.threshold_n=3]
 
-For each case, drops are simulated with :class:`impact_env.simulator.Simulator` over the scene's
+For each case, drops are simulated with :class:`impact_env.sim.simulator.Simulator` over the scene's
 horizon (0.4 s: the whole uncontrolled decay) and the detector's channel (``info[:, I_DETECTED]``,
 computed from the filtered, noisy, quantised accelerometer and force-transducer readings) is
 scored per control period against the true contact (contact force > 0 at the sample) with
@@ -31,10 +31,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from impact_env import pipeline_kernel as K  # noqa: E402
 from impact_env.cli import add_scene_arguments, scene_from_args  # noqa: E402
 from impact_env.effects.detector import score_detection  # noqa: E402
-from impact_env.simulator import Simulator  # noqa: E402
+from impact_env.sim import pipeline_kernel as K  # noqa: E402
+from impact_env.sim.simulator import Simulator  # noqa: E402
 
 
 def run(scene, seeds, n_steps, drive_n=0.0, drive_hz=50.0):

@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import thesis_figures as F  # noqa: E402
 
-from impact_env.compare import compare  # noqa: E402
+from impact_env.eval.compare import compare  # noqa: E402
+from impact_env.eval.sweep import parse_grid, plot, sweep, write_csv  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
-from impact_env.sweep import parse_grid, plot, sweep, write_csv  # noqa: E402
 
 IDEAL_SET = {"initial.pre_contact_time": 0.0, "effects.command_scale": 5000.0}
 IDEAL_CMD = ("impact-env compare --scene ideal --set initial.pre_contact_time=0 "

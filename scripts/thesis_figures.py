@@ -1,6 +1,6 @@
 """Figures of ``scripts/reproduce_thesis.py``: our versions of the thesis's figures 3.1, 3.2a-f,
-4.6, 4.7 and 4.8 from :class:`impact_env.compare.PolicyRun` results (fig 4.4 is drawn by
-:func:`impact_env.sweep.plot`).  Time is from the first touch; heights and velocities are drawn
+4.6, 4.7 and 4.8 from :class:`impact_env.eval.compare.PolicyRun` results (fig 4.4 is drawn by
+:func:`impact_env.eval.sweep.plot`).  Time is from the first touch; heights and velocities are drawn
 upwards positive, as in the thesis.  Small PNGs (dpi 70)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from impact_env.compare_plots import force_spectrum  # noqa: E402
+from impact_env.eval.compare_plots import force_spectrum  # noqa: E402
 from impact_env.plant.energy import catch_energy, energies  # noqa: E402
 
 DPI = 70

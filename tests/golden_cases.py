@@ -65,10 +65,8 @@ def fingerprint() -> dict[str, str]:
 
 
 def _compare_fn():
-    try:
-        from impact_env.eval.compare import compare
-    except ImportError:  # before the layout refactor
-        from impact_env.compare import compare
+    from impact_env.eval.compare import compare
+
     return compare
 
 

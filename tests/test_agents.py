@@ -6,7 +6,7 @@ import pytest
 
 from agents.train import train
 from baselines import make_policy
-from impact_env.compare import compare
+from impact_env.eval.compare import compare
 
 pytestmark = pytest.mark.training
 

@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 import baselines.registry as registry
+import impact_env.policy.registry as policy_registry
 from baselines import Policy
 from impact_env.cli import main
-from impact_env.compare import compare, format_table, split_policies, summary_json
-from impact_env.rollout import rollout
+from impact_env.eval.compare import compare, format_table, split_policies, summary_json
+from impact_env.eval.rollout import rollout
+from impact_env.eval.sweep import parse_grid, sweep
 from impact_env.scene import load_scene
-from impact_env.sweep import parse_grid, sweep
 
 RIG = load_scene("rig")
 SHORT = 0.015  # s: the first contact and the first flight on rig
@@ -71,7 +72,7 @@ class _Broken(Policy):
 
 
 def test_a_failing_policy_is_reported_with_episode_and_seed(monkeypatch):
-    monkeypatch.setitem(registry.POLICIES, "broken", _Broken)
+    monkeypatch.setitem(policy_registry.REGISTERED, "broken", _Broken)
     runs = compare(RIG, ["passive", "broken"], episodes=3, seed=10, horizon=SHORT, workers=1, progress=False)
     fails = runs["broken"].failures
     by_ep = {f["episode"]: f for f in fails}

@@ -14,7 +14,7 @@ from impact_env.config import ConfigError
 from impact_env.env.catch_env import ImpactCatchEnv
 from impact_env.env.vector import ImpactCatchVectorEnv
 from impact_env.plant.energy import catch_energy
-from impact_env.presets import PRESETS
+from impact_env.scene.presets import PRESETS
 
 FAST = {"control.rate": 1e4}  # ideal samples every 1 us by default: 10 kHz keeps tests short
 

@@ -8,16 +8,17 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from impact_env import pipeline_kernel as K
 from impact_env.config import ConfigError
 from impact_env.effects import shaker as SH
 from impact_env.effects.detector import score_detection
 from impact_env.plant import layout as L
 from impact_env.plant.restitution import zeta_for_restitution, zeta_table
-from impact_env.randomize import RandomizeConfig
 from impact_env.scene import load_scene
-from impact_env.simulate import plant_params, simulate
-from impact_env.simulator import Simulator
+from impact_env.scene.randomize import RandomizeConfig
+from impact_env.sim import pipeline_kernel as K
+from impact_env.sim.arrays import plant_params
+from impact_env.sim.drop import simulate
+from impact_env.sim.simulator import Simulator
 
 RATE = 1.0e4
 

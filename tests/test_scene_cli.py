@@ -11,10 +11,10 @@ import tomllib
 
 from impact_env.cli import main
 from impact_env.config import ConfigError
-from impact_env.presets import PRESETS
 from impact_env.scene import load_scene, scene_from_dict
-from impact_env.simulate import simulate
-from impact_env.simulator import Simulator
+from impact_env.scene.presets import PRESETS
+from impact_env.sim.drop import simulate
+from impact_env.sim.simulator import Simulator
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))

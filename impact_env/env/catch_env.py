@@ -8,9 +8,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from impact_env.env.observation import OBS_LIMIT
 from impact_env.env.task import REWARD_TIME_UNIT, CatchTask, TaskConfig
 from impact_env.scene import Scene
+from impact_env.sim.observation import OBS_LIMIT
 
 
 class ImpactCatchEnv(gym.Env):
@@ -22,7 +22,7 @@ class ImpactCatchEnv(gym.Env):
     commands the shaker's force on body 2 and must take body 1's energy out as fast as possible:
     catch it without bounces.  The physics, effects (shaker response, saturation, sensor noise,
     filters, delays, contact detector) and numbers come from a *scene*
-    (:mod:`impact_env.presets`: ``ideal``, ``rig``, ...), after E. Nyström, *Controlling a one
+    (:mod:`impact_env.scene.presets`: ``ideal``, ``rig``, ...), after E. Nyström, *Controlling a one
     degree of motion impact* (Chalmers, 2013).
 
     ## Action Space
@@ -50,7 +50,7 @@ class ImpactCatchEnv(gym.Env):
 
     ``observation="privileged"`` gives the true ``x1, v1, x2, v2`` (m, m/s; scales d_ref, v0)
     instead, ``"both"`` appends them to the sensors.  ``history=k`` stacks the last k frames and
-    k actions (for delayed scenes).  See :mod:`impact_env.env.observation`.
+    k actions (for delayed scenes).  See :mod:`impact_env.sim.observation`.
 
     ## Rewards
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from impact_env import pipeline_kernel as K
 from impact_env.plant import layout as L
+from impact_env.sim import pipeline_kernel as K
 
 WIDTH, HEIGHT = 320, 240
 SURFACE_Y = 150  # pixel row of body 2's top surface at x2 = 0

@@ -3,7 +3,7 @@
 :class:`CatchTask` is the one place where the episode logic lives.  The single env
 (:mod:`impact_env.env.catch_env`) is a task of one rig, the vector env
 (:mod:`impact_env.env.vector`) a task of N, both stepping the same
-:class:`~impact_env.simulator.Simulator` (one numba call for the whole batch), so the vector env
+:class:`~impact_env.sim.simulator.Simulator` (one numba call for the whole batch), so the vector env
 is the single env's physics batched, not a copy of it.
 
 Reward (per control step, per env)::
@@ -31,10 +31,10 @@ import numpy as np
 
 from impact_env.config import ConfigError, check_choice, check_range
 from impact_env.env import task_kernel as TK
-from impact_env.env.observation import OBS_LIMIT, ObservationLayout, make_layout
 from impact_env.plant import layout as L
 from impact_env.scene import Scene, load_scene
-from impact_env.simulator import Simulator
+from impact_env.sim.observation import OBS_LIMIT, ObservationLayout, make_layout
+from impact_env.sim.simulator import Simulator
 
 REWARD_TIME_UNIT = 1e-3  # s
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from impact_env import pipeline_kernel as K
 from impact_env._jit import jit
 from impact_env.plant.layout import M1, OK, V1, X1, X2, C, G
+from impact_env.sim import pipeline_kernel as K
 
 # task parameters (float64 vector built by CatchTask)
 T_STEP_WEIGHT, T_THRESHOLD, T_HOLD, T_TERMINATE, T_EFFORT, T_LIMIT, T_CMD, T_MAX_STEPS, T_OBS_LIMIT = range(9)

@@ -26,9 +26,9 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from impact_env.env.observation import OBS_LIMIT
 from impact_env.env.task import REWARD_TIME_UNIT, CatchTask, TaskConfig
 from impact_env.scene import Scene
+from impact_env.sim.observation import OBS_LIMIT
 
 
 class ImpactCatchVectorEnv(VectorEnv):

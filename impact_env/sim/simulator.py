@@ -2,7 +2,7 @@
 
 The Python layer validates, builds every array the kernel needs from the scene (only the
 stages the scene names are switched on) and draws all randomness from numpy Generators that
-the caller owns; :func:`impact_env.pipeline_kernel.control_step_batch` does the work.
+the caller owns; :func:`impact_env.sim.pipeline_kernel.control_step_batch` does the work.
 A single environment is a batch of one.
 """
 
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from impact_env import pipeline_kernel as K
 from impact_env.effects.delay import delay_samples
 from impact_env.effects.detector import detector_params
 from impact_env.effects.filters import design_filters
@@ -22,7 +21,8 @@ from impact_env.plant.dynamics import event_value
 from impact_env.plant.energy import catch_energy
 from impact_env.plant.restitution import zeta_table
 from impact_env.scene import Scene, load_scene
-from impact_env.simulate import METHOD_CODES, _error_scale, check_stability, initial_state, plant_params
+from impact_env.sim import pipeline_kernel as K
+from impact_env.sim.arrays import METHOD_CODES, check_stability, error_scale, initial_state, plant_params
 
 NOISE_BLOCK = 256  # control steps of noise drawn at once per env
 
@@ -32,18 +32,18 @@ class Simulator:
 
     Attributes after each step (arrays over envs): ``readings`` (float64[N, 4]: accelerometer
     m/s^2, force transducer N, potentiometer m, body-1 sensor m), ``info`` (float64[N, N_INFO],
-    columns in :mod:`impact_env.pipeline_kernel`), ``Y`` (true state rows x1, v1, x2, v2,
+    columns in :mod:`impact_env.sim.pipeline_kernel`), ``Y`` (true state rows x1, v1, x2, v2,
     W_ext, W_diss), ``t`` (s since the episode start).
 
     Randomised scenes (``scene.randomize``): at each reset env i draws its values from
-    ``rngs[i]`` (the seed policy of :mod:`impact_env.randomize`) and gets exactly the arrays of
+    ``rngs[i]`` (the seed policy of :mod:`impact_env.scene.randomize`) and gets exactly the arrays of
     the fixed scene ``scene.with_draws(values)`` (``drawn[i]`` holds the values): its plant row
     ``P[i]`` (the pad damping of a drawn restitution from a :class:`ZetaTable`, equal to the exact
     solve to about 1e-10), initial state, impact energy, command scale, noise levels, shaker
     model and delay lengths.  Envs of one batch thus differ; the kernel is the same.
 
     The effects' per-env parameters and state live packed in ``PR`` and ``ST`` (one row per env,
-    layout :func:`impact_env.pipeline_kernel.row_layout`, sizes ``dims``); their pieces are
+    layout :func:`impact_env.sim.pipeline_kernel.row_layout`, sizes ``dims``); their pieces are
     readable and writable as views over envs by name: ``command_scale``, ``sh_A`` .. ``sh_E``,
     ``sat_params``, ``sens_params``, ``top_mass``, ``det_params``, ``act_len``, ``sd_len``,
     ``scale``, and the state ``sh_X``, ``sat_state``, ``filt_state``, ``act_buf``, ``sd_buf``,
@@ -116,7 +116,7 @@ class Simulator:
 
     def __getattr__(self, name):
         """The named pieces of the packed rows (``sh_A``, ``sens_params``, ``filt_state``, ...:
-        see :func:`impact_env.pipeline_kernel.row_layout`) as views over envs."""
+        see :func:`impact_env.sim.pipeline_kernel.row_layout`) as views over envs."""
         pieces = self.__dict__.get("_pieces")
         if pieces is not None and name in pieces:
             rows, off, shape = pieces[name]
@@ -141,7 +141,7 @@ class Simulator:
             A, B, C, D, E = np.zeros((1, 1)), np.zeros(1), np.zeros(1), 0.0, np.zeros(1)
         k_sens, k_act = fx.delay.samples(rate)
         return {
-            "P": p, "scale": _error_scale(scene, p), "command_scale": fx.command_scale,
+            "P": p, "scale": error_scale(scene, p), "command_scale": fx.command_scale,
             "y0": y0, "t_touch": t_touch, "mode0": mode0, "impact_energy": max(e0, 1e-300),
             "sh_A": A, "sh_B": B, "sh_C": C, "sh_D": D, "sh_E": E,
             "sat_params": saturation_params(fx.saturation, rate),
@@ -155,7 +155,7 @@ class Simulator:
     def reset(self, rngs, mask=None) -> None:
         """Start a new drop in the envs where ``mask`` is true (all if None); ``rngs[i]`` is env
         i's Generator: a randomised scene first draws env i's values from it, then the sensor
-        noise comes from it as the episode runs (see :mod:`impact_env.randomize`)."""
+        noise comes from it as the episode runs (see :mod:`impact_env.scene.randomize`)."""
         idx = range(self.n) if mask is None else np.nonzero(mask)[0]
         for i in idx:
             rng = rngs[i]

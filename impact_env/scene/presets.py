@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from impact_env.scene import Scene
+from impact_env.scene.scene import Scene
 
 
 def ideal() -> Scene:
@@ -56,7 +56,7 @@ PRESETS["rig"] = rig
 def rig_randomized() -> Scene:
     """``rig`` with per-episode ranges, for training agents that must work on a rig whose numbers
     are uncertain.  Every range is centred on (or starts at) the ``rig`` value; draws follow the
-    seed policy of :mod:`impact_env.randomize` (one uniform number per range, in field order, then
+    seed policy of :mod:`impact_env.scene.randomize` (one uniform number per range, in field order, then
     the sensor noise).  Ranges and why:
 
     * ``m1`` 0.08-0.12 kg (uniform, +-20 %): the thesis gives only m2 = 10 m1; the agent should

@@ -2,14 +2,13 @@
 
 Every policy runs the same episodes: episode ``j`` is seeded ``seed + j`` (as env ``j`` of the
 vector env reset with ``seed``), so drops and sensor noise are identical across policies and
-across runs.  Episodes of a policy run batched (:func:`impact_env.rollout.rollout`); policies
+across runs.  Episodes of a policy run batched (:func:`impact_env.eval.rollout.rollout`); policies
 (and chunks of episodes, when there are more cores than policies) run in parallel processes.
 Results are merged in episode order, so the table does not depend on the number of workers.
 
-Policies are baselines by name (``passive``, ``thesis-rig:h01=2.3e6,h11=18``, see
-:mod:`baselines`) or saved stable-baselines3 models (``PATH.zip``, ``ppo:PATH.zip``).  The
-baselines package is imported only inside the workers and the command, never when
-:mod:`impact_env` is imported.
+Policies are named policies (``passive``, ``thesis-rig:h01=2.3e6,h11=18``: the classic laws of
+:mod:`baselines`, found through :mod:`impact_env.policy.registry`) or saved stable-baselines3
+models (``PATH.zip``, ``ppo:PATH.zip``).
 
 Aggregates (one row per policy; per-episode values in ``episodes.csv``):
 
@@ -17,7 +16,7 @@ Aggregates (one row per policy; per-episode values in ``episodes.csv``):
   ``time_to_catch_iqr_s``: over episodes, an episode not caught within the horizon counting as
   infinitely long (so a median of ``inf``, printed as ``>H`` and written as null in JSON, means
   that half the episodes or more were not caught); ``caught_fraction``.
-* the means over episodes of every other per-episode metric of :mod:`impact_env.rollout`
+* the means over episodes of every other per-episode metric of :mod:`impact_env.eval.rollout`
   (``residual_energy_50ms``, ``exit_speed_ratio``, ``bounces``, ``peak_force_N``, ...).
 * ``episodes``, ``failed_episodes``, ``failures`` (episode, seed, time, error), ``wall_time_s``.
 """
@@ -26,7 +25,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,12 +89,12 @@ class PolicyRun:
 def _run_task(task: Task):
     import numpy as np
 
-    from impact_env.parallel import report
-    from impact_env.rollout import rollout
+    from impact_env.eval.parallel import report
+    from impact_env.eval.rollout import rollout
 
     seeds = [task.seed + j for j in task.episodes]
     try:
-        from baselines import make_policy
+        from impact_env.policy.registry import make_policy
 
         policy = make_policy(task.spec, task.scene)
     except Exception as exc:  # a policy that cannot be built fails its episodes, not the run
@@ -123,7 +121,7 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     (with ``summary`` filled in).  Policies are validated before anything runs."""
     import numpy as np
 
-    from impact_env.parallel import default_workers, run_tasks
+    from impact_env.eval.parallel import default_workers, run_tasks
     from impact_env.scene import load_scene
 
     scene = load_scene(scene)
@@ -164,22 +162,16 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
 
 
 def _validate_specs(specs, scene) -> None:
-    from baselines import make_policy
-    from baselines.registry import is_model_spec
+    from impact_env.policy.registry import check_spec
 
     for spec in specs:
-        if is_model_spec(spec):
-            from baselines.sb3 import parse_model_spec
-
-            parse_model_spec(spec)  # checks syntax and that the file exists; loading waits for the worker
-        else:
-            make_policy(spec, scene)
+        check_spec(spec, scene)  # a model's syntax and file only: loading waits for the worker
 
 
 def _warm_up(scene, horizon) -> None:
     """Compile (or load) the kernels once in the parent, so that forked workers inherit them."""
-    from baselines import make_policy
-    from impact_env.rollout import rollout
+    from impact_env.eval.rollout import rollout
+    from impact_env.policy.registry import make_policy
 
     rollout(scene, make_policy("passive", scene), [0], horizon=2 * scene.control_period, trace_rate=0.0)
 
@@ -187,7 +179,7 @@ def _warm_up(scene, horizon) -> None:
 def _merge(spec, parts, scene) -> PolicyRun:
     import numpy as np
 
-    from impact_env.rollout import EPISODE_METRICS
+    from impact_env.eval.rollout import EPISODE_METRICS
 
     episodes = np.concatenate([np.asarray(p["episodes"], dtype=np.int64) for p in parts])
     metrics: dict = {}
@@ -302,8 +294,8 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
     """summary.csv, summary.json, episodes.csv and the plots into ``out_dir``; returns the paths."""
     import csv
 
-    from impact_env.compare_plots import plot_energy, plot_force, plot_motion
-    from impact_env.rollout import EPISODE_METRICS
+    from impact_env.eval.compare_plots import plot_energy, plot_force, plot_motion
+    from impact_env.eval.rollout import EPISODE_METRICS
 
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -332,61 +324,3 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
     paths.append(plot_force(runs, out_dir / "force.png", scene))
     paths.append(plot_motion(runs, out_dir / "motion.png", scene))
     return paths
-
-
-# -- command line -------------------------------------------------------------------------------------
-def add_parser(sub, scene_args) -> None:
-    """Register ``compare`` on the CLI's subparsers (``scene_args`` adds --scene/--set)."""
-    p = sub.add_parser("compare", help="run policies on the same seeded drops and tabulate catch metrics")
-    scene_args(p)
-    p.add_argument("--policies", action="append", metavar="LIST",
-                   help="comma-separated policy specs, e.g. "
-                        "passive,thesis-rig:h01=2.3e6,h11=18,pd-penetration "
-                        "or a saved SB3 model (PATH.zip, ppo:PATH.zip); repeatable")
-    p.add_argument("--episodes", type=int, default=100, help="episodes per policy (default 100)")
-    p.add_argument("--seed", type=int, default=0, help="episode j is seeded seed + j (default 0)")
-    p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: episode.horizon)")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
-    p.add_argument("--out", metavar="DIR", help="write summary.csv/json, episodes.csv and plots here")
-    p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.add_argument("--list", action="store_true", help="list the baselines and their parameters, then exit")
-    p.set_defaults(func=cmd_compare)
-
-
-def cmd_compare(args) -> int:
-    from impact_env.cli import scene_from_args
-
-    if args.list:
-        from baselines.registry import describe_policies
-
-        print(describe_policies())
-        return 0
-    scene = scene_from_args(args)
-    texts = args.policies or ["passive,thesis-rig,pd-penetration"]
-    specs = [s for text in texts for s in split_policies(text)]
-    runs = compare(scene, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
-                   workers=args.workers, progress=not args.no_progress and not args.json)
-    horizon = scene.episode.horizon if args.horizon is None else args.horizon
-    if args.json:
-        print(json.dumps(summary_json(runs)))
-    else:
-        wall = next(iter(runs.values())).summary["wall_time_total_s"]
-        print(f"scene {scene.name}: {args.episodes} episodes of {horizon:g} s, seed {args.seed} "
-              f"(episode j seeded {args.seed} + j), impact speed {scene.impact_speed:.3g} m/s, "
-              f"{len(specs)} policies in {wall:.1f} s")
-        print("E: body 1's catch energy over its impact value (mean); exit v/v0: body 1's speed at the first "
-              "separation over the impact speed (mean); catch: catch energy below 1 % for good")
-        print(format_table(runs, horizon))
-    failures = [f for run in runs.values() for f in run.failures]
-    for f in failures[:20]:
-        print(f"impact-env compare: policy {f['policy']!r} failed in episode {f['episode']} "
-              f"(seed {f['seed']}) "
-              f"at t = {f['t_s']:.6g} s: {f['error']}", file=sys.stderr)
-    if len(failures) > 20:
-        print(f"impact-env compare: ... and {len(failures) - 20} more failed episodes", file=sys.stderr)
-    if args.out:
-        paths = write_outputs(runs, Path(args.out), scene, args.seed, horizon)
-        if not args.json:
-            print("written: " + ", ".join(str(p) for p in paths))
-    return 0

@@ -31,7 +31,7 @@ Seed policy.  Each env owns a numpy ``Generator`` (the caller's, e.g. the Gymnas
 ``np_random``).  At every reset it draws, *before anything else*, one ``rng.random()`` per
 field that has a range, in the order of the table above (``rng.random(k)`` for the k ranged
 fields), and maps each to its value as stated.  Sensor noise is drawn from the same generator
-afterwards, as the episode runs (:mod:`impact_env.simulator`).  A field with no range draws
+afterwards, as the episode runs (:mod:`impact_env.sim.simulator`).  A field with no range draws
 nothing, so a scene without ranges (``ideal``, ``rig``) consumes no randomness at reset and its
 noise sequence is the same as if this module did not exist; a range with ``lo == hi`` still
 draws (and gives ``lo``).  The same generator state therefore gives the same episode, in the
@@ -70,7 +70,7 @@ def _r(unit: str, dist: str, target: str, lo: float, hi: float | None, lo_open: 
 
 @dataclass(frozen=True)
 class RandomizeConfig:
-    """Per-episode ranges on scene parameters (see :mod:`impact_env.randomize`)."""
+    """Per-episode ranges on scene parameters (see :mod:`impact_env.scene.randomize`)."""
 
     m1: tuple[float, ...] = _r("kg", UNIFORM, "plant.m1", 0.0, None, True, "")
     drop_height: tuple[float, ...] = _r("m", UNIFORM, "initial.drop_height", 0.0, 100.0, False, "")

@@ -1,7 +1,7 @@
 """The scene: every number a simulation needs, as typed, frozen, validated records.
 
 A :class:`Scene` is declarative: plant parameters, initial condition, integrator, control rate
-and episode settings.  It is loaded from presets (:mod:`impact_env.presets`), TOML files or dicts,
+and episode settings.  It is loaded from presets (:mod:`impact_env.scene.presets`), TOML files or dicts,
 and changed with dotted overrides (``scene.with_overrides({"plant.m1": 0.05})``).  Unknown keys
 raise an error that names the key and its nearest valid neighbour; every value is range-checked
 at construction, before anything is simulated.
@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from impact_env.config import (
@@ -24,12 +23,11 @@ from impact_env.config import (
     check_range,
     doc_field,
     dumps_toml,
-    from_dict,
     to_dict,
     with_overrides,
 )
-from impact_env.effects_config import EffectsConfig
-from impact_env.randomize import RandomizeConfig, check_scene_ranges, overrides_for
+from impact_env.scene.effects import EffectsConfig
+from impact_env.scene.randomize import RandomizeConfig, check_scene_ranges, overrides_for
 
 METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
 
@@ -200,7 +198,7 @@ class Scene:
         items.update(kw)
         return with_overrides(self, items) if items else self
 
-    # -- randomisation (see impact_env.randomize for the ranges and the seed policy) ----------
+    # -- randomisation (see impact_env.scene.randomize for the ranges and the seed policy) ----------
     @property
     def randomized(self) -> bool:
         """True when ``[randomize]`` gives any range."""
@@ -237,36 +235,3 @@ def _field_comments(cls, prefix: str = "") -> dict[str, str]:
             unit = f.metadata.get("unit", "")
             out[key] = f"[{unit}] {f.metadata['doc']}" if unit else f.metadata["doc"]
     return out
-
-
-def scene_from_dict(data: dict) -> Scene:
-    return from_dict(Scene, data)
-
-
-def load_scene(spec: str | Path | Scene | dict, overrides: dict[str, Any] | None = None) -> Scene:
-    """A scene from a preset name, a TOML path, a dict or a Scene, with dotted overrides applied."""
-    from impact_env.presets import PRESETS
-
-    if isinstance(spec, Scene):
-        scene = spec
-    elif isinstance(spec, dict):
-        scene = scene_from_dict(spec)
-    else:
-        text = str(spec)
-        if text in PRESETS:
-            scene = PRESETS[text]()
-        elif text.endswith(".toml") or Path(text).is_file():
-            import tomllib
-
-            with open(text, "rb") as fh:
-                scene = scene_from_dict(tomllib.load(fh))
-        else:
-            import difflib
-
-            hint = difflib.get_close_matches(text, list(PRESETS), n=1)
-            near = f"; did you mean {hint[0]!r}?" if hint else ""
-            raise ConfigError(f"unknown scene {text!r}{near} (presets: {', '.join(PRESETS)}; "
-                              "or give a path to a .toml file)")
-    if overrides:
-        scene = scene.with_overrides(overrides)
-    return scene

@@ -19,13 +19,14 @@ is (forces clipped), and every pair is within the limit by construction.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from impact_env.policy.registry import policy_class
 
 UNLIMITED_SCALE = 1.0e5  # N: command_scale when the force is not limited
 DEFAULT_AXES = {"thesis-rig": (("h01", "1e5:5e6:20"), ("h11", "1:1000:20"))}
@@ -102,11 +103,10 @@ class _Chunk:
 
 
 def _run_chunk(c: _Chunk):
-    from baselines import POLICIES
-    from impact_env.parallel import report
-    from impact_env.rollout import rollout
+    from impact_env.eval.parallel import report
+    from impact_env.eval.rollout import rollout
 
-    policy = POLICIES[c.policy](c.scene, **c.fixed, **{c.x_name: c.xs, c.y_name: c.ys})
+    policy = policy_class(c.policy)(c.scene, **c.fixed, **{c.x_name: c.xs, c.y_name: c.ys})
     r = rollout(c.scene, policy, [c.seed] * len(c.xs), horizon=c.t_end, trace_rate=0.0, name=c.policy,
                 progress=report)
     return r.metrics, r.failures
@@ -128,14 +128,12 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
           t_end: float = 0.02, limit: str = "none", objective: str = "exit_speed_ratio",
           workers: int | None = None, progress: bool = True) -> SweepResult:
     """Run ``policy`` for every pair of ``axes = ((name_x, values), (name_y, values))``."""
-    from baselines import POLICIES
-    from impact_env.parallel import default_workers, run_tasks
-    from impact_env.rollout import EPISODE_METRICS
+    from impact_env.eval.parallel import default_workers, run_tasks
+    from impact_env.eval.rollout import EPISODE_METRICS
     from impact_env.scene import load_scene
 
     scene = load_scene(scene)
-    if policy not in POLICIES:
-        raise ValueError(f"sweep policy {policy!r} is not a baseline (valid: {', '.join(POLICIES)})")
+    cls = policy_class(policy)
     if objective not in EPISODE_METRICS:
         raise ValueError(f"objective {objective!r} is not a metric (valid: {', '.join(EPISODE_METRICS)})")
     if not (t_end > 0 and math.isfinite(t_end)):
@@ -146,7 +144,7 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
     fixed = dict(fixed or {})
     run_scene, force_limit = sweep_scene(scene, limit)
     # validate names and values once, before anything runs
-    POLICIES[policy](run_scene, **fixed, **{xn: np.asarray(xv, float), yn: np.asarray(yv, float)})
+    cls(run_scene, **fixed, **{xn: np.asarray(xv, float), yn: np.asarray(yv, float)})
     X, Y = np.meshgrid(np.asarray(xv, float), np.asarray(yv, float), indexing="ij")
     xs, ys = X.ravel(), Y.ravel()
     workers = default_workers() if workers is None else max(1, int(workers))
@@ -155,7 +153,7 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
     chunks = [_Chunk(policy, run_scene, xn, yn, xs[a:b], ys[a:b], fixed, seed, t_end)
               for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     if workers > 1:
-        from impact_env.compare import _warm_up
+        from impact_env.eval.compare import _warm_up
 
         _warm_up(run_scene, t_end)
     n_steps = int(round(t_end / run_scene.control_period))
@@ -186,7 +184,7 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
 def write_csv(res: SweepResult, path: Path) -> Path:
     import csv
 
-    from impact_env.rollout import EPISODE_METRICS
+    from impact_env.eval.rollout import EPISODE_METRICS
 
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
@@ -244,86 +242,3 @@ def plot(res: SweepResult, path: Path, log: bool, title: str = "") -> Path:
     fig.savefig(path, dpi=80)
     plt.close(fig)
     return path
-
-
-# -- command line ------------------------------------------------------------------------------------
-def add_parser(sub, scene_args) -> None:
-    p = sub.add_parser("sweep", help="sweep a baseline's two gains over a grid (thesis fig 4.4)")
-    scene_args(p)
-    p.add_argument("--policy", default="thesis-rig",
-                   help="baseline whose gains are swept (default thesis-rig)")
-    p.add_argument("--h01", metavar="LO:HI:N", help="grid of h01, 1/s^2 (thesis-rig default 1e5:5e6:20)")
-    p.add_argument("--h11", metavar="LO:HI:N", help="grid of h11, 1/s (thesis-rig default 1:1000:20)")
-    p.add_argument("--grid", action="append", metavar="NAME=LO:HI:N",
-                   help="grid of any parameter of the policy (two axes in all, with --h01/--h11)")
-    p.add_argument("--fixed", metavar="K=V,...", default="",
-                   help="other parameters of the policy, e.g. dref=6e-5")
-    p.add_argument("--log", action="store_true", help="geometric grids instead of linear")
-    p.add_argument("--t-end", type=float, default=0.02,
-                   help="simulated time per pair, s (default 0.02: the first contact)")
-    p.add_argument("--limit", choices=("none", "scene"), default="none",
-                   help="none (default, as the thesis): no saturation, pairs marked against the scene's "
-                        "limit; scene: the scene's force limits act")
-    p.add_argument("--objective", default="exit_speed_ratio", help="metric the best pair minimises")
-    p.add_argument("--seed", type=int, default=0, help="seed of the drop (the same for every pair)")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
-    p.add_argument("--out", metavar="DIR", default=".", help="where sweep.csv and sweep.png go (default .)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=cmd_sweep)
-
-
-def axes_from_args(args) -> tuple:
-    items = []
-    if args.h01:
-        items.append(("h01", args.h01))
-    if args.h11:
-        items.append(("h11", args.h11))
-    for g in args.grid or []:
-        name, sep, spec = g.partition("=")
-        if not sep or not name.strip():
-            raise ValueError(f"--grid expects NAME=LO:HI:N, got {g!r}")
-        items.append((name.strip(), spec.strip()))
-    if not items and args.policy in DEFAULT_AXES:
-        items = list(DEFAULT_AXES[args.policy])
-    elif len(items) == 1 and args.policy in DEFAULT_AXES:
-        items += [ax for ax in DEFAULT_AXES[args.policy] if ax[0] != items[0][0]][:1]
-    if len(items) != 2:
-        raise ValueError(f"sweep needs exactly two grid axes (got {len(items)}): give --h01 and --h11, "
-                         "or --grid NAME=LO:HI:N twice")
-    return tuple((name, parse_grid(name, spec, args.log)) for name, spec in items)
-
-
-def cmd_sweep(args) -> int:
-    from baselines.registry import parse_spec
-    from impact_env.cli import scene_from_args
-
-    scene = scene_from_args(args)
-    axes = axes_from_args(args)
-    _, fixed = parse_spec(f"{args.policy}:{args.fixed}") if args.fixed else (None, {})
-    res = sweep(scene, args.policy, axes, fixed, seed=args.seed, t_end=args.t_end, limit=args.limit,
-                objective=args.objective, workers=args.workers, progress=not (args.no_progress or args.json))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = write_csv(res, out / "sweep.csv")
-    png_path = plot(res, out / "sweep.png", args.log)
-    if args.json:
-        print(json.dumps(res.to_json()))
-        return 0
-    print(f"scene {scene.name}: {res.policy}, {len(res.x)} x {len(res.y)} pairs of "
-          f"({res.x_name}, {res.y_name}), "
-          f"{res.t_end:g} s each, force {'unlimited' if res.limit == 'none' else 'limited by the scene'}; "
-          f"{int(res.within_limit.sum())} pairs peak within {res.force_limit_N:g} N; {res.wall_time_s:.1f} s")
-    if res.best is None:
-        print(f"  no pair stays within {res.force_limit_N:g} N")
-    else:
-        b = res.best
-        print(f"  best within the limit: {res.x_name} = {b[res.x_name]:.4g}, "
-              f"{res.y_name} = {b[res.y_name]:.4g}: exit speed {b['exit_speed_ratio']:.3f} of the impact "
-              f"speed, peak force {b['peak_force_N']:.1f} N, "
-              f"{res.objective} = {b[res.objective]:.4g}")
-    for f in res.failures[:10]:
-        print(f"  failed: {res.x_name}={f[res.x_name]:.4g}, {res.y_name}={f[res.y_name]:.4g} at "
-              f"t = {f['t_s']:.4g} s: {f['error']}")
-    print(f"written: {csv_path}, {png_path}")
-    return 0

@@ -18,7 +18,7 @@ EFFECTS = ("actuator_delay", "shaker", "saturation", "sensors", "filters", "sens
 @dataclass(frozen=True)
 class EffectsConfig:
     """``active`` names the effects the scene uses (in any order; they always run in the
-    pipeline's order, :mod:`impact_env.pipeline_kernel`).  The other sections hold parameters;
+    pipeline's order, :mod:`impact_env.sim.pipeline_kernel`).  The other sections hold parameters;
     those of an effect that is not active are validated but not used."""
 
     active: tuple[str, ...] = field(default=(), metadata={

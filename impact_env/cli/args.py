@@ -1,0 +1,51 @@
+"""Options every command shares: the scene and ``--set KEY=VALUE``."""
+
+from __future__ import annotations
+
+import argparse
+
+from impact_env.config import ConfigError
+
+
+def parse_overrides(pairs: list[str] | None) -> dict[str, str]:
+    """``["a.b=1", ...]`` (the ``--set`` values) -> ``{"a.b": "1"}``; values are parsed as TOML
+    when the scene is built.  ConfigError on an item without ``=``."""
+    out: dict[str, str] = {}
+    for item in pairs or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set expects KEY=VALUE (e.g. plant.m1=0.05), got {item!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def add_scene_arguments(p: argparse.ArgumentParser, positional: bool = False, default: str | None = "ideal",
+                        scene: bool = True) -> None:
+    """Give a (sub)command the shared scene options: the scene (``--scene NAME|FILE.toml``, or a
+    positional ``scene`` with ``positional=True``) and the repeatable ``--set KEY=VALUE``.
+    Every command that builds a scene uses this and :func:`scene_from_args`, so ``--set`` works
+    the same way everywhere.  ``scene=False`` adds ``--set`` only (commands over many scenes)."""
+    if scene:
+        if positional:
+            p.add_argument("scene", help="preset name or path to a scene .toml")
+        else:
+            p.add_argument("--scene", default=default,
+                           help=f"preset name or path to a scene .toml (default: {default})")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
+                   help="override a scene field, e.g. --set plant.m1=0.05 (repeatable; values are TOML, "
+                        "e.g. --set 'randomize.m1=[0.08, 0.12]')")
+
+
+def scene_from_args(args, scene: str | None = None):
+    """The scene named by ``args.scene`` (or ``scene``) with ``args.set`` and the integrator
+    options (``--method``, ``--dt``, ``--rtol``, where the command has them) applied."""
+    from impact_env.scene import load_scene
+
+    ov = parse_overrides(getattr(args, "set", None))
+    if getattr(args, "method", None):
+        ov["integrator.method"] = args.method
+    if getattr(args, "dt", None) is not None:
+        ov["integrator.dt"] = str(args.dt)
+    if getattr(args, "rtol", None) is not None:
+        ov["integrator.rtol"] = str(args.rtol)
+    return load_scene(scene if scene is not None else args.scene, ov)

@@ -1,0 +1,66 @@
+"""``impact-env compare``: the command line of :mod:`impact_env.eval.compare`."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from impact_env.cli.args import scene_from_args
+from impact_env.eval.compare import compare, format_table, split_policies, summary_json, write_outputs
+
+
+# -- command line -------------------------------------------------------------------------------------
+def add_parser(sub, scene_args) -> None:
+    """Register ``compare`` on the CLI's subparsers (``scene_args`` adds --scene/--set)."""
+    p = sub.add_parser("compare", help="run policies on the same seeded drops and tabulate catch metrics")
+    scene_args(p)
+    p.add_argument("--policies", action="append", metavar="LIST",
+                   help="comma-separated policy specs, e.g. "
+                        "passive,thesis-rig:h01=2.3e6,h11=18,pd-penetration "
+                        "or a saved SB3 model (PATH.zip, ppo:PATH.zip); repeatable")
+    p.add_argument("--episodes", type=int, default=100, help="episodes per policy (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="episode j is seeded seed + j (default 0)")
+    p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: episode.horizon)")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
+    p.add_argument("--out", metavar="DIR", help="write summary.csv/json, episodes.csv and plots here")
+    p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--list", action="store_true", help="list the baselines and their parameters, then exit")
+    p.set_defaults(func=cmd_compare)
+
+
+def cmd_compare(args) -> int:
+    if args.list:
+        from impact_env.policy.registry import describe_policies
+
+        print(describe_policies())
+        return 0
+    scene = scene_from_args(args)
+    texts = args.policies or ["passive,thesis-rig,pd-penetration"]
+    specs = [s for text in texts for s in split_policies(text)]
+    runs = compare(scene, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
+                   workers=args.workers, progress=not args.no_progress and not args.json)
+    horizon = scene.episode.horizon if args.horizon is None else args.horizon
+    if args.json:
+        print(json.dumps(summary_json(runs)))
+    else:
+        wall = next(iter(runs.values())).summary["wall_time_total_s"]
+        print(f"scene {scene.name}: {args.episodes} episodes of {horizon:g} s, seed {args.seed} "
+              f"(episode j seeded {args.seed} + j), impact speed {scene.impact_speed:.3g} m/s, "
+              f"{len(specs)} policies in {wall:.1f} s")
+        print("E: body 1's catch energy over its impact value (mean); exit v/v0: body 1's speed at the first "
+              "separation over the impact speed (mean); catch: catch energy below 1 % for good")
+        print(format_table(runs, horizon))
+    failures = [f for run in runs.values() for f in run.failures]
+    for f in failures[:20]:
+        print(f"impact-env compare: policy {f['policy']!r} failed in episode {f['episode']} "
+              f"(seed {f['seed']}) "
+              f"at t = {f['t_s']:.6g} s: {f['error']}", file=sys.stderr)
+    if len(failures) > 20:
+        print(f"impact-env compare: ... and {len(failures) - 20} more failed episodes", file=sys.stderr)
+    if args.out:
+        paths = write_outputs(runs, Path(args.out), scene, args.seed, horizon)
+        if not args.json:
+            print("written: " + ", ".join(str(p) for p in paths))
+    return 0

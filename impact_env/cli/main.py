@@ -1,0 +1,66 @@
+"""Command line: ``impact-env drop | scenes | scene show | compare | sweep``.
+
+Every command takes ``--set KEY=VALUE`` (repeatable) through :func:`add_scene_arguments` and
+builds its scene with :func:`scene_from_args`; new commands should use the same two helpers.
+
+Bad input (unknown scene, key or method, a value out of range) prints one line naming the
+parameter to stderr and exits with code 2, before anything is simulated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from impact_env.cli import compare, sweep
+from impact_env.cli.args import add_scene_arguments
+from impact_env.cli.drop import cmd_drop, cmd_scene_show, cmd_scenes
+from impact_env.config import ConfigError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="impact-env", description="Catching a falling body with a shaker.")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("drop", help="simulate one uncontrolled drop and summarise it")
+    add_scene_arguments(p)
+    p.add_argument("--seed", type=int, default=None,
+                   help="for a scene with [randomize] ranges: draw this drop's values with this seed "
+                        "(default: the scene's nominal values); the JSON lists them under 'drawn'")
+    p.add_argument("--method", help="euler | symplectic-euler | rk4 | dopri5")
+    p.add_argument("--dt", type=float, help="fixed step, s")
+    p.add_argument("--rtol", type=float, help="dopri5 relative tolerance")
+    p.add_argument("--t-end", type=float, default=None, help="simulated time, s (default: episode.horizon)")
+    p.add_argument("--record-rate", type=float, default=None,
+                   help="samples per second (default: control.rate)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plot", metavar="FILE.png", help="write positions, velocities, forces and energies")
+    p.set_defaults(func=cmd_drop)
+
+    p = sub.add_parser("scenes", help="list the preset scenes (with --set: each with the overrides applied)")
+    add_scene_arguments(p, scene=False)
+    p.set_defaults(func=cmd_scenes)
+
+    p = sub.add_parser("scene", help="scene tools")
+    ssub = p.add_subparsers(dest="scene_command", required=True)
+    q = ssub.add_parser("show", help="print a scene as TOML")
+    add_scene_arguments(q, positional=True)
+    q.set_defaults(func=cmd_scene_show)
+
+    compare.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
+    sweep.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ConfigError, ValueError) as exc:
+        print(f"impact-env {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

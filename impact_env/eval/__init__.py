@@ -1,0 +1,3 @@
+"""Evaluation: rollouts of policies on seeded drops (:mod:`~impact_env.eval.rollout`), the
+comparison table and its plots (:mod:`~impact_env.eval.compare`), gain sweeps
+(:mod:`~impact_env.eval.sweep`), and the process pool they share (:mod:`~impact_env.eval.parallel`)."""

@@ -1,0 +1,116 @@
+"""Policies by spec: ``make_policy("thesis-rig:h01=2.3e6,h11=18", scene)``.
+
+Spec syntax: ``NAME[:KEY=VALUE,KEY=VALUE...]`` for a named policy (values are numbers, or words
+for choice parameters), or a saved stable-baselines3 model: ``PATH.zip``, ``ALGO:PATH.zip``
+(``ppo``, ``sac``, ``td3``, ``a2c``, ``ddpg``), optionally followed by
+``:observation=sensors,history=4`` (see :mod:`impact_env.policy.sb3`).  Unknown names or
+parameters raise :class:`impact_env.config.ConfigError` listing the valid ones.
+
+Named policies are found through the entry-point group ``impact_env.policies`` (name ->
+``module:Class``; this project's ``pyproject.toml`` registers the classic laws of the top-level
+``baselines`` package there), so that :mod:`impact_env` never imports the packages that build on
+it, and a user's own package can add policies the same way.  A class takes ``(scene, **params)``
+and has ``observation``, ``PARAMS`` and SB3's ``predict``.
+"""
+
+from __future__ import annotations
+
+import functools
+from importlib.metadata import entry_points
+
+from impact_env.config import ConfigError
+from impact_env.scene import Scene, load_scene
+
+GROUP = "impact_env.policies"
+
+
+REGISTERED: dict[str, type] = {}  # added at run time with register_policy (they win over entry points)
+
+
+@functools.cache
+def _entry_point_classes() -> dict[str, type]:
+    out = {}
+    for ep in entry_points(group=GROUP):  # in the order each package declares them
+        out.setdefault(ep.name, ep.load())
+    return out
+
+
+def policy_classes() -> dict[str, type]:
+    """Every named policy: name -> class, from the entry points (loaded once) and
+    :func:`register_policy`."""
+    return {**_entry_point_classes(), **REGISTERED}
+
+
+def register_policy(cls: type, name: str | None = None) -> None:
+    """Make ``cls`` available by ``name`` (default ``cls.name``) in this process, e.g. a policy
+    written in a notebook.  Worker processes of ``compare`` inherit it where they are forked."""
+    REGISTERED[name or cls.name] = cls
+
+
+def policy_class(name: str) -> type:
+    classes = policy_classes()
+    if name not in classes:
+        import difflib
+
+        hint = difflib.get_close_matches(name, list(classes), n=1)
+        near = f"; did you mean {hint[0]!r}?" if hint else ""
+        valid = ", ".join(classes) or f"none: no package registers the entry-point group {GROUP!r}; " \
+            "is the project installed (pip install -e .)?"
+        raise ConfigError(f"unknown policy {name!r}{near} (valid: {valid}, or a path to a saved SB3 "
+                          "model .zip, optionally as ALGO:PATH.zip)")
+    return classes[name]
+
+
+def parse_spec(spec: str) -> tuple[str, dict[str, object]]:
+    """``"name:k=v,k=v"`` -> (name, {k: value}); values parsed as floats where they are numbers."""
+    if not isinstance(spec, str) or not spec.strip():
+        raise ConfigError("policy spec must be a non-empty string like 'thesis-rig:h01=2.3e6,h11=18', "
+                          f"got {spec!r}")
+    name, _, rest = spec.strip().partition(":")
+    params: dict[str, object] = {}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise ConfigError(f"policy {name!r}: parameter {item!r} must be KEY=VALUE (e.g. h01=2.3e6)")
+        value = value.strip()
+        try:
+            params[key.strip()] = float(value)
+        except ValueError:
+            params[key.strip()] = value
+    return name.strip(), params
+
+
+def is_model_spec(spec: str) -> bool:
+    """True if ``spec`` names a saved SB3 model (a ``.zip`` path, possibly ``algo:``-prefixed)."""
+    return ".zip" in spec
+
+
+def make_policy(spec: str, scene: Scene | str | dict):
+    """A policy from its spec (see the module doc), built for ``scene``."""
+    if is_model_spec(spec):
+        from impact_env.policy.sb3 import load_model_policy
+
+        return load_model_policy(spec, scene)
+    name, params = parse_spec(spec)
+    return policy_class(name)(load_scene(scene), **params)
+
+
+def check_spec(spec: str, scene) -> None:
+    """Validate a spec without the cost of loading a model (models: syntax and file)."""
+    if is_model_spec(spec):
+        from impact_env.policy.sb3 import parse_model_spec
+
+        parse_model_spec(spec)
+    else:
+        make_policy(spec, scene)
+
+
+def describe_policies() -> str:
+    """One block per named policy: name, observation, parameters with defaults and units."""
+    lines = []
+    for name, cls in policy_classes().items():
+        lines.append(f"{name} ({cls.observation} observation, module {cls.__module__})")
+        for key, p in cls.PARAMS.items():
+            default = "scene" if p.default is None else p.default
+            lines.append(f"    {key} = {default} {p.unit}  {p.doc}")
+    return "\n".join(lines)

@@ -1,0 +1,103 @@
+"""From a scene to the plant's arrays: parameters, initial state and contact mode, dopri5's error
+scale, and the stability check of the fixed-step methods.  One module, used by the single drop
+(:mod:`impact_env.sim.drop`) and by the batched Simulator (:mod:`impact_env.sim.simulator`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from impact_env.plant import layout as L
+from impact_env.plant.dynamics import event_value
+from impact_env.plant.hertz import CONTACT_TIME_FACTOR, max_contact_frequency, max_penetration
+from impact_env.plant.restitution import tsuji_damping
+from impact_env.scene import Scene
+
+METHOD_CODES = {"euler": L.EULER, "symplectic-euler": L.SYMPLECTIC_EULER, "rk4": L.RK4, "dopri5": L.DOPRI5}
+# largest stable omega*dt of each fixed-step method on an undamped oscillator
+# (RK4: 2*sqrt(2) on the imaginary axis; symplectic Euler: 2); explicit Euler grows for any
+# step, we refuse steps past omega*dt = 1 where it gains over 40 % amplitude per step.
+STABILITY_LIMIT = {"euler": 1.0, "symplectic-euler": 2.0, "rk4": 2.0 * math.sqrt(2.0)}
+
+
+def plant_params(scene: Scene, zeta_of: Callable[[float], float] | None = None) -> np.ndarray:
+    """The plant's parameter array for a scene (see :mod:`impact_env.plant.layout`).
+
+    ``zeta_of``: the scaled damping for a restitution (default: the exact solve,
+    :func:`~impact_env.plant.restitution.zeta_for_restitution`; the Simulator passes a
+    :class:`~impact_env.plant.restitution.ZetaTable` for drawn restitutions).
+    """
+    pl = scene.plant
+    p = np.zeros(L.N_PARAM)
+    p[L.M1], p[L.M2], p[L.C], p[L.G] = pl.m1, pl.m2, pl.c, pl.gravity
+    if pl.restitution >= 1.0:
+        p[L.B] = 0.0
+    elif zeta_of is None:
+        p[L.B] = tsuji_damping(pl.restitution, pl.m1, pl.m2, pl.c)
+    else:
+        p[L.B] = zeta_of(pl.restitution) * math.sqrt(pl.effective_mass * pl.c)
+    p[L.K2], p[L.C2] = pl.suspension_stiffness, pl.suspension_damping
+    return p
+
+
+def initial_state(scene: Scene) -> tuple[np.ndarray, float]:
+    """State at the start and the time of the first touch after it (s).
+
+    Free fall is solved in closed form; the run starts ``pre_contact_time`` before the touch,
+    or at the release if the fall is shorter.
+    """
+    return free_fall_state(scene.impact_speed, scene.plant.gravity, scene.initial.pre_contact_time)
+
+
+def free_fall_state(v: float, g: float, tau: float) -> tuple[np.ndarray, float]:
+    """:func:`initial_state` from the impact speed v (m/s), gravity g and pre-contact time tau."""
+    if g > 0:  # a body released from rest has fallen for v/g only
+        tau = min(tau, v / g)
+    y = np.zeros(L.N_STATE)
+    y[L.X1] = -(v * tau - 0.5 * g * tau * tau)
+    y[L.V1] = v - g * tau
+    return y, tau
+
+
+def check_stability(scene: Scene) -> None:
+    """Refuse, before simulating, a fixed step beyond the method's stability limit for the
+    stiffest contact oscillation the scene's drop will excite."""
+    method = scene.integrator.method
+    if method == "dopri5":
+        return
+    pl = scene.plant
+    m = pl.effective_mass
+    v = scene.impact_speed
+    d = max(max_penetration(m, pl.c, v) if v > 0 else 0.0, pl.static_penetration)
+    if d <= 0:
+        return
+    omega = max_contact_frequency(m, pl.c, d)
+    limit = STABILITY_LIMIT[method] / omega
+    if scene.integrator.dt > limit:
+        tc = CONTACT_TIME_FACTOR * d / v if v > 0 else 2 * math.pi / omega
+        raise ValueError(
+            f"integrator.dt = {scene.integrator.dt:g} s is beyond the stability limit of {method} "
+            f"for this contact: it needs dt < {limit:.3g} s (omega*dt < {STABILITY_LIMIT[method]:.3g}, "
+            f"contact time about {tc:.3g} s, penetration up to {d:.3g} m). "
+            "Reduce integrator.dt or use integrator.method = dopri5.")
+
+
+def initial_mode(scene: Scene, y0: np.ndarray, p: np.ndarray) -> int:
+    """The contact mode to start in: FREE or CONTACT from the initial state when contact events
+    are located, AUTO (the force switches inside the right-hand side) when they are not."""
+    if not scene.integrator.event_location:
+        return L.AUTO
+    return L.CONTACT if event_value(y0[0], y0[1], y0[2], y0[3], p[L.C], p[L.B]) > 0 else L.FREE
+
+
+def error_scale(scene: Scene, p: np.ndarray) -> np.ndarray:
+    """Per-component scale for dopri5's absolute tolerance (rtol * scale)."""
+    v = max(scene.impact_speed, 1e-3)
+    m = scene.plant.effective_mass
+    d = max(max_penetration(m, p[L.C], v), scene.plant.static_penetration)
+    e = 0.5 * scene.plant.m1 * v * v
+    return np.array([d, v, d, v, e, e])
+

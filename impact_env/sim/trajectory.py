@@ -1,0 +1,146 @@
+"""A simulated drop as arrays over the record times, with its energies and summary metrics."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from impact_env.plant import layout as L
+from impact_env.plant.dynamics import contact_force
+from impact_env.plant.energy import catch_energy, energies
+from impact_env.scene import Scene
+
+
+@dataclass
+class Trajectory:
+    """A simulated run, sampled at the record rate (state at each sample time).
+
+    Frame: x down, body 2's rest surface at 0; ``d = x1 - x2`` is the penetration.
+    ``events`` has one row per contact onset (+1) or separation (-1): t (s), kind, x1, v1, x2, v2.
+    """
+
+    t: np.ndarray  # s
+    x1: np.ndarray  # m
+    v1: np.ndarray  # m/s
+    x2: np.ndarray  # m
+    v2: np.ndarray  # m/s
+    contact: np.ndarray  # bool, in contact at the sample
+    contact_force: np.ndarray  # N, at the sample
+    peak_force: np.ndarray  # N, largest contact force seen within the interval ending at the sample
+    shaker_force: np.ndarray  # N (upwards), held over the interval ending at the sample
+    work_shaker: np.ndarray  # J, work done by the shaker since t = 0
+    dissipated: np.ndarray  # J, energy dissipated since t = 0
+    events: np.ndarray
+    t_first_contact: float  # s, the time of the first touch (from the initial condition)
+    scene: Scene
+    params: np.ndarray
+    wall_time_s: float = 0.0
+    n_events_dropped: int = 0
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def penetration(self) -> np.ndarray:
+        return self.x1 - self.x2
+
+    def energies(self) -> dict[str, np.ndarray]:
+        p = self.params
+        return energies(self.x1, self.v1, self.x2, self.v2, p[L.M1], p[L.M2], p[L.C], p[L.G], p[L.K2])
+
+    def catch_energy(self) -> np.ndarray:
+        """Body 1's energy above resting on body 2 (J); see :func:`plant.energy.catch_energy`."""
+        p = self.params
+        return catch_energy(self.x1, self.v1, self.x2, p[L.M1], p[L.C], p[L.G])
+
+    def energy_balance_error(self) -> float:
+        """max |E(t) + dissipated(t) - work_shaker(t) - E(0)| / E_scale over the run, E_scale the
+        larger of the initial total and the initial catch energy."""
+        e = self.energies()["total"]
+        resid = e + self.dissipated - self.work_shaker - e[0]
+        scale = max(abs(e[0]), float(self.catch_energy()[0]), 1e-300)
+        return float(np.max(np.abs(resid)) / scale)
+
+    def onsets(self) -> np.ndarray:
+        return self.events[self.events[:, 1] > 0]
+
+    def separations(self) -> np.ndarray:
+        return self.events[self.events[:, 1] < 0]
+
+    def restitution(self) -> float | None:
+        """Relative separation speed over relative impact speed at the first separation."""
+        on, off = self.onsets(), self.separations()
+        if len(on) == 0 or len(off) == 0:
+            return None
+        vin = on[0, 3] - on[0, 5]
+        first_off = off[off[:, 0] > on[0, 0]]
+        if len(first_off) == 0 or vin == 0:
+            return None
+        return float(-(first_off[0, 3] - first_off[0, 5]) / vin)
+
+    def first_contact_duration(self) -> float | None:
+        on, off = self.onsets(), self.separations()
+        if len(on) == 0:
+            return None
+        later = off[off[:, 0] > on[0, 0]]
+        return float(later[0, 0] - on[0, 0]) if len(later) else None
+
+    def max_penetration(self) -> float:
+        """Largest penetration (m), refined by a parabola through the three samples at the peak."""
+        d = self.penetration
+        k = int(np.argmax(d))
+        if 0 < k < len(d) - 1:
+            a, b, c = d[k - 1], d[k], d[k + 1]
+            den = a - 2 * b + c
+            if den < 0:
+                return float(b - 0.125 * (c - a) ** 2 / den)
+        return float(d[k])
+
+    def time_to_fraction(self, fraction: float = 0.01) -> float | None:
+        """Time from the first touch after which body 1's catch energy stays below ``fraction``
+        of its initial value; None if it is above at the end of the run."""
+        e = self.catch_energy()
+        above = np.nonzero(e >= fraction * e[0])[0]
+        if len(above) == 0:
+            return 0.0
+        last = above[-1]
+        if last == len(e) - 1:
+            return None
+        return float(max(self.t[last + 1] - self.t_first_contact, 0.0))
+
+    def metrics(self) -> dict:
+        """The summary of a drop (the fields ``impact-env drop --json`` prints)."""
+        return {
+            "max_penetration_m": self.max_penetration(),
+            "first_contact_duration_s": self.first_contact_duration(),
+            "peak_contact_force_N": float(max(self.peak_force.max(), self.contact_force.max())),
+            "restitution": self.restitution(),
+            "energy_balance_error": self.energy_balance_error(),
+            "time_to_1pct_energy_s": self.time_to_fraction(0.01),
+            "n_contacts": int(len(self.onsets())),
+            "wall_time_s": self.wall_time_s,
+        }
+
+
+def build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_touch, rec_period, wall):
+    n = out_y.shape[0]
+    t = np.arange(n) * rec_period
+    x1, v1, x2, v2 = (out_y[:, j].copy() for j in range(4))
+    d = x1 - x2
+    mode = out_mode
+    fc = np.array([contact_force(d[i], v1[i] - v2[i], L.AUTO if mode[i] == L.AUTO else int(mode[i]),
+                                 p[L.C], p[L.B])[0] for i in range(n)]) if n < 50_000 else \
+        _contact_force_vec(d, v1 - v2, mode, p)
+    contact = (mode == L.CONTACT) if mode[0] != L.AUTO else (fc > 0)
+    k = int(min(evn[0], ev.shape[0]))
+    return Trajectory(t=t, x1=x1, v1=v1, x2=x2, v2=v2, contact=contact, contact_force=fc,
+                      peak_force=out_peak.copy(), shaker_force=f2_rec, work_shaker=out_y[:, L.W_EXT].copy(),
+                      dissipated=out_y[:, L.W_DISS].copy(), events=ev[:k].copy(), t_first_contact=t_touch,
+                      scene=scene, params=p, wall_time_s=wall, n_events_dropped=int(evn[0]) - k)
+
+
+def _contact_force_vec(d, dd, mode, p):
+    c, b = p[L.C], p[L.B]
+    dp = np.maximum(d, 0.0)
+    f = c * dp * np.sqrt(dp) + b * np.sqrt(np.sqrt(dp)) * dd
+    f = np.where((d > 0) & (mode != L.FREE), f, 0.0)
+    return np.maximum(f, 0.0)
