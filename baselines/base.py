@@ -6,7 +6,7 @@ force that action +1 demands) and its gains, and is then used exactly like a tra
     action, state = policy.predict(obs, state=None, episode_start=None, deterministic=True)
 
 * ``obs``: one observation (float[size]) or a batch (float[N, size]) in the env's layout
-  (:mod:`impact_env.sim.observation`): each entry divided by its reference scale.  The policy
+  (:mod:`impact_env.control.observation`): each entry divided by its reference scale.  The policy
   reads the first frame (the current sample); with ``history > 1`` the older frames and the
   past actions that follow are ignored.
 * ``action``: float32[1] or float32[N, 1], the force demand divided by
@@ -33,7 +33,7 @@ import numpy as np
 
 from impact_env.config import ConfigError
 from impact_env.scene import Scene, load_scene
-from impact_env.sim.observation import ObservationLayout, make_layout
+from impact_env.control.observation import ObservationLayout, make_layout
 
 
 @dataclass(frozen=True)

@@ -21,8 +21,8 @@ from hypothesis import strategies as st
 
 import impact_env
 from impact_env import SimulationDiverged
+from impact_env.hardware.arrays import STABILITY_LIMIT, initial_state, plant_params
 from impact_env.plant import hertz
-from impact_env.sim.arrays import STABILITY_LIMIT, initial_state, plant_params
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from naive import Params, hertz_drop, reference_drop, sim_overrides  # noqa: E402

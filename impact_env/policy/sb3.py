@@ -15,8 +15,8 @@ import json
 from pathlib import Path
 
 from impact_env.config import ConfigError
+from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.scene import load_scene
-from impact_env.sim.observation import OBSERVATIONS, make_layout
 
 ALGOS = ("ppo", "sac", "td3", "a2c", "ddpg")
 
