@@ -32,7 +32,6 @@ import numpy as np
 from impact_env.config import ConfigError, check_choice, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.env import task_kernel as TK
-from impact_env.plant import layout as L
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.simulator import Simulator, check_hold_ticks
 
@@ -108,7 +107,7 @@ class CatchTask:
         self.steps = np.zeros(n, dtype=np.int64)
         self.below = np.zeros(n, dtype=np.int64)  # consecutive ticks below the catch threshold
         self.energy = np.zeros(n)
-        self.impact_speed = np.zeros(n)
+        self.impact_speed = sim.hw.impact_speed
         self.diverged = np.zeros(n, dtype=bool)
         self.rewards = np.zeros(n)
         self.terminated = np.zeros(n, dtype=bool)
@@ -127,10 +126,6 @@ class CatchTask:
     def reset(self, rngs, mask=None) -> None:
         sim = self.sim
         idx = sim.reset(rngs, mask)
-        y = sim.Y[idx]
-        g = sim.P[idx, L.G]
-        gap = np.maximum(y[:, L.X2] - y[:, L.X1], 0.0)
-        self.impact_speed[idx] = np.sqrt(np.maximum(y[:, L.V1] - y[:, L.V2], 0.0) ** 2 + 2.0 * g * gap)
         self.rows[idx, TK.COL_TTOUCH] = sim.t_touch[idx]  # kept by the kernels, which skip this column
         TK.task_reset_rows(idx, sim.records, sim.Y, sim.P, sim.impact_energy, self.impact_speed, *self._state,
                            self.rows)

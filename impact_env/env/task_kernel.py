@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, V1, X1, X2, C, G
 from impact_env.sim import records as R
 
@@ -26,14 +27,6 @@ BOOL_KEYS = ("contact", "saturated", "detected", "diverged", "caught")
 (COL_T, COL_E, COL_RATIO, COL_E0, COL_V0, COL_CONTACT, COL_FC, COL_FD, COL_FA, COL_SAT, COL_DET, COL_X1,
  COL_V1, COL_X2, COL_V2, COL_DIV, COL_CAUGHT, COL_TTOUCH) = range(len(INFO_KEYS))
 N_COL = len(INFO_KEYS)
-
-
-@jit(inline="always")
-def _catch_energy(x1, v1, x2, m1, c, g):
-    d = x1 - x2
-    ds = (m1 * g / c) ** (2.0 / 3.0)
-    dp = d if d > 0.0 else 0.0
-    return 0.5 * m1 * v1 * v1 + m1 * g * (0.6 * ds - d) + 0.4 * c * dp * dp * np.sqrt(dp)
 
 
 @jit
@@ -59,7 +52,7 @@ def task_step(active, records, Y, P, impact_energy, impact_speed, tp, steps, bel
                 below[i] = 0
                 cost = 1.0
             else:
-                e = _catch_energy(r[R.REC_X1], r[R.REC_V1], r[R.REC_X2], P[i, M1], P[i, C], P[i, G])
+                e = catch_energy_at(r[R.REC_X1], r[R.REC_V1], r[R.REC_X2], P[i, M1], P[i, C], P[i, G])
                 energy[i] = e
                 ratio = e / e0
                 cost = ratio
@@ -111,5 +104,5 @@ def task_reset_rows(idx, records, Y, P, impact_energy, impact_speed, tp, steps, 
         steps[i] = 0
         below[i] = 0
         diverged[i] = False
-        energy[i] = _catch_energy(Y[i, X1], Y[i, V1], Y[i, X2], P[i, M1], P[i, C], P[i, G])
+        energy[i] = catch_energy_at(Y[i, X1], Y[i, V1], Y[i, X2], P[i, M1], P[i, C], P[i, G])
         fill_row(i, Y, P, records[i, 0], impact_energy, impact_speed, energy, diverged, below, tp, rows)

@@ -31,7 +31,7 @@ from impact_env.plant.energy import catch_energy
 from impact_env.plant.restitution import zeta_table
 from impact_env.scene import Scene, load_scene
 
-NOISE_BLOCK = 256  # control ticks of noise drawn at once per env
+NOISE_BLOCK = 256  # control ticks of noise drawn at once per env (at least; see Hardware)
 
 
 class Hardware:
@@ -42,6 +42,7 @@ class Hardware:
     parameters), ``t`` (s since the episode start), ``raw`` (float64[N, 4]: the raw readings),
     ``info`` (float64[N, N_INFO], columns in :mod:`impact_env.hardware.stage`), ``y0``,
     ``mode0``, ``t_touch`` (s, the first touch after the start), ``impact_energy`` (J),
+    ``impact_speed`` (m/s, from the free fall),
     ``drawn`` (each env's randomised values).  ``PR``/``ST`` hold the effects' packed parameters
     and state (:meth:`param_block` / :meth:`state_block` give a named block as a view over envs).
 
@@ -53,7 +54,8 @@ class Hardware:
     shaker model and delay lengths.  Envs of one batch thus differ; the kernel is the same.
     """
 
-    def __init__(self, scene: Scene | str, num_envs: int = 1, events_per_env: int = 64):
+    def __init__(self, scene: Scene | str, num_envs: int = 1, events_per_env: int = 64,
+                 noise_block: int = NOISE_BLOCK):
         scene = load_scene(scene)
         if isinstance(num_envs, bool) or int(num_envs) < 1:
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
@@ -109,10 +111,12 @@ class Hardware:
         self.mode0 = np.zeros(n, dtype=np.int64)
         self.t_touch = np.zeros(n)
         self.impact_energy = np.zeros(n)
+        self.impact_speed = np.zeros(n)  # m/s, body 1 relative to body 2 at the first touch
         self.raw = np.zeros((n, SE.N_CHANNELS))
         self.info = np.zeros((n, HS.N_INFO))
-        self.noise = np.zeros((n, NOISE_BLOCK, SE.N_CHANNELS))
-        self.cursor = np.full(n, NOISE_BLOCK, dtype=np.int64)
+        self.noise_block = nb = max(int(noise_block), 1)
+        self.noise = np.zeros((n, nb, SE.N_CHANNELS))
+        self.cursor = np.full(n, nb, dtype=np.int64)
         self._refill_in = 0  # ticks that every env can still run on its noise block
         self.drawn: list[dict[str, float]] = [{} for _ in range(n)]
         self.rngs: list[np.random.Generator | None] = [None] * n
@@ -193,10 +197,14 @@ class Hardware:
             self.ST[i] = 0.0  # every effect's state and the delay lines
             self.H[i] = 0.0  # dopri5's step size
             self.t[i] = 0.0
-            self.cursor[i] = NOISE_BLOCK
+            self.cursor[i] = self.noise_block
             self.info[i] = 0.0
             y = self.Y[i]
             self.raw[i] = (0.0, 0.0, y[L.X2], y[L.X1])
+        y = self.Y[idx]
+        gap = np.maximum(y[:, L.X2] - y[:, L.X1], 0.0)
+        self.impact_speed[idx] = np.sqrt(np.maximum(y[:, L.V1] - y[:, L.V2], 0.0) ** 2
+                                         + 2.0 * self.P[idx, L.G] * gap)
         self._refill_in = 0
         return idx
 
@@ -210,18 +218,21 @@ class Hardware:
         if self._refill_in >= ticks:
             self._refill_in -= ticks
             return
-        short = self.cursor > NOISE_BLOCK - ticks
+        nb = self.noise_block
+        if ticks > nb:
+            raise ValueError(f"{ticks} ticks of noise asked for at once; the noise block holds {nb}")
+        short = self.cursor > nb - ticks
         if active is not None:
             short &= active
         for i in np.nonzero(short)[0]:
             c = self.cursor[i]
-            left = NOISE_BLOCK - c
+            left = nb - c
             if left:
                 self.noise[i, :left] = self.noise[i, c:]
-            self.noise[i, left:] = self.rngs[i].standard_normal((NOISE_BLOCK - left, SE.N_CHANNELS))
+            self.noise[i, left:] = self.rngs[i].standard_normal((nb - left, SE.N_CHANNELS))
             self.cursor[i] = 0
         # inactive envs were not topped up: check every env again at the next step
-        self._refill_in = 0 if active is not None else int(NOISE_BLOCK - self.cursor.max()) - ticks
+        self._refill_in = 0 if active is not None else int(nb - self.cursor.max()) - ticks
 
     def args(self):
         """The stage kernel's argument groups ``(cfg, plant, fx, noise, out)``."""

@@ -16,7 +16,7 @@ import numpy as np
 
 from impact_env.control.front_end import FrontEnd
 from impact_env.control.observation import ObservationLayout, make_layout
-from impact_env.hardware.batch import Hardware
+from impact_env.hardware.batch import NOISE_BLOCK, Hardware
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.records import N_REC
 from impact_env.sim.step import sim_step
@@ -47,7 +47,8 @@ class Simulator:
                  hold_ticks: int = 1, events_per_env: int = 64):
         scene = load_scene(scene)
         self.hold = check_hold_ticks(hold_ticks)
-        self.hw = hw = Hardware(scene, num_envs, events_per_env)
+        # a step's noise must fit one block (the stream does not depend on the block's size)
+        self.hw = hw = Hardware(scene, num_envs, events_per_env, noise_block=max(NOISE_BLOCK, self.hold))
         self.scene = scene
         self.n = hw.n
         self.period = hw.period
