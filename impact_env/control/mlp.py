@@ -11,7 +11,9 @@ by code (:data:`ACTIVATIONS`), then the output transform stable-baselines3 appli
 
 Packing (int64 ``layers``: per layer n_in, n_out, activation, offset of W, offset of b into the
 float64 ``weights``) and the kernel, which needs a scratch row of ``2 * widest`` floats and
-allocates nothing.
+allocates nothing.  W is packed transposed (in x out), so that the kernel adds each input's
+column to all outputs at once: that loop has no reduction in it and LLVM vectorises it without
+reassociating anything (each output is still summed in input order, ``b + W[:, 0] x0 + ...``).
 """
 
 from __future__ import annotations
@@ -57,7 +59,7 @@ def pack_mlp(layers: list[dict]) -> tuple[np.ndarray, np.ndarray, int]:
         params = np.concatenate([params, np.zeros(2)])[:2]
         ints[j] = (W.shape[1], W.shape[0], ACT[act], off, off + W.size, off + W.size + b.size,
                    off + W.size + b.size + 1)
-        chunks += [W.ravel(), b, params]
+        chunks += [W.T.ravel(), b, params]
         off += W.size + b.size + 2
         n_prev = W.shape[0]
         widest = max(widest, W.shape[0], W.shape[1])
@@ -98,13 +100,14 @@ def mlp_forward(layers, w, obs, scratch):
         a0 = w[layers[j, L_A0]]
         a1 = w[layers[j, L_A1]]
         for o in range(n_out):
-            acc = w[ob + o]
-            row = ow + o * n_in
-            for i in range(n_in):
-                acc += w[row + i] * x[i]
-            y[o] = _activate(code, acc, a0, a1)
+            y[o] = w[ob + o]
+        for i in range(n_in):
+            xi = x[i]
+            col = ow + i * n_out
+            for o in range(n_out):
+                y[o] += w[col + o] * xi
         for o in range(n_out):
-            x[o] = y[o]
+            x[o] = _activate(code, y[o], a0, a1)
     return x[:layers[layers.shape[0] - 1, L_OUT]]
 
 
