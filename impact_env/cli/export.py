@@ -13,8 +13,6 @@ def add_parser(sub, scene_args) -> None:
     scene_args(p)
     p.add_argument("--out", required=True, metavar="FILE", help="the policy file to write (JSON)")
     p.add_argument("--onnx", metavar="FILE.onnx", help="also write the network as ONNX (MLP policies only)")
-    p.add_argument("--hold-ticks", type=int, default=1,
-                   help="control periods per policy step the policy was trained for (default 1)")
     p.set_defaults(func=cmd_export)
 
 
@@ -28,7 +26,7 @@ def cmd_export(args) -> int:
     for path in (args.out, args.onnx):
         if path and not Path(path).resolve().parent.is_dir():
             raise ConfigError(f"cannot write {path!r}: its folder does not exist")
-    pol = export_policy(args.spec, scene, hold_ticks=args.hold_ticks)
+    pol = export_policy(args.spec, scene)
     if args.onnx and pol.mlp is None:
         raise ConfigError(f"--onnx: {args.spec!r} is a classic law; only MLP policies are exported to ONNX")
     pol.save(args.out)

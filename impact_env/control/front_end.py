@@ -106,6 +106,15 @@ def start_rows(idx, truth, fe, ob):
         observe(i, False, 0.0, truth[i], fe, ob)
 
 
+def observation_buffers(layout: ObservationLayout, n: int) -> tuple:
+    """The ``ob`` argument group of :func:`observe` for ``layout`` and n envs (frames newest
+    first, scaled; past actions; the float32 observation rows)."""
+    F, H = layout.frame_size, layout.history
+    return (layout.sensor_channels, bool(layout.detector), bool(layout.privileged), layout.scales,
+            float(OBS_LIMIT), np.zeros((n, H, F)), np.zeros((n, H)),
+            np.zeros((n, layout.size), dtype=np.float32))
+
+
 class FrontEnd:
     """The front end of N controllers of one scene, for an observation ``layout``: its compiled
     arguments (:attr:`fe`, :attr:`ob`) and their arrays.  ``cond`` holds the conditioned
@@ -124,14 +133,10 @@ class FrontEnd:
         self.det_state = np.zeros((n, 2))
         self.cond = np.zeros((n, N_CHANNELS))
         self.detected = np.zeros(n)
-        F, H = layout.frame_size, layout.history
-        self.frames = np.zeros((n, H, F))  # newest first, scaled
-        self.past_actions = np.zeros((n, H))
-        self.obs = np.zeros((n, layout.size), dtype=np.float32)
+        self.ob = observation_buffers(layout, n)
+        self.frames, self.past_actions, self.obs = self.ob[5], self.ob[6], self.ob[7]
         self.fe = (np.int64(self.flags), self.sos, self.filt, self.det_params, self.det_state, self.cond,
                    self.detected)
-        self.ob = (layout.sensor_channels, bool(layout.detector), bool(layout.privileged), layout.scales,
-                   float(OBS_LIMIT), self.frames, self.past_actions, self.obs)
 
     def start(self, idx: np.ndarray, readings: np.ndarray, truth: np.ndarray) -> None:
         """Start envs ``idx`` with the readings ``readings[idx]`` (float64[N, 4]) and the true

@@ -10,6 +10,9 @@ A policy file (JSON, ``*.policy.json``; :data:`FORMAT`, version :data:`VERSION`)
 * either ``law`` (a classic law by name with its gains and the scene constants it uses,
   :mod:`impact_env.control.laws`) or ``mlp`` (the actor network's layers and SB3's output
   transform, :mod:`impact_env.control.mlp`);
+* optionally ``residual``: a whole law policy (as its own file would hold it) that runs every
+  tick under the network, the command of a tick being ``clip(network + law, -1, 1)``, the
+  network's output held for ``hold_ticks`` ticks (the env's ``residual`` option);
 * ``scene`` (name and sha256 of its TOML) and ``source`` (what it was exported from).
 
 Floats are written with ``repr`` (JSON round-trips them exactly), so a file acts bitwise like
@@ -109,6 +112,7 @@ class CompiledPolicy:
     hold_ticks: int = 1
     law: dict | None = None
     mlp: dict | None = None
+    residual: dict | None = None
     scene: dict = field(default_factory=dict)
     source: dict = field(default_factory=dict)
 
@@ -123,10 +127,20 @@ class CompiledPolicy:
         self._packed = None
         self._state = None
         self.arrays()  # validates the law or the network now, not at the first act
+        self.residual_policy()
 
     @property
     def history(self) -> int:
         return self.layout.history
+
+    def residual_policy(self) -> CompiledPolicy | None:
+        """The law that runs every tick under this policy, if any."""
+        if self.residual is None:
+            return None
+        base = CompiledPolicy.from_dict(self.residual, f"policy {self.name!r}'s residual law")
+        if base.law is None:
+            raise ConfigError(f"policy {self.name!r}: its residual must be a classic law")
+        return base
 
     # -- construction ----------------------------------------------------------------------
     @classmethod
@@ -142,7 +156,8 @@ class CompiledPolicy:
 
     @classmethod
     def from_mlp(cls, name: str, layers: list[dict], output: str, low: float, high: float, scene,
-                 observation: str, history: int, hold_ticks: int = 1, source=None):
+                 observation: str, history: int, hold_ticks: int = 1, residual: CompiledPolicy | None = None,
+                 source=None):
         """An actor network (``layers`` as :func:`impact_env.control.mlp.pack_mlp` takes them) with
         SB3's ``output`` transform to ``[low, high]``."""
         if output not in MLP.OUT:
@@ -155,7 +170,8 @@ class CompiledPolicy:
                "output": output, "low": float(low), "high": float(high)}
         return cls(name=name, observation=observation, layout=layout,
                    command_scale=float(scene.effects.command_scale), control_rate=float(scene.control_rate),
-                   hold_ticks=int(hold_ticks), mlp=mlp, scene=scene_stamp(scene), source=dict(source or {}))
+                   hold_ticks=int(hold_ticks), mlp=mlp, scene=scene_stamp(scene), source=dict(source or {}),
+                   residual=None if residual is None else residual.to_dict())
 
     # -- packing ---------------------------------------------------------------------------------
     def arrays(self) -> tuple[np.ndarray, np.ndarray, int]:
@@ -194,6 +210,8 @@ class CompiledPolicy:
             d["law"] = self.law
         else:
             d["mlp"] = self.mlp
+        if self.residual is not None:
+            d["residual"] = self.residual
         return d
 
     def save(self, path) -> Path:
@@ -224,7 +242,7 @@ class CompiledPolicy:
             return cls(name=d["name"], observation=obs["kind"], layout=_layout_from(obs),
                        command_scale=float(d["command_scale_N"]), control_rate=float(d["control_rate_Hz"]),
                        hold_ticks=int(d.get("hold_ticks", 1)), law=d.get("law"), mlp=d.get("mlp"),
-                       scene=d.get("scene", {}), source=d.get("source", {}))
+                       residual=d.get("residual"), scene=d.get("scene", {}), source=d.get("source", {}))
         except KeyError as exc:
             raise ConfigError(f"{where} misses the key {exc}") from None
 
@@ -235,6 +253,8 @@ class CompiledPolicy:
     def check_scene(self, scene) -> None:
         """ConfigError unless ``scene`` gives this policy's observation (same entries and scales)
         at its control rate."""
+        if self.residual is not None:
+            self.residual_policy().check_scene(scene)
         lay = make_layout(scene, self.observation, self.history)
         if lay.names != self.layout.names or not np.array_equal(lay.scales, self.layout.scales):
             raise ConfigError(f"policy {self.name!r} reads {self.layout.names} with scales "

@@ -94,11 +94,13 @@ class ImpactCatchEnv(gym.Env):
 
     def __init__(self, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
                  observation: str = "sensors", history: int = 1, hold_ticks: int = 1,
+                 residual: str | None = None,
                  horizon: float | None = None,
                  catch_threshold: float = 0.01, catch_hold: float = 0.01, terminate_on_catch: bool = True,
                  effort_weight: float = 0.0, limit_weight: float = 0.0, action_bounds: str = "clip",
                  render_mode: str | None = None):
-        cfg = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks, horizon=horizon,
+        cfg = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks, residual=residual,
+                         horizon=horizon,
                          catch_threshold=catch_threshold, catch_hold=catch_hold,
                          terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
                          limit_weight=limit_weight, action_bounds=action_bounds)

@@ -45,6 +45,7 @@ class TaskConfig:
     observation: str = "sensors"
     history: int = 1
     hold_ticks: int = 1  # control periods per policy step
+    residual: str | None = None  # a classic law's spec: the action adds to its command, every tick
     horizon: float | None = None  # s; None: the scene's episode.horizon
     catch_threshold: float = 0.01  # of the impact energy
     catch_hold: float = 0.01  # s
@@ -63,6 +64,9 @@ class TaskConfig:
         check_range("limit_weight", self.limit_weight, "", 0.0)
         check_choice("action_bounds", self.action_bounds, ("clip", "raise"))
         check_hold_ticks(self.hold_ticks)
+        if self.residual is not None and (not isinstance(self.residual, str) or not self.residual.strip()):
+            raise ConfigError(f"residual = {self.residual!r} must be a classic law's spec, e.g. "
+                              "'pd-penetration' or 'compiled:FILE', or None")
         if not isinstance(self.terminate_on_catch, bool):
             raise ConfigError(f"terminate_on_catch must be true or false, got {self.terminate_on_catch!r}")
 
@@ -73,7 +77,12 @@ def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig
     for (observation layout, hold_ticks), and the catch task on it."""
     scene = load_scene(scene, overrides)
     layout = make_layout(scene, config.observation, config.history)
-    return CatchTask(Simulator(scene, num_envs, layout, config.hold_ticks), config)
+    residual = None
+    if config.residual is not None:
+        from impact_env.policy.export import export_policy
+
+        residual = export_policy(config.residual, scene)
+    return CatchTask(Simulator(scene, num_envs, layout, config.hold_ticks, residual), config)
 
 
 class CatchTask:

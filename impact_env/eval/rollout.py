@@ -97,7 +97,7 @@ def _trace_row(row, Y, records, acc_energy, detected):
 
 
 @jit
-def _run_compiled(k0, k1, stride, pi, pf, mem, hold, hw, fe, ob, records, acc, consts, settings, failed,
+def _run_compiled(k0, k1, stride, pi, pf, mem, hold, hw, fe, ob, law, records, acc, consts, settings, failed,
                   fail_t, fail_code, traces):
     """Steps k0 + 1 .. k1 of a compiled policy on every env that has not failed."""
     Y = hw[1][0]
@@ -114,7 +114,7 @@ def _run_compiled(k0, k1, stride, pi, pf, mem, hold, hw, fe, ob, records, acc, c
                 fail_t[i] = (k - 1) * period
                 fail_code[i] = FAIL_ACTION
                 continue
-            ok = env_step(i, u, hold, hw, fe, ob, records)
+            ok = env_step(i, u, hold, hw, fe, ob, law, records)
             for j in range(hold):
                 update(acc[i], records[i, j], consts[i], P[i], settings)
             if not ok:
@@ -125,12 +125,25 @@ def _run_compiled(k0, k1, stride, pi, pf, mem, hold, hw, fe, ob, records, acc, c
             _trace_row(traces[k // stride], Y, records, acc[:, A_ENERGY], fe[6])
 
 
+def residual_law(policy, scene) -> CompiledPolicy | None:
+    """The classic law a policy's actions add to, every tick (its ``residual``: a spec, or the
+    law inside a compiled policy), or None."""
+    if isinstance(policy, CompiledPolicy):
+        return policy.residual_policy()
+    spec = getattr(policy, "residual", None)
+    if spec is None:
+        return None
+    from impact_env.policy.export import export_policy
+
+    return export_policy(spec, scene)
+
+
 def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=None,
             trace_rate: float = 1.0e4, catch_fraction: float = 0.01, min_flight_s: float = 1.0e-3,
             name: str = "", progress: Callable[[int], None] | None = None,
             compiled: bool | None = None) -> RolloutResult:
-    """Run ``policy`` (SB3 ``predict`` with attributes ``observation`` and optionally ``history``
-    and ``hold_ticks``, or a CompiledPolicy) on one episode per entry of ``seeds`` (ints) for
+    """Run ``policy`` (SB3 ``predict`` with attributes ``observation`` and optionally ``history``,
+    ``hold_ticks`` and ``residual``, or a CompiledPolicy) on one episode per entry of ``seeds`` (ints) for
     ``horizon`` s (default ``scene.episode.horizon``).  ``episodes`` labels them in failure
     reports (default 0..N-1); traces are kept every ``1 / trace_rate`` s (rounded to whole policy
     steps); ``progress(k)`` is called with the number of policy steps done since its last call.
@@ -166,7 +179,7 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
 
     t_wall = time.perf_counter()
     layout = make_layout(scene, observation, int(getattr(policy, "history", 1)))
-    sim = Simulator(scene, n, layout, hold)
+    sim = Simulator(scene, n, layout, hold, residual_law(policy, scene))
     sim.reset([seeding.np_random(int(s))[0] for s in seeds])
     Y0 = sim.Y
     metrics = EpisodeMetrics(n, period, catch_fraction, min_flight_s)
@@ -194,8 +207,9 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         while k < n_steps:
             k1 = min(k + chunk, n_steps)
             sim.hw.refill_noise(hold * (k1 - k))  # the whole chunk's noise at once
-            _run_compiled(k, k1, stride, pi, pf, mem, hold, sim._hw_args, sim.fe.fe, sim.fe.ob, sim.records,
-                          metrics.acc, metrics.consts, metrics.settings, failed, fail_t, fail_code, traces)
+            _run_compiled(k, k1, stride, pi, pf, mem, hold, sim._hw_args, sim.fe.fe, sim.fe.ob, sim.law,
+                          sim.records, metrics.acc, metrics.consts, metrics.settings, failed, fail_t,
+                          fail_code, traces)
             if progress is not None:
                 progress(k1 - k)
             k = k1

@@ -26,7 +26,7 @@ from impact_env.control.policy import CompiledPolicy
 from impact_env.scene import load_scene
 
 
-def export_policy(spec: str, scene, hold_ticks: int = 1) -> CompiledPolicy:
+def export_policy(spec: str, scene) -> CompiledPolicy:
     """The compiled policy of ``spec`` on ``scene`` (see the module doc)."""
     from impact_env.policy.registry import is_model_spec, make_policy
 
@@ -37,7 +37,7 @@ def export_policy(spec: str, scene, hold_ticks: int = 1) -> CompiledPolicy:
         return pol
     policy = make_policy(spec, scene)
     if is_model_spec(spec):
-        return export_sb3(policy, scene, hold_ticks=hold_ticks, spec=spec)
+        return export_sb3(policy, scene, spec=spec)
     if not hasattr(policy, "compiled"):
         raise ConfigError(f"policy {spec!r} ({type(policy).__name__}) cannot be compiled: it has no "
                           "compiled() method")
@@ -107,8 +107,9 @@ def _activation(m) -> tuple[str, list[float]]:
                       "LeakyReLU, ELU)")
 
 
-def export_sb3(policy, scene, hold_ticks: int = 1, spec: str = "") -> CompiledPolicy:
-    """A loaded :class:`~impact_env.policy.sb3.ModelPolicy` as a compiled MLP."""
+def export_sb3(policy, scene, spec: str = "") -> CompiledPolicy:
+    """A loaded :class:`~impact_env.policy.sb3.ModelPolicy` as a compiled MLP, with the hold and
+    the residual law it was trained with (its ``model.json``)."""
     model = policy.model
     space = model.action_space
     if space.shape != (1,):
@@ -117,8 +118,9 @@ def export_sb3(policy, scene, hold_ticks: int = 1, spec: str = "") -> CompiledPo
     low, high = float(space.low[0]), float(space.high[0])
     name = Path(spec.split(":")[-1]).stem if spec else "mlp"
     source = {"spec": spec, "algo": type(model).__name__.lower()}
+    residual = None if policy.residual is None else export_policy(policy.residual, scene)
     return CompiledPolicy.from_mlp(name, layers, output, low, high, scene, policy.observation, policy.history,
-                                   hold_ticks=hold_ticks, source=source)
+                                   hold_ticks=policy.hold_ticks, residual=residual, source=source)
 
 
 def write_onnx(pol: CompiledPolicy, path) -> Path:

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from impact_env.control.front_end import FrontEnd
+from impact_env.control.front_end import FrontEnd, observation_buffers, start_rows
 from impact_env.control.observation import ObservationLayout, make_layout
+from impact_env.control.policy import CompiledPolicy
 from impact_env.hardware.batch import NOISE_BLOCK, Hardware
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.records import N_REC
@@ -41,10 +42,13 @@ class Simulator:
     (float64[N, 4]: the conditioned readings), ``detected``, ``records`` (float64[N, hold_ticks,
     N_REC], :mod:`impact_env.sim.records`), and the hardware's arrays (``Y``, ``P``, ``t``,
     ``info``, ``impact_energy``, ``t_touch``, ``drawn``) through :attr:`hw`.
+
+    ``residual``: a compiled classic law evaluated every tick on its own observation frame; the
+    command of a tick is ``clip(action + law, -1, 1)`` (:mod:`impact_env.sim.step`).
     """
 
     def __init__(self, scene: Scene | str, num_envs: int = 1, layout: ObservationLayout | None = None,
-                 hold_ticks: int = 1, events_per_env: int = 64):
+                 hold_ticks: int = 1, residual: CompiledPolicy | None = None, events_per_env: int = 64):
         scene = load_scene(scene)
         self.hold = check_hold_ticks(hold_ticks)
         # a step's noise must fit one block (the stream does not depend on the block's size)
@@ -57,12 +61,27 @@ class Simulator:
         self.records = np.zeros((self.n, self.hold, N_REC))
         self._all = np.ones(self.n, dtype=bool)
         self._hw_args = hw.args()
+        self.residual = residual
+        if residual is not None:
+            if residual.mlp is not None or residual.history != 1:
+                raise ValueError(f"residual: {residual.name!r} must be a classic law (history 1), evaluated "
+                                 "every tick; a network cannot be the base of a residual policy")
+            residual.check_scene(scene)
+            pi, pf, m = residual.arrays()
+            self.law = (True, pi, pf, np.zeros((self.n, m)), observation_buffers(residual.layout, self.n))
+        else:
+            # no law: arrays of the same types, so that one compiled step serves both cases
+            self.law = (False, np.zeros(1, np.int64), np.zeros(1), np.zeros((self.n, 1)),
+                        observation_buffers(self.layout, 1))
 
     # -- episodes ------------------------------------------------------------------------------
     def reset(self, rngs, mask=None) -> np.ndarray:
         """Start new drops where ``mask`` is true (all if None); returns their indices."""
         idx = self.hw.reset(rngs, mask)
         self.fe.start(idx, self.hw.raw, self.hw.Y)
+        if self.residual is not None:  # the law's memory and first frame, from the same readings
+            self.law[3][idx] = 0.0
+            start_rows(np.asarray(idx, dtype=np.int64), self.hw.Y, self.fe.fe, self.law[4])
         self.records[idx] = 0.0
         return idx
 
@@ -75,7 +94,7 @@ class Simulator:
             else np.ascontiguousarray(actions, dtype=np.float64).reshape(n)
         act = self._all if active is None else np.asarray(active, dtype=bool)
         self.hw.refill_noise(self.hold, None if active is None else act)
-        sim_step(a, act, self.hold, self._hw_args, self.fe.fe, self.fe.ob, self.records)
+        sim_step(a, act, self.hold, self._hw_args, self.fe.fe, self.fe.ob, self.law, self.records)
 
     # -- what the rest of the project reads ---------------------------------------------------
     @property
