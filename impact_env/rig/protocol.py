@@ -57,10 +57,12 @@ code   type          dir    payload (offset type field [unit])
 7      COMMAND       H->T   0 u32 episode; 4 u32 step (policy step the action is for); 8 u16 n; 10 n x
                             f64 action [dimensionless, 1.0 = effects.command_scale N].  = 10 + 8n B
 8      OBSERVATION   T->H   0 u32 episode; 4 u32 step; 8 u32 status (bits of :mod:`impact_env.rig.safety`);
-                            12 u8 dtype (4 float32 / 8 float64); 13 u16 n; 15 u8 m; 16 n x dtype
-                            observation [scaled units of :mod:`impact_env.sim.observation`]; then m x f64
-                            telemetry, named by ``TELEMETRY_FIELDS`` in order (a prefix of it).
-                            = 16 + n dtype + 8m B
+                            12 u8 dtype (4 float32 / 8 float64); 13 u16 n; 15 u16 m; 17 n x dtype
+                            observation [scaled units of :mod:`impact_env.control.observation`]; then m x
+                            f64 telemetry: the ``TELEMETRY_FIELDS`` (force_demand_N, force_applied_N,
+                            command_age_ticks), then, from a virtual rig, the true records of the step's
+                            ticks (hold_ticks x N_REC, :mod:`impact_env.sim.records`).
+                            = 17 + n dtype + 8m B
 9      EPISODE_END   T->H   0 u32 episode; 4 u8 reason (``EndReason``); 5 u32 status (OR of the ticks'
                             status bits); 9 u64 n_ticks; 17 u32 n_steps; 21 u32 data_size [B] (resource
                             EPISODE); 25 32s data_sha256.  = 57 B
@@ -131,8 +133,8 @@ ARM_TERMINATE_ON_CATCH = 1
 U8, U16, U32, U64 = 0xFF, 0xFFFF, 0xFFFF_FFFF, 0xFFFF_FFFF_FFFF_FFFF
 _FLT_MAX = 3.4028234663852886e38
 
-# names of the telemetry values an OBSERVATION may carry (a prefix of this tuple, in this order)
-TELEMETRY_FIELDS = ("force_demand_N", "force_applied_N", "command_age_ticks", "reward", "catch_energy_J")
+# the first telemetry values of an OBSERVATION (then a virtual rig's tick records, see OBSERVATION)
+TELEMETRY_FIELDS = ("force_demand_N", "force_applied_N", "command_age_ticks")
 
 
 class MsgType(enum.IntEnum):
@@ -387,7 +389,7 @@ class Armed(Body):
         _uint("action_size", self.action_size, MAX_VALUES)
         if self.obs_dtype not in (4, 8):
             raise ValueError(f"obs_dtype = {self.obs_dtype!r} must be 4 (float32) or 8 (float64)")
-        _uint("telemetry_size", self.telemetry_size, len(TELEMETRY_FIELDS))
+        _uint("telemetry_size", self.telemetry_size, U8)
         _uint("hold_ticks", self.hold_ticks, U16, 1)
         if not (isinstance(self.control_rate_hz, float) and self.control_rate_hz > 0
                 and math.isfinite(self.control_rate_hz)):
@@ -471,7 +473,7 @@ class Observation(Body):
     gives the rounded values), as float64 when 8; ``telemetry`` always as float64."""
 
     TYPE: ClassVar = MsgType.OBSERVATION
-    FMT: ClassVar = struct.Struct("<IIIBHB")
+    FMT: ClassVar = struct.Struct("<IIIBHH")
     episode: int = 0
     step: int = 0
     status: int = 0
@@ -486,7 +488,7 @@ class Observation(Body):
         if self.dtype not in (4, 8):
             raise ValueError(f"dtype = {self.dtype!r} must be 4 (float32) or 8 (float64)")
         _floats("obs", self.obs, MAX_VALUES)
-        _floats("telemetry", self.telemetry, len(TELEMETRY_FIELDS))
+        _floats("telemetry", self.telemetry, MAX_VALUES)
         if self.dtype == 4:
             for v in self.obs:
                 if math.isfinite(v) and abs(v) > _FLT_MAX:
@@ -502,7 +504,7 @@ class Observation(Body):
     def unpack(cls, payload, newer):
         _need(payload, cls.FMT.size, newer, exact=False)
         ep, step, status, dtype, n, m = cls.FMT.unpack_from(payload)
-        if dtype not in (4, 8) or m > len(TELEMETRY_FIELDS):
+        if dtype not in (4, 8) or m > MAX_VALUES:
             raise CorruptDatagram("payload", f"OBSERVATION dtype {dtype} or telemetry size {m} invalid")
         _need(payload, cls.FMT.size + dtype * n + 8 * m, newer, exact=True)
         vals = struct.unpack_from(f"<{n}{'f' if dtype == 4 else 'd'}{m}d", payload, cls.FMT.size)
