@@ -335,7 +335,6 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
     h2t = sorted(P.HOST_TO_TARGET - {P.MsgType.HELLO})
     t2h_only = sorted(P.TARGET_TO_HOST - P.HOST_TO_TARGET)
     outcome_counts: dict[str, int] = {}
-    n_twice = 0
 
     def fresh(t, body=None):
         nonlocal seq
@@ -365,12 +364,14 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
                     sent.setdefault(mtype, []).append(data)
                     del sent[mtype][:-100]
 
-    for i in range(N_FUZZ):
+    i = 0
+    while f.total < N_FUZZ:  # every datagram fed counts, the first copy of a repeated one too
+        i += 1
         if i % 50 == 0:
             step += 1
             if step > 400:
                 episode, step = episode + 1, 0
-        kind = r.randrange(12)
+        kind = r.randrange(12 if f.total < N_FUZZ - 1 else 11)
         t = r.choice(h2t)
         base = P.encode(fresh(t))
         if kind == 0:  # a valid, fresh datagram
@@ -431,12 +432,11 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
             allowed = {"accepted"}
             if kind == 11:
                 feed(base, {"accepted"})
-                n_twice += 1
                 allowed = {"duplicate"}
         feed(data, allowed)
 
     counts = f.counts()
-    assert sum(counts.values()) == N_FUZZ + n_twice == f.total
+    assert sum(counts.values()) == N_FUZZ == f.total
     assert counts == {k: outcome_counts.get(k, 0) for k in counts}
     assert all(counts[k] > 0 for k in counts), counts  # every reason was exercised
     print("fuzz:", f.total, "datagrams:", counts, "corrupt detail:", dict(sorted(f.detail.items())))
