@@ -138,10 +138,13 @@ def test_a_crash_mid_write_loses_no_finished_episode(tmp_path):
         import os, sys
         sys.path.insert(0, {str(ROOT)!r})
         sys.path.insert(0, {str(Path(__file__).parent)!r})
-        from test_rig_log import _filled, _meta
+        from test_rig_log import _meta
         from impact_env.rig import log as L
+        log = L.TickLog(100, 4)
+        for k in range(100):
+            log.record(tick=k, t_s=k * 1e-4, obs=[k, k, k, k])
         L.os.replace = lambda *a: os._exit(9)  # the crash, after the data are written
-        L.write_episode(_filled(), {str(tmp_path)!r}, _meta(episode=2))
+        L.write_episode(log, {str(tmp_path)!r}, _meta(episode=2))
     """)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})

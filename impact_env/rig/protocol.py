@@ -225,6 +225,8 @@ class UnknownType(ProtocolError):
 
 # -- field checks -------------------------------------------------------------------------------------
 def _uint(name: str, value, hi: int, lo: int = 0) -> None:
+    if type(value) is int and lo <= value <= hi:  # the common case, first: decoding runs it per field
+        return
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
         raise ValueError(f"{name} = {value!r} must be an integer in [{lo}, {hi}]")
 
@@ -721,7 +723,11 @@ def decode(data: bytes) -> Message:
         raise
     except (ValueError, struct.error) as exc:
         raise CorruptDatagram("payload", f"{cls.TYPE.name} payload invalid: {exc}") from None
-    return Message(body, session, seq, tick, hns, tns, flags)
+    # the header's fields are in range by construction (struct): skip Message's checks
+    msg = object.__new__(Message)
+    msg.__dict__.update(body=body, session=session, seq=seq, tick=tick, host_ns=hns, target_ns=tns,
+                        flags=flags)
+    return msg
 
 
 # -- receiver-side filter -----------------------------------------------------------------------------
