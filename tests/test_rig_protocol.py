@@ -49,10 +49,10 @@ GOLDEN = [
     (P.Command(episode=3, step=7, action=(0.25,)), "07", "1200",
      "03000000" "07000000" "0100" "000000000000d03f", "4ecc78f5"),
     (P.Observation(episode=3, step=7, status=0x10002, dtype=4, obs=(1.5, -0.25, 0.0), telemetry=(12.5,)),
-     "08", "2400",
-     # episode | step | status | dtype 04 | n 3 | m 1 | 1.5f -0.25f 0.0f | 12.5 (f64)
-     "03000000" "07000000" "02000100" "04" "0300" "01" "0000c03f" "000080be" "00000000" "0000000000002940",
-     "33170fd9"),
+     "08", "2500",
+     # episode | step | status | dtype 04 | n 3 | m 1 (u16) | 1.5f -0.25f 0.0f | 12.5 (f64)
+     "03000000" "07000000" "02000100" "04" "0300" "0100" "0000c03f" "000080be" "00000000" "0000000000002940",
+     "b839d71c"),
     (P.EpisodeEnd(episode=3, reason=P.EndReason.HORIZON, status=0x4, n_ticks=4000, n_steps=400,
                   data_size=65536, data_sha256=SHA_POLICY), "09", "3900",
      "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(), "27aa9c34"),

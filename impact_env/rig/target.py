@@ -81,6 +81,7 @@ class TargetConfig:
     resend_s: float = 0.02  # lock-step host mode: the OBSERVATION is sent again after this long without a command
     rearm_idle_s: float = 1.0  # lock-step: idle time assumed between episodes (the coil cools in the RMS window)
     poll_every: int = 64  # onboard lock-step: ticks between checks for DISARM
+    seed_offset: int = 0  # added to every ARM's seed (0: the drops ImpactCatch-v0 meets for the same seeds)
 
 
 class Target:
@@ -102,7 +103,7 @@ class Target:
         self.episodes: dict[int, bytes] = {}  # episode -> its log file's bytes (the latest few)
         self.last_end: P.EpisodeEnd | None = None
         self._stop = threading.Event()
-        self._controller: Controller | None = None
+        self._pending: P.Message | None = None  # an ARM that ended the episode before it
         self._closed = False
         self.counters = {"episodes": 0, "overruns": 0, "watchdog_trips": 0}
         driver.initialise()
@@ -150,7 +151,9 @@ class Target:
         """Answer requests and run episodes until stopped; leaves the shaker at zero."""
         try:
             while not self._stop.is_set():
-                msg = self.link.recv(idle_poll_s)
+                msg, self._pending = self._pending, None
+                if msg is None:
+                    msg = self.link.recv(idle_poll_s)
                 if msg is not None:
                     self._handle_idle(msg)
         finally:
@@ -232,7 +235,6 @@ class Target:
             if k in ctl.log.extra_units:
                 ctl.log.extra_units[k] = v
         self.episode += 1
-        self._controller = ctl
         self._run_episode(msg, ctl, hold, policy)
 
     # -- one episode ---------------------------------------------------------------------------------
@@ -242,13 +244,15 @@ class Target:
         host = a.mode == "host"
         lockstep = self.cfg.lockstep
         ep = self.episode
-        drv.arm(a.seed)
+        seed = (a.seed + self.cfg.seed_offset) & P.U64
+        drv.arm(seed)
         if lockstep:
             ctl.drain(int(self.cfg.rearm_idle_s * self.rate))
         link_timeout_s = a.link_timeout_ms / 1e3 if a.link_timeout_ms else (
             self.cfg.lockstep_link_timeout_s if lockstep else self.cfg.link_timeout_s)
         self.state = P.TargetState.RUNNING
-        self._reply(P.Armed(ep, 0, ctl.layout.size, 1, 4, N_TELEMETRY, hold, self.rate, self.scene_sha), arm_msg)
+        armed = P.Armed(ep, 0, ctl.layout.size, 1, 4, N_TELEMETRY, hold, self.rate, self.scene_sha)
+        self._reply(armed, arm_msg)
         drv.release()
         virtual = drv.virtual
         hw = getattr(drv, "hw", None)
@@ -277,6 +281,10 @@ class Target:
                 self._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, ep), msg)
                 return "DISARMED"
             elif t == P.MsgType.ARM:
+                if msg.body == a:  # the same request again (its ARMED was lost): answer it again
+                    self._reply(armed, msg)
+                    return None
+                self._pending = msg  # a new episode: this one ends, that one starts
                 return "DISARMED"
             elif t == P.MsgType.FETCH:
                 self._serve_fetch(msg)
@@ -409,15 +417,16 @@ class Target:
                 break
         drv.idle()
         self.state = P.TargetState.IDLE
-        self._finish(ep, a, ctl, end, status_or, clock, policy)
+        self._finish(ep, a, seed, ctl, end, status_or, clock, policy)
 
-    def _finish(self, ep: int, a: P.Arm, ctl: Controller, end, status_or: int, clock: TickClock, policy) -> None:
+    def _finish(self, ep: int, a: P.Arm, seed: int, ctl: Controller, end, status_or: int, clock: TickClock,
+                policy) -> None:
         sf = SF.COUNTERS
         counters = {**{f"dropped_{k}": v for k, v in self.link.filter.counts().items() if k != "accepted"},
                     "datagrams_accepted": self.link.filter.counts()["accepted"],
                     **{k: int(ctl.safety[1][i]) for k, i in sf.items()},
                     "overruns": clock.overruns, "missed_ticks": clock.missed}
-        meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold, seed=a.seed,
+        meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold, seed=seed,
                               control_rate_hz=self.rate, episode=ep, session=self.link.session or 0,
                               policy="" if policy is None else policy.name,
                               policy_sha256="" if policy is None else hashlib.sha256(
