@@ -38,6 +38,17 @@ decimated traces):
 A policy that raises, or returns a non-finite action, does not stop the rollout: the episodes
 it failed are recorded in ``failures`` (episode, seed, time, message), get zero force from then
 on and are left out of the metrics.
+
+Open-loop policies (the hook :mod:`impact_env.eval.oracle` uses).  A policy with a method
+``prepare(scene, seeds, horizon, warm_starts)`` has it called once before the first step with the
+scene, the episodes' seeds (int64[N]), the horizon (s, a whole number of control periods) and
+``warm_starts`` (name -> float64[n_steps, N]: other policies' commands on the same episodes, or
+``{}``); whatever it leaves in ``policy.stats`` (a dict) is returned in ``extras["policy_stats"]``.
+A policy whose ``open_loop`` attribute is then not None (float[n_steps, N], commands in [-1, 1])
+is replayed from it: step k applies ``open_loop[k - 1]`` and ``predict`` is never called.
+``record_commands=True`` keeps the commands the rollout applied (after clipping, 0 for failed
+episodes) in ``extras["commands"]`` (float64[n_steps, N]); replaying them open loop on the same
+seeds reproduces the bodies' motion bitwise (sensor noise does not move the bodies).
 """
 
 from __future__ import annotations
@@ -87,12 +98,14 @@ class RolloutResult:
 
 def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=None,
             trace_rate: float = 1.0e4, catch_fraction: float = 0.01, min_flight_s: float = 1.0e-3,
-            name: str = "", progress: Callable[[int], None] | None = None) -> RolloutResult:
+            name: str = "", progress: Callable[[int], None] | None = None,
+            warm_starts: dict[str, np.ndarray] | None = None, record_commands: bool = False) -> RolloutResult:
     """Run ``policy`` (SB3 ``predict``; attributes ``observation`` and optionally ``history``) on
     one episode per entry of ``seeds`` (ints) for ``horizon`` s (default ``scene.episode.horizon``).
     ``episodes`` labels them in failure reports (default 0..N-1); traces are kept every
     ``1 / trace_rate`` s (rounded to whole control periods); ``progress(k)`` is called with the
-    number of control steps done since its last call."""
+    number of control steps done since its last call.  ``warm_starts``, ``record_commands``: see
+    "Open-loop policies" in the module doc."""
     seeds = np.asarray(list(seeds), dtype=np.int64)
     n = len(seeds)
     if n < 1:
@@ -153,12 +166,19 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
                              "row": int(i), "t_s": float(t), "error": message})
         failed[rows] = True
 
+    extras: dict = {}
+    open_loop = _prepare(policy, scene, seeds, n_steps, period, warm_starts, extras,
+                         lambda msg: fail(np.ones(n, dtype=bool), 0.0, msg))
+    commands = np.zeros((n_steps, n)) if record_commands else None
     reported = 0
     for k in range(1, n_steps + 1):
         t_prev = (k - 1) * period
         try:
-            action, state = policy.predict(obs, state=state, episode_start=starts, deterministic=True)
-            a = np.asarray(action, dtype=np.float64).reshape(n)
+            if open_loop is not None:
+                a = np.asarray(open_loop[k - 1], dtype=np.float64).reshape(n)
+            else:
+                action, state = policy.predict(obs, state=state, episode_start=starts, deterministic=True)
+                a = np.asarray(action, dtype=np.float64).reshape(n)
         except Exception as exc:  # a broken policy is reported, not fatal (see module doc)
             fail(np.ones(n, dtype=bool), t_prev, f"{type(exc).__name__}: {exc}")
             a = np.zeros(n)
@@ -167,6 +187,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         if bad.any():
             fail(bad, t_prev, f"non-finite action {a[bad][0]!r}")
         a = np.clip(np.where(failed, 0.0, a), -1.0, 1.0)  # the env's action space
+        if commands is not None:
+            commands[k - 1] = a
         obs, _r, _term, _trunc, info = venv.step(a[:, None])
         t = k * period
         div = info["diverged"]
@@ -231,7 +253,32 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         metrics[key] = np.where(failed, np.nan, metrics[key].astype(np.float64))
     return RolloutResult(policy=name, episodes=episodes, seeds=seeds, metrics=metrics, failures=failures,
                          trace_t=trace_t, traces=traces, t_touch=t_touch, impact_energy=e0,
-                         control_period=period, wall_time_s=time.perf_counter() - t_wall)
+                         control_period=period, wall_time_s=time.perf_counter() - t_wall,
+                         extras=extras if commands is None else {**extras, "commands": commands})
+
+
+def _prepare(policy, scene, seeds, n_steps, period, warm_starts, extras, fail):
+    """The open-loop hook (module doc): call ``policy.prepare`` if it has one and return its
+    ``open_loop`` commands (float64[n_steps, N]) or None; a failing hook fails every episode."""
+    prepare = getattr(policy, "prepare", None)
+    if prepare is None:
+        return None
+    try:
+        prepare(scene, seeds.copy(), n_steps * period, dict(warm_starts or {}))
+        stats = getattr(policy, "stats", None)
+        if stats is not None:
+            extras["policy_stats"] = stats
+        u = getattr(policy, "open_loop", None)
+        if u is None:
+            return None
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (n_steps, len(seeds)):
+            raise ValueError(f"open_loop has shape {u.shape}; expected ({n_steps}, {len(seeds)}) "
+                             "(control steps, episodes)")
+        return u
+    except Exception as exc:  # reported like a failing predict (module doc)
+        fail(f"prepare: {type(exc).__name__}: {exc}")
+        return np.zeros((n_steps, len(seeds)))
 
 
 def _trace(traces, trace_t, j, info, t):
