@@ -215,6 +215,11 @@ def test_compare_runs_the_oracle_last_and_reports_every_gap_to_it():
     assert "gap to oracle" in table.splitlines()[0] and "oracle:generations=3,popsize=4" in table
     js = summary_json(runs)
     assert js["passive"]["gap_to_oracle_ms"] > 0
+    # the oracle's drops do not depend on how its episodes are spread over workers
+    two = compare(RIG, specs, episodes=2, seed=1000, horizon=SHORT, workers=2, progress=False)
+    for spec in specs:
+        np.testing.assert_array_equal(two[spec].metrics["energy_integral_ms"],
+                                      runs[spec].metrics["energy_integral_ms"], err_msg=spec)
     # without an oracle there is no gap column
     plain = compare(RIG, ["passive"], episodes=1, seed=1000, horizon=SHORT, workers=1, progress=False)
     assert "gap to oracle" not in format_table(plain, SHORT)
