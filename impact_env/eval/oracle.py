@@ -25,7 +25,7 @@ energy integral on any drop; one that did would show a bug.  Only the classic la
 bases, so that the yardstick does not move with the comparison it stands in: the residual is
 smooth and cannot remove a base's chatter, and the PPO agent's commands, better than
 ``pd-penetration``'s on the optimiser's objective at ``c = 0``, made a worse base (median 2.90
-against 2.83 ms on ``rig``, see README "The oracle").
+against 2.82 ms on drops 1000-1019 of ``rig``, see README "The oracle").
 
 Parameterisation.  A residual on the best *base* ``w``, the classic law whose sequence scores
 best on the optimiser's own objective (``pd-penetration`` on ``rig``)::
