@@ -536,4 +536,4 @@ class OraclePolicy:
             self._k = 0
         k = min(self._k, self.open_loop.shape[0] - 1)
         self._k += 1
-        return self.open_loop[k].astype(np.float32).reshape(-1, 1), state
+        return self.open_loop[k].reshape(-1, 1).copy(), state  # float64: the commands exactly
