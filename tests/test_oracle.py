@@ -188,6 +188,8 @@ def test_oracle_is_never_worse_than_any_warm_start_and_is_deterministic():
     np.testing.assert_array_equal(np.random.get_state()[1], state)  # numpy's global RNG untouched
     (r, u, st), (r2, u2, _) = runs
     np.testing.assert_array_equal(u, u2)
+    steps = [pol.predict(None, episode_start=np.full(2, k == 0))[0][:, 0] for k in range(3)]
+    np.testing.assert_array_equal(steps, u[:3])  # a per-step loop gets the same commands
     np.testing.assert_array_equal(r.metrics["energy_integral_ms"], r2.metrics["energy_integral_ms"])
     ei = r.metrics["energy_integral_ms"]
     np.testing.assert_array_equal(ei, st["energy_integral_ms"])  # the choice was made on the same rollout
