@@ -19,6 +19,17 @@ Two paths, the same numbers:
 A policy that raises, or returns a non-finite action, and a simulation that diverges, do not
 stop the rollout: the episodes it failed are recorded in ``failures`` (episode, seed, time,
 message), are not stepped any more and are left out of the metrics (NaN).
+
+Open-loop policies (the hook :mod:`impact_env.eval.oracle` uses).  A policy with a method
+``prepare(scene, seeds, horizon, warm_starts)`` has it called once before the first step with the
+scene, the episodes' seeds (int64[N]), the horizon (s, a whole number of policy steps) and
+``warm_starts`` (name -> float64[n_steps, N]: other policies' commands on the same episodes, or
+``{}``); whatever it leaves in ``policy.stats`` (a dict) is returned in ``extras["policy_stats"]``.
+A policy whose ``open_loop`` attribute is then not None (float[n_steps, N], commands in [-1, 1])
+is replayed from it: step k applies ``open_loop[k - 1]`` and ``predict`` is never called.
+``record_commands=True`` keeps the commands the rollout applied (after clipping, 0 for failed
+episodes) in ``extras["commands"]`` (float64[n_steps, N]); replaying them open loop on the same
+seeds reproduces the bodies' motion bitwise (sensor noise does not move the bodies).
 """
 
 from __future__ import annotations
@@ -26,7 +37,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -70,6 +81,7 @@ class RolloutResult:
     impact_energy: np.ndarray
     control_period: float
     wall_time_s: float = 0.0
+    extras: dict = field(default_factory=dict)
 
 
 @jit
@@ -141,14 +153,16 @@ def residual_law(policy, scene) -> CompiledPolicy | None:
 def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=None,
             trace_rate: float = 1.0e4, catch_fraction: float = 0.01, min_flight_s: float = 1.0e-3,
             name: str = "", progress: Callable[[int], None] | None = None,
-            compiled: bool | None = None) -> RolloutResult:
+            compiled: bool | None = None, warm_starts: dict[str, np.ndarray] | None = None,
+            record_commands: bool = False) -> RolloutResult:
     """Run ``policy`` (SB3 ``predict`` with attributes ``observation`` and optionally ``history``,
     ``hold_ticks`` and ``residual``, or a CompiledPolicy) on one episode per entry of ``seeds`` (ints) for
     ``horizon`` s (default ``scene.episode.horizon``).  ``episodes`` labels them in failure
     reports (default 0..N-1); traces are kept every ``1 / trace_rate`` s (rounded to whole policy
     steps); ``progress(k)`` is called with the number of policy steps done since its last call.
     ``compiled``: run a CompiledPolicy in the compiled loop (default) or, False, through its
-    ``predict`` from Python (the two give the same numbers: tested)."""
+    ``predict`` from Python (the two give the same numbers: tested).  ``warm_starts``,
+    ``record_commands``: see "Open-loop policies" in the module doc."""
     seeds = np.asarray(list(seeds), dtype=np.int64)
     n = len(seeds)
     if n < 1:
@@ -199,6 +213,12 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
                              "row": int(i), "t_s": float(t), "error": message})
         failed[rows] = True
 
+    extras: dict = {}
+    open_loop = _prepare(policy, scene, seeds, n_steps, step_s, warm_starts, extras,
+                         lambda msg: fail(np.ones(n, dtype=bool), 0.0, msg))
+    commands = np.zeros((n_steps, n)) if record_commands else None
+    if compiled and (open_loop is not None or commands is not None):
+        compiled = False  # replay and recording are Python-loop features (same numbers: tested)
     if compiled:
         pi, pf, m = policy.arrays()
         mem = policy.new_memory(n)
@@ -224,9 +244,12 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         for k in range(1, n_steps + 1):
             t_prev = (k - 1) * step_s
             try:
-                action, state = policy.predict(sim.obs.copy(), state=state, episode_start=starts,
-                                               deterministic=True)
-                a = np.asarray(action, dtype=np.float64).reshape(n)
+                if open_loop is not None:
+                    a = np.asarray(open_loop[k - 1], dtype=np.float64).reshape(n)
+                else:
+                    action, state = policy.predict(sim.obs.copy(), state=state, episode_start=starts,
+                                                   deterministic=True)
+                    a = np.asarray(action, dtype=np.float64).reshape(n)
             except Exception as exc:  # a broken policy is reported, not fatal (see module doc)
                 fail(np.ones(n, dtype=bool), t_prev, f"{type(exc).__name__}: {exc}")
                 a = np.zeros(n)
@@ -235,6 +258,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             if bad.any():
                 fail(bad, t_prev, f"non-finite action {a[bad][0]!r}")
             a = np.clip(np.where(failed, 0.0, a), -1.0, 1.0)  # the env's action space
+            if commands is not None:
+                commands[k - 1] = a
             active = None if not failed.any() else ~failed
             sim.step(a, active)
             metrics.step(sim.records, sim.P, active)
@@ -252,4 +277,29 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
                          failures=failures, trace_t=trace_t,
                          traces={key: traces[:, :, j] for j, key in enumerate(TRACE_KEYS)},
                          t_touch=sim.t_touch.copy(), impact_energy=sim.impact_energy.copy(),
-                         control_period=period, wall_time_s=time.perf_counter() - t_wall)
+                         control_period=period, wall_time_s=time.perf_counter() - t_wall,
+                         extras=extras if commands is None else {**extras, "commands": commands})
+
+
+def _prepare(policy, scene, seeds, n_steps, step_s, warm_starts, extras, fail):
+    """The open-loop hook (module doc): call ``policy.prepare`` if it has one and return its
+    ``open_loop`` commands (float64[n_steps, N]) or None; a failing hook fails every episode."""
+    prepare = getattr(policy, "prepare", None)
+    if prepare is None:
+        return None
+    try:
+        prepare(scene, seeds.copy(), n_steps * step_s, dict(warm_starts or {}))
+        stats = getattr(policy, "stats", None)
+        if stats is not None:
+            extras["policy_stats"] = stats
+        u = getattr(policy, "open_loop", None)
+        if u is None:
+            return None
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (n_steps, len(seeds)):
+            raise ValueError(f"open_loop has shape {u.shape}; expected ({n_steps}, {len(seeds)}) "
+                             "(policy steps, episodes)")
+        return u
+    except Exception as exc:  # reported like a failing predict (module doc)
+        fail(f"prepare: {type(exc).__name__}: {exc}")
+        return np.zeros((n_steps, len(seeds)))
