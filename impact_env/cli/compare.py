@@ -27,6 +27,9 @@ def add_parser(sub, scene_args) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--list", action="store_true", help="list the baselines and their parameters, then exit")
+    p.add_argument("--rig", metavar="udp://HOST:PORT",
+                   help="measure on the rig behind this target (impact-env rig serve): classic and compiled "
+                        "policies onboard, SB3 models in host mode; with --scene too, the simulation beside it")
     p.set_defaults(func=cmd_compare)
 
 
@@ -36,9 +39,11 @@ def cmd_compare(args) -> int:
 
         print(describe_policies())
         return 0
-    scene = scene_from_args(args)
     texts = args.policies or ["passive,thesis-rig,pd-penetration"]
     specs = [s for text in texts for s in split_policies(text)]
+    if args.rig:
+        return _compare_rig(args, specs)
+    scene = scene_from_args(args, scene=args.scene or "rig")
     runs = compare(scene, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
                    workers=args.workers, progress=not args.no_progress and not args.json)
     horizon = scene.episode.horizon if args.horizon is None else args.horizon
@@ -64,3 +69,66 @@ def cmd_compare(args) -> int:
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
     return 0
+
+
+def _compare_rig(args, specs) -> int:
+    """``--rig``: the rig's table, and with ``--scene`` the simulation's and the gap."""
+    import tempfile
+
+    from impact_env.eval.rig_compare import rig_compare
+    from impact_env.policy.export import export_policy
+    from impact_env.policy.registry import is_model_spec
+
+    rig_scene, rig_runs = rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
+                                      progress=not args.no_progress and not args.json)
+    horizon = rig_scene.episode.horizon if args.horizon is None else args.horizon
+    sim_runs = None
+    if args.scene:
+        scene = scene_from_args(args)
+        with tempfile.TemporaryDirectory() as tmp:  # classic laws as the compiled policies the rig ran
+            sim_specs = {}
+            for k, spec in enumerate(specs):
+                if is_model_spec(spec):
+                    sim_specs[spec] = spec
+                else:
+                    path = export_policy(spec, scene).save(Path(tmp) / f"p{k}.policy.json")
+                    sim_specs[spec] = f"compiled:{path}"
+            runs = compare(scene, list(sim_specs.values()), episodes=args.episodes, seed=args.seed,
+                           horizon=args.horizon, workers=args.workers, progress=not args.no_progress and not args.json)
+        sim_runs = {spec: runs[s] for spec, s in sim_specs.items()}
+        for spec, run in sim_runs.items():
+            run.spec = spec
+    if args.json:
+        out = {"rig": summary_json(rig_runs)}
+        if sim_runs is not None:
+            out["sim"] = summary_json(sim_runs)
+        print(json.dumps(out))
+    else:
+        print(f"rig at {args.rig} (scene {rig_scene.name}): {args.episodes} episodes of {horizon:g} s, seed {args.seed}")
+        print(format_table(rig_runs, horizon))
+        if sim_runs is not None:
+            print(f"\nsimulation (scene {scene.name}), the same seeds and policies:")
+            print(format_table(sim_runs, horizon))
+            print("\nsim-to-rig gap (rig minus simulation):")
+            for spec in specs:
+                a, b = rig_runs[spec].summary, sim_runs[spec].summary
+                gaps = ", ".join(_gap(k, a.get(k), b.get(k)) for k in ("time_to_catch_median_s", "energy_integral_ms",
+                                                                         "exit_speed_ratio", "rms_force_N"))
+                print(f"  {spec}: {gaps}")
+    for run in rig_runs.values():
+        for f in run.failures[:5]:
+            print(f"impact-env compare --rig: policy {f['policy']!r} failed in episode {f['episode']} "
+                  f"(seed {f['seed']}): {f['error']}", file=sys.stderr)
+    if args.out:
+        paths = write_outputs(rig_runs, Path(args.out), rig_scene, args.seed, horizon)
+        if not args.json:
+            print("written: " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def _gap(key: str, rig, sim) -> str:
+    import math
+
+    if rig is None or sim is None or not (math.isfinite(rig) and math.isfinite(sim)):
+        return f"{key} {'same' if rig == sim else 'n/a'}"
+    return f"{key} {rig - sim:+.4g}"

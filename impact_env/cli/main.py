@@ -47,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_arguments(q, positional=True)
     q.set_defaults(func=cmd_scene_show)
 
-    compare.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
+    compare.add_parser(sub, lambda p: add_scene_arguments(p, default=None))  # None: rig, or --rig's own
     sweep.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
     export.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
     rig.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))

@@ -54,7 +54,10 @@ def cmd_serve(args) -> int:
     print(f"impact-env rig: listening on {target.address} (virtual rig, scene {scene.name}, "
           f"{'lock-step' if args.lockstep else 'real time'} at {scene.control_rate:g} Hz)", flush=True)
     target.serve()
-    print(f"impact-env rig: stopped after {target.counters['episodes']} episodes; shaker at 0 N", flush=True)
+    try:
+        print(f"impact-env rig: stopped after {target.counters['episodes']} episodes; shaker at 0 N", flush=True)
+    except BrokenPipeError:  # whoever started us is gone; the shaker is at 0 N all the same
+        pass
     return 0
 
 

@@ -198,7 +198,9 @@ def _chunks(episodes: int, parts: int) -> list[list[int]]:
 def _is_oracle(spec: str) -> bool:
     from impact_env.policy.registry import is_model_spec, parse_spec, policy_class
 
-    return not is_model_spec(spec) and bool(getattr(policy_class(parse_spec(spec)[0]), "is_oracle", False))
+    if is_model_spec(spec) or spec.startswith("compiled:"):
+        return False
+    return bool(getattr(policy_class(parse_spec(spec)[0]), "is_oracle", False))
 
 
 def add_oracle_gaps(runs: dict[str, PolicyRun], oracle: str) -> None:

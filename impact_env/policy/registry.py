@@ -29,17 +29,37 @@ REGISTERED: dict[str, type] = {}  # added at run time with register_policy (they
 
 
 @functools.cache
-def _entry_point_classes() -> dict[str, type]:
+def _entry_points() -> dict:
     out = {}
     for ep in entry_points(group=GROUP):  # in the order each package declares them
-        out.setdefault(ep.name, ep.load())
+        out.setdefault(ep.name, ep)
     return out
 
 
+@functools.cache
+def _load(name: str) -> type:
+    ep = _entry_points()[name]
+    try:
+        return ep.load()
+    except Exception as exc:  # one broken plugin must not take the others down
+        raise ConfigError(f"policy {name!r} is registered ({ep.value}) but does not load: "
+                          f"{type(exc).__name__}: {exc}") from None
+
+
+def policy_names() -> list[str]:
+    return list(dict.fromkeys([*_entry_points(), *REGISTERED]))
+
+
 def policy_classes() -> dict[str, type]:
-    """Every named policy: name -> class, from the entry points (loaded once) and
-    :func:`register_policy`."""
-    return {**_entry_point_classes(), **REGISTERED}
+    """Every named policy that loads: name -> class, from the entry points (each loaded when
+    first asked for) and :func:`register_policy`."""
+    out = {}
+    for name in policy_names():
+        try:
+            out[name] = policy_class(name)
+        except ConfigError:
+            continue
+    return out
 
 
 def register_policy(cls: type, name: str | None = None) -> None:
@@ -49,17 +69,19 @@ def register_policy(cls: type, name: str | None = None) -> None:
 
 
 def policy_class(name: str) -> type:
-    classes = policy_classes()
-    if name not in classes:
-        import difflib
+    if name in REGISTERED:
+        return REGISTERED[name]
+    if name in _entry_points():
+        return _load(name)
+    import difflib
 
-        hint = difflib.get_close_matches(name, list(classes), n=1)
-        near = f"; did you mean {hint[0]!r}?" if hint else ""
-        valid = ", ".join(classes) or f"none: no package registers the entry-point group {GROUP!r}; " \
-            "is the project installed (pip install -e .)?"
-        raise ConfigError(f"unknown policy {name!r}{near} (valid: {valid}, or a path to a saved SB3 "
-                          "model .zip, optionally as ALGO:PATH.zip)")
-    return classes[name]
+    classes = policy_names()
+    hint = difflib.get_close_matches(name, classes, n=1)
+    near = f"; did you mean {hint[0]!r}?" if hint else ""
+    valid = ", ".join(classes) or f"none: no package registers the entry-point group {GROUP!r}; " \
+        "is the project installed (pip install -e .)?"
+    raise ConfigError(f"unknown policy {name!r}{near} (valid: {valid}, or a path to a saved SB3 "
+                      "model .zip, optionally as ALGO:PATH.zip, or compiled:FILE)")
 
 
 def parse_spec(spec: str) -> tuple[str, dict[str, object]]:

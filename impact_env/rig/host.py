@@ -90,8 +90,9 @@ class RigClient:
         arm = P.Arm(mode, observation, int(history), 0, int(hold_ticks), int(seed) & P.U64, int(horizon_ticks),
                     int(first_command_timeout_ticks), int(link_timeout_ms), len(data),
                     hashlib.sha256(data).digest() if data else bytes(32))
+        # arming builds the target's controller and readies the rig: allow it a quarter second a try
         armed = self.link.request(arm, lambda m: m.type == P.MsgType.ARMED, "ARMED (answer to ARM)",
-                                  self.timeout_s, self.retries).body
+                                  max(self.timeout_s, 0.25), self.retries).body
         self.episode, self.step = armed.episode, 0
         return armed
 

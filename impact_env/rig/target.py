@@ -122,6 +122,8 @@ class Target:
         ctl.start(raw, None)
         ctl.observe(1, raw, None)
         ctl.act(1, 0.0, 0, 1, raw)
+        ctl.drain(1)
+        ctl.log.record(tick=0)
 
     @property
     def address(self) -> str:
@@ -339,8 +341,12 @@ class Target:
                     waited = time.perf_counter()
                     sent = waited
                     while not (cmd["next"] is not None and cmd["next"][0] >= m // hold):
-                        why = drain(min(self.cfg.resend_s, 0.005))
+                        msg = self.link.recv(min(self.cfg.resend_s, 0.005), episode=ep, step=m // hold)
+                        why = take(msg) if msg is not None else None
                         if why:
+                            break
+                        if self._stop.is_set():
+                            why = "DISARMED"
                             break
                         now = time.perf_counter()
                         if now - last_heard > link_timeout_s:
@@ -424,6 +430,7 @@ class Target:
         sf = SF.COUNTERS
         counters = {**{f"dropped_{k}": v for k, v in self.link.filter.counts().items() if k != "accepted"},
                     "datagrams_accepted": self.link.filter.counts()["accepted"],
+                    "datagrams_received": self.endpoint.received,
                     **{k: int(ctl.safety[1][i]) for k, i in sf.items()},
                     "overruns": clock.overruns, "missed_ticks": clock.missed}
         meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold, seed=seed,

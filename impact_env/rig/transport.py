@@ -331,7 +331,8 @@ def upload_id(data: bytes) -> int:
 def upload(link: Link, data: bytes, timeout_s: float = 0.05, retries: int = 5,
            on_other: Callable[[P.Message], None] | None = None) -> int:
     """Send ``data`` (a policy file) as POLICY_CHUNKs, each acknowledged by an ACK whose value
-    is the chunk's end offset.  Returns the number of chunks; raises RigTimeout/RigError."""
+    is the length the target holds, at least the chunk's end offset (more when it holds the file
+    already: the same file uploaded again).  Returns the number of chunks; raises RigTimeout/RigError."""
     if len(data) > P.MAX_TRANSFER:
         raise ValueError(f"file of {len(data)} B exceeds {P.MAX_TRANSFER} B")
     uid = upload_id(data)
@@ -342,7 +343,7 @@ def upload(link: Link, data: bytes, timeout_s: float = 0.05, retries: int = 5,
 
         def acked(m, end=end):
             b = m.body
-            return m.type == P.MsgType.ACK and b.acked_type == P.MsgType.POLICY_CHUNK and b.value == end
+            return m.type == P.MsgType.ACK and b.acked_type == P.MsgType.POLICY_CHUNK and b.value >= end
 
         reply = link.request(P.PolicyChunk(uid, len(data), off, piece), acked,
                              f"ACK of policy bytes {off}..{end} of {len(data)}", timeout_s, retries, on_other)

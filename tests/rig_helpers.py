@@ -1,0 +1,113 @@
+"""Helpers of the rig tests: a target process on loopback, and a lossy UDP proxy between a host
+and a target (loss, bursts, duplicates, reordering; seeded, bounded in time)."""
+
+from __future__ import annotations
+
+import os
+import random
+import re
+import select
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def start_target(*args: str, timeout_s: float = 300.0) -> tuple[subprocess.Popen, str]:
+    """``impact-env rig serve --virtual --port 0 ARGS``; returns (process, address) once it
+    listens (its first run may compile the kernels: up to ``timeout_s``)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    cmd = [sys.executable, "-m", "impact_env.cli.main", "rig", "serve", "--virtual", "--port", "0", *args]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env)
+    deadline = time.monotonic() + timeout_s
+    line = ""
+    while "listening" not in line:
+        if proc.poll() is not None or time.monotonic() > deadline:
+            stop(proc)
+            raise RuntimeError(f"target did not start: {proc.stderr.read()[-2000:]}")
+        line = proc.stdout.readline()
+    return proc, re.search(r"udp://\S+", line).group(0)
+
+
+def stop(proc: subprocess.Popen, sig=signal.SIGTERM, timeout_s: float = 20.0) -> int:
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+    return proc.returncode
+
+
+class LossyProxy:
+    """A UDP relay on 127.0.0.1: datagrams from the host go to the target and back, each dropped
+    with probability ``loss`` (in bursts of ``burst`` datagrams), duplicated with ``dup``, and
+    held back to be sent after the next one with ``reorder``.  Runs in a thread until ``close``
+    (or ``max_s``)."""
+
+    def __init__(self, target: str, loss: float = 0.0, dup: float = 0.0, reorder: float = 0.0, burst: int = 1,
+                 seed: int = 0, max_s: float = 120.0):
+        host, port = re.match(r"udp://([^:]+):(\d+)", target).groups()
+        self.target = (host, int(port))
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.address = f"udp://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.up.bind(("127.0.0.1", 0))
+        self.loss, self.dup, self.reorder, self.burst = loss, dup, reorder, max(1, int(burst))
+        self.rng = random.Random(seed)
+        self.client = None
+        self.counts = {"forwarded": 0, "dropped": 0, "duplicated": 0, "reordered": 0}
+        self._dropping = 0
+        self._held = {}
+        self._stop = threading.Event()
+        self._deadline = time.monotonic() + max_s
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _pass(self, sock, data, dest) -> None:
+        if self._dropping == 0 and self.rng.random() < self.loss:
+            self._dropping = self.burst
+        if self._dropping:
+            self._dropping -= 1
+            self.counts["dropped"] += 1
+            return
+        held = self._held.pop(id(sock), None)
+        if self.rng.random() < self.reorder and held is None:
+            self._held[id(sock)] = (data, dest)
+            self.counts["reordered"] += 1
+            return
+        copies = 2 if self.rng.random() < self.dup else 1
+        self.counts["duplicated"] += copies - 1
+        for _ in range(copies):
+            sock.sendto(data, dest)
+            self.counts["forwarded"] += 1
+        if held is not None:
+            sock.sendto(*held)
+            self.counts["forwarded"] += 1
+
+    def _run(self) -> None:
+        while not self._stop.is_set() and time.monotonic() < self._deadline:
+            ready, _, _ = select.select([self.sock, self.up], [], [], 0.05)
+            for s in ready:
+                try:
+                    data, addr = s.recvfrom(70000)
+                except OSError:
+                    return
+                if s is self.sock:
+                    self.client = addr
+                    self._pass(self.up, data, self.target)
+                elif self.client is not None:
+                    self._pass(self.sock, data, self.client)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self.sock.close()
+        self.up.close()
