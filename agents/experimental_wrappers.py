@@ -137,7 +137,8 @@ class HoldResidualVecEnv(VecEnvWrapper):
 
     def __init__(self, venv: SB3VecEnv, options: LearnabilityOptions):
         if not isinstance(venv, SB3VecEnv):
-            raise TypeError(f"HoldResidualVecEnv wraps an SB3VecEnv (make_sb3_vec_env), got {type(venv).__name__}")
+            raise TypeError("HoldResidualVecEnv wraps an SB3VecEnv (make_sb3_vec_env), got "
+                            f"{type(venv).__name__}")
         super().__init__(venv)
         self.options = options
         self.vector = venv.venv  # the native ImpactCatchVectorEnv (SAME_STEP autoreset)

@@ -136,8 +136,8 @@ _target_entropy.expected = "'auto' or float"
 def _train_freq(key, v):
     what = "an integer >= 1 or [integer >= 1, 'step' | 'episode']"
     if isinstance(v, (list, tuple)):
-        if len(v) == 2 and v[1] in ("step", "episode") and isinstance(v[0], int) and not isinstance(v[0], bool) \
-                and v[0] >= 1:
+        first_ok = isinstance(v[0], int) and not isinstance(v[0], bool) and v[0] >= 1 if len(v) else False
+        if len(v) == 2 and v[1] in ("step", "episode") and first_ok:
             return list(v)
         raise _err(key, v, what)
     return _int(1)(key, v)
@@ -170,7 +170,8 @@ _UNIT = _float(0.0, 1.0)
 _GAMMA = _float(0.0, 1.0, lo_open=True)
 PPO_SCHEMA = {
     "n_steps": _int(1), "batch_size": _int(2), "n_epochs": _int(1), "gamma": _GAMMA, "gae_lambda": _UNIT,
-    "learning_rate": _schedule, "clip_range": _schedule, "clip_range_vf": _float(0.0, lo_open=True, none=True),
+    "learning_rate": _schedule, "clip_range": _schedule,
+    "clip_range_vf": _float(0.0, lo_open=True, none=True),
     "normalize_advantage": _bool, "ent_coef": _float(0.0), "vf_coef": _float(0.0),
     "max_grad_norm": _float(0.0, lo_open=True), "use_sde": _bool, "sde_sample_freq": _int(-1),
     "target_kl": _float(0.0, lo_open=True, none=True), "stats_window_size": _int(1),
@@ -239,7 +240,8 @@ class RunConfig:
         return cls(algo=d["algo"], scene=d["scene"], overrides=d["overrides"], env_kwargs=d["env_kwargs"],
                    options=LearnabilityOptions(**d["learnability"]), hyperparameters=d["hyperparameters"],
                    policy_kwargs=d["policy_kwargs"], n_envs=d["n_envs"], n_timesteps=d["n_timesteps"],
-                   seed=d["seed"], conf_file=d.get("conf_file"), native_options=tuple(d.get("native_options", ())))
+                   seed=d["seed"], conf_file=d.get("conf_file"),
+                   native_options=tuple(d.get("native_options", ())))
 
 
 def default_conf_file(algo: str) -> Path:
@@ -262,15 +264,16 @@ def read_conf(path: str | Path, env_id: str = ENV_ID) -> dict:
         raise ConfigError(f"--conf-file {str(p)!r} has no entry for env id {env_id!r} (it has: {keys})")
     entry = data[env_id]
     if not isinstance(entry, dict):
-        raise ConfigError(f"--conf-file {str(p)!r}: the entry {env_id!r} must be a mapping of hyperparameters")
+        raise ConfigError(f"--conf-file {str(p)!r}: the entry {env_id!r} must be a mapping of "
+                          "hyperparameters")
     return dict(entry)
 
 
 def _env_signature() -> set[str]:
     from impact_env.env.vector import ImpactCatchVectorEnv
 
-    return set(inspect.signature(ImpactCatchVectorEnv.__init__).parameters) - {"self", "num_envs",
-                                                                                "autoreset_mode", "render_mode"}
+    params = set(inspect.signature(ImpactCatchVectorEnv.__init__).parameters)
+    return params - {"self", "num_envs", "autoreset_mode", "render_mode"}
 
 
 def _wrapper_options(value) -> dict:
@@ -291,7 +294,8 @@ def _wrapper_options(value) -> dict:
     return out
 
 
-def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = None, n_envs: int | None = None,
+def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = None,
+            n_envs: int | None = None,
             hp_overrides: dict | None = None, env_overrides: dict | None = None, scene: str | None = None,
             overrides: dict | None = None, conf_file: str | None = None) -> RunConfig:
     """A :class:`RunConfig` from a YAML entry and the command line's overrides, every value checked."""
@@ -320,7 +324,8 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
     options = _wrapper_options(entry.pop("env_wrapper", None))
     policy_kwargs = dict(entry.pop("policy_kwargs", None) or {})
     if not isinstance(policy_kwargs, dict):
-        raise ConfigError(f"policy_kwargs must be a mapping (net_arch, log_std_init, ...), got {policy_kwargs!r}")
+        raise ConfigError("policy_kwargs must be a mapping (net_arch, log_std_init, ...), got "
+                          f"{policy_kwargs!r}")
     env_kwargs.update(env_overrides or {})
 
     # hyperparameters: YAML, then --hp; policy kwargs may be given flat (--hp net_arch=[32, 32])
@@ -329,7 +334,8 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
         if key in POLICY_SCHEMA or key == "net_arch":
             policy_kwargs[key] = value
         elif key in ZOO_KEYS:
-            raise ConfigError(f"{key} cannot be overridden with --hp; use the matching option of agents.train")
+            raise ConfigError(f"{key} cannot be overridden with --hp; use the matching option of "
+                              "agents.train")
         else:
             hp[key] = value
     hp = {k: check_hyperparameter(algo, k, v) for k, v in hp.items()}
@@ -340,10 +346,11 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
     if algo == "ppo":
         n_steps = hp.get("n_steps", 2048)
         if n_steps * n_envs < 2:
-            raise ConfigError(f"n_steps x n_envs = {n_steps * n_envs} must be > 1 (PPO's advantage normalisation)")
+            raise ConfigError(f"n_steps x n_envs = {n_steps * n_envs} must be > 1 (PPO's advantage "
+                              "normalisation)")
         if hp.get("batch_size", 64) > n_steps * n_envs:
-            raise ConfigError(f"hyperparameter batch_size = {hp['batch_size']}: expected at most n_steps x n_envs "
-                              f"= {n_steps * n_envs} (one rollout)")
+            raise ConfigError(f"hyperparameter batch_size = {hp['batch_size']}: expected at most "
+                              f"n_steps x n_envs = {n_steps * n_envs} (one rollout)")
     if policy_kwargs.get("squash_output") and not hp.get("use_sde"):
         raise ConfigError("squash_output = true needs use_sde = true (stable-baselines3)")
 
@@ -365,8 +372,8 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
                           f"{', '.join(sorted(valid | set(OPTION_KEYS) | {'scene', 'overrides'}))}")
     opts = LearnabilityOptions(**options)
     cfg = RunConfig(algo=algo, scene=str(scene), overrides=ov, env_kwargs=env_kwargs, options=opts,
-                    hyperparameters=hp, policy_kwargs=policy_kwargs, n_envs=n_envs, n_timesteps=steps, seed=seed,
-                    conf_file=str(conf_file) if conf_file else None, native_options=native)
+                    hyperparameters=hp, policy_kwargs=policy_kwargs, n_envs=n_envs, n_timesteps=steps,
+                    seed=seed, conf_file=str(conf_file) if conf_file else None, native_options=native)
     check_env(cfg)
     return cfg
 

@@ -87,7 +87,8 @@ class TrainResult:
         s = self.stats
         lines = [f"{self.algo}: {self.steps} policy steps ({self.ticks} control periods) in "
                  f"{self.wall_time_s:.1f} s ({self.steps_per_s:.0f} steps/s, "
-                 f"{self.ticks / max(self.wall_time_s, 1e-9):.0f} periods/s), {self.episodes} episodes finished"]
+                 f"{self.ticks / max(self.wall_time_s, 1e-9):.0f} periods/s), "
+                 f"{self.episodes} episodes finished"]
         if s.get("episodes_last"):
             lines.append(f"last {s['episodes_last']} episodes: return {s['return_mean']:.2f} "
                          f"(min {s['return_min']:.2f}, max {s['return_max']:.2f}), length "
@@ -112,8 +113,9 @@ class Tooling:
     eval_seed: int = EVAL_SEED
 
     def check(self, cfg: RunConfig, resumes: int = 0) -> None:
-        for name, v, lo in (("checkpoint_every", self.checkpoint_every, 1), ("eval_every", self.eval_every, 1),
-                            ("eval_episodes", self.eval_episodes, 1), ("eval_seed", self.eval_seed, 0)):
+        for name, v, lo in (("checkpoint_every", self.checkpoint_every, 1),
+                            ("eval_every", self.eval_every, 1), ("eval_episodes", self.eval_episodes, 1),
+                            ("eval_seed", self.eval_seed, 0)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < lo):
                 raise ConfigError(f"{name} = {v!r} must be an integer >= {lo}")
         if self.tensorboard is not None and Path(self.tensorboard).is_file():
@@ -121,21 +123,22 @@ class Tooling:
         lo, hi = cfg.seed, cfg.seed + cfg.n_envs * (resumes + 1)  # training seeds [lo, hi)
         if self.eval_every is not None and lo < self.eval_seed + self.eval_episodes and self.eval_seed < hi:
             raise ConfigError(f"training seeds {lo}..{hi - 1} meet the validation seeds {self.eval_seed}.."
-                              f"{self.eval_seed + self.eval_episodes - 1}; choose another --seed or --eval-seed")
+                              f"{self.eval_seed + self.eval_episodes - 1}; choose another --seed or "
+                              "--eval-seed")
         if lo < TEST_SEED + TEST_EPISODES and TEST_SEED < hi:
             raise ConfigError(f"training seeds {lo}..{hi - 1} meet the test drops {TEST_SEED}.."
-                              f"{TEST_SEED + TEST_EPISODES - 1} (compare --seed {TEST_SEED}); choose --seed so "
-                              f"that seed + envs x (resumes + 1) <= {TEST_SEED}, or above {TEST_SEED + TEST_EPISODES}")
+                              f"{TEST_SEED + TEST_EPISODES - 1} (compare --seed {TEST_SEED}); choose --seed "
+                              f"so that seed + envs x (resumes + 1) <= {TEST_SEED}, or above "
+                              f"{TEST_SEED + TEST_EPISODES}")
 
     def to_dict(self) -> dict:
         return {"tensorboard": self.tensorboard, "checkpoint_every": self.checkpoint_every,
-                "eval_every": self.eval_every, "eval_episodes": self.eval_episodes, "eval_seed": self.eval_seed}
+                "eval_every": self.eval_every, "eval_episodes": self.eval_episodes,
+                "eval_seed": self.eval_seed}
 
 
 # -- building -----------------------------------------------------------------------------------
 def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
-    from stable_baselines3.common.vec_env import VecMonitor
-
     from agents.experimental_wrappers import HoldResidualVecEnv, LearnabilityOptions
     from impact_env.env.sb3 import make_sb3_vec_env
 
@@ -194,8 +197,8 @@ def _check_out(out: Path) -> None:
 
 
 # -- training -----------------------------------------------------------------------------------
-def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = False, torch_threads: int | None = 1,
-        verbose: int = 0, resume: bool = False) -> TrainResult:
+def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = False,
+        torch_threads: int | None = 1, verbose: int = 0, resume: bool = False) -> TrainResult:
     """Train as ``cfg`` says into ``out`` (or continue the run there with ``resume``).  Every
     setting is checked before ``out`` is created."""
     out = Path(out)
@@ -207,8 +210,8 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             raise ConfigError(f"--resume {str(out)!r}: no checkpoint in {out / 'checkpoints'} (train with "
                               "--checkpoint-every N to make them)")
         if ckpt[1] >= cfg.n_timesteps:
-            raise ConfigError(f"--resume {str(out)!r}: the last checkpoint is at step {ckpt[1]}, the run's budget "
-                              f"is {cfg.n_timesteps}; raise it with --steps")
+            raise ConfigError(f"--resume {str(out)!r}: the last checkpoint is at step {ckpt[1]}, the run's "
+                              f"budget is {cfg.n_timesteps}; raise it with --steps")
         resumes = len(state["segments"])
     else:
         _check_out(out)
@@ -257,7 +260,8 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     callbacks = [stats]
     eval_cb = None
     if tooling.eval_every is not None:
-        eval_env = VecMonitor(FixedSeeds(_vec_env(cfg, tooling.eval_episodes, evaluation=True), tooling.eval_seed))
+        eval_raw = _vec_env(cfg, tooling.eval_episodes, evaluation=True)
+        eval_env = VecMonitor(FixedSeeds(eval_raw, tooling.eval_seed))
         eval_cb = EvalCallback(eval_env, n_eval_episodes=tooling.eval_episodes,
                                eval_freq=max(tooling.eval_every // cfg.n_envs, 1), log_path=str(out / "eval"),
                                best_model_save_path=str(out), deterministic=True, verbose=verbose)
@@ -278,7 +282,8 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
 
     step_time, period = _period_per_step(cfg)
     state["segments"].append({"start_step": start_step, "end_step": done_steps, "env_seed": env_seed,
-                              "model_seed": cfg.seed + resumes, "wall_time_s": round(wall, 2), "ticks": ticks})
+                              "model_seed": cfg.seed + resumes, "wall_time_s": round(wall, 2),
+                              "ticks": ticks})
     (out / "run.json").write_text(json.dumps(state, indent=2) + "\n")
     wall_total = sum(s["wall_time_s"] for s in state["segments"])
     ticks_total = sum(s["ticks"] for s in state["segments"])
@@ -333,10 +338,10 @@ def _best(path: Path) -> dict:
 
 
 def train(algo: str = "ppo", scene=None, overrides: dict | None = None, *, steps: int | None = None,
-          envs: int | None = None, seed: int = 0, out, observation: str | None = None, history: int | None = None,
-          env_kwargs: dict | None = None, hyperparameters: dict | None = None, options: dict | None = None,
-          conf_file=None, tooling: Tooling | None = None, progress: bool = False, torch_threads: int | None = 1,
-          verbose: int = 0) -> TrainResult:
+          envs: int | None = None, seed: int = 0, out, observation: str | None = None,
+          history: int | None = None, env_kwargs: dict | None = None, hyperparameters: dict | None = None,
+          options: dict | None = None, conf_file=None, tooling: Tooling | None = None, progress: bool = False,
+          torch_threads: int | None = 1, verbose: int = 0) -> TrainResult:
     """Train ``algo`` into ``out``: the YAML entry of ``conf_file`` (default
     ``agents/hyperparams/ALGO.yml``) with these arguments overriding it (None: the file's value).
     ``env_kwargs`` go to ``ImpactCatch-v0``; ``options`` are ``hold_ticks``, ``residual``,
@@ -346,11 +351,14 @@ def train(algo: str = "ppo", scene=None, overrides: dict | None = None, *, steps
     cfg = make_config(algo, conf_file, scene=scene, overrides=overrides, steps=steps, envs=envs, seed=seed,
                       observation=observation, history=history, env_kwargs=env_kwargs,
                       hyperparameters=hyperparameters, options=options)
-    return run(cfg, out, tooling or Tooling(), progress=progress, torch_threads=torch_threads, verbose=verbose)
+    return run(cfg, out, tooling or Tooling(), progress=progress, torch_threads=torch_threads,
+               verbose=verbose)
 
 
-def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overrides=None, steps=None, envs=None, seed=0, observation=None,
-                history=None, env_kwargs=None, hyperparameters=None, options=None) -> RunConfig:
+def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overrides=None, steps=None,
+                envs=None, seed=0, observation=None, history=None, env_kwargs=None, hyperparameters=None,
+                options=None) -> RunConfig:
+    """The :class:`RunConfig` of a YAML entry with these values overriding it (None: the file's)."""
     algo = str(algo).lower()
     if algo not in ALGOS:
         raise ConfigError(f"algo = {algo!r}; expected one of {', '.join(ALGOS)}")
@@ -365,7 +373,8 @@ def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overr
         env_over["history"] = history
     env_over.update(options or {})
     if scene is not None and not isinstance(scene, str):
-        raise ConfigError(f"scene = {scene!r}: give a preset name or a .toml path (it is recorded in model.json)")
+        raise ConfigError(f"scene = {scene!r}: give a preset name or a .toml path (it is recorded in "
+                          "model.json)")
     return resolve(algo, entry, seed=seed, n_timesteps=steps, n_envs=envs, hp_overrides=hyperparameters,
                    env_overrides=env_over, scene=scene, overrides=overrides, conf_file=str(conf))
 
@@ -428,7 +437,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-every", type=int, default=100_000, metavar="N",
                    help="evaluate on the validation drops every N policy steps, keep the best (0: never)")
     p.add_argument("--eval-episodes", type=int, default=16, help="validation drops (default 16)")
-    p.add_argument("--eval-seed", type=int, default=EVAL_SEED, help=f"first validation seed (default {EVAL_SEED})")
+    p.add_argument("--eval-seed", type=int, default=EVAL_SEED,
+                   help=f"first validation seed (default {EVAL_SEED})")
     p.add_argument("--resume", metavar="DIR", default=None,
                    help="continue the run in DIR from its last checkpoint, with its settings")
     p.add_argument("--progress", action="store_true", help="show a progress bar")
@@ -437,8 +447,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-SETTING_FLAGS = ("algo", "conf_file", "scene", "set", "envs", "observation", "history", "horizon", "env_kwargs", "hp",
-                 "tensorboard", "checkpoint_every", "out")
+SETTING_FLAGS = ("algo", "conf_file", "scene", "set", "envs", "observation", "history", "horizon",
+                 "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out")
 
 
 def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
@@ -448,10 +458,12 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
         given = [f"--{k.replace('_', '-')}" for k in SETTING_FLAGS if getattr(args, k) not in (None, [])]
         if given:
             raise ConfigError(f"--resume takes the run's settings from {args.resume}/run.json; drop "
-                              f"{', '.join(given)} (only --steps, --progress, --torch-threads, --verbose go with it)")
+                              f"{', '.join(given)} (only --steps, --progress, --torch-threads, --verbose go "
+                              "with it)")
         out = Path(args.resume)
         if not (out / "run.json").is_file():
-            raise ConfigError(f"--resume {args.resume!r}: no run.json there (not a run folder of agents.train)")
+            raise ConfigError(f"--resume {args.resume!r}: no run.json there (not a run folder of "
+                              "agents.train)")
         state = json.loads((out / "run.json").read_text())
         cfg = RunConfig.from_dict(state["config"])
         if args.steps is not None:
@@ -467,11 +479,12 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
             raise ConfigError(f"--horizon {args.horizon} s must be a finite time > 0 s")
         env_kwargs["horizon"] = args.horizon
     cfg = make_config(args.algo, args.conf_file, env_id=args.env, scene=args.scene,
-                      overrides=parse_overrides(args.set) or None, steps=args.steps, envs=args.envs, seed=args.seed,
-                      observation=args.observation, history=args.history, env_kwargs=env_kwargs,
-                      hyperparameters=_pairs(args.hp, "--hp"))
+                      overrides=parse_overrides(args.set) or None, steps=args.steps, envs=args.envs,
+                      seed=args.seed, observation=args.observation, history=args.history,
+                      env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"))
     tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every,
-                      eval_every=args.eval_every or None, eval_episodes=args.eval_episodes, eval_seed=args.eval_seed)
+                      eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
+                      eval_seed=args.eval_seed)
     return cfg, Path(args.out), tooling, False
 
 

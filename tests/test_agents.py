@@ -24,7 +24,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_ppo_trains_saves_and_joins_the_comparison(tmp_path):
     out = tmp_path / "ppo"
     result = train("ppo", "rig", steps=256, envs=4, seed=3, out=out, observation="sensors", history=2,
-                   env_kwargs={"horizon": HORIZON}, hyperparameters=TINY_PPO, tooling=Tooling(eval_every=None))
+                   env_kwargs={"horizon": HORIZON}, hyperparameters=TINY_PPO,
+                   tooling=Tooling(eval_every=None))
     assert result.steps >= 256 and result.episodes >= 4  # 4 envs x 64+ steps of 50-step episodes
     meta = json.loads((out / "model.json").read_text())
     assert (meta["algo"], meta["observation"], meta["history"], meta["scene"], meta["seed"]) == \
@@ -56,9 +57,11 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     meta = json.loads((out / "model.json").read_text())
     assert meta["learnability"] == {"hold_ticks": 2, "residual": "pd-penetration", "chatter_weight": 0.0}
     assert meta["steps"] == 256 and meta["ticks"] > 256  # two control periods per policy step, but for ends
-    assert meta["validation"]["seeds"] == [900_000, 900_001] and meta["validation"]["best"]["evaluations"] == 2
+    assert meta["validation"]["seeds"] == [900_000, 900_001]
+    assert meta["validation"]["best"]["evaluations"] == 2
     assert (out / "best_model.zip").is_file() and (out / "best_model.json").is_file()
-    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["model_128_steps.zip", "model_256_steps.zip"]
+    saved = sorted(p.name for p in (out / "checkpoints").iterdir())
+    assert saved == ["model_128_steps.zip", "model_256_steps.zip"]
     assert list(tb.rglob("events.out.tfevents.*"))
 
     # resume from the 128-step checkpoint, as after a crash: the step counter goes on from 128
@@ -92,7 +95,8 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     (["--env-kwargs", "colour=red"], ["unknown env_kwargs 'colour'"]),
     (["--set", "plant.m1=-1"], ["plant.m1"]),
     (["--scene", "moon"], ["unknown scene 'moon'"]),
-    (["--observation", "privileged", "--env-kwargs", "residual=pd-penetration"], ["needs observation = 'sensors'"]),
+    (["--observation", "privileged", "--env-kwargs", "residual=pd-penetration"],
+     ["needs observation = 'sensors'"]),
     (["--seed", "990"], ["test drops 1000..1099"]),
     (["--eval-seed", "5"], ["validation seeds 5..20"]),
 ])
