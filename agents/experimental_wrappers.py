@@ -116,10 +116,19 @@ class LearnabilityOptions:
 
 
 def check_residual_observation(options: LearnabilityOptions, observation: str) -> None:
-    """The law reads the sensor frame, so the policy's observation must be that frame."""
-    if options.residual is not None and observation != "sensors":
-        raise ConfigError(f"residual = {options.residual!r} needs observation = 'sensors' (the law reads "
-                          f"the sensor frame), got {observation!r}")
+    """The law reads the sensor frame, so the policy's observation must hold it."""
+    if options.residual is not None and observation not in ("sensors", "both"):
+        raise ConfigError(f"residual = {options.residual!r} needs observation = 'sensors' or 'both' (the law "
+                          f"reads the sensor frame), got {observation!r}")
+
+
+def law_input(law, observation: str):
+    """What of the policy's observation the law reads: all of it on the sensor layout (the law
+    takes the current frame of a stacked one), the sensor part of the current frame with
+    ``observation="both"`` (sensors first, then the true state)."""
+    if law is None or observation == "sensors":
+        return slice(None)
+    return slice(0, law.layout.frame_size)
 
 
 def _check_action(a, n: int) -> np.ndarray:
@@ -146,6 +155,7 @@ class HoldResidualVecEnv(VecEnvWrapper):
         self.law = options.make_law(self.vector.scene)
         if self.law is not None:
             check_residual_observation(options, self.task.config.observation)
+        self._law_cols = law_input(self.law, self.task.config.observation)
         n = self.num_envs
         self._law_start = np.ones(n, dtype=bool)
         self._prev = np.zeros(n)
@@ -174,7 +184,7 @@ class HoldResidualVecEnv(VecEnvWrapper):
         obs = task.obs  # o_0, the observation the policy acted on
         for _ in range(opt.hold_ticks):
             if self.law is not None:
-                law_a, _ = self.law.predict(obs, episode_start=self._law_start | ~active)
+                law_a, _ = self.law.predict(obs[:, self._law_cols], episode_start=self._law_start | ~active)
                 u = np.clip(law_a.reshape(n).astype(np.float64) + a, -1.0, 1.0)
             else:
                 u = a
@@ -223,6 +233,7 @@ class HoldResidualWrapper(gym.Wrapper):
         self.law = self.options.make_law(base.scene)
         if self.law is not None:
             check_residual_observation(self.options, base.task.config.observation)
+        self._law_cols = law_input(self.law, base.task.config.observation)
         self._obs = None
         self._prev = 0.0
         self._law_start = True
@@ -240,7 +251,7 @@ class HoldResidualWrapper(gym.Wrapper):
         obs, terminated, truncated, info = self._obs, False, False, {}
         for _ in range(self.options.hold_ticks):
             if self.law is not None:
-                law_a, _ = self.law.predict(obs[None, :], episode_start=np.array([self._law_start]))
+                law_a, _ = self.law.predict(obs[None, self._law_cols], episode_start=np.array([self._law_start]))
                 u = np.clip(np.array([float(law_a[0, 0]) + a]), -1.0, 1.0)
             else:
                 u = np.array([a])
@@ -270,6 +281,7 @@ class HeldPolicy:
         self.name = name
         self.law = options.make_law(scene)
         check_residual_observation(options, observation)
+        self._law_cols = law_input(self.law, observation)
         self._tick: np.ndarray | None = None
         self._held: np.ndarray | None = None
 
@@ -290,7 +302,7 @@ class HeldPolicy:
         self._tick += 1
         u = self._held
         if self.law is not None:
-            law_a, _ = self.law.predict(x, episode_start=starts)
+            law_a, _ = self.law.predict(x[:, self._law_cols], episode_start=starts)
             u = np.clip(law_a.reshape(n).astype(np.float64) + u, -1.0, 1.0)
         # float64, not float32: the wrappers apply the sum in float64 too (bitwise the same)
         return u.reshape(n, 1), None

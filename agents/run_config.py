@@ -36,6 +36,7 @@ ENV_ID = "ImpactCatch-v0"
 ALGOS = ("ppo", "sac")
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 WRAPPER_PATH = "agents.experimental_wrappers.HoldResidualWrapper"
+ASYMMETRIC = "agents.policies.AsymmetricActorCriticPolicy"
 ZOO_KEYS = ("policy", "n_envs", "n_timesteps", "env_kwargs", "env_wrapper", "policy_kwargs", "normalize")
 
 
@@ -183,7 +184,8 @@ SAC_SCHEMA = {
     "target_entropy": _target_entropy, "use_sde": _bool, "sde_sample_freq": _int(-1),
     "use_sde_at_warmup": _bool, "stats_window_size": _int(1),
 }
-POLICY_SCHEMA = {"log_std_init": _float(-20.0, 5.0), "squash_output": _bool, "ortho_init": _bool}
+POLICY_SCHEMA = {"log_std_init": _float(-20.0, 5.0), "squash_output": _bool, "ortho_init": _bool,
+                 "frame_size": _int(1), "actor_frame_size": _int(1), "history": _int(1, 64)}
 SCHEMAS = {"ppo": PPO_SCHEMA, "sac": SAC_SCHEMA}
 
 
@@ -218,6 +220,7 @@ class RunConfig:
     seed: int
     conf_file: str | None = None
     native_options: tuple = ()  # options the env itself took (once it has them)
+    policy: str = "MlpPolicy"
     extra: dict = field(default_factory=dict)
 
     @property
@@ -233,7 +236,7 @@ class RunConfig:
                 "env_kwargs": dict(self.env_kwargs), "learnability": self.options.as_dict(),
                 "hyperparameters": dict(self.hyperparameters), "policy_kwargs": dict(self.policy_kwargs),
                 "n_envs": self.n_envs, "n_timesteps": self.n_timesteps, "seed": self.seed,
-                "conf_file": self.conf_file, "native_options": list(self.native_options)}
+                "conf_file": self.conf_file, "native_options": list(self.native_options), "policy": self.policy}
 
     @classmethod
     def from_dict(cls, d: dict) -> RunConfig:
@@ -241,7 +244,7 @@ class RunConfig:
                    options=LearnabilityOptions(**d["learnability"]), hyperparameters=d["hyperparameters"],
                    policy_kwargs=d["policy_kwargs"], n_envs=d["n_envs"], n_timesteps=d["n_timesteps"],
                    seed=d["seed"], conf_file=d.get("conf_file"),
-                   native_options=tuple(d.get("native_options", ())))
+                   native_options=tuple(d.get("native_options", ())), policy=d.get("policy", "MlpPolicy"))
 
 
 def default_conf_file(algo: str) -> Path:
@@ -297,15 +300,17 @@ def _wrapper_options(value) -> dict:
 def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = None,
             n_envs: int | None = None,
             hp_overrides: dict | None = None, env_overrides: dict | None = None, scene: str | None = None,
-            overrides: dict | None = None, conf_file: str | None = None) -> RunConfig:
+            overrides: dict | None = None, conf_file: str | None = None, policy: str | None = None) -> RunConfig:
     """A :class:`RunConfig` from a YAML entry and the command line's overrides, every value checked."""
     algo = str(algo).lower()
     if algo not in ALGOS:
         raise ConfigError(f"algo = {algo!r}; expected one of {', '.join(ALGOS)}")
     entry = dict(entry)
-    policy = entry.pop("policy", "MlpPolicy")
-    if policy != "MlpPolicy":
-        raise ConfigError(f"policy = {policy!r}: expected 'MlpPolicy' (the observation is a flat vector)")
+    policy = policy if policy is not None else entry.pop("policy", "MlpPolicy")
+    entry.pop("policy", None)
+    if policy not in ("MlpPolicy", ASYMMETRIC) or (policy == ASYMMETRIC and algo != "ppo"):
+        raise ConfigError(f"policy = {policy!r}: expected 'MlpPolicy' (the observation is a flat vector) or, "
+                          f"for ppo, {ASYMMETRIC!r}")
     if entry.pop("normalize", False) not in (False, None):
         raise ConfigError("normalize: agents.train does not normalise (the observations are of order one and "
                           "model.zip must be the whole policy); remove the key or set it to false")
@@ -373,7 +378,8 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
     opts = LearnabilityOptions(**options)
     cfg = RunConfig(algo=algo, scene=str(scene), overrides=ov, env_kwargs=env_kwargs, options=opts,
                     hyperparameters=hp, policy_kwargs=policy_kwargs, n_envs=n_envs, n_timesteps=steps,
-                    seed=seed, conf_file=str(conf_file) if conf_file else None, native_options=native)
+                    seed=seed, conf_file=str(conf_file) if conf_file else None, native_options=native,
+                    policy=policy)
     check_env(cfg)
     return cfg
 
@@ -389,6 +395,18 @@ def check_env(cfg: RunConfig) -> None:
     TaskConfig(**{k: v for k, v in cfg.env_kwargs.items() if k in task_keys})
     from impact_env.sim.observation import make_layout
 
-    make_layout(scene, cfg.observation, cfg.history)
+    layout = make_layout(scene, cfg.observation, cfg.history)
+    if cfg.policy == ASYMMETRIC:
+        if cfg.observation != "both":
+            raise ConfigError(f"policy {ASYMMETRIC} needs observation = 'both' (its critic reads the true state)")
+        sensors = make_layout(scene, "sensors", 1)
+        want = {"frame_size": layout.frame_size, "actor_frame_size": sensors.frame_size, "history": cfg.history}
+        for key, value in want.items():
+            if cfg.policy_kwargs.setdefault(key, value) != value:
+                raise ConfigError(f"policy_kwargs {key} = {cfg.policy_kwargs[key]!r} does not match the "
+                                  f"observation layout ({value})")
+    elif set(cfg.policy_kwargs) & {"frame_size", "actor_frame_size", "history"}:
+        raise ConfigError("policy_kwargs frame_size, actor_frame_size, history belong to "
+                          f"{ASYMMETRIC}; policy is {cfg.policy!r}")
     cfg.options.make_law(scene)
     check_residual_observation(cfg.options, cfg.observation)

@@ -251,7 +251,10 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
         if cfg.algo == "sac" and buf.is_file():
             model.load_replay_buffer(str(buf))
     else:
-        model = cls("MlpPolicy", venv, seed=cfg.seed, device="cpu", policy_kwargs=cfg.policy_kwargs,
+        policy = cfg.policy
+        if policy != "MlpPolicy":
+            from agents.policies import AsymmetricActorCriticPolicy as policy
+        model = cls(policy, venv, seed=cfg.seed, device="cpu", policy_kwargs=cfg.policy_kwargs,
                     verbose=verbose, tensorboard_log=tb, **_algo_kwargs(cfg))
     venv.seed(env_seed)  # env i: env_seed + i at the first reset of this segment
     start_step = int(model.num_timesteps)
@@ -297,6 +300,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             "steps_per_s": round(seg_steps / wall, 1), "ticks_per_s": round(ticks / wall, 1),
             "control_period_s": period, "policy_period_s": step_time,
             "hyperparameters": {**cfg.hyperparameters, **cfg.policy_kwargs}, "conf_file": cfg.conf_file,
+            "policy": cfg.policy,
             "episodes": len(stats.returns), "train_stats_last_episodes": train_stats,
             "validation": {"seeds": [tooling.eval_seed, tooling.eval_seed + tooling.eval_episodes - 1],
                            "best": best} if eval_cb is not None else None,
@@ -357,7 +361,7 @@ def train(algo: str = "ppo", scene=None, overrides: dict | None = None, *, steps
 
 def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overrides=None, steps=None,
                 envs=None, seed=0, observation=None, history=None, env_kwargs=None, hyperparameters=None,
-                options=None) -> RunConfig:
+                options=None, policy=None) -> RunConfig:
     """The :class:`RunConfig` of a YAML entry with these values overriding it (None: the file's)."""
     algo = str(algo).lower()
     if algo not in ALGOS:
@@ -376,7 +380,7 @@ def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overr
         raise ConfigError(f"scene = {scene!r}: give a preset name or a .toml path (it is recorded in "
                           "model.json)")
     return resolve(algo, entry, seed=seed, n_timesteps=steps, n_envs=envs, hp_overrides=hyperparameters,
-                   env_overrides=env_over, scene=scene, overrides=overrides, conf_file=str(conf))
+                   env_overrides=env_over, scene=scene, overrides=overrides, conf_file=str(conf), policy=policy)
 
 
 def _versions() -> dict:
@@ -423,6 +427,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--envs", type=int, default=None, help="rigs stepped together (default: n_envs)")
     p.add_argument("--seed", type=int, default=0, help="model seed; env i starts from seed + i (default 0)")
     p.add_argument("--out", metavar="DIR", help="run folder (required unless --resume)")
+    p.add_argument("--policy", default=None, help="MlpPolicy or agents.policies.AsymmetricActorCriticPolicy "
+                   "(ppo, observation both: the actor reads the sensors, the critic the true state too)")
     p.add_argument("--observation", choices=OBSERVATIONS, default=None, help="default: the YAML's (sensors)")
     p.add_argument("--history", type=int, default=None, help="frames stacked in the observation")
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: the scene's)")
@@ -447,7 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-SETTING_FLAGS = ("algo", "conf_file", "scene", "set", "envs", "observation", "history", "horizon",
+SETTING_FLAGS = ("algo", "policy", "conf_file", "scene", "set", "envs", "observation", "history", "horizon",
                  "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out")
 
 
@@ -481,7 +487,7 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
     cfg = make_config(args.algo, args.conf_file, env_id=args.env, scene=args.scene,
                       overrides=parse_overrides(args.set) or None, steps=args.steps, envs=args.envs,
                       seed=args.seed, observation=args.observation, history=args.history,
-                      env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"))
+                      env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"), policy=args.policy)
     tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every,
                       eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
                       eval_seed=args.eval_seed)
