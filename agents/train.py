@@ -35,8 +35,9 @@ Seeds (none of the three ranges meets another; checked):
   reseeds env i with ``seed + r * envs + i`` (the envs' Generators are not checkpointed);
 * validation (``EvalCallback``, keeps ``best_model.zip``): ``--eval-episodes`` drops seeded
   ``eval_seed + j`` (default 900000 + j), the same drops at every evaluation, on the env
-  without reward penalties (``effort_weight``, ``limit_weight``, ``chatter_weight`` = 0), so the
-  best model is the one with the lowest energy integral up to the catch;
+  without reward penalties (``effort_weight``, ``limit_weight``, ``chatter_weight`` = 0) and
+  without termination on catch, as ``compare`` runs them: the best model is the one with the
+  lowest energy integral over the whole horizon (a model that catches and then lets go loses);
 * test: ``impact-env compare --seed 1000`` (drops 1000 + j), what the README's tables use; the
   training seeds of a run may not reach 1000 (checked, seeds up to 1000 - envs x (resumes + 1)).
 """
@@ -144,10 +145,11 @@ def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
 
     kwargs = dict(cfg.env_kwargs)
     options = cfg.options
-    if evaluation:  # the objective alone: no reward penalties
+    if evaluation:  # the test's objective: no reward penalties, every episode the whole horizon
         for key in ("effort_weight", "limit_weight", "chatter_weight"):
             if key in kwargs:
                 kwargs[key] = 0.0
+        kwargs["terminate_on_catch"] = False
         options = LearnabilityOptions(options.hold_ticks, options.residual, 0.0)
     raw = make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, **kwargs)
     if not options.trivial:

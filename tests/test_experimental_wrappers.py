@@ -147,3 +147,18 @@ def test_bad_options_are_refused_naming_the_option():
     vec.reset()
     with pytest.raises(ValueError, match="NaN"):
         vec.step(np.array([[np.nan]], dtype=np.float32))
+
+
+def test_residual_law_reads_the_sensor_part_of_observation_both():
+    # with observation "both" the law gets the sensor entries of the current frame: same commands
+    # (so the same energy) as with the sensor observation
+    out = []
+    for observation in ("sensors", "both"):
+        vec = HoldResidualVecEnv(make_sb3_vec_env("rig", num_envs=2, observation=observation),
+                                 LearnabilityOptions(hold_ticks=2, residual="pd-penetration"))
+        vec.seed(7)
+        vec.reset()
+        for _ in range(30):
+            vec.step(np.full((2, 1), 0.05, dtype=np.float32))
+        out.append(vec.task.energy.copy())
+    np.testing.assert_array_equal(out[0], out[1])

@@ -13,10 +13,10 @@ pytestmark = pytest.mark.training
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _eval_env_kwargs(conf: Path) -> list[str]:
+def _eval_env_kwargs(conf: Path, **extra) -> list[str]:
     """``--eval-env-kwargs`` repeating the YAML's ``env_kwargs`` (rl_zoo3 2.9 builds its evaluation
-    env without them otherwise; see docs/agents.md)."""
-    kwargs = yaml.safe_load(conf.read_text())["ImpactCatch-v0"].get("env_kwargs", {})
+    env without them otherwise; see docs/agents.md), plus ``extra``."""
+    kwargs = {**yaml.safe_load(conf.read_text())["ImpactCatch-v0"].get("env_kwargs", {}), **extra}
     return [f"{k}:{v!r}" for k, v in kwargs.items()]
 
 
@@ -27,7 +27,8 @@ def test_rl_zoo_trains_with_the_project_yaml_and_the_model_runs(tmp_path, algo):
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "ImpactCatch-v0",
            "--gym-packages", "impact_env", "--conf-file", str(conf), "-n", "300", "-f", str(logs),
            "--seed", "0", "--num-threads", "1", "--device", "cpu", "--eval-freq", "160", "--eval-episodes", "1",
-           "--eval-env-kwargs", *_eval_env_kwargs(conf)]
+           # short evaluation episodes (5 ms) keep the test's many evaluations cheap
+           "--eval-env-kwargs", *_eval_env_kwargs(conf, horizon=0.005)]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
            "MPLBACKEND": "Agg"}
     proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
