@@ -55,7 +55,7 @@ def evaluate(model_path, scene, baselines=("passive", "pd-penetration"), episode
     seeds = [seed + j for j in range(episodes)]
     horizon = scene.episode.horizon if horizon is None else float(horizon)
     policy, meta = load_held_policy(Path(model_path), scene)
-    rows = [(spec, make_policy(spec, scene)) for spec in baselines]
+    rows = [(spec, _baseline(spec, scene, make_policy)) for spec in baselines]
     rows.append((label or str(model_path), policy))
     runs = {}
     for name, pol in rows:
@@ -67,6 +67,15 @@ def evaluate(model_path, scene, baselines=("passive", "pd-penetration"), episode
         run.summary = summarize(run)
         runs[name] = run
     return runs, meta
+
+
+def _baseline(spec: str, scene, make_policy):
+    """A classic law of this project by spec, without the entry-point registry (which loads every
+    installed package's policies); other names through the registry."""
+    from baselines import POLICIES, parse_spec
+
+    name, params = parse_spec(spec)
+    return POLICIES[name](scene, **params) if name in POLICIES else make_policy(spec, scene)
 
 
 def main(argv: list[str] | None = None) -> int:

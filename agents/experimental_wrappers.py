@@ -102,13 +102,15 @@ class LearnabilityOptions:
         """The residual's law for ``scene``, checked to read the sensor frame (None without one)."""
         if self.residual is None:
             return None
-        from baselines import make_policy
-        from impact_env.policy.registry import is_model_spec
+        from baselines import POLICIES, parse_spec
 
-        if is_model_spec(self.residual):
-            raise ConfigError(f"residual = {self.residual!r}: must be a named law (e.g. 'pd-penetration'), "
-                              "not a saved model")
-        law = make_policy(self.residual, scene)
+        # the classic laws of this project by name (baselines.POLICIES), not the entry-point
+        # registry: the residual is one of them, whatever other packages register
+        name, params = parse_spec(self.residual)
+        if name not in POLICIES:
+            raise ConfigError(f"residual = {self.residual!r}: unknown policy {name!r}; expected one of the "
+                              f"classic laws {', '.join(POLICIES)} (e.g. 'pd-penetration')")
+        law = POLICIES[name](scene, **params)
         if law.observation != "sensors":
             raise ConfigError(f"residual = {self.residual!r} reads the {law.observation!r} observation; "
                               "the residual option needs a law on the sensor frame")
