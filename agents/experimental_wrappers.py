@@ -253,7 +253,8 @@ class HoldResidualWrapper(gym.Wrapper):
         obs, terminated, truncated, info = self._obs, False, False, {}
         for _ in range(self.options.hold_ticks):
             if self.law is not None:
-                law_a, _ = self.law.predict(obs[None, self._law_cols], episode_start=np.array([self._law_start]))
+                start = np.array([self._law_start])
+                law_a, _ = self.law.predict(obs[None, self._law_cols], episode_start=start)
                 u = np.clip(np.array([float(law_a[0, 0]) + a]), -1.0, 1.0)
             else:
                 u = np.array([a])

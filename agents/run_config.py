@@ -236,7 +236,8 @@ class RunConfig:
                 "env_kwargs": dict(self.env_kwargs), "learnability": self.options.as_dict(),
                 "hyperparameters": dict(self.hyperparameters), "policy_kwargs": dict(self.policy_kwargs),
                 "n_envs": self.n_envs, "n_timesteps": self.n_timesteps, "seed": self.seed,
-                "conf_file": self.conf_file, "native_options": list(self.native_options), "policy": self.policy}
+                "conf_file": self.conf_file, "native_options": list(self.native_options),
+                "policy": self.policy}
 
     @classmethod
     def from_dict(cls, d: dict) -> RunConfig:
@@ -300,7 +301,8 @@ def _wrapper_options(value) -> dict:
 def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = None,
             n_envs: int | None = None,
             hp_overrides: dict | None = None, env_overrides: dict | None = None, scene: str | None = None,
-            overrides: dict | None = None, conf_file: str | None = None, policy: str | None = None) -> RunConfig:
+            overrides: dict | None = None, conf_file: str | None = None,
+            policy: str | None = None) -> RunConfig:
     """A :class:`RunConfig` from a YAML entry and the command line's overrides, every value checked."""
     algo = str(algo).lower()
     if algo not in ALGOS:
@@ -398,9 +400,11 @@ def check_env(cfg: RunConfig) -> None:
     layout = make_layout(scene, cfg.observation, cfg.history)
     if cfg.policy == ASYMMETRIC:
         if cfg.observation != "both":
-            raise ConfigError(f"policy {ASYMMETRIC} needs observation = 'both' (its critic reads the true state)")
+            raise ConfigError(f"policy {ASYMMETRIC} needs observation = 'both' (its critic reads the true "
+                              "state)")
         sensors = make_layout(scene, "sensors", 1)
-        want = {"frame_size": layout.frame_size, "actor_frame_size": sensors.frame_size, "history": cfg.history}
+        want = {"frame_size": layout.frame_size, "actor_frame_size": sensors.frame_size,
+                "history": cfg.history}
         for key, value in want.items():
             if cfg.policy_kwargs.setdefault(key, value) != value:
                 raise ConfigError(f"policy_kwargs {key} = {cfg.policy_kwargs[key]!r} does not match the "

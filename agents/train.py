@@ -382,7 +382,8 @@ def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overr
         raise ConfigError(f"scene = {scene!r}: give a preset name or a .toml path (it is recorded in "
                           "model.json)")
     return resolve(algo, entry, seed=seed, n_timesteps=steps, n_envs=envs, hp_overrides=hyperparameters,
-                   env_overrides=env_over, scene=scene, overrides=overrides, conf_file=str(conf), policy=policy)
+                   env_overrides=env_over, scene=scene, overrides=overrides, conf_file=str(conf),
+                   policy=policy)
 
 
 def _versions() -> dict:

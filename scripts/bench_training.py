@@ -35,9 +35,9 @@ def _rate(venv, ticks_per_step: int, ticks: int, n: int) -> float:
 
 
 def main(argv=None) -> int:
-    import impact_env  # noqa: F401
     from stable_baselines3.common.vec_env import DummyVecEnv
 
+    import impact_env  # noqa: F401
     from agents.experimental_wrappers import HoldResidualVecEnv, LearnabilityOptions
     from impact_env.env.sb3 import make_sb3_vec_env
 

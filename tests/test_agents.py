@@ -18,20 +18,21 @@ from impact_env.eval.compare import compare
 HORIZON = 0.005  # s: 50 control periods on rig, so that episodes end during the tiny run
 TINY_PPO = {"n_steps": 32, "batch_size": 64, "n_epochs": 1, "net_arch": [8]}
 ROOT = Path(__file__).resolve().parents[1]
+PLAIN = ROOT / "agents" / "hyperparams" / "ppo_plain.yml"  # no options: the model joins compare as it is
 
 
 @pytest.mark.training
 def test_ppo_trains_saves_and_joins_the_comparison(tmp_path):
     out = tmp_path / "ppo"
     result = train("ppo", "rig", steps=256, envs=4, seed=3, out=out, observation="sensors", history=2,
-                   env_kwargs={"horizon": HORIZON}, hyperparameters=TINY_PPO,
+                   env_kwargs={"horizon": HORIZON}, hyperparameters=TINY_PPO, conf_file=PLAIN,
                    tooling=Tooling(eval_every=None))
     assert result.steps >= 256 and result.episodes >= 4  # 4 envs x 64+ steps of 50-step episodes
     meta = json.loads((out / "model.json").read_text())
     assert (meta["algo"], meta["observation"], meta["history"], meta["scene"], meta["seed"]) == \
         ("ppo", "sensors", 2, "rig", 3)
     assert meta["steps"] == result.steps == meta["ticks"] and meta["wall_time_s"] > 0
-    assert meta["hyperparameters"]["gamma"] == 0.995  # from agents/hyperparams/ppo.yml
+    assert meta["hyperparameters"]["gamma"] == 0.995  # from agents/hyperparams/ppo_plain.yml
     assert meta["hyperparameters"]["n_steps"] == 32  # the override
 
     spec = f"ppo:{out / 'model.zip'}"
@@ -55,7 +56,9 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
         args += ["--hp", f"{key}={value}"]
     assert main(args) == 0
     meta = json.loads((out / "model.json").read_text())
+    # agents/hyperparams/ppo.yml holds the wrapper (hold 4, residual); --env-kwargs overrides the hold
     assert meta["learnability"] == {"hold_ticks": 2, "residual": "pd-penetration", "chatter_weight": 0.0}
+    assert meta["env_kwargs"]["terminate_on_catch"] is False and meta["hyperparameters"]["gae_lambda"] == 1.0
     assert meta["steps"] == 256 and meta["ticks"] > 256  # two control periods per policy step, but for ends
     assert meta["validation"]["seeds"] == [900_000, 900_001]
     assert meta["validation"]["best"]["evaluations"] == 2
@@ -131,9 +134,9 @@ def test_python_api_refuses_bad_values_before_creating_anything(tmp_path):
     assert not (tmp_path / "a").exists()
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
-def test_the_shipped_yaml_files_resolve_and_every_value_passes_its_check(algo):
-    entry = read_conf(ROOT / "agents" / "hyperparams" / f"{algo}.yml")
+@pytest.mark.parametrize("algo, name", [("ppo", "ppo"), ("ppo", "ppo_plain"), ("sac", "sac")])
+def test_the_shipped_yaml_files_resolve_and_every_value_passes_its_check(algo, name):
+    entry = read_conf(ROOT / "agents" / "hyperparams" / f"{name}.yml")
     cfg = resolve(algo, entry)
     assert cfg.n_envs == entry["n_envs"] and cfg.n_timesteps == int(entry["n_timesteps"])
     assert cfg.scene == entry["env_kwargs"]["scene"]

@@ -26,7 +26,8 @@ def test_rl_zoo_trains_with_the_project_yaml_and_the_model_runs(tmp_path, algo):
     logs = tmp_path / "logs"
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "ImpactCatch-v0",
            "--gym-packages", "impact_env", "--conf-file", str(conf), "-n", "300", "-f", str(logs),
-           "--seed", "0", "--num-threads", "1", "--device", "cpu", "--eval-freq", "160", "--eval-episodes", "1",
+           "--seed", "0", "--num-threads", "1", "--device", "cpu", "--eval-freq", "160",
+           "--eval-episodes", "1",
            # short evaluation episodes (5 ms) keep the test's many evaluations cheap
            "--eval-env-kwargs", *_eval_env_kwargs(conf, horizon=0.005)]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
