@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 pytestmark = pytest.mark.training
+pytest.importorskip("rl_zoo3")
 ROOT = Path(__file__).resolve().parents[1]
 
 
