@@ -1,26 +1,45 @@
 """Train a PPO or SAC agent (stable-baselines3) on ``ImpactCatch-v0`` and save it for the comparison.
 
-    python -m agents.train --algo ppo --scene rig --steps 2000000 --envs 16 --seed 0 \\
-        --out agents/models/ppo_rig [--set plant.m1=0.05] [--observation sensors --history 4] \\
-        [--horizon 0.2] [--hp learning_rate=1e-4 --hp net_arch=[32,32]]
+    python -m agents.train --algo ppo --out runs/ppo0 [--seed 0] [--steps 2000000] [--envs 16]
+        [--conf-file agents/hyperparams/ppo.yml] [--scene rig] [--set initial.pre_contact_time=1.0]
+        [--observation sensors] [--history 4] [--horizon 0.4] [--env-kwargs effort_weight=0.1 ...]
+        [--hp learning_rate=1e-4 ...] [--tensorboard runs/tb] [--checkpoint-every 200000]
+        [--eval-every 100000] [--eval-episodes 16] [--progress]
+    python -m agents.train --resume runs/ppo0 [--steps 4000000] [--progress]
+
+Hyperparameters come from the RL-Zoo-style YAML file (default ``agents/hyperparams/ALGO.yml``,
+entry ``ImpactCatch-v0``; format in :mod:`agents.run_config`), which ``python -m rl_zoo3.train
+--algo ppo --env ImpactCatch-v0 --gym-packages impact_env --conf-file agents/hyperparams/ppo.yml``
+reads as it is; the options above override single values.  Every value is checked before
+anything is created: a bad one exits with status 2 and a message naming it.
 
 The vector env is the native one (:func:`impact_env.env.sb3.make_sb3_vec_env`, all ``--envs``
-rigs stepped in one compiled call) wrapped in SB3's ``VecMonitor`` for episode statistics.  It is
-**not** normalised (no ``VecNormalize``): the env already divides every observation by a reference
-scale so that it is of order one, and the reward is ``-(E/E0) * T / 1 ms``, 0.1 per step at most
-on ``rig``; leaving normalisation out means a saved ``model.zip`` is the whole policy and
-``impact-env compare`` evaluates exactly what was trained.
+rigs stepped in one compiled call), with the experimental options of
+:mod:`agents.experimental_wrappers` (``hold_ticks``, ``residual``, ``chatter_weight``) around it
+when asked for, and SB3's ``VecMonitor``.  It is **not** normalised: the env divides every
+observation by a reference scale, and leaving ``VecNormalize`` out makes ``model.zip`` the whole
+policy.  ``--steps`` counts SB3 timesteps, i.e. policy steps (control periods when
+``hold_ticks`` is 1); ``model.json`` also gives ``ticks``, the control periods simulated.
 
-Writes ``OUT/model.zip`` and ``OUT/model.json`` (read by :mod:`baselines.sb3`: ``observation``,
-``history``; plus ``algo``, ``scene``, ``overrides``, ``steps``, ``envs``, ``seed``,
-``wall_time_s``, the hyperparameters and the last episodes' statistics).  Evaluate with
-``impact-env compare --scene rig --policies passive,ppo:OUT/model.zip --seed 1000`` (pick
-seeds that training did not use: its env i starts from seed ``seed + i`` and then draws its
-next episodes from its own generator).
+Writes into OUT: ``model.zip`` and ``model.json`` (observation, history, algo, scene, overrides,
+env kwargs, learnability options, steps, ticks, seed, wall time, hyperparameters, versions; read
+by ``impact-env compare`` and :mod:`agents.evaluate`), ``run.json`` (the resolved settings, for
+``--resume``), ``best_model.zip`` / ``best_model.json`` (the evaluation callback's best),
+``eval/evaluations.npz``, ``checkpoints/model_<steps>_steps.zip`` (and SAC's replay buffer), and
+TensorBoard logs under ``--tensorboard DIR`` (``tensorboard --logdir DIR``).
 
-Seeding: ``seed`` goes to the model (``torch``, ``numpy``, ``random`` and the action sampling)
-and to the env (env i reset with ``seed + i``), so a run is reproducible on the same machine and
-thread count.
+Seeds (none of the three ranges meets another; checked):
+
+* training: the model (torch, numpy, action sampling) is seeded ``seed``; env i starts from
+  seed ``seed + i`` and draws its next drops from its own Generator; resume number r (1, 2, ...)
+  reseeds env i with ``seed + r * envs + i`` (the envs' Generators are not checkpointed);
+* validation (``EvalCallback``, keeps ``best_model.zip``): ``--eval-episodes`` drops seeded
+  ``eval_seed + j`` (default 900000 + j), the same drops at every evaluation, on the env
+  without reward penalties (``effort_weight``, ``limit_weight``, ``chatter_weight`` = 0) and
+  without termination on catch, as ``compare`` runs them: the best model is the one with the
+  lowest energy integral over the whole horizon (a model that catches and then lets go loses);
+* test: ``impact-env compare --seed 1000`` (drops 1000 + j), what the README's tables use; the
+  training seeds of a run may not reach 1000 (checked, seeds up to 1000 - envs x (resumes + 1)).
 """
 
 from __future__ import annotations
@@ -34,56 +53,20 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-ALGOS = ("ppo", "sac")
-OBSERVATIONS = ("sensors", "privileged", "both")
+from agents.run_config import (
+    ALGOS,
+    ENV_ID,
+    RunConfig,
+    default_conf_file,
+    read_conf,
+    resolve,
+)
+from impact_env.config import ConfigError
 
-# Hyperparameters and why.  A step is one control period (100 us on ``rig``); an episode is up to
-# 4000 steps (0.4 s), and a caught drop ends earlier.
-PPO_DEFAULTS: dict = {
-    # 256 steps x envs per rollout (4096 with 16 envs): about one episode's length of experience per
-    # update, so updates come often on a CPU budget while GAE still sees whole contact events.
-    "n_steps": 256,
-    # big minibatches: fewer optimiser calls per sample, which is what costs on 2 CPU cores.
-    "batch_size": 1024,
-    # 5 passes over each rollout (SB3 default 10): half the gradient cost, little loss per sample
-    # with a dense reward.
-    "n_epochs": 5,
-    # discount 0.995 = a horizon of ~200 steps = 20 ms: one contact lasts ~1-2 ms but its
-    # consequence (the next bounce) comes 10-30 ms later; 0.99 (10 ms) would not see it.
-    "gamma": 0.995,
-    "gae_lambda": 0.95,  # SB3 default: bias/variance trade-off of the advantage
-    "learning_rate": 3e-4,  # SB3 / Adam default, known to work for small MLPs
-    "clip_range": 0.2,  # SB3 default
-    "ent_coef": 0.0,  # exploration comes from the Gaussian's own std (below)
-    # a small MLP: the observation has 4 x history entries; two layers of 64 cost little per step.
-    "net_arch": [64, 64],
-    # initial action std exp(-1) = 0.37 (SB3 default 1.0): with std 1 half of all commands would
-    # saturate at +-200 N, shaking the rig so hard that the passive drop's return (-65) is never
-    # approached early on.
-    "log_std_init": -1.0,
-    # generalised state-dependent exploration with a tanh-squashed mean (``--hp use_sde=True --hp
-    # squash_output=True``): off by default (SB3's); the Gaussian's mean is otherwise unbounded and
-    # can drift past the +-1 clip, where the env gives it no gradient back.
-    "use_sde": False,
-    "squash_output": False,
-    "max_grad_norm": 0.5,  # SB3 default; clips the joint actor-critic gradient
-}
-SAC_DEFAULTS: dict = {
-    "buffer_size": 300_000,  # ~75 full episodes; 2.4 MB per 100k transitions with a 4-entry obs
-    "learning_starts": 10_000,  # a few episodes of random actions before the first update
-    "batch_size": 256,  # SB3 default
-    "gamma": 0.995,  # as PPO: ~20 ms horizon, the time to the next bounce
-    "tau": 0.005,  # SB3 default target smoothing
-    "learning_rate": 3e-4,  # SB3 default
-    # one gradient step per vector step of all envs: the update-to-data ratio is 1/envs, which
-    # keeps SAC's per-sample cost near PPO's on a CPU; raise it for sample efficiency.
-    "train_freq": 1,
-    "gradient_steps": 1,
-    "ent_coef": "auto",  # SAC's target-entropy tuning
-    "net_arch": [64, 64],  # as PPO
-    "log_std_init": -1.0,  # as PPO: start with moderate commands (SB3's SAC default is -3)
-}
-POLICY_KWARGS = ("net_arch", "log_std_init", "squash_output")  # go to policy_kwargs, not the algorithm
+OBSERVATIONS = ("sensors", "privileged", "both")
+EVAL_SEED = 900_000  # validation drops: eval_seed + j
+TEST_SEED = 1000  # the README's held-out drops (compare --seed 1000)
+TEST_EPISODES = 100
 
 
 @dataclass
@@ -98,11 +81,15 @@ class TrainResult:
     steps_per_s: float
     episodes: int
     stats: dict = field(default_factory=dict)
+    ticks: int = 0
+    best: dict = field(default_factory=dict)
 
     def summary(self) -> str:
         s = self.stats
-        lines = [f"{self.algo}: {self.steps} env-steps in {self.wall_time_s:.1f} s "
-                 f"({self.steps_per_s:.0f} steps/s), {self.episodes} episodes finished"]
+        lines = [f"{self.algo}: {self.steps} policy steps ({self.ticks} control periods) in "
+                 f"{self.wall_time_s:.1f} s ({self.steps_per_s:.0f} steps/s, "
+                 f"{self.ticks / max(self.wall_time_s, 1e-9):.0f} periods/s), "
+                 f"{self.episodes} episodes finished"]
         if s.get("episodes_last"):
             lines.append(f"last {s['episodes_last']} episodes: return {s['return_mean']:.2f} "
                          f"(min {s['return_min']:.2f}, max {s['return_max']:.2f}), length "
@@ -110,144 +97,312 @@ class TrainResult:
                          f"diverged {s['diverged']}")
         if s.get("return_first_mean") is not None:
             lines.append(f"first {s['episodes_first']} episodes: return {s['return_first_mean']:.2f}")
+        if self.best:
+            lines.append(f"best validation return {self.best['mean_reward']:.2f} at step {self.best['step']}")
         lines.append(f"saved {self.model_path} and {self.meta_path}")
         return "\n".join(lines)
 
 
-def _hyperparameters(algo: str, overrides: dict | None) -> tuple[dict, dict]:
-    """(algorithm kwargs, policy_kwargs) from the defaults with ``overrides`` applied."""
-    defaults = PPO_DEFAULTS if algo == "ppo" else SAC_DEFAULTS
-    hp = dict(defaults)
-    for key, value in (overrides or {}).items():
-        if key not in defaults:
-            raise ValueError(f"unknown {algo} hyperparameter {key!r}; valid: {', '.join(defaults)}")
-        hp[key] = value
-    policy_kwargs = {k: hp.pop(k) for k in POLICY_KWARGS if k in hp}
-    if algo == "ppo":
-        arch = list(policy_kwargs["net_arch"])
-        policy_kwargs["net_arch"] = {"pi": arch, "vf": list(arch)}  # separate actor and critic
-    return hp, policy_kwargs
+@dataclass(frozen=True)
+class Tooling:
+    """Logging, evaluation and checkpoint settings of a run (kept in run.json for --resume)."""
+
+    tensorboard: str | None = None
+    checkpoint_every: int | None = None  # policy steps; None: no checkpoints
+    eval_every: int | None = 100_000  # policy steps; None: no evaluation callback
+    eval_episodes: int = 16
+    eval_seed: int = EVAL_SEED
+
+    def check(self, cfg: RunConfig, resumes: int = 0) -> None:
+        for name, v, lo in (("checkpoint_every", self.checkpoint_every, 1),
+                            ("eval_every", self.eval_every, 1), ("eval_episodes", self.eval_episodes, 1),
+                            ("eval_seed", self.eval_seed, 0)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < lo):
+                raise ConfigError(f"{name} = {v!r} must be an integer >= {lo}")
+        if self.tensorboard is not None and Path(self.tensorboard).is_file():
+            raise ConfigError(f"--tensorboard {self.tensorboard!r} is a file; give a folder")
+        lo, hi = cfg.seed, cfg.seed + cfg.n_envs * (resumes + 1)  # training seeds [lo, hi)
+        if self.eval_every is not None and lo < self.eval_seed + self.eval_episodes and self.eval_seed < hi:
+            raise ConfigError(f"training seeds {lo}..{hi - 1} meet the validation seeds {self.eval_seed}.."
+                              f"{self.eval_seed + self.eval_episodes - 1}; choose another --seed or "
+                              "--eval-seed")
+        if lo < TEST_SEED + TEST_EPISODES and TEST_SEED < hi:
+            raise ConfigError(f"training seeds {lo}..{hi - 1} meet the test drops {TEST_SEED}.."
+                              f"{TEST_SEED + TEST_EPISODES - 1} (compare --seed {TEST_SEED}); choose --seed "
+                              f"so that seed + envs x (resumes + 1) <= {TEST_SEED}, or above "
+                              f"{TEST_SEED + TEST_EPISODES}")
+
+    def to_dict(self) -> dict:
+        return {"tensorboard": self.tensorboard, "checkpoint_every": self.checkpoint_every,
+                "eval_every": self.eval_every, "eval_episodes": self.eval_episodes,
+                "eval_seed": self.eval_seed}
 
 
-def _stats_callback(window: int):
-    from stable_baselines3.common.callbacks import BaseCallback
+# -- building -----------------------------------------------------------------------------------
+def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
+    from agents.experimental_wrappers import HoldResidualVecEnv, LearnabilityOptions
+    from impact_env.env.sb3 import make_sb3_vec_env
 
-    class EpisodeStats(BaseCallback):
-        """Collects the return, length, caught and diverged flags of every finished episode."""
-
-        def __init__(self):
-            super().__init__()
-            self.returns: list[float] = []
-            self.lengths: list[int] = []
-            self.caught: list[bool] = []
-            self.diverged = 0
-
-        def _on_step(self) -> bool:
-            for info in self.locals.get("infos", ()):
-                ep = info.get("episode")
-                if ep is not None:
-                    self.returns.append(float(ep["r"]))
-                    self.lengths.append(int(ep["l"]))
-                    self.caught.append(bool(info.get("caught", False)))
-                    self.diverged += bool(info.get("diverged", False))
-            return True
-
-        def stats(self, period: float) -> dict:
-            import numpy as np
-
-            n = min(window, len(self.returns))
-            if n == 0:
-                return {"episodes_last": 0}
-            r = np.asarray(self.returns[-n:])
-            m = min(window, len(self.returns) - n) or n  # the first episodes, apart from the last ones
-            return {"episodes_last": n, "return_mean": float(r.mean()), "return_min": float(r.min()),
-                    "return_max": float(r.max()),
-                    "length_mean_s": float(np.mean(self.lengths[-n:]) * period),
-                    "caught_fraction": float(np.mean(self.caught[-n:])), "diverged": int(self.diverged),
-                    "episodes_first": m, "return_first_mean": float(np.mean(self.returns[:m]))}
-
-    return EpisodeStats()
+    kwargs = dict(cfg.env_kwargs)
+    options = cfg.options
+    if evaluation:  # the test's objective: no reward penalties, every episode the whole horizon
+        for key in ("effort_weight", "limit_weight", "chatter_weight"):
+            if key in kwargs:
+                kwargs[key] = 0.0
+        kwargs["terminate_on_catch"] = False
+        options = LearnabilityOptions(options.hold_ticks, options.residual, 0.0)
+    raw = make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, **kwargs)
+    if not options.trivial:
+        raw = HoldResidualVecEnv(raw, options)
+    return raw
 
 
-def train(algo: str = "ppo", scene="rig", overrides: dict | None = None, *, steps: int, envs: int = 16,
-          seed: int = 0, out, observation: str = "sensors", history: int = 1, env_kwargs: dict | None = None,
-          hyperparameters: dict | None = None, torch_threads: int | None = 1,
-          verbose: int = 0) -> TrainResult:
-    """Train ``algo`` for ``steps`` env-steps on ``envs`` rigs of ``scene`` (+ ``overrides``) and
-    save ``out/model.zip`` and ``out/model.json``.  ``env_kwargs`` go to ``ImpactCatch-v0``
-    (``horizon``, ``effort_weight``, ...); ``hyperparameters`` override :data:`PPO_DEFAULTS` /
-    :data:`SAC_DEFAULTS`; ``torch_threads`` caps torch's CPU threads (None: torch's default)."""
-    algo = str(algo).lower()
-    if algo not in ALGOS:
-        raise ValueError(f"algo = {algo!r}; expected one of {', '.join(ALGOS)}")
-    for name, v, lo in (("steps", steps, 1), ("envs", envs, 1), ("seed", seed, 0), ("history", history, 1)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise ValueError(f"{name} = {v!r} must be an integer >= {lo}")
-    if observation not in OBSERVATIONS:
-        raise ValueError(f"observation = {observation!r}; expected one of {', '.join(OBSERVATIONS)}")
-    env_kwargs = dict(env_kwargs or {})
-    for key in ("observation", "history", "overrides"):
-        if key in env_kwargs:
-            raise ValueError(f"env_kwargs must not hold {key!r}: pass it as train()'s own argument")
-    hp, policy_kwargs = _hyperparameters(algo, hyperparameters)
+def _algo_kwargs(cfg: RunConfig) -> dict:
+    hp = dict(cfg.hyperparameters)
+    for key in ("learning_rate", "clip_range"):
+        v = hp.get(key)
+        if isinstance(v, str) and v.startswith("lin_"):
+            x = float(v[4:])
+            hp[key] = lambda progress, x=x: progress * x  # RL Zoo's linear schedule (progress 1 -> 0)
+    if isinstance(hp.get("train_freq"), list):
+        hp["train_freq"] = tuple(hp["train_freq"])
+    return hp
+
+
+def _period_per_step(cfg: RunConfig) -> tuple[float, float]:
+    """(seconds per policy step, control period in s)."""
+    from impact_env.scene import load_scene
+
+    scene = load_scene(cfg.scene, cfg.overrides or None)
+    hold = cfg.options.hold_ticks * int(cfg.env_kwargs.get("hold_ticks", 1))
+    return scene.control_period * hold, scene.control_period
+
+
+def _latest_checkpoint(out: Path) -> tuple[Path, int] | None:
+    best = None
+    for p in (out / "checkpoints").glob("model_*_steps.zip"):
+        try:
+            n = int(p.stem.split("_")[1])
+        except (IndexError, ValueError):
+            continue
+        if best is None or n > best[1]:
+            best = (p, n)
+    return best
+
+
+def _check_out(out: Path) -> None:
+    if out.is_file():
+        raise ConfigError(f"--out {str(out)!r} is a file; give a folder")
+    if out.is_dir() and any((out / name).exists() for name in ("run.json", "model.zip", "checkpoints")):
+        raise ConfigError(f"--out {str(out)!r} already holds a run; continue it with --resume {out}, "
+                          "or choose another folder")
+
+
+# -- training -----------------------------------------------------------------------------------
+def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = False,
+        torch_threads: int | None = 1, verbose: int = 0, resume: bool = False) -> TrainResult:
+    """Train as ``cfg`` says into ``out`` (or continue the run there with ``resume``).  Every
+    setting is checked before ``out`` is created."""
+    out = Path(out)
+    state = None
+    if resume:
+        state = json.loads((out / "run.json").read_text())
+        ckpt = _latest_checkpoint(out)
+        if ckpt is None:
+            raise ConfigError(f"--resume {str(out)!r}: no checkpoint in {out / 'checkpoints'} (train with "
+                              "--checkpoint-every N to make them)")
+        if ckpt[1] >= cfg.n_timesteps:
+            raise ConfigError(f"--resume {str(out)!r}: the last checkpoint is at step {ckpt[1]}, the run's "
+                              f"budget is {cfg.n_timesteps}; raise it with --steps")
+        resumes = len(state["segments"])
+    else:
+        _check_out(out)
+        resumes = 0
+    tooling.check(cfg, resumes)
+    if torch_threads is not None and (isinstance(torch_threads, bool) or not isinstance(torch_threads, int)
+                                      or torch_threads < 1):
+        raise ConfigError(f"torch_threads = {torch_threads!r} must be an integer >= 1")
 
     import torch
     from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from impact_env.env.sb3 import make_sb3_vec_env
-    from impact_env.scene import Scene
+    from agents.callbacks import EpisodeStats, FixedSeeds
 
     if torch_threads is not None:
         torch.set_num_threads(int(torch_threads))
-    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    raw = make_sb3_vec_env(scene, num_envs=envs, overrides=overrides, observation=observation,
-                           history=history, **env_kwargs)
-    period = raw.venv.scene.control_period
+    if state is None:
+        state = {"config": cfg.to_dict(), "tooling": tooling.to_dict(), "segments": []}
+    else:
+        state["config"]["n_timesteps"] = cfg.n_timesteps
+    (out / "run.json").write_text(json.dumps(state, indent=2) + "\n")
+
+    raw = _vec_env(cfg, cfg.n_envs)
     venv = VecMonitor(raw)
-    venv.seed(seed)
-    cls = PPO if algo == "ppo" else SAC
-    model = cls("MlpPolicy", venv, seed=seed, device="cpu", policy_kwargs=policy_kwargs, verbose=verbose,
-                **hp)
-    callback = _stats_callback(window=100)
+    cls = PPO if cfg.algo == "ppo" else SAC
+    env_seed = cfg.seed + resumes * cfg.n_envs
+    tb = tooling.tensorboard
+    tb_name = f"{cfg.algo}_seed{cfg.seed}"
+    if resume:
+        path, _ = _latest_checkpoint(out)
+        model = cls.load(str(path), env=venv, device="cpu", tensorboard_log=tb)
+        model.set_random_seed(cfg.seed + resumes)
+        buf = path.with_name(path.name.replace("model_", "model_replay_buffer_").replace(".zip", ".pkl"))
+        if cfg.algo == "sac" and buf.is_file():
+            model.load_replay_buffer(str(buf))
+    else:
+        policy = cfg.policy
+        if policy != "MlpPolicy":
+            from agents.policies import AsymmetricActorCriticPolicy as policy
+        model = cls(policy, venv, seed=cfg.seed, device="cpu", policy_kwargs=cfg.policy_kwargs,
+                    verbose=verbose, tensorboard_log=tb, **_algo_kwargs(cfg))
+    venv.seed(env_seed)  # env i: env_seed + i at the first reset of this segment
+    start_step = int(model.num_timesteps)
+
+    stats = EpisodeStats(window=100)
+    callbacks = [stats]
+    eval_cb = None
+    if tooling.eval_every is not None:
+        eval_raw = _vec_env(cfg, tooling.eval_episodes, evaluation=True)
+        eval_env = VecMonitor(FixedSeeds(eval_raw, tooling.eval_seed))
+        eval_cb = EvalCallback(eval_env, n_eval_episodes=tooling.eval_episodes,
+                               eval_freq=max(tooling.eval_every // cfg.n_envs, 1), log_path=str(out / "eval"),
+                               best_model_save_path=str(out), deterministic=True, verbose=verbose)
+        _restore_evaluations(eval_cb, out / "eval" / "evaluations.npz")
+        callbacks.append(eval_cb)
+    if tooling.checkpoint_every is not None:
+        callbacks.append(CheckpointCallback(save_freq=max(tooling.checkpoint_every // cfg.n_envs, 1),
+                                            save_path=str(out / "checkpoints"), name_prefix="model",
+                                            save_replay_buffer=cfg.algo == "sac"))
     t0 = time.perf_counter()
-    model.learn(total_timesteps=steps, callback=callback, progress_bar=False)
+    model.learn(total_timesteps=cfg.n_timesteps - start_step, callback=callbacks, progress_bar=progress,
+                reset_num_timesteps=not resume, tb_log_name=tb_name)
     wall = time.perf_counter() - t0
     done_steps = int(model.num_timesteps)
-    model_path = out / "model.zip"
-    model.save(model_path)
+    ticks = int(getattr(raw, "ticks", done_steps - start_step))
+    model.save(out / "model.zip")
     venv.close()
-    stats = callback.stats(period)
-    scene_name = scene.name if isinstance(scene, Scene) else scene if isinstance(scene, str) else None
-    meta = {"algo": algo, "observation": observation, "history": history, "scene": scene_name,
-            "overrides": {k: v for k, v in (overrides or {}).items()}, "env_kwargs": env_kwargs,
-            "steps": done_steps, "envs": envs, "seed": seed, "wall_time_s": round(wall, 2),
-            "steps_per_s": round(done_steps / wall, 1), "control_period_s": period,
-            "hyperparameters": {**hp, **policy_kwargs}, "episodes": len(callback.returns),
-            "train_stats_last_episodes": stats,
-            "versions": _versions()}
+
+    step_time, period = _period_per_step(cfg)
+    state["segments"].append({"start_step": start_step, "end_step": done_steps, "env_seed": env_seed,
+                              "model_seed": cfg.seed + resumes, "wall_time_s": round(wall, 2),
+                              "ticks": ticks})
+    (out / "run.json").write_text(json.dumps(state, indent=2) + "\n")
+    wall_total = sum(s["wall_time_s"] for s in state["segments"])
+    ticks_total = sum(s["ticks"] for s in state["segments"])
+    seg_steps = done_steps - start_step
+    train_stats = stats.stats(step_time)
+    best = _best(out / "eval" / "evaluations.npz")
+    meta = {"algo": cfg.algo, "observation": cfg.observation, "history": cfg.history, "scene": cfg.scene,
+            "overrides": dict(cfg.overrides), "env_kwargs": dict(cfg.env_kwargs),
+            "learnability": cfg.options.as_dict(), "steps": done_steps, "ticks": ticks_total,
+            "envs": cfg.n_envs, "seed": cfg.seed, "wall_time_s": round(wall_total, 2),
+            "steps_per_s": round(seg_steps / wall, 1), "ticks_per_s": round(ticks / wall, 1),
+            "control_period_s": period, "policy_period_s": step_time,
+            "hyperparameters": {**cfg.hyperparameters, **cfg.policy_kwargs}, "conf_file": cfg.conf_file,
+            "policy": cfg.policy,
+            "episodes": len(stats.returns), "train_stats_last_episodes": train_stats,
+            "validation": {"seeds": [tooling.eval_seed, tooling.eval_seed + tooling.eval_episodes - 1],
+                           "best": best} if eval_cb is not None else None,
+            "segments": state["segments"], "versions": _versions()}
     meta_path = out / "model.json"
     meta_path.write_text(json.dumps(meta, indent=2, default=str) + "\n")
-    return TrainResult(model_path, meta_path, algo, done_steps, wall, done_steps / wall,
-                       len(callback.returns), stats)
+    if (out / "best_model.zip").is_file():
+        (out / "best_model.json").write_text(json.dumps({**meta, "steps": best.get("step")}, indent=2,
+                                                        default=str) + "\n")
+    return TrainResult(out / "model.zip", meta_path, cfg.algo, done_steps, wall, seg_steps / wall,
+                       len(stats.returns), train_stats, ticks=ticks, best=best)
+
+
+def _restore_evaluations(cb, path: Path) -> None:
+    """On --resume, EvalCallback starts from the evaluations (and best return) logged so far."""
+    import numpy as np
+
+    if not path.is_file():
+        return
+    d = np.load(path)
+    cb.evaluations_timesteps = list(d["timesteps"])
+    cb.evaluations_results = [list(r) for r in d["results"]]
+    cb.evaluations_length = [list(r) for r in d["ep_lengths"]]
+    if len(d["results"]):
+        cb.best_mean_reward = float(np.max(np.mean(d["results"], axis=1)))
+
+
+def _best(path: Path) -> dict:
+    import numpy as np
+
+    if not path.is_file():
+        return {}
+    d = np.load(path)
+    if not len(d["results"]):
+        return {}
+    means = np.mean(d["results"], axis=1)
+    k = int(np.argmax(means))
+    return {"step": int(d["timesteps"][k]), "mean_reward": float(means[k]), "evaluations": int(len(means))}
+
+
+def train(algo: str = "ppo", scene=None, overrides: dict | None = None, *, steps: int | None = None,
+          envs: int | None = None, seed: int = 0, out, observation: str | None = None,
+          history: int | None = None, env_kwargs: dict | None = None, hyperparameters: dict | None = None,
+          options: dict | None = None, conf_file=None, tooling: Tooling | None = None, progress: bool = False,
+          torch_threads: int | None = 1, verbose: int = 0) -> TrainResult:
+    """Train ``algo`` into ``out``: the YAML entry of ``conf_file`` (default
+    ``agents/hyperparams/ALGO.yml``) with these arguments overriding it (None: the file's value).
+    ``env_kwargs`` go to ``ImpactCatch-v0``; ``options`` are ``hold_ticks``, ``residual``,
+    ``chatter_weight``; ``hyperparameters`` override single hyperparameters or policy kwargs.
+    Raises :class:`~impact_env.config.ConfigError` (a ValueError) on any bad value, before
+    anything is created.  Default ``tooling``: evaluation every 100k steps, no checkpoints."""
+    cfg = make_config(algo, conf_file, scene=scene, overrides=overrides, steps=steps, envs=envs, seed=seed,
+                      observation=observation, history=history, env_kwargs=env_kwargs,
+                      hyperparameters=hyperparameters, options=options)
+    return run(cfg, out, tooling or Tooling(), progress=progress, torch_threads=torch_threads,
+               verbose=verbose)
+
+
+def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overrides=None, steps=None,
+                envs=None, seed=0, observation=None, history=None, env_kwargs=None, hyperparameters=None,
+                options=None, policy=None) -> RunConfig:
+    """The :class:`RunConfig` of a YAML entry with these values overriding it (None: the file's)."""
+    algo = str(algo).lower()
+    if algo not in ALGOS:
+        raise ConfigError(f"algo = {algo!r}; expected one of {', '.join(ALGOS)}")
+    conf = Path(conf_file) if conf_file is not None else default_conf_file(algo)
+    entry = read_conf(conf, env_id)
+    env_over = dict(env_kwargs or {})
+    if observation is not None:
+        if observation not in OBSERVATIONS:
+            raise ConfigError(f"observation = {observation!r}; expected one of {', '.join(OBSERVATIONS)}")
+        env_over["observation"] = observation
+    if history is not None:
+        env_over["history"] = history
+    env_over.update(options or {})
+    if scene is not None and not isinstance(scene, str):
+        raise ConfigError(f"scene = {scene!r}: give a preset name or a .toml path (it is recorded in "
+                          "model.json)")
+    return resolve(algo, entry, seed=seed, n_timesteps=steps, n_envs=envs, hp_overrides=hyperparameters,
+                   env_overrides=env_over, scene=scene, overrides=overrides, conf_file=str(conf),
+                   policy=policy)
 
 
 def _versions() -> dict:
     import gymnasium
+    import numpy
     import stable_baselines3
     import torch
 
     return {"python": sys.version.split()[0], "stable_baselines3": stable_baselines3.__version__,
-            "torch": torch.__version__, "gymnasium": gymnasium.__version__}
+            "torch": torch.__version__, "gymnasium": gymnasium.__version__, "numpy": numpy.__version__}
 
 
+# -- command line ---------------------------------------------------------------------------------
 def _literal(text: str):
     """A ``--hp`` value: a Python literal (``3e-4``, ``[32, 32]``, ``'auto'``) or a bare word."""
     try:
         return ast.literal_eval(text)
     except (ValueError, SyntaxError):
-        return text
+        return {"true": True, "false": False, "null": None, "none": None}.get(text.lower(), text)
 
 
 def _pairs(items: list[str], what: str) -> dict:
@@ -255,48 +410,100 @@ def _pairs(items: list[str], what: str) -> dict:
     for item in items:
         key, eq, value = item.partition("=")
         if not eq or not key.strip() or not value.strip():
-            raise SystemExit(f"agents.train: {what} {item!r} must be KEY=VALUE")
-        out[key.strip()] = value.strip()
+            raise ConfigError(f"{what} {item!r} must be KEY=VALUE")
+        out[key.strip()] = _literal(value.strip())
     return out
 
 
 def build_parser() -> argparse.ArgumentParser:
     from impact_env.cli import add_scene_arguments
 
-    p = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n\n")[0])
-    p.add_argument("--algo", choices=ALGOS, required=True, help="ppo or sac")
-    add_scene_arguments(p, default="rig")
-    p.add_argument("--steps", type=int, required=True, help="env-steps (control periods) to train for")
-    p.add_argument("--envs", type=int, default=16, help="rigs stepped together (default 16)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the model and env i = seed + i (default 0)")
-    p.add_argument("--out", required=True, metavar="DIR", help="writes DIR/model.zip and DIR/model.json")
-    p.add_argument("--observation", choices=OBSERVATIONS, default="sensors", help="default sensors")
-    p.add_argument("--history", type=int, default=1, help="frames stacked in the observation (default 1)")
+    p = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="Hyperparameters: agents/hyperparams/*.yml (RL Zoo format).")
+    p.add_argument("--algo", choices=ALGOS, help="ppo or sac (required unless --resume)")
+    p.add_argument("--conf-file", default=None, metavar="YML",
+                   help="RL-Zoo-style hyperparameters (default agents/hyperparams/ALGO.yml)")
+    p.add_argument("--env", default=ENV_ID, help=f"entry of the YAML file (default {ENV_ID})")
+    add_scene_arguments(p, default=None)
+    p.add_argument("--steps", type=int, default=None, help="policy steps to train for (default: n_timesteps)")
+    p.add_argument("--envs", type=int, default=None, help="rigs stepped together (default: n_envs)")
+    p.add_argument("--seed", type=int, default=0, help="model seed; env i starts from seed + i (default 0)")
+    p.add_argument("--out", metavar="DIR", help="run folder (required unless --resume)")
+    p.add_argument("--policy", default=None, help="MlpPolicy or agents.policies.AsymmetricActorCriticPolicy "
+                   "(ppo, observation both: the actor reads the sensors, the critic the true state too)")
+    p.add_argument("--observation", choices=OBSERVATIONS, default=None, help="default: the YAML's (sensors)")
+    p.add_argument("--history", type=int, default=None, help="frames stacked in the observation")
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: the scene's)")
+    p.add_argument("--env-kwargs", action="append", default=[], metavar="KEY=VALUE",
+                   help="an ImpactCatch-v0 argument or option (effort_weight=0.1, hold_ticks=4, "
+                        "residual=pd-penetration, chatter_weight=0.01); repeatable")
     p.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                    help="override a hyperparameter (Python literal), e.g. --hp learning_rate=1e-4")
+    p.add_argument("--tensorboard", default=None, metavar="DIR", help="TensorBoard log folder")
+    p.add_argument("--checkpoint-every", type=int, default=None, metavar="N",
+                   help="save a checkpoint every N policy steps (needed by --resume)")
+    p.add_argument("--eval-every", type=int, default=100_000, metavar="N",
+                   help="evaluate on the validation drops every N policy steps, keep the best (0: never)")
+    p.add_argument("--eval-episodes", type=int, default=16, help="validation drops (default 16)")
+    p.add_argument("--eval-seed", type=int, default=EVAL_SEED,
+                   help=f"first validation seed (default {EVAL_SEED})")
+    p.add_argument("--resume", metavar="DIR", default=None,
+                   help="continue the run in DIR from its last checkpoint, with its settings")
+    p.add_argument("--progress", action="store_true", help="show a progress bar")
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (0, 1, 2)")
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    from impact_env.cli import parse_overrides
-    from impact_env.config import ConfigError
+SETTING_FLAGS = ("algo", "policy", "conf_file", "scene", "set", "envs", "observation", "history", "horizon",
+                 "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out")
 
-    args = build_parser().parse_args(argv)
-    hp = {k: _literal(v) for k, v in _pairs(args.hp, "--hp").items()}
-    env_kwargs = {}
+
+def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
+    from impact_env.cli import parse_overrides
+
+    if args.resume is not None:
+        given = [f"--{k.replace('_', '-')}" for k in SETTING_FLAGS if getattr(args, k) not in (None, [])]
+        if given:
+            raise ConfigError(f"--resume takes the run's settings from {args.resume}/run.json; drop "
+                              f"{', '.join(given)} (only --steps, --progress, --torch-threads, --verbose go "
+                              "with it)")
+        out = Path(args.resume)
+        if not (out / "run.json").is_file():
+            raise ConfigError(f"--resume {args.resume!r}: no run.json there (not a run folder of "
+                              "agents.train)")
+        state = json.loads((out / "run.json").read_text())
+        cfg = RunConfig.from_dict(state["config"])
+        if args.steps is not None:
+            if args.steps < 1:
+                raise ConfigError(f"--steps {args.steps} must be >= 1")
+            cfg.n_timesteps = args.steps
+        return cfg, out, Tooling(**state["tooling"]), True
+    if args.algo is None or args.out is None:
+        raise ConfigError("--algo and --out are required (or --resume DIR)")
+    env_kwargs = _pairs(args.env_kwargs, "--env-kwargs")
     if args.horizon is not None:
         if not (args.horizon > 0 and math.isfinite(args.horizon)):
-            raise SystemExit(f"agents.train: --horizon {args.horizon} s must be a finite time > 0 s")
+            raise ConfigError(f"--horizon {args.horizon} s must be a finite time > 0 s")
         env_kwargs["horizon"] = args.horizon
+    cfg = make_config(args.algo, args.conf_file, env_id=args.env, scene=args.scene,
+                      overrides=parse_overrides(args.set) or None, steps=args.steps, envs=args.envs,
+                      seed=args.seed, observation=args.observation, history=args.history,
+                      env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"), policy=args.policy)
+    tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every,
+                      eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
+                      eval_seed=args.eval_seed)
+    return cfg, Path(args.out), tooling, False
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     try:
-        result = train(args.algo, args.scene, parse_overrides(args.set) or None, steps=args.steps,
-                       envs=args.envs, seed=args.seed, out=args.out, observation=args.observation,
-                       history=args.history, env_kwargs=env_kwargs, hyperparameters=hp,
-                       torch_threads=args.torch_threads, verbose=args.verbose)
-    except (ValueError, ConfigError) as exc:
+        cfg, out, tooling, resume = _from_args(args)
+        result = run(cfg, out, tooling, progress=args.progress, torch_threads=args.torch_threads,
+                     verbose=args.verbose, resume=resume)
+    except ConfigError as exc:
         print(f"agents.train: {exc}", file=sys.stderr)
         return 2
     print(result.summary())

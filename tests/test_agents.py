@@ -1,28 +1,39 @@
-"""agents.train: a tiny PPO run is saved, loads through the policy registry and runs in compare."""
+"""agents.train: YAML hyperparameters, validation before anything is created, a tiny PPO run that is
+saved, loads through the policy registry and runs in compare, TensorBoard, the evaluation
+callback, checkpoints and --resume."""
 
 import json
+import shutil
+from pathlib import Path
 
+import numpy as np
 import pytest
 
-from agents.train import train
+from agents.run_config import check_hyperparameter, read_conf, resolve
+from agents.train import Tooling, main, train
 from baselines import make_policy
+from impact_env.config import ConfigError
 from impact_env.eval.compare import compare
 
-pytestmark = pytest.mark.training
-
 HORIZON = 0.005  # s: 50 control periods on rig, so that episodes end during the tiny run
+TINY_PPO = {"n_steps": 32, "batch_size": 64, "n_epochs": 1, "net_arch": [8]}
+ROOT = Path(__file__).resolve().parents[1]
+PLAIN = ROOT / "agents" / "hyperparams" / "ppo_plain.yml"  # no options: the model joins compare as it is
 
 
+@pytest.mark.training
 def test_ppo_trains_saves_and_joins_the_comparison(tmp_path):
     out = tmp_path / "ppo"
     result = train("ppo", "rig", steps=256, envs=4, seed=3, out=out, observation="sensors", history=2,
-                   env_kwargs={"horizon": HORIZON},
-                   hyperparameters={"n_steps": 32, "batch_size": 64, "n_epochs": 1, "net_arch": [8]})
+                   env_kwargs={"horizon": HORIZON}, hyperparameters=TINY_PPO, conf_file=PLAIN,
+                   tooling=Tooling(eval_every=None))
     assert result.steps >= 256 and result.episodes >= 4  # 4 envs x 64+ steps of 50-step episodes
     meta = json.loads((out / "model.json").read_text())
     assert (meta["algo"], meta["observation"], meta["history"], meta["scene"], meta["seed"]) == \
         ("ppo", "sensors", 2, "rig", 3)
-    assert meta["steps"] == result.steps and meta["wall_time_s"] > 0
+    assert meta["steps"] == result.steps == meta["ticks"] and meta["wall_time_s"] > 0
+    assert meta["hyperparameters"]["gamma"] == 0.995  # from agents/hyperparams/ppo_plain.yml
+    assert meta["hyperparameters"]["n_steps"] == 32  # the override
 
     spec = f"ppo:{out / 'model.zip'}"
     policy = make_policy(spec, "rig")  # observation and history come from model.json
@@ -34,12 +45,120 @@ def test_ppo_trains_saves_and_joins_the_comparison(tmp_path):
     assert s["peak_demand_N"] <= 200.0 + 1e-9  # actions clipped to the command scale
 
 
-def test_bad_arguments_are_refused(tmp_path):
+@pytest.mark.training
+def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
+    out, tb = tmp_path / "run", tmp_path / "tb"
+    args = ["--algo", "ppo", "--out", str(out), "--steps", "256", "--envs", "4", "--seed", "2",
+            "--horizon", str(HORIZON), "--tensorboard", str(tb), "--checkpoint-every", "128",
+            "--eval-every", "128", "--eval-episodes", "2", "--env-kwargs", "hold_ticks=2",
+            "--env-kwargs", "residual=pd-penetration", "--env-kwargs", "effort_weight=0.1"]
+    for key, value in TINY_PPO.items():
+        args += ["--hp", f"{key}={value}"]
+    assert main(args) == 0
+    meta = json.loads((out / "model.json").read_text())
+    # agents/hyperparams/ppo.yml holds the wrapper (hold 4, residual); --env-kwargs overrides the hold
+    assert meta["learnability"] == {"hold_ticks": 2, "residual": "pd-penetration", "chatter_weight": 0.0}
+    assert meta["env_kwargs"]["terminate_on_catch"] is False and meta["hyperparameters"]["gae_lambda"] == 1.0
+    assert meta["steps"] == 256 and meta["ticks"] > 256  # two control periods per policy step, but for ends
+    assert meta["validation"]["seeds"] == [900_000, 900_001]
+    assert meta["validation"]["best"]["evaluations"] == 2
+    assert (out / "best_model.zip").is_file() and (out / "best_model.json").is_file()
+    saved = sorted(p.name for p in (out / "checkpoints").iterdir())
+    assert saved == ["model_128_steps.zip", "model_256_steps.zip"]
+    assert list(tb.rglob("events.out.tfevents.*"))
+
+    # resume from the 128-step checkpoint, as after a crash: the step counter goes on from 128
+    (out / "checkpoints" / "model_256_steps.zip").unlink()
+    state = json.loads((out / "run.json").read_text())
+    assert main(["--resume", str(out), "--steps", "384"]) == 0
+    meta2 = json.loads((out / "model.json").read_text())
+    assert meta2["steps"] == 384
+    assert meta2["hyperparameters"] == meta["hyperparameters"]
+    segs = json.loads((out / "run.json").read_text())["segments"]
+    assert len(segs) == 2 and segs[1]["start_step"] == 128 and segs[1]["env_seed"] == 2 + 4
+    assert json.loads((out / "run.json").read_text())["config"]["hyperparameters"] == \
+        state["config"]["hyperparameters"]
+    ev = np.load(out / "eval" / "evaluations.npz")
+    assert list(ev["timesteps"]) == [128, 256, 256, 384]  # first run's two, then the resumed run's
+    capsys.readouterr()
+    # resuming with other settings is refused
+    assert main(["--resume", str(out), "--hp", "gamma=0.9"]) == 2
+    assert "--hp" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, names", [
+    (["--hp", "learning_rate=abc"], ["learning_rate", "'abc'", "number > 0"]),
+    (["--hp", "n_steps=0"], ["n_steps", "integer >= 1"]),
+    (["--hp", "gamma=1.5"], ["gamma", "<= 1"]),
+    (["--hp", "net_arch=[64, -1]"], ["net_arch", "layer widths"]),
+    (["--hp", "n_step=8"], ["n_step", "did you mean 'n_steps'"]),
+    (["--env-kwargs", "effort_weight=-1"], ["effort_weight", ">= 0"]),
+    (["--env-kwargs", "hold_ticks=0"], ["hold_ticks", "integer from 1"]),
+    (["--env-kwargs", "residual=pd"], ["unknown policy 'pd'"]),
+    (["--env-kwargs", "colour=red"], ["unknown env_kwargs 'colour'"]),
+    (["--set", "plant.m1=-1"], ["plant.m1"]),
+    (["--scene", "moon"], ["unknown scene 'moon'"]),
+    (["--observation", "privileged", "--env-kwargs", "residual=pd-penetration"],
+     ["needs observation = 'sensors'"]),
+    (["--seed", "990"], ["test drops 1000..1099"]),
+    (["--eval-seed", "5"], ["validation seeds 5..20"]),
+])
+def test_bad_arguments_exit_2_naming_the_value_and_create_nothing(tmp_path, capsys, argv, names):
+    out, tb = tmp_path / "out", tmp_path / "tb"
+    code = main(["--algo", "ppo", "--out", str(out), "--tensorboard", str(tb), *argv])
+    err = capsys.readouterr().err
+    assert code == 2
+    for name in names:
+        assert name in err
+    assert not out.exists() and not tb.exists()
+
+
+def test_an_existing_run_folder_is_not_overwritten(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.zip").write_bytes(b"")
+    assert main(["--algo", "ppo", "--out", str(out)]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main(["--resume", str(tmp_path / "nothing")]) == 2
+
+
+def test_python_api_refuses_bad_values_before_creating_anything(tmp_path):
     with pytest.raises(ValueError, match="algo"):
-        train("dqn", "rig", steps=10, out=tmp_path)
-    with pytest.raises(ValueError, match="steps"):
-        train("ppo", "rig", steps=0, out=tmp_path)
+        train("dqn", "rig", steps=10, out=tmp_path / "a")
+    with pytest.raises(ValueError, match="n_timesteps"):
+        train("ppo", "rig", steps=0, out=tmp_path / "a")
     with pytest.raises(ValueError, match="hyperparameter"):
-        train("ppo", "rig", steps=10, out=tmp_path, hyperparameters={"n_step": 8})
+        train("ppo", "rig", steps=10, out=tmp_path / "a", hyperparameters={"n_step": 8})
     with pytest.raises(ValueError, match="observation"):
-        train("ppo", "rig", steps=10, out=tmp_path, observation="camera")
+        train("ppo", "rig", steps=10, out=tmp_path / "a", observation="camera")
+    assert not (tmp_path / "a").exists()
+
+
+@pytest.mark.parametrize("algo, name", [("ppo", "ppo"), ("ppo", "ppo_plain"), ("sac", "sac")])
+def test_the_shipped_yaml_files_resolve_and_every_value_passes_its_check(algo, name):
+    entry = read_conf(ROOT / "agents" / "hyperparams" / f"{name}.yml")
+    cfg = resolve(algo, entry)
+    assert cfg.n_envs == entry["n_envs"] and cfg.n_timesteps == int(entry["n_timesteps"])
+    assert cfg.scene == entry["env_kwargs"]["scene"]
+    for key, value in cfg.hyperparameters.items():
+        assert check_hyperparameter(algo, key, value) == value
+
+
+def test_schedules_and_sac_entropy_follow_rl_zoo_conventions():
+    assert check_hyperparameter("ppo", "learning_rate", "lin_3e-4") == "lin_3e-4"
+    assert check_hyperparameter("sac", "ent_coef", "auto_0.1") == "auto_0.1"
+    assert check_hyperparameter("sac", "train_freq", [4, "step"]) == [4, "step"]
+    with pytest.raises(ConfigError, match="lin_"):
+        check_hyperparameter("ppo", "clip_range", "lin_x")
+    with pytest.raises(ConfigError, match="batch_size"):
+        resolve("ppo", {"n_timesteps": 10, "n_envs": 2, "n_steps": 8, "batch_size": 64})
+    with pytest.raises(ConfigError, match="env_wrapper"):
+        resolve("ppo", {"n_timesteps": 10, "env_wrapper": ["gymnasium.wrappers.ClipAction"]})
+
+
+def test_yaml_without_the_env_id_is_refused_naming_what_it_has(tmp_path):
+    p = tmp_path / "x.yml"
+    p.write_text("CartPole-v1:\n  n_timesteps: 10\n")
+    with pytest.raises(ConfigError, match="CartPole-v1"):
+        read_conf(p)
+    shutil.rmtree(tmp_path)

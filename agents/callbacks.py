@@ -1,0 +1,65 @@
+"""Training-time helpers: episode statistics (also to TensorBoard) and the fixed held-out drops
+of the evaluation callback."""
+
+from __future__ import annotations
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnvWrapper
+
+
+class EpisodeStats(BaseCallback):
+    """Return, length, caught and diverged flags of every finished training episode; logs the
+    caught fraction of the last ``window`` episodes as ``rollout/caught_fraction``."""
+
+    def __init__(self, window: int = 100):
+        super().__init__()
+        self.window = window
+        self.returns: list[float] = []
+        self.lengths: list[int] = []
+        self.caught: list[bool] = []
+        self.diverged = 0
+
+    def _on_step(self) -> bool:
+        for info in self.locals.get("infos", ()):
+            ep = info.get("episode")
+            if ep is not None:
+                self.returns.append(float(ep["r"]))
+                self.lengths.append(int(ep["l"]))
+                self.caught.append(bool(info.get("caught", False)))
+                self.diverged += bool(info.get("diverged", False))
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self.caught:
+            self.logger.record("rollout/caught_fraction", float(np.mean(self.caught[-self.window:])))
+            self.logger.record("rollout/diverged_total", self.diverged)
+
+    def stats(self, step_time: float) -> dict:
+        """Summary of the first and last ``window`` episodes; ``step_time`` s per counted step."""
+        n = min(self.window, len(self.returns))
+        if n == 0:
+            return {"episodes_last": 0}
+        r = np.asarray(self.returns[-n:])
+        m = min(self.window, len(self.returns) - n) or n  # the first episodes, apart from the last ones
+        return {"episodes_last": n, "return_mean": float(r.mean()), "return_min": float(r.min()),
+                "return_max": float(r.max()),
+                "length_mean_s": float(np.mean(self.lengths[-n:]) * step_time),
+                "caught_fraction": float(np.mean(self.caught[-n:])), "diverged": int(self.diverged),
+                "episodes_first": m, "return_first_mean": float(np.mean(self.returns[:m]))}
+
+
+class FixedSeeds(VecEnvWrapper):
+    """Every ``reset()`` seeds env i with ``seed + i``: each evaluation of ``EvalCallback`` then
+    meets the same drops and the same sensor noise, so evaluations compare models, not luck."""
+
+    def __init__(self, venv, seed: int):
+        super().__init__(venv)
+        self.base_seed = int(seed)
+
+    def reset(self):
+        self.venv.seed(self.base_seed)
+        return self.venv.reset()
+
+    def step_wait(self):
+        return self.venv.step_wait()
