@@ -208,6 +208,22 @@ class Hardware:
         self._refill_in = 0
         return idx
 
+    def set_noise_block(self, ticks: int) -> None:
+        """Hold ``ticks`` ticks of noise per env (e.g. a whole episode, drawn before it starts);
+        the unread samples are kept, so the noise stream is unchanged."""
+        nb = max(int(ticks), 1)
+        if nb == self.noise_block:
+            return
+        left = [self.noise[i, self.cursor[i]:self.noise_block].copy() for i in range(self.n)]
+        if max(len(x) for x in left) > nb:
+            raise ValueError(f"the new noise block ({nb} ticks) cannot hold the unread samples")
+        self.noise = np.zeros((self.n, nb, SE.N_CHANNELS))
+        for i, x in enumerate(left):
+            self.noise[i, nb - len(x):] = x
+            self.cursor[i] = nb - len(x)
+        self.noise_block = nb
+        self._refill_in = 0
+
     def refill_noise(self, ticks: int, active=None) -> None:
         """Make sure every (active) env has ``ticks`` unread noise samples: an env short of them
         keeps its unread ones and tops its block up from its Generator.  Drawing in pieces gives

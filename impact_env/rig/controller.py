@@ -29,8 +29,17 @@ from impact_env.control.front_end import FrontEnd, condition, observation_buffer
 from impact_env.control.observation import ObservationLayout
 from impact_env.control.policy import CompiledPolicy, act
 from impact_env.effects.sensors import POT
+from impact_env.hardware.stage import (
+    INFO_CONTACT_FORCE,
+    INFO_F_APPLIED,
+    INFO_F_DEMAND,
+    INFO_SATURATED,
+    hardware_tick,
+    state_ok,
+)
 from impact_env.rig import log as LG
 from impact_env.rig import safety as SF
+from impact_env.rig.cycles import cycles
 from impact_env.rig.safety import SafetyConfig, safety_params, safety_step
 
 # the controller's own state (float64[N_STATE])
@@ -163,3 +172,91 @@ class Controller:
     def drain(self, ticks: int) -> None:
         """Idle time between episodes: the RMS window cools by ``ticks`` zero ticks."""
         SF.drain_window(self.safety[1], self.safety[0], int(ticks))
+
+
+# -- the virtual rig's compiled tick loop ---------------------------------------------------------
+END_NONE, END_FIRST_COMMAND, END_SAFETY, END_FAULT, END_STOP = range(5)
+# the truth columns a virtual rig logs (their indices in ``tc``, :data:`impact_env.rig.target.TRUTH_COLUMNS`)
+TC_COMMAND, TC_X1, TC_V1, TC_X2, TC_V2, TC_FD, TC_FA, TC_SAT, TC_FC, TC_STATUS, TC_E0, TC_V0, TC_TT = range(13)
+
+
+@jit(nogil=True)
+def run_ticks(m0, m1, hold, onboard, host_action, age0, fe, ob, law, pol, safety, scale, st, rows, obs_log,
+              count, hw, tc, tvals, pace, lateness, stop):
+    """Ticks m0 .. m1 - 1 of a virtual rig, each: (real time: spin to its deadline) act -> safety
+    -> the hardware stage -> the log row with the truth -> the front end on the new readings.
+    The front end has seen tick m0's readings already.  ``pace`` = (real time, deadline of tick 0
+    in cycles, cycles per tick, ns per cycle): a tick that starts one period or more late lets
+    the ticks that cannot run on time pass with the command held (overrun, no controller work,
+    no log rows) and is marked OVERRUN.  ``stop[0]`` set (by another thread: the GIL is released
+    here) ends the loop before the next tick.  Returns (the next tick, OR of the status bits, an
+    end code: END_NONE, or why the episode must end)."""
+    cfg, plant, fx, noise, out = hw
+    raw_all = out[0]
+    info = out[1]
+    Y = plant[0]
+    realtime = pace[0] != 0.0
+    t0c, cpt, nspc = pace[1], pace[2], pace[3]
+    status_or = 0
+    m = m0
+    overrun = False
+    while m < m1:
+        if stop[0] != 0:
+            return m, status_or, END_STOP
+        late = 0.0
+        if realtime:
+            dl = t0c + m * cpt
+            now = float(cycles())
+            while now < dl:
+                now = float(cycles())
+            late = now - dl
+            if late >= cpt:
+                k = min(int(late // cpt), m1 - m)
+                for _ in range(k):
+                    hardware_tick(0, st[ST_COMMAND], cfg, plant, fx, noise, out)
+                m += k
+                overrun = True
+                if m >= m1:
+                    break
+                late = now - (t0c + m * cpt)
+            lateness[m] = late * nspc
+        w0 = cycles()
+        raw = raw_all[0]
+        age = age0 + (m - m0) if age0 >= 0 else -1
+        cmd, f, status, row = act_tick(m, onboard, host_action, age, m, hold, fe, ob, law, pol, safety, scale, raw,
+                                       st, rows, obs_log, count)
+        if overrun:
+            status |= SF.OVERRUN
+            overrun = False
+        hardware_tick(0, cmd, cfg, plant, fx, noise, out)
+        ok = state_ok(0, plant, info)
+        status_or |= status
+        if row >= 0:
+            r = rows[row]
+            r[LG.FORCE_APPLIED] = info[0, INFO_F_APPLIED]
+            r[LG.STATUS] = status
+            r[LG.LATENESS_NS] = late * nspc
+            r[tc[TC_COMMAND]] = cmd
+            r[tc[TC_X1]] = Y[0, 0]
+            r[tc[TC_V1]] = Y[0, 1]
+            r[tc[TC_X2]] = Y[0, 2]
+            r[tc[TC_V2]] = Y[0, 3]
+            r[tc[TC_FD]] = info[0, INFO_F_DEMAND]
+            r[tc[TC_FA]] = info[0, INFO_F_APPLIED]
+            r[tc[TC_SAT]] = info[0, INFO_SATURATED]
+            r[tc[TC_FC]] = info[0, INFO_CONTACT_FORCE]
+            r[tc[TC_STATUS]] = 0.0 if ok else 1.0
+            r[tc[TC_E0]] = tvals[0]
+            r[tc[TC_V0]] = tvals[1]
+            r[tc[TC_TT]] = tvals[2]
+        m += 1
+        if status & SF.FIRST_COMMAND_TIMEOUT:
+            return m, status_or, END_FIRST_COMMAND
+        if status & SF.LATCHING:
+            return m, status_or, END_SAFETY
+        if not ok:
+            return m, status_or, END_FAULT
+        observe_tick(m, raw_all[0], hold, fe, ob, law, Y[0, :4], st)
+        if row >= 0:
+            rows[row, LG.COMPUTE_NS] = (cycles() - w0) * nspc
+    return m, status_or, END_NONE

@@ -34,11 +34,9 @@ SIGTERM, SIGINT and :meth:`Target.close` leave the shaker at zero (``driver.idle
 from __future__ import annotations
 
 import hashlib
-import math
 import signal
 import tempfile
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,23 +44,15 @@ import numpy as np
 
 from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
-from impact_env.hardware import stage as HS
 from impact_env.rig import log as LG
 from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
-from impact_env.rig.clock import TickClock, lateness_summary
 from impact_env.rig.controller import Controller
-from impact_env.rig.driver import RigDriver
+from impact_env.rig.driver import RigDriver, VirtualRig
+from impact_env.rig.episode import TRUTH_COLUMNS, TRUTH_UNITS, Episode
 from impact_env.rig.safety import SafetyConfig
 from impact_env.rig.transport import Endpoint, Link, UploadAssembler, chunk_reply
-from impact_env.sim import records as R
 
-TRUTH_COLUMNS = ("command", "true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps", "hw_force_demand_N",
-                 "hw_force_applied_N", "hw_saturated", "hw_contact_force_N", "hw_status", "impact_energy_J",
-                 "impact_speed_mps", "t_touch_s")
-TRUTH_UNITS = {"true_x1_m": "m", "true_v1_mps": "m/s", "true_x2_m": "m", "true_v2_mps": "m/s",
-               "hw_force_demand_N": "N", "hw_force_applied_N": "N", "hw_contact_force_N": "N",
-               "impact_energy_J": "J", "impact_speed_mps": "m/s", "t_touch_s": "s"}
 N_TELEMETRY = len(P.TELEMETRY_FIELDS)
 
 
@@ -81,6 +71,7 @@ class TargetConfig:
     resend_s: float = 0.02  # lock-step host mode: the OBSERVATION is sent again after this long without a command
     rearm_idle_s: float = 1.0  # lock-step: idle time assumed between episodes (the coil cools in the RMS window)
     poll_every: int = 64  # onboard lock-step: ticks between checks for DISARM
+    python_loop: bool = False  # the per-tick Python loop even for the virtual rig (the loop a physical driver uses)
     seed_offset: int = 0  # added to every ARM's seed (0: the drops ImpactCatch-v0 meets for the same seeds)
 
 
@@ -104,6 +95,7 @@ class Target:
         self.last_end: P.EpisodeEnd | None = None
         self._stop = threading.Event()
         self._pending: P.Message | None = None  # an ARM that ended the episode before it
+        self._last_obs: P.Observation | None = None  # the last OBSERVATION of the last episode
         self._closed = False
         self.counters = {"episodes": 0, "overruns": 0, "watchdog_trips": 0}
         driver.initialise()
@@ -117,13 +109,24 @@ class Target:
 
         layout = make_layout(self.scene, "sensors", 1)
         law = CompiledPolicy.from_law("passive", {}, {}, self.scene, "sensors")
-        ctl = Controller(self.scene, layout, 1, 2, "onboard", law, law, self.cfg.safety, extra_columns=("command",))
+        ctl = Controller(self.scene, layout, 1, 4, "onboard", law, law, self.cfg.safety, extra_columns=TRUTH_COLUMNS)
         raw = np.zeros(4)
         ctl.start(raw, None)
         ctl.observe(1, raw, None)
         ctl.act(1, 0.0, 0, 1, raw)
         ctl.drain(1)
         ctl.log.record(tick=0)
+        if isinstance(self.driver, VirtualRig):  # its compiled loop, on a throwaway drop
+            from impact_env.rig.controller import run_ticks
+            from impact_env.rig.episode import _NS_PER_CYCLE, ns_per_cycle
+
+            _NS_PER_CYCLE[:] = [ns_per_cycle()]
+            hw = self.driver.hw
+            hw.refill_noise(1)
+            tc = np.array([ctl.log.col(k) for k in TRUTH_COLUMNS[:13]], dtype=np.int64)
+            run_ticks(1, 2, 1, True, 0.0, 0, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety, ctl.scale, ctl.st,
+                      ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc, np.zeros(3), np.array([0.0, 0, 1, 1]),
+                      np.zeros(4), np.zeros(1, dtype=np.int64))
 
     @property
     def address(self) -> str:
@@ -171,8 +174,7 @@ class Target:
         t = msg.type
         if t == P.MsgType.HELLO:
             self.link.session = msg.session  # a new session's streams start empty
-            self._reply(P.Info(msg.body.nonce, self.rate, int(self.state), 0 if self.driver.virtual else 1,
-                               self.cfg.lockstep, len(self.scene_toml), self.scene_sha), msg)
+            self._reply(self._info(msg.body.nonce), msg)
         elif t == P.MsgType.FETCH:
             self._serve_fetch(msg)
         elif t == P.MsgType.POLICY_CHUNK:
@@ -181,6 +183,9 @@ class Target:
             self._arm(msg)
         elif t == P.MsgType.DISARM:
             self._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, 0), msg)
+        elif t == P.MsgType.COMMAND and self._last_obs is not None and msg.body.episode == self._last_obs.episode:
+            # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
+            self.link.send(self._last_obs, addr=self.link.last_sender)
         elif t == P.MsgType.HEARTBEAT:
             self._reply(P.Heartbeat(int(self.state), self.episode, 0, msg.seq), msg)
 
@@ -243,227 +248,54 @@ class Target:
     def _run_episode(self, arm_msg: P.Message, ctl: Controller, hold: int, policy) -> None:
         a: P.Arm = arm_msg.body
         drv = self.driver
-        host = a.mode == "host"
-        lockstep = self.cfg.lockstep
-        ep = self.episode
         seed = (a.seed + self.cfg.seed_offset) & P.U64
         drv.arm(seed)
-        if lockstep:
+        if self.cfg.lockstep:
             ctl.drain(int(self.cfg.rearm_idle_s * self.rate))
-        link_timeout_s = a.link_timeout_ms / 1e3 if a.link_timeout_ms else (
-            self.cfg.lockstep_link_timeout_s if lockstep else self.cfg.link_timeout_s)
         self.state = P.TargetState.RUNNING
-        armed = P.Armed(ep, 0, ctl.layout.size, 1, 4, N_TELEMETRY, hold, self.rate, self.scene_sha)
+        armed = P.Armed(self.episode, 0, ctl.layout.size, 1, 4, N_TELEMETRY, hold, self.rate, self.scene_sha)
         self._reply(armed, arm_msg)
         drv.release()
-        virtual = drv.virtual
-        hw = getattr(drv, "hw", None)
-        horizon = a.horizon_ticks
-        step_recs = np.zeros((hold, R.N_REC))
-        cmd = {"value": math.nan, "step": -1, "first": -1, "next": None}
-        last_heard = time.perf_counter()
-        clock = TickClock(self.rate, lockstep=lockstep)
-        end = P.EndReason.HORIZON
-        status_or = 0
-        lateness = np.zeros(horizon + 1, dtype=np.int64)
-        obs_msg: P.Observation | None = None
-        log = ctl.log
-        c = {name: log.col(name) for name in log.names}
+        ep = Episode(self, arm_msg, armed, ctl, hold, seed)
+        compiled = isinstance(drv, VirtualRig) and not self.cfg.python_loop
+        try:
+            end = ep.run_compiled() if compiled else ep.run_python()
+        finally:
+            drv.idle()
+            self.state = P.TargetState.IDLE
+        self._last_obs = ep.obs_msg
+        self._finish(ep, end, policy)
 
-        def take(msg: P.Message) -> str | None:
-            """An incoming message during the episode; returns an end reason's name, or None."""
-            nonlocal last_heard
-            last_heard = time.perf_counter()
-            t = msg.type
-            if t == P.MsgType.COMMAND and msg.body.episode == ep:
-                nxt = cmd["next"]
-                if nxt is None or msg.body.step >= nxt[0]:
-                    cmd["next"] = (msg.body.step, float(msg.body.action[0]))
-            elif t == P.MsgType.DISARM:
-                self._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, ep), msg)
-                return "DISARMED"
-            elif t == P.MsgType.ARM:
-                if msg.body == a:  # the same request again (its ARMED was lost): answer it again
-                    self._reply(armed, msg)
-                    return None
-                self._pending = msg  # a new episode: this one ends, that one starts
-                return "DISARMED"
-            elif t == P.MsgType.FETCH:
-                self._serve_fetch(msg)
-            elif t == P.MsgType.HEARTBEAT:
-                self._reply(P.Heartbeat(int(self.state), ep, m // hold, msg.seq), msg)
-            elif t == P.MsgType.HELLO and msg.session == self.link.session:
-                self._reply(P.Info(msg.body.nonce, self.rate, int(self.state), 0 if virtual else 1, lockstep,
-                                   len(self.scene_toml), self.scene_sha), msg)
-            return None
-
-        def drain(budget_s: float = 0.0) -> str | None:
-            deadline = time.perf_counter() + budget_s
-            while True:
-                msg = self.link.recv(max(deadline - time.perf_counter(), 0.0), episode=ep, step=m // hold)
-                if msg is None:
-                    return None
-                why = take(msg)
-                if why:
-                    return why
-                if time.perf_counter() >= deadline:
-                    return None
-
-        raw0 = drv.read().copy()
-        ctl.start(raw0, drv.truth())
-        clock.start()
-        m = 0
-        missed = 0
-        while True:
-            t_work = time.perf_counter_ns()
-            raw = drv.read()
-            truth = drv.truth()
-            boundary = ctl.observe(m, raw, truth) if m > 0 else True
-            if virtual and m > 0:  # the last tick's record is complete with its detector bit
-                step_recs[(m - 1) % hold, R.REC_DETECTED] = ctl.fe.detected[0]
-            if boundary and host:
-                telem = [float(log.rows[log.n - 1, LG.FORCE_DEMAND]) if log.n else 0.0,
-                         float(log.rows[log.n - 1, LG.FORCE_APPLIED]) if log.n else 0.0,
-                         float(m - cmd["first"]) if cmd["first"] >= 0 else -1.0]
-                if virtual and m > 0:
-                    telem += step_recs.ravel().tolist()
-                obs_msg = P.Observation(ep, m // hold, int(status_or), 4, tuple(float(x) for x in ctl.obs), tuple(telem))
-                self.link.send(obs_msg, tick=m, addr=self.link.last_sender)
-            if m >= horizon:
-                log.record(obs=ctl.obs, tick=m, t_s=m / self.rate, accelerometer_mps2=raw[0], force_N=raw[1],
-                           potentiometer_m=raw[2], action=math.nan, step=m // hold,
-                           contact_detected=ctl.fe.detected[0], command_age_ticks=-1)
-                break
-            # the command of this tick
-            why = None
-            if host:
-                if lockstep and boundary:
-                    waited = time.perf_counter()
-                    sent = waited
-                    while not (cmd["next"] is not None and cmd["next"][0] >= m // hold):
-                        msg = self.link.recv(min(self.cfg.resend_s, 0.005), episode=ep, step=m // hold)
-                        why = take(msg) if msg is not None else None
-                        if why:
-                            break
-                        if self._stop.is_set():
-                            why = "DISARMED"
-                            break
-                        now = time.perf_counter()
-                        if now - last_heard > link_timeout_s:
-                            why = "LINK_LOST"
-                            break
-                        if now - sent >= self.cfg.resend_s and obs_msg is not None:
-                            self.link.send(obs_msg, tick=m, addr=self.link.last_sender)
-                            sent = now
-                else:
-                    why = drain(0.0)
-                    if not why and time.perf_counter() - last_heard > link_timeout_s:
-                        why = "LINK_LOST"
-                nxt = cmd["next"]
-                if nxt is not None and nxt[0] <= m // hold and nxt[0] != cmd["step"]:
-                    cmd["step"], cmd["value"], cmd["first"] = nxt[0], nxt[1], m
-            elif lockstep and m % self.cfg.poll_every == 0:
-                why = drain(0.0)
-            if why:
-                end = P.EndReason[why]
-                break
-            age = m - cmd["first"] if (host and cmd["first"] >= 0) else (-1 if host else 0)
-            u, f_dem, status, row = ctl.act(m, cmd["value"], age, m, raw)
-            status |= SF.OVERRUN if missed else 0
-            f_applied = drv.apply(u)
-            status_or |= status
-            if row >= 0:
-                r = log.rows[row]
-                r[LG.FORCE_APPLIED] = f_applied
-                r[LG.STATUS] = status
-                r[LG.LATENESS_NS] = lateness[m]
-                r[c["command"]] = u
-                if virtual:
-                    info, y = drv.last_info, drv.truth()
-                    r[c["true_x1_m"]:c["true_v2_mps"] + 1] = y
-                    r[c["hw_force_demand_N"]] = info[HS.INFO_F_DEMAND]
-                    r[c["hw_force_applied_N"]] = info[HS.INFO_F_APPLIED]
-                    r[c["hw_saturated"]] = info[HS.INFO_SATURATED]
-                    r[c["hw_contact_force_N"]] = info[HS.INFO_CONTACT_FORCE]
-                    r[c["hw_status"]] = 0.0 if (info[HS.INFO_STATUS] == 0 and np.all(np.isfinite(y))) else 1.0
-                    r[c["impact_energy_J"]] = hw.impact_energy[0]
-                    r[c["impact_speed_mps"]] = hw.impact_speed[0]
-                    r[c["t_touch_s"]] = hw.t_touch[0]
-                    rec = step_recs[m % hold]
-                    rec[R.REC_T] = hw.t[0]
-                    rec[R.REC_X1:R.REC_V2 + 1] = y
-                    rec[R.REC_U] = u
-                    rec[R.REC_F_DEMAND] = info[HS.INFO_F_DEMAND]
-                    rec[R.REC_F_APPLIED] = info[HS.INFO_F_APPLIED]
-                    rec[R.REC_SATURATED] = info[HS.INFO_SATURATED]
-                    rec[R.REC_CONTACT_FORCE] = info[HS.INFO_CONTACT_FORCE]
-                    rec[R.REC_STATUS] = r[c["hw_status"]]
-                r[LG.COMPUTE_NS] = time.perf_counter_ns() - t_work
-            fault = drv.error()
-            if fault:
-                end = P.EndReason.FAULT
-                break
-            if status & SF.FIRST_COMMAND_TIMEOUT:
-                end = P.EndReason.FIRST_COMMAND_TIMEOUT
-                break
-            if status & SF.LATCHING:
-                end = P.EndReason.SAFETY
-                break
-            m += 1
-            missed = 0
-            if not lockstep:
-                tick = clock.wait(poll=lambda budget: drain(budget) and None)
-                if tick.missed:  # the ticks that could not run on time pass with the command held
-                    missed = min(tick.missed, horizon - m)
-                    drv.apply(u, missed)
-                    m += missed
-                lateness[m] = tick.lateness_ns
-            if self._stop.is_set():
-                end = P.EndReason.DISARMED
-                break
-        drv.idle()
-        self.state = P.TargetState.IDLE
-        self._finish(ep, a, seed, ctl, end, status_or, clock, policy)
-
-    def _finish(self, ep: int, a: P.Arm, seed: int, ctl: Controller, end, status_or: int, clock: TickClock,
-                policy) -> None:
-        sf = SF.COUNTERS
-        counters = {**{f"dropped_{k}": v for k, v in self.link.filter.counts().items() if k != "accepted"},
-                    "datagrams_accepted": self.link.filter.counts()["accepted"],
-                    "datagrams_received": self.endpoint.received,
-                    **{k: int(ctl.safety[1][i]) for k, i in sf.items()},
-                    "overruns": clock.overruns, "missed_ticks": clock.missed}
-        meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold, seed=seed,
-                              control_rate_hz=self.rate, episode=ep, session=self.link.session or 0,
+    def _finish(self, ep: Episode, end, policy) -> None:
+        ctl, a = ep.ctl, ep.a
+        counts = self.link.filter.counts()
+        counters = {**{f"dropped_{k}": v for k, v in counts.items() if k != "accepted"},
+                    "datagrams_accepted": counts["accepted"], "datagrams_received": self.endpoint.received,
+                    **{k: int(ctl.safety[1][i]) for k, i in SF.COUNTERS.items()}, "overruns": ep.overruns}
+        meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold, seed=ep.seed,
+                              control_rate_hz=self.rate, episode=ep.ep, session=self.link.session or 0,
                               policy="" if policy is None else policy.name,
-                              policy_sha256="" if policy is None else hashlib.sha256(
-                                  self.upload.data).hexdigest(),
-                              observation=ctl.observation, history=ctl.layout.history, obs_names=ctl.layout.names, end_reason=end.name,
-                              counters=counters)
+                              policy_sha256="" if policy is None else hashlib.sha256(self.upload.data).hexdigest(),
+                              observation=ctl.observation, history=ctl.layout.history, obs_names=ctl.layout.names,
+                              end_reason=end.name, counters=counters)
         if self.cfg.log_dir is not None:
-            path = LG.write_episode(ctl.log, self.cfg.log_dir, meta)
+            data = LG.write_episode(ctl.log, self.cfg.log_dir, meta).read_bytes()
         else:
-            tmp = Path(tempfile.mkdtemp(prefix="impact-env-rig-"))
-            path = LG.write_episode(ctl.log, tmp, meta)
-        data = path.read_bytes()
-        if self.cfg.log_dir is None:
-            path.unlink()
-            path.parent.rmdir()
-        self.episodes[ep] = data
-        for old in [k for k in self.episodes if k < ep - 8]:
+            with tempfile.TemporaryDirectory(prefix="impact-env-rig-") as tmp:
+                data = LG.write_episode(ctl.log, tmp, meta).read_bytes()
+        self.episodes[ep.ep] = data
+        for old in [k for k in self.episodes if k < ep.ep - 8]:
             del self.episodes[old]
         self.counters["episodes"] += 1
-        self.counters["overruns"] += clock.overruns
+        self.counters["overruns"] += ep.overruns
         self.counters["watchdog_trips"] += counters.get("watchdog_trips", 0)
-        self.last_lateness = lateness_summary(np.maximum(clock_lateness(ctl), 0), overruns=clock.overruns) \
-            if ctl.log.n else None
-        self.last_end = P.EpisodeEnd(ep, int(end), int(status_or) & P.U32, ctl.log.n, ctl.log.n // ctl.hold,
+        self.last_end = P.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & P.U32, ctl.log.n, ctl.log.n // ctl.hold,
                                      len(data), hashlib.sha256(data).digest())
         self.link.send(self.last_end, addr=self.link.last_sender)
 
-
-def clock_lateness(ctl: Controller) -> np.ndarray:
-    return ctl.log.rows[:ctl.log.n, LG.LATENESS_NS]
+    def _info(self, nonce: int) -> P.Info:
+        return P.Info(nonce, self.rate, int(self.state), 0 if self.driver.virtual else 1, self.cfg.lockstep,
+                      len(self.scene_toml), self.scene_sha)
 
 
 class _Refused(Exception):

@@ -1,0 +1,354 @@
+"""One episode on the target: the tick loop, the host's commands, the observations sent back.
+
+Two loops, the same ticks (:mod:`impact_env.rig.controller`):
+
+* :meth:`Episode.run_compiled`, for the virtual rig: ticks in compiled calls
+  (:func:`~impact_env.rig.controller.run_ticks`: act, safety, the hardware stage, the log row,
+  the front end), paced in real time by the CPU's cycle counter inside compiled code, so a tick
+  costs no Python.  Onboard the whole episode is one call that releases the GIL while a thread
+  takes the host's datagrams (a DISARM stops it before the next tick); in host mode a call runs
+  one policy step in lock-step, one tick in real time (a command takes effect at the first tick
+  after it arrives), and Python reads the commands and sends the observations in between.
+* :meth:`Episode.run_python`, for any :class:`~impact_env.rig.driver.RigDriver`: Python reads,
+  calls the controller's two compiled steps and applies, tick by tick, paced by
+  :class:`~impact_env.rig.clock.TickClock` (a physical rig's driver is Python code).
+
+Both send, at every step boundary in host mode, the OBSERVATION of that step with the telemetry
+of :mod:`impact_env.rig.protocol` (and a virtual rig's true records of the step's ticks, built
+from the log's truth columns).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from impact_env.hardware import stage as HS
+from impact_env.rig import controller as CT
+from impact_env.rig import log as LG
+from impact_env.rig import protocol as P
+from impact_env.rig import safety as SF
+from impact_env.rig.clock import TickClock
+from impact_env.rig.cycles import ns_per_cycle
+from impact_env.sim import records as R
+
+TRUTH_COLUMNS = ("command", "true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps", "hw_force_demand_N",
+                 "hw_force_applied_N", "hw_saturated", "hw_contact_force_N", "hw_status", "impact_energy_J",
+                 "impact_speed_mps", "t_touch_s", "true_t_s")
+TRUTH_UNITS = {"true_x1_m": "m", "true_v1_mps": "m/s", "true_x2_m": "m", "true_v2_mps": "m/s",
+               "hw_force_demand_N": "N", "hw_force_applied_N": "N", "hw_contact_force_N": "N",
+               "impact_energy_J": "J", "impact_speed_mps": "m/s", "t_touch_s": "s", "true_t_s": "s"}
+_END = {CT.END_FIRST_COMMAND: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END_SAFETY: P.EndReason.SAFETY,
+        CT.END_FAULT: P.EndReason.FAULT, CT.END_STOP: P.EndReason.DISARMED}
+_NS_PER_CYCLE: list[float] = []
+
+
+class Episode:
+    """The running episode ``ep`` of ``target`` (a :class:`impact_env.rig.target.Target`), armed by
+    ``arm_msg`` with controller ``ctl``."""
+
+    def __init__(self, target, arm_msg: P.Message, armed: P.Armed, ctl, hold: int, seed: int):
+        self.t = target
+        self.arm_msg, self.armed = arm_msg, armed
+        self.a: P.Arm = arm_msg.body
+        self.ctl, self.hold, self.seed = ctl, hold, seed
+        self.ep = target.episode
+        self.host = self.a.mode == "host"
+        self.lockstep = target.cfg.lockstep
+        self.horizon = self.a.horizon_ticks
+        cfg = target.cfg
+        self.link_timeout_s = self.a.link_timeout_ms / 1e3 if self.a.link_timeout_ms else (
+            cfg.lockstep_link_timeout_s if self.lockstep else cfg.link_timeout_s)
+        self.cmd_value, self.cmd_step, self.cmd_first = math.nan, -1, -1
+        self.next_cmd: tuple[int, float] | None = None
+        self.last_heard = time.perf_counter()
+        self.status_or = 0
+        self.m = 0
+        self.obs_msg: P.Observation | None = None
+        self.overruns = 0
+        self.end_code = CT.END_NONE
+        self._n0 = 0
+        self.lateness = np.zeros(self.horizon + 1)
+        log = ctl.log
+        self.cols = {name: log.col(name) for name in log.names}
+
+    # -- messages ----------------------------------------------------------------------------------------
+    def take(self, msg: P.Message) -> str | None:
+        """An incoming message during the episode; returns an end reason's name, or None."""
+        t, tg = msg.type, self.t
+        self.last_heard = time.perf_counter()
+        if t == P.MsgType.COMMAND and msg.body.episode == self.ep:
+            if self.next_cmd is None or msg.body.step >= self.next_cmd[0]:
+                self.next_cmd = (msg.body.step, float(msg.body.action[0]))  # latest wins
+        elif t == P.MsgType.DISARM:
+            tg._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, self.ep), msg)
+            return "DISARMED"
+        elif t == P.MsgType.ARM:
+            if msg.body == self.a:  # the same request again (its ARMED was lost): answer it again
+                tg._reply(self.armed, msg)
+                return None
+            tg._pending = msg  # a new episode: this one ends, that one starts
+            return "DISARMED"
+        elif t == P.MsgType.FETCH:
+            tg._serve_fetch(msg)
+        elif t == P.MsgType.HEARTBEAT:
+            tg._reply(P.Heartbeat(int(tg.state), self.ep, self.m // self.hold, msg.seq), msg)
+        elif t == P.MsgType.HELLO and msg.session == tg.link.session:
+            tg._reply(tg._info(msg.body.nonce), msg)
+        return None
+
+    def drain(self, budget_s: float = 0.0) -> str | None:
+        """Take every datagram that arrives within ``budget_s`` (0: those already there)."""
+        deadline = time.perf_counter() + budget_s
+        while True:
+            msg = self.t.link.recv(max(deadline - time.perf_counter(), 0.0), episode=self.ep,
+                                   step=self.m // self.hold)
+            if msg is None:
+                return None
+            why = self.take(msg)
+            if why:
+                return why
+            if time.perf_counter() >= deadline:
+                return None
+
+    def command_for_tick(self, boundary: bool) -> str | None:
+        """Make the command of tick ``m`` current: in lock-step at a step boundary wait for the
+        host's command of that step (re-sending the observation while waiting); otherwise take
+        the newest one that has arrived.  Returns an end reason's name, or None."""
+        step = self.m // self.hold
+        why = None
+        if self.lockstep and boundary:
+            sent = time.perf_counter()
+            while not (self.next_cmd is not None and self.next_cmd[0] >= step):
+                msg = self.t.link.recv(min(self.t.cfg.resend_s, 0.005), episode=self.ep, step=step)
+                why = self.take(msg) if msg is not None else None
+                if why:
+                    break
+                if self.t._stop.is_set():
+                    return "DISARMED"
+                now = time.perf_counter()
+                if now - self.last_heard > self.link_timeout_s:
+                    return "LINK_LOST"
+                if now - sent >= self.t.cfg.resend_s and self.obs_msg is not None:
+                    self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
+                    sent = now
+        else:
+            why = self.drain(0.0)
+            if not why and time.perf_counter() - self.last_heard > self.link_timeout_s:
+                why = "LINK_LOST"
+        nxt = self.next_cmd
+        if nxt is not None and nxt[0] <= step and nxt[0] != self.cmd_step:
+            self.cmd_step, self.cmd_value, self.cmd_first = nxt[0], nxt[1], self.m
+        return why
+
+    @property
+    def age(self) -> int:
+        if not self.host:
+            return 0
+        return self.m - self.cmd_first if self.cmd_first >= 0 else -1
+
+    def send_observation(self) -> None:
+        """The OBSERVATION of the step that starts at tick m (host mode)."""
+        log, c = self.ctl.log, self.cols
+        n = log.n
+        last = log.rows[n - 1] if n else None
+        telem = [float(last[LG.FORCE_DEMAND]) if n else 0.0, float(last[LG.FORCE_APPLIED]) if n else 0.0,
+                 float(self.m - self.cmd_first) if self.cmd_first >= 0 else -1.0]
+        if "true_x1_m" in c and n >= self.hold and self.m > 0:
+            rows = log.rows[n - self.hold:n]
+            rec = np.zeros((self.hold, R.N_REC))
+            rec[:, R.REC_T] = rows[:, c["true_t_s"]]
+            for j, name in enumerate(("true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps")):
+                rec[:, R.REC_X1 + j] = rows[:, c[name]]
+            rec[:, R.REC_U] = rows[:, c["command"]]
+            rec[:, R.REC_F_DEMAND] = rows[:, c["hw_force_demand_N"]]
+            rec[:, R.REC_F_APPLIED] = rows[:, c["hw_force_applied_N"]]
+            rec[:, R.REC_SATURATED] = rows[:, c["hw_saturated"]]
+            rec[:, R.REC_CONTACT_FORCE] = rows[:, c["hw_contact_force_N"]]
+            # a tick's detector bit is the one of the readings it produced: the next row's
+            rec[:-1, R.REC_DETECTED] = rows[1:, LG.DETECTED]
+            rec[-1, R.REC_DETECTED] = self.ctl.fe.detected[0]
+            rec[:, R.REC_STATUS] = rows[:, c["hw_status"]]
+            telem += rec.ravel().tolist()
+        obs = tuple(float(x) for x in self.ctl.obs)
+        self.obs_msg = P.Observation(self.ep, self.m // self.hold, int(self.status_or) & P.U32, 4, obs, tuple(telem))
+        self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
+
+    def final_row(self, raw: np.ndarray) -> None:
+        """The row of tick ``horizon``: its readings and observation, no command."""
+        self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate, accelerometer_mps2=raw[0],
+                            force_N=raw[1], potentiometer_m=raw[2], action=math.nan, step=self.m // self.hold,
+                            contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1)
+
+    # -- the virtual rig's compiled loop ---------------------------------------------------------------
+    def run_compiled(self) -> P.EndReason:
+        drv, ctl = self.t.driver, self.ctl
+        hw = drv.hw
+        if not _NS_PER_CYCLE:
+            _NS_PER_CYCLE.append(ns_per_cycle())
+        nspc = _NS_PER_CYCLE[0]
+        c = self.cols
+        tc = np.array([c[name] for name in TRUTH_COLUMNS[:13]], dtype=np.int64)
+        tvals = np.array([hw.impact_energy[0], hw.impact_speed[0], hw.t_touch[0]])
+        t_col = c["true_t_s"]
+        cpt = 1e9 / self.t.rate / nspc
+        hw.set_noise_block(max(self.horizon + 1, hw.noise_block))
+        hw.refill_noise(self.horizon)  # the whole episode's noise now: no draws between chunks
+        hw_args = hw.args()
+        lat = self.lateness
+        ctl.start(drv.read().copy(), drv.truth())
+        pace = np.array([0.0 if self.lockstep else 1.0, float(_now()) + cpt, cpt, nspc])  # tick 0 due in a period
+        stop = np.zeros(1, dtype=np.int64)
+        ticks = lambda m0, m1, action: CT.run_ticks(  # noqa: E731
+            m0, m1, self.hold, not self.host, action, self.age, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety,
+            ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw_args, tc, tvals, pace, lat, stop)
+        if not self.host:  # onboard: the whole episode in one compiled call; a thread hears the host
+            why = self._listen_while(lambda: ticks(0, self.horizon, 0.0), stop)
+            self._after(t_col)
+            if why:
+                return P.EndReason[why]
+            if self.end_code != CT.END_NONE:
+                return _END[self.end_code]
+            self.final_row(drv.read())
+            return P.EndReason.HORIZON
+        while True:
+            boundary = self.m % self.hold == 0
+            if boundary:
+                self.send_observation()
+            if self.m >= self.horizon:
+                self.final_row(drv.read())
+                return P.EndReason.HORIZON
+            why = self.command_for_tick(boundary)
+            if why:
+                return P.EndReason[why]
+            if self.t._stop.is_set():
+                return P.EndReason.DISARMED
+            m1 = self.m + (self.hold if self.lockstep else 1)
+            n0 = ctl.log.n
+            m, status, end = ticks(self.m, m1, self.cmd_value)
+            self._chunk_done(n0, m, status, t_col)
+            if end != CT.END_NONE:
+                return _END[end]
+
+    def _listen_while(self, run, stop: np.ndarray) -> str | None:
+        """``run()`` (a compiled call that releases the GIL) while a thread takes the host's
+        datagrams and sets ``stop[0]`` on a DISARM, an ARM or the target's stop; returns the end
+        reason's name the thread heard, or None."""
+        import threading
+
+        heard: list[str] = []
+        done = threading.Event()
+
+        def listen():
+            while not done.is_set():
+                why = self.drain(0.02)
+                if why or self.t._stop.is_set():
+                    heard.append(why or "DISARMED")
+                    stop[0] = 1
+                    return
+
+        th = threading.Thread(target=listen, daemon=True)
+        th.start()
+        n0 = self.ctl.log.n
+        try:
+            self.m, status, self.end_code = run()
+        finally:
+            done.set()
+            th.join(5.0)
+        self.status_or |= status
+        self._n0 = n0
+        return heard[0] if heard else None
+
+    def _after(self, t_col: int) -> None:
+        self._chunk_done(self._n0, self.m, 0, t_col)
+
+    def _chunk_done(self, n0: int, m: int, status: int, t_col: int) -> None:
+        rows = self.ctl.log.rows[n0:self.ctl.log.n]
+        rows[:, t_col] = _tick_times(rows[:, LG.TICK], self.t.rate)
+        self.overruns += int(np.count_nonzero(rows[:, LG.STATUS].astype(np.int64) & SF.OVERRUN))
+        self.m = m
+        self.status_or |= status
+
+    # -- any driver, tick by tick in Python ------------------------------------------------------------
+    def run_python(self) -> P.EndReason:
+        drv, ctl, c = self.t.driver, self.ctl, self.cols
+        virtual = drv.virtual
+        clock = TickClock(self.t.rate, lockstep=self.lockstep)
+        ctl.start(drv.read().copy(), drv.truth())
+        clock.start()
+        missed = 0
+        u = 0.0
+        while True:
+            t_work = time.perf_counter_ns()
+            raw = drv.read()
+            boundary = ctl.observe(self.m, raw, drv.truth()) if self.m > 0 else True
+            if boundary and self.host:
+                self.send_observation()
+            if self.m >= self.horizon:
+                self.final_row(raw)
+                return P.EndReason.HORIZON
+            why = self.command_for_tick(boundary) if self.host else (
+                self.drain(0.0) if self.lockstep and self.m % self.t.cfg.poll_every == 0 else None)
+            if why:
+                return P.EndReason[why]
+            if self.t._stop.is_set():
+                return P.EndReason.DISARMED
+            u, _f, status, row = ctl.act(self.m, self.cmd_value, self.age, self.m, raw)
+            status |= SF.OVERRUN if missed else 0
+            f_applied = drv.apply(u)
+            self.status_or |= status
+            if row >= 0:
+                r = ctl.log.rows[row]
+                r[LG.FORCE_APPLIED] = f_applied
+                r[LG.STATUS] = status
+                r[LG.LATENESS_NS] = self.lateness[self.m]
+                r[c["command"]] = u
+                if virtual:
+                    self._truth_row(r)
+                r[LG.COMPUTE_NS] = time.perf_counter_ns() - t_work
+            if drv.error():
+                return P.EndReason.FAULT
+            if status & SF.FIRST_COMMAND_TIMEOUT:
+                return P.EndReason.FIRST_COMMAND_TIMEOUT
+            if status & SF.LATCHING:
+                return P.EndReason.SAFETY
+            self.m += 1
+            missed = 0
+            if not self.lockstep:
+                tick = clock.wait(poll=lambda budget: self.drain(budget) and None)
+                if tick.missed:  # the ticks that could not run on time pass with the command held
+                    missed = min(tick.missed, self.horizon - self.m)
+                    drv.apply(u, missed)
+                    self.m += missed
+                    self.overruns += 1
+                self.lateness[self.m] = tick.lateness_ns
+
+    def _truth_row(self, r: np.ndarray) -> None:
+        drv, c = self.t.driver, self.cols
+        info, y, hw = drv.last_info, drv.truth(), drv.hw
+        for j, name in enumerate(("true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps")):
+            r[c[name]] = y[j]
+        r[c["hw_force_demand_N"]] = info[HS.INFO_F_DEMAND]
+        r[c["hw_force_applied_N"]] = info[HS.INFO_F_APPLIED]
+        r[c["hw_saturated"]] = info[HS.INFO_SATURATED]
+        r[c["hw_contact_force_N"]] = info[HS.INFO_CONTACT_FORCE]
+        r[c["hw_status"]] = 0.0 if (info[HS.INFO_STATUS] == 0 and np.all(np.isfinite(y))) else 1.0
+        r[c["impact_energy_J"]] = hw.impact_energy[0]
+        r[c["impact_speed_mps"]] = hw.impact_speed[0]
+        r[c["t_touch_s"]] = hw.t_touch[0]
+        r[c["true_t_s"]] = hw.t[0]
+
+
+def _now() -> int:
+    from impact_env.rig.cycles import _cycles_now
+
+    return int(_cycles_now())
+
+
+def _tick_times(ticks: np.ndarray, rate: float) -> np.ndarray:
+    """The simulator's time after each tick, as its hardware accumulates it (``t += period``),
+    for the ticks of a chunk: the virtual rig's own clock, read back from its record."""
+    return (ticks + 1.0) / rate
+

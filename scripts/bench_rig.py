@@ -1,0 +1,131 @@
+"""How the target keeps time on this machine: tick lateness, overruns, the host's round trip, and
+what a tick's work costs.
+
+    python scripts/bench_rig.py [--quick] [--ticks N]
+
+Targets run as separate processes (``impact-env rig serve --virtual``) on loopback, as on a rig
+with its host on the same network.
+
+1. Real time, onboard: episodes of the rig's 0.4 s horizon, back to back, until N ticks have
+   run (default 10^5: 25 episodes), with the compiled pd-penetration law and with the committed
+   PPO agent (its compiled policy file); from the episodes' logs: tick lateness (start minus deadline) p50 / p99 / p99.9 / max, overruns (ticks
+   that started more than a period late) per 10^5 ticks, and the tick's work (read, front end,
+   policy, safety, apply to the virtual rig, log) p50 / p99.
+2. Host mode round trip: the host's time from sending COMMAND n to receiving OBSERVATION n + 1,
+   p50 / p99, in lock-step (pure round trip plus one tick of work) and in real time with
+   hold_ticks = 10 (1 ms policy period: the host must answer within it).
+3. The onboard ``act`` alone is measured by ``scripts/bench_policy.py``.
+
+Wall-clock figures of a shared machine without a real-time kernel: they say what this machine
+does, not what a rig controller with an isolated core would (see README).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from rig_helpers import start_target, stop  # noqa: E402
+
+from impact_env.policy.export import export_policy  # noqa: E402
+from impact_env.rig.clock import lateness_summary  # noqa: E402
+from impact_env.rig.host import RigClient  # noqa: E402
+from impact_env.scene import load_scene  # noqa: E402
+
+MODEL = "ppo:agents/models/ppo_rig/model.zip"
+
+
+def onboard(addr: str, spec: str, ticks: int) -> dict:
+    """Episodes of the scene's horizon (seeds 1, 2, ...) until ``ticks`` ticks have run."""
+    scene = load_scene("rig")
+    horizon = int(round(scene.episode.horizon * scene.control_rate))
+    c = RigClient(addr)
+    late, work, overruns, ends = [], [], 0, set()
+    try:
+        pol = export_policy(spec, scene)
+        seed = 1
+        while sum(len(x) for x in late) < ticks:
+            c.arm("onboard", seed, horizon, policy=pol)
+            end = c.wait_end(timeout_s=60.0 + 3.0 * horizon / scene.control_rate)
+            log = c.fetch_log(end.episode, end.data_sha256)
+            n = log.n_ticks - 1  # the last row is the final observation only
+            late.append(log["lateness_ns"][1:n])
+            work.append(log["compute_ns"][:n] / 1e3)
+            overruns += int(log.meta.counters.get("overruns", 0))
+            ends.add(log.meta.end_reason)
+            seed += 1
+    finally:
+        c.close()
+    late_all, work_all = np.concatenate(late), np.concatenate(work)
+    out = lateness_summary(late_all, ticks=late_all.size, overruns=overruns)
+    out["work_p50_us"], out["work_p99_us"] = (float(x) for x in np.percentile(work_all, [50, 99]))
+    out["end"] = "/".join(sorted(ends))
+    out["episodes"] = len(late)
+    return out
+
+
+def round_trip(addr: str, steps: int, hold: int) -> dict:
+    c = RigClient(addr)
+    rtt = []
+    try:
+        c.arm("host", 2, steps * hold, hold_ticks=hold, link_timeout_ms=2000)
+        obs = c.observation(0, 5.0)
+        for n in range(steps):
+            t0 = time.perf_counter()
+            c.command(n, 0.05)
+            obs = c.observation(n + 1, 1.0)
+            if obs is None:
+                break
+            rtt.append(time.perf_counter() - t0)
+    finally:
+        c.close()
+    x = np.asarray(rtt) * 1e6
+    return {"p50_us": float(np.percentile(x, 50)), "p99_us": float(np.percentile(x, 99)), "steps": len(x)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="10^4 ticks and fewer round trips")
+    ap.add_argument("--ticks", type=int, default=None, help="ticks of each real-time episode (default 1e5)")
+    args = ap.parse_args()
+    ticks = args.ticks or (10_000 if args.quick else 100_000)
+    steps = 500 if args.quick else 3000
+    with tempfile.TemporaryDirectory():
+        rt, rt_addr = start_target("--scene", "rig")
+        try:
+            print(f"## 1. Real time, onboard, {ticks} ticks at 10 kHz (from the episode logs)\n")
+            print("| policy | lateness p50 us | p99 us | p99.9 us | max us | overruns per 1e5 ticks | "
+                  "tick work p50 us | p99 us | end |")
+            print("|---|---|---|---|---|---|---|---|---|")
+            for spec in ("pd-penetration", MODEL):
+                r = onboard(rt_addr, spec, ticks)
+                print(f"| {spec} | {r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['p999_us']:.1f} | {r['max_us']:.0f} | "
+                      f"{r['overruns_per_1e5']:.0f} | {r['work_p50_us']:.1f} | {r['work_p99_us']:.1f} | {r['end']} |")
+            rt_host = round_trip(rt_addr, steps, 10)
+        finally:
+            stop(rt)
+        ls, ls_addr = start_target("--scene", "rig", "--lockstep")
+        try:
+            ls_host = round_trip(ls_addr, steps, 1)
+        finally:
+            stop(ls)
+    print("\n## 2. Host mode: COMMAND n -> OBSERVATION n + 1 at the host\n")
+    print("| target | p50 us | p99 us | steps |")
+    print("|---|---|---|---|")
+    print(f"| lock-step, hold 1 | {ls_host['p50_us']:.0f} | {ls_host['p99_us']:.0f} | {ls_host['steps']} |")
+    print(f"| real time, hold 10 (1 ms policy period) | {rt_host['p50_us']:.0f} | {rt_host['p99_us']:.0f} | "
+          f"{rt_host['steps']} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
