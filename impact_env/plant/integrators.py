@@ -54,9 +54,9 @@ DIVERGENCE_BOUND = 1e9  # |x1|+|x2|+|v1|+|v2| beyond this (or NaN) is reported a
 
 
 @jit(inline="always")
-def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, m1, m2, c, b, g, k2, c2):
+def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """One step of a fixed-step method; returns the new (x1, v1, x2, v2, W_ext, W_diss)."""
-    k1 = deriv(x1, v1, x2, v2, mode, f2, m1, m2, c, b, g, k2, c2)
+    k1 = deriv(x1, v1, x2, v2, mode, f2, im1, im2, c, b, g, k2, c2)
     # W_ext' = -f2 v2 with f2 constant over the step, so every method's W_ext update is
     # exactly -f2 times its x2 update: computed that way, off the stages' dependency chain
     if method == EULER:
@@ -70,11 +70,11 @@ def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, m1, m2, c, b, g, k2
         return x1 + h * nv1, nv1, nx2, nv2, we - f2 * (nx2 - x2), wd + h * k1[5]
     hh = 0.5 * h
     k2_ = deriv(x1 + hh * k1[0], v1 + hh * k1[1], x2 + hh * k1[2], v2 + hh * k1[3],
-                mode, f2, m1, m2, c, b, g, k2, c2)
+                mode, f2, im1, im2, c, b, g, k2, c2)
     k3 = deriv(x1 + hh * k2_[0], v1 + hh * k2_[1], x2 + hh * k2_[2], v2 + hh * k2_[3],
-               mode, f2, m1, m2, c, b, g, k2, c2)
+               mode, f2, im1, im2, c, b, g, k2, c2)
     k4 = deriv(x1 + h * k3[0], v1 + h * k3[1], x2 + h * k3[2], v2 + h * k3[3],
-               mode, f2, m1, m2, c, b, g, k2, c2)
+               mode, f2, im1, im2, c, b, g, k2, c2)
     h6 = h / 6.0
     nx2 = x2 + h6 * (k1[2] + 2.0 * (k2_[2] + k3[2]) + k4[2])
     return (x1 + h6 * (k1[0] + 2.0 * (k2_[0] + k3[0]) + k4[0]),
@@ -97,11 +97,11 @@ E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253
 
 
 @jit
-def _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2):
+def _dopri_step(y, out, err, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """One Dormand-Prince step from y; writes the 5th-order result to ``out`` and the
     embedded error estimate to ``err`` (both length 6)."""
     k = np.empty((7, 6))
-    r = deriv(y[0], y[1], y[2], y[3], mode, f2, m1, m2, c, b, g, k2, c2)
+    r = deriv(y[0], y[1], y[2], y[3], mode, f2, im1, im2, c, b, g, k2, c2)
     for j in range(6):
         k[0, j] = r[j]
     t = np.empty(6)
@@ -123,7 +123,7 @@ def _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2):
         if s == 6:
             for j in range(6):
                 out[j] = t[j]
-        r = deriv(t[0], t[1], t[2], t[3], mode, f2, m1, m2, c, b, g, k2, c2)
+        r = deriv(t[0], t[1], t[2], t[3], mode, f2, im1, im2, c, b, g, k2, c2)
         for j in range(6):
             k[s, j] = r[j]
     for j in range(6):
@@ -132,13 +132,13 @@ def _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2):
 
 
 @jit
-def _trial(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
+def _trial(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """Take one step of length h from y into out (no error control)."""
     if method == DOPRI5:
-        _dopri_step(y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2)
+        _dopri_step(y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2)
     else:
         r = _fixed_step(method, y[0], y[1], y[2], y[3], y[4], y[5], mode, f2, h,
-                        m1, m2, c, b, g, k2, c2)
+                        im1, im2, c, b, g, k2, c2)
         for j in range(6):
             out[j] = r[j]
 
@@ -149,13 +149,13 @@ def _crossed(mode, gv):
 
 
 @jit
-def _locate(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
+def _locate(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """Find the step length in (0, h] that lands on the switch; writes the state at the far
     side of the final bracket into ``out`` and returns that step length."""
     lo = 0.0
     glo = event_value(y[0], y[1], y[2], y[3], c, b)
     hi = h
-    _trial(method, y, out, scratch, mode, f2, hi, m1, m2, c, b, g, k2, c2)
+    _trial(method, y, out, scratch, mode, f2, hi, im1, im2, c, b, g, k2, c2)
     ghi = event_value(out[0], out[1], out[2], out[3], c, b)
     trial = np.empty(6)
     side = 0
@@ -171,7 +171,7 @@ def _locate(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
         w = hi - lo
         if not (lo + 0.01 * w < hm < hi - 0.01 * w):
             hm = min(max(hm, lo + 0.01 * w), hi - 0.01 * w)
-        _trial(method, y, trial, scratch, mode, f2, hm, m1, m2, c, b, g, k2, c2)
+        _trial(method, y, trial, scratch, mode, f2, hm, im1, im2, c, b, g, k2, c2)
         gm = event_value(trial[0], trial[1], trial[2], trial[3], c, b)
         if _crossed(mode, gm) or gm == 0.0:
             hi = hm
@@ -219,8 +219,8 @@ def _force_now(y, mode, p):
 def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
     """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
     at a contact switch."""
-    m1 = 1.0 / p[M1]  # inverse masses from here on
-    m2 = 1.0 / p[M2]
+    im1 = 1.0 / p[M1]  # inverse masses (1/kg)
+    im2 = 1.0 / p[M2]
     c = p[C]
     b = p[B]
     g = p[G]
@@ -230,7 +230,7 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
     pk = peak[0]
     n = int(round(span / dt))
     for i in range(n):
-        r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, m1, m2, c, b, g, k2, c2)
+        r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, im1, im2, c, b, g, k2, c2)
         fnew = -1.0  # contact force at the new state, when it is computed for the crossing test
         if mode != AUTO:
             # the crossing test needs only the sign of event_value: for d > 0 that is the sign
@@ -258,7 +258,7 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
             rem = dt
             tt = t0 + i * dt
             for _ev in range(16):
-                hs = _locate(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
+                hs = _locate(method, y, out, scratch, mode, f2, rem, im1, im2, c, b, g, k2, c2)
                 for j in range(6):
                     y[j] = out[j]
                 tt += hs
@@ -267,7 +267,7 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
                 _log_event(ev, evn, tt, 1.0 if mode == CONTACT else -1.0, y)
                 if rem <= EVENT_TOL * dt:
                     break
-                _trial(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
+                _trial(method, y, out, scratch, mode, f2, rem, im1, im2, c, b, g, k2, c2)
                 if not _crossed(mode, event_value(out[0], out[1], out[2], out[3], c, b)):
                     for j in range(6):
                         y[j] = out[j]
@@ -313,8 +313,8 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     """
     if method != DOPRI5:
         return _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak)
-    m1 = 1.0 / p[M1]  # inverse masses from here on
-    m2 = 1.0 / p[M2]
+    im1 = 1.0 / p[M1]  # inverse masses (1/kg)
+    im2 = 1.0 / p[M2]
     c = p[C]
     b = p[B]
     g = p[G]
@@ -334,7 +334,7 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     while span - t > 1e-12 * span:
         if h > span - t:
             h = span - t
-        _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2)
+        _dopri_step(y, out, err, mode, f2, h, im1, im2, c, b, g, k2, c2)
         en = 0.0
         for j in range(6):
             sc = rtol * scale[j] + rtol * max(abs(y[j]), abs(out[j]))
@@ -345,7 +345,7 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
         if en <= 1.0:
             gv = event_value(out[0], out[1], out[2], out[3], c, b)
             if mode != AUTO and _crossed(mode, gv):
-                hs = _locate(DOPRI5, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2)
+                hs = _locate(DOPRI5, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2)
                 for j in range(6):
                     y[j] = out[j]
                 t += hs
