@@ -22,7 +22,8 @@ from hypothesis import strategies as st
 import impact_env
 from impact_env import SimulationDiverged
 from impact_env.plant import hertz
-from impact_env.sim.arrays import STABILITY_LIMIT, initial_state, plant_params
+from impact_env.sim.arrays import initial_state, plant_params
+from impact_env.sim.stability import STABILITY_LIMIT
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from naive import Params, hertz_drop, reference_drop, sim_overrides  # noqa: E402
@@ -268,8 +269,24 @@ def test_shaker_100kN(force, method):
 # fixed steps beyond the stability limit
 # --------------------------------------------------------------------------------------------
 
+# t_c = 6 us: under-resolved at every step tested here, so the resolution check is off
+# (integrator.min_steps_per_contact = 0) and the stability check is tested alone
 STIFF = dict(plant_m1=1e-3, plant_m2=1e-3, plant_c=1e11, initial_impact_speed=1.0,
-             initial_pre_contact_time=1e-5)  # t_c = 6 us
+             initial_pre_contact_time=1e-5, integrator_min_steps_per_contact=0.0)
+
+
+def deepest(m1, m, c, v):
+    """Deepest penetration of an elastic drop under gravity on body 1 (m): the root of
+    ``0.4 c d^2.5 = 0.5 m v^2 + m g d`` (relative motion, m the effective mass), and at least
+    ``(2.5 m1 g / c)^(2/3)`` (body 1 let go touching the pad)."""
+    from scipy.optimize import brentq
+
+    f = lambda d: 0.4 * c * d**2.5 - 0.5 * m * v * v - m * G * d  # noqa: E731
+    hi = max(hertz.max_penetration(m, c, max(v, 1e-9)), 1e-30)
+    while f(hi) < 0:
+        hi *= 2.0
+    root = brentq(f, 0.0, hi, xtol=1e-300, rtol=1e-14) if v > 0 else 0.0
+    return max(root, (2.5 * m1 * G / c) ** (2 / 3))
 
 
 def stiff_limit(method):
@@ -311,11 +328,12 @@ def test_shaker_pushing_past_stability_raises_diverged():
 def test_never_nan(method, logc, logm1, logm2, v, factor, force):
     """Random pads, bodies, speeds, steps (a factor of the stability limit) and forces up to
     100 kN: a step beyond the limit is refused up front, and every run either raises
-    SimulationDiverged or comes back finite."""
+    SimulationDiverged or comes back finite.  (The resolution check is off: most of these
+    steps take a contact in a few steps, which is what this test is about.)"""
     m1, m2, c = 10.0**logm1, 10.0**logm2, 10.0**logc
     m = m1 * m2 / (m1 + m2)
     # the stiffest contact the drop excites (as simulate's up-front check sees it)
-    d = max(hertz.max_penetration(m, c, v) if v > 0 else 0.0, (m1 * G / c) ** (2 / 3))
+    d = deepest(m1, m, c, v)
     omega = hertz.max_contact_frequency(m, c, d)
     if method == "dopri5":
         dt = 1e-6
@@ -333,7 +351,7 @@ def test_never_nan(method, logc, logm1, logm2, v, factor, force):
         def ctrl(t, y):
             return force
     ov = sim_overrides(method, dt=dt, rtol=1e-8, control_rate=1 / dt, plant_m1=m1, plant_m2=m2,
-                       plant_c=c, initial_impact_speed=v,
+                       plant_c=c, initial_impact_speed=v, integrator_min_steps_per_contact=0.0,
                        initial_pre_contact_time=min(0.1 * tc, 10.0))
     try:
         tr = impact_env.simulate("ideal", controller=ctrl, t_end=n * dt, record_rate=1 / (10 * dt),

@@ -35,6 +35,7 @@ from impact_env.plant.layout import (
     M1,
     M2,
     OK,
+    RK4,
     STEP_UNDERFLOW,
     SYMPLECTIC_EULER,
     V1,
@@ -51,6 +52,13 @@ from impact_env.plant.layout import (
 EVENT_TOL = 1e-13  # event bracket width, relative to the step being split
 MAX_EVENT_ITER = 200
 DIVERGENCE_BOUND = 1e9  # |x1|+|x2|+|v1|+|v2| beyond this (or NaN) is reported as divergence
+MAX_EVENTS_PER_STEP = 16
+# graded zone after a touch on a damped pad (RK4): GRADE_STEPS steps taken in GRADE_PIECES pieces
+# ending at Z (k/GRADE_PIECES)^GRADE_POWER; a power >= p / (1 + 0.25) = 3.2 (p = 4, the d^0.25
+# singularity) is what a graded mesh needs to recover RK4's order (see _advance_fixed)
+GRADE_STEPS = 2
+GRADE_PIECES = 16
+GRADE_POWER = 4.0
 
 
 @jit(inline="always")
@@ -216,9 +224,34 @@ def _force_now(y, mode, p):
 
 
 @jit(inline="always")
-def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
+def _graded_piece(tau, zone_len, rem):
+    """Length of the next piece of the graded zone after a touch: from ``tau`` (s since the
+    touch) to the next node ``zone_len (k / GRADE_PIECES)^GRADE_POWER`` above it, at most ``rem``."""
+    k = int(GRADE_PIECES * (tau / zone_len) ** (1.0 / GRADE_POWER))
+    node = zone_len
+    while k <= GRADE_PIECES:
+        node = zone_len * (k / GRADE_PIECES) ** GRADE_POWER
+        if node - tau > 1e-9 * zone_len:  # (tau is a difference of times: skip a node it rounds onto)
+            break
+        k += 1
+    piece = node - tau
+    if not (piece > 0.0) or piece > rem:
+        piece = rem
+    return piece
+
+
+@jit(inline="always")
+def _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak):
     """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
-    at a contact switch."""
+    at a contact switch and in the graded zone after a touch.
+
+    Graded zone (RK4 on a damped pad): the force's ``d^0.25`` factor is not smooth at the
+    touch, which limits RK4 to order 1.25 in dt there, whatever the event location does.  The
+    span of ``GRADE_STEPS`` steps after each located touch is therefore taken in pieces that
+    end at the nodes ``Z (k / GRADE_PIECES)^GRADE_POWER`` (Z = GRADE_STEPS dt, time from the
+    touch; a mesh graded towards the singular point), crossing grid points as needed: the grid
+    itself is kept.  ``hstate[0]`` carries the time left in the zone from one call to the next.
+    """
     im1 = 1.0 / p[M1]  # inverse masses (1/kg)
     im2 = 1.0 / p[M2]
     c = p[C]
@@ -226,53 +259,80 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
     g = p[G]
     k2 = p[K2]
     c2 = p[C2]
+    grade = method == RK4 and b != 0.0
+    zone_len = GRADE_STEPS * dt
+    zone = hstate[0] if grade and mode == CONTACT else 0.0  # time left in the graded zone, s
     x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
     pk = peak[0]
     n = int(round(span / dt))
     for i in range(n):
-        r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, im1, im2, c, b, g, k2, c2)
         fnew = -1.0  # contact force at the new state, when it is computed for the crossing test
-        if mode != AUTO:
-            # the crossing test needs only the sign of event_value: for d > 0 that is the sign
-            # of the damped force f = c d^0.25 q, which the peak tracking needs anyway
-            side = r[0] - r[2]
-            if side > 0.0:
-                sd = sqrt(side)
-                fnew = c * side * sd
-                if b != 0.0:
-                    fnew += b * sqrt(sd) * (r[1] - r[3])
-                if fnew <= 0.0:
-                    side = fnew
+        side = 0.0
+        if zone <= 0.0:
+            r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, im1, im2, c, b, g, k2, c2)
+            if mode != AUTO:
+                # the crossing test needs only the sign of event_value: for d > 0 that is the
+                # sign of the damped force f = c d^0.25 q, which the peak tracking needs anyway
+                side = r[0] - r[2]
+                if side > 0.0:
+                    sd = sqrt(side)
+                    fnew = c * side * sd
+                    if b != 0.0:
+                        fnew += b * sqrt(sd) * (r[1] - r[3])
+                    if fnew <= 0.0:
+                        side = fnew
+        else:
+            r = (x1, v1, x2, v2, we, wd)
         if mode == AUTO:
             if (x1 - x2 > 0.0) != (r[0] - r[2] > 0.0):
                 y[0], y[1], y[2], y[3], y[4], y[5] = r
                 _log_event(ev, evn, t0 + (i + 1) * dt, 1.0 if r[0] - r[2] > 0.0 else -1.0, y)
             x1, v1, x2, v2, we, wd = r
-        elif not _crossed(mode, side):
+        elif zone <= 0.0 and not _crossed(mode, side):
             x1, v1, x2, v2, we, wd = r
         else:
+            # a switch within this step, or a step in the graded zone: piece by piece
             fnew = -1.0
             y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
             out = np.empty(6)  # allocated only here: a switch is rare, a step is not
             scratch = np.empty(6)
             rem = dt
             tt = t0 + i * dt
-            for _ev in range(16):
-                hs = _locate(method, y, out, scratch, mode, f2, rem, im1, im2, c, b, g, k2, c2)
-                for j in range(6):
-                    y[j] = out[j]
-                tt += hs
-                rem -= hs
-                mode = FREE if mode == CONTACT else CONTACT
-                _log_event(ev, evn, tt, 1.0 if mode == CONTACT else -1.0, y)
-                if rem <= EVENT_TOL * dt:
-                    break
-                _trial(method, y, out, scratch, mode, f2, rem, im1, im2, c, b, g, k2, c2)
-                if not _crossed(mode, event_value(out[0], out[1], out[2], out[3], c, b)):
+            have = zone <= 0.0  # the whole step is already taken (in r) and crosses
+            if have:
+                out[0], out[1], out[2], out[3], out[4], out[5] = r
+            n_ev = 0
+            for _piece in range((MAX_EVENTS_PER_STEP + 1) * (GRADE_PIECES + 2)):
+                piece = rem
+                if zone > 0.0:
+                    piece = _graded_piece(zone_len - zone, zone_len, rem)
+                if not have:
+                    _trial(method, y, out, scratch, mode, f2, piece, im1, im2, c, b, g, k2, c2)
+                have = False
+                if _crossed(mode, event_value(out[0], out[1], out[2], out[3], c, b)):
+                    if n_ev == MAX_EVENTS_PER_STEP:
+                        break
+                    hs = _locate(method, y, out, scratch, mode, f2, piece, im1, im2, c, b, g, k2, c2)
                     for j in range(6):
                         y[j] = out[j]
+                    tt += hs
+                    rem -= hs
+                    mode = FREE if mode == CONTACT else CONTACT
+                    _log_event(ev, evn, tt, 1.0 if mode == CONTACT else -1.0, y)
+                    zone = zone_len if grade and mode == CONTACT else 0.0
+                    n_ev += 1
+                else:
+                    for j in range(6):
+                        y[j] = out[j]
+                    rem -= piece
+                    if zone > 0.0:
+                        zone -= piece
+                        if zone <= EVENT_TOL * dt:
+                            zone = 0.0
+                if rem <= EVENT_TOL * dt:
                     break
-            else:
+            if rem > EVENT_TOL * dt:
+                hstate[0] = zone
                 peak[0] = pk
                 return EVENT_OVERFLOW, mode
             x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
@@ -283,6 +343,7 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
             s = 0.0
         if not (s < DIVERGENCE_BOUND):
             y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+            hstate[0] = zone
             peak[0] = pk
             return DIVERGED, mode
         if mode != FREE and x1 > x2:
@@ -293,6 +354,7 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
             if f > pk:
                 pk = f
     y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+    hstate[0] = zone
     peak[0] = pk
     return OK, mode
 
@@ -312,7 +374,7 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     Returns ``(status, mode)``.
     """
     if method != DOPRI5:
-        return _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak)
+        return _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak)
     im1 = 1.0 / p[M1]  # inverse masses (1/kg)
     im2 = 1.0 / p[M2]
     c = p[C]
