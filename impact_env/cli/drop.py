@@ -34,11 +34,15 @@ def cmd_drop(args) -> int:
               f"c {scene.plant.c:g} N/m^1.5, impact speed {scene.impact_speed:g} m/s, "
               f"{scene.integrator.method}")
         for k, v in m.items():
+            if k == "warnings":
+                continue
             if isinstance(v, dict):
                 v = ", ".join(f"{name} {x:.6g}" for name, x in v.items())
                 print(f"  {k:28s} {v}")
             else:
                 print(f"  {k:28s} {v if v is None else f'{v:.6g}'}")
+        for w in m["warnings"]:
+            print(f"  warning: {w}")
     if args.plot:
         from impact_env.eval.plots import plot_trajectory
 

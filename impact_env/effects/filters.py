@@ -44,7 +44,8 @@ class FilterConfig:
     _key: ClassVar[str] = ""
 
     kind: str = _f("bandpass", "", "bandpass | lowpass (cut-off high_hz) | none")
-    low_hz: float = _f(20.0, "Hz", "lower band edge (-3 dB) of the band-pass (thesis sec 4.3: 20 Hz)")
+    low_hz: float = _f(20.0, "Hz", "lower band edge (-3 dB) of the band-pass (thesis sec 4.3: 20 Hz); "
+                       "kind = lowpass ignores it")
     high_hz: float = _f(1000.0, "Hz", "upper band edge / low-pass cut-off (thesis sec 4.3: 1000 Hz)")
     order: int = _f(2, "", "Butterworth order N (band-pass: 2N poles); ASSUMED, thesis gives none")
 

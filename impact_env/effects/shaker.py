@@ -56,7 +56,9 @@ _f = doc_field
 
 @dataclass(frozen=True)
 class ShakerConfig:
-    enabled: bool = _f(False, "", "model the amplifier/shaker response (off: applied force = demand)")
+    """The amplifier and exciter between the force demand and body 2.  It runs when ``shaker``
+    is in ``effects.active`` (nothing else switches it)."""
+
     model: str = _f("coil", "", "coil (parametric) | measured (FIR taps)")
     amplifier: str = _f("voltage", "", "voltage (coil pole R/L, optional back-EMF) | current (current loop: "
                         "band-pass only)")
@@ -66,7 +68,8 @@ class ShakerConfig:
     lowpass_hz: float = _f(9000.0, "Hz", "upper band edge (V406 data: 9 kHz)")
     coil_resistance: float = _f(1.0, "ohm", "ASSUMED coil resistance R (not in the thesis)")
     coil_inductance: float = _f(50e-6, "H", "ASSUMED coil inductance L (not in the thesis); pole R/(2 pi L)")
-    force_factor: float = _f(14.0, "N/A", "ASSUMED Bl (98 N rated at about 7 A)")
+    force_factor: float = _f(14.0, "N/A", "ASSUMED Bl (98 N rated at about 7 A); enters only the back-EMF's "
+                             "damping Bl^2/R (the command is scaled to 1 N/N mid-band)")
     fir_taps: tuple[float, ...] = _f((), "N/N",
                                      "measured impulse response at the control rate (model = measured)")
     inverse_filter: bool = _f(False, "", "pre-filter the demand by an approximate inverse of the coil pole")

@@ -102,13 +102,40 @@ A61, A62, A63, A64, A65 = 9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0
 B1, B3, B4, B5, B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
 E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0,
                           22.0 / 525.0, -1.0 / 40.0)
+# its continuous extension (4th order, Dormand & Prince; the coefficients of scipy's RK45):
+# y(t + theta h) = y + h sum_s k_s (P[s,0] theta + P[s,1] theta^2 + P[s,2] theta^3 + P[s,3] theta^4)
+DENSE_P = np.array([
+    [1.0, -8048581381.0 / 2820520608.0, 8663915743.0 / 2820520608.0, -12715105075.0 / 11282082432.0],
+    [0.0, 0.0, 0.0, 0.0],
+    [0.0, 131558114200.0 / 32700410799.0, -68118460800.0 / 10900136933.0, 87487479700.0 / 32700410799.0],
+    [0.0, -1754552775.0 / 470086768.0, 14199869525.0 / 1410260304.0, -10690763975.0 / 1880347072.0],
+    [0.0, 127303824393.0 / 49829197408.0, -318862633887.0 / 49829197408.0,
+     701980252875.0 / 199316789632.0],
+    [0.0, -282668133.0 / 205662961.0, 2019193451.0 / 616988883.0, -1453857185.0 / 822651844.0],
+    [0.0, 40617522.0 / 29380423.0, -110615467.0 / 29380423.0, 69997945.0 / 29380423.0],
+])
+
+
+@jit(inline="always")
+def _dense(y, k, h, theta, out):
+    """Dormand-Prince's continuous extension: the state at ``theta`` (0..1) of the step of
+    length h from y whose stages are k; into ``out``."""
+    t2 = theta * theta
+    t3 = t2 * theta
+    t4 = t3 * theta
+    for j in range(6):
+        acc = 0.0
+        for s in range(7):
+            acc += k[s, j] * (DENSE_P[s, 0] * theta + DENSE_P[s, 1] * t2 + DENSE_P[s, 2] * t3
+                              + DENSE_P[s, 3] * t4)
+        out[j] = y[j] + h * acc
 
 
 @jit
-def _dopri_step(y, out, err, mode, f2, h, im1, im2, c, b, g, k2, c2):
-    """One Dormand-Prince step from y; writes the 5th-order result to ``out`` and the
-    embedded error estimate to ``err`` (both length 6)."""
-    k = np.empty((7, 6))
+def _dopri_step(y, out, err, k, mode, f2, h, im1, im2, c, b, g, k2, c2):
+    """One Dormand-Prince step from y; writes the 5th-order result to ``out``, the embedded
+    error estimate to ``err`` (both length 6) and the seven stages (the last one at ``out``)
+    to ``k`` (float64[7, 6]), which the dense output (:func:`_dense`) needs."""
     r = deriv(y[0], y[1], y[2], y[3], mode, f2, im1, im2, c, b, g, k2, c2)
     for j in range(6):
         k[0, j] = r[j]
@@ -143,7 +170,7 @@ def _dopri_step(y, out, err, mode, f2, h, im1, im2, c, b, g, k2, c2):
 def _trial(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """Take one step of length h from y into out (no error control)."""
     if method == DOPRI5:
-        _dopri_step(y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2)
+        _dopri_step(y, out, scratch, np.empty((7, 6)), mode, f2, h, im1, im2, c, b, g, k2, c2)
     else:
         r = _fixed_step(method, y[0], y[1], y[2], y[3], y[4], y[5], mode, f2, h,
                         im1, im2, c, b, g, k2, c2)
@@ -375,6 +402,24 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     """
     if method != DOPRI5:
         return _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak)
+    status, mode, _n = dopri_run(y, mode, f2, t0, span, p, rtol, scale, hstate, ev, evn, peak, 0,
+                                 np.empty((0, 6)), np.empty(0, dtype=np.int64), np.empty(0), 0)
+    return status, mode
+
+
+@jit
+def dopri_run(y, mode, f2, t0, span, p, rtol, scale, hstate, ev, evn, peak, n_rec, out_y, out_mode,
+              out_peak, k0):
+    """Adaptive Dormand-Prince 5(4) over ``span`` seconds from t0 under the constant force f2,
+    optionally recording: with ``n_rec > 0`` the state at ``t0 + r span / n_rec`` (r = 1 ..
+    n_rec) goes to ``out_y[k0 + r - 1]`` (with the mode and the peak contact force since the
+    previous record), taken from the continuous extension of the step that contains it.  The
+    steps are then those of an unrecorded run: the records do not cut them, so the recorded
+    states do not depend on the record rate (only the span's end and the contact events end a
+    step early).  ``n_rec = 0``: no records (:func:`advance`).
+
+    Returns ``(status, mode, records written)``.
+    """
     im1 = 1.0 / p[M1]  # inverse masses (1/kg)
     im2 = 1.0 / p[M2]
     c = p[C]
@@ -385,9 +430,12 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     status = OK
     out = np.empty(6)
     scratch = np.empty(6)
-
-    # adaptive Dormand-Prince 5(4)
+    kst = np.empty((7, 6))
+    rec = np.empty(6)
     err = np.empty(6)
+    rec_period = span / n_rec if n_rec > 0 else span
+    r = 0  # records written
+    pk = 0.0  # peak contact force since the last record
     t = 0.0
     h = hstate[0]
     if not (h > 0.0):
@@ -396,7 +444,7 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     while span - t > 1e-12 * span:
         if h > span - t:
             h = span - t
-        _dopri_step(y, out, err, mode, f2, h, im1, im2, c, b, g, k2, c2)
+        _dopri_step(y, out, err, kst, mode, f2, h, im1, im2, c, b, g, k2, c2)
         en = 0.0
         for j in range(6):
             sc = rtol * scale[j] + rtol * max(abs(y[j]), abs(out[j]))
@@ -406,31 +454,65 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
             en = 1e10
         if en <= 1.0:
             gv = event_value(out[0], out[1], out[2], out[3], c, b)
+            step = h
+            new_mode = mode
             if mode != AUTO and _crossed(mode, gv):
-                hs = _locate(DOPRI5, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2)
+                step = _locate(DOPRI5, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2)
+                new_mode = FREE if mode == CONTACT else CONTACT
+                if n_rec > 0:  # the stages of the step that ends on the switch, for the records
+                    _dopri_step(y, out, err, kst, mode, f2, step, im1, im2, c, b, g, k2, c2)
+            elif mode == AUTO and ((y[X1] - y[X2] > 0.0) != (out[X1] - out[X2] > 0.0)):
+                _log_event(ev, evn, t0 + t + h, 1.0 if out[X1] - out[X2] > 0.0 else -1.0, out)
+            t_new = t + step
+            # records inside this step, from its continuous extension (the last at its end)
+            while r < n_rec:
+                tr = (r + 1) * rec_period
+                if tr > t_new + 1e-12 * span and not (r == n_rec - 1 and span - t_new <= 1e-12 * span):
+                    break
+                if tr >= t_new - 1e-12 * span:
+                    for j in range(6):
+                        rec[j] = out[j]
+                else:
+                    _dense(y, kst, step, (tr - t) / step, rec)
+                fr, _fe = contact_force(rec[X1] - rec[X2], rec[V1] - rec[V2], mode, c, b)
                 for j in range(6):
-                    y[j] = out[j]
-                t += hs
-                mode = FREE if mode == CONTACT else CONTACT
+                    out_y[k0 + r, j] = rec[j]
+                out_mode[k0 + r] = mode
+                out_peak[k0 + r] = max(pk, fr)
+                pk = fr
+                r += 1
+            for j in range(6):
+                y[j] = out[j]
+            t = t_new
+            if new_mode != mode:
+                mode = new_mode
                 _log_event(ev, evn, t0 + t, 1.0 if mode == CONTACT else -1.0, y)
-            else:
-                if mode == AUTO and ((y[X1] - y[X2] > 0.0) != (out[X1] - out[X2] > 0.0)):
-                    _log_event(ev, evn, t0 + t + h, 1.0 if out[X1] - out[X2] > 0.0 else -1.0, out)
-                for j in range(6):
-                    y[j] = out[j]
-                t += h
             if _diverged(y):
                 hstate[0] = h
-                return DIVERGED, mode
+                return DIVERGED, mode, _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec)
             f = _force_now(y, mode, p)
             if f > peak[0]:
                 peak[0] = f
+            if f > pk:
+                pk = f
             fac = 5.0 if en < 1e-4 else min(5.0, 0.9 * en ** -0.2)
             h *= fac
         else:
             h *= max(0.1, 0.9 * en ** -0.25)
             if h < hmin:
                 hstate[0] = h
-                return STEP_UNDERFLOW, mode
+                return STEP_UNDERFLOW, mode, _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec)
     hstate[0] = h
-    return status, mode
+    return status, mode, r
+
+
+@jit
+def _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec):
+    """On failure, the state reached goes into the next record; returns the records written."""
+    if r < n_rec:
+        for j in range(6):
+            out_y[k0 + r, j] = y[j]
+        out_mode[k0 + r] = mode
+        out_peak[k0 + r] = 0.0
+        return r + 1
+    return r

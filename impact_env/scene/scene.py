@@ -30,6 +30,7 @@ from impact_env.scene.effects import EffectsConfig
 from impact_env.scene.randomize import RandomizeConfig, check_scene_ranges, overrides_for
 
 METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
+DEFAULT_DROP_HEIGHT = 0.05  # m (notes' start value: about 1 m/s at the touch)
 
 
 _f = doc_field
@@ -77,14 +78,19 @@ class InitialConfig:
     (or at the release, if the fall is shorter), with body 2 at rest at x2 = 0.
     """
 
-    drop_height: float | None = _f(0.05, "m",
-                                   "gap between the facing surfaces at release (notes' start value)")
+    drop_height: float | None = _f(None, "m", "gap between the facing surfaces at release; 0.05 (notes' "
+                                   "start value) when impact_speed is not given either")
     impact_speed: float | None = _f(None, "m/s", "speed of body 1 at the first touch, instead of drop_height")
     pre_contact_time: float = _f(1.0e-3, "s", "simulated time before the first touch")
 
     def __post_init__(self):
-        if (self.drop_height is None) == (self.impact_speed is None):
-            raise ConfigError("initial: give exactly one of drop_height (m) or impact_speed (m/s)")
+        if self.drop_height is None and self.impact_speed is None:
+            # the default drop; set here rather than as the field's default so that a scene given
+            # by impact_speed alone (as its TOML is written) does not also get a drop height
+            object.__setattr__(self, "drop_height", DEFAULT_DROP_HEIGHT)
+        if self.drop_height is not None and self.impact_speed is not None:
+            raise ConfigError("initial: give exactly one of drop_height (m) or impact_speed (m/s), "
+                              f"got both ({self.drop_height!r} m and {self.impact_speed!r} m/s)")
         if self.drop_height is not None:
             check_range("initial.drop_height", self.drop_height, "m", 0.0, 100.0)
         if self.impact_speed is not None:
