@@ -56,8 +56,8 @@ class FilterConfig:
     def __post_init__(self):
         p = self.path
         check_choice(f"{p}.kind", self.kind, KINDS)
-        check_range(f"{p}.low_hz", self.low_hz, "Hz", 0.0, None, lo_open=True)
-        check_range(f"{p}.high_hz", self.high_hz, "Hz", 0.0, None, lo_open=True)
+        check_range(f"{p}.low_hz", self.low_hz, "Hz", 1e-3, 1e7)
+        check_range(f"{p}.high_hz", self.high_hz, "Hz", 1e-3, 1e7)
         if isinstance(self.order, bool) or not isinstance(self.order, int):
             raise ConfigError(f"{p}.order must be an integer (1 to 10), got {self.order!r}")
         check_range(f"{p}.order", self.order, "", 1, 10)
@@ -74,7 +74,7 @@ class FilterConfig:
             v = getattr(self, name)
             if v >= nyq:
                 raise ConfigError(f"{self.path}.{name} = {v:g} Hz is out of range: must be < {nyq:g} Hz, "
-                                  f"the Nyquist frequency at the control rate {rate:g} Hz")
+                                  f"the Nyquist frequency at control.rate = {rate:g} Hz")
 
 
 @dataclass(frozen=True)

@@ -52,6 +52,7 @@ from impact_env._jit import jit
 from impact_env.config import ConfigError, check_choice, check_range, doc_field
 
 _f = doc_field
+MAX_TAPS = 4096  # measured impulse responses are a few hundred taps at 10 kHz
 
 
 @dataclass(frozen=True)
@@ -76,14 +77,23 @@ class ShakerConfig:
     inverse_rolloff_hz: float = _f(20000.0, "Hz", "roll-off that keeps the inverse filter proper")
 
     def __post_init__(self):
+        # bounds: band edges from 1 mHz to 10 MHz, coils from 0.1 mohm / 1 nH to 10 kohm / 10 H
+        # (every exciter lies far inside; beyond them the discretisation overflows or rounds a
+        # pole onto the unit circle)
         check_choice("effects.shaker.model", self.model, ("coil", "measured"))
-        check_range("effects.shaker.highpass_hz", self.highpass_hz, "Hz", 0.0)
-        check_range("effects.shaker.lowpass_hz", self.lowpass_hz, "Hz", 0.0, None, lo_open=True)
-        check_range("effects.shaker.coil_resistance", self.coil_resistance, "ohm", 0.0, None, lo_open=True)
-        check_range("effects.shaker.coil_inductance", self.coil_inductance, "H", 0.0, None, lo_open=True)
-        check_range("effects.shaker.force_factor", self.force_factor, "N/A", 0.0, None, lo_open=True)
-        check_range("effects.shaker.inverse_rolloff_hz", self.inverse_rolloff_hz, "Hz", 0.0, None,
-                    lo_open=True)
+        check_range("effects.shaker.highpass_hz", self.highpass_hz, "Hz", 0.0, 1e7)
+        if 0.0 < self.highpass_hz < 1e-3:
+            raise ConfigError(f"effects.shaker.highpass_hz = {self.highpass_hz!r} Hz is out of range: must "
+                              "be 0 (no high-pass) or >= 0.001 Hz")
+        check_range("effects.shaker.lowpass_hz", self.lowpass_hz, "Hz", 1e-3, 1e7)
+        check_range("effects.shaker.coil_resistance", self.coil_resistance, "ohm", 1e-4, 1e4)
+        check_range("effects.shaker.coil_inductance", self.coil_inductance, "H", 1e-9, 10.0)
+        check_range("effects.shaker.force_factor", self.force_factor, "N/A", 1e-3, 1e4)
+        check_range("effects.shaker.inverse_rolloff_hz", self.inverse_rolloff_hz, "Hz", 1e-3, 1e7)
+        if len(self.fir_taps) > MAX_TAPS:
+            raise ConfigError(f"effects.shaker.fir_taps has {len(self.fir_taps)} taps, more than {MAX_TAPS}")
+        for i, tap in enumerate(self.fir_taps):
+            check_range(f"effects.shaker.fir_taps[{i}]", tap, "N/N", -1e6, 1e6)
         if self.highpass_hz >= self.lowpass_hz:
             raise ConfigError(f"effects.shaker.highpass_hz = {self.highpass_hz:g} Hz must be below "
                               f"effects.shaker.lowpass_hz = {self.lowpass_hz:g} Hz")
@@ -164,9 +174,19 @@ def discrete_model(cfg: ShakerConfig, rate: float) -> tuple[np.ndarray, np.ndarr
         inv = signal.cont2discrete(signal.tf2ss(ni, di), 1.0 / rate, method="bilinear")[:4]
         sys_d = _series(inv, sys_d)
     A, B, C, D = (np.ascontiguousarray(np.atleast_2d(m), dtype=float) for m in sys_d)
-    if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
-        raise ConfigError("effects.shaker: the discretised model is not stable at this control rate")
+    _check_discrete(cfg, rate, A, B, C, D)
     return A, B[:, 0].copy(), C[0].copy(), float(D[0, 0])
+
+
+def _check_discrete(cfg: ShakerConfig, rate: float, *mats) -> None:
+    """ConfigError, naming the fields, unless the discretised model is finite and stable."""
+    if not all(np.all(np.isfinite(m)) for m in mats) or np.max(np.abs(np.linalg.eigvals(mats[0]))) >= 1.0:
+        raise ConfigError(
+            "effects.shaker: the model discretised at control.rate = "
+            f"{rate:g} Hz is not finite and stable (effects.shaker.highpass_hz = {cfg.highpass_hz:g} Hz, "
+            f"lowpass_hz = {cfg.lowpass_hz:g} Hz, coil pole R/(2 pi L) = {cfg.electrical_pole_hz:g} Hz from "
+            f"coil_resistance and coil_inductance, inverse_rolloff_hz = {cfg.inverse_rolloff_hz:g} Hz): "
+            "move the band edges and poles well inside 0 .. 1e7 Hz")
 
 
 def continuous_emf_model(cfg: ShakerConfig):
@@ -208,8 +228,7 @@ def discrete_emf_model(cfg: ShakerConfig, rate: float):
         A, Bu, C, D = _series(inv, (A, Bu, C, D))
         E = np.vstack([np.zeros((A.shape[0] - E.shape[0], 1)), E])
     A, Bu, C, D, E = (np.ascontiguousarray(np.atleast_2d(m), dtype=float) for m in (A, Bu, C, D, E))
-    if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
-        raise ConfigError("effects.shaker: the discretised model is not stable at this control rate")
+    _check_discrete(cfg, rate, A, Bu, C, D, E)
     return A, Bu[:, 0].copy(), C[0].copy(), float(D[0, 0]), E[:, 0].copy()
 
 

@@ -31,6 +31,7 @@ from impact_env.scene.randomize import RandomizeConfig, check_scene_ranges, over
 
 METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
 DEFAULT_DROP_HEIGHT = 0.05  # m (notes' start value: about 1 m/s at the touch)
+MAX_STEPS_PER_PERIOD = 1e6  # integration steps in one control period (one env step)
 
 
 _f = doc_field
@@ -50,13 +51,16 @@ class PlantConfig:
     suspension_damping: float = _f(0.0, "N s/m", "damper on body 2's motion")
 
     def __post_init__(self):
-        check_range("plant.m1", self.m1, "kg", 0.0, None, lo_open=True)
-        check_range("plant.m2", self.m2, "kg", 0.0, None, lo_open=True)
-        check_range("plant.c", self.c, "N/m^1.5", 0.0, None, lo_open=True)
-        check_range("plant.restitution", self.restitution, "", 0.0, 1.0, lo_open=True)
-        check_range("plant.gravity", self.gravity, "m/s^2", 0.0)
-        check_range("plant.suspension_stiffness", self.suspension_stiffness, "N/m", 0.0)
-        check_range("plant.suspension_damping", self.suspension_damping, "N s/m", 0.0)
+        # bounds: a nanogram to a thousand tonnes, a pad from 1 N/m^1.5 to steel on steel
+        # (about 1e11) with room, a pad deader than e = 0.001 (its damping solve needs zeta = 35)
+        # is a plastic stop; beyond these the plant's numbers overflow before anything is learnt
+        check_range("plant.m1", self.m1, "kg", 1e-9, 1e6)
+        check_range("plant.m2", self.m2, "kg", 1e-9, 1e6)
+        check_range("plant.c", self.c, "N/m^1.5", 1.0, 1e15)
+        check_range("plant.restitution", self.restitution, "", 1e-3, 1.0)
+        check_range("plant.gravity", self.gravity, "m/s^2", 0.0, 1e3)
+        check_range("plant.suspension_stiffness", self.suspension_stiffness, "N/m", 0.0, 1e12)
+        check_range("plant.suspension_damping", self.suspension_damping, "N s/m", 0.0, 1e9)
 
     @property
     def effective_mass(self) -> float:
@@ -114,7 +118,7 @@ class IntegratorConfig:
 
     def __post_init__(self):
         check_choice("integrator.method", self.method, METHODS)
-        check_range("integrator.dt", self.dt, "s", 0.0, 1e-2, lo_open=True)
+        check_range("integrator.dt", self.dt, "s", 1e-10, 1e-2)
         check_range("integrator.rtol", self.rtol, "", 1e-14, 1e-2)
         check_range("integrator.min_steps_per_contact", self.min_steps_per_contact, "", 0.0, 1e6)
 
@@ -128,7 +132,7 @@ class ControlConfig:
 
     def __post_init__(self):
         if self.rate is not None:
-            check_range("control.rate", self.rate, "Hz", 0.0, 1e8, lo_open=True)
+            check_range("control.rate", self.rate, "Hz", 1.0, 1e8)
 
 
 @dataclass(frozen=True)
@@ -169,6 +173,11 @@ class Scene:
                     f"control.rate = {self.control.rate:g} Hz does not divide the integration grid: "
                     f"the control period {self.control_period:g} s must be a whole multiple of "
                     f"integrator.dt = {self.integrator.dt:g} s")
+            if ratio > MAX_STEPS_PER_PERIOD:
+                raise ConfigError(
+                    f"control.rate = {self.control.rate:g} Hz holds {ratio:.3g} steps of integrator.dt = "
+                    f"{self.integrator.dt:g} s per control period, more than {MAX_STEPS_PER_PERIOD:g}: one "
+                    "env step would run for minutes; raise control.rate or integrator.dt")
         self._check_effects_at_rate()
         check_scene_ranges(self)
 
@@ -177,8 +186,7 @@ class Scene:
         fx = self.effects
         if fx.on("filters"):
             fx.filters.check_rate(rate)
-        if fx.on("sensor_delay") or fx.on("actuator_delay"):
-            fx.delay.samples(rate)
+        fx.delay.samples(rate)  # (always: the Simulator sizes its delay lines from them)
         if fx.on("shaker"):
             fx.shaker.check_coupling(self.plant.m2, rate)
 

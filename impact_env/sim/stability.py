@@ -91,6 +91,13 @@ class Drop:
     def m(self) -> float:
         return self.m1 * self.m2 / (self.m1 + self.m2)
 
+    def describe(self) -> str:
+        """The drop in the scene's field names, for messages."""
+        return (f"plant.m1 = {self.m1:g} kg, plant.m2 = {self.m2:g} kg, plant.c = {self.c:g} N/m^1.5, "
+                f"plant.restitution = {self.restitution:g}, plant.suspension_stiffness = {self.k2:g} N/m, "
+                f"plant.suspension_damping = {self.c2:g} N s/m, impact speed {self.v:g} m/s "
+                "(initial.drop_height or initial.impact_speed)")
+
 
 def linear_matrix(m1, m2, k, cd, k2: float, c2: float) -> np.ndarray:
     """``A`` of the plant linearised about a penetration: pad spring k (N/m) and damper cd
@@ -255,7 +262,7 @@ def _corners(scene):
         if "impact_speed" in values:
             fields["v"] = values["impact_speed"]
         label = " at the corner of the randomize ranges " + ", ".join(
-            f"{n} = {v:g}" for n, v in values.items())
+            f"randomize.{n} = {v:g}" for n, v in values.items())
         yield dataclasses.replace(base, **fields), label
 
 
@@ -282,7 +289,8 @@ def _check_one(integ, drop: Drop, label: str) -> None:
             f"penetration of {bad_d:.3g} m (pad stiffness {k:.3g} N/m, pad damping {cd:.3g} N s/m, "
             f"deepest penetration of the drop {sc['d_max']:.3g} m) the fastest mode has "
             f"h*lambda = {dt * fastest:.3g}, outside the method's stability region; it needs "
-            f"dt <= {_down(limit)} s. Reduce integrator.dt or use integrator.method = dopri5.")
+            f"dt <= {_down(limit)} s. Reduce integrator.dt or use integrator.method = dopri5. "
+            f"The drop: {drop.describe()}.")
     need = integ.min_steps_per_contact
     if need > 0 and math.isfinite(sc["t_contact"]):
         steps = sc["t_contact"] / dt
@@ -291,4 +299,5 @@ def _check_one(integ, drop: Drop, label: str) -> None:
                 f"integrator.dt = {dt:g} s resolves {sc['what']}{label} (about {sc['t_contact']:.3g} s "
                 f"of contact) with {steps:.3g} steps, fewer than integrator.min_steps_per_contact = "
                 f"{need:g} (below that RK4's restitution error exceeds about 1e-3): use "
-                f"integrator.dt <= {_down(sc['t_contact'] / need)} s, or integrator.method = dopri5.")
+                f"integrator.dt <= {_down(sc['t_contact'] / need)} s, or integrator.method = dopri5. "
+                f"The drop: {drop.describe()}.")
