@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 
-from impact_env.cli.args import scene_from_args
+from impact_env.cli.args import output_dir, scene_from_args
 from impact_env.eval.compare import compare, format_table, split_policies, summary_json, write_outputs
 
 
@@ -37,6 +36,7 @@ def cmd_compare(args) -> int:
         print(describe_policies())
         return 0
     scene = scene_from_args(args)
+    out_dir = output_dir(args.out) if args.out else None  # checked before anything runs
     texts = args.policies or ["passive,thesis-rig,pd-penetration"]
     specs = [s for text in texts for s in split_policies(text)]
     runs = compare(scene, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
@@ -60,7 +60,7 @@ def cmd_compare(args) -> int:
     if len(failures) > 20:
         print(f"impact-env compare: ... and {len(failures) - 20} more failed episodes", file=sys.stderr)
     if args.out:
-        paths = write_outputs(runs, Path(args.out), scene, args.seed, horizon)
+        paths = write_outputs(runs, out_dir, scene, args.seed, horizon)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
     return 0

@@ -5,13 +5,15 @@ from __future__ import annotations
 import json
 import sys
 
-from impact_env.cli.args import parse_overrides, scene_from_args
+from impact_env.cli.args import output_file, parse_overrides, scene_from_args
 
 
 def cmd_drop(args) -> int:
     from impact_env.sim.drop import SimulationDiverged, simulate
 
     scene = scene_from_args(args)
+    if args.plot:
+        output_file(args.plot, "--plot")  # checked before simulating
     record_rate = args.record_rate
     drawn = None
     if args.seed is not None and scene.randomized:

@@ -44,7 +44,7 @@ class PlantConfig:
     m1: float = _f(0.1, "kg", "falling body (thesis gives only m2 = 10 m1; notes' start value)")
     m2: float = _f(1.0, "kg", "body 2: shaker armature + pad + fixture (thesis sec 4.4: 10 m1)")
     c: float = _f(2.0e6, "N/m^1.5", "Hertz contact stiffness of the pad (thesis sec 4.1, eq 4.1-4.2)")
-    restitution: float = _f(1.0, "", "delivered coefficient of restitution of the pad, in (0, 1]; "
+    restitution: float = _f(1.0, "", "delivered coefficient of restitution of the pad, 0.001 to 1; "
                             "1 = elastic Hertz")
     gravity: float = _f(9.81, "m/s^2", "gravity on body 1 (body 2's weight is carried by its suspension)")
     suspension_stiffness: float = _f(0.0, "N/m", "spring pulling body 2 back to x2 = 0")
