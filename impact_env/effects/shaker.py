@@ -43,6 +43,7 @@ continuous model to the held command.  The numba kernel steps a state-space mode
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,7 +216,16 @@ def continuous_emf_model(cfg: ShakerConfig):
 def discrete_emf_model(cfg: ShakerConfig, rate: float):
     """(A, B, C, D, E) at ``rate``: :func:`discrete_model` plus E, the input vector of body 2's
     velocity (held over the period) for the back-EMF; E = 0 without ``back_emf``.  Without
-    back-EMF A, B, C, D are exactly those of :func:`discrete_model`."""
+    back-EMF A, B, C, D are exactly those of :func:`discrete_model`.
+
+    Cached per (config, rate) (a Simulator resets drawn scenes whose shaker is often the same);
+    every call returns fresh copies."""
+    A, B, C, D, E = _discrete_emf_model(cfg, float(rate))
+    return A.copy(), B.copy(), C.copy(), D, E.copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _discrete_emf_model(cfg: ShakerConfig, rate: float):
     if not cfg.back_emf:
         A, B, C, D = discrete_model(cfg, rate)
         return A, B, C, D, np.zeros_like(B)
