@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import impact_env
-from impact_env.cli.main import main
+from impact_env.cli import main
 from impact_env.sim.trajectory import ENERGY_BALANCE_BOUND
 
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from impact_env.cli import compare as cli_compare
+from impact_env.cli import main
 from impact_env.cli import sweep as cli_sweep
-from impact_env.cli.main import main
 from impact_env.config import ConfigError
 from impact_env.scene import load_scene
 
