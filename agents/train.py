@@ -193,7 +193,6 @@ def train(algo: str = "ppo", scene="rig", overrides: dict | None = None, *, step
 
     import torch
     from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.vec_env import VecMonitor
 
     from impact_env.env.sb3 import make_sb3_vec_env
     from impact_env.scene import Scene
@@ -202,10 +201,9 @@ def train(algo: str = "ppo", scene="rig", overrides: dict | None = None, *, step
         torch.set_num_threads(int(torch_threads))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    raw = make_sb3_vec_env(scene, num_envs=envs, overrides=overrides, observation=observation,
-                           history=history, **env_kwargs)
-    period = raw.venv.scene.control_period
-    venv = VecMonitor(raw)
+    venv = make_sb3_vec_env(scene, num_envs=envs, overrides=overrides, observation=observation,
+                            history=history, **env_kwargs)  # in a VecMonitor
+    period = venv.get_attr("scene")[0].control_period
     venv.seed(seed)
     cls = PPO if algo == "ppo" else SAC
     model = cls("MlpPolicy", venv, seed=seed, device="cpu", policy_kwargs=policy_kwargs, verbose=verbose,

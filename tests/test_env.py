@@ -244,13 +244,16 @@ def test_ppo_and_sac_train_on_the_sb3_adapter():
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from impact_env.env.sb3 import make_sb3_vec_env
+    from impact_env.env.sb3 import SB3VecEnv, make_sb3_vec_env
 
-    env = VecMonitor(make_sb3_vec_env("rig", num_envs=4, horizon=0.003))
+    env = make_sb3_vec_env("rig", num_envs=4, horizon=0.003)
+    assert isinstance(env, VecMonitor) and isinstance(env.venv, SB3VecEnv)  # episode stats for SB3's logger
+    assert isinstance(make_sb3_vec_env("rig", num_envs=1, monitor=False), SB3VecEnv)
     ppo = PPO("MlpPolicy", env, n_steps=32, batch_size=64, n_epochs=1, policy_kwargs={"net_arch": [16]},
               seed=0, device="cpu")
     ppo.learn(256)
     assert ppo.num_timesteps >= 256
+    assert len(ppo.ep_info_buffer) > 0  # the monitor's episode returns reached SB3
     sac = SAC("MlpPolicy", make_sb3_vec_env("rig", num_envs=2, horizon=0.003), learning_starts=32,
               batch_size=32, policy_kwargs={"net_arch": [16]}, seed=0, device="cpu")
     sac.learn(96)
