@@ -110,10 +110,10 @@ def test_randomised_corners_are_checked():
 
 
 def test_damped_touch_converges_past_order_1_25():
-    """The pad's d^0.25 factor is not smooth at the touch, which holds RK4 to order 1.25 in dt
-    (measured without the graded zone: |e - 0.8| = 4.2e-6 at 1000 steps per contact, 1.1e-6 at
-    3000).  With the graded zone after the touch the same collisions are 1000 times closer
-    (measured 2.3e-9 and 5.7e-10): the bound 1e-7, 40x below the ungraded error at 1000 steps
-    and far above rounding (1e-13), tells the two apart on any machine."""
+    """The pad's d^0.25 factor is not smooth at the touch, which holds RK4 to order 1.25 in dt.
+    Without the graded zone (GRADE_STEPS = 0 in integrators.py, scripts/steps_per_contact.py,
+    worst of 7 touch phases) |e - 0.8| is 6.5e-6 at 1000 steps per contact and |e - 0.3|
+    1.3e-5; with it 2.3e-9 and 4.7e-9.  The bound 1e-7, 65x below the ungraded error and far
+    above rounding (1e-13), tells the two apart on any machine."""
     assert restitution_error("rk4", 1000, 0.8, 0.37) < 1e-7
     assert restitution_error("rk4", 1000, 0.3, 0.37) < 1e-7

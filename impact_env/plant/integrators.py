@@ -286,7 +286,7 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak):
     g = p[G]
     k2 = p[K2]
     c2 = p[C2]
-    grade = method == RK4 and b != 0.0
+    grade = method == RK4 and b != 0.0 and GRADE_STEPS > 0
     zone_len = GRADE_STEPS * dt
     zone = hstate[0] if grade and mode == CONTACT else 0.0  # time left in the graded zone, s
     x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
