@@ -230,9 +230,9 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.grid(True, which="both", alpha=0.3)
         if metric == "restitution_damped":
             p = damped_order(rows)
-            ax.text(0.03, 0.03, f"rk4+events: error ~ dt^{p:.2f} here (fit);\nthe pad's d^0.25 at the touch "
+            ax.text(0.97, 0.97, f"rk4+events: error ~ dt^{p:.2f} here (fit);\nthe pad's d^0.25 at the touch "
                     "limits it to order 1.25,\nthe graded steps after the touch\nmake its constant small",
-                    transform=ax.transAxes, fontsize=8, va="bottom")
+                    transform=ax.transAxes, fontsize=8, va="top", ha="right")
     axes.flat[0].legend(fontsize=8)
     fig.suptitle("impact_env plant: work-precision (fixed-step methods: dt 1e-5..1e-8 s; "
                  "dopri5: rtol 1e-4..1e-12)")
