@@ -47,7 +47,8 @@ def cmd_compare(args) -> int:
     else:
         wall = next(iter(runs.values())).summary["wall_time_total_s"]
         print(f"scene {scene.name}: {args.episodes} episodes of {horizon:g} s, seed {args.seed} "
-              f"(episode j seeded {args.seed} + j), impact speed {scene.impact_speed:.3g} m/s, "
+              f"(episode j seeded {args.seed} + j), impact speed {scene.impact_speed:.3g} m/s"
+              f"{' (nominal; drawn per episode)' if scene.randomized else ''}, "
               f"{len(specs)} policies in {wall:.1f} s")
         print("E: body 1's catch energy over its impact value (mean); exit v/v0: body 1's speed at the first "
               "separation over the impact speed (mean); catch: catch energy below 1 % for good")
