@@ -6,7 +6,7 @@ force that action +1 demands) and its gains, and is then used exactly like a tra
     action, state = policy.predict(obs, state=None, episode_start=None, deterministic=True)
 
 * ``obs``: one observation (float[size]) or a batch (float[N, size]) in the env's layout
-  (:mod:`impact_env.sim.observation`): each entry divided by its reference scale.  The policy
+  (:mod:`impact_env.control.observation`): each entry divided by its reference scale.  The policy
   reads the first frame (the current sample); with ``history > 1`` the older frames and the
   past actions that follow are ignored.
 * ``action``: float32[1] or float32[N, 1], the force demand divided by
@@ -32,8 +32,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from impact_env.config import ConfigError
+from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.scene import Scene, load_scene
-from impact_env.sim.observation import ObservationLayout, make_layout
 
 
 @dataclass(frozen=True)
@@ -109,9 +109,14 @@ class Policy:
 
     # -- the SB3 interface ------------------------------------------------------------------
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+        u, memory = self.command(obs, state, episode_start)
+        action = u.astype(np.float32).reshape(-1, 1)
+        return (action[0] if np.ndim(obs) == 1 else action), memory
+
+    def command(self, obs, state=None, episode_start=None) -> tuple[np.ndarray, np.ndarray | None]:
+        """(float64[N] commands in [-1, 1], memory): :meth:`predict` before its float32 cast."""
         x = np.asarray(obs, dtype=np.float64)
-        single = x.ndim == 1
-        if single:
+        if x.ndim == 1:
             x = x[None, :]
         if x.ndim != 2:
             raise ValueError(f"{self.name}: observation must be 1-d or 2-d [N, size], got shape {x.shape}")
@@ -127,8 +132,7 @@ class Policy:
                     raise ValueError(f"{self.name}: episode_start has {starts.size} entries for {n} envs")
                 self.reset_memory(memory, np.broadcast_to(starts, (n,)))
         f = np.asarray(self.force(values, memory), dtype=np.float64).reshape(n)
-        action = np.clip(f / self.command_scale, -1.0, 1.0).astype(np.float32).reshape(n, 1)
-        return (action[0] if single else action), memory
+        return np.clip(f / self.command_scale, -1.0, 1.0), memory
 
     def __call__(self, obs, state=None, episode_start=None, deterministic: bool = True):
         return self.predict(obs, state, episode_start, deterministic)
@@ -161,6 +165,24 @@ class Policy:
             raise ConfigError(f"{self.name} needs the {name!r} channel, which scene {self.scene.name!r} "
                               f"does not provide (it gives {', '.join(self.layout.names)})")
         return values[:, self.layout.names.index(name)]
+
+    # -- compiled ---------------------------------------------------------------------------------
+    def law_constants(self) -> dict[str, float]:
+        """The constants of this law's compiled kernel (:mod:`impact_env.control.laws`)."""
+        return {}
+
+    def compiled(self):
+        """This law as a :class:`~impact_env.control.policy.CompiledPolicy` (a numba kernel with
+        the same arithmetic; ``impact-env export`` writes it to a file)."""
+        from impact_env.control.policy import CompiledPolicy
+
+        for key, v in self.params.items():
+            if isinstance(v, np.ndarray):
+                raise ConfigError(f"{self.name}: parameter {key} holds {v.size} values (one per env); a "
+                                  "compiled policy takes one value per parameter")
+        params = {k: v for k, v in self.params.items() if not isinstance(v, str)}
+        return CompiledPolicy.from_law(self.name, params, self.law_constants(), self.scene, self.observation,
+                                       source={"spec": self.describe()})
 
     def describe(self) -> str:
         gains = ",".join(f"{k}={_fmt(v)}" for k, v in self.params.items())

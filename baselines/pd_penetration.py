@@ -52,6 +52,12 @@ class PDPenetration(Policy):
         for ch in ("accelerometer", "force", "potentiometer"):
             self.column(np.zeros((1, self.layout.frame_size)), ch)
 
+    def law_constants(self) -> dict[str, float]:
+        P = self.params
+        return {"m2": self.m2, "c": self.scene.plant.c, "kp": P["kp"], "kd": P["kd"], "dref": P["dref"],
+                "top_mass": P["top_mass"], "rate": self.scene.control_rate,
+                "threshold": self.scene.effects.detector.threshold_n}
+
     def force(self, values, memory):
         P = self.params
         est = ContactEstimate(self, values, memory, P["top_mass"])

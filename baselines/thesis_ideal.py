@@ -49,6 +49,11 @@ class ThesisIdeal(Policy):
             self.params["dref"] = p.static_penetration
         self._sign = 1.0 if self.params["free_law"] == "corrected" else -1.0
 
+    def law_constants(self) -> dict[str, float]:
+        P = self.params
+        return {"m1": self.m1, "m2": self.m2, "c": self.c, "g": self.g, "h01": P["h01"], "h11": P["h11"],
+                "h02": P["h02"], "h12": P["h12"], "dref": P["dref"], "sign": self._sign}
+
     def force(self, values, memory):
         x1, v1, x2, v2 = (values[:, j] for j in range(4))
         return self.force_from_state(x1, v1, x2, v2)

@@ -49,6 +49,13 @@ class ThesisRig(Policy):
         for ch in ("accelerometer", "force", "potentiometer"):
             self.column(np.zeros((1, self.layout.frame_size)), ch)  # fail at construction, not mid-run
 
+    def law_constants(self) -> dict[str, float]:
+        P = self.params
+        return {"m1": self.m1, "m2": self.m2, "c": self.scene.plant.c, "g": self.g, "h01": P["h01"],
+                "h11": P["h11"], "h02": P["h02"], "h12": P["h12"], "dref": P["dref"],
+                "top_mass": P["top_mass"], "rate": self.scene.control_rate,
+                "threshold": self.scene.effects.detector.threshold_n}
+
     def force(self, values, memory):
         P = self.params
         est = ContactEstimate(self, values, memory, P["top_mass"])

@@ -3,8 +3,9 @@
     .venv/bin/python scripts/bench_effects.py            # about a minute (3 cold compiles)
     .venv/bin/python scripts/bench_effects.py --quick    # fewer repeats, one cold compile
 
-1. Kernel cost per control step.  For each scene a compiled loop calls the pipeline kernel
-   ``impact_env.sim.pipeline_kernel.control_step_batch`` (a batch of one env, action 0) once per
+1. Kernel cost per control step.  For each scene a compiled loop calls the two stages of the
+   signal path, the hardware (``impact_env.hardware.stage.hardware_tick``) and the controller's
+   front end (``impact_env.control.front_end.condition``), for one env with action 0 once per
    control period; the *bare plant* is the same loop calling only the plant's integrator
    ``impact_env.plant.integrators.advance`` over the period (what ``simulate`` and
    ``run_periods`` do).  Both run the same drop over the same span (ideal: 10 ms at 1 us
@@ -43,10 +44,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from impact_env.control.front_end import condition  # noqa: E402
+from impact_env.hardware.stage import hardware_tick  # noqa: E402
 from impact_env.plant.integrators import advance  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
-from impact_env.sim import pipeline_kernel as K  # noqa: E402
 from impact_env.sim.simulator import Simulator  # noqa: E402
+from impact_env.sim.step import sim_step  # noqa: E402
 
 RIG_EFFECTS = ("shaker", "saturation", "sensors", "filters", "detector")
 
@@ -61,38 +64,38 @@ def bare_loop(n, y, mode, f2, period, p, method, dt, rtol, scale, hstate, ev, ev
 
 
 @numba.njit(cache=False)
-def pipeline_loop(n, a, period, flags, method, dt, rtol, dims, Y, modes, P, EV, EVN, PR, ST, sos, noise,
-                  cursor, t, readings, info):
+def pipeline_loop(n, cfg, plant, fx, noise, out, fe):
+    cursor = noise[1]
     for _ in range(n):
         cursor[0] = 0  # the same noise sample every step (drawing noise is the Python layer's job)
-        K.control_step_batch(a, 0.0, period, flags, method, dt, rtol, dims, Y, modes, P, EV, EVN, PR, ST, sos,
-                             noise, cursor, t, readings, info)
+        hardware_tick(0, 0.0, cfg, plant, fx, noise, out)
+        condition(0, out[0], fe)
 
 
-STATE = ("Y", "modes", "EV", "EVN", "ST", "readings", "info", "t")
+STATE = ("Y", "modes", "EV", "EVN", "ST", "H", "raw", "info", "t")
 
 
 def _pipeline_runner(sim: Simulator, n: int):
-    start = {k: getattr(sim, k).copy() for k in STATE}
-    noise = np.random.default_rng(0).standard_normal((1, 1, 4))
-    cursor = np.zeros(1, dtype=np.int64)
-    a = np.zeros(1)
+    hw = sim.hw
+    start = {k: getattr(hw, k).copy() for k in STATE}
+    fe_start = [a.copy() for a in (sim.fe.filt, sim.fe.det_state, sim.fe.cond, sim.fe.detected)]
+    cfg, plant, fx, _noise, out = hw.args()
+    noise = (np.random.default_rng(0).standard_normal((1, 1, 4)), np.zeros(1, dtype=np.int64))
 
     def run():
         for k, v in start.items():
-            getattr(sim, k)[...] = v
-        integ = sim.scene.integrator
-        pipeline_loop(n, a, sim.period, sim.flags, sim.method, integ.dt, integ.rtol, sim.dims, sim.Y,
-                      sim.modes, sim.P, sim.EV, sim.EVN, sim.PR, sim.ST, sim.sos, noise, cursor, sim.t,
-                      sim.readings, sim.info)
-        return sim.Y[0].copy()
+            getattr(hw, k)[...] = v
+        for a, v in zip((sim.fe.filt, sim.fe.det_state, sim.fe.cond, sim.fe.detected), fe_start, strict=True):
+            a[...] = v
+        pipeline_loop(n, cfg, plant, fx, noise, out, sim.fe.fe)
+        return hw.Y[0].copy()
     return run
 
 
 def _bare_runner(sim: Simulator, n: int):
-    y0, mode0 = sim.Y[0].copy(), int(sim.modes[0])
+    y0, mode0 = sim.Y[0].copy(), int(sim.hw.modes[0])
     y = np.empty_like(y0)
-    ev = np.zeros_like(sim.EV[0])
+    ev = np.zeros_like(sim.hw.EV[0])
     evn = np.zeros(1, dtype=np.int64)
     hstate = np.zeros(1)
 
@@ -100,8 +103,8 @@ def _bare_runner(sim: Simulator, n: int):
         y[:] = y0
         evn[0] = 0
         hstate[0] = 0.0
-        bare_loop(n, y, mode0, 0.0, sim.period, sim.P[0], sim.method, sim.scene.integrator.dt,
-                  sim.scene.integrator.rtol, sim.scale[0], hstate, ev, evn)
+        bare_loop(n, y, mode0, 0.0, sim.period, sim.P[0], sim.hw.method, sim.scene.integrator.dt,
+                  sim.scene.integrator.rtol, sim.hw.scale[0], hstate, ev, evn)
         return y.copy()
     return run
 
@@ -195,14 +198,14 @@ import json, sys, time
 t0 = time.perf_counter()
 import numpy as np
 from impact_env.sim.simulator import Simulator
-from impact_env.sim import pipeline_kernel as K
+from impact_env.sim.step import sim_step
 t1 = time.perf_counter()
 sim = Simulator(sys.argv[1], 1)
 sim.reset([np.random.default_rng(0)])
 sim.step(np.zeros(1))
 t2 = time.perf_counter()
 print(json.dumps({"import_s": t1 - t0, "first_step_s": t2 - t1,
-                  "signatures": len(K.control_step_batch.signatures)}))
+                  "signatures": len(sim_step.signatures)}))
 """
 
 
@@ -239,7 +242,7 @@ def main(argv=None) -> int:
     extra_rig = ns["rig plant: pipeline, every effect off"] - ns["rig plant: bare plant"]
     print(f"  fixed cost of a pipeline call with every effect off: {extra:.0f} ns (ideal), "
           f"{extra_rig:.0f} ns (rig plant) per control step")
-    print(f"  kernel specialisations after every scene above: {len(K.control_step_batch.signatures)}")
+    print(f"  kernel specialisations after every scene above: {len(sim_step.signatures)}")
 
     print("\n2. whole Simulator.step (Python layer + kernel)")
     print(f"  {'case':40s} {'us/step':>10s} {'us/env-step':>12s}")

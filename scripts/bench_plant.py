@@ -36,10 +36,10 @@ sys.path.insert(0, str(ROOT / "tests"))
 from naive import Params, free_fall_start, reference_drop, sim_overrides  # noqa: E402
 
 import impact_env  # noqa: E402
+from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params  # noqa: E402
 from impact_env.plant import layout as L  # noqa: E402
 from impact_env.plant.hertz import contact_time  # noqa: E402
 from impact_env.plant.integrators import advance  # noqa: E402
-from impact_env.sim.arrays import METHOD_CODES, initial_state, plant_params  # noqa: E402
 
 FIXED = [("euler", True), ("euler", False), ("symplectic-euler", True), ("symplectic-euler", False),
          ("rk4", True), ("rk4", False)]

@@ -2,7 +2,7 @@
 
 One free collision (gravity 0, m1 = 0.1 kg, m2 = 1 kg, c = 2e6 N/m^1.5, 1 m/s) on a pad
 calibrated to restitution e (1, 0.8, 0.3), taken with a fixed step dt = t_c / N, t_c the contact
-time the stability module estimates (:func:`impact_env.sim.stability.contact_scales`, the
+time the stability module estimates (:func:`impact_env.hardware.stability.contact_scales`, the
 scaled Tsuji collision).  The touch falls at several phases within a step (it matters at small
 N); the table gives the worst |e_measured - e| over them.  The reference is e itself: the pad's
 damping is solved to deliver it to about 1e-13 (``plant/restitution.py``).
@@ -25,8 +25,8 @@ import math
 import numpy as np
 
 import impact_env
+from impact_env.hardware.stability import Drop, contact_scales
 from impact_env.scene.scene import IntegratorConfig
-from impact_env.sim.stability import Drop, contact_scales
 
 STEPS = [4, 5, 6, 8, 10, 15, 20, 30, 100, 300, 1000, 3000, 10000]
 STEPS_QUICK = [4, 5, 6, 8, 10, 15, 20, 30]

@@ -44,8 +44,8 @@ from naive import Params, reference_drop, sim_overrides  # noqa: E402
 import impact_env  # noqa: E402
 from impact_env import SimulationDiverged  # noqa: E402
 from impact_env.config import ConfigError  # noqa: E402
+from impact_env.hardware.arrays import initial_state, plant_params  # noqa: E402
 from impact_env.plant import hertz  # noqa: E402
-from impact_env.sim.arrays import initial_state, plant_params  # noqa: E402
 
 DTS = [1e-5, 5e-6, 2e-6, 1e-6, 5e-7, 2e-7, 1e-7, 5e-8, 2e-8, 1e-8]
 DTS_QUICK = [1e-5, 2e-6, 1e-6, 2e-7]

@@ -8,7 +8,7 @@ one to three fields set to drawn values, then
    fields set;
 2. ``Simulator(scene, 1)``, a reset and one step; an ``ImpactCatchEnv`` on the scene, a reset
    and one step: these either run, with finite observations and reward, or raise ConfigError
-   before simulating (the step checks of :mod:`impact_env.sim.stability`, which name
+   before simulating (the step checks of :mod:`impact_env.hardware.stability`, which name
    ``integrator.dt`` and the plant's fields).
 
 Any other exception, a rejection that names none of the fields set, or a non-finite

@@ -9,10 +9,10 @@ from scipy import signal
 from baselines import POLICIES, PDPenetration, ThesisIdeal, ThesisRig, make_policy, parse_spec
 from impact_env import simulate
 from impact_env.config import ConfigError
+from impact_env.control.observation import make_layout
 from impact_env.policy.sb3 import parse_model_spec
 from impact_env.scene import load_scene
 from impact_env.sim.drop import SimulationDiverged
-from impact_env.sim.observation import make_layout
 
 RIG = load_scene("rig")
 IDEAL = load_scene("ideal")

@@ -21,9 +21,9 @@ from hypothesis import strategies as st
 
 import impact_env
 from impact_env import SimulationDiverged
+from impact_env.hardware.arrays import initial_state, plant_params
+from impact_env.hardware.stability import STABILITY_LIMIT
 from impact_env.plant import hertz
-from impact_env.sim.arrays import initial_state, plant_params
-from impact_env.sim.stability import STABILITY_LIMIT
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import budget  # noqa: E402

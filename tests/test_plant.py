@@ -21,10 +21,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import impact_env
+from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params
 from impact_env.plant import hertz
 from impact_env.plant import layout as L
 from impact_env.plant.integrators import advance
-from impact_env.sim.arrays import METHOD_CODES, initial_state, plant_params
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import budget  # noqa: E402

@@ -11,12 +11,14 @@ from scipy import signal
 from impact_env.config import ConfigError
 from impact_env.effects import shaker as SH
 from impact_env.effects.detector import score_detection
+from impact_env.effects.sensors import N_CHANNELS, N_PARAM
+from impact_env.hardware import stage as HS
+from impact_env.hardware.arrays import plant_params
 from impact_env.plant import layout as L
 from impact_env.plant.restitution import zeta_for_restitution, zeta_table
 from impact_env.scene import load_scene
 from impact_env.scene.randomize import RandomizeConfig
-from impact_env.sim import pipeline_kernel as K
-from impact_env.sim.arrays import plant_params
+from impact_env.sim import step as SS
 from impact_env.sim.drop import simulate
 from impact_env.sim.simulator import Simulator
 
@@ -30,7 +32,7 @@ def _run(sim, actions, n):
         sim.step(actions if np.ndim(actions) else np.full(sim.n, float(actions)))
         ys.append(sim.Y.copy())
         rd.append(sim.readings.copy())
-        info.append(sim.info.copy())
+        info.append(np.column_stack([sim.info, sim.detected]))  # the detector's bit last
     return np.array(ys), np.array(rd), np.array(info)
 
 
@@ -67,7 +69,7 @@ def test_one_kernel_specialisation_for_every_scene():
         sim = Simulator(sc, 2)
         sim.reset([np.random.default_rng(1), np.random.default_rng(2)])
         sim.step(np.array([0.1, -0.1]))
-    assert len(K.control_step_batch.signatures) == 1
+    assert len(SS.sim_step.signatures) == 1
     # and the headless path: one recording-loop specialisation for every scene and method
     from impact_env.plant.run import run_periods
 
@@ -161,10 +163,11 @@ def test_simulator_env_equals_the_drawn_fixed_scene():
         assert fixed == sc.sample(np.random.default_rng(7 + i))
         ref = Simulator(fixed, 1)
         ref.reset([np.random.default_rng(0)])
-        for name in ("scale", "command_scale", "sh_A", "sh_B", "sh_C", "sh_D", "sh_E", "sat_params",
-                     "sens_params", "top_mass", "det_params", "act_len", "sd_len", "t_touch", "mode0",
-                     "impact_energy", "y0"):
-            assert np.array_equal(getattr(sim, name)[i], getattr(ref, name)[0]), name
+        for name in ("scale", "t_touch", "mode0", "impact_energy", "y0"):
+            assert np.array_equal(getattr(sim.hw, name)[i], getattr(ref.hw, name)[0]), name
+        for name in sim.hw.param_blocks.names:  # every effect's parameters
+            assert np.array_equal(sim.hw.param_block(name)[i], ref.hw.param_block(name)[0]), name
+        assert np.array_equal(sim.fe.det_params, ref.fe.det_params)
         assert np.array_equal(np.delete(sim.P[i], L.B), np.delete(ref.P[0], L.B))
         assert sim.P[i, L.B] == pytest.approx(ref.P[0, L.B], rel=1e-9)
         assert np.array_equal(sim.Y[i], ref.Y[0])
@@ -173,9 +176,10 @@ def test_simulator_env_equals_the_drawn_fixed_scene():
     assert sim.P[1, L.M1] == d["m1"] and sim.P[1, L.C] == d["c"]
     assert sim.P[1, L.K2] == d["suspension_stiffness"]
     base = load_scene("rig").effects.sensors.force.noise_std
-    assert sim.sens_params[1, 1, 3] == base * d["noise_scale"]
-    assert sim.sd_len[1] == round(d["sensor_delay_s"] * RATE)
-    assert sim.command_scale[1] == 200.0 * d["command_gain"]
+    sens = sim.hw.param_block("sensors")[:, 1:].reshape(sim.n, N_CHANNELS, N_PARAM)
+    assert sens[1, 1, 3] == base * d["noise_scale"]
+    assert sim.hw.param_block("sensor_delay")[1, 0] == round(d["sensor_delay_s"] * RATE)
+    assert sim.hw.command_scale[1] == 200.0 * d["command_gain"]
     # a fresh reset with the same seeds draws the same; the envs run
     again = Simulator(sc, 3)
     again.reset([np.random.default_rng(s) for s in (7, 8, 9)])
@@ -224,7 +228,7 @@ def test_per_env_delays_shift_by_their_own_length():
     seeds.sort()
     sim = Simulator(sc, 2)
     sim.reset([np.random.default_rng(s) for _, s in seeds])
-    assert list(sim.sd_len) == [0, 3] and sim.sd_buf.shape[1] == 3
+    assert list(sim.hw.param_block("sensor_delay")[:, 0]) == [0, 3] and sim.hw.k_sens_max == 3
     _ys, rd, _info = _run(sim, 0.0, 300)
     # same plant (only the delay is ranged): env 1 reads env 0's readings 3 samples late
     np.testing.assert_array_equal(rd[3:, 1], rd[:-3, 0])
@@ -300,7 +304,7 @@ def test_back_emf_model_equals_scipy_lsim_and_damps_body_2():
     sim = Simulator(sc, 1)
     sim.reset([np.random.default_rng(0)])
     ys, _rd, info = _run(sim, 0.0, 400)
-    assert np.abs(info[:, 0, K.I_F_APPLIED]).max() > 5.0
+    assert np.abs(info[:, 0, HS.INFO_F_APPLIED]).max() > 5.0
     assert ys[-1, 0, L.W_EXT] < 0.0 and np.all(ys[:, 0, L.W_EXT] <= 1e-12)
 
 
@@ -322,8 +326,8 @@ def detector_run(scene, seed: int, n_steps: int, action: float = 0.0):
     sim = Simulator(scene, 1)
     sim.reset([np.random.default_rng(seed)])
     _ys, _rd, info = _run(sim, action, n_steps)
-    phi = info[:, 0, K.I_CONTACT_FORCE]
-    return phi > 0.0, info[:, 0, K.I_DETECTED] > 0.5, phi
+    phi = info[:, 0, HS.INFO_CONTACT_FORCE]
+    return phi > 0.0, info[:, 0, -1] > 0.5, phi
 
 
 def test_detector_quality_on_the_rig():

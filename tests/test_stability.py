@@ -1,4 +1,4 @@
-"""The up-front checks of a fixed step (impact_env/sim/stability.py) and the graded zone after
+"""The up-front checks of a fixed step (impact_env/hardware/stability.py) and the graded zone after
 a touch on a damped pad (impact_env/plant/integrators.py).
 
 Oracles: the stability polynomial's real-axis limit (a root found by numpy), the closed-form
@@ -16,8 +16,8 @@ import pytest
 
 import impact_env
 from impact_env.config import ConfigError
+from impact_env.hardware import stability as S
 from impact_env.scene import load_scene
-from impact_env.sim import stability as S
 from impact_env.sim.simulator import Simulator
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))

@@ -108,3 +108,24 @@ def delay_block(buf, head, x, out):
     for n in range(x.shape[0]):
         delay_step(buf, head, x[n], out[n])
     return out
+
+
+# -- packed block (one env's delay line inside a per-env row; see impact_env.hardware.blocks) ----
+# parameters: [k, the delay in samples]; state: [head, the buffer's k_max * n_channels samples]
+
+def block_sizes(k_max: int, n_channels: int) -> tuple[int, int]:
+    """(parameter, state) sizes of a packed delay line of at most ``k_max`` samples."""
+    return 1, 1 + k_max * n_channels
+
+
+def pack_params(k: int) -> np.ndarray:
+    return np.array([float(k)])
+
+
+@jit(inline="always")
+def delay_packed(p, st, x, out):
+    """:func:`delay_step` on a packed block: ``p`` = [k], ``st`` = [head, buffer]; x, out
+    float64[n_ch] (they may be the same array)."""
+    k = int(p[0])
+    n = x.shape[0]
+    return delay_step(st[1:1 + k * n].reshape((k, n)), st[0:1], x, out)

@@ -179,3 +179,10 @@ def score_detection(true_contact, detected, rate: float) -> DetectionScore:
     off_mean, off_max = stats(off_late)
     return DetectionScore(fc, mc, on_mean, on_max, off_mean, off_max,
                           int(t_on.size), int(t_off.size), on_miss, off_miss, on_false, int(d_on.size))
+
+
+# -- packed block: the parameters and state above, as they are (float64[5], float64[2]) ----------
+
+def block_sizes() -> tuple[int, int]:
+    """(parameter, state) sizes of the packed detector block."""
+    return 5, N_STATE

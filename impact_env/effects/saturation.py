@@ -131,3 +131,10 @@ def saturate_block(f_cmd, state, params, out, flags):
     for n in range(f_cmd.shape[0]):
         out[n], flags[n] = saturate(f_cmd[n], state, params)
     return out
+
+
+# -- packed block: the parameters and state above, as they are (float64[4], float64[2]) ----------
+
+def block_sizes() -> tuple[int, int]:
+    """(parameter, state) sizes of the packed saturation block."""
+    return 4, N_STATE

@@ -261,3 +261,28 @@ def sense_block(truth, z, params, out):
     for k in range(truth.shape[0]):
         sense(truth[k], z[k], params, out[k])
     return out
+
+
+# -- packed block (one env's sensors inside a per-env row; see impact_env.hardware.blocks) -------
+# parameters: [top mass m2' (kg, the force transducer's mounting), N_CHANNELS * N_PARAM channel
+# parameters of sensor_params]; no state (the noise comes in from outside)
+
+def block_sizes() -> tuple[int, int]:
+    """(parameter, state) sizes of the packed sensor block."""
+    return 1 + N_CHANNELS * N_PARAM, 0
+
+
+def pack_params(cfg: SensorsConfig, top_mass: float) -> np.ndarray:
+    return np.concatenate([[float(top_mass)], sensor_params(cfg).ravel()])
+
+
+@jit(inline="always")
+def read_packed(x1, x2, a2, phi, p, out):
+    """The true channel values (:func:`true_readings`) with the packed block's top mass."""
+    return true_readings(x1, x2, a2, phi, p[0], out)
+
+
+@jit(inline="always")
+def sense_packed(truth, z, p, out):
+    """:func:`sense` on a packed block (``truth`` and ``out`` may be the same array)."""
+    return sense(truth, z, p[1:].reshape((N_CHANNELS, N_PARAM)), out)

@@ -274,3 +274,32 @@ def shaker_step_into(A, B, C, D, x, u, scratch):
     for i in range(n):
         x[i] = scratch[i]
     return y
+
+
+# -- packed block (one env's shaker inside a per-env row; see impact_env.hardware.blocks) --------
+# parameters: [D, A (order * order, row-major), B, C, E (order each)]; state: [x, scratch]
+
+def block_sizes(order: int) -> tuple[int, int]:
+    """(parameter, state) sizes of a packed shaker model of state order ``order``."""
+    return 1 + order * order + 3 * order, 2 * order
+
+
+def pack_params(A, B, C, D, E) -> np.ndarray:
+    """The parameter block of the discretised model (A, B, C, D, E), as :func:`discrete_emf_model`
+    returns it."""
+    return np.concatenate([[float(D)], np.asarray(A, float).ravel(), np.asarray(B, float),
+                           np.asarray(C, float), np.asarray(E, float)])
+
+
+@jit(inline="always")
+def shaker_packed(p, st, u, v2, back_emf):
+    """Force held over this period for the demand u (N), on a packed block; with ``back_emf``
+    body 2's velocity v2 (m/s, down positive, held over the period) enters through E."""
+    ns = st.shape[0] // 2
+    x = st[:ns]
+    o = 1 + ns * ns
+    f = shaker_step_into(p[1:o].reshape((ns, ns)), p[o:o + ns], p[o + ns:o + 2 * ns], p[0], x, u, st[ns:])
+    if back_emf:
+        for j in range(ns):
+            x[j] += p[o + 2 * ns + j] * v2
+    return f

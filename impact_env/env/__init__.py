@@ -8,11 +8,14 @@ made.
 from __future__ import annotations
 
 ENV_ID = "ImpactCatch-v0"
+RIG_ENV_ID = "ImpactCatchRig-v0"
 
 
 def register_envs() -> None:
     import gymnasium
 
+    if RIG_ENV_ID not in gymnasium.registry:  # the rig's host-side env (impact_env.rig.host)
+        gymnasium.register(id=RIG_ENV_ID, entry_point="impact_env.rig.host:RigEnv")
     if ENV_ID in gymnasium.registry:
         return
     gymnasium.register(

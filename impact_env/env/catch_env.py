@@ -8,9 +8,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from impact_env.env.task import REWARD_TIME_UNIT, CatchTask, TaskConfig
+from impact_env.control.observation import OBS_LIMIT
+from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, make_catch_task
 from impact_env.scene import Scene
-from impact_env.sim.observation import OBS_LIMIT
 
 
 class ImpactCatchEnv(gym.Env):
@@ -50,7 +50,7 @@ class ImpactCatchEnv(gym.Env):
 
     ``observation="privileged"`` gives the true ``x1, v1, x2, v2`` (m, m/s; scales d_ref, v0)
     instead, ``"both"`` appends them to the sensors.  ``history=k`` stacks the last k frames and
-    k actions (for delayed scenes).  See :mod:`impact_env.sim.observation`.
+    k actions (for delayed scenes).  See :mod:`impact_env.control.observation`.
 
     ## Rewards
 
@@ -93,18 +93,21 @@ class ImpactCatchEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 30}
 
     def __init__(self, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
-                 observation: str = "sensors", history: int = 1, horizon: float | None = None,
+                 observation: str = "sensors", history: int = 1, hold_ticks: int = 1,
+                 residual: str | None = None,
+                 horizon: float | None = None,
                  catch_threshold: float = 0.01, catch_hold: float = 0.01, terminate_on_catch: bool = True,
                  effort_weight: float = 0.0, limit_weight: float = 0.0, action_bounds: str = "clip",
                  render_mode: str | None = None):
-        cfg = TaskConfig(observation=observation, history=history, horizon=horizon,
+        cfg = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks, residual=residual,
+                         horizon=horizon,
                          catch_threshold=catch_threshold, catch_hold=catch_hold,
                          terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
                          limit_weight=limit_weight, action_bounds=action_bounds)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r}; expected one of "
                              f"{self.metadata['render_modes']} or None")
-        self.task = CatchTask(scene, 1, cfg, overrides)
+        self.task = make_catch_task(scene, 1, cfg, overrides)
         self.scene = self.task.scene
         self.layout = self.task.layout
         self.render_mode = render_mode

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from impact_env.hardware import stage as HS
 from impact_env.plant import layout as L
-from impact_env.sim import pipeline_kernel as K
 
 WIDTH, HEIGHT = 320, 240
 SURFACE_Y = 150  # pixel row of body 2's top surface at x2 = 0
@@ -45,7 +45,7 @@ def draw_frame(task, i: int = 0) -> np.ndarray:
     _rect(img, 0, WIDTH, SURFACE_Y, SURFACE_Y + 1, BLACK)  # rest level of the surface
     mid, half = HEIGHT // 2, HEIGHT // 2 - 10
     scale = task.command_scale
-    bars = ((240, sim.info[i, K.I_F_APPLIED], ORANGE), (280, sim.info[i, K.I_CONTACT_FORCE], RED))
+    bars = ((240, sim.info[i, HS.INFO_F_APPLIED], ORANGE), (280, sim.info[i, HS.INFO_CONTACT_FORCE], RED))
     for x, value, colour in bars:
         h = float(np.clip(np.nan_to_num(value) / scale, -1.0, 1.0)) * half
         _rect(img, x, x + 20, mid, mid - h, colour)

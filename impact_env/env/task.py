@@ -30,11 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from impact_env.config import ConfigError, check_choice, check_range
+from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.env import task_kernel as TK
-from impact_env.plant import layout as L
 from impact_env.scene import Scene, load_scene
-from impact_env.sim.observation import OBS_LIMIT, ObservationLayout, make_layout
-from impact_env.sim.simulator import Simulator
+from impact_env.sim.simulator import Simulator, check_hold_ticks
 
 REWARD_TIME_UNIT = 1e-3  # s
 
@@ -45,6 +44,8 @@ class TaskConfig:
 
     observation: str = "sensors"
     history: int = 1
+    hold_ticks: int = 1  # control periods per policy step
+    residual: str | None = None  # a classic law's spec: the action adds to its command, every tick
     horizon: float | None = None  # s; None: the scene's episode.horizon
     catch_threshold: float = 0.01  # of the impact energy
     catch_hold: float = 0.01  # s
@@ -62,24 +63,45 @@ class TaskConfig:
         check_range("effort_weight", self.effort_weight, "", 0.0)
         check_range("limit_weight", self.limit_weight, "", 0.0)
         check_choice("action_bounds", self.action_bounds, ("clip", "raise"))
+        check_hold_ticks(self.hold_ticks)
+        if self.residual is not None and (not isinstance(self.residual, str) or not self.residual.strip()):
+            raise ConfigError(f"residual = {self.residual!r} must be a classic law's spec, e.g. "
+                              "'pd-penetration' or 'compiled:FILE', or None")
         if not isinstance(self.terminate_on_catch, bool):
             raise ConfigError(f"terminate_on_catch must be true or false, got {self.terminate_on_catch!r}")
 
 
-class CatchTask:
-    """N rigs of one scene with the catch task on top.  All arrays are over envs."""
+def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig,
+                    overrides=None) -> CatchTask:
+    """The simulator of ``num_envs`` rigs of ``scene`` (with ``overrides``) that ``config`` asks
+    for (observation layout, hold_ticks), and the catch task on it."""
+    scene = load_scene(scene, overrides)
+    layout = make_layout(scene, config.observation, config.history)
+    residual = None
+    if config.residual is not None:
+        from impact_env.policy.export import export_policy
 
-    def __init__(self, scene: Scene | str | dict, num_envs: int, config: TaskConfig, overrides=None):
-        self.scene = scene = load_scene(scene, overrides)
+        residual = export_policy(config.residual, scene)
+    return CatchTask(Simulator(scene, num_envs, layout, config.hold_ticks, residual), config)
+
+
+class CatchTask:
+    """The catch task on a :class:`~impact_env.sim.simulator.Simulator`'s batch: reward,
+    termination and info from the true state, as the dm_control split has it (the simulator
+    observes, the task rewards).  All arrays are over envs."""
+
+    def __init__(self, sim: Simulator, config: TaskConfig):
+        self.sim = sim
+        self.scene = scene = sim.scene
         self.config = config
-        self.layout: ObservationLayout = make_layout(scene, config.observation, config.history)
-        self.sim = Simulator(scene, num_envs)
-        self.n = n = self.sim.n
+        self.layout: ObservationLayout = sim.layout
+        self.n = n = sim.n
         self.period = scene.control_period
+        self.hold_ticks = sim.hold
         self.horizon = config.horizon if config.horizon is not None else scene.episode.horizon
         # round, not floor: the horizon is usually a whole number of periods up to float noise
-        self.max_steps = max(1, int(round(self.horizon / self.period)))
-        self.hold_steps = max(1, int(np.ceil(config.catch_hold / self.period - 1e-9)))
+        self.max_steps = max(1, int(round(self.horizon / (self.period * self.hold_ticks))))
+        self.hold_steps = max(1, int(np.ceil(config.catch_hold / self.period - 1e-9)))  # ticks
         self.command_scale = scene.effects.command_scale
         tp = np.zeros(TK.N_TASK)
         tp[TK.T_STEP_WEIGHT] = self.period / REWARD_TIME_UNIT
@@ -90,39 +112,32 @@ class CatchTask:
         tp[TK.T_LIMIT] = config.limit_weight
         tp[TK.T_CMD] = self.command_scale
         tp[TK.T_MAX_STEPS] = self.max_steps
-        tp[TK.T_OBS_LIMIT] = OBS_LIMIT
         self.tp = tp
-        lay = self.layout
-        F, H = lay.frame_size, lay.history
-        self.frames = np.zeros((n, H, F))  # newest first, scaled
-        self.past_actions = np.zeros((n, H))
-        self.obs = np.zeros((n, lay.size), dtype=np.float32)
         self.steps = np.zeros(n, dtype=np.int64)
-        self.below = np.zeros(n, dtype=np.int64)  # consecutive steps below the catch threshold
+        self.below = np.zeros(n, dtype=np.int64)  # consecutive ticks below the catch threshold
         self.energy = np.zeros(n)
-        self.impact_speed = np.zeros(n)
+        self.impact_speed = sim.hw.impact_speed
         self.diverged = np.zeros(n, dtype=bool)
         self.rewards = np.zeros(n)
         self.terminated = np.zeros(n, dtype=bool)
         self.truncated = np.zeros(n, dtype=bool)
-        self.rows = np.zeros((n, TK.N_ROW))
+        self.rows = np.zeros((n, TK.N_COL))
         self._a1 = np.zeros(1)
-        self._obs_args = (lay.sensor_channels, lay.detector, lay.privileged, lay.scales, tp,
-                          self.frames, self.past_actions, self.obs, self.steps, self.below, self.diverged,
-                          self.energy)
+        self._all = np.ones(n, dtype=bool)
+        self._state = (tp, self.steps, self.below, self.diverged, self.energy)
+
+    @property
+    def obs(self) -> np.ndarray:
+        """The observation rows (float32[N, layout.size]), written by the simulator."""
+        return self.sim.obs
 
     # -- episodes ------------------------------------------------------------------------------
     def reset(self, rngs, mask=None) -> None:
         sim = self.sim
-        sim.reset(rngs, mask)
-        idx = np.arange(self.n) if mask is None else np.nonzero(mask)[0]
-        y = sim.Y[idx]
-        g = sim.P[idx, L.G]
-        gap = np.maximum(y[:, L.X2] - y[:, L.X1], 0.0)
-        self.impact_speed[idx] = np.sqrt(np.maximum(y[:, L.V1] - y[:, L.V2], 0.0) ** 2 + 2.0 * g * gap)
-        self.rows[idx, TK.R_TTOUCH] = sim.t_touch[idx]  # kept by the kernels, which skip this column
-        TK.task_reset_rows(idx, sim.readings, sim.info, sim.Y, sim.P, sim.t, sim.impact_energy,
-                           self.impact_speed, *self._obs_args, self.rows)
+        idx = sim.reset(rngs, mask)
+        self.rows[idx, TK.COL_TTOUCH] = sim.t_touch[idx]  # kept by the kernels, which skip this column
+        TK.task_reset_rows(idx, sim.records, sim.Y, sim.P, sim.impact_energy, self.impact_speed, *self._state,
+                           self.rows)
 
     def check_actions(self, actions) -> np.ndarray:
         """float64[N] actions from what the caller gave; NaN or a wrong shape raises ValueError;
@@ -148,49 +163,29 @@ class CatchTask:
             a = np.clip(a, -1.0, 1.0)
         return a
 
-    def step(self, a: np.ndarray):
-        """One control period for every env under float64[N] actions already checked.
+    def step(self, a: np.ndarray, active=None):
+        """One policy step for every env (or those where ``active`` is true; the others are left
+        as they are, with reward 0 and no flags) under float64[N] actions already checked.
         Returns (rewards float64[N], terminated bool[N], truncated bool[N]), arrays owned by the
         task (copy them to keep them)."""
         sim = self.sim
-        sim.step(a)
-        TK.task_step(a, sim.readings, sim.info, sim.Y, sim.P, sim.t, sim.impact_energy, self.impact_speed,
-                     *self._obs_args, self.rewards, self.terminated, self.truncated, self.rows)
+        sim.step(a, active)
+        act = self._all if active is None else active
+        TK.task_step(act, sim.records, sim.Y, sim.P, sim.impact_energy, self.impact_speed, *self._state,
+                     self.rewards, self.terminated, self.truncated, self.rows)
         return self.rewards, self.terminated, self.truncated
-
-    # -- undoing a step for some envs (NEXT_STEP autoreset) -----------------------------------------
-    def save_rows(self, idx) -> list:
-        """Copies of every per-env row (task, simulator and Generator state) of envs ``idx``,
-        so that :meth:`restore_rows` can undo the step those envs are about to take."""
-        saved = []
-        for obj in (self, self.sim):
-            for name, value in vars(obj).items():
-                if isinstance(value, np.ndarray) and value.ndim and value.shape[0] == self.n:
-                    saved.append((obj, name, value[idx].copy()))
-        rngs = self.sim._rngs
-        saved.append((None, "rng", [rngs[i].bit_generator.state for i in idx]))
-        return saved
-
-    def restore_rows(self, idx, saved) -> None:
-        for obj, name, rows in saved:
-            if obj is None:
-                for i, state in zip(idx, rows, strict=True):
-                    self.sim._rngs[i].bit_generator.state = state
-            else:
-                getattr(obj, name)[idx] = rows
-        self.sim._refill_in = 0  # restored noise cursors may point past their blocks again
 
     # -- info ---------------------------------------------------------------------------------
     def info_arrays(self) -> dict[str, np.ndarray]:
         """Per-env diagnostics after the last step or reset (SI units), from the info rows."""
         rows = self.rows
         out = {}
-        for j, key in enumerate(TK.INFO_KEYS[:TK.R_X1]):
+        for j, key in enumerate(TK.INFO_KEYS[:TK.COL_X1]):
             out[key] = rows[:, j] > 0.5 if key in TK.BOOL_KEYS else rows[:, j].copy()
-        out["state"] = rows[:, TK.R_X1:TK.R_V2 + 1].copy()
-        out["diverged"] = rows[:, TK.R_DIV] > 0.5
-        out["caught"] = rows[:, TK.R_CAUGHT] > 0.5
-        out["t_touch"] = rows[:, TK.R_TTOUCH].copy()
+        out["state"] = rows[:, TK.COL_X1:TK.COL_V2 + 1].copy()
+        out["diverged"] = rows[:, TK.COL_DIV] > 0.5
+        out["caught"] = rows[:, TK.COL_CAUGHT] > 0.5
+        out["t_touch"] = rows[:, TK.COL_TTOUCH].copy()
         return out
 
     def info_dict(self, i: int) -> dict:
@@ -200,5 +195,5 @@ class CatchTask:
         for key in TK.BOOL_KEYS:
             out[key] = out[key] > 0.5
         del out["x1"], out["v1"], out["x2"], out["v2"]
-        out["state"] = np.array(vals[TK.R_X1:TK.R_V2 + 1])
+        out["state"] = np.array(vals[TK.COL_X1:TK.COL_V2 + 1])
         return out

@@ -26,9 +26,9 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from impact_env.env.task import REWARD_TIME_UNIT, CatchTask, TaskConfig
+from impact_env.control.observation import OBS_LIMIT
+from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, make_catch_task
 from impact_env.scene import Scene
-from impact_env.sim.observation import OBS_LIMIT
 
 
 class ImpactCatchVectorEnv(VectorEnv):
@@ -37,7 +37,9 @@ class ImpactCatchVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 observation: str = "sensors", history: int = 1, horizon: float | None = None,
+                 observation: str = "sensors", history: int = 1, hold_ticks: int = 1,
+                 residual: str | None = None,
+                 horizon: float | None = None,
                  catch_threshold: float = 0.01, catch_hold: float = 0.01, terminate_on_catch: bool = True,
                  effort_weight: float = 0.0, limit_weight: float = 0.0, action_bounds: str = "clip",
                  render_mode: str | None = None):
@@ -47,11 +49,12 @@ class ImpactCatchVectorEnv(VectorEnv):
         if not isinstance(mode, AutoresetMode):
             raise ValueError(f"autoreset_mode = {autoreset_mode!r}; expected one of "
                              f"{[m.value for m in AutoresetMode]}")
-        cfg = TaskConfig(observation=observation, history=history, horizon=horizon,
+        cfg = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks, residual=residual,
+                         horizon=horizon,
                          catch_threshold=catch_threshold, catch_hold=catch_hold,
                          terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
                          limit_weight=limit_weight, action_bounds=action_bounds)
-        self.task = CatchTask(scene, int(num_envs), cfg, overrides)
+        self.task = make_catch_task(scene, int(num_envs), cfg, overrides)
         self.scene = self.task.scene
         self.layout = self.task.layout
         self.num_envs = int(num_envs)
@@ -112,18 +115,13 @@ class ImpactCatchVectorEnv(VectorEnv):
         task = self.task
         a = task.check_actions(actions)
         mode = self.metadata["autoreset_mode"]
-        pending = None
+        active = None
         if mode == AutoresetMode.NEXT_STEP and self._done.any():
-            pending = np.nonzero(self._done)[0]
+            # the envs that ended last step are reset and report their first observation: they
+            # sit this step out (their action is ignored, reward 0, no flags)
             task.reset(self._rngs, self._done)
-            saved = task.save_rows(pending)
-        rewards, terminated, truncated = (x.copy() for x in task.step(a))
-        if pending is not None:
-            # the envs reset here report their first observation: undo the step they took
-            task.restore_rows(pending, saved)
-            rewards[pending] = 0.0
-            terminated[pending] = False
-            truncated[pending] = False
+            active = ~self._done
+        rewards, terminated, truncated = (x.copy() for x in task.step(a, active))
         ended = terminated | truncated
         out: dict[str, Any] = {}
         if mode == AutoresetMode.SAME_STEP and ended.any():

@@ -19,6 +19,15 @@ Aggregates (one row per policy; per-episode values in ``episodes.csv``):
 * the means over episodes of every other per-episode metric of :mod:`impact_env.eval.rollout`
   (``residual_energy_50ms``, ``exit_speed_ratio``, ``bounces``, ``peak_force_N``, ...).
 * ``episodes``, ``failed_episodes``, ``failures`` (episode, seed, time, error), ``wall_time_s``.
+
+The oracle (:mod:`impact_env.eval.oracle`; a policy class with ``is_oracle = True``).  When one is
+listed, the other policies run first and record the commands they issue on every episode; the
+oracle runs after them, its episodes spread over all workers, and gets those commands as warm
+starts (so no policy of the comparison can beat it on any drop).  Every row then has
+``gap_to_oracle_ms``: the median over episodes of the policy's energy integral minus the
+oracle's on the same episode (and ``gap_to_oracle_min_ms``, the smallest, which is >= 0), and the
+oracle's row ``oracle_improvement_ms`` (median over drops of its gain on its best warm start)
+and ``oracle_seconds_per_drop`` (mean CPU time of its optimisation per drop, one core each).
 """
 
 from __future__ import annotations
@@ -35,6 +44,7 @@ SUMMARY_KEYS = ("time_to_catch_median_s", "time_to_catch_q25_s", "time_to_catch_
                 "peak_demand_N", "energy_integral_ms", "contact_fraction", "saturation_time_s",
                 "impact_speed_mps")
 ENERGY_CURVE_RATE = 2000.0  # Hz, samples of the catch-energy curves kept for every episode
+ORACLE_KEYS = ("gap_to_oracle_ms", "gap_to_oracle_min_ms", "oracle_improvement_ms", "oracle_seconds_per_drop")
 
 
 # -- policy lists ---------------------------------------------------------------------------------
@@ -64,6 +74,8 @@ class Task:
     seed: int
     horizon: float
     trace_rate: float
+    record: bool = False  # keep the commands (an oracle is in the comparison)
+    warm_starts: dict | None = None  # other policies' commands on these episodes (for an oracle)
 
 
 @dataclass
@@ -84,6 +96,8 @@ class PolicyRun:
     control_period: float
     wall_time_s: float = 0.0
     summary: dict = field(default_factory=dict)
+    commands: object = None  # float64[n_steps, E] when recorded
+    stats: dict = field(default_factory=dict)  # a prepared policy's per-episode figures (the oracle's)
 
 
 def _run_task(task: Task):
@@ -102,7 +116,8 @@ def _run_task(task: Task):
         report(n_steps)
         return {"error": f"{type(exc).__name__}: {exc}", "episodes": task.episodes, "seeds": seeds}
     r = rollout(task.scene, policy, seeds, horizon=task.horizon, episodes=task.episodes,
-                trace_rate=task.trace_rate, name=task.spec, progress=report)
+                trace_rate=task.trace_rate, name=task.spec, progress=report,
+                warm_starts=task.warm_starts, record_commands=task.record)
     stride = max(1, int(round(task.trace_rate / ENERGY_CURVE_RATE)))
     ratio = r.traces["catch_energy"][::stride] / r.impact_energy[None, :]
     keep0 = 0 in task.episodes
@@ -110,7 +125,8 @@ def _run_task(task: Task):
             "trace0": {k: v[:, 0].copy() for k, v in r.traces.items()} if keep0 else None,
             "t_touch0": float(r.t_touch[0]), "impact_energy0": float(r.impact_energy[0]),
             "energy_t": r.trace_t[::stride], "energy_ratio": ratio.astype(np.float32),
-            "control_period": r.control_period, "wall_time_s": r.wall_time_s, "episodes": task.episodes}
+            "control_period": r.control_period, "wall_time_s": r.wall_time_s, "episodes": task.episodes,
+            "commands": r.extras.get("commands"), "stats": r.extras.get("policy_stats")}
 
 
 # -- the comparison --------------------------------------------------------------------------------
@@ -119,8 +135,6 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
             trace_rate: float = 1.0e4) -> dict[str, PolicyRun]:
     """Run every policy spec on ``episodes`` seeded drops of ``scene``; returns spec -> PolicyRun
     (with ``summary`` filled in).  Policies are validated before anything runs."""
-    import numpy as np
-
     from impact_env.eval.parallel import default_workers, run_tasks
     from impact_env.scene import load_scene
 
@@ -138,27 +152,71 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
         raise ValueError(f"policy listed twice: {specs}")
     _validate_specs(specs, scene)
     workers = default_workers() if workers is None else max(1, int(workers))
+    oracles = [s for s in specs if _is_oracle(s)]
+    others = [s for s in specs if s not in oracles]
     # chunks of episodes so that every worker has work; results do not depend on the chunking
-    per_policy = max(1, math.ceil(workers / len(specs))) if workers > 1 else 1
-    per_policy = min(per_policy, episodes)
-    bounds = np.linspace(0, episodes, per_policy + 1).round().astype(int)
-    tasks = [Task(spec, scene, list(range(bounds[c], bounds[c + 1])), seed, horizon, trace_rate)
-             for spec in specs for c in range(per_policy)]
+    per_policy = max(1, math.ceil(workers / max(len(others), 1))) if workers > 1 else 1
+    tasks = [Task(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles))
+             for spec in others for chunk in _chunks(episodes, per_policy)]
     if workers > 1:
         _warm_up(scene, horizon)
     n_steps = int(round(horizon / scene.control_period))
     t0 = time.perf_counter()
     outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),
-                     desc=f"compare ({len(specs)} policies x {episodes} episodes)", progress=progress)
-    wall = time.perf_counter() - t0
+                     desc=f"compare ({len(others)} policies x {episodes} episodes)",
+                     progress=progress) if tasks else []
     runs = {}
-    for spec in specs:
-        parts = [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec]
-        runs[spec] = _merge(spec, parts, scene)
-        runs[spec].summary = summarize(runs[spec])
+    for spec in others:
+        runs[spec] = _merge(spec, [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec], scene)
+    if oracles:  # after the others, with their commands as warm starts, over every worker
+        warm = {spec: run.commands for spec, run in runs.items() if run.commands is not None}
+        tasks = [Task(spec, scene, chunk, seed, horizon, trace_rate,
+                      warm_starts={k: u[:, chunk[0]:chunk[-1] + 1] for k, u in warm.items()})
+                 for spec in oracles for chunk in _chunks(episodes, workers)]
+        outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),
+                         desc=f"compare: oracle optimising {episodes} drops", progress=progress)
+        for spec in oracles:
+            runs[spec] = _merge(spec, [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec], scene)
+    wall = time.perf_counter() - t0
+    runs = {spec: runs[spec] for spec in specs}
     for run in runs.values():
+        run.summary = summarize(run)
         run.summary["wall_time_total_s"] = wall
+    if oracles:
+        add_oracle_gaps(runs, oracles[0])
     return runs
+
+
+def _chunks(episodes: int, parts: int) -> list[list[int]]:
+    import numpy as np
+
+    parts = max(1, min(parts, episodes))
+    bounds = np.linspace(0, episodes, parts + 1).round().astype(int)
+    return [list(range(bounds[c], bounds[c + 1])) for c in range(parts)]
+
+
+def _is_oracle(spec: str) -> bool:
+    from impact_env.policy.registry import is_model_spec, parse_spec, policy_class
+
+    return not is_model_spec(spec) and bool(getattr(policy_class(parse_spec(spec)[0]), "is_oracle", False))
+
+
+def add_oracle_gaps(runs: dict[str, PolicyRun], oracle: str) -> None:
+    """Every run's ``gap_to_oracle_ms`` (median over episodes of its energy integral minus the
+    oracle's) and ``gap_to_oracle_min_ms``; the oracle's improvement on its warm starts and time."""
+    import numpy as np
+
+    ref = runs[oracle].metrics["energy_integral_ms"]
+    for run in runs.values():
+        gap = run.metrics["energy_integral_ms"] - ref
+        gap = gap[np.isfinite(gap)]
+        run.summary["gap_to_oracle_ms"] = float(np.median(gap)) if gap.size else math.nan
+        run.summary["gap_to_oracle_min_ms"] = float(np.min(gap)) if gap.size else math.nan
+    for run in runs.values():
+        st = run.stats
+        if st:
+            run.summary["oracle_improvement_ms"] = float(np.nanmedian(st["improvement_ms"]))
+            run.summary["oracle_seconds_per_drop"] = float(np.nanmean(st["cpu_seconds"]))
 
 
 def _validate_specs(specs, scene) -> None:
@@ -210,9 +268,17 @@ def _merge(spec, parts, scene) -> PolicyRun:
             trace0, t_touch0, e00 = p["trace0"], p["t_touch0"], p["impact_energy0"]
     metrics = {k: np.concatenate(v) for k, v in metrics.items()}
     ratio = np.concatenate(ratio_blocks, axis=1) if ratio_blocks else None
+    commands = None
+    if parts and all(p.get("commands") is not None for p in parts):
+        commands = np.concatenate([p["commands"] for p in parts], axis=1)
+    stats: dict = {}
+    if parts and all(p.get("stats") for p in parts):
+        for key in parts[0]["stats"]:
+            stats[key] = np.concatenate([np.asarray(p["stats"][key]) for p in parts])
     return PolicyRun(spec=spec, episodes=episodes, metrics=metrics, failures=failures, trace_t=trace_t,
                      trace0=trace0, t_touch0=t_touch0, impact_energy0=e00, energy_t=energy_t,
-                     energy_ratio=ratio, control_period=period, wall_time_s=wall)
+                     energy_ratio=ratio, control_period=period, wall_time_s=wall, commands=commands,
+                     stats=stats)
 
 
 def summarize(run: PolicyRun) -> dict:
@@ -254,6 +320,9 @@ def _fmt_time(x: float, horizon: float) -> str:
 def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
     cols = ("policy", "catch s: median (IQR)", "caught", "E 10ms", "E 50ms", "E 100ms", "int E ms",
             "exit v/v0", "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
+    gaps = any("gap_to_oracle_ms" in run.summary for run in runs.values())
+    if gaps:
+        cols = cols[:7] + ("gap to oracle",) + cols[7:]
     rows = []
     for spec, run in runs.items():
         s = run.summary
@@ -263,7 +332,9 @@ def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
                      f"{s['caught_fraction']:.0%}" if not math.isnan(s["caught_fraction"]) else "n/a",
                      *(f"{s[k]:.4f}" for k in ("residual_energy_10ms", "residual_energy_50ms",
                                                "residual_energy_100ms")),
-                     f"{s['energy_integral_ms']:.2f}", f"{s['exit_speed_ratio']:.3f}", f"{s['bounces']:.1f}",
+                     f"{s['energy_integral_ms']:.2f}",
+                     *((f"{s.get('gap_to_oracle_ms', math.nan):.2f}",) if gaps else ()),
+                     f"{s['exit_speed_ratio']:.3f}", f"{s['bounces']:.1f}",
                      f"{s['peak_force_N']:.1f}",
                      f"{s['rms_force_N']:.1f}", f"{s['contact_fraction']:.3f}",
                      f"{1e3 * s['saturation_time_s']:.2f}", f"{s['failed_episodes']}/{s['episodes']}"))
@@ -303,6 +374,7 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
     with open(p, "w", newline="") as fh:
         w = csv.writer(fh)
         keys = ["episodes", "failed_episodes", *SUMMARY_KEYS, "wall_time_s"]
+        keys += [k for k in ORACLE_KEYS if any(k in run.summary for run in runs.values())]
         w.writerow(["policy", *keys])
         for spec, run in runs.items():
             w.writerow([spec, *(run.summary.get(k) for k in keys)])

@@ -4,6 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from impact_env._jit import jit
+
+
+@jit(inline="always")
+def catch_energy_at(x1, v1, x2, m1, c, g):
+    """:func:`catch_energy` of one state, compiled (J); the task's rewards and the episode
+    metrics use it."""
+    d = x1 - x2
+    ds = (m1 * g / c) ** (2.0 / 3.0)
+    dp = d if d > 0.0 else 0.0
+    return 0.5 * m1 * v1 * v1 + m1 * g * (0.6 * ds - d) + 0.4 * c * dp * dp * np.sqrt(dp)
+
 
 def elastic_energy(d, c):
     """Energy stored in the Hertz contact, ``(2/5) c d^2.5`` for d > 0 (J)."""

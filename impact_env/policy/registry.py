@@ -1,10 +1,11 @@
 """Policies by spec: ``make_policy("thesis-rig:h01=2.3e6,h11=18", scene)``.
 
 Spec syntax: ``NAME[:KEY=VALUE,KEY=VALUE...]`` for a named policy (values are numbers, or words
-for choice parameters), or a saved stable-baselines3 model: ``PATH.zip``, ``ALGO:PATH.zip``
+for choice parameters), a saved stable-baselines3 model: ``PATH.zip``, ``ALGO:PATH.zip``
 (``ppo``, ``sac``, ``td3``, ``a2c``, ``ddpg``), optionally followed by
-``:observation=sensors,history=4`` (see :mod:`impact_env.policy.sb3`).  Unknown names or
-parameters raise :class:`impact_env.config.ConfigError` listing the valid ones.
+``:observation=sensors,history=4`` (see :mod:`impact_env.policy.sb3`), or a compiled policy
+file: ``compiled:FILE`` (:mod:`impact_env.control.policy`; ``impact-env export`` writes one).
+Unknown names or parameters raise :class:`impact_env.config.ConfigError` listing the valid ones.
 
 Named policies are found through the entry-point group ``impact_env.policies`` (name ->
 ``module:Class``; this project's ``pyproject.toml`` registers the classic laws of the top-level
@@ -82,11 +83,17 @@ def parse_spec(spec: str) -> tuple[str, dict[str, object]]:
 
 def is_model_spec(spec: str) -> bool:
     """True if ``spec`` names a saved SB3 model (a ``.zip`` path, possibly ``algo:``-prefixed)."""
-    return ".zip" in spec
+    return ".zip" in spec and not spec.startswith("compiled:")
 
 
 def make_policy(spec: str, scene: Scene | str | dict):
     """A policy from its spec (see the module doc), built for ``scene``."""
+    if spec.startswith("compiled:"):
+        from impact_env.control.policy import CompiledPolicy
+
+        pol = CompiledPolicy.load(spec.partition(":")[2])
+        pol.check_scene(load_scene(scene))
+        return pol
     if is_model_spec(spec):
         from impact_env.policy.sb3 import load_model_policy
 
@@ -97,7 +104,7 @@ def make_policy(spec: str, scene: Scene | str | dict):
 
 def check_spec(spec: str, scene) -> None:
     """Validate a spec without the cost of loading a model (models: syntax and file)."""
-    if is_model_spec(spec):
+    if is_model_spec(spec) and not spec.startswith("compiled:"):
         from impact_env.policy.sb3 import parse_model_spec
 
         parse_model_spec(spec)

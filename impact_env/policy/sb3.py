@@ -15,8 +15,8 @@ import json
 from pathlib import Path
 
 from impact_env.config import ConfigError
+from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.scene import load_scene
-from impact_env.sim.observation import OBSERVATIONS, make_layout
 
 ALGOS = ("ppo", "sac", "td3", "a2c", "ddpg")
 
@@ -52,13 +52,18 @@ def parse_model_spec(spec: str) -> tuple[str | None, Path, dict]:
 
 
 class ModelPolicy:
-    """A loaded SB3 model with the attributes the comparison needs (``observation``, ``history``)."""
+    """A loaded SB3 model with the attributes the comparison needs: ``observation``, ``history``,
+    ``hold_ticks`` (control periods per action) and ``residual`` (the spec of the classic law its
+    actions add to, or None), the last two from the env kwargs in its ``model.json``."""
 
-    def __init__(self, model, observation: str, history: int, name: str):
+    def __init__(self, model, observation: str, history: int, name: str, hold_ticks: int = 1,
+                 residual: str | None = None):
         self.model = model
         self.observation = observation
         self.history = history
         self.name = name
+        self.hold_ticks = int(hold_ticks)
+        self.residual = residual
 
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
         return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
@@ -82,11 +87,13 @@ def load_model_policy(spec: str, scene) -> ModelPolicy:
     scene = load_scene(scene)
     algo, path, opts = parse_model_spec(spec)
     sidecar = path.with_suffix(".json")
+    env_kwargs: dict = {}
     if sidecar.is_file():
         meta = json.loads(sidecar.read_text())
         for key in ("observation", "history"):
             if key in meta and key not in opts:
                 opts[key] = meta[key]
+        env_kwargs = meta.get("env_kwargs") or {}
     model = _load(algo, path)
     size = int(model.observation_space.shape[0])
     obs, hist = opts.get("observation"), opts.get("history")
@@ -98,7 +105,8 @@ def load_model_policy(spec: str, scene) -> ModelPolicy:
         raise ConfigError(f"model {str(path)!r} takes {size} observation entries: {what} (observation, "
                           f"history) pairs of scene {scene.name!r} fit{listed}; say which with "
                           f"{spec.split('.zip')[0]}.zip:observation=sensors,history=1")
-    return ModelPolicy(model, cands[0][0], cands[0][1], spec)
+    return ModelPolicy(model, cands[0][0], cands[0][1], spec, hold_ticks=int(env_kwargs.get("hold_ticks", 1)),
+                       residual=env_kwargs.get("residual"))
 
 
 def _size(scene, observation, history) -> int | None:

@@ -18,8 +18,9 @@ EFFECTS = ("actuator_delay", "shaker", "saturation", "sensors", "filters", "sens
 @dataclass(frozen=True)
 class EffectsConfig:
     """``active`` names the effects the scene uses (in any order; they always run in the
-    pipeline's order, :mod:`impact_env.sim.pipeline_kernel`).  The other sections hold parameters;
-    those of an effect that is not active are validated but not used."""
+    signal path's order: :mod:`impact_env.hardware.stage`, then :mod:`impact_env.control.front_end`).
+    The other sections hold parameters; those of an effect that is not active are validated but
+    not used."""
 
     active: tuple[str, ...] = field(default=(), metadata={
         "unit": "", "doc": "effects that run: " + ", ".join(EFFECTS)})

@@ -13,10 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from impact_env.plant import layout as L
-from impact_env.plant.run import run_periods
-from impact_env.scene import Scene, load_scene
-from impact_env.sim.arrays import (
+from impact_env.hardware.arrays import (
     METHOD_CODES,
     check_stability,
     error_scale,
@@ -24,6 +21,9 @@ from impact_env.sim.arrays import (
     initial_state,
     plant_params,
 )
+from impact_env.plant import layout as L
+from impact_env.plant.run import run_periods
+from impact_env.scene import Scene, load_scene
 from impact_env.sim.trajectory import Trajectory, build_trajectory
 
 MAX_RECORDS = 20_000_000

@@ -125,20 +125,3 @@ def make_layout(scene: Scene, observation: str = "sensors", history: int = 1) ->
     scales = np.array([unit_scale[u] for u in units], dtype=np.float64)
     return ObservationLayout(tuple(names), tuple(units), scales, np.array(channels, dtype=np.int64),
                              detector, priv, int(history), refs)
-
-
-def fill_frames(layout: ObservationLayout, readings: np.ndarray, detected: np.ndarray, Y: np.ndarray,
-                out: np.ndarray) -> np.ndarray:
-    """Current frames for a batch: ``out[N, frame_size]`` (float64) from the simulator's
-    readings [N, 4], detector column [N] and true state Y [N, >=4]."""
-    k = len(layout.sensor_channels)
-    out[:, :k] = readings[:, layout.sensor_channels]
-    j = k
-    if layout.detector:
-        out[:, j] = detected
-        j += 1
-    if layout.privileged:
-        out[:, j:j + 4] = Y[:, :4]
-    out /= layout.scales
-    np.clip(out, -OBS_LIMIT, OBS_LIMIT, out=out)
-    return out

@@ -10,12 +10,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from impact_env.hardware.stability import check_step
 from impact_env.plant import layout as L
 from impact_env.plant.dynamics import event_value
 from impact_env.plant.hertz import max_penetration
 from impact_env.plant.restitution import tsuji_damping
 from impact_env.scene import Scene
-from impact_env.sim.stability import check_step
 
 METHOD_CODES = {"euler": L.EULER, "symplectic-euler": L.SYMPLECTIC_EULER, "rk4": L.RK4, "dopri5": L.DOPRI5}
 
@@ -61,7 +61,7 @@ def free_fall_state(v: float, g: float, tau: float) -> tuple[np.ndarray, float]:
 
 def check_stability(scene: Scene) -> None:
     """Refuse (ConfigError naming ``integrator.dt``), before simulating, a fixed step that the
-    drop's contact makes unstable or leaves unresolved: :func:`impact_env.sim.stability.check_step`."""
+    drop's contact makes unstable or leaves unresolved: :func:`impact_env.hardware.stability.check_step`."""
     check_step(scene)
 
 

@@ -1,0 +1,126 @@
+"""``impact-env rig serve | log``: the real-time target, and the summary of an episode log."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+
+def add_parser(sub, scene_args) -> None:
+    p = sub.add_parser("rig", help="the rig: serve a target (virtual rig), summarise an episode log")
+    rsub = p.add_subparsers(dest="rig_command", required=True)
+    s = rsub.add_parser("serve", help="run the 10 kHz target until SIGTERM (prints a line with 'listening')")
+    scene_args(s)
+    s.add_argument("--virtual", action="store_true", help="drive a simulated rig (the only driver built in)")
+    s.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: loopback only)")
+    s.add_argument("--port", type=int, default=5600, help="UDP port (default 5600; 0: any free port)")
+    s.add_argument("--lockstep", action="store_true",
+                   help="advance a tick when its command is there (deterministic; tests), not on the clock")
+    s.add_argument("--log-dir", metavar="DIR", help="write one HDF5 log per episode here")
+    s.add_argument("--seed", type=int, default=0,
+                   help="added to every episode's seed (default 0: the drops ImpactCatch-v0 meets for the same "
+                        "reset seeds)")
+    s.set_defaults(func=cmd_serve)
+    g = rsub.add_parser("log", help="summarise an episode log with compare's metrics")
+    g.add_argument("file", help="an episode's .h5 file (impact-env rig serve --log-dir)")
+    g.add_argument("--plot", metavar="OUT.png", help="plot the raw sensors, the forces and the energy")
+    g.add_argument("--json", action="store_true", help="print one JSON object")
+    g.set_defaults(func=cmd_log)
+
+
+def cmd_serve(args) -> int:
+    from pathlib import Path
+
+    from impact_env.cli.args import scene_from_args
+    from impact_env.config import ConfigError
+    from impact_env.rig.driver import VirtualRig
+    from impact_env.rig.target import Target, TargetConfig
+
+    if not args.virtual:
+        raise ConfigError("rig serve: give --virtual (a simulated rig); a physical rig needs a RigDriver for its "
+                          "DAQ card (docs/rig.md, 'Writing a driver')")
+    if not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port {args.port} is out of range: 0 to 65535")
+    if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
+        raise ConfigError(f"--log-dir {args.log_dir!r} exists and is not a folder")
+    scene = scene_from_args(args)
+    print(f"impact-env rig: compiling the target's kernels for scene {scene.name!r} ...", file=sys.stderr,
+          flush=True)
+    target = Target(VirtualRig(scene), f"udp://{args.host}:{args.port}",
+                    TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
+                                 seed_offset=args.seed))
+    target.install_signal_handlers()
+    print(f"impact-env rig: listening on {target.address} (virtual rig, scene {scene.name}, "
+          f"{'lock-step' if args.lockstep else 'real time'} at {scene.control_rate:g} Hz)", flush=True)
+    target.serve()
+    print(f"impact-env rig: stopped after {target.counters['episodes']} episodes; shaker at 0 N", flush=True)
+    return 0
+
+
+def cmd_log(args) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from impact_env.config import ConfigError
+    from impact_env.rig.energy import summarize
+    from impact_env.rig.log import read_episode
+    from impact_env.rig.log_metrics import exact_metrics, has_truth
+    from impact_env.rig.safety import describe_status
+
+    if not Path(args.file).is_file():
+        raise ConfigError(f"log file {args.file!r} not found")
+    try:
+        log = read_episode(args.file)
+    except (OSError, KeyError) as exc:
+        raise ConfigError(f"{args.file!r} is not a readable episode log: {exc}") from None
+    est = summarize(log)
+    out = {"file": args.file, "episode": log.meta.episode, "mode": log.meta.mode, "seed": log.meta.seed,
+           "policy": log.meta.policy, "end_reason": log.meta.end_reason, "ticks": log.n_ticks,
+           "counters": log.meta.counters, "estimated": {k: _num(v) for k, v in est.items()}}
+    status = int(np.bitwise_or.reduce(log["status"])) if log.n_ticks else 0
+    out["status_bits"] = describe_status(status)
+    if has_truth(log):
+        out["true"] = {k: _num(v) for k, v in exact_metrics(log).items()}
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(f"{args.file}: episode {log.meta.episode} ({log.meta.mode} mode, seed {log.meta.seed}, "
+              f"policy {log.meta.policy or 'from the host'}), {log.n_ticks} ticks, ended by {log.meta.end_reason}; "
+              f"status seen: {', '.join(out['status_bits']) or 'none'}")
+        keys = ("time_to_catch_s", "residual_energy_10ms", "residual_energy_50ms", "residual_energy_100ms",
+                "energy_integral_ms", "exit_speed_ratio", "bounces", "peak_force_N", "rms_force_N",
+                "contact_fraction", "saturation_time_s")
+        print(f"  {'metric':24s} {'estimated (eq 4.5, ballistic)':>30s}" + ("  true (virtual rig)" if "true" in out
+                                                                          else ""))
+        for k in keys:
+            line = f"  {k:24s} {_fmt(est.get(k)):>30s}"
+            if "true" in out:
+                line += f"  {_fmt(out['true'].get(k)):>18s}"
+            print(line)
+        print(f"  counters: {', '.join(f'{k} {v}' for k, v in log.meta.counters.items() if v) or 'all 0'}")
+    if args.plot:
+        from impact_env.rig.log_plot import plot_log
+
+        plot_log(log, args.plot, est)
+        if not args.json:
+            print(f"  plot written to {args.plot}")
+    return 0
+
+
+def _num(v):
+    if isinstance(v, (bool, str)) or v is None:
+        return v
+    v = float(v)
+    return None if not math.isfinite(v) else v
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, bool):
+        return str(v)
+    v = float(v)
+    return "nan" if math.isnan(v) else ("inf" if math.isinf(v) else f"{v:.4g}")
+

@@ -1,0 +1,295 @@
+"""Compiled policies: one file holds everything a policy needs to act without Python, and one
+numba kernel, :func:`act`, runs it.
+
+A policy file (JSON, ``*.policy.json``; :data:`FORMAT`, version :data:`VERSION`) holds:
+
+* ``observation``: the layout the policy reads (kind, history, entry names, units, reference
+  scales, sensor channels, detector bit, privileged part; :mod:`impact_env.control.observation`),
+  so the front end on the target builds exactly the observation the policy was made for;
+* ``command_scale_N`` (the force that command 1 demands), ``control_rate_Hz``, ``hold_ticks``;
+* either ``law`` (a classic law by name with its gains and the scene constants it uses,
+  :mod:`impact_env.control.laws`) or ``mlp`` (the actor network's layers and SB3's output
+  transform, :mod:`impact_env.control.mlp`);
+* optionally ``residual``: a whole law policy (as its own file would hold it) that runs every
+  tick under the network, the command of a tick being ``clip(network + law, -1, 1)``, the
+  network's output held for ``hold_ticks`` ticks (the env's ``residual`` option);
+* ``scene`` (name and sha256 of its TOML) and ``source`` (what it was exported from).
+
+Floats are written with ``repr`` (JSON round-trips them exactly), so a file acts bitwise like
+the object it was saved from.  :func:`act` takes the packed arrays of :meth:`CompiledPolicy.arrays`
+(int64 ``pi``, float64 ``pf``), one observation row and the policy's memory row, and returns the
+command in [-1, 1] (1 = ``command_scale_N`` newtons upwards).  It allocates nothing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from impact_env._jit import jit
+from impact_env.config import ConfigError
+from impact_env.control import laws as LW
+from impact_env.control import mlp as MLP
+from impact_env.control.observation import OBSERVATIONS, ObservationLayout, References, make_layout
+
+FORMAT = "impact-env-policy"
+VERSION = 1
+KIND_MLP = len(LW.LAWS)
+
+# pi (int64): header, the law's slots, then the MLP's layer table
+PI_KIND, PI_OBS, PI_FRAME, PI_MEM, PI_NLAYERS, PI_OUT = range(6)
+PI_SLOTS = 6
+PI_LAYERS = PI_SLOTS + len(LW.SLOTS)
+# pf (float64): header, the frame's scales, then the law's constants or the MLP's weights
+PF_CMD, PF_LOW, PF_HIGH = range(3)
+PF_SCALES = 3
+
+
+@jit(inline="always")
+def act(pi, pf, obs, mem):
+    """The command (float64 in [-1, 1]) of the packed policy for the observation row ``obs``
+    (float32 or float64[obs size]); ``mem`` (float64[memory size]) is its memory and scratch,
+    zeroed by the caller at the episode start."""
+    kind = pi[PI_KIND]
+    F = pi[PI_FRAME]
+    body = PF_SCALES + F
+    if kind == KIND_MLP:
+        nl = pi[PI_NLAYERS]
+        layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
+        out = MLP.mlp_forward(layers, pf[body:], obs, mem)
+        return MLP.output_transform(pi[PI_OUT], out[0], pf[PF_LOW], pf[PF_HIGH])
+    v = mem[LW.MEMORY:LW.MEMORY + F]
+    for j in range(F):
+        v[j] = float(obs[j]) * pf[PF_SCALES + j]
+    f = LW.law_force(kind, pi[PI_SLOTS:PI_LAYERS], pf[body:], v, mem[:LW.MEMORY])
+    u = f / pf[PF_CMD]
+    if u < -1.0:
+        return -1.0
+    if u > 1.0:
+        return 1.0
+    return u
+
+
+@jit
+def act_batch(pi, pf, obs, mem, out):
+    """:func:`act` for every row of ``obs`` (float[N, size]) into ``out`` (float64[N])."""
+    for i in range(obs.shape[0]):
+        out[i] = act(pi, pf, obs[i], mem[i])
+    return out
+
+
+def _layout_dict(layout: ObservationLayout, kind: str) -> dict:
+    r = layout.refs
+    return {"kind": kind, "history": layout.history, "names": list(layout.names), "units": list(layout.units),
+            "scales": [float(s) for s in layout.scales],
+            "sensor_channels": [int(c) for c in layout.sensor_channels],
+            "detector": bool(layout.detector), "privileged": bool(layout.privileged),
+            "refs": {"length": r.length, "speed": r.speed, "force": r.force, "accel": r.accel}}
+
+
+def _layout_from(d: dict) -> ObservationLayout:
+    return ObservationLayout(tuple(d["names"]), tuple(d["units"]), np.array(d["scales"], dtype=np.float64),
+                             np.array(d["sensor_channels"], dtype=np.int64), bool(d["detector"]),
+                             bool(d["privileged"]), int(d["history"]), References(**d["refs"]))
+
+
+@dataclass
+class CompiledPolicy:
+    """A policy that acts without Python (see the module doc).  Build it with :meth:`from_law` or
+    :meth:`from_mlp`, or :meth:`load` a file; :meth:`arrays` packs it for :func:`act`; it also has
+    stable-baselines3's ``predict`` (running :func:`act` row by row), ``observation`` and
+    ``history``, so it joins ``impact-env compare`` like any policy."""
+
+    name: str
+    observation: str
+    layout: ObservationLayout
+    command_scale: float
+    control_rate: float
+    hold_ticks: int = 1
+    law: dict | None = None
+    mlp: dict | None = None
+    residual: dict | None = None
+    scene: dict = field(default_factory=dict)
+    source: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if (self.law is None) == (self.mlp is None):
+            raise ConfigError("a compiled policy holds exactly one of a law or an MLP")
+        if self.observation not in OBSERVATIONS:
+            raise ConfigError(f"policy observation {self.observation!r} is not one of "
+                              f"{', '.join(OBSERVATIONS)}")
+        if not (self.command_scale > 0 and np.isfinite(self.command_scale)):
+            raise ConfigError(f"command_scale_N = {self.command_scale!r} N must be finite and > 0")
+        self._packed = None
+        self._state = None
+        self.arrays()  # validates the law or the network now, not at the first act
+        self.residual_policy()
+
+    @property
+    def history(self) -> int:
+        return self.layout.history
+
+    def residual_policy(self) -> CompiledPolicy | None:
+        """The law that runs every tick under this policy, if any."""
+        if self.residual is None:
+            return None
+        base = CompiledPolicy.from_dict(self.residual, f"policy {self.name!r}'s residual law")
+        if base.law is None:
+            raise ConfigError(f"policy {self.name!r}: its residual must be a classic law")
+        return base
+
+    # -- construction ----------------------------------------------------------------------
+    @classmethod
+    def from_law(cls, name: str, params: dict, constants: dict, scene, observation: str, source=None):
+        """A classic law (``name`` in :data:`impact_env.control.laws.LAWS`) with its gains
+        ``params`` and kernel ``constants``, on ``scene``'s observation ``observation``."""
+        layout = make_layout(scene, observation, 1)
+        return cls(name=name, observation=observation, layout=layout,
+                   command_scale=float(scene.effects.command_scale), control_rate=float(scene.control_rate),
+                   law={"name": name, "params": dict(params),
+                        "constants": {k: float(v) for k, v in constants.items()}},
+                   scene=scene_stamp(scene), source=dict(source or {}))
+
+    @classmethod
+    def from_mlp(cls, name: str, layers: list[dict], output: str, low: float, high: float, scene,
+                 observation: str, history: int, hold_ticks: int = 1, residual: CompiledPolicy | None = None,
+                 source=None):
+        """An actor network (``layers`` as :func:`impact_env.control.mlp.pack_mlp` takes them) with
+        SB3's ``output`` transform to ``[low, high]``."""
+        if output not in MLP.OUT:
+            raise ConfigError(f"MLP output {output!r} is not one of {', '.join(MLP.OUTPUTS)}")
+        layout = make_layout(scene, observation, history)
+        mlp = {"layers": [{"weight": np.asarray(ly["weight"], float).tolist(),
+                           "bias": np.asarray(ly["bias"], float).tolist(),
+                           "activation": ly.get("activation", "identity"),
+                           "params": [float(x) for x in ly.get("params", [0.0, 0.0])]} for ly in layers],
+               "output": output, "low": float(low), "high": float(high)}
+        return cls(name=name, observation=observation, layout=layout,
+                   command_scale=float(scene.effects.command_scale), control_rate=float(scene.control_rate),
+                   hold_ticks=int(hold_ticks), mlp=mlp, scene=scene_stamp(scene), source=dict(source or {}),
+                   residual=None if residual is None else residual.to_dict())
+
+    # -- packing ---------------------------------------------------------------------------------
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """(pi int64, pf float64, memory size) for :func:`act`."""
+        if self._packed is not None:
+            return self._packed
+        lay = self.layout
+        F = lay.frame_size
+        head_f = [self.command_scale, -1.0, 1.0, *(float(s) for s in lay.scales)]
+        slots = np.full(len(LW.SLOTS), -1, dtype=np.int64)
+        if self.law is not None:
+            kind, slots, consts = LW.pack_law(self.law["name"], self.law["constants"], lay.names)
+            n_layers, out, table, body, mem = 0, 0, np.zeros(0, np.int64), consts, LW.MEMORY + F
+        else:
+            table2, body, widest = MLP.pack_mlp(self.mlp["layers"])
+            if table2[0, MLP.L_IN] != lay.size:
+                raise ConfigError(f"the network takes {table2[0, MLP.L_IN]} inputs but the observation "
+                                  f"({self.observation}, history {lay.history}) has {lay.size}")
+            if table2[-1, MLP.L_OUT] != 1:
+                raise ConfigError(f"the network gives {table2[-1, MLP.L_OUT]} outputs; the shaker takes one")
+            kind, n_layers, out, table, mem = KIND_MLP, table2.shape[0], MLP.OUT[self.mlp["output"]], \
+                table2.ravel(), 2 * widest
+            head_f[PF_LOW], head_f[PF_HIGH] = self.mlp["low"], self.mlp["high"]
+        pi = np.concatenate([np.array([kind, lay.size, F, mem, n_layers, out], dtype=np.int64), slots, table])
+        pf = np.concatenate([np.array(head_f, dtype=np.float64), body])
+        self._packed = (pi.astype(np.int64), pf, int(mem))
+        return self._packed
+
+    # -- files -------------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = {"format": FORMAT, "version": VERSION, "name": self.name,
+             "observation": _layout_dict(self.layout, self.observation),
+             "command_scale_N": self.command_scale, "control_rate_Hz": self.control_rate,
+             "hold_ticks": self.hold_ticks, "scene": self.scene, "source": self.source}
+        if self.law is not None:
+            d["law"] = self.law
+        else:
+            d["mlp"] = self.mlp
+        if self.residual is not None:
+            d["residual"] = self.residual
+        return d
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        return path
+
+    @classmethod
+    def load(cls, path) -> CompiledPolicy:
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"policy file {str(path)!r} not found")
+        try:
+            d = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"policy file {str(path)!r} is not JSON: {exc}") from None
+        return cls.from_dict(d, str(path))
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "policy") -> CompiledPolicy:
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            raise ConfigError(f"{where} is not an {FORMAT} file (no 'format': {FORMAT!r})")
+        if int(d.get("version", -1)) != VERSION:
+            raise ConfigError(f"{where} has version {d.get('version')!r}; this impact_env reads version "
+                              f"{VERSION}")
+        try:
+            obs = d["observation"]
+            return cls(name=d["name"], observation=obs["kind"], layout=_layout_from(obs),
+                       command_scale=float(d["command_scale_N"]), control_rate=float(d["control_rate_Hz"]),
+                       hold_ticks=int(d.get("hold_ticks", 1)), law=d.get("law"), mlp=d.get("mlp"),
+                       residual=d.get("residual"), scene=d.get("scene", {}), source=d.get("source", {}))
+        except KeyError as exc:
+            raise ConfigError(f"{where} misses the key {exc}") from None
+
+    def sha256(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+
+    # -- use ---------------------------------------------------------------------------------------
+    def check_scene(self, scene) -> None:
+        """ConfigError unless ``scene`` gives this policy's observation (same entries and scales)
+        at its control rate."""
+        if self.residual is not None:
+            self.residual_policy().check_scene(scene)
+        lay = make_layout(scene, self.observation, self.history)
+        if lay.names != self.layout.names or not np.array_equal(lay.scales, self.layout.scales):
+            raise ConfigError(f"policy {self.name!r} reads {self.layout.names} with scales "
+                              f"{self.layout.scales.tolist()}; scene {scene.name!r} gives {lay.names} with "
+                              f"scales {lay.scales.tolist()} (a different drop or pad changes the reference "
+                              "scales)")
+        if abs(scene.control_rate - self.control_rate) > 1e-9 * self.control_rate:
+            raise ConfigError(f"policy {self.name!r} was made for control.rate = {self.control_rate:g} Hz; "
+                              f"scene {scene.name!r} runs at {scene.control_rate:g} Hz")
+
+    def new_memory(self, n: int) -> np.ndarray:
+        return np.zeros((n, self.arrays()[2]))
+
+    def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
+        """stable-baselines3's interface: (actions [N, 1] or [1], memory); the actions are the
+        float64 commands :func:`act` gives (the env takes float64 actions as they are)."""
+        pi, pf, m = self.arrays()
+        x = np.asarray(obs)
+        single = x.ndim == 1
+        x = np.atleast_2d(x)
+        n = x.shape[0]
+        if state is not None:
+            mem = np.asarray(state)
+        elif self._state is None or self._state.shape[0] != n:
+            self._state = mem = self.new_memory(n)
+        else:
+            mem = self._state
+        if episode_start is not None:
+            starts = np.broadcast_to(np.asarray(episode_start, dtype=bool).reshape(-1), (n,))
+            mem[starts] = 0.0
+        u = act_batch(pi, pf, np.ascontiguousarray(x), mem, np.empty(n))
+        a = u.reshape(n, 1)
+        return (a[0] if single else a), mem
+
+
+def scene_stamp(scene) -> dict:
+    """The scene a policy was made on: name and the sha256 of its TOML."""
+    return {"name": scene.name, "toml_sha256": hashlib.sha256(scene.to_toml().encode()).hexdigest()}

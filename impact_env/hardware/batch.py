@@ -1,0 +1,256 @@
+"""The hardware of N rigs of one scene: every array the rig-physics stage needs, built from the
+scene, and the per-env randomness.
+
+:class:`Hardware` validates, builds the plant's and the effects' per-env arrays (only the stages
+the scene names are switched on), draws every random number from numpy Generators that the
+caller owns, and hands :func:`impact_env.hardware.stage.hardware_tick` its argument groups
+(:meth:`Hardware.args`).  The simulator (:class:`impact_env.sim.simulator.Simulator`) puts the
+controller's front end after it; a virtual rig uses it alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from impact_env.effects import delay as DL
+from impact_env.effects import saturation as SA
+from impact_env.effects import sensors as SE
+from impact_env.effects import shaker as SH
+from impact_env.hardware import stage as HS
+from impact_env.hardware.arrays import (
+    METHOD_CODES,
+    check_stability,
+    error_scale,
+    initial_mode,
+    initial_state,
+    plant_params,
+)
+from impact_env.hardware.blocks import Blocks
+from impact_env.plant import layout as L
+from impact_env.plant.energy import catch_energy
+from impact_env.plant.restitution import zeta_table
+from impact_env.scene import Scene, load_scene
+
+NOISE_BLOCK = 256  # control ticks of noise drawn at once per env (at least; see Hardware)
+
+
+class Hardware:
+    """N copies of a scene's rig hardware.  ``reset(rngs, mask)`` starts drops; the stage kernel
+    advances them (:meth:`args` gives its argument groups).
+
+    Arrays over envs (SI): ``Y`` (x1, v1, x2, v2, W_ext, W_diss), ``modes``, ``P`` (plant
+    parameters), ``t`` (s since the episode start), ``raw`` (float64[N, 4]: the raw readings),
+    ``info`` (float64[N, N_INFO], columns in :mod:`impact_env.hardware.stage`), ``y0``,
+    ``mode0``, ``t_touch`` (s, the first touch after the start), ``impact_energy`` (J),
+    ``impact_speed`` (m/s, from the free fall),
+    ``drawn`` (each env's randomised values).  ``PR``/``ST`` hold the effects' packed parameters
+    and state (:meth:`param_block` / :meth:`state_block` give a named block as a view over envs).
+
+    Randomised scenes (``scene.randomize``): at each reset env i draws its values from
+    ``rngs[i]`` (the seed policy of :mod:`impact_env.scene.randomize`) and gets exactly the
+    arrays of the fixed scene ``scene.with_draws(values)``: its plant row (the pad damping of a
+    drawn restitution from a :class:`~impact_env.plant.restitution.ZetaTable`, equal to the
+    exact solve to about 1e-10), initial state, impact energy, command scale, noise levels,
+    shaker model and delay lengths.  Envs of one batch thus differ; the kernel is the same.
+    """
+
+    def __init__(self, scene: Scene | str, num_envs: int = 1, events_per_env: int = 64,
+                 noise_block: int = NOISE_BLOCK):
+        scene = load_scene(scene)
+        if isinstance(num_envs, bool) or int(num_envs) < 1:
+            raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
+        check_stability(scene)
+        self.scene = scene
+        self.n = n = int(num_envs)
+        fx = scene.effects
+        self.period = scene.control_period
+        self.rate = rate = 1.0 / self.period
+        self.method = METHOD_CODES[scene.integrator.method]
+        self.flags = 0
+        for name, bit in (("actuator_delay", HS.F_ACT_DELAY), ("shaker", HS.F_SHAKER),
+                          ("saturation", HS.F_SATURATION), ("sensors", HS.F_SENSORS),
+                          ("sensor_delay", HS.F_SENS_DELAY)):
+            if fx.on(name):
+                self.flags |= bit
+        if fx.on("shaker") and fx.shaker.back_emf:
+            self.flags |= HS.F_BACK_EMF
+        rz = scene.randomize
+        self.randomized = rz.any()
+        self._zeta = None
+        if self.randomized:
+            check_stability(scene.with_draws(rz.stiffest()))  # the stiffest drop the ranges allow
+            if "restitution" in rz.ranged():
+                lo, hi = rz.restitution
+                self._zeta = zeta_table(lo, hi)
+        # delay lines sized for the longest delay the scene (or its ranges) can ask for
+        k_sens, k_act = fx.delay.samples(rate)
+        self.k_sens_max = max([k_sens] + [DL.delay_samples(v, rate) for v in rz.sensor_delay_s]) \
+            if fx.on("sensor_delay") else 0
+        self.k_act_max = max([k_act] + [DL.delay_samples(v, rate) for v in rz.actuator_delay_s]) \
+            if fx.on("actuator_delay") else 0
+        base = self._env_arrays(scene, exact=True)
+        order = base["shaker_order"]
+        d_p, d_s = DL.block_sizes(self.k_act_max, 1)
+        s_p, s_s = DL.block_sizes(self.k_sens_max, SE.N_CHANNELS)
+        sh_p, sh_s = SH.block_sizes(order)
+        sa_p, sa_s = SA.block_sizes()
+        se_p, _ = SE.block_sizes()
+        self.param_blocks = Blocks(HS.PARAM_BLOCKS, (1, d_p, sh_p, sa_p, se_p, s_p))
+        self.state_blocks = Blocks(HS.STATE_BLOCKS, (d_s, sh_s, sa_s, s_s))
+        self.PR = np.zeros((n, self.param_blocks.size))
+        self.ST = np.zeros((n, self.state_blocks.size))
+        self.Y = np.zeros((n, L.N_STATE))
+        self.modes = np.zeros(n, dtype=np.int64)
+        self.P = np.zeros((n, L.N_PARAM))
+        self.scale = np.zeros((n, 6))
+        self.H = np.zeros((n, 1))
+        self.EV = np.zeros((n, events_per_env, L.N_EVENT_COLS))
+        self.EVN = np.zeros((n, 1), dtype=np.int64)
+        self.t = np.zeros(n)
+        self.y0 = np.zeros((n, L.N_STATE))
+        self.mode0 = np.zeros(n, dtype=np.int64)
+        self.t_touch = np.zeros(n)
+        self.impact_energy = np.zeros(n)
+        self.impact_speed = np.zeros(n)  # m/s, body 1 relative to body 2 at the first touch
+        self.raw = np.zeros((n, SE.N_CHANNELS))
+        self.info = np.zeros((n, HS.N_INFO))
+        self.noise_block = nb = max(int(noise_block), 1)
+        self.noise = np.zeros((n, nb, SE.N_CHANNELS))
+        self.cursor = np.full(n, nb, dtype=np.int64)
+        self._refill_in = 0  # ticks that every env can still run on its noise block
+        self.drawn: list[dict[str, float]] = [{} for _ in range(n)]
+        self.rngs: list[np.random.Generator | None] = [None] * n
+        for i in range(n):
+            self._set_env(i, base)
+        self._cfg = (np.int64(self.flags), np.int64(self.method), float(scene.integrator.dt),
+                     float(scene.integrator.rtol), float(self.period))
+
+    # -- arrays from a scene ----------------------------------------------------------------
+    def _env_arrays(self, scene: Scene, exact: bool = False) -> dict:
+        """One env's parameter blocks and start values for the fixed ``scene``."""
+        fx = scene.effects
+        rate = self.rate
+        p = plant_params(scene, None if exact or self._zeta is None else self._zeta)
+        y0, t_touch = initial_state(scene)
+        e0 = float(catch_energy(y0[0], y0[1], y0[2], p[L.M1], p[L.C], p[L.G]))
+        if fx.on("shaker"):
+            A, B, C, D, E = SH.discrete_emf_model(fx.shaker, rate)
+        else:
+            A, B, C, D, E = np.zeros((1, 1)), np.zeros(1), np.zeros(1), 0.0, np.zeros(1)
+        k_sens, k_act = fx.delay.samples(rate)
+        return {
+            "P": p, "scale": error_scale(scene, p), "y0": y0, "t_touch": t_touch,
+            "mode0": initial_mode(scene, y0, p), "impact_energy": max(e0, 1e-300),
+            "drive": np.array([fx.command_scale]),
+            "actuator_delay": DL.pack_params(k_act if fx.on("actuator_delay") else 0),
+            "shaker": SH.pack_params(A, B, C, D, E), "shaker_order": A.shape[0],
+            "saturation": SA.saturation_params(fx.saturation, rate),
+            "sensors": SE.pack_params(fx.sensors, fx.sensors.force.top_mass),
+            "sensor_delay": DL.pack_params(k_sens if fx.on("sensor_delay") else 0),
+        }
+
+    def _set_env(self, i: int, arrays: dict) -> None:
+        for name in HS.PARAM_BLOCKS:
+            block = self.param_block(name)[i]
+            value = arrays[name]
+            if value.shape != block.shape:
+                raise ValueError(f"the {name} block of env {i} changed size ({value.shape} -> "
+                                 f"{block.shape}): a randomised range changes the shaker's model order")
+            block[:] = value
+        self.P[i] = arrays["P"]
+        self.scale[i] = arrays["scale"]
+        self.y0[i] = arrays["y0"]
+        self.t_touch[i] = arrays["t_touch"]
+        self.mode0[i] = arrays["mode0"]
+        self.impact_energy[i] = arrays["impact_energy"]
+
+    def param_block(self, name: str) -> np.ndarray:
+        """The parameter block ``name`` of every env (a view: float64[N, size])."""
+        return self.param_blocks.view(self.PR, name)
+
+    def state_block(self, name: str) -> np.ndarray:
+        """The state block ``name`` of every env (a view: float64[N, size])."""
+        return self.state_blocks.view(self.ST, name)
+
+    @property
+    def command_scale(self) -> np.ndarray:
+        """N per unit command, per env (the scene's, times a drawn amplifier gain)."""
+        return self.param_block("drive")[:, 0]
+
+    # -- episodes ---------------------------------------------------------------------------
+    def reset(self, rngs, mask=None) -> np.ndarray:
+        """Start a new drop in the envs where ``mask`` is true (all if None); ``rngs[i]`` is env
+        i's Generator: a randomised scene first draws env i's values from it, then the sensor
+        noise comes from it as the episode runs (see :mod:`impact_env.scene.randomize`).
+        The raw readings at the start are the true, noise-free values.  Returns the indices."""
+        idx = np.arange(self.n) if mask is None else np.nonzero(mask)[0]
+        for i in idx:
+            rng = rngs[i]
+            self.rngs[i] = rng
+            if self.randomized:  # (a fixed scene's rows were filled once, in __init__)
+                self.drawn[i] = values = self.scene.draw(rng)
+                self._set_env(i, self._env_arrays(self.scene.with_draws(values)))
+            self.Y[i] = self.y0[i]
+            self.modes[i] = self.mode0[i]
+            self.EVN[i] = 0
+            self.EV[i] = 0.0
+            self.ST[i] = 0.0  # every effect's state and the delay lines
+            self.H[i] = 0.0  # dopri5's step size
+            self.t[i] = 0.0
+            self.cursor[i] = self.noise_block
+            self.info[i] = 0.0
+            y = self.Y[i]
+            self.raw[i] = (0.0, 0.0, y[L.X2], y[L.X1])
+        y = self.Y[idx]
+        gap = np.maximum(y[:, L.X2] - y[:, L.X1], 0.0)
+        self.impact_speed[idx] = np.sqrt(np.maximum(y[:, L.V1] - y[:, L.V2], 0.0) ** 2
+                                         + 2.0 * self.P[idx, L.G] * gap)
+        self._refill_in = 0
+        return idx
+
+    def refill_noise(self, ticks: int, active=None) -> None:
+        """Make sure every (active) env has ``ticks`` unread noise samples: an env short of them
+        keeps its unread ones and tops its block up from its Generator.  Drawing in pieces gives
+        the same stream as drawing at once, so the noise an env meets does not depend on how
+        many ticks a step holds."""
+        if not self.flags & HS.F_SENSORS:
+            return
+        if self._refill_in >= ticks:
+            self._refill_in -= ticks
+            return
+        nb = self.noise_block
+        if ticks > nb:
+            raise ValueError(f"{ticks} ticks of noise asked for at once; the noise block holds {nb}")
+        short = self.cursor > nb - ticks
+        if active is not None:
+            short &= active
+        for i in np.nonzero(short)[0]:
+            c = self.cursor[i]
+            left = nb - c
+            if left:
+                self.noise[i, :left] = self.noise[i, c:]
+            self.noise[i, left:] = self.rngs[i].standard_normal((nb - left, SE.N_CHANNELS))
+            self.cursor[i] = 0
+        # inactive envs were not topped up: check every env again at the next step
+        self._refill_in = 0 if active is not None else int(nb - self.cursor.max()) - ticks
+
+    def args(self):
+        """The stage kernel's argument groups ``(cfg, plant, fx, noise, out)``."""
+        return (self._cfg, (self.Y, self.modes, self.P, self.scale, self.H, self.EV, self.EVN, self.t),
+                (self.PR, self.ST, self.param_blocks.offsets, self.state_blocks.offsets),
+                (self.noise, self.cursor), (self.raw, self.info))
+
+    def step(self, commands) -> None:
+        """One tick of every env under float64[N] drive commands (what a virtual rig does)."""
+        u = np.ascontiguousarray(commands, dtype=np.float64).reshape(self.n)
+        self.refill_noise(1)
+        HS.hardware_step(u, *self.args())
+
+    # -- derived readings -----------------------------------------------------------------------
+    def catch_energy(self) -> np.ndarray:
+        """Body 1's catch energy per env (J)."""
+        P, Y = self.P, self.Y
+        return catch_energy(Y[:, L.X1], Y[:, L.V1], Y[:, L.X2], P[:, L.M1], P[:, L.C], P[:, L.G])
+
+    def diverged(self) -> np.ndarray:
+        return (self.info[:, HS.INFO_STATUS] != L.OK) | ~np.all(np.isfinite(self.Y), axis=1)

@@ -1,0 +1,183 @@
+"""Exporting policies: any policy spec that ``compare`` accepts to a compiled policy file
+(:mod:`impact_env.control.policy`), and compiled networks to ONNX.
+
+* A named classic law (``pd-penetration:kp=3e5``) becomes its compiled law with the same gains
+  (the law's ``compiled()``).
+* A saved stable-baselines3 model (``ppo:PATH.zip``, ``sac:PATH.zip``, ...) becomes an MLP: the
+  actor's ``Linear`` layers and activations, read from the torch modules, and the output
+  transform SB3's ``predict(deterministic=True)`` applies (:func:`sb3_layers` says which).
+  No ``VecNormalize`` is involved: the env's observations are already of order one, and
+  ``agents.train`` does not normalise.
+* ``compiled:FILE`` is loaded and written again.
+
+:func:`write_onnx` writes a compiled MLP as an ONNX graph (``Gemm`` and activation nodes, the
+output transform, float32), for people who deploy with other tools; classic laws carry memory
+and branches and are not exported to ONNX.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from impact_env.config import ConfigError
+from impact_env.control.policy import CompiledPolicy
+from impact_env.scene import load_scene
+
+
+def export_policy(spec: str, scene) -> CompiledPolicy:
+    """The compiled policy of ``spec`` on ``scene`` (see the module doc)."""
+    from impact_env.policy.registry import is_model_spec, make_policy
+
+    scene = load_scene(scene)
+    if spec.startswith("compiled:"):
+        pol = CompiledPolicy.load(spec.partition(":")[2])
+        pol.check_scene(scene)
+        return pol
+    policy = make_policy(spec, scene)
+    if is_model_spec(spec):
+        return export_sb3(policy, scene, spec=spec)
+    if not hasattr(policy, "compiled"):
+        raise ConfigError(f"policy {spec!r} ({type(policy).__name__}) cannot be compiled: it has no "
+                          "compiled() method")
+    return policy.compiled()
+
+
+def sb3_layers(model) -> tuple[list[dict], str]:
+    """(layers, output transform) of an SB3 model's deterministic actor."""
+    import torch.nn as nn
+
+    pol = model.policy
+    if hasattr(pol, "mlp_extractor") and hasattr(pol, "action_net"):  # PPO, A2C
+        if type(pol.features_extractor).__name__ != "FlattenExtractor":
+            raise ConfigError("only the default FlattenExtractor can be exported")
+        modules = list(pol.mlp_extractor.policy_net) + [pol.action_net]
+        output = "squash" if pol.squash_output else "clip"
+    elif hasattr(pol, "actor") and hasattr(pol.actor, "latent_pi"):  # SAC
+        modules = list(pol.actor.latent_pi) + _flat(pol.actor.mu)
+        output = "squash"
+    elif hasattr(pol, "actor") and hasattr(pol.actor, "mu"):  # TD3, DDPG: mu ends in a Tanh
+        modules = _flat(pol.actor.mu)
+        if not isinstance(modules[-1], nn.Tanh):
+            raise ConfigError("the TD3/DDPG actor should end in a Tanh")
+        modules = modules[:-1]
+        output = "squash"  # that tanh, then unscaled
+    else:
+        raise ConfigError(f"cannot read the actor of {type(model).__name__}'s policy {type(pol).__name__}")
+    layers: list[dict] = []
+    for m in modules:
+        if isinstance(m, nn.Linear):
+            layers.append({"weight": m.weight.detach().cpu().double().numpy(),
+                           "bias": (m.bias.detach().cpu().double().numpy() if m.bias is not None
+                                    else np.zeros(m.out_features)),
+                           "activation": "identity", "params": [0.0, 0.0]})
+            continue
+        if not layers:
+            raise ConfigError(f"the actor starts with {type(m).__name__}, not a Linear layer")
+        act, params = _activation(m)
+        if layers[-1]["activation"] != "identity":
+            raise ConfigError(f"two activations in a row in the actor ({type(m).__name__})")
+        layers[-1]["activation"], layers[-1]["params"] = act, params
+    return layers, output
+
+
+def _flat(module):
+    import torch.nn as nn
+
+    return list(module) if isinstance(module, nn.Sequential) else [module]
+
+
+def _activation(m) -> tuple[str, list[float]]:
+    import torch.nn as nn
+
+    if isinstance(m, nn.Tanh):
+        return "tanh", [0.0, 0.0]
+    if isinstance(m, nn.ReLU):
+        return "relu", [0.0, 0.0]
+    if isinstance(m, nn.Hardtanh):
+        return "hardtanh", [float(m.min_val), float(m.max_val)]
+    if isinstance(m, nn.LeakyReLU):
+        return "leaky_relu", [float(m.negative_slope), 0.0]
+    if isinstance(m, nn.ELU):
+        return "elu", [float(m.alpha), 0.0]
+    if isinstance(m, nn.Identity):
+        return "identity", [0.0, 0.0]
+    raise ConfigError(f"activation {type(m).__name__} cannot be exported (supported: Tanh, ReLU, Hardtanh, "
+                      "LeakyReLU, ELU)")
+
+
+def export_sb3(policy, scene, spec: str = "") -> CompiledPolicy:
+    """A loaded :class:`~impact_env.policy.sb3.ModelPolicy` as a compiled MLP, with the hold and
+    the residual law it was trained with (its ``model.json``)."""
+    model = policy.model
+    space = model.action_space
+    if space.shape != (1,):
+        raise ConfigError(f"the model's action space {space} is not the shaker's one command")
+    layers, output = sb3_layers(model)
+    low, high = float(space.low[0]), float(space.high[0])
+    name = Path(spec.split(":")[-1]).stem if spec else "mlp"
+    source = {"spec": spec, "algo": type(model).__name__.lower()}
+    residual = None if policy.residual is None else export_policy(policy.residual, scene)
+    return CompiledPolicy.from_mlp(name, layers, output, low, high, scene, policy.observation, policy.history,
+                                   hold_ticks=policy.hold_ticks, residual=residual, source=source)
+
+
+def write_onnx(pol: CompiledPolicy, path) -> Path:
+    """The compiled MLP ``pol`` as an ONNX model: input ``obs`` float32[N, obs size], output
+    ``action`` float32[N, 1] (the command in [-1, 1])."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    if pol.mlp is None:
+        raise ConfigError(f"policy {pol.name!r} is a classic law ({pol.law['name']}): only MLP policies are "
+                          "exported to ONNX (a law keeps memory between calls)")
+    nodes, inits = [], []
+    x = "obs"
+    for j, ly in enumerate(pol.mlp["layers"]):
+        W = np.asarray(ly["weight"], dtype=np.float32)
+        b = np.asarray(ly["bias"], dtype=np.float32)
+        inits += [numpy_helper.from_array(W, f"W{j}"), numpy_helper.from_array(b, f"b{j}")]
+        y = f"z{j}"
+        nodes.append(helper.make_node("Gemm", [x, f"W{j}", f"b{j}"], [y], transB=1))
+        act, (a0, a1) = ly["activation"], ly["params"]
+        if act != "identity":
+            out = f"h{j}"
+            if act == "tanh":
+                nodes.append(helper.make_node("Tanh", [y], [out]))
+            elif act == "relu":
+                nodes.append(helper.make_node("Relu", [y], [out]))
+            elif act == "hardtanh":
+                inits += [numpy_helper.from_array(np.array(a0, np.float32), f"lo{j}"),
+                          numpy_helper.from_array(np.array(a1, np.float32), f"hi{j}")]
+                nodes.append(helper.make_node("Clip", [y, f"lo{j}", f"hi{j}"], [out]))
+            elif act == "leaky_relu":
+                nodes.append(helper.make_node("LeakyRelu", [y], [out], alpha=float(a0)))
+            elif act == "elu":
+                nodes.append(helper.make_node("Elu", [y], [out], alpha=float(a0)))
+            y = out
+        x = y
+    low, high = pol.mlp["low"], pol.mlp["high"]
+    inits += [numpy_helper.from_array(np.array(low, np.float32), "low"),
+              numpy_helper.from_array(np.array(high, np.float32), "high")]
+    if pol.mlp["output"] == "clip":
+        nodes.append(helper.make_node("Clip", [x, "low", "high"], ["action"]))
+    else:  # low + 0.5 (a + 1) (high - low), after a tanh for "squash"
+        if pol.mlp["output"] == "squash":
+            nodes.append(helper.make_node("Tanh", [x], ["sq"]))
+            x = "sq"
+        inits += [numpy_helper.from_array(np.array(1.0, np.float32), "one"),
+                  numpy_helper.from_array(np.array(0.5 * (high - low), np.float32), "half_span")]
+        nodes += [helper.make_node("Add", [x, "one"], ["a1"]),
+                  helper.make_node("Mul", ["a1", "half_span"], ["a2"]),
+                  helper.make_node("Add", ["a2", "low"], ["action"])]
+    n_obs = pol.layout.size
+    graph = helper.make_graph(nodes, pol.name,
+                              [helper.make_tensor_value_info("obs", TensorProto.FLOAT, [None, n_obs])],
+                              [helper.make_tensor_value_info("action", TensorProto.FLOAT, [None, 1])], inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="impact_env")
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    path = Path(path)
+    onnx.save(model, str(path))
+    return path

@@ -1,0 +1,165 @@
+"""The target's controller: the compiled code of one tick between ``driver.read()`` and
+``driver.apply()``, the same kernels the simulator runs (:mod:`impact_env.control`).
+
+Tick m of an episode (T the control period, H = hold_ticks, step n = m // H):
+
+1. :func:`observe_tick`: the raw readings of tick m (what the rig did in tick m - 1) go through
+   the front end's filters and detector (:func:`impact_env.control.front_end.condition`; at
+   m = 0 the readings at the release start the front end unfiltered, as in the simulator's
+   reset), a residual law's frame is rebuilt, and at a step boundary (m % H == 0) the policy's
+   observation of step n is written.
+2. :func:`act_tick`: at a step boundary the action of step n is taken (the onboard policy's
+   :func:`~impact_env.control.policy.act` on that observation, or the host's latest command);
+   the tick's command is the action (plus the residual law, clipped to [-1, 1]); the safety
+   layer (:func:`impact_env.rig.safety.safety_step`) may zero or clamp it; the tick's log row is
+   written.  The driver then applies the returned command for the tick.
+
+So the observation of step n is that of tick n H, made from the readings after tick n H - 1,
+and the action of step n acts over ticks n H .. n H + H - 1: exactly the simulator's order
+(:mod:`impact_env.sim.step`), which is why a lock-step virtual rig reproduces ``ImpactCatch-v0``
+bitwise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from impact_env._jit import jit
+from impact_env.control.front_end import FrontEnd, condition, observation_buffers, observe, start_rows
+from impact_env.control.observation import ObservationLayout
+from impact_env.control.policy import CompiledPolicy, act
+from impact_env.effects.sensors import POT
+from impact_env.rig import log as LG
+from impact_env.rig import safety as SF
+from impact_env.rig.safety import SafetyConfig, safety_params, safety_step
+
+# the controller's own state (float64[N_STATE])
+ST_ACTION, ST_COMMAND = range(2)
+N_STATE = 2
+# the safety bits after which the command sent is the safety layer's force, not the demand
+MODIFIED = SF.FORCE_ZEROED | SF.CLAMP_PEAK | SF.CLAMP_RMS | SF.LATCHING
+NAN4 = np.full(4, np.nan)
+
+
+@jit
+def observe_tick(m, raw, hold, fe, ob, law, truth, st):
+    """Step 1 of tick m (module doc); ``truth``: x1, v1, x2, v2 for privileged entries (NaN on
+    a physical rig).  Returns True at a step boundary."""
+    r = raw.reshape((1, raw.shape[0]))
+    if m > 0:
+        condition(0, r, fe)
+        if law[0]:
+            observe(0, False, 0.0, truth, fe, law[4])
+        if m % hold == 0:
+            observe(0, True, st[ST_ACTION], truth, fe, ob)
+    return m % hold == 0
+
+
+@jit
+def act_tick(m, onboard, host_action, age, ticks_armed, hold, fe, ob, law, pol, safety, scale, raw, st, rows,
+             obs_log, count):
+    """Step 2 of tick m: returns (command for the driver, force demanded after safety N, status
+    bits, log row index or -1 when the log is full)."""
+    if m % hold == 0:
+        st[ST_ACTION] = act(pol[0], pol[1], ob[7][0], pol[2][0]) if onboard else host_action
+    u = st[ST_ACTION]
+    if law[0]:
+        u = u + act(law[1], law[2], law[4][7][0], law[3][0])
+        u = -1.0 if u < -1.0 else (1.0 if u > 1.0 else u)
+    f, status = safety_step(u, age, ticks_armed, raw[POT], safety[0], safety[1])
+    cmd = f / scale if status & MODIFIED else u
+    st[ST_COMMAND] = cmd
+    i = LG.claim_row(rows, count)
+    if i >= 0:
+        row = rows[i]
+        row[LG.TICK] = m
+        row[LG.T_S] = m / safety[2]
+        row[LG.ACCEL] = raw[0]
+        row[LG.FORCE] = raw[1]
+        row[LG.POT] = raw[2]
+        row[LG.ACTION] = u
+        row[LG.FORCE_DEMAND] = f
+        row[LG.COMMAND_AGE] = age
+        row[LG.STATUS] = status
+        row[LG.STEP] = m // hold
+        row[LG.DETECTED] = fe[6][0]
+        obs = ob[7][0]
+        for j in range(obs.shape[0]):
+            obs_log[i, j] = obs[j]
+    return cmd, f, status, i
+
+
+class Controller:
+    """One target's controller for one episode at a time: the front end of ``layout`` on the
+    driver's scene, an onboard ``policy`` (or the host's commands), an optional ``residual`` law,
+    the safety layer and the tick log.  :meth:`start` at the release, then per tick
+    :meth:`observe` and :meth:`act`."""
+
+    def __init__(self, scene, layout: ObservationLayout, hold_ticks: int, horizon_ticks: int, mode: str,
+                 policy: CompiledPolicy | None = None, residual: CompiledPolicy | None = None,
+                 safety: SafetyConfig | None = None, extra_columns: tuple[str, ...] = (),
+                 observation: str = "sensors"):
+        if layout.privileged:
+            raise ValueError("a rig measures no body-1 state: privileged observations (x1, v1, x2, v2) "
+                             "are not available on the target; use observation='sensors'")
+        self.scene = scene
+        self.layout = layout
+        self.observation = observation
+        self.hold = int(hold_ticks)
+        self.mode = mode
+        self.scale = float(scene.effects.command_scale)
+        self.rate = float(scene.control_rate)
+        self.fe = FrontEnd(scene, layout, 1)
+        self.policy = policy
+        if mode == "onboard":
+            if policy is None:
+                raise ValueError("onboard mode needs a policy")
+            pi, pf, m = policy.arrays()
+            self.pol = (pi, pf, np.zeros((1, m)))
+        else:
+            self.pol = (np.zeros(1, np.int64), np.zeros(1), np.zeros((1, 1)))
+        self.residual = residual
+        if residual is not None:
+            pi, pf, m = residual.arrays()
+            self.law = (True, pi, pf, np.zeros((1, m)), observation_buffers(residual.layout, 1))
+        else:
+            self.law = (False, np.zeros(1, np.int64), np.zeros(1), np.zeros((1, 1)), observation_buffers(layout, 1))
+        self.safety_cfg = safety or SafetyConfig()
+        params = safety_params(self.safety_cfg, self.scale, self.rate, self.hold, mode)
+        self.safety = (params, SF.make_safety_state(params), self.rate)
+        self.st = np.zeros(N_STATE)
+        self.log = LG.TickLog(int(horizon_ticks) + 1, layout.size, extra=extra_columns)
+
+    def start(self, raw: np.ndarray, truth: np.ndarray | None) -> None:
+        """The release: the front end (and a residual law's frame) start from these readings,
+        the onboard policy's memory and the log are cleared; the safety layer's latches too
+        (its RMS window, the coil's heat, is kept)."""
+        t = NAN4 if truth is None else np.asarray(truth, dtype=np.float64).reshape(1, 4)
+        t = t.reshape(1, 4)
+        self.fe.start(np.zeros(1, np.int64), np.asarray(raw, dtype=np.float64).reshape(1, -1), t)
+        if self.law[0]:
+            self.law[3][:] = 0.0
+            start_rows(np.zeros(1, np.int64), t, self.fe.fe, self.law[4])
+        self.pol[2][:] = 0.0
+        self.st[:] = 0.0
+        SF.new_episode(self.safety[1])
+        self.log.reset()
+
+    def observe(self, m: int, raw: np.ndarray, truth: np.ndarray | None) -> bool:
+        t = NAN4 if truth is None else truth
+        return bool(observe_tick(m, raw, self.hold, self.fe.fe, self.fe.ob, self.law, t, self.st))
+
+    def act(self, m: int, host_action: float, age: int, ticks_armed: int, raw: np.ndarray):
+        log = self.log
+        return act_tick(m, self.mode == "onboard", float(host_action), int(age), int(ticks_armed), self.hold,
+                        self.fe.fe, self.fe.ob, self.law, self.pol, self.safety, self.scale, raw, self.st, log.rows,
+                        log.obs, log.count)
+
+    @property
+    def obs(self) -> np.ndarray:
+        """The observation row of the last step (float32[size])."""
+        return self.fe.obs[0]
+
+    def drain(self, ticks: int) -> None:
+        """Idle time between episodes: the RMS window cools by ``ticks`` zero ticks."""
+        SF.drain_window(self.safety[1], self.safety[0], int(ticks))

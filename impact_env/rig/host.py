@@ -1,0 +1,307 @@
+"""The host's side: a client of the target (:class:`RigClient`) and the Gymnasium env
+``ImpactCatchRig-v0`` (:class:`RigEnv`).
+
+``gymnasium.make("ImpactCatchRig-v0", address="udp://HOST:PORT", ...)`` is a :class:`RigEnv`
+whose spaces equal ``ImpactCatch-v0``'s on the target's scene (fetched from the target), with
+the same keyword arguments where they apply and the same defaults.
+
+Timing contract (host mode; H = ``hold_ticks``, T the control period):
+
+* ``reset(seed=s)`` arms an episode with seed s (a virtual rig then meets the drop and the noise
+  ``ImpactCatch-v0`` reset with s meets) and returns the observation of tick 0: the readings at
+  the release.
+* ``step(a)`` sends a at policy step n; the target applies it over ticks nH .. nH + H - 1 and
+  returns the observation of tick (n + 1) H, made from the readings after tick (n + 1) H - 1.
+  In lock-step that is exact; in real time a takes effect at the first tick after it arrives
+  (one round trip after the observation it answers), is held H ticks and repeated at most once
+  more, after which the target zeroes the force (its watchdog).
+* Reward and termination: from a virtual rig, which reports the true records of each step's
+  ticks, they are computed here by the env's own kernel (:mod:`impact_env.env.task_kernel`), so
+  they equal ``ImpactCatch-v0``'s; a physical rig measures no body-1 state: the reward is 0.0,
+  ``info["reward_available"]`` is False, and episodes end at the horizon (the episode's
+  metrics come from its log: :func:`impact_env.rig.energy`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from impact_env.control.observation import OBS_LIMIT, make_layout
+from impact_env.control.policy import CompiledPolicy
+from impact_env.env import task_kernel as TK
+from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig
+from impact_env.hardware.batch import Hardware
+from impact_env.rig import protocol as P
+from impact_env.rig.transport import Endpoint, Link, RigTimeout, fetch, parse_address, upload
+from impact_env.scene import scene_from_dict
+from impact_env.sim import records as R
+
+N_TEL = len(P.TELEMETRY_FIELDS)
+
+
+class RigClient:
+    """One session with a target at ``address`` (``udp://HOST:PORT``): HELLO on construction,
+    then :meth:`arm`, :meth:`command`, :meth:`observation`, :meth:`wait_end`, :meth:`fetch_log`.
+    Every wait is bounded (``timeout_s`` per try, ``retries`` tries): a dead target raises
+    :class:`~impact_env.rig.transport.RigTimeout`, and :meth:`close` never blocks."""
+
+    def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10):
+        host, port = parse_address(address)
+        local = "udp://[::1]:0" if ":" in host else ("udp://127.0.0.1:0" if host in ("127.0.0.1", "localhost")
+                                                      else "udp://0.0.0.0:0")
+        self.address = address
+        self.timeout_s, self.retries = float(timeout_s), int(retries)
+        self.endpoint = Endpoint(local, peer=address)
+        self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1)
+        try:
+            nonce = int.from_bytes(os.urandom(4), "little")
+            info = self.link.request(P.Hello(nonce), lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
+                                     "INFO (answer to HELLO)", self.timeout_s, self.retries).body
+            self.info = info
+            self.lockstep = bool(info.lockstep)
+            self.virtual = info.driver == 0
+            toml = fetch(self.link, P.Resource.SCENE, 0, info.scene_sha256, self.timeout_s, self.retries)
+            import tomllib
+
+            self.scene = scene_from_dict(tomllib.loads(toml.decode()))
+        except BaseException:
+            self.endpoint.close()
+            raise
+        self.episode = 0
+        self.step = 0
+
+    def arm(self, mode: str, seed: int, horizon_ticks: int, observation: str = "sensors", history: int = 1,
+            hold_ticks: int = 1, policy: CompiledPolicy | None = None, link_timeout_ms: int = 0,
+            first_command_timeout_ticks: int = 1000) -> P.Armed:
+        """Upload ``policy`` (onboard: the policy; host mode: a residual law) and arm an episode."""
+        data = b""
+        if policy is not None:
+            import json
+
+            data = (json.dumps(policy.to_dict()) + "\n").encode()
+            upload(self.link, data, self.timeout_s, self.retries)
+        arm = P.Arm(mode, observation, int(history), 0, int(hold_ticks), int(seed) & P.U64, int(horizon_ticks),
+                    int(first_command_timeout_ticks), int(link_timeout_ms), len(data),
+                    hashlib.sha256(data).digest() if data else bytes(32))
+        armed = self.link.request(arm, lambda m: m.type == P.MsgType.ARMED, "ARMED (answer to ARM)",
+                                  self.timeout_s, self.retries).body
+        self.episode, self.step = armed.episode, 0
+        return armed
+
+    def command(self, step: int, action: float) -> None:
+        self.link.send(P.Command(self.episode, int(step), (float(action),)))
+
+    def observation(self, step: int, timeout_s: float) -> P.Observation | None:
+        """The OBSERVATION of ``step`` of the current episode (newer ones are returned too),
+        or None after ``timeout_s``; an EPISODE_END is kept in ``last_end``."""
+        deadline = time.perf_counter() + timeout_s
+        while (left := deadline - time.perf_counter()) > 0:
+            msg = self.link.recv(left)
+            if msg is None:
+                return None
+            b = msg.body
+            if msg.type == P.MsgType.OBSERVATION and b.episode == self.episode and b.step >= step:
+                return b
+            if msg.type == P.MsgType.EPISODE_END and b.episode == self.episode:
+                self.last_end = b
+        return None
+
+    last_end: P.EpisodeEnd | None = None
+
+    def wait_end(self, timeout_s: float) -> P.EpisodeEnd:
+        """The EPISODE_END of the current episode (an onboard episode runs to its end)."""
+        deadline = time.perf_counter() + timeout_s
+        while (self.last_end is None or self.last_end.episode != self.episode):
+            left = deadline - time.perf_counter()
+            if left <= 0:
+                raise RigTimeout(f"EPISODE_END of episode {self.episode}", timeout_s, self.address)
+            msg = self.link.recv(left)
+            if msg is not None and msg.type == P.MsgType.EPISODE_END and msg.body.episode == self.episode:
+                self.last_end = msg.body
+        return self.last_end
+
+    def fetch_log(self, episode: int | None = None, sha256: bytes | None = None):
+        """The episode's log (:class:`impact_env.rig.log.EpisodeLog`), fetched from the target."""
+        from impact_env.rig.log import read_episode
+
+        ep = self.episode if episode is None else episode
+        deadline = time.perf_counter() + 10.0
+        while True:
+            try:
+                data = fetch(self.link, P.Resource.EPISODE, ep, sha256, self.timeout_s, self.retries)
+                break
+            except Exception as exc:  # the episode may still be running (BUSY): wait, boundedly
+                if "BUSY" not in str(exc) or time.perf_counter() > deadline:
+                    raise
+                time.sleep(0.01)
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "episode.h5")
+            with open(path, "wb") as fh:
+                fh.write(data)
+            return read_episode(path)
+
+    def disarm(self, wait: bool = False) -> None:
+        """Stop the episode (best effort: one datagram, or a bounded request with ``wait``)."""
+        if self.endpoint.closed:
+            return
+        if wait:
+            self.link.request(P.Disarm(0), lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
+                              "ACK of DISARM", self.timeout_s, self.retries)
+        else:
+            self.link.send(P.Disarm(1))
+
+    def close(self) -> None:
+        try:
+            self.disarm()
+        except OSError:
+            pass
+        self.endpoint.close()
+
+
+class RigEnv(gym.Env):
+    """``ImpactCatchRig-v0``: ``ImpactCatch-v0``'s interface on a rig behind a target (see the
+    module doc for the timing contract).
+
+    Arguments as ``ImpactCatch-v0``'s where they apply (``observation`` "sensors" only: a rig
+    measures no body-1 state; ``history``, ``hold_ticks``, ``residual``, ``horizon``,
+    ``catch_threshold``, ``catch_hold``, ``terminate_on_catch``, ``effort_weight``,
+    ``limit_weight``, ``action_bounds``), plus ``address`` (``udp://HOST:PORT``), ``timeout_s``
+    (per try; a step waits at most ``(retries + 1) timeout_s`` in all, then raises RigTimeout)
+    and ``retries``.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, address: str, *, observation: str = "sensors", history: int = 1, hold_ticks: int = 1,
+                 residual: str | None = None, horizon: float | None = None, catch_threshold: float = 0.01,
+                 catch_hold: float = 0.01, terminate_on_catch: bool = True, effort_weight: float = 0.0,
+                 limit_weight: float = 0.0, action_bounds: str = "clip", timeout_s: float = 0.05, retries: int = 20):
+        self.config = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks, residual=residual,
+                                 horizon=horizon, catch_threshold=catch_threshold, catch_hold=catch_hold,
+                                 terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
+                                 limit_weight=limit_weight, action_bounds=action_bounds)
+        self.client = RigClient(address, timeout_s, retries)
+        self.scene = scene = self.client.scene
+        self.layout = make_layout(scene, observation, history)
+        if self.layout.privileged:
+            self.client.close()
+            raise ValueError("observation must be 'sensors' on a rig: it measures no body-1 state")
+        self.residual = None
+        if residual is not None:
+            from impact_env.policy.export import export_policy
+
+            self.residual = export_policy(residual, scene)
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, (self.layout.size,), np.float32)
+        period = scene.control_period
+        self.hold = int(hold_ticks)
+        h = self.config.horizon if horizon is not None else scene.episode.horizon
+        self.max_steps = max(1, int(round(h / (period * self.hold))))
+        self.tp = np.zeros(TK.N_TASK)
+        self.tp[TK.T_STEP_WEIGHT] = period / REWARD_TIME_UNIT
+        self.tp[TK.T_THRESHOLD] = catch_threshold
+        self.tp[TK.T_HOLD] = max(1, int(np.ceil(catch_hold / period - 1e-9)))
+        self.tp[TK.T_TERMINATE] = 1.0 if terminate_on_catch else 0.0
+        self.tp[TK.T_EFFORT] = effort_weight
+        self.tp[TK.T_LIMIT] = limit_weight
+        self.tp[TK.T_CMD] = scene.effects.command_scale
+        self.tp[TK.T_MAX_STEPS] = self.max_steps
+        self._hw = Hardware(scene, 1) if self.client.virtual else None
+        self._a = {k: np.zeros(1, dt) for k, dt in (("steps", np.int64), ("below", np.int64), ("energy", float))}
+        self._div = np.zeros(1, dtype=bool)
+        self._rows = np.zeros((1, TK.N_COL))
+        self._rew, self._te, self._tr = np.zeros(1), np.zeros(1, bool), np.zeros(1, bool)
+        self._n = 0
+        self._running = False
+
+    def _task_state(self):
+        return (self.tp, self._a["steps"], self._a["below"], self._div, self._a["energy"])
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        ep_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
+        if self._running:
+            self.client.disarm()
+        c = self.client
+        c.arm("host", ep_seed, self.max_steps * self.hold, self.config.observation, self.config.history, self.hold,
+              self.residual)
+        self._running = True
+        self._n = 0
+        obs = self._wait_obs(0, resend=None)
+        if self._hw is not None:  # the drop's constants, as the virtual rig draws them from the seed
+            from gymnasium.utils import seeding
+
+            self._hw.reset([seeding.np_random(ep_seed)[0]])
+            self._rows[0, TK.COL_TTOUCH] = self._hw.t_touch[0]
+            TK.task_reset_rows(np.zeros(1, np.int64), np.zeros((1, 1, R.N_REC)), self._hw.Y, self._hw.P,
+                               self._hw.impact_energy, self._hw.impact_speed, *self._task_state(), self._rows)
+        return np.asarray(obs.obs, dtype=np.float32), self._info(obs)
+
+    def _wait_obs(self, step: int, resend) -> P.Observation:
+        c = self.client
+        for _ in range(c.retries + 1):
+            got = c.observation(step, c.timeout_s)
+            if got is not None:
+                return got
+            if resend is not None:
+                c.command(step - 1, resend)
+        raise RigTimeout(f"OBSERVATION of step {step}", (c.retries + 1) * c.timeout_s, c.address, c.retries + 1)
+
+    def step(self, action):
+        if not self._running:
+            raise RuntimeError("call reset() before step() (the episode has ended)")
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (1,) or not np.isfinite(a[0]):
+            raise ValueError(f"action {action!r}: expected one finite shaker command in [-1, 1]")
+        if not -1.0 <= a[0] <= 1.0:
+            if self.config.action_bounds == "raise":
+                raise ValueError(f"action {a[0]!r} outside [-1, 1] (action_bounds = 'raise')")
+            a = np.clip(a, -1.0, 1.0)
+        u = float(a[0])
+        self.client.command(self._n, u)
+        self._n += 1
+        obs = self._wait_obs(self._n, resend=u)
+        tel = obs.telemetry
+        if self._hw is not None and len(tel) > N_TEL:
+            recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, R.N_REC)
+            TK.task_step(np.ones(1, bool), recs, recs[:, -1, R.REC_X1:R.REC_V2 + 1].copy(), self._hw.P,
+                         self._hw.impact_energy, self._hw.impact_speed, *self._task_state(), self._rew, self._te,
+                         self._tr, self._rows)
+            reward, term, trunc = float(self._rew[0]), bool(self._te[0]), bool(self._tr[0])
+        else:
+            reward, term, trunc = 0.0, False, self._n >= self.max_steps
+        if term or trunc:
+            self._running = False
+            if term:
+                self.client.disarm()
+        return np.asarray(obs.obs, dtype=np.float32), reward, term, trunc, self._info(obs)
+
+    def _info(self, obs: P.Observation) -> dict[str, Any]:
+        tel = obs.telemetry
+        out: dict[str, Any] = {"step": obs.step, "status": obs.status, "reward_available": self._hw is not None,
+                               "force_demand": tel[0] if tel else 0.0, "force_applied": tel[1] if len(tel) > 1 else 0.0,
+                               "command_age_ticks": tel[2] if len(tel) > 2 else -1.0}
+        if self._hw is not None:
+            vals = self._rows[0].tolist()
+            info = dict(zip(TK.INFO_KEYS, vals, strict=True))
+            for k in TK.BOOL_KEYS:
+                info[k] = info[k] > 0.5
+            info["state"] = np.array(vals[TK.COL_X1:TK.COL_V2 + 1])
+            for k in ("x1", "v1", "x2", "v2"):
+                del info[k]
+            out.update(info)
+        return out
+
+    def close(self):
+        self.client.close()
+        self._running = False
+

@@ -1,0 +1,346 @@
+"""Episode logs: every tick in preallocated arrays on the target, one HDF5 file per episode.
+
+In memory (:class:`TickLog`), filled by compiled code: ``rows`` (float64[capacity, n_columns],
+one row per tick, columns at the fixed indices below, then any ``extra`` columns), ``obs``
+(float64[capacity, obs_size], the front end's observation at that tick) and ``count``
+(int64[1], rows filled).  A kernel claims a row with :func:`claim_row` and writes
+``rows[i, COL]``; integer columns are stored exactly in float64 (below 2^53).
+
+On disk (:func:`write_episode`): ``<log-dir>/episode_<session>_<episode>.h5``, written under a
+hidden temporary name in the same directory, flushed and fsynced, then renamed with
+``os.replace`` (atomic on POSIX), so a crash at any moment leaves every finished episode intact
+and at most a ``.*.tmp`` file that :func:`list_episodes` ignores.
+
+Datasets (one value per tick, in tick order; ``unit`` attribute on each):
+
+======================  ========  =======  ==========================================================
+dataset                 dtype     unit     meaning
+======================  ========  =======  ==========================================================
+``tick``                int64              the target's tick counter (gaps: ticks missed by overruns)
+``t_s``                 float64   s        time since the episode's tick 0 (tick / rate)
+``accelerometer_mps2``  float64   m/s^2    raw accelerometer reading (body 2, down positive)
+``force_N``             float64   N        raw force transducer reading (compression positive)
+``potentiometer_m``     float64   m        raw potentiometer reading (body 2's travel, down positive)
+``action``              float64            the command in use before safety (1 = command_scale N; NaN:
+                                           none yet)
+``force_demand_N``      float64   N        action * command_scale
+``force_applied_N``     float64   N        the force the driver applied (after the safety layer)
+``command_age_ticks``   int64     ticks    ticks since the command in use was first applied (-1: none)
+``status``              uint32             status bits (:mod:`impact_env.rig.safety`)
+``step``                int64              policy step (tick // hold_ticks)
+``contact_detected``    uint8              the front end's contact detector (0/1)
+``lateness_ns``         int64     ns       tick start minus its deadline (:mod:`impact_env.rig.clock`)
+``compute_ns``          int64     ns       time the tick's work took
+``observation``         float64            [n_ticks, obs_size]: the front end's observation (names in
+                                           its ``names`` attribute)
+(extra)                 float64   (attr)   columns named at construction, e.g. a virtual rig's truth
+======================  ========  =======  ==========================================================
+
+Attributes of the file: ``format`` ("impact_env.rig.episode"), ``format_version`` (1), and the
+:class:`EpisodeMeta` fields: ``scene_toml`` (``scene.to_toml()``), ``mode``, ``hold_ticks``,
+``seed``, ``control_rate_hz``, ``episode``, ``session``, ``policy``, ``policy_sha256`` (hex; empty
+in host mode), ``observation``, ``history``, ``end_reason``, ``created_utc``; groups ``versions``
+(package, python, numpy, numba, h5py) and ``counters`` (plain ints: dropped datagrams by
+reason, watchdog trips, overruns, ...).
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import platform
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from impact_env._jit import jit
+
+FORMAT = "impact_env.rig.episode"
+FORMAT_VERSION = 1
+
+(TICK, T_S, ACCEL, FORCE, POT, ACTION, FORCE_DEMAND, FORCE_APPLIED, COMMAND_AGE, STATUS, STEP, DETECTED,
+ LATENESS_NS, COMPUTE_NS) = range(14)
+# name, unit, dtype on disk, in column order
+COLUMNS = (
+    ("tick", "", "int64"), ("t_s", "s", "float64"), ("accelerometer_mps2", "m/s^2", "float64"),
+    ("force_N", "N", "float64"), ("potentiometer_m", "m", "float64"), ("action", "", "float64"),
+    ("force_demand_N", "N", "float64"), ("force_applied_N", "N", "float64"),
+    ("command_age_ticks", "ticks", "int64"), ("status", "", "uint32"), ("step", "", "int64"),
+    ("contact_detected", "", "uint8"), ("lateness_ns", "ns", "int64"), ("compute_ns", "ns", "int64"),
+)
+N_FIXED = len(COLUMNS)
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def _h5py():
+    try:
+        import h5py
+    except ImportError as exc:
+        raise ImportError("rig episode logs are HDF5 files and need h5py: pip install 'impact-env[rig]' "
+                          "(or pip install 'h5py>=3.8')") from exc
+    return h5py
+
+
+def versions() -> dict[str, str]:
+    """Versions of what produced a log: the package, python, numpy, numba, h5py."""
+    from importlib import metadata
+
+    out = {"python": platform.python_version(), "numpy": np.__version__}
+    for name, dist in (("impact_env", "impact-env"), ("numba", "numba"), ("h5py", "h5py")):
+        try:
+            out[name] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+@jit(inline="always")
+def claim_row(rows, count):
+    """Index of the next free row of a TickLog (and counts it), or -1 when the log is full."""
+    i = count[0]
+    if i >= rows.shape[0]:
+        return -1
+    count[0] = i + 1
+    return i
+
+
+class TickLog:
+    """Preallocated per-tick log of one episode (see the module doc for the columns).
+
+    capacity: rows (ticks) it can hold; obs_size: entries of the observation; extra: names of
+    further float64 columns (``extra_units`` gives their units).
+    """
+
+    def __init__(self, capacity: int, obs_size: int, extra: tuple[str, ...] = (),
+                 extra_units: dict[str, str] | None = None):
+        if isinstance(capacity, bool) or not isinstance(capacity, (int, np.integer)) or capacity < 1:
+            raise ValueError(f"capacity = {capacity!r} must be an integer number of ticks >= 1")
+        if isinstance(obs_size, bool) or not isinstance(obs_size, (int, np.integer)) or obs_size < 0:
+            raise ValueError(f"obs_size = {obs_size!r} must be an integer >= 0")
+        names = [c[0] for c in COLUMNS]
+        for name in extra:
+            if not _NAME.match(name) or name in names or name == "observation":
+                raise ValueError(f"extra column {name!r} must be a new identifier-like name "
+                                 "(not a fixed column nor 'observation')")
+            names.append(name)
+        self.extra = tuple(extra)
+        self.extra_units = {n: (extra_units or {}).get(n, "") for n in self.extra}
+        self.names = tuple(names)
+        self.rows = np.zeros((int(capacity), len(names)))
+        self.obs = np.zeros((int(capacity), int(obs_size)))
+        self.count = np.zeros(1, dtype=np.int64)
+
+    @property
+    def capacity(self) -> int:
+        return self.rows.shape[0]
+
+    @property
+    def n(self) -> int:
+        return int(self.count[0])
+
+    def col(self, name: str) -> int:
+        """Column index of ``name``."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"no column {name!r}; columns: {', '.join(self.names)}") from None
+
+    def reset(self) -> None:
+        """Empty the log for the next episode (no reallocation)."""
+        self.count[0] = 0
+
+    def record(self, obs=None, **values: float) -> int:
+        """Append one row from Python (tests, slow paths): column values by name, missing ones 0.
+        Returns the row index; raises OverflowError when full."""
+        i = claim_row(self.rows, self.count)
+        if i < 0:
+            raise OverflowError(f"TickLog full ({self.capacity} ticks)")
+        self.rows[i] = 0.0
+        for name, v in values.items():
+            self.rows[i, self.col(name)] = v
+        if obs is not None:
+            self.obs[i] = obs
+        return i
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The filled rows as named arrays of their on-disk dtypes (copies)."""
+        n = self.n
+        out = {}
+        for j, (name, _unit, dtype) in enumerate(COLUMNS):
+            out[name] = self.rows[:n, j].astype(dtype)
+        for j, name in enumerate(self.extra, start=N_FIXED):
+            out[name] = self.rows[:n, j].copy()
+        return out
+
+    def to_episode(self, meta: EpisodeMeta) -> EpisodeLog:
+        """The in-memory :class:`EpisodeLog` of the filled rows (what :func:`read_episode` returns
+        for the file :func:`write_episode` writes)."""
+        units = {c[0]: c[1] for c in COLUMNS} | self.extra_units
+        return EpisodeLog(self.columns(), self.obs[:self.n].copy(), meta, units)
+
+
+@dataclass
+class EpisodeMeta:
+    """What a log file says about its episode besides the ticks (SI units)."""
+
+    scene_toml: str
+    mode: str  # "host" or "onboard"
+    hold_ticks: int
+    seed: int
+    control_rate_hz: float
+    episode: int = 0
+    session: int = 0
+    policy: str = ""  # a policy spec or file name
+    policy_sha256: str = ""  # hex digest of the policy file (onboard); "" in host mode
+    observation: str = "sensors"
+    history: int = 1
+    obs_names: tuple[str, ...] = ()
+    end_reason: str = ""
+    created_utc: str = field(default_factory=lambda: datetime.datetime.now(datetime.timezone.utc)
+                             .isoformat(timespec="seconds"))
+    counters: dict[str, int] = field(default_factory=dict)
+    versions: dict[str, str] = field(default_factory=versions)
+
+    def __post_init__(self):
+        if self.mode not in ("host", "onboard"):
+            raise ValueError(f"mode = {self.mode!r} must be 'host' or 'onboard'")
+        for name in ("hold_ticks", "seed", "episode", "session", "history"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+                raise ValueError(f"{name} = {v!r} must be an integer >= 0")
+        if not self.control_rate_hz > 0:
+            raise ValueError(f"control_rate_hz = {self.control_rate_hz!r} Hz must be > 0 Hz")
+        if self.policy_sha256 and not re.fullmatch(r"[0-9a-f]{64}", self.policy_sha256):
+            raise ValueError(f"policy_sha256 = {self.policy_sha256!r} must be 64 lower-case hex digits or ''")
+        for k, v in self.counters.items():
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise ValueError(f"counter {k!r} = {v!r} must be an integer")
+        self.obs_names = tuple(self.obs_names)
+
+
+@dataclass
+class EpisodeLog:
+    """One episode's ticks: ``columns`` (name -> array, module doc), ``observation``
+    (float64[n, obs_size]), ``meta`` and ``units`` (column -> unit)."""
+
+    columns: dict[str, np.ndarray]
+    observation: np.ndarray
+    meta: EpisodeMeta
+    units: dict[str, str]
+    path: Path | None = None
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise KeyError(f"no column {name!r}; columns: {', '.join(self.columns)}") from None
+
+    @property
+    def n_ticks(self) -> int:
+        return len(self.columns["tick"])
+
+    def scene(self):
+        """The scene the episode ran on, from its TOML."""
+        import tomllib
+
+        from impact_env.scene import scene_from_dict
+
+        return scene_from_dict(tomllib.loads(self.meta.scene_toml))
+
+
+def episode_filename(episode: int, session: int = 0) -> str:
+    return f"episode_{int(session):08x}_{int(episode):06d}.h5"
+
+
+def write_episode(log: TickLog | EpisodeLog, directory: str | os.PathLike, meta: EpisodeMeta | None = None,
+                  name: str | None = None) -> Path:
+    """Write one episode to ``directory/name`` (default :func:`episode_filename`) atomically
+    (temporary file, fsync, ``os.replace``).  ``log``: a TickLog (with ``meta``) or an EpisodeLog."""
+    h5py = _h5py()
+    ep = log.to_episode(meta) if isinstance(log, TickLog) else log
+    if isinstance(log, TickLog) and meta is None:
+        raise ValueError("write_episode(TickLog) needs meta")
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    name = name or episode_filename(ep.meta.episode, ep.meta.session)
+    if "/" in name or name.startswith(".") or not name.endswith(".h5"):
+        raise ValueError(f"log file name {name!r} must be a plain name ending in .h5, not hidden")
+    final = directory / name
+    tmp = directory / f".{name}.{os.getpid()}.tmp"
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["format"] = FORMAT
+            f.attrs["format_version"] = FORMAT_VERSION
+            m = ep.meta
+            for fd in fields(EpisodeMeta):
+                if fd.name in ("counters", "versions", "obs_names"):
+                    continue
+                f.attrs[fd.name] = getattr(m, fd.name)
+            for group, values in (("counters", m.counters), ("versions", m.versions)):
+                g = f.create_group(group)
+                for k, v in values.items():
+                    g.attrs[k] = v
+            for key, arr in ep.columns.items():
+                d = f.create_dataset(key, data=arr)
+                d.attrs["unit"] = ep.units.get(key, "")
+            d = f.create_dataset("observation", data=ep.observation)
+            d.attrs["names"] = list(m.obs_names)
+            d.attrs["unit"] = "reference units (impact_env.sim.observation)"
+            f.attrs["n_ticks"] = ep.n_ticks
+            f.attrs["extra_columns"] = [k for k in ep.columns if k not in dict((c[0], 0) for c in COLUMNS)]
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, final)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(directory)
+    return final
+
+
+def _fsync_dir(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # not possible on every platform; the rename is still atomic
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def read_episode(path: str | os.PathLike) -> EpisodeLog:
+    """Read a file written by :func:`write_episode` (same arrays, dtypes and metadata)."""
+    h5py = _h5py()
+    path = Path(path)
+    with h5py.File(path, "r") as f:
+        if f.attrs.get("format") != FORMAT:
+            raise ValueError(f"{path} is not a rig episode log (format attribute {f.attrs.get('format')!r})")
+        ver = int(f.attrs["format_version"])
+        if ver > FORMAT_VERSION:
+            raise ValueError(f"{path} has format version {ver}; this reader knows up to {FORMAT_VERSION}")
+        kw = {}
+        for fd in fields(EpisodeMeta):
+            if fd.name in ("counters", "versions", "obs_names"):
+                continue
+            v = f.attrs[fd.name]
+            kw[fd.name] = v.item() if isinstance(v, np.generic) else v
+        kw["counters"] = {k: int(v) for k, v in f["counters"].attrs.items()}
+        kw["versions"] = {k: str(v) for k, v in f["versions"].attrs.items()}
+        kw["obs_names"] = tuple(str(s) for s in f["observation"].attrs["names"])
+        meta = EpisodeMeta(**kw)
+        names = [c[0] for c in COLUMNS] + [str(s) for s in f.attrs["extra_columns"]]
+        columns = {k: f[k][()] for k in names}
+        units = {k: str(f[k].attrs["unit"]) for k in names}
+        obs = f["observation"][()]
+    return EpisodeLog(columns, obs, meta, units, path)
+
+
+def list_episodes(directory: str | os.PathLike) -> list[Path]:
+    """The finished episode files in ``directory`` (temporary files of unfinished writes are
+    ignored), sorted by name."""
+    return sorted(p for p in Path(directory).glob("*.h5") if not p.name.startswith("."))

@@ -1,0 +1,851 @@
+"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 1.0).
+
+Every datagram is one message: a 42-byte header, a payload whose layout the message type fixes,
+and a CRC-32 trailer.  Integers are unsigned little-endian, floats IEEE-754 little-endian.
+
+Header (42 bytes) and trailer
+=============================
+
+======  ====  ==========  =================================================================
+offset  size  type        field
+======  ====  ==========  =================================================================
+0       4     bytes       magic ``b"IMPR"``
+4       1     u8          major version (1): a receiver drops any other major
+5       1     u8          minor version (0): see *Versioning*
+6       1     u8          message type (table below)
+7       1     u8          flags: bit 0 ``FLAG_RETRY`` (a request sent again); others reserved
+8       4     u32         session id, chosen by the host in HELLO (never 0 once a session is open)
+12      4     u32         sequence number: one counter per sender and session, +1 per datagram
+                          (a retry gets a new number)
+16      8     u64         target tick: the target's tick counter (its only clock) when it sent
+                          the message; host->target: the tick of the message being answered
+24      8     u64         host timestamp, ns (host's ``perf_counter_ns`` at sending; echoed back
+                          by the target in replies, so the host measures round trips)
+32      8     u64         target timestamp, ns (target's ``perf_counter_ns`` at sending; echoed
+                          by the host in COMMANDs answering an OBSERVATION)
+40      2     u16         payload length L, bytes (at most ``MAX_PAYLOAD``)
+42      L     bytes       payload
+42+L    4     u32         CRC-32 (``zlib.crc32``) of bytes 0 .. 42+L-1 (header and payload)
+======  ====  ==========  =================================================================
+
+Message types and payloads (offsets from the payload start; ``H`` host, ``T`` target)
+====================================================================================
+
+=====  ============  =====  ===========================================================================
+code   type          dir    payload (offset type field [unit])
+=====  ============  =====  ===========================================================================
+1      HELLO         H->T   0 u32 nonce (echoed in INFO).  Opens a session: the header's session id.
+2      INFO          T->H   0 u32 nonce; 4 f64 control_rate_hz [Hz]; 12 u8 state (0 idle, 1 armed,
+                            2 running, 3 fault); 13 u8 driver (0 virtual, 1 hardware); 14 u8 lockstep
+                            (0/1); 15 u32 scene_size [B] (resource SCENE); 19 32s scene_sha256.  = 51 B
+3      ARM           H->T   0 u8 mode (1 host, 2 onboard); 1 u8 observation (0 sensors, 1 privileged,
+                            2 both); 2 u8 history [frames, 1..64]; 3 u8 options (bit 0
+                            ``ARM_TERMINATE_ON_CATCH``); 4 u16 hold_ticks [ticks per policy step,
+                            >= 1]; 6 u64 seed; 14 u32 horizon_ticks [ticks, >= 1]; 18 u32
+                            first_command_timeout_ticks [ticks; host mode]; 22 u32 link_timeout_ms [ms;
+                            0 = none]; 26 u32 policy_size [B; onboard, else 0]; 30 32s policy_sha256
+                            (onboard: of the uploaded file; host mode: zeros).  = 62 B
+4      ARMED         T->H   0 u32 episode; 4 u64 start_tick; 12 u16 obs_size [entries]; 14 u16
+                            action_size; 16 u8 obs_dtype (4 float32, 8 float64); 17 u8 telemetry_size
+                            [entries]; 18 u16 hold_ticks; 20 f64 control_rate_hz [Hz]; 28 32s
+                            scene_sha256.  = 60 B
+5      POLICY_CHUNK  H->T   0 u64 upload_id (first 8 bytes of the file's sha256, little-endian); 8 u32
+                            total [B]; 12 u32 offset [B]; 16 u16 n [B]; 18 n bytes data.  Answered by ACK
+                            (value = offset + n).  = 18 + n B
+6      ACK           both   0 u8 acked_type; 1 u8 code (0 ok, else an ``ErrorCode``); 2 u32 acked_seq;
+                            6 u64 value (type-specific).  = 14 B
+7      COMMAND       H->T   0 u32 episode; 4 u32 step (policy step the action is for); 8 u16 n; 10 n x
+                            f64 action [dimensionless, 1.0 = effects.command_scale N].  = 10 + 8n B
+8      OBSERVATION   T->H   0 u32 episode; 4 u32 step; 8 u32 status (bits of :mod:`impact_env.rig.safety`);
+                            12 u8 dtype (4 float32 / 8 float64); 13 u16 n; 15 u16 m; 17 n x dtype
+                            observation [scaled units of :mod:`impact_env.control.observation`]; then m x
+                            f64 telemetry: the ``TELEMETRY_FIELDS`` (force_demand_N, force_applied_N,
+                            command_age_ticks), then, from a virtual rig, the true records of the step's
+                            ticks (hold_ticks x N_REC, :mod:`impact_env.sim.records`).
+                            = 17 + n dtype + 8m B
+9      EPISODE_END   T->H   0 u32 episode; 4 u8 reason (``EndReason``); 5 u32 status (OR of the ticks'
+                            status bits); 9 u64 n_ticks; 17 u32 n_steps; 21 u32 data_size [B] (resource
+                            EPISODE); 25 32s data_sha256.  = 57 B
+10     FETCH         H->T   0 u8 resource (1 SCENE, 2 EPISODE); 1 u32 item (episode number; 0 for
+                            SCENE); 5 u32 offset [B]; 9 u16 max_len [B].  = 11 B
+11     CHUNK         T->H   0 u8 resource; 1 u32 item; 5 u32 total [B]; 9 u32 offset [B]; 13 u16 n [B];
+                            15 n bytes data.  = 15 + n B
+12     DISARM        H->T   0 u8 reason (0 user, 1 host closing, 2 host error).  Answered by ACK.  = 1 B
+13     HEARTBEAT     both   0 u8 state; 1 u32 episode; 5 u32 step; 9 u32 peer_seq (newest sequence
+                            number accepted from the peer).  = 13 B
+14     ERROR         both   0 u16 code (``ErrorCode``); 2 u32 ref_seq (the message it answers, or 0);
+                            6 u16 n; 8 n bytes UTF-8 text (at most 1024).  = 8 + n B
+=====  ============  =====  ===========================================================================
+
+Sizes.  ``MAX_PAYLOAD`` (65461 B) fills the largest UDP datagram over IPv4.  Datagrams up to
+``MTU_DATAGRAM`` (1472 B, an Ethernet frame) are never fragmented by IP; POLICY_CHUNK and CHUNK
+carry at most ``CHUNK_DATA`` (1024 B) each so that they stay below it, and so does any
+OBSERVATION below about 1400 B (175 float64 entries).  Larger observations are sent whole and IP
+fragments them: losing one fragment loses the datagram.
+
+Versioning.  A receiver drops another **major** (counted ``wrong_version``).  Within a major, a
+newer minor may only append fields at the end of a payload (every variable part carries its
+length, so fields can always be appended) and add message types.  A receiver decodes a
+message of its own minor only if the payload ends exactly after the fields above (else
+``corrupt``); of a newer minor, it ignores the bytes after the fields it knows, and counts an
+unknown type as ``unexpected``.
+
+Sessions, streams and loss (:class:`DatagramFilter`).  A sender numbers its datagrams of a
+session with one counter.  The receiver keeps, per (session, message type) stream, the newest
+sequence number it accepted and which of the 64 before it it accepted; anything not newer is
+dropped (``duplicate`` if it was accepted before, else ``out_of_order``).  A COMMAND for a
+(episode, step) before the target's current one is dropped as ``late``.  Latest command wins:
+the target keeps only the newest accepted command; a command for a future step waits for it.
+Requests (HELLO, ARM, POLICY_CHUNK, FETCH, DISARM) are idempotent and retried with new sequence
+numbers until their reply (INFO, ARMED, ACK, CHUNK, ACK) arrives
+(:meth:`impact_env.rig.transport.Link.request`).
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+import math
+import struct
+import zlib
+from dataclasses import dataclass, field, fields
+from typing import ClassVar
+
+MAGIC = b"IMPR"
+VERSION_MAJOR = 1
+VERSION_MINOR = 0
+
+HEADER = struct.Struct("<4sBBBBIIQQQH")
+TRAILER = struct.Struct("<I")
+HEADER_SIZE = HEADER.size  # 42
+OVERHEAD = HEADER_SIZE + TRAILER.size  # 46
+MAX_DATAGRAM = 65507  # largest UDP payload over IPv4, B
+MAX_PAYLOAD = MAX_DATAGRAM - OVERHEAD  # 65461 B
+MTU_DATAGRAM = 1472  # Ethernet MTU 1500 - IPv4 20 - UDP 8, B
+CHUNK_DATA = 1024  # data bytes per POLICY_CHUNK / CHUNK
+MAX_TEXT = 1024  # ERROR text, B (UTF-8)
+MAX_VALUES = 4096  # entries of a COMMAND's action or an OBSERVATION
+MAX_TRANSFER = 1 << 31  # bytes of one uploaded policy file or fetched resource
+
+FLAG_RETRY = 1
+ARM_TERMINATE_ON_CATCH = 1
+
+U8, U16, U32, U64 = 0xFF, 0xFFFF, 0xFFFF_FFFF, 0xFFFF_FFFF_FFFF_FFFF
+_FLT_MAX = 3.4028234663852886e38
+
+# the first telemetry values of an OBSERVATION (then a virtual rig's tick records, see OBSERVATION)
+TELEMETRY_FIELDS = ("force_demand_N", "force_applied_N", "command_age_ticks")
+
+
+class MsgType(enum.IntEnum):
+    HELLO = 1
+    INFO = 2
+    ARM = 3
+    ARMED = 4
+    POLICY_CHUNK = 5
+    ACK = 6
+    COMMAND = 7
+    OBSERVATION = 8
+    EPISODE_END = 9
+    FETCH = 10
+    CHUNK = 11
+    DISARM = 12
+    HEARTBEAT = 13
+    ERROR = 14
+
+
+HOST_TO_TARGET = frozenset({MsgType.HELLO, MsgType.ARM, MsgType.POLICY_CHUNK, MsgType.COMMAND,
+                            MsgType.FETCH, MsgType.DISARM, MsgType.ACK, MsgType.HEARTBEAT, MsgType.ERROR})
+TARGET_TO_HOST = frozenset({MsgType.INFO, MsgType.ARMED, MsgType.OBSERVATION, MsgType.EPISODE_END,
+                            MsgType.CHUNK, MsgType.ACK, MsgType.HEARTBEAT, MsgType.ERROR})
+
+
+class TargetState(enum.IntEnum):
+    IDLE = 0
+    ARMED = 1
+    RUNNING = 2
+    FAULT = 3
+
+
+class Resource(enum.IntEnum):
+    SCENE = 1  # the target's scene as TOML (UTF-8), item 0
+    EPISODE = 2  # the episode log file (HDF5 bytes, impact_env.rig.log), item = episode number
+
+
+class EndReason(enum.IntEnum):
+    HORIZON = 1  # horizon_ticks reached
+    CAUGHT = 2  # caught, with ARM_TERMINATE_ON_CATCH
+    DISARMED = 3  # the host sent DISARM
+    FIRST_COMMAND_TIMEOUT = 4  # host mode: no first command within first_command_timeout_ticks
+    SAFETY = 5  # a latched safety trip (travel limit, sensor fault)
+    LINK_LOST = 6  # nothing heard from the host within link_timeout_ms
+    FAULT = 7  # the driver reported an error
+
+
+class ErrorCode(enum.IntEnum):
+    OK = 0
+    BAD_REQUEST = 1  # a field out of range for this target (e.g. history too long)
+    BUSY = 2  # another session holds the target
+    NOT_ARMED = 3
+    POLICY_REJECTED = 4  # hash mismatch, or the file did not load
+    DRIVER_FAULT = 5
+    UNKNOWN_RESOURCE = 6
+    OUT_OF_RANGE = 7  # a FETCH offset past the end
+
+
+MODES = {"host": 1, "onboard": 2}
+OBSERVATIONS = {"sensors": 0, "privileged": 1, "both": 2}
+_MODE_NAMES = {v: k for k, v in MODES.items()}
+_OBS_NAMES = {v: k for k, v in OBSERVATIONS.items()}
+
+
+# -- errors ------------------------------------------------------------------------------------------
+class ProtocolError(ValueError):
+    """A datagram that cannot be decoded; ``reason`` is the :class:`DatagramFilter` counter it
+    goes to, ``detail`` says why."""
+
+    reason = "corrupt"
+
+    def __init__(self, detail: str, message: str):
+        super().__init__(message)
+        self.detail = detail
+
+
+class CorruptDatagram(ProtocolError):
+    """Bad magic, length, CRC or payload (``detail``: truncated, magic, length, crc, payload)."""
+
+
+class WrongVersion(ProtocolError):
+    reason = "wrong_version"
+
+
+class UnknownType(ProtocolError):
+    reason = "unexpected"
+
+
+# -- field checks -------------------------------------------------------------------------------------
+def _uint(name: str, value, hi: int, lo: int = 0) -> None:
+    if type(value) is int and lo <= value <= hi:  # the common case, first: decoding runs it per field
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise ValueError(f"{name} = {value!r} must be an integer in [{lo}, {hi}]")
+
+
+def _digest(name: str, value) -> None:
+    if not isinstance(value, bytes) or len(value) != 32:
+        raise ValueError(f"{name} must be 32 bytes (a sha256 digest), got {value!r:.80}")
+
+
+def _floats(name: str, values, limit: int, lo: int = 0) -> None:
+    if not isinstance(values, tuple) or not lo <= len(values) <= limit:
+        raise ValueError(f"{name} must be a tuple of {lo} to {limit} floats, got {type(values).__name__} "
+                         f"of length {len(values) if hasattr(values, '__len__') else '?'}")
+    for v in values:
+        if type(v) is not float:
+            raise ValueError(f"{name} must hold Python floats, got {v!r} ({type(v).__name__})")
+
+
+def _data(name: str, value, limit: int) -> None:
+    if not isinstance(value, bytes) or len(value) > limit:
+        raise ValueError(f"{name} must be bytes of at most {limit} B, got {type(value).__name__}"
+                         f"{'' if not isinstance(value, bytes) else f' of {len(value)} B'}")
+
+
+# -- payloads -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Body:
+    """A message payload.  Subclasses fix ``TYPE`` and the fixed-size part ``FMT``."""
+
+    TYPE: ClassVar[MsgType]
+    FMT: ClassVar[struct.Struct]
+
+    def pack(self) -> bytes:
+        return self.FMT.pack(*self._fixed())
+
+    def _fixed(self) -> tuple:
+        return tuple(getattr(self, name) for name in _names(type(self)))
+
+    @classmethod
+    def unpack(cls, payload: bytes, newer: bool) -> Body:
+        """Decode ``payload``; ``newer``: the sender's minor is newer (trailing bytes allowed)."""
+        n = cls.FMT.size
+        _need(payload, n, newer, exact=True)
+        return cls(*cls.FMT.unpack_from(payload))
+
+
+@functools.cache
+def _names(cls) -> tuple[str, ...]:
+    return tuple(f.name for f in fields(cls))
+
+
+def _need(payload, n: int, newer: bool, exact: bool) -> None:
+    if len(payload) < n or (exact and not newer and len(payload) != n):
+        raise CorruptDatagram("payload", f"payload of {len(payload)} B where {n} B are needed")
+
+
+@dataclass(frozen=True)
+class Hello(Body):
+    TYPE: ClassVar = MsgType.HELLO
+    FMT: ClassVar = struct.Struct("<I")
+    nonce: int = 0
+
+    def __post_init__(self):
+        _uint("nonce", self.nonce, U32)
+
+
+@dataclass(frozen=True)
+class Info(Body):
+    TYPE: ClassVar = MsgType.INFO
+    FMT: ClassVar = struct.Struct("<IdBBBI32s")
+    nonce: int = 0
+    control_rate_hz: float = 1.0e4
+    state: int = TargetState.IDLE
+    driver: int = 0
+    lockstep: bool = False
+    scene_size: int = 0
+    scene_sha256: bytes = bytes(32)
+
+    def __post_init__(self):
+        _uint("nonce", self.nonce, U32)
+        if not (isinstance(self.control_rate_hz, float) and self.control_rate_hz > 0
+                and math.isfinite(self.control_rate_hz)):
+            raise ValueError(f"control_rate_hz = {self.control_rate_hz!r} Hz must be a finite float > 0 Hz")
+        _uint("state", self.state, max(TargetState))
+        _uint("driver", self.driver, 1)
+        if not isinstance(self.lockstep, bool):
+            raise ValueError(f"lockstep must be a bool, got {self.lockstep!r}")
+        _uint("scene_size", self.scene_size, U32)
+        _digest("scene_sha256", self.scene_sha256)
+
+    @classmethod
+    def unpack(cls, payload, newer):
+        _need(payload, cls.FMT.size, newer, exact=True)
+        nonce, rate, state, driver, lock, size, sha = cls.FMT.unpack_from(payload)
+        if lock > 1:
+            raise CorruptDatagram("payload", f"INFO lockstep byte {lock} is not 0 or 1")
+        return cls(nonce, rate, state, driver, bool(lock), size, sha)
+
+
+@dataclass(frozen=True)
+class Arm(Body):
+    TYPE: ClassVar = MsgType.ARM
+    FMT: ClassVar = struct.Struct("<BBBBHQIIII32s")
+    mode: str = "host"
+    observation: str = "sensors"
+    history: int = 1
+    options: int = 0
+    hold_ticks: int = 1
+    seed: int = 0
+    horizon_ticks: int = 1
+    first_command_timeout_ticks: int = 1000
+    link_timeout_ms: int = 0
+    policy_size: int = 0
+    policy_sha256: bytes = bytes(32)
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"mode = {self.mode!r} must be one of {', '.join(MODES)}")
+        if self.observation not in OBSERVATIONS:
+            raise ValueError(f"observation = {self.observation!r} must be one of {', '.join(OBSERVATIONS)}")
+        _uint("history", self.history, 64, 1)
+        _uint("options", self.options, U8)
+        _uint("hold_ticks", self.hold_ticks, U16, 1)
+        _uint("seed", self.seed, U64)
+        _uint("horizon_ticks", self.horizon_ticks, U32, 1)
+        _uint("first_command_timeout_ticks", self.first_command_timeout_ticks, U32)
+        _uint("link_timeout_ms", self.link_timeout_ms, U32)
+        _uint("policy_size", self.policy_size, U32)
+        _digest("policy_sha256", self.policy_sha256)
+
+    def _fixed(self):
+        v = super()._fixed()
+        return (MODES[self.mode], OBSERVATIONS[self.observation]) + v[2:]
+
+    @classmethod
+    def unpack(cls, payload, newer):
+        _need(payload, cls.FMT.size, newer, exact=True)
+        mode, obs, *rest = cls.FMT.unpack_from(payload)
+        if mode not in _MODE_NAMES or obs not in _OBS_NAMES:
+            raise CorruptDatagram("payload", f"ARM mode {mode} or observation {obs} unknown")
+        return cls(_MODE_NAMES[mode], _OBS_NAMES[obs], *rest)
+
+
+@dataclass(frozen=True)
+class Armed(Body):
+    TYPE: ClassVar = MsgType.ARMED
+    FMT: ClassVar = struct.Struct("<IQHHBBHd32s")
+    episode: int = 0
+    start_tick: int = 0
+    obs_size: int = 1
+    action_size: int = 1
+    obs_dtype: int = 4
+    telemetry_size: int = 0
+    hold_ticks: int = 1
+    control_rate_hz: float = 1.0e4
+    scene_sha256: bytes = bytes(32)
+
+    def __post_init__(self):
+        _uint("episode", self.episode, U32)
+        _uint("start_tick", self.start_tick, U64)
+        _uint("obs_size", self.obs_size, MAX_VALUES)
+        _uint("action_size", self.action_size, MAX_VALUES)
+        if self.obs_dtype not in (4, 8):
+            raise ValueError(f"obs_dtype = {self.obs_dtype!r} must be 4 (float32) or 8 (float64)")
+        _uint("telemetry_size", self.telemetry_size, U8)
+        _uint("hold_ticks", self.hold_ticks, U16, 1)
+        if not (isinstance(self.control_rate_hz, float) and self.control_rate_hz > 0
+                and math.isfinite(self.control_rate_hz)):
+            raise ValueError(f"control_rate_hz = {self.control_rate_hz!r} Hz must be a finite float > 0 Hz")
+        _digest("scene_sha256", self.scene_sha256)
+
+
+@dataclass(frozen=True)
+class PolicyChunk(Body):
+    TYPE: ClassVar = MsgType.POLICY_CHUNK
+    FMT: ClassVar = struct.Struct("<QIIH")
+    upload_id: int = 0
+    total: int = 0
+    offset: int = 0
+    data: bytes = b""
+
+    def __post_init__(self):
+        _uint("upload_id", self.upload_id, U64)
+        _uint("total", self.total, MAX_TRANSFER)
+        _uint("offset", self.offset, self.total)
+        _data("data", self.data, min(U16, MAX_PAYLOAD - self.FMT.size))
+        if self.offset + len(self.data) > self.total:
+            raise ValueError(f"chunk [{self.offset}, {self.offset + len(self.data)}) B runs past the "
+                             f"total {self.total} B")
+
+    def pack(self):
+        return self.FMT.pack(self.upload_id, self.total, self.offset, len(self.data)) + self.data
+
+    @classmethod
+    def unpack(cls, payload, newer):
+        _need(payload, cls.FMT.size, newer, exact=False)
+        uid, total, off, n = cls.FMT.unpack_from(payload)
+        _need(payload, cls.FMT.size + n, newer, exact=True)
+        return cls(uid, total, off, bytes(payload[cls.FMT.size:cls.FMT.size + n]))
+
+
+@dataclass(frozen=True)
+class Ack(Body):
+    TYPE: ClassVar = MsgType.ACK
+    FMT: ClassVar = struct.Struct("<BBIQ")
+    acked_type: int = MsgType.HELLO
+    code: int = ErrorCode.OK
+    acked_seq: int = 0
+    value: int = 0
+
+    def __post_init__(self):
+        _uint("acked_type", self.acked_type, U8)
+        _uint("code", self.code, U8)
+        _uint("acked_seq", self.acked_seq, U32)
+        _uint("value", self.value, U64)
+
+
+@dataclass(frozen=True)
+class Command(Body):
+    TYPE: ClassVar = MsgType.COMMAND
+    FMT: ClassVar = struct.Struct("<IIH")
+    episode: int = 0
+    step: int = 0
+    action: tuple[float, ...] = (0.0,)
+
+    def __post_init__(self):
+        _uint("episode", self.episode, U32)
+        _uint("step", self.step, U32)
+        _floats("action", self.action, MAX_VALUES, lo=1)
+
+    def pack(self):
+        n = len(self.action)
+        return self.FMT.pack(self.episode, self.step, n) + struct.pack(f"<{n}d", *self.action)
+
+    @classmethod
+    def unpack(cls, payload, newer):
+        _need(payload, cls.FMT.size, newer, exact=False)
+        ep, step, n = cls.FMT.unpack_from(payload)
+        _need(payload, cls.FMT.size + 8 * n, newer, exact=True)
+        return cls(ep, step, struct.unpack_from(f"<{n}d", payload, cls.FMT.size))
+
+
+@dataclass(frozen=True)
+class Observation(Body):
+    """``obs`` values are encoded as float32 when ``dtype = 4`` (rounded to nearest; decoding
+    gives the rounded values), as float64 when 8; ``telemetry`` always as float64."""
+
+    TYPE: ClassVar = MsgType.OBSERVATION
+    FMT: ClassVar = struct.Struct("<IIIBHH")
+    episode: int = 0
+    step: int = 0
+    status: int = 0
+    dtype: int = 4
+    obs: tuple[float, ...] = ()
+    telemetry: tuple[float, ...] = ()
+
+    def __post_init__(self):
+        _uint("episode", self.episode, U32)
+        _uint("step", self.step, U32)
+        _uint("status", self.status, U32)
+        if self.dtype not in (4, 8):
+            raise ValueError(f"dtype = {self.dtype!r} must be 4 (float32) or 8 (float64)")
+        _floats("obs", self.obs, MAX_VALUES)
+        _floats("telemetry", self.telemetry, MAX_VALUES)
+        if self.dtype == 4:
+            for v in self.obs:
+                if math.isfinite(v) and abs(v) > _FLT_MAX:
+                    raise ValueError(f"obs value {v!r} overflows float32 (dtype 4)")
+
+    def pack(self):
+        n, m = len(self.obs), len(self.telemetry)
+        code = "f" if self.dtype == 4 else "d"
+        return (self.FMT.pack(self.episode, self.step, self.status, self.dtype, n, m)
+                + struct.pack(f"<{n}{code}{m}d", *self.obs, *self.telemetry))
+
+    @classmethod
+    def unpack(cls, payload, newer):
+        _need(payload, cls.FMT.size, newer, exact=False)
+        ep, step, status, dtype, n, m = cls.FMT.unpack_from(payload)
+        if dtype not in (4, 8) or m > MAX_VALUES:
+            raise CorruptDatagram("payload", f"OBSERVATION dtype {dtype} or telemetry size {m} invalid")
+        _need(payload, cls.FMT.size + dtype * n + 8 * m, newer, exact=True)
+        vals = struct.unpack_from(f"<{n}{'f' if dtype == 4 else 'd'}{m}d", payload, cls.FMT.size)
+        return cls(ep, step, status, dtype, vals[:n], vals[n:])
+
+
+@dataclass(frozen=True)
+class EpisodeEnd(Body):
+    TYPE: ClassVar = MsgType.EPISODE_END
+    FMT: ClassVar = struct.Struct("<IBIQII32s")
+    episode: int = 0
+    reason: int = EndReason.HORIZON
+    status: int = 0
+    n_ticks: int = 0
+    n_steps: int = 0
+    data_size: int = 0
+    data_sha256: bytes = bytes(32)
+
+    def __post_init__(self):
+        _uint("episode", self.episode, U32)
+        _uint("reason", self.reason, U8)
+        _uint("status", self.status, U32)
+        _uint("n_ticks", self.n_ticks, U64)
+        _uint("n_steps", self.n_steps, U32)
+        _uint("data_size", self.data_size, U32)
+        _digest("data_sha256", self.data_sha256)
+
+
+@dataclass(frozen=True)
+class Fetch(Body):
+    TYPE: ClassVar = MsgType.FETCH
+    FMT: ClassVar = struct.Struct("<BIIH")
+    resource: int = Resource.SCENE
+    item: int = 0
+    offset: int = 0
+    max_len: int = CHUNK_DATA
+
+    def __post_init__(self):
+        _uint("resource", self.resource, U8)
+        _uint("item", self.item, U32)
+        _uint("offset", self.offset, U32)
+        _uint("max_len", self.max_len, U16, 1)
+
+
+@dataclass(frozen=True)
+class Chunk(Body):
+    TYPE: ClassVar = MsgType.CHUNK
+    FMT: ClassVar = struct.Struct("<BIIIH")
+    resource: int = Resource.SCENE
+    item: int = 0
+    total: int = 0
+    offset: int = 0
+    data: bytes = b""
+
+    def __post_init__(self):
+        _uint("resource", self.resource, U8)
+        _uint("item", self.item, U32)
+        _uint("total", self.total, MAX_TRANSFER)
+        _uint("offset", self.offset, self.total)
+        _data("data", self.data, min(U16, MAX_PAYLOAD - self.FMT.size))
+        if self.offset + len(self.data) > self.total:
+            raise ValueError(f"chunk [{self.offset}, {self.offset + len(self.data)}) B runs past the "
+                             f"total {self.total} B")
+
+    def pack(self):
+        return self.FMT.pack(self.resource, self.item, self.total, self.offset, len(self.data)) + self.data
+
+    @classmethod
+    def unpack(cls, payload, newer):
+        _need(payload, cls.FMT.size, newer, exact=False)
+        res, item, total, off, n = cls.FMT.unpack_from(payload)
+        _need(payload, cls.FMT.size + n, newer, exact=True)
+        return cls(res, item, total, off, bytes(payload[cls.FMT.size:cls.FMT.size + n]))
+
+
+@dataclass(frozen=True)
+class Disarm(Body):
+    TYPE: ClassVar = MsgType.DISARM
+    FMT: ClassVar = struct.Struct("<B")
+    reason: int = 0
+
+    def __post_init__(self):
+        _uint("reason", self.reason, U8)
+
+
+@dataclass(frozen=True)
+class Heartbeat(Body):
+    TYPE: ClassVar = MsgType.HEARTBEAT
+    FMT: ClassVar = struct.Struct("<BIII")
+    state: int = TargetState.IDLE
+    episode: int = 0
+    step: int = 0
+    peer_seq: int = 0
+
+    def __post_init__(self):
+        _uint("state", self.state, U8)
+        _uint("episode", self.episode, U32)
+        _uint("step", self.step, U32)
+        _uint("peer_seq", self.peer_seq, U32)
+
+
+@dataclass(frozen=True)
+class Error(Body):
+    TYPE: ClassVar = MsgType.ERROR
+    FMT: ClassVar = struct.Struct("<HIH")
+    code: int = ErrorCode.BAD_REQUEST
+    ref_seq: int = 0
+    text: str = ""
+
+    def __post_init__(self):
+        _uint("code", self.code, U16)
+        _uint("ref_seq", self.ref_seq, U32)
+        if not isinstance(self.text, str) or len(self.text.encode("utf-8", "surrogatepass")) > MAX_TEXT:
+            raise ValueError(f"text must be a str of at most {MAX_TEXT} UTF-8 bytes")
+        try:
+            self.text.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise ValueError(f"text is not encodable as UTF-8: {exc}") from None
+
+    @classmethod
+    def shorten(cls, code: int, ref_seq: int, text: str) -> Error:
+        """An ERROR whose text is cut (at a character boundary) to fit ``MAX_TEXT`` bytes."""
+        raw = text.encode("utf-8", "replace")[:MAX_TEXT]
+        return cls(code, ref_seq, raw.decode("utf-8", "ignore"))
+
+    def pack(self):
+        raw = self.text.encode("utf-8")
+        return self.FMT.pack(self.code, self.ref_seq, len(raw)) + raw
+
+    @classmethod
+    def unpack(cls, payload, newer):
+        _need(payload, cls.FMT.size, newer, exact=False)
+        code, ref, n = cls.FMT.unpack_from(payload)
+        if n > MAX_TEXT:
+            raise CorruptDatagram("payload", f"ERROR text of {n} B exceeds {MAX_TEXT} B")
+        _need(payload, cls.FMT.size + n, newer, exact=True)
+        try:
+            text = bytes(payload[cls.FMT.size:cls.FMT.size + n]).decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise CorruptDatagram("payload", f"ERROR text is not UTF-8: {exc}") from None
+        return cls(code, ref, text)
+
+
+BODIES: dict[int, type[Body]] = {cls.TYPE: cls for cls in (
+    Hello, Info, Arm, Armed, PolicyChunk, Ack, Command, Observation, EpisodeEnd, Fetch, Chunk, Disarm,
+    Heartbeat, Error)}
+
+
+# -- messages -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Message:
+    """One datagram: the header fields and a payload ``body`` (whose class fixes the type)."""
+
+    body: Body
+    session: int = 0
+    seq: int = 0
+    tick: int = 0
+    host_ns: int = 0
+    target_ns: int = 0
+    flags: int = 0
+
+    def __post_init__(self):
+        if not isinstance(self.body, Body) or type(self.body) not in BODIES.values():
+            raise ValueError(f"body must be one of the payload classes of this module, got {self.body!r:.80}")
+        _uint("session", self.session, U32)
+        _uint("seq", self.seq, U32)
+        _uint("tick", self.tick, U64)
+        _uint("host_ns", self.host_ns, U64)
+        _uint("target_ns", self.target_ns, U64)
+        _uint("flags", self.flags, U8)
+
+    @property
+    def type(self) -> MsgType:
+        return self.body.TYPE
+
+
+def encode(msg: Message) -> bytes:
+    """The datagram of ``msg`` (header, payload, CRC-32)."""
+    try:
+        payload = msg.body.pack()
+    except (struct.error, OverflowError) as exc:
+        raise ValueError(f"cannot encode {msg.type.name}: {exc}") from None
+    if len(payload) > MAX_PAYLOAD:
+        raise ValueError(f"{msg.type.name} payload of {len(payload)} B exceeds MAX_PAYLOAD = {MAX_PAYLOAD} B")
+    head = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, msg.type, msg.flags, msg.session, msg.seq,
+                       msg.tick, msg.host_ns, msg.target_ns, len(payload))
+    return head + payload + TRAILER.pack(zlib.crc32(payload, zlib.crc32(head)))
+
+
+def decode(data: bytes) -> Message:
+    """The message in datagram ``data``; raises :class:`ProtocolError` (never anything else)."""
+    n = len(data)
+    if n < OVERHEAD:
+        raise CorruptDatagram("truncated", f"datagram of {n} B is shorter than the {OVERHEAD} B frame")
+    magic, major, minor, mtype, flags, session, seq, tick, hns, tns, plen = HEADER.unpack_from(data)
+    if magic != MAGIC:
+        raise CorruptDatagram("magic", f"bad magic {magic!r} (expected {MAGIC!r})")
+    if major != VERSION_MAJOR:
+        raise WrongVersion("major", f"protocol version {major}.{minor}, this side speaks "
+                           f"{VERSION_MAJOR}.{VERSION_MINOR}")
+    if HEADER_SIZE + plen + TRAILER.size != n:
+        raise CorruptDatagram("length", f"payload length {plen} B does not match the datagram's {n} B")
+    end = HEADER_SIZE + plen
+    (crc,) = TRAILER.unpack_from(data, end)
+    if zlib.crc32(memoryview(data)[:end]) != crc:
+        raise CorruptDatagram("crc", "CRC-32 mismatch")
+    cls = BODIES.get(mtype)
+    if cls is None:
+        raise UnknownType("type", f"unknown message type {mtype} (minor {minor})")
+    payload = memoryview(data)[HEADER_SIZE:end]
+    try:
+        body = cls.unpack(payload, minor > VERSION_MINOR)
+    except ProtocolError:
+        raise
+    except (ValueError, struct.error) as exc:
+        raise CorruptDatagram("payload", f"{cls.TYPE.name} payload invalid: {exc}") from None
+    # the header's fields are in range by construction (struct): skip Message's checks
+    msg = object.__new__(Message)
+    msg.__dict__.update(body=body, session=session, seq=seq, tick=tick, host_ns=hns, target_ns=tns,
+                        flags=flags)
+    return msg
+
+
+# -- receiver-side filter -----------------------------------------------------------------------------
+_HALF = 1 << 31
+
+
+@dataclass
+class _Stream:
+    newest: int
+    mask: int  # bit i: newest - i was accepted
+
+
+@dataclass
+class DatagramFilter:
+    """Decodes datagrams and drops, counting by reason, those a receiver must not act on.
+
+    role: ``"target"`` accepts the host->target types, ``"host"`` the target->host ones (the
+    other direction's types count as ``unexpected``).
+    session: the open session id; None accepts only ``open_types`` (by default HELLO at the
+    target, so that a host can open a session).  Setting it forgets the streams.
+
+    ``accept(data, episode, step)`` returns the :class:`Message` or None; for the target, a
+    COMMAND for an (episode, step) before the given one is ``late`` (it still moves its stream
+    on: a copy of it is then a ``duplicate``).  ``counts()`` is a dict of
+    plain ints: ``accepted`` and one entry per reason in ``REASONS``, which add up to the number
+    of datagrams seen; ``detail`` splits ``corrupt`` (truncated, magic, length, crc, payload).
+    """
+
+    REASONS: ClassVar[tuple[str, ...]] = ("corrupt", "wrong_version", "wrong_session", "unexpected",
+                                          "duplicate", "out_of_order", "late")
+    WINDOW: ClassVar[int] = 64
+    MAX_STREAMS: ClassVar[int] = 1024  # other sessions' streams kept before the oldest is forgotten
+
+    role: str
+    session: int | None = None
+    open_types: frozenset | None = None
+    counters: dict = field(default_factory=dict)
+    detail: dict = field(default_factory=dict)
+    last_reason: str = ""
+    last_error: str = ""
+
+    def __post_init__(self):
+        if self.role not in ("host", "target"):
+            raise ValueError(f"role = {self.role!r} must be 'host' or 'target'")
+        self._types = HOST_TO_TARGET if self.role == "target" else TARGET_TO_HOST
+        if self.open_types is None:
+            self.open_types = frozenset({MsgType.HELLO}) if self.role == "target" else frozenset()
+        self.counters = {"accepted": 0, **{r: 0 for r in self.REASONS}}
+        self._streams: dict[tuple[int, int], _Stream] = {}
+        self._foreign: dict[tuple[int, int], _Stream] = {}
+
+    def __setattr__(self, name, value):
+        if name == "session" and value is not None:
+            _uint("session", value, U32)
+        super().__setattr__(name, value)
+        if name == "session" and "_streams" in self.__dict__:
+            self._streams.clear()
+            self._foreign.clear()
+
+    def counts(self) -> dict[str, int]:
+        return dict(self.counters)
+
+    @property
+    def total(self) -> int:
+        return sum(self.counters.values())
+
+    def _drop(self, reason: str, why: str, detail: str = "") -> None:
+        self.counters[reason] += 1
+        if detail:
+            key = f"{reason}.{detail}"
+            self.detail[key] = self.detail.get(key, 0) + 1
+        self.last_reason, self.last_error = reason, why
+
+    def accept(self, data: bytes, episode: int | None = None, step: int | None = None) -> Message | None:
+        try:
+            msg = decode(data)
+        except ProtocolError as exc:
+            self._drop(exc.reason, str(exc), exc.detail)
+            return None
+        t = msg.type
+        if t not in self._types:
+            self._drop("unexpected", f"{t.name} is not for the {self.role}")
+            return None
+        if t not in self.open_types and (self.session is None or msg.session != self.session):
+            self._drop("wrong_session", f"{t.name} of session {msg.session:#x}, open: "
+                       f"{'none' if self.session is None else f'{self.session:#x}'}")
+            return None
+        if not self._fresh(msg):
+            return None
+        if (t == MsgType.COMMAND and episode is not None and step is not None
+                and (msg.body.episode, msg.body.step) < (episode, step)):
+            self._drop("late", f"COMMAND for episode {msg.body.episode} step {msg.body.step} arrived at "
+                       f"episode {episode} step {step}")
+            return None
+        self.counters["accepted"] += 1
+        return msg
+
+    def _fresh(self, msg: Message) -> bool:
+        # the open session's streams are never evicted; other sessions' (open types only: a
+        # flood of HELLOs) live in a bounded table of their own
+        own = msg.session == self.session
+        streams = self._streams if own else self._foreign
+        key = (msg.session, int(msg.type))
+        s = streams.get(key)
+        seq = msg.seq
+        if s is None:
+            if not own and len(streams) >= self.MAX_STREAMS:
+                streams.pop(next(iter(streams)))
+            streams[key] = _Stream(seq, 1)
+            return True
+        ahead = (seq - s.newest) & U32
+        if 0 < ahead < _HALF:
+            s.mask = ((s.mask << ahead) | 1) & ((1 << self.WINDOW) - 1) if ahead < self.WINDOW else 1
+            s.newest = seq
+            return True
+        back = (s.newest - seq) & U32
+        if back < self.WINDOW and (s.mask >> back) & 1:
+            self._drop("duplicate", f"{msg.type.name} seq {seq} accepted before")
+        else:
+            self._drop("out_of_order", f"{msg.type.name} seq {seq} is not newer than {s.newest}")
+        return False

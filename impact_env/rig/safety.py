@@ -1,0 +1,312 @@
+"""The target's safety layer: what may reach the shaker, tick by tick (a numba kernel).
+
+Every tick the target passes the demanded command through :func:`safety_step`, which returns the
+force to apply (N, up positive, the thesis's f2) and status bits.  Its inputs:
+
+* ``demand``: the command, dimensionless (1.0 = the scene's ``effects.command_scale`` newtons):
+  the host's latest COMMAND in host mode, the onboard policy's output in onboard mode.
+* ``age_ticks``: ticks since the command in use was first applied (0 on its first tick; < 0:
+  no command yet this episode).  Host mode only; onboard mode passes 0.
+* ``ticks_armed``: ticks since the episode was armed.
+* ``x2_m``: the potentiometer's reading of body 2's travel (m, down positive, 0 at rest).
+
+Rules, in the order applied (host mode = ``mode="host"``; H = hold_ticks):
+
+1. **Watchdog** (host mode).  A command is applied for H ticks (``age < H``) and repeated at most
+   once more (``H <= age < 2H``: ``REPEATED``); from ``age = 2H`` on the force is 0
+   (``WATCHDOG``) until a new command arrives.  So the demanded force is 0 within 2 policy
+   periods of the last command's first tick (the shaker's own response then decays it).
+   Each start of a watchdog stretch counts one trip.
+2. **First command.**  Before the first command the force is 0 (``NO_COMMAND``); once
+   ``ticks_armed`` reaches ``first_command_timeout_s`` (in ticks, rounded up) with none,
+   ``FIRST_COMMAND_TIMEOUT`` is set: the target disarms.
+3. **Non-finite** demand (NaN, inf, or a product with the command scale that overflows):
+   0 N for this tick, ``NONFINITE``.
+4. **Travel limit** (latched).  ``|x2| > travel_limit_m`` sets ``TRAVEL``; a non-finite reading
+   sets ``SENSOR_FAULT``.  Both latch: the force stays 0 for the rest of the episode (the
+   suspension brings body 2 back; a policy that drove the armature out of its stroke is not
+   trusted to bring it back), and the latched bits are reported on every later tick.
+5. **Peak clamp**: ``|f| <= peak_n`` (``CLAMP_PEAK``).
+6. **Continuous (RMS) clamp**: the RMS of the applied force over any window of
+   ``rms_window_s`` (n = rate * window ticks, this one included) stays at or below
+   ``continuous_n / sqrt(2)`` (the RMS of a sine of peak ``continuous_n``): the allowed
+   ``f^2`` is ``n R^2`` minus the sum of the other n-1 squares in the window (``CLAMP_RMS``).
+   The window keeps running between episodes (the coil's heat does not reset with an episode):
+   call :func:`drain_window` for idle ticks.  Squares are stored as whole multiples of a quantum
+   (1e-6 N^2, or coarser so that n peak^2 stays below 2^50 quanta), so the running sum is exact.
+
+Ratings and limits (:class:`SafetyConfig`, SI units):
+
+* ``peak_n`` = 200 N: the LDS V406 / PA 100E gave "approximately 200 N" for short pulses
+  (thesis sec 4.3).
+* ``continuous_n`` = 98 N: its sine peak rating (thesis sec 4.1), i.e. 69.3 N RMS.
+* ``rms_window_s`` = 1 s: **ASSUMED** (the thesis gives no thermal time constant).  With it a
+  200 N command may last 0.12 s in any second (n R^2 / (200 N)^2), far longer than a contact
+  (about 4 ms), so a catch is never clamped, while a stuck full-scale command is.
+* ``travel_limit_m`` = 7 mm: **ASSUMED**, 80 % of the V406's +-8.8 mm half stroke (17.6 mm
+  peak to peak in LDS's data sheet, not in the thesis; check the rig's own exciter).  It lies
+  inside the simulated potentiometer's +-10 mm range (``effects.sensors.potentiometer``).
+* ``first_command_timeout_s`` = 0.1 s: **ASSUMED**, a thousand ticks at 10 kHz, far above a
+  loopback round trip (about 0.1 ms) and a Python host's first step (about 1 ms).
+
+Status bits (u32; bits 0-15 this layer, 16-31 the target loop):
+
+====  =========================  ==============================================================
+bit   name                       meaning
+====  =========================  ==============================================================
+0     ``NO_COMMAND``             host mode, no command yet this episode: 0 N
+1     ``REPEATED``               the command is in its repeat period (age in [H, 2H))
+2     ``WATCHDOG``               the command is older than 2 periods: 0 N
+3     ``FIRST_COMMAND_TIMEOUT``  no first command within the timeout: disarm
+4     ``NONFINITE``              the demand was NaN or infinite: 0 N
+5     ``CLAMP_PEAK``             the peak clamp cut the force
+6     ``CLAMP_RMS``              the continuous (RMS) clamp cut the force
+7     ``TRAVEL``                 (latched) body 2 beyond its travel limit: 0 N
+8     ``SENSOR_FAULT``           (latched) the potentiometer reading was not finite: 0 N
+16    ``OVERRUN``                (target loop) the tick started more than a period late
+====  =========================  ==============================================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from impact_env._jit import jit
+from impact_env.config import ConfigError, check_range, doc_field
+
+NO_COMMAND = 1 << 0
+REPEATED = 1 << 1
+WATCHDOG = 1 << 2
+FIRST_COMMAND_TIMEOUT = 1 << 3
+NONFINITE = 1 << 4
+CLAMP_PEAK = 1 << 5
+CLAMP_RMS = 1 << 6
+TRAVEL = 1 << 7
+SENSOR_FAULT = 1 << 8
+OVERRUN = 1 << 16
+LATCHING = TRAVEL | SENSOR_FAULT
+FORCE_ZEROED = NO_COMMAND | WATCHDOG | NONFINITE | TRAVEL | SENSOR_FAULT
+
+STATUS_BITS = {"NO_COMMAND": NO_COMMAND, "REPEATED": REPEATED, "WATCHDOG": WATCHDOG,
+               "FIRST_COMMAND_TIMEOUT": FIRST_COMMAND_TIMEOUT, "NONFINITE": NONFINITE,
+               "CLAMP_PEAK": CLAMP_PEAK, "CLAMP_RMS": CLAMP_RMS, "TRAVEL": TRAVEL,
+               "SENSOR_FAULT": SENSOR_FAULT, "OVERRUN": OVERRUN}
+
+# parameter array (float64[N_PARAMS])
+P_SCALE, P_PEAK, P_BUDGET, P_QUANTUM, P_WINDOW, P_TRAVEL, P_FIRST, P_HOLD, P_HOST = range(9)
+N_PARAMS = 9
+# state array (float64[N_STATE_FIXED + window]): latched bits, running sum of squares (quanta),
+# ring head, counters, then the ring of squares (quanta)
+S_LATCH, S_SUM, S_HEAD, S_PREV_WD, S_WD_TRIPS, S_NONFINITE, S_PEAK, S_RMS, S_TRAVEL_TRIPS = range(9)
+N_STATE_FIXED = 9
+COUNTERS = {"watchdog_trips": S_WD_TRIPS, "nonfinite_ticks": S_NONFINITE, "clamp_peak_ticks": S_PEAK,
+            "clamp_rms_ticks": S_RMS, "travel_trips": S_TRAVEL_TRIPS}
+MAX_WINDOW = 10_000_000  # ticks (80 MB of state): a guard against a mistyped window or rate
+
+_f = doc_field
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Limits the target enforces on the force it sends to the shaker (see the module doc)."""
+
+    peak_n: float = _f(200.0, "N", "peak clamp |f| (thesis sec 4.3: about 200 N for short pulses)")
+    continuous_n: float = _f(98.0, "N", "continuous rating as a sine peak (thesis sec 4.1: 98 N); the RMS "
+                             "over rms_window_s may not exceed continuous_n/sqrt(2); 0 = no RMS clamp")
+    rms_window_s: float = _f(1.0, "s", "window of the RMS clamp (ASSUMED: no thermal data in the thesis)")
+    travel_limit_m: float = _f(7.0e-3, "m", "|x2| beyond which the force is cut and latched off (ASSUMED: "
+                               "80 % of the V406's 8.8 mm half stroke)")
+    first_command_timeout_s: float = _f(0.1, "s", "host mode: disarm if no first command within it (ASSUMED)")
+
+    def __post_init__(self):
+        check_range("safety.peak_n", self.peak_n, "N", 0.0, None, lo_open=True)
+        check_range("safety.continuous_n", self.continuous_n, "N", 0.0, self.peak_n)
+        check_range("safety.rms_window_s", self.rms_window_s, "s", 0.0, 600.0, lo_open=True)
+        check_range("safety.travel_limit_m", self.travel_limit_m, "m", 0.0, 1.0, lo_open=True)
+        check_range("safety.first_command_timeout_s", self.first_command_timeout_s, "s", 0.0, 3600.0,
+                    lo_open=True)
+
+    @property
+    def rms_limit_n(self) -> float:
+        """The RMS force allowed over the window, N."""
+        return self.continuous_n / math.sqrt(2.0)
+
+
+def safety_params(cfg: SafetyConfig, command_scale: float, rate: float, hold_ticks: int,
+                  mode: str = "host") -> np.ndarray:
+    """float64[N_PARAMS] for :func:`safety_step`: the config at the control ``rate`` (Hz), for
+    ``command_scale`` N per unit demand, ``hold_ticks`` ticks per policy step, ``mode``
+    "host" (watchdog on) or "onboard"."""
+    check_range("effects.command_scale", command_scale, "N", 0.0, None, lo_open=True)
+    check_range("control.rate", rate, "Hz", 0.0, 1e8, lo_open=True)
+    if isinstance(hold_ticks, bool) or not isinstance(hold_ticks, (int, np.integer)) or not \
+            1 <= hold_ticks <= 65535:
+        raise ConfigError(f"hold_ticks = {hold_ticks!r} must be an integer number of ticks in [1, 65535]")
+    if mode not in ("host", "onboard"):
+        raise ConfigError(f"mode = {mode!r} must be 'host' or 'onboard'")
+    n = max(1, int(round(cfg.rms_window_s * rate)))
+    if n > MAX_WINDOW:
+        raise ConfigError(f"safety.rms_window_s = {cfg.rms_window_s:g} s at {rate:g} Hz is {n} ticks; "
+                          f"at most {MAX_WINDOW} (shorten the window)")
+    quantum = max(1e-6, cfg.peak_n**2 * n / 2.0**50)
+    p = np.empty(N_PARAMS)
+    p[P_SCALE] = command_scale
+    p[P_PEAK] = cfg.peak_n
+    p[P_BUDGET] = math.floor(n * cfg.rms_limit_n**2 / quantum) if cfg.continuous_n > 0 else -1.0
+    p[P_QUANTUM] = quantum
+    p[P_WINDOW] = n
+    p[P_TRAVEL] = cfg.travel_limit_m
+    p[P_FIRST] = math.ceil(cfg.first_command_timeout_s * rate - 1e-9)
+    p[P_HOLD] = hold_ticks
+    p[P_HOST] = 1.0 if mode == "host" else 0.0
+    return p
+
+
+def make_safety_state(params: np.ndarray) -> np.ndarray:
+    """Zeroed state for ``params``: no latches, an empty (cool) RMS window."""
+    return np.zeros(N_STATE_FIXED + int(params[P_WINDOW]))
+
+
+def new_episode(state: np.ndarray) -> np.ndarray:
+    """Clear the latches and counters for a new episode; the RMS window (heat) is kept."""
+    state[S_LATCH] = 0.0
+    state[S_PREV_WD] = 0.0
+    for i in COUNTERS.values():
+        state[i] = 0.0
+    return state
+
+
+@jit
+def drain_window(state, params, n_ticks):
+    """Push ``n_ticks`` idle (0 N) ticks into the RMS window (time spent disarmed)."""
+    n = int(params[P_WINDOW])
+    head = int(state[S_HEAD])
+    for _ in range(min(n_ticks, n)):
+        state[S_SUM] -= state[N_STATE_FIXED + head]
+        state[N_STATE_FIXED + head] = 0.0
+        head = (head + 1) % n
+    state[S_HEAD] = head
+
+
+@jit
+def safety_step(demand, age_ticks, ticks_armed, x2_m, params, state):
+    """One tick of the safety layer (module doc): returns ``(force_N, status)``, the force to
+    apply (N, up positive) and the status bits (int64); updates ``state``."""
+    status = 0
+    use = True
+    hold = params[P_HOLD]
+    if params[P_HOST] != 0.0:
+        if age_ticks < 0:
+            status |= NO_COMMAND
+            use = False
+            if ticks_armed >= params[P_FIRST]:
+                status |= FIRST_COMMAND_TIMEOUT
+        elif age_ticks >= 2.0 * hold:
+            status |= WATCHDOG
+            use = False
+        elif age_ticks >= hold:
+            status |= REPEATED
+    if status & WATCHDOG:
+        if state[S_PREV_WD] == 0.0:
+            state[S_WD_TRIPS] += 1.0
+        state[S_PREV_WD] = 1.0
+    else:
+        state[S_PREV_WD] = 0.0
+    f = 0.0
+    if use:
+        f = demand * params[P_SCALE]
+        if not np.isfinite(f):
+            status |= NONFINITE
+            state[S_NONFINITE] += 1.0
+            f = 0.0
+    latch = int(state[S_LATCH])
+    if not np.isfinite(x2_m):
+        latch |= SENSOR_FAULT
+    elif abs(x2_m) > params[P_TRAVEL]:
+        if (latch & TRAVEL) == 0:
+            state[S_TRAVEL_TRIPS] += 1.0
+        latch |= TRAVEL
+    state[S_LATCH] = latch
+    if latch != 0:
+        status |= latch
+        f = 0.0
+    peak = params[P_PEAK]
+    if f > peak:
+        f = peak
+        status |= CLAMP_PEAK
+    elif f < -peak:
+        f = -peak
+        status |= CLAMP_PEAK
+    if status & CLAMP_PEAK:
+        state[S_PEAK] += 1.0
+    # RMS window: the oldest square leaves, this tick's enters
+    n = int(params[P_WINDOW])
+    head = int(state[S_HEAD])
+    slot = N_STATE_FIXED + head
+    others = state[S_SUM] - state[slot]
+    q_unit = params[P_QUANTUM]
+    sq = np.floor(f * f / q_unit + 0.5)
+    budget = params[P_BUDGET]
+    if budget >= 0.0 and others + sq > budget:
+        room = budget - others
+        if room < 0.0:
+            room = 0.0
+        mag = np.sqrt(room * q_unit)
+        f = mag if f > 0.0 else -mag
+        sq = np.floor(f * f / q_unit + 0.5)
+        if sq > room:
+            sq = room
+        status |= CLAMP_RMS
+        state[S_RMS] += 1.0
+    state[slot] = sq
+    state[S_SUM] = others + sq
+    state[S_HEAD] = (head + 1) % n
+    return f, status
+
+
+def describe_status(bits: int) -> list[str]:
+    """Names of the bits set in ``bits``, in bit order (unknown bits as ``bitN``)."""
+    bits = int(bits)
+    known = {v: k for k, v in STATUS_BITS.items()}
+    return [known.get(1 << i, f"bit{i}") for i in range(32) if bits >> i & 1]
+
+
+class SafetyLayer:
+    """Python face of the kernel: the config turned into ``params`` and ``state`` for one rig.
+
+    The target's compiled loop calls :func:`safety_step` with ``layer.params`` and
+    ``layer.state`` directly; :meth:`step` does the same from Python (tests, slow loops).
+    """
+
+    def __init__(self, cfg: SafetyConfig | None = None, command_scale: float = 200.0, rate: float = 1.0e4,
+                 hold_ticks: int = 1, mode: str = "host"):
+        self.cfg = cfg or SafetyConfig()
+        self.params = safety_params(self.cfg, command_scale, rate, hold_ticks, mode)
+        self.state = make_safety_state(self.params)
+
+    def step(self, demand: float, age_ticks: int, ticks_armed: int, x2_m: float) -> tuple[float, int]:
+        f, status = safety_step(float(demand), int(age_ticks), int(ticks_armed), float(x2_m), self.params,
+                                self.state)
+        return float(f), int(status)
+
+    def new_episode(self) -> None:
+        new_episode(self.state)
+
+    def drain(self, n_ticks: int) -> None:
+        drain_window(self.state, self.params, int(n_ticks))
+
+    @property
+    def window_rms_n(self) -> float:
+        """RMS of the applied force over the current window, N."""
+        return math.sqrt(self.state[S_SUM] * self.params[P_QUANTUM] / self.params[P_WINDOW])
+
+    @property
+    def latched(self) -> int:
+        return int(self.state[S_LATCH])
+
+    def counters(self) -> dict[str, int]:
+        """Per-episode counts (plain ints): watchdog trips, non-finite ticks, clamped ticks, travel trips."""
+        return {name: int(self.state[i]) for name, i in COUNTERS.items()}

@@ -1,0 +1,444 @@
+"""UDP transport for the rig: addresses, a non-blocking endpoint, and a session link with
+reliable requests and chunked transfers over an unreliable network.
+
+Layers, bottom up:
+
+* :func:`parse_address` / :func:`format_address`: ``udp://HOST:PORT`` (IPv6 as ``udp://[::1]:PORT``).
+* :class:`Endpoint`: one non-blocking UDP socket.  ``send`` never blocks (a full send buffer
+  drops the datagram and counts it, as the network would); ``recv(timeout)`` waits at most
+  ``timeout`` seconds (``select`` with microsecond resolution) and returns None when nothing
+  came; ``close()`` is idempotent and returns at once.
+* :class:`Link`: one side of a session.  It stamps every outgoing message (session id, its own
+  sequence counter, this side's ``perf_counter_ns``, the other side's timestamp echoed from the
+  message it answers), and passes every incoming datagram through a
+  :class:`~impact_env.rig.protocol.DatagramFilter` (``link.filter.counts()`` are the drops).
+  :meth:`Link.request` sends a request and waits for the reply that ``match`` accepts, sending
+  it again (new sequence number, ``FLAG_RETRY``) after each ``timeout_s`` without a reply, at
+  most ``retries`` times; then it raises :class:`RigTimeout`.  The whole call therefore returns
+  or raises within ``(retries + 1) * timeout_s`` (plus the time the callbacks take).  An ERROR
+  that answers one of the attempts raises :class:`RigError` at once.
+* :func:`upload` and :func:`fetch`: a file of any size (a ~100 kB policy, an episode's HDF5
+  log) as a sequence of ``CHUNK_DATA``-byte requests, each acknowledged (stop-and-wait: simple,
+  and a lost datagram costs one ``timeout_s``), checked against a sha256 at the end.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import ipaddress
+import select
+import socket
+import time
+from collections.abc import Callable
+
+from impact_env.rig import protocol as P
+
+Address = tuple[str, int]
+
+
+class RigTimeout(TimeoutError):
+    """Nothing acceptable came back in time.  ``what`` was awaited for ``waited_s`` seconds
+    from ``address`` over ``tries`` attempts."""
+
+    def __init__(self, what: str, waited_s: float, address: str, tries: int = 1):
+        tries_s = f" over {tries} tries" if tries > 1 else ""
+        super().__init__(f"no {what} from {address} within {waited_s:.3g} s{tries_s}: is the target "
+                         "running and reachable (impact-env rig serve), and the address right?")
+        self.what, self.waited_s, self.address, self.tries = what, waited_s, address, tries
+
+
+class RigError(RuntimeError):
+    """The peer answered a request with an ERROR message (``code``: a ``protocol.ErrorCode``)."""
+
+    def __init__(self, what: str, code: int, text: str):
+        try:
+            name = P.ErrorCode(code).name
+        except ValueError:
+            name = f"code {code}"
+        super().__init__(f"the target refused {what}: {name}: {text}")
+        self.code, self.text = code, text
+
+
+class EndpointClosed(OSError):
+    """The endpoint was closed."""
+
+
+# -- addresses -----------------------------------------------------------------------------------------
+def parse_address(text: str, allow_port_zero: bool = False) -> Address:
+    """``"udp://HOST:PORT"`` -> ``(HOST, PORT)``.  HOST is a name, an IPv4 address or a
+    bracketed IPv6 address; PORT 1..65535 (0, "any free port", only with ``allow_port_zero``).
+    Raises ValueError saying what is wrong and what is expected."""
+    example = "expected udp://HOST:PORT, e.g. udp://127.0.0.1:5600 or udp://[::1]:5600"
+    if not isinstance(text, str):
+        raise ValueError(f"address {text!r} is not a string; {example}")
+    scheme, sep, rest = text.strip().partition("://")
+    if not sep or scheme.lower() != "udp":
+        raise ValueError(f"address {text!r} must start with udp://; {example}")
+    if rest.startswith("["):
+        host, close, tail = rest[1:].partition("]")
+        if not close or not tail.startswith(":"):
+            raise ValueError(f"address {text!r}: an IPv6 host needs its closing ] and a :PORT; {example}")
+        port_s = tail[1:]
+        try:
+            ipaddress.IPv6Address(host)
+        except ValueError:
+            raise ValueError(f"address {text!r}: {host!r} is not an IPv6 address; {example}") from None
+    else:
+        host, colon, port_s = rest.rpartition(":")
+        if not colon:
+            raise ValueError(f"address {text!r} has no :PORT; {example}")
+        if ":" in host:
+            raise ValueError(f"address {text!r}: write an IPv6 host in brackets; {example}")
+    if not host or any(c.isspace() or c in "/?#@" for c in host):
+        raise ValueError(f"address {text!r} has no valid host; {example}")
+    if not port_s.isdigit():
+        raise ValueError(f"address {text!r}: port {port_s!r} is not a number; {example}")
+    port = int(port_s)
+    if not (0 if allow_port_zero else 1) <= port <= 65535:
+        lo = 0 if allow_port_zero else 1
+        raise ValueError(f"address {text!r}: port {port} is out of range [{lo}, 65535]")
+    return host, port
+
+
+def format_address(addr: Address) -> str:
+    host, port = addr[0], addr[1]
+    return f"udp://[{host}]:{port}" if ":" in host else f"udp://{host}:{port}"
+
+
+def _as_address(addr: str | Address, allow_port_zero: bool = False) -> Address:
+    if isinstance(addr, str):
+        return parse_address(addr, allow_port_zero)
+    host, port = addr[0], addr[1]
+    return parse_address(format_address((str(host), int(port))), allow_port_zero)
+
+
+def _resolve(addr: Address) -> tuple[int, tuple]:
+    try:
+        infos = socket.getaddrinfo(addr[0], addr[1], type=socket.SOCK_DGRAM)
+    except socket.gaierror as exc:
+        raise ValueError(f"cannot resolve host {addr[0]!r} of {format_address(addr)}: {exc}") from None
+    family, _, _, _, sockaddr = infos[0]
+    return family, sockaddr
+
+
+# -- endpoint ------------------------------------------------------------------------------------------
+class Endpoint:
+    """A non-blocking UDP socket bound to ``bind`` (default: loopback, a free port).
+
+    ``peer`` is the default destination of :meth:`send`.  Attributes: ``address`` (the bound
+    ``udp://`` address), ``sent``, ``received``, ``send_dropped`` (datagrams a full buffer or
+    an unreachable peer refused; UDP gives no other delivery report).
+    """
+
+    def __init__(self, bind: str | Address = "udp://127.0.0.1:0", peer: str | Address | None = None,
+                 rcvbuf: int = 1 << 20):
+        b = _as_address(bind, allow_port_zero=True)
+        family, sockaddr = _resolve(b)
+        self._sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, int(rcvbuf))
+            self._sock.bind(sockaddr)
+            self._sock.setblocking(False)
+        except OSError as exc:
+            self._sock.close()
+            raise OSError(f"cannot bind {format_address(b)}: {exc}") from exc
+        self._family = family
+        local = self._sock.getsockname()
+        self.local: Address = (local[0], local[1])
+        self.peer: tuple | None = None
+        if peer is not None:
+            self.peer = _resolve(_as_address(peer))[1]
+        self.sent = self.received = self.send_dropped = 0
+        self._closed = False
+
+    @property
+    def address(self) -> str:
+        return format_address(self.local)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _check(self):
+        if self._closed:
+            raise EndpointClosed(f"endpoint {self.address} is closed")
+
+    def send(self, data: bytes, addr: tuple | None = None) -> bool:
+        """Send one datagram to ``addr`` (default: the peer); False if the OS refused it."""
+        self._check()
+        dest = addr if addr is not None else self.peer
+        if dest is None:
+            raise ValueError(f"endpoint {self.address} has no peer: give addr")
+        if len(data) > P.MAX_DATAGRAM:
+            raise ValueError(f"datagram of {len(data)} B exceeds {P.MAX_DATAGRAM} B")
+        try:
+            self._sock.sendto(data, dest)
+        except (BlockingIOError, ConnectionRefusedError, InterruptedError):
+            self.send_dropped += 1
+            return False
+        self.sent += 1
+        return True
+
+    def recv(self, timeout: float = 0.0) -> tuple[bytes, tuple] | None:
+        """The next datagram and its sender, waiting at most ``timeout`` s (0: just poll);
+        None if none came."""
+        self._check()
+        deadline = time.perf_counter() + max(float(timeout), 0.0)
+        while True:
+            try:
+                data, addr = self._sock.recvfrom(P.MAX_DATAGRAM + 1)
+                self.received += 1
+                return data, addr
+            except (BlockingIOError, InterruptedError):
+                pass
+            except ConnectionRefusedError:  # an ICMP error from an earlier send: not a datagram
+                continue
+            except OSError:
+                if self._closed:
+                    raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
+                raise
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0:
+                return None
+            try:
+                select.select([self._sock], [], [], remaining)
+            except (OSError, ValueError):
+                if self._closed:
+                    raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
+                raise
+
+    def close(self) -> None:
+        """Close the socket (idempotent, never blocks)."""
+        if not self._closed:
+            self._closed = True
+            self._sock.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __repr__(self):
+        return f"Endpoint({self.address}{', closed' if self._closed else ''})"
+
+
+# -- link ------------------------------------------------------------------------------------------------
+class Link:
+    """One side (``role`` "host" or "target") of a session over an :class:`Endpoint`.
+
+    ``session``: the session id (the host picks it, nonzero; the target sets it when a HELLO
+    opens one).  ``clock``: ns timestamps for the header (default ``time.perf_counter_ns``).
+    ``last_sender``: the address the last accepted message came from (the target answers it).
+    """
+
+    def __init__(self, endpoint: Endpoint, role: str, session: int | None = None,
+                 clock: Callable[[], int] = time.perf_counter_ns):
+        self.endpoint = endpoint
+        self.role = role
+        self.filter = P.DatagramFilter(role, session=session)
+        self.clock = clock
+        self.seq = 0
+        self.last_sender: tuple | None = None
+
+    @property
+    def session(self) -> int | None:
+        return self.filter.session
+
+    @session.setter
+    def session(self, value: int | None) -> None:
+        self.filter.session = value
+
+    @property
+    def peer_name(self) -> str:
+        p = self.endpoint.peer or self.last_sender
+        return format_address((p[0], p[1])) if p else "the peer"
+
+    def send(self, body: P.Body, tick: int = 0, reply_to: P.Message | None = None, flags: int = 0,
+             addr: tuple | None = None) -> P.Message:
+        """Stamp, number and send ``body``; returns the message sent."""
+        msg = self.stamp(body, tick, reply_to, flags)
+        self.endpoint.send(P.encode(msg), addr)
+        return msg
+
+    def stamp(self, body: P.Body, tick: int = 0, reply_to: P.Message | None = None,
+              flags: int = 0) -> P.Message:
+        """The message ``body`` becomes when sent now: this session, the next sequence number
+        (taken), this side's clock, the other side's timestamp echoed from ``reply_to``."""
+        now = self.clock() & P.U64
+        if self.role == "host":
+            hns, tns = now, (reply_to.target_ns if reply_to is not None else 0)
+        else:
+            hns, tns = (reply_to.host_ns if reply_to is not None else 0), now
+        msg = P.Message(body, session=self.session or 0, seq=self.seq, tick=tick, host_ns=hns, target_ns=tns,
+                        flags=flags)
+        self.seq = (self.seq + 1) & P.U32
+        return msg
+
+    def recv(self, timeout: float = 0.0, episode: int | None = None,
+             step: int | None = None) -> P.Message | None:
+        """The next accepted message within ``timeout`` s (dropped datagrams are counted by
+        ``self.filter`` and waiting goes on); None if none came in time."""
+        deadline = time.perf_counter() + max(float(timeout), 0.0)
+        while True:
+            got = self.endpoint.recv(max(deadline - time.perf_counter(), 0.0))
+            if got is None:
+                return None
+            msg = self.filter.accept(got[0], episode, step)
+            if msg is not None:
+                self.last_sender = got[1]
+                return msg
+            if time.perf_counter() >= deadline:
+                return None
+
+    def request(self, body: P.Body, match: Callable[[P.Message], bool], what: str, timeout_s: float = 0.05,
+                retries: int = 5, on_other: Callable[[P.Message], None] | None = None,
+                addr: tuple | None = None) -> P.Message:
+        """Send ``body`` and return the first accepted message for which ``match`` is true,
+        re-sending after every ``timeout_s`` s without one, ``retries`` times at most.
+
+        Other messages that arrive meanwhile go to ``on_other`` (or are dropped).  Raises
+        :class:`RigTimeout` after ``(retries + 1) * timeout_s`` s without a match, and
+        :class:`RigError` when an ERROR answers one of the attempts.
+        """
+        if not timeout_s > 0 or int(retries) < 0:
+            raise ValueError(f"timeout_s = {timeout_s!r} s must be > 0 and retries = {retries!r} >= 0")
+        seqs = set()
+        t0 = time.perf_counter()
+        for attempt in range(int(retries) + 1):
+            sent = self.send(body, flags=P.FLAG_RETRY if attempt else 0, addr=addr)
+            seqs.add(sent.seq)
+            deadline = time.perf_counter() + timeout_s
+            while (remaining := deadline - time.perf_counter()) > 0:
+                msg = self.recv(remaining)
+                if msg is None:
+                    break
+                if msg.type == P.MsgType.ERROR and msg.body.ref_seq in seqs:
+                    raise RigError(what, msg.body.code, msg.body.text)
+                if match(msg):
+                    return msg
+                if on_other is not None:
+                    on_other(msg)
+        raise RigTimeout(what, time.perf_counter() - t0, self.peer_name, int(retries) + 1)
+
+
+# -- chunked transfers -----------------------------------------------------------------------------------
+def upload_id(data: bytes) -> int:
+    """The upload id of a file: the first 8 bytes of its sha256, as a little-endian u64."""
+    return int.from_bytes(hashlib.sha256(data).digest()[:8], "little")
+
+
+def upload(link: Link, data: bytes, timeout_s: float = 0.05, retries: int = 5,
+           on_other: Callable[[P.Message], None] | None = None) -> int:
+    """Send ``data`` (a policy file) as POLICY_CHUNKs, each acknowledged by an ACK whose value
+    is the chunk's end offset.  Returns the number of chunks; raises RigTimeout/RigError."""
+    if len(data) > P.MAX_TRANSFER:
+        raise ValueError(f"file of {len(data)} B exceeds {P.MAX_TRANSFER} B")
+    uid = upload_id(data)
+    offsets = range(0, max(len(data), 1), P.CHUNK_DATA)
+    for off in offsets:
+        piece = data[off:off + P.CHUNK_DATA]
+        end = off + len(piece)
+
+        def acked(m, end=end):
+            b = m.body
+            return m.type == P.MsgType.ACK and b.acked_type == P.MsgType.POLICY_CHUNK and b.value == end
+
+        reply = link.request(P.PolicyChunk(uid, len(data), off, piece), acked,
+                             f"ACK of policy bytes {off}..{end} of {len(data)}", timeout_s, retries, on_other)
+        if reply.body.code != P.ErrorCode.OK:
+            raise RigError(f"policy bytes {off}..{end}", reply.body.code, "chunk not accepted")
+    return len(offsets)
+
+
+def fetch(link: Link, resource: int, item: int = 0, sha256: bytes | None = None, timeout_s: float = 0.05,
+          retries: int = 5, on_other: Callable[[P.Message], None] | None = None,
+          max_total: int = P.MAX_TRANSFER) -> bytes:
+    """Fetch a resource (``protocol.Resource``: the scene TOML, an episode's log) chunk by chunk;
+    checks the total stays the same across chunks and, if given, the sha256 of the result."""
+    parts: list[bytes] = []
+    off, total = 0, None
+    try:
+        name = f"{P.Resource(resource).name} {item}"
+    except ValueError:
+        name = f"resource {resource} item {item}"
+    while total is None or off < total:
+        def answers(m, off=off):
+            b = m.body
+            return m.type == P.MsgType.CHUNK and b.resource == resource and b.item == item and b.offset == off
+
+        reply = link.request(P.Fetch(resource, item, off, P.CHUNK_DATA), answers,
+                             f"CHUNK of {name} at byte {off}", timeout_s, retries, on_other).body
+        if total is None:
+            total = reply.total
+            if total > max_total:
+                raise ValueError(f"{name} is {total} B, more than max_total = {max_total} B")
+        elif reply.total != total:
+            raise RigError(f"{name}", P.ErrorCode.BAD_REQUEST,
+                           f"its size changed during the transfer ({total} -> {reply.total} B)")
+        if not reply.data and off < total:
+            raise RigError(f"{name}", P.ErrorCode.BAD_REQUEST, f"empty chunk at byte {off} of {total}")
+        parts.append(reply.data)
+        off += len(reply.data)
+    out = b"".join(parts)
+    if sha256 is not None and hashlib.sha256(out).digest() != sha256:
+        raise RigError(f"{name}", P.ErrorCode.BAD_REQUEST, "sha256 of the fetched bytes does not match")
+    return out
+
+
+# -- the target's side of the transfers -------------------------------------------------------------------
+class UploadAssembler:
+    """Collects an uploaded file from POLICY_CHUNKs (the target's side of :func:`upload`).
+
+    Chunks extend a contiguous prefix: ``add`` takes a chunk that starts inside or at the end of
+    what has arrived (a repeat is harmless) and returns the ACK to send, whose value is the
+    length received so far; a chunk past that end is answered with code OUT_OF_RANGE.  A chunk of
+    another upload id (a new file) starts over.  ``complete`` once ``total`` bytes are in and
+    their sha256 starts with the upload id.
+    """
+
+    def __init__(self, max_bytes: int = 64 << 20):
+        self.max_bytes = int(max_bytes)
+        self.upload_id: int | None = None
+        self.total = 0
+        self._buf = bytearray()
+
+    @property
+    def received(self) -> int:
+        return len(self._buf)
+
+    @property
+    def complete(self) -> bool:
+        return (self.upload_id is not None and len(self._buf) == self.total
+                and upload_id(bytes(self._buf)) == self.upload_id)
+
+    @property
+    def data(self) -> bytes:
+        if not self.complete:
+            raise ValueError(f"upload incomplete: {len(self._buf)} of {self.total} B "
+                             f"(or its sha256 does not match the upload id)")
+        return bytes(self._buf)
+
+    def add(self, chunk: P.PolicyChunk, seq: int = 0) -> P.Ack:
+        if chunk.upload_id != self.upload_id or chunk.total != self.total:
+            if chunk.total > self.max_bytes:
+                return P.Ack(P.MsgType.POLICY_CHUNK, P.ErrorCode.OUT_OF_RANGE, seq, 0)
+            self.upload_id, self.total, self._buf = chunk.upload_id, chunk.total, bytearray()
+        end = chunk.offset + len(chunk.data)
+        if chunk.offset > len(self._buf):
+            return P.Ack(P.MsgType.POLICY_CHUNK, P.ErrorCode.OUT_OF_RANGE, seq, len(self._buf))
+        if end > len(self._buf):
+            self._buf[chunk.offset:] = chunk.data
+        return P.Ack(P.MsgType.POLICY_CHUNK, P.ErrorCode.OK, seq, len(self._buf))
+
+
+def chunk_reply(data: bytes, request: P.Fetch, seq: int = 0) -> P.Chunk | P.Error:
+    """The CHUNK answering ``request`` (of sequence number ``seq``) for the resource bytes
+    ``data`` (the target's side of :func:`fetch`), or an ERROR (OUT_OF_RANGE) for an offset past
+    the end."""
+    if request.offset > len(data):
+        return P.Error(P.ErrorCode.OUT_OF_RANGE, seq, f"offset {request.offset} B is past the end "
+                       f"({len(data)} B)")
+    n = min(request.max_len, P.CHUNK_DATA)
+    return P.Chunk(request.resource, request.item, len(data), request.offset,
+                   bytes(data[request.offset:request.offset + n]))

@@ -1,0 +1,442 @@
+"""The rig's wire protocol (impact_env.rig.protocol): golden bytes, round trips, the datagram filter
+and a fuzz run of 10^5 datagrams."""
+
+from __future__ import annotations
+
+import hashlib
+import random
+import struct
+import zlib
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from impact_env.rig import protocol as P
+
+SHA_SCENE = hashlib.sha256(b"scene").digest()  # 4f48f7207cebf926...
+SHA_POLICY = hashlib.sha256(b"policy").digest()  # 823412d1eacb6795...
+HEAD = dict(session=0x01020304, seq=5, tick=10000, host_ns=1_000_000_007, target_ns=2_000_000_011)
+
+# Header bytes common to every golden message, then per message: type byte, payload length,
+# payload, CRC.  Header: magic "IMPR" | major 01 | minor 00 | type | flags 00 | session 04030201 |
+# seq 05000000 | tick 1027000000000000 (10000) | host_ns 07ca9a3b00000000 (1000000007) |
+# target_ns 0b94357700000000 (2000000011) | payload length (u16).
+MAGIC_VER = "494d5052" "01" "00"
+AFTER_TYPE = "00" "04030201" "05000000" "1027000000000000" "07ca9a3b00000000" "0b94357700000000"
+
+GOLDEN = [
+    (P.Hello(nonce=0xDEADBEEF), "01", "0400", "efbeadde", "87521191"),
+    (P.Info(nonce=0xDEADBEEF, control_rate_hz=1e4, state=P.TargetState.IDLE, driver=0, lockstep=True,
+            scene_size=2345, scene_sha256=SHA_SCENE), "02", "3300",
+     # nonce | rate 1e4 (f64) | state 00 | driver 00 | lockstep 01 | scene_size 2345 | sha256
+     "efbeadde" "000000000088c340" "00" "00" "01" "29090000" + SHA_SCENE.hex(), "cf68b3b7"),
+    (P.Arm(mode="onboard", observation="sensors", history=2, options=P.ARM_TERMINATE_ON_CATCH, hold_ticks=10,
+           seed=42, horizon_ticks=4000, first_command_timeout_ticks=1000, link_timeout_ms=500,
+           policy_size=100000, policy_sha256=SHA_POLICY), "03", "3e00",
+     # mode 02 | obs 00 | history 02 | options 01 | hold 10 | seed 42 | horizon 4000 | timeout 1000 |
+     # link 500 ms | size 100000 | sha256
+     "02" "00" "02" "01" "0a00" "2a00000000000000" "a00f0000" "e8030000" "f4010000" "a0860100"
+     + SHA_POLICY.hex(), "b014d998"),
+    (P.Armed(episode=3, start_tick=123456, obs_size=10, action_size=1, obs_dtype=4, telemetry_size=2,
+             hold_ticks=10, control_rate_hz=1e4, scene_sha256=SHA_SCENE), "04", "3c00",
+     "03000000" "40e2010000000000" "0a00" "0100" "04" "02" "0a00" "000000000088c340" + SHA_SCENE.hex(),
+     "9c255698"),
+    (P.PolicyChunk(upload_id=0x0807060504030201, total=100000, offset=2048, data=b"\x00\x01\x02\xff"),
+     "05", "1600", "0102030405060708" "a0860100" "00080000" "0400" "000102ff", "297f844f"),
+    (P.Ack(acked_type=P.MsgType.POLICY_CHUNK, code=0, acked_seq=77, value=2052), "06", "0e00",
+     "05" "00" "4d000000" "0408000000000000", "aa5aeabe"),
+    (P.Command(episode=3, step=7, action=(0.25,)), "07", "1200",
+     "03000000" "07000000" "0100" "000000000000d03f", "4ecc78f5"),
+    (P.Observation(episode=3, step=7, status=0x10002, dtype=4, obs=(1.5, -0.25, 0.0), telemetry=(12.5,)),
+     "08", "2500",
+     # episode | step | status | dtype 04 | n 3 | m 1 (u16) | 1.5f -0.25f 0.0f | 12.5 (f64)
+     "03000000" "07000000" "02000100" "04" "0300" "0100" "0000c03f" "000080be" "00000000" "0000000000002940",
+     "b839d71c"),
+    (P.EpisodeEnd(episode=3, reason=P.EndReason.HORIZON, status=0x4, n_ticks=4000, n_steps=400,
+                  data_size=65536, data_sha256=SHA_POLICY), "09", "3900",
+     "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(), "27aa9c34"),
+    (P.Fetch(resource=P.Resource.EPISODE, item=3, offset=1024, max_len=1024), "0a", "0b00",
+     "02" "03000000" "00040000" "0004", "58880ecb"),
+    (P.Chunk(resource=P.Resource.EPISODE, item=3, total=65536, offset=1024, data=b"HDF"), "0b", "1200",
+     "02" "03000000" "00000100" "00040000" "0300" "484446", "a9fa1d88"),
+    (P.Disarm(reason=1), "0c", "0100", "01", "7c7ef642"),
+    (P.Heartbeat(state=P.TargetState.RUNNING, episode=3, step=7, peer_seq=99), "0d", "0d00",
+     "02" "03000000" "07000000" "63000000", "8dcd5838"),
+    (P.Error(code=P.ErrorCode.BUSY, ref_seq=5, text="busy: session 0x1"), "0e", "1900",
+     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "57ef6da3"),
+]
+
+
+def test_golden_cover_every_type():
+    assert {type(b) for b, *_ in GOLDEN} == set(P.BODIES.values())
+
+
+@pytest.mark.parametrize("body,mtype,plen,payload,crc", GOLDEN, ids=[type(g[0]).__name__ for g in GOLDEN])
+def test_golden_bytes(body, mtype, plen, payload, crc):
+    expected = bytes.fromhex(MAGIC_VER + mtype + AFTER_TYPE + plen + payload + crc)
+    msg = P.Message(body, **HEAD)
+    assert P.encode(msg) == expected
+    assert P.decode(expected) == msg
+    # the trailer is zlib's CRC-32 of everything before it
+    assert struct.unpack("<I", expected[-4:])[0] == zlib.crc32(expected[:-4])
+    assert len(expected) == P.OVERHEAD + len(payload) // 2
+
+
+# -- round trips -------------------------------------------------------------------------------------
+u8, u16, u32, u64 = (st.integers(0, m) for m in (P.U8, P.U16, P.U32, P.U64))
+sha = st.binary(min_size=32, max_size=32)
+rate = st.floats(min_value=1e-3, max_value=1e9)
+f64 = st.floats(allow_nan=False)
+f32 = st.floats(width=32, allow_nan=False)
+
+
+@st.composite
+def chunk_like(draw, cls, head):
+    data = draw(st.binary(max_size=P.CHUNK_DATA))
+    total = draw(st.integers(len(data), P.MAX_TRANSFER))
+    offset = draw(st.integers(0, total - len(data)))
+    return cls(*head(draw), total, offset, data)
+
+
+BODY_STRATEGIES = st.one_of(
+    st.builds(P.Hello, u32),
+    st.builds(P.Info, u32, rate, st.integers(0, 3), st.integers(0, 1), st.booleans(), u32, sha),
+    st.builds(P.Arm, st.sampled_from(list(P.MODES)), st.sampled_from(list(P.OBSERVATIONS)),
+              st.integers(1, 64), u8, st.integers(1, P.U16), u64, st.integers(1, P.U32), u32, u32, u32, sha),
+    st.builds(P.Armed, u32, u64, st.integers(0, P.MAX_VALUES), st.integers(0, P.MAX_VALUES),
+              st.sampled_from([4, 8]), st.integers(0, len(P.TELEMETRY_FIELDS)), st.integers(1, P.U16), rate,
+              sha),
+    chunk_like(P.PolicyChunk, lambda d: (d(u64),)),
+    st.builds(P.Ack, u8, u8, u32, u64),
+    st.builds(P.Command, u32, u32, st.lists(f64, min_size=1, max_size=8).map(tuple)),
+    st.builds(P.Observation, u32, u32, u32, st.just(4), st.lists(f32, max_size=40).map(tuple),
+              st.lists(f64, max_size=len(P.TELEMETRY_FIELDS)).map(tuple)),
+    st.builds(P.Observation, u32, u32, u32, st.just(8), st.lists(f64, max_size=40).map(tuple),
+              st.lists(f64, max_size=len(P.TELEMETRY_FIELDS)).map(tuple)),
+    st.builds(P.EpisodeEnd, u32, u8, u32, u64, u32, u32, sha),
+    st.builds(P.Fetch, u8, u32, u32, st.integers(1, P.U16)),
+    chunk_like(P.Chunk, lambda d: (d(u8), d(u32))),
+    st.builds(P.Disarm, u8),
+    st.builds(P.Heartbeat, u8, u32, u32, u32),
+    st.builds(P.Error, u16, u32, st.text(max_size=200)),
+)
+
+
+@settings(max_examples=600, deadline=None)
+@given(body=BODY_STRATEGIES, session=u32, seq=u32, tick=u64, hns=u64, tns=u64, flags=u8)
+def test_round_trip(body, session, seq, tick, hns, tns, flags):
+    msg = P.Message(body, session, seq, tick, hns, tns, flags)
+    data = P.encode(msg)
+    assert P.decode(data) == msg
+    assert P.encode(P.decode(data)) == data
+    assert len(data) <= P.MAX_DATAGRAM
+
+
+def test_nan_values_keep_their_bits():
+    nan = struct.unpack("<d", bytes.fromhex("010000000000f87f"))[0]  # a quiet NaN with a payload
+    data = P.encode(P.Message(P.Command(0, 0, (nan, -0.0, float("inf")))))
+    back = P.decode(data).body.action
+    assert struct.pack("<3d", *back) == struct.pack("<3d", nan, -0.0, float("inf"))
+    assert P.encode(P.decode(data)) == data
+
+
+def test_float32_observations_are_rounded_on_encode():
+    msg = P.Message(P.Observation(obs=(0.1, 1e-50), dtype=4))
+    back = P.decode(P.encode(msg)).body.obs
+    assert back == (struct.unpack("<f", struct.pack("<f", 0.1))[0], 0.0)
+    with pytest.raises(ValueError, match="overflows float32"):
+        P.Observation(obs=(1e39,), dtype=4)
+
+
+@pytest.mark.parametrize("make,match", [
+    (lambda: P.Command(0, 0, ()), "action must be a tuple of 1"),
+    (lambda: P.Command(0, -1, (0.0,)), "step = -1"),
+    (lambda: P.Command(0, 0, [0.0]), "action must be a tuple"),
+    (lambda: P.Command(0, 0, (1,)), "Python floats"),
+    (lambda: P.Arm(mode="remote"), "mode = 'remote'"),
+    (lambda: P.Arm(hold_ticks=0), r"hold_ticks = 0 must be an integer in \[1, 65535\]"),
+    (lambda: P.Arm(history=65), "history"),
+    (lambda: P.Arm(policy_sha256=b"short"), "32 bytes"),
+    (lambda: P.Info(control_rate_hz=0.0), "control_rate_hz"),
+    (lambda: P.Chunk(total=10, offset=8, data=b"abc"), "runs past the total"),
+    (lambda: P.Error(text="x" * 2000), "at most 1024"),
+    (lambda: P.Message(P.Hello(), session=2**32), "session"),
+    (lambda: P.Message("hello"), "body must be one of"),
+])
+def test_invalid_fields_are_refused_with_their_name(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+def test_error_shorten_cuts_at_a_character_boundary():
+    e = P.Error.shorten(P.ErrorCode.BAD_REQUEST, 1, "é" * 1000)  # 2 bytes each
+    assert len(e.text.encode()) <= P.MAX_TEXT and set(e.text) == {"é"}
+    assert P.decode(P.encode(P.Message(e))).body == e
+
+
+# -- decoding errors ---------------------------------------------------------------------------------
+def _with_crc(frame: bytes) -> bytes:
+    return frame + struct.pack("<I", zlib.crc32(frame))
+
+
+def _frame(mtype=P.MsgType.HELLO, payload=b"\0\0\0\0", major=P.VERSION_MAJOR, minor=P.VERSION_MINOR,
+           magic=P.MAGIC, plen=None, session=1, seq=1):
+    head = P.HEADER.pack(magic, major, minor, mtype, 0, session, seq, 0, 0, 0,
+                         len(payload) if plen is None else plen)
+    return _with_crc(head + payload)
+
+
+@pytest.mark.parametrize("data,exc,detail", [
+    (b"", P.CorruptDatagram, "truncated"),
+    (b"IMPR" + bytes(40), P.CorruptDatagram, "truncated"),
+    (_frame(magic=b"XXXX"), P.CorruptDatagram, "magic"),
+    (_frame(major=2), P.WrongVersion, "major"),
+    (_frame(plen=3), P.CorruptDatagram, "length"),
+    (_frame()[:-1] + b"\0", P.CorruptDatagram, "crc"),
+    (_frame(mtype=99), P.UnknownType, "type"),
+    (_frame(payload=b"\0\0\0"), P.CorruptDatagram, "payload"),  # HELLO needs 4 bytes
+    (_frame(payload=b"\0" * 5), P.CorruptDatagram, "payload"),  # and exactly 4 at minor 0
+    (_frame(P.MsgType.COMMAND, struct.pack("<IIH", 0, 0, 2) + bytes(8)), P.CorruptDatagram, "payload"),
+    (_frame(P.MsgType.COMMAND, struct.pack("<IIH", 0, 0, 0)), P.CorruptDatagram, "payload"),  # no action
+    (_frame(P.MsgType.ARM, bytes(62)), P.CorruptDatagram, "payload"),  # mode 0 is not a mode
+    (_frame(P.MsgType.ERROR, struct.pack("<HIH", 1, 0, 2) + b"\xff\xfe"), P.CorruptDatagram, "payload"),
+    (_frame(P.MsgType.INFO, struct.pack("<IdBBBI32s", 0, float("nan"), 0, 0, 0, 0, bytes(32))),
+     P.CorruptDatagram, "payload"),
+    (_frame(P.MsgType.CHUNK, struct.pack("<BIIIH", 2, 0, 2, 0, 3) + b"abc"), P.CorruptDatagram, "payload"),
+])
+def test_decode_errors(data, exc, detail):
+    with pytest.raises(exc) as info:
+        P.decode(data)
+    assert info.value.detail == detail
+
+
+def test_newer_minor_may_append_fields():
+    body = struct.pack("<IIH", 1, 2, 1) + struct.pack("<d", 0.5) + b"appended"
+    msg = P.decode(_frame(P.MsgType.COMMAND, body, minor=P.VERSION_MINOR + 1))
+    assert msg.body == P.Command(1, 2, (0.5,))
+    with pytest.raises(P.CorruptDatagram):
+        P.decode(_frame(P.MsgType.COMMAND, body))  # the same bytes at our own minor: too long
+    with pytest.raises(P.UnknownType):
+        P.decode(_frame(50, b"", minor=P.VERSION_MINOR + 1))
+
+
+# -- the filter ---------------------------------------------------------------------------------------
+def _cmd(seq, episode=0, step=0, session=7):
+    return P.encode(P.Message(P.Command(episode, step, (0.1,)), session=session, seq=seq))
+
+
+def test_filter_sequence_window():
+    f = P.DatagramFilter("target", session=7)
+    assert f.accept(_cmd(10)) is not None
+    assert f.accept(_cmd(10)) is None and f.last_reason == "duplicate"
+    assert f.accept(_cmd(12)) is not None
+    assert f.accept(_cmd(11)) is None and f.last_reason == "out_of_order"  # never seen, but older
+    assert f.accept(_cmd(10)) is None and f.last_reason == "duplicate"  # still in the window
+    assert f.accept(_cmd(12 + 63)) is not None
+    assert f.accept(_cmd(12)) is None and f.last_reason == "duplicate"  # 63 back: the window's edge
+    assert f.accept(_cmd(12 + 64)) is not None
+    assert f.accept(_cmd(12)) is None and f.last_reason == "out_of_order"  # left the window
+    assert f.counts() == {"accepted": 4, "corrupt": 0, "wrong_version": 0, "wrong_session": 0,
+                          "unexpected": 0, "duplicate": 3, "out_of_order": 2, "late": 0}
+
+
+def test_filter_sequence_numbers_wrap():
+    f = P.DatagramFilter("target", session=7)
+    assert f.accept(_cmd(P.U32 - 1)) is not None
+    assert f.accept(_cmd(P.U32)) is not None
+    assert f.accept(_cmd(0)) is not None  # 2^32 - 1 -> 0 is one step newer
+    assert f.accept(_cmd(P.U32)) is None and f.last_reason == "duplicate"
+    assert f.accept(_cmd(2**31 + 1)) is None and f.last_reason == "out_of_order"  # half a cycle: older
+
+
+def test_filter_streams_are_per_type():
+    f = P.DatagramFilter("target", session=7)
+    assert f.accept(_cmd(10)) is not None
+    hb = P.encode(P.Message(P.Heartbeat(), session=7, seq=5))  # older seq, other type: its own stream
+    assert f.accept(hb) is not None
+
+
+def test_filter_sessions_and_directions():
+    f = P.DatagramFilter("target")
+    assert f.accept(_cmd(1)) is None and f.last_reason == "wrong_session"  # no session open yet
+    hello = P.encode(P.Message(P.Hello(1), session=7, seq=0))
+    assert f.accept(hello) is not None  # HELLO opens one, whatever the session
+    f.session = 7
+    assert f.accept(_cmd(1)) is not None
+    assert f.accept(_cmd(2, session=8)) is None and f.last_reason == "wrong_session"
+    obs = P.encode(P.Message(P.Observation(), session=7, seq=3))
+    assert f.accept(obs) is None and f.last_reason == "unexpected"  # target->host type at the target
+    h = P.DatagramFilter("host", session=7)
+    assert h.accept(obs) is not None
+    assert h.accept(_cmd(4)) is None and h.last_reason == "unexpected"
+    f.session = 7  # setting the session forgets the streams: seq 1 is new again
+    assert f.accept(_cmd(1)) is not None
+    with pytest.raises(ValueError, match="role"):
+        P.DatagramFilter("client")
+
+
+def test_filter_hello_flood_does_not_evict_the_open_session():
+    f = P.DatagramFilter("target", session=7)
+    assert f.accept(_cmd(100)) is not None
+    for k in range(3 * P.DatagramFilter.MAX_STREAMS):
+        assert f.accept(P.encode(P.Message(P.Hello(), session=1000 + k, seq=0))) is not None
+    assert f.accept(_cmd(50)) is None and f.last_reason == "out_of_order"  # the stream is still known
+
+
+@pytest.mark.parametrize("cmd_ep,cmd_step,ep,step,ok", [
+    (2, 5, 2, 5, True), (2, 6, 2, 5, True), (2, 4, 2, 5, False), (1, 9, 2, 0, False), (3, 0, 2, 9, True)])
+def test_filter_late_commands(cmd_ep, cmd_step, ep, step, ok):
+    f = P.DatagramFilter("target", session=7)
+    got = f.accept(_cmd(1, cmd_ep, cmd_step), episode=ep, step=step)
+    assert (got is not None) == ok
+    assert f.counts()["late"] == (0 if ok else 1)
+
+
+# -- fuzz ---------------------------------------------------------------------------------------------
+N_FUZZ = 100_000
+
+
+_RANDOM_BODIES = {
+    P.MsgType.HELLO: lambda r: P.Hello(r.getrandbits(32)),
+    P.MsgType.ARM: lambda r: P.Arm(r.choice(list(P.MODES)), r.choice(list(P.OBSERVATIONS)), r.randint(1, 64),
+                                   0, r.randint(1, 100), r.getrandbits(64), r.randint(1, 10**6),
+                                   r.randint(0, 10**4), 0, 0, r.randbytes(32)),
+    P.MsgType.POLICY_CHUNK: lambda r: P.PolicyChunk(r.getrandbits(64), 5000, 1000,
+                                                    r.randbytes(r.randint(0, 64))),
+    P.MsgType.COMMAND: lambda r: P.Command(0, 0, tuple(r.uniform(-1, 1) for _ in range(r.randint(1, 3)))),
+    P.MsgType.FETCH: lambda r: P.Fetch(r.randint(1, 2), r.randint(0, 9), r.randint(0, 10**5), 1024),
+    P.MsgType.DISARM: lambda r: P.Disarm(r.randint(0, 2)),
+    P.MsgType.ACK: lambda r: P.Ack(r.randint(1, 14), 0, r.getrandbits(32), r.getrandbits(64)),
+    P.MsgType.HEARTBEAT: lambda r: P.Heartbeat(r.randint(0, 3), 1, r.getrandbits(16), r.getrandbits(32)),
+    P.MsgType.ERROR: lambda r: P.Error(r.randint(0, 7), r.getrandbits(32), "e" * r.randint(0, 30)),
+    P.MsgType.OBSERVATION: lambda r: P.Observation(1, 2, 3, 4, (0.5, 0.25)),
+    P.MsgType.INFO: lambda r: P.Info(1, 1e4, 0, 0, False, 10, r.randbytes(32)),
+    P.MsgType.CHUNK: lambda r: P.Chunk(2, 1, 100, 0, b"x"),
+    P.MsgType.ARMED: lambda r: P.Armed(1, 0, 3, 1, 4, 0, 10, 1e4, r.randbytes(32)),
+    P.MsgType.EPISODE_END: lambda r: P.EpisodeEnd(1, 1, 0, 10, 1, 0, r.randbytes(32)),
+}
+
+
+def _random_body(r: random.Random, t: P.MsgType):
+    return _RANDOM_BODIES[t](r)
+
+
+def test_fuzz_every_datagram_is_accepted_or_counted():
+    """10^5 seeded datagrams (valid, random, bit-flipped, truncated, re-framed with a good CRC but a
+    wrong version, type, length, session or payload, replayed, reordered, late) through the
+    target's filter: no exception escapes, each lands in an outcome it may land in, and the
+    counters add up to the number of datagrams."""
+    r = random.Random(20240611)
+    session = 0x5EED
+    f = P.DatagramFilter("target", session=session)
+    seq = 0
+    episode, step = 1, 0
+    sent: dict[int, list[bytes]] = {}  # type -> accepted datagrams, newest last
+    newest: dict[int, int] = {}
+    h2t = sorted(P.HOST_TO_TARGET - {P.MsgType.HELLO})
+    t2h_only = sorted(P.TARGET_TO_HOST - P.HOST_TO_TARGET)
+    outcome_counts: dict[str, int] = {}
+
+    def fresh(t, body=None):
+        nonlocal seq
+        seq += 2  # odd numbers are never sent: they serve as never-seen older numbers
+        if body is None:
+            body = _random_body(r, t)
+            if t == P.MsgType.COMMAND:
+                body = P.Command(episode, step + r.randint(0, 2), body.action)
+        return P.Message(body, session=session, seq=seq, tick=r.getrandbits(40))
+
+    def feed(data, allowed):
+        before = f.total
+        msg = f.accept(data, episode, step)
+        assert f.total == before + 1, (i, kind)  # one counter moved, by one
+        outcome = "accepted" if msg is not None else f.last_reason
+        assert outcome in allowed, (i, kind, outcome, f.last_error)
+        outcome_counts[outcome] = outcome_counts.get(outcome, 0) + 1
+        if outcome in ("accepted", "late"):  # both passed the sequence check: the stream moved on
+            (mtype,) = struct.unpack_from("<B", data, 6)
+            (mseq,) = struct.unpack_from("<I", data, 12)
+            (msession,) = struct.unpack_from("<I", data, 8)
+            if msession == session:
+                newest[mtype] = mseq
+                if msg is not None:
+                    sent.setdefault(mtype, []).append(data)
+                    del sent[mtype][:-100]
+
+    i = 0
+    while f.total < N_FUZZ:  # every datagram fed counts, the first copy of a repeated one too
+        i += 1
+        if i % 50 == 0:
+            step += 1
+            if step > 400:
+                episode, step = episode + 1, 0
+        kind = r.randrange(12 if f.total < N_FUZZ - 1 else 11)
+        t = r.choice(h2t)
+        base = P.encode(fresh(t))
+        if kind == 0:  # a valid, fresh datagram
+            data, allowed = base, {"accepted"}
+        elif kind == 1:  # random bytes
+            data = r.randbytes(r.choice([r.randint(0, 60), r.randint(0, 2000)]))
+            allowed = set(P.DatagramFilter.REASONS)
+        elif kind == 2:  # 1-3 flipped bits (CRC-32 detects them all; magic/version flips count as such)
+            b = bytearray(base)
+            for bit in r.sample(range(8 * len(b)), r.randint(1, 3)):  # distinct bits
+                b[bit // 8] ^= 1 << (bit % 8)
+            data, allowed = bytes(b), {"corrupt", "wrong_version"}
+        elif kind == 3:  # truncated or extended
+            cut = r.randint(0, len(base) - 1)
+            data = base[:cut] if r.random() < 0.5 else base + r.randbytes(r.randint(1, 20))
+            allowed = {"corrupt"}
+        elif kind == 4:  # a valid frame (good CRC) around a bad header field or payload
+            b = bytearray(base[:-4])
+            what = r.randrange(5)
+            if what == 0:
+                b[4] = r.choice([0, 2, 255])
+                allowed = {"wrong_version"}
+            elif what == 1:
+                b[6] = r.choice([0, 15, 16, 200, 255])
+                allowed = {"unexpected"}
+            elif what == 2:
+                b[40:42] = struct.pack("<H", r.randint(0, 65535))
+                allowed = {"corrupt", "accepted"} if b[40:42] == base[40:42] else {"corrupt"}
+            elif what == 3:
+                b[8:12] = struct.pack("<I", session ^ r.randint(1, P.U32))
+                allowed = {"wrong_session"}
+            else:
+                b[P.HEADER_SIZE:] = r.randbytes(len(b) - P.HEADER_SIZE)
+                allowed = {"corrupt", "accepted", "late", "duplicate", "out_of_order"}
+            data = _with_crc(bytes(b))
+        elif kind == 5 and sent.get(t):  # a replay of an accepted datagram
+            data = sent[t][-r.randint(1, len(sent[t]))]
+            behind = (newest[t] - struct.unpack_from("<I", data, 12)[0]) & P.U32  # in sequence numbers
+            allowed = {"duplicate"} if behind < P.DatagramFilter.WINDOW else {"out_of_order"}
+        elif kind == 6 and t in newest:  # an older number never sent in this stream
+            m = fresh(t)
+            old_seq = (newest[t] - 1 - 2 * r.randint(0, 40)) & P.U32
+            data = P.encode(P.Message(m.body, session=session, seq=old_seq))
+            allowed = {"out_of_order"}
+        elif kind == 7:  # a command for a step already past
+            past = (episode, step - r.randint(1, 5)) if step > 5 else (episode - 1, r.randint(0, 400))
+            data = P.encode(fresh(P.MsgType.COMMAND, P.Command(past[0], past[1], (0.0,))))
+            allowed = {"late"}
+        elif kind == 8:  # a type for the other direction
+            data = P.encode(fresh(r.choice(t2h_only)))
+            allowed = {"unexpected"}
+        elif kind == 9:  # another session's HELLO is let through; another's command is not
+            data = P.encode(P.Message(P.Hello(r.getrandbits(32)), session=r.getrandbits(32),
+                                      seq=r.getrandbits(32)))
+            allowed = {"accepted", "duplicate", "out_of_order"}
+        else:  # a valid datagram sent twice in a row
+            data = base
+            allowed = {"accepted"}
+            if kind == 11:
+                feed(base, {"accepted"})
+                allowed = {"duplicate"}
+        feed(data, allowed)
+
+    counts = f.counts()
+    assert sum(counts.values()) == N_FUZZ == f.total
+    assert counts == {k: outcome_counts.get(k, 0) for k in counts}
+    assert all(counts[k] > 0 for k in counts), counts  # every reason was exercised
+    print("fuzz:", f.total, "datagrams:", counts, "corrupt detail:", dict(sorted(f.detail.items())))
