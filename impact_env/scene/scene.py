@@ -159,6 +159,10 @@ class Scene:
     effects: EffectsConfig = field(default_factory=EffectsConfig)
     randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
 
+    # a drop given by impact speed has no drop height to range over, and the other way round
+    _override_clears_dotted = {"initial.impact_speed": ("randomize.drop_height",),
+                               "initial.drop_height": ("randomize.impact_speed",)}
+
     def __post_init__(self):
         if self.initial.drop_height is not None and self.initial.drop_height > 0 and self.plant.gravity == 0:
             raise ConfigError("initial.drop_height needs plant.gravity > 0; with no gravity give "
