@@ -205,7 +205,8 @@ def check_scene_ranges(scene) -> None:
             raise ConfigError(f"randomize.{name} varies the coil model, but effects.shaker.model = "
                               f"{fx.shaker.model!r}")
     if "drop_height" in names and "impact_speed" in names:
-        raise ConfigError("randomize: give a range on drop_height or on impact_speed, not both")
+        raise ConfigError("randomize.drop_height and randomize.impact_speed are both ranged: give a range on "
+                          "one of them (clear the other with [])")
     if "drop_height" in names and scene.initial.drop_height is None:
         raise ConfigError("randomize.drop_height: the scene is given by initial.impact_speed; "
                           "range randomize.impact_speed instead (or set initial.drop_height)")
