@@ -151,7 +151,8 @@ def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
                 kwargs[key] = 0.0
         kwargs["terminate_on_catch"] = False
         options = LearnabilityOptions(options.hold_ticks, options.residual, 0.0)
-    raw = make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, **kwargs)
+    raw = make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, monitor=False,
+                           **kwargs)
     if not options.trivial:
         raw = HoldResidualVecEnv(raw, options)
     return raw

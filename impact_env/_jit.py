@@ -19,16 +19,21 @@ Environment variables
 ``NUMBA_DISABLE_JIT``
     numba's own switch; ``1`` runs every kernel as plain Python (slow, but coverage and
     debuggers see the code).
+
+Before the first compile of a project kernel in a process (that is, when the cache for the
+current source stamp is cold), one line on stderr says so and how long it takes
+(:data:`COLD_COMPILE_NOTICE`); a warm cache prints nothing.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 import numba
-from numba.core import caching, config
+from numba.core import caching, config, event
 
 CACHE = os.environ.get("IMPACT_ENV_NUMBA_CACHE", "1").strip().lower() not in ("0", "false", "no", "off")
 
@@ -69,6 +74,40 @@ class _ProjectCacheLocator(caching.InTreeCacheLocator):
 
 if _ProjectCacheLocator not in caching.CacheImpl._locator_classes:
     caching.CacheImpl._locator_classes.insert(0, _ProjectCacheLocator)
+
+
+COLD_COMPILE_NOTICE = (
+    "impact_env: compiling the numba kernels for this version of the code (no cached machine code "
+    "for it yet{where}): about 20-60 s on a 2-core machine, once; later runs load them from the cache.")
+
+
+class _ColdCompileNotice(event.Listener):
+    """Says on stderr, once per process, that project kernels are being compiled.
+
+    numba broadcasts ``numba:compile`` only on a cache miss (a kernel loaded from the on-disk
+    cache is not compiled), so the line appears exactly when the cache for the current source
+    stamp is cold (or caching is off), before the first compile, never at import."""
+
+    def __init__(self):
+        self.said = False
+
+    def on_start(self, ev):
+        if self.said:
+            return
+        func = getattr(ev.data.get("dispatcher"), "py_func", None)
+        code = getattr(func, "__code__", None)
+        if code is None or not os.path.abspath(code.co_filename).startswith(_PACKAGES):
+            return
+        self.said = True
+        where = "" if CACHE else "; caching is off: IMPACT_ENV_NUMBA_CACHE=0"
+        print(COLD_COMPILE_NOTICE.format(where=where), file=sys.stderr, flush=True)
+
+    def on_end(self, ev):
+        pass
+
+
+_NOTICE = _ColdCompileNotice()
+event.register("numba:compile", _NOTICE)
 
 
 def jit(func=None, **options):

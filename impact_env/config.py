@@ -184,13 +184,32 @@ def _dataclass_of(tp: Any):
 
 
 def with_overrides(obj, overrides: dict[str, Any]):
-    """A copy of config ``obj`` with all dotted overrides applied at once, then validated."""
+    """A copy of config ``obj`` with all dotted overrides applied at once, then validated.
+
+    A class may define ``_override_clears_dotted``, a dict from a dotted key to the dotted keys
+    (anywhere in it) that setting it resets to their defaults, unless the same overrides set
+    them too (e.g. a scene given by impact speed drops its drop-height range)."""
     data = to_dict(obj)
+    clears = getattr(type(obj), "_override_clears_dotted", {})
     for key, value in overrides.items():
         if isinstance(value, str):
             value = parse_value(value)
         set_dotted(type(obj), data, key, value)
+        if value is not None:
+            for other in clears.get(key, ()):
+                if other not in overrides:
+                    _reset_dotted(data, other)
     return from_dict(type(obj), data)
+
+
+def _reset_dotted(data: dict, key: str) -> None:
+    """Drop the dotted ``key`` from the plain dict ``data`` (it takes its default again)."""
+    head, _, rest = key.partition(".")
+    if rest:
+        if isinstance(data.get(head), dict):
+            _reset_dotted(data[head], rest)
+    else:
+        data.pop(head, None)
 
 
 def _toml_scalar(v: Any) -> str:

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from impact_env.eval.compare_plots import force_spectrum  # noqa: E402
-from impact_env.plant.energy import catch_energy, energies  # noqa: E402
+from impact_env.plant.energy import catch_energy, energies, energy_above_rest  # noqa: E402
 
 DPI = 70
 
@@ -23,10 +23,14 @@ def t_ms(run):
 
 def body_energies(run, scene) -> dict:
     """Energies of the first episode (J): kinetic1, kinetic2, elastic, suspension, gravity, total
-    (:func:`impact_env.plant.energy.energies`) and catch (body 1 relative to resting on body 2)."""
+    (:func:`impact_env.plant.energy.energies`), catch (body 1 relative to resting on body 2) and
+    above_rest (the whole system's energy above its rest,
+    :func:`~impact_env.plant.energy.energy_above_rest`)."""
     p, tr = scene.plant, run.trace0
     e = energies(tr["x1"], tr["v1"], tr["x2"], tr["v2"], p.m1, p.m2, p.c, p.gravity, p.suspension_stiffness)
     e["catch"] = catch_energy(tr["x1"], tr["v1"], tr["x2"], p.m1, p.c, p.gravity)
+    e["above_rest"] = energy_above_rest(tr["x1"], tr["v1"], tr["x2"], tr["v2"], p.m1, p.m2, p.c, p.gravity,
+                                        p.suspension_stiffness)
     return e
 
 
@@ -66,37 +70,38 @@ def fig_3_2(on, scene, path):
                        ("elastic", "contact (elastic)")):
         a.plot(t[sel], e[key][sel] * 1e3, label=label)
     a.set_title("(a) energies, first 7 ms", fontsize=9)
-    a.set_ylabel("mJ")
+    a.set_ylabel("energy, mJ")
     a = ax[0, 1]
     v0 = scene.impact_speed
     a.plot(t, np.abs(tr["v1"]) / v0, label="|v1| / impact speed")
     a.plot(t, e["catch"] / e["catch"][0], label="catch energy / impact energy")
     a.set_yscale("log")
     a.set_ylim(1e-5, 2)
+    a.set_ylabel("ratio to the value at impact")
     a.set_title("(b) body 1 comes to rest", fontsize=9)
     a = ax[1, 0]
     a.plot(t, -tr["v1"], label="body 1")
     a.plot(t, -tr["v2"], label="body 2")
     a.set_title("(c) velocities (up positive)", fontsize=9)
-    a.set_ylabel("m/s")
+    a.set_ylabel("velocity, m/s")
     a = ax[1, 1]
     a.plot(t, -tr["x1"] * 1e3, label="body 1")
     a.plot(t, -tr["x2"] * 1e3, label="body 2")
     a.set_title("(d) displacements of the facing surfaces (up positive)", fontsize=9)
-    a.set_ylabel("mm")
+    a.set_ylabel("height, mm")
     a = ax[2, 0]
     sel = (t >= 0) & (t <= 15)
     a.plot(t[sel], tr["force_applied"][sel])
     a.set_title("(e) shaker force on body 2 (up positive)", fontsize=9)
-    a.set_ylabel("N")
+    a.set_ylabel("force, N")
     a = ax[2, 1]
     dt = float(on.trace_t[1] - on.trace_t[0])
     f, amp = force_spectrum(tr["force_applied"], dt)
     a.loglog(f[1:], np.maximum(amp[1:], 1e-6))
-    a.axvspan(20, 1000, color="0.85", zorder=0, label="20-1000 Hz")
+    a.axvspan(20, 1000, color="0.85", zorder=0, label="the thesis's 20-1000 Hz (sec 3.4)")
     a.set_xlim(3, 5e4)
     a.set_title("(f) force spectrum (amplitude per bin)", fontsize=9)
-    a.set_ylabel("N")
+    a.set_ylabel("amplitude, N")
     a.set_xlabel("frequency, Hz")
     for a in ax.ravel():
         a.grid(alpha=0.3, which="both")
@@ -138,13 +143,15 @@ def fig_4_8(runs: dict, scene, path):
         (line,) = ax[0].plot(t, e["catch"] * 1e3, lw=1, label=label)
         sel = (t >= -1) & (t <= 10)
         ax[1].plot(t[sel], e["catch"][sel] * 1e3, lw=1, color=line.get_color(), label=label)
-        total = e["catch"] + e["kinetic2"] + e["suspension"]
-        ax[2].semilogy(t, np.maximum(total / total[0], 1e-5), lw=1, color=line.get_color(), label=label)
+        total = e["above_rest"] / e["catch"][0]
+        ax[2].semilogy(t, np.maximum(total, 1e-5), lw=1, color=line.get_color(), label=label)
     ax[0].set_title("(a) body 1's catch energy", fontsize=9)
     ax[1].set_title("(b) the first 10 ms", fontsize=9)
-    ax[2].set_title("(c) body 1 catch + body 2 kinetic + suspension, / start", fontsize=9)
+    ax[2].set_title("(c) the whole system's energy above rest (dotted: 1 %)", fontsize=9)
     ax[2].axhline(0.01, color="k", lw=0.6, ls=":")
-    ax[0].set_ylabel("mJ")
+    ax[0].set_ylabel("catch energy of body 1, mJ")
+    ax[1].set_ylabel("catch energy of body 1, mJ")
+    ax[2].set_ylabel("energy above rest / impact energy")
     for a in ax:
         a.set_xlabel("time from first touch, ms")
         a.grid(alpha=0.3)

@@ -165,6 +165,7 @@ def drop_case(name: str) -> dict[str, np.ndarray]:
     out = {k: np.asarray(getattr(tr, k)) for k in TRAJECTORY_KEYS}
     m = tr.metrics()
     m.pop("wall_time_s", None)
+    m.pop("warnings", None)  # words, not numbers
     for k, v in m.items():
         out[f"metric/{k}"] = np.asarray(np.nan if v is None else v, dtype=np.float64)
     return out

@@ -29,7 +29,8 @@ def test_registry_names_and_params():
 
 
 @pytest.mark.parametrize("spec,match", [
-    ("thesis-rgi", "unknown policy 'thesis-rgi'; did you mean 'thesis-rig'.*valid: passive, .*thesis-ideal"),
+    ("thesis-rgi",
+     "unknown policy 'thesis-rgi'; did you mean 'thesis-rig'.*valid: .*passive, .*thesis-ideal"),
     ("thesis-rig:h02x=1", r"unknown parameter\(s\) h02x.*valid: h01, h11"),
     ("thesis-rig:h01=-5", "h01 = -5.0 1/s\\^2 is out of range: must be finite and >= 0"),
     ("thesis-rig:h01=abc", "h01 must be a number"),

@@ -105,7 +105,8 @@ def test_cli_compare_json_and_outputs(tmp_path, capsys):
             "contact_fraction", "saturation_time_s", "episodes", "failed_episodes", "failures"}
     assert keys <= set(out["passive"])
     assert out["passive"]["residual_energy_50ms"] is None  # past the 12 ms horizon: null, not NaN
-    for name in ("summary.csv", "summary.json", "episodes.csv", "energy.png", "force.png", "motion.png"):
+    for name in ("summary.csv", "summary.json", "episodes.csv", "energy.png", "force.png", "motion.png",
+                 "catch_time.png"):
         assert (tmp_path / name).stat().st_size > 0
     assert len((tmp_path / "episodes.csv").read_text().strip().splitlines()) == 1 + 2 * 2
 

@@ -320,7 +320,7 @@ def test_bad_inputs_raise_config_error_naming_the_field(make, field):
 
 
 def test_unrepresentable_delay_message_says_why():
-    with pytest.raises(ConfigError, match="not representable at the control rate"):
+    with pytest.raises(ConfigError, match="not representable at control.rate"):
         D.delay_samples(1.5e-5, RATE, "effects.delay.sensor_s")
 
 

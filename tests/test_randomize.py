@@ -23,6 +23,7 @@ from impact_env.sim.drop import simulate
 from impact_env.sim.simulator import Simulator
 
 RATE = 1.0e4
+RIG_FIXED = {"randomize.m1": [], "randomize.drop_height": []}  # rig's nominal drop
 
 
 def _run(sim, actions, n):
@@ -43,8 +44,8 @@ def test_effects_off_reproduce_the_bare_plant_bitwise(case):
     every state column (positions, velocities, shaker work, dissipation) equal bit for bit."""
     if case.startswith("ideal"):  # thesis ch. 3: control at every 1 us step, 5 ms (first contact)
         scene, n = load_scene("ideal"), 5000
-    else:  # the rig's plant (restitution 0.8, suspension) at 10 kHz, 50 ms, no effects
-        scene, n = load_scene("rig", {"effects.active": []}), 500
+    else:  # the rig's plant (restitution 0.8, suspension) at 10 kHz, 50 ms, no effects, its nominal drop
+        scene, n = load_scene("rig", {"effects.active": [], **RIG_FIXED}), 500
     a = 0.3 if case.endswith("pushed") else 0.0
     f2 = a * scene.effects.command_scale
     sim = Simulator(scene, 1)
@@ -104,7 +105,8 @@ def test_bad_ranges_name_the_field(ov, match):
 
 def test_rig_randomized_preset_and_overrides():
     sc = load_scene("rig-randomized")
-    assert sc.randomized and not load_scene("rig").randomized
+    assert sc.randomized and load_scene("rig").randomize.ranged() == ("m1", "drop_height")
+    assert not load_scene("rig", RIG_FIXED).randomized
     assert sc.randomize.ranged() == ("m1", "drop_height", "c", "restitution", "suspension_stiffness",
                                      "suspension_damping", "noise_scale", "command_gain", "shaker_lowpass_hz",
                                      "shaker_coil_inductance", "sensor_delay_s", "actuator_delay_s")
@@ -117,13 +119,13 @@ def test_rig_randomized_preset_and_overrides():
 # -- the seed policy ----------------------------------------------------------------------------------
 
 def test_fixed_scene_draws_nothing_at_reset():
-    for name in ("ideal", "rig"):
+    for scene in (load_scene("ideal"), load_scene("rig", RIG_FIXED)):
         rng = np.random.default_rng(5)
         before = rng.bit_generator.state
-        sim = Simulator(name, 1)
+        sim = Simulator(scene, 1)
         sim.reset([rng])
         assert rng.bit_generator.state == before
-        assert load_scene(name).draw(rng) == {} and rng.bit_generator.state == before
+        assert scene.draw(rng) == {} and rng.bit_generator.state == before
 
 
 def test_draws_follow_the_seed_policy_and_stay_in_range():
@@ -215,7 +217,8 @@ def test_simulate_draws_with_rng_like_the_simulator():
 
 
 def test_per_env_delays_shift_by_their_own_length():
-    sc = load_scene("rig", {"effects.active": ["sensor_delay"], "randomize.sensor_delay_s": [0.0, 3e-4]})
+    sc = load_scene("rig", {"effects.active": ["sensor_delay"], "randomize.sensor_delay_s": [0.0, 3e-4],
+                            **RIG_FIXED})
     seeds, ks = [], set()
     for s in range(40):  # find generators that draw 0 and 3 samples
         k = round(sc.draw(np.random.default_rng(s))["sensor_delay_s"] * RATE)

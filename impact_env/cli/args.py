@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
 
 from impact_env.config import ConfigError
 
@@ -49,3 +51,33 @@ def scene_from_args(args, scene: str | None = None):
     if getattr(args, "rtol", None) is not None:
         ov["integrator.rtol"] = str(args.rtol)
     return load_scene(scene if scene is not None else args.scene, ov)
+
+
+def output_dir(path: str | Path, option: str = "--out") -> Path:
+    """Make sure ``path`` is (or can be made) a writable folder, before anything runs: the
+    folder is created; a file in its place or a read-only location raises ConfigError naming
+    the option."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ConfigError(f"{option} {str(p)!r} is a file; give a folder (the outputs go inside it)")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{option} {str(p)!r}: cannot create the folder ({exc.strerror or exc})") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise ConfigError(f"{option} {str(p)!r}: the folder is not writable")
+    return p
+
+
+def output_file(path: str | Path, option: str) -> Path:
+    """Make sure the file ``path`` can be written, before anything runs (its folder exists and
+    is writable, and it is not a folder); ConfigError naming the option otherwise."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"{option} {str(p)!r} is a folder; give a file name")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise ConfigError(f"{option} {str(p)!r}: the folder {str(parent)!r} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise ConfigError(f"{option} {str(p)!r}: not writable")
+    return p

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 
-from impact_env.cli.args import scene_from_args
+from impact_env.cli.args import output_dir, scene_from_args
 from impact_env.eval.compare import compare, format_table, split_policies, summary_json, write_outputs
 
 
@@ -41,6 +40,7 @@ def cmd_compare(args) -> int:
         return 0
     texts = args.policies or ["passive,thesis-rig,pd-penetration"]
     specs = [s for text in texts for s in split_policies(text)]
+    out_dir = output_dir(args.out) if args.out else None  # checked before anything runs
     if args.rig:
         return _compare_rig(args, specs)
     scene = scene_from_args(args, scene=args.scene or "rig")
@@ -52,7 +52,8 @@ def cmd_compare(args) -> int:
     else:
         wall = next(iter(runs.values())).summary["wall_time_total_s"]
         print(f"scene {scene.name}: {args.episodes} episodes of {horizon:g} s, seed {args.seed} "
-              f"(episode j seeded {args.seed} + j), impact speed {scene.impact_speed:.3g} m/s, "
+              f"(episode j seeded {args.seed} + j), impact speed {scene.impact_speed:.3g} m/s"
+              f"{' (nominal; drawn per episode)' if scene.randomized else ''}, "
               f"{len(specs)} policies in {wall:.1f} s")
         print("E: body 1's catch energy over its impact value (mean); exit v/v0: body 1's speed at the first "
               "separation over the impact speed (mean); catch: catch energy below 1 % for good")
@@ -65,7 +66,7 @@ def cmd_compare(args) -> int:
     if len(failures) > 20:
         print(f"impact-env compare: ... and {len(failures) - 20} more failed episodes", file=sys.stderr)
     if args.out:
-        paths = write_outputs(runs, Path(args.out), scene, args.seed, horizon)
+        paths = write_outputs(runs, out_dir, scene, args.seed, horizon)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
     return 0

@@ -5,13 +5,15 @@ from __future__ import annotations
 import json
 import sys
 
-from impact_env.cli.args import parse_overrides, scene_from_args
+from impact_env.cli.args import output_file, parse_overrides, scene_from_args
 
 
 def cmd_drop(args) -> int:
     from impact_env.sim.drop import SimulationDiverged, simulate
 
     scene = scene_from_args(args)
+    if args.plot:
+        output_file(args.plot, "--plot")  # checked before simulating
     record_rate = args.record_rate
     drawn = None
     if args.seed is not None and scene.randomized:
@@ -34,11 +36,15 @@ def cmd_drop(args) -> int:
               f"c {scene.plant.c:g} N/m^1.5, impact speed {scene.impact_speed:g} m/s, "
               f"{scene.integrator.method}")
         for k, v in m.items():
+            if k == "warnings":
+                continue
             if isinstance(v, dict):
                 v = ", ".join(f"{name} {x:.6g}" for name, x in v.items())
                 print(f"  {k:28s} {v}")
             else:
                 print(f"  {k:28s} {v if v is None else f'{v:.6g}'}")
+        for w in m["warnings"]:
+            print(f"  warning: {w}")
     if args.plot:
         from impact_env.eval.plots import plot_trajectory
 

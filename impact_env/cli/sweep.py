@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
-from impact_env.cli.args import scene_from_args
+from impact_env.cli.args import output_dir, scene_from_args
 from impact_env.eval.sweep import DEFAULT_AXES, parse_grid, plot, sweep, write_csv
 
 
@@ -61,12 +60,11 @@ def cmd_sweep(args) -> int:
     from impact_env.policy.registry import parse_spec
 
     scene = scene_from_args(args)
+    out = output_dir(args.out)  # checked before anything runs
     axes = axes_from_args(args)
     _, fixed = parse_spec(f"{args.policy}:{args.fixed}") if args.fixed else (None, {})
     res = sweep(scene, args.policy, axes, fixed, seed=args.seed, t_end=args.t_end, limit=args.limit,
                 objective=args.objective, workers=args.workers, progress=not (args.no_progress or args.json))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     csv_path = write_csv(res, out / "sweep.csv")
     png_path = plot(res, out / "sweep.png", args.log)
     if args.json:

@@ -29,6 +29,7 @@ from impact_env._jit import jit
 from impact_env.config import ConfigError, check_range, doc_field
 
 REL_TOL = 1e-6
+MAX_DELAY_SAMPLES = 100_000  # 10 s at 10 kHz
 
 
 _f = doc_field
@@ -60,9 +61,12 @@ def delay_samples(delay_s: float, rate: float, name: str = "effects.delay") -> i
     if abs(exact - k) > REL_TOL * max(1, k):
         lo, hi = int(np.floor(exact)), int(np.ceil(exact))
         raise ConfigError(
-            f"{name} = {delay_s:g} s is not representable at the control rate {rate:g} Hz: it is "
+            f"{name} = {delay_s:g} s is not representable at control.rate = {rate:g} Hz: it is "
             f"{exact:g} control periods; use a whole multiple of {1.0 / rate:g} s "
             f"(e.g. {lo / rate:g} s or {hi / rate:g} s)")
+    if k > MAX_DELAY_SAMPLES:
+        raise ConfigError(f"{name} = {delay_s:g} s is {k} control periods at control.rate = {rate:g} Hz, "
+                          f"more than {MAX_DELAY_SAMPLES} (the delay line's memory); shorten the delay")
     return k
 
 

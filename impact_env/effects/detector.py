@@ -52,10 +52,11 @@ class DetectorConfig:
             if not isinstance(getattr(self, name), bool):
                 v = getattr(self, name)
                 raise ConfigError(f"effects.detector.{name} must be true or false, got {v!r}")
-        check_range("effects.detector.top_mass", self.top_mass, "kg", 0.0)
-        check_range("effects.detector.threshold_n", self.threshold_n, "N")
+        check_range("effects.detector.top_mass", self.top_mass, "kg", 0.0, 1e6)
+        # a contact force is >= 0: a threshold below 0 would report contact with nothing touching
+        check_range("effects.detector.threshold_n", self.threshold_n, "N", 0.0, 1e7)
         check_range("effects.detector.derivative_threshold_n_per_s", self.derivative_threshold_n_per_s,
-                    "N/s", 0.0, None, lo_open=True)
+                    "N/s", 0.0, 1e12, lo_open=True)
 
 
 def detector_params(cfg: DetectorConfig, rate: float) -> np.ndarray:

@@ -44,7 +44,8 @@ class FilterConfig:
     _key: ClassVar[str] = ""
 
     kind: str = _f("bandpass", "", "bandpass | lowpass (cut-off high_hz) | none")
-    low_hz: float = _f(20.0, "Hz", "lower band edge (-3 dB) of the band-pass (thesis sec 4.3: 20 Hz)")
+    low_hz: float = _f(20.0, "Hz", "lower band edge (-3 dB) of the band-pass (thesis sec 4.3: 20 Hz); "
+                       "kind = lowpass ignores it")
     high_hz: float = _f(1000.0, "Hz", "upper band edge / low-pass cut-off (thesis sec 4.3: 1000 Hz)")
     order: int = _f(2, "", "Butterworth order N (band-pass: 2N poles); ASSUMED, thesis gives none")
 
@@ -55,8 +56,8 @@ class FilterConfig:
     def __post_init__(self):
         p = self.path
         check_choice(f"{p}.kind", self.kind, KINDS)
-        check_range(f"{p}.low_hz", self.low_hz, "Hz", 0.0, None, lo_open=True)
-        check_range(f"{p}.high_hz", self.high_hz, "Hz", 0.0, None, lo_open=True)
+        check_range(f"{p}.low_hz", self.low_hz, "Hz", 1e-3, 1e7)
+        check_range(f"{p}.high_hz", self.high_hz, "Hz", 1e-3, 1e7)
         if isinstance(self.order, bool) or not isinstance(self.order, int):
             raise ConfigError(f"{p}.order must be an integer (1 to 10), got {self.order!r}")
         check_range(f"{p}.order", self.order, "", 1, 10)
@@ -73,7 +74,7 @@ class FilterConfig:
             v = getattr(self, name)
             if v >= nyq:
                 raise ConfigError(f"{self.path}.{name} = {v:g} Hz is out of range: must be < {nyq:g} Hz, "
-                                  f"the Nyquist frequency at the control rate {rate:g} Hz")
+                                  f"the Nyquist frequency at control.rate = {rate:g} Hz")
 
 
 @dataclass(frozen=True)

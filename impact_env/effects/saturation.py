@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.config import check_range, doc_field
+from impact_env.config import ConfigError, check_range, doc_field
 
 MS, PREV = 0, 1
 N_STATE = 2
@@ -53,10 +53,15 @@ class SaturationConfig:
     slew_n_per_s: float = _f(0.0, "N/s", "slew-rate limit; 0 = off")
 
     def __post_init__(self):
-        check_range("effects.saturation.peak_n", self.peak_n, "N", 0.0, None, lo_open=True)
-        check_range("effects.saturation.continuous_n", self.continuous_n, "N", 0.0, self.peak_n)
-        check_range("effects.saturation.tau_s", self.tau_s, "s", 0.0, 1e4, lo_open=True)
-        check_range("effects.saturation.slew_n_per_s", self.slew_n_per_s, "N/s", 0.0)
+        # bounds: up to 10 MN and 1e12 N/s (far beyond any shaker; the mean square of 1e7 N
+        # stays finite), a time constant from 1 us
+        check_range("effects.saturation.peak_n", self.peak_n, "N", 0.0, 1e7, lo_open=True)
+        check_range("effects.saturation.continuous_n", self.continuous_n, "N", 0.0, 1e7)
+        if self.continuous_n > self.peak_n:
+            raise ConfigError(f"effects.saturation.continuous_n = {self.continuous_n:g} N is out of range: "
+                              f"must be <= effects.saturation.peak_n = {self.peak_n:g} N")
+        check_range("effects.saturation.tau_s", self.tau_s, "s", 1e-6, 1e4)
+        check_range("effects.saturation.slew_n_per_s", self.slew_n_per_s, "N/s", 0.0, 1e12)
 
     @property
     def rms_limit_n(self) -> float:

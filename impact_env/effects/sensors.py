@@ -93,15 +93,18 @@ class ChannelConfig:
         p, u = f"effects.sensors.{self._key}", self.unit
         if not isinstance(self.enabled, bool):
             raise ConfigError(f"{p}.enabled must be true or false, got {self.enabled!r}")
-        check_range(f"{p}.gain", self.gain, "")
-        if self.gain == 0.0:
-            raise ConfigError(f"{p}.gain = 0 is out of range: must be nonzero (negative flips the sign)")
-        check_range(f"{p}.offset", self.offset, u)
-        check_range(f"{p}.noise_std", self.noise_std, u, 0.0)
+        # bounds: readings of every channel stay far inside float range (1e6 times a reading
+        # of 1e9 units), so filters and scaling cannot overflow
+        check_range(f"{p}.gain", self.gain, "", -1e6, 1e6)
+        if abs(self.gain) < 1e-6:
+            raise ConfigError(f"{p}.gain = {self.gain!r} is out of range: |gain| must be between 1e-06 and "
+                              "1e+06 (negative flips the sign)")
+        check_range(f"{p}.offset", self.offset, u, -1e9, 1e9)
+        check_range(f"{p}.noise_std", self.noise_std, u, 0.0, 1e9)
         if isinstance(self.adc_bits, bool) or not isinstance(self.adc_bits, int):
             raise ConfigError(f"{p}.adc_bits must be an integer (0 to 32), got {self.adc_bits!r}")
         check_range(f"{p}.adc_bits", self.adc_bits, "bits", 0, 32)
-        check_range(f"{p}.adc_range", self.adc_range, u, 0.0, None, lo_open=True)
+        check_range(f"{p}.adc_range", self.adc_range, u, 1e-9, 1e9)
 
     @property
     def quantum(self) -> float:
@@ -142,7 +145,7 @@ class ForceTransducerConfig(ChannelConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        check_range("effects.sensors.force.top_mass", self.top_mass, "kg", 0.0)
+        check_range("effects.sensors.force.top_mass", self.top_mass, "kg", 0.0, 1e6)
 
 
 @dataclass(frozen=True)

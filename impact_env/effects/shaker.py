@@ -43,6 +43,7 @@ continuous model to the held command.  The numba kernel steps a state-space mode
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,11 +53,14 @@ from impact_env._jit import jit
 from impact_env.config import ConfigError, check_choice, check_range, doc_field
 
 _f = doc_field
+MAX_TAPS = 4096  # measured impulse responses are a few hundred taps at 10 kHz
 
 
 @dataclass(frozen=True)
 class ShakerConfig:
-    enabled: bool = _f(False, "", "model the amplifier/shaker response (off: applied force = demand)")
+    """The amplifier and exciter between the force demand and body 2.  It runs when ``shaker``
+    is in ``effects.active`` (nothing else switches it)."""
+
     model: str = _f("coil", "", "coil (parametric) | measured (FIR taps)")
     amplifier: str = _f("voltage", "", "voltage (coil pole R/L, optional back-EMF) | current (current loop: "
                         "band-pass only)")
@@ -66,21 +70,31 @@ class ShakerConfig:
     lowpass_hz: float = _f(9000.0, "Hz", "upper band edge (V406 data: 9 kHz)")
     coil_resistance: float = _f(1.0, "ohm", "ASSUMED coil resistance R (not in the thesis)")
     coil_inductance: float = _f(50e-6, "H", "ASSUMED coil inductance L (not in the thesis); pole R/(2 pi L)")
-    force_factor: float = _f(14.0, "N/A", "ASSUMED Bl (98 N rated at about 7 A)")
+    force_factor: float = _f(14.0, "N/A", "ASSUMED Bl (98 N rated at about 7 A); enters only the back-EMF's "
+                             "damping Bl^2/R (the command is scaled to 1 N/N mid-band)")
     fir_taps: tuple[float, ...] = _f((), "N/N",
                                      "measured impulse response at the control rate (model = measured)")
     inverse_filter: bool = _f(False, "", "pre-filter the demand by an approximate inverse of the coil pole")
     inverse_rolloff_hz: float = _f(20000.0, "Hz", "roll-off that keeps the inverse filter proper")
 
     def __post_init__(self):
+        # bounds: band edges from 1 mHz to 10 MHz, coils from 0.1 mohm / 1 nH to 10 kohm / 10 H
+        # (every exciter lies far inside; beyond them the discretisation overflows or rounds a
+        # pole onto the unit circle)
         check_choice("effects.shaker.model", self.model, ("coil", "measured"))
-        check_range("effects.shaker.highpass_hz", self.highpass_hz, "Hz", 0.0)
-        check_range("effects.shaker.lowpass_hz", self.lowpass_hz, "Hz", 0.0, None, lo_open=True)
-        check_range("effects.shaker.coil_resistance", self.coil_resistance, "ohm", 0.0, None, lo_open=True)
-        check_range("effects.shaker.coil_inductance", self.coil_inductance, "H", 0.0, None, lo_open=True)
-        check_range("effects.shaker.force_factor", self.force_factor, "N/A", 0.0, None, lo_open=True)
-        check_range("effects.shaker.inverse_rolloff_hz", self.inverse_rolloff_hz, "Hz", 0.0, None,
-                    lo_open=True)
+        check_range("effects.shaker.highpass_hz", self.highpass_hz, "Hz", 0.0, 1e7)
+        if 0.0 < self.highpass_hz < 1e-3:
+            raise ConfigError(f"effects.shaker.highpass_hz = {self.highpass_hz!r} Hz is out of range: must "
+                              "be 0 (no high-pass) or >= 0.001 Hz")
+        check_range("effects.shaker.lowpass_hz", self.lowpass_hz, "Hz", 1e-3, 1e7)
+        check_range("effects.shaker.coil_resistance", self.coil_resistance, "ohm", 1e-4, 1e4)
+        check_range("effects.shaker.coil_inductance", self.coil_inductance, "H", 1e-9, 10.0)
+        check_range("effects.shaker.force_factor", self.force_factor, "N/A", 1e-3, 1e4)
+        check_range("effects.shaker.inverse_rolloff_hz", self.inverse_rolloff_hz, "Hz", 1e-3, 1e7)
+        if len(self.fir_taps) > MAX_TAPS:
+            raise ConfigError(f"effects.shaker.fir_taps has {len(self.fir_taps)} taps, more than {MAX_TAPS}")
+        for i, tap in enumerate(self.fir_taps):
+            check_range(f"effects.shaker.fir_taps[{i}]", tap, "N/N", -1e6, 1e6)
         if self.highpass_hz >= self.lowpass_hz:
             raise ConfigError(f"effects.shaker.highpass_hz = {self.highpass_hz:g} Hz must be below "
                               f"effects.shaker.lowpass_hz = {self.lowpass_hz:g} Hz")
@@ -161,9 +175,19 @@ def discrete_model(cfg: ShakerConfig, rate: float) -> tuple[np.ndarray, np.ndarr
         inv = signal.cont2discrete(signal.tf2ss(ni, di), 1.0 / rate, method="bilinear")[:4]
         sys_d = _series(inv, sys_d)
     A, B, C, D = (np.ascontiguousarray(np.atleast_2d(m), dtype=float) for m in sys_d)
-    if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
-        raise ConfigError("effects.shaker: the discretised model is not stable at this control rate")
+    _check_discrete(cfg, rate, A, B, C, D)
     return A, B[:, 0].copy(), C[0].copy(), float(D[0, 0])
+
+
+def _check_discrete(cfg: ShakerConfig, rate: float, *mats) -> None:
+    """ConfigError, naming the fields, unless the discretised model is finite and stable."""
+    if not all(np.all(np.isfinite(m)) for m in mats) or np.max(np.abs(np.linalg.eigvals(mats[0]))) >= 1.0:
+        raise ConfigError(
+            "effects.shaker: the model discretised at control.rate = "
+            f"{rate:g} Hz is not finite and stable (effects.shaker.highpass_hz = {cfg.highpass_hz:g} Hz, "
+            f"lowpass_hz = {cfg.lowpass_hz:g} Hz, coil pole R/(2 pi L) = {cfg.electrical_pole_hz:g} Hz from "
+            f"coil_resistance and coil_inductance, inverse_rolloff_hz = {cfg.inverse_rolloff_hz:g} Hz): "
+            "move the band edges and poles well inside 0 .. 1e7 Hz")
 
 
 def continuous_emf_model(cfg: ShakerConfig):
@@ -192,7 +216,16 @@ def continuous_emf_model(cfg: ShakerConfig):
 def discrete_emf_model(cfg: ShakerConfig, rate: float):
     """(A, B, C, D, E) at ``rate``: :func:`discrete_model` plus E, the input vector of body 2's
     velocity (held over the period) for the back-EMF; E = 0 without ``back_emf``.  Without
-    back-EMF A, B, C, D are exactly those of :func:`discrete_model`."""
+    back-EMF A, B, C, D are exactly those of :func:`discrete_model`.
+
+    Cached per (config, rate) (a Simulator resets drawn scenes whose shaker is often the same);
+    every call returns fresh copies."""
+    A, B, C, D, E = _discrete_emf_model(cfg, float(rate))
+    return A.copy(), B.copy(), C.copy(), D, E.copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _discrete_emf_model(cfg: ShakerConfig, rate: float):
     if not cfg.back_emf:
         A, B, C, D = discrete_model(cfg, rate)
         return A, B, C, D, np.zeros_like(B)
@@ -205,8 +238,7 @@ def discrete_emf_model(cfg: ShakerConfig, rate: float):
         A, Bu, C, D = _series(inv, (A, Bu, C, D))
         E = np.vstack([np.zeros((A.shape[0] - E.shape[0], 1)), E])
     A, Bu, C, D, E = (np.ascontiguousarray(np.atleast_2d(m), dtype=float) for m in (A, Bu, C, D, E))
-    if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
-        raise ConfigError("effects.shaker: the discretised model is not stable at this control rate")
+    _check_discrete(cfg, rate, A, Bu, C, D, E)
     return A, Bu[:, 0].copy(), C[0].copy(), float(D[0, 0]), E[:, 0].copy()
 
 

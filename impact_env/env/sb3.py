@@ -11,9 +11,11 @@ env's dict also carries the final ``caught``, ``diverged``, ``catch_energy_ratio
 Seeding follows SB3: ``env.seed(s)`` (what ``model.set_random_seed`` calls) makes the next
 ``reset()`` seed env i with ``s + i``.
 
+    >>> import torch
     >>> from stable_baselines3 import PPO
     >>> from impact_env.env.sb3 import make_sb3_vec_env
-    >>> env = make_sb3_vec_env("rig", num_envs=64)
+    >>> torch.set_num_threads(1)  # small networks: more threads only cost (bench_torch_threads.py)
+    >>> env = make_sb3_vec_env("rig", num_envs=64)  # an SB3 VecEnv in a VecMonitor
     >>> model = PPO("MlpPolicy", env)  # doctest: +SKIP
 """
 
@@ -92,6 +94,15 @@ class SB3VecEnv(VecEnv):
         return list(frames) if frames is not None else [None] * self.num_envs
 
 
-def make_sb3_vec_env(scene="rig", num_envs: int = 16, **kwargs) -> SB3VecEnv:
-    """An SB3 ``VecEnv`` of ``num_envs`` rigs; ``kwargs`` as for ``ImpactCatch-v0``."""
-    return SB3VecEnv(ImpactCatchVectorEnv(num_envs, scene, autoreset_mode=AutoresetMode.SAME_STEP, **kwargs))
+def make_sb3_vec_env(scene="rig", num_envs: int = 16, monitor: bool = True, **kwargs):
+    """An SB3 ``VecEnv`` of ``num_envs`` rigs, wrapped in SB3's ``VecMonitor`` (episode returns
+    and lengths in ``infos[i]["episode"]``, which SB3's logger reads); ``monitor=False`` gives
+    the bare :class:`SB3VecEnv`.  ``kwargs`` as for ``ImpactCatch-v0``.
+
+    With one env (or a few), set ``torch.set_num_threads(1)`` before training: PPO's small
+    networks gain nothing from more threads and lose to their synchronisation
+    (``python scripts/bench_torch_threads.py`` measures it)."""
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    env = SB3VecEnv(ImpactCatchVectorEnv(num_envs, scene, autoreset_mode=AutoresetMode.SAME_STEP, **kwargs))
+    return VecMonitor(env) if monitor else env

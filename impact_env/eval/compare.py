@@ -367,7 +367,7 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
     """summary.csv, summary.json, episodes.csv and the plots into ``out_dir``; returns the paths."""
     import csv
 
-    from impact_env.eval.compare_plots import plot_energy, plot_force, plot_motion
+    from impact_env.eval.compare_plots import plot_catch_time, plot_energy, plot_force, plot_motion
     from impact_env.eval.rollout import EPISODE_METRICS
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -397,4 +397,5 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
     paths.append(plot_energy(runs, out_dir / "energy.png", scene))
     paths.append(plot_force(runs, out_dir / "force.png", scene))
     paths.append(plot_motion(runs, out_dir / "motion.png", scene))
+    paths.append(plot_catch_time(runs, out_dir / "catch_time.png", scene, horizon))
     return paths

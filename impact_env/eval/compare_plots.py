@@ -4,12 +4,15 @@
   every policy (control off = ``passive``), and the median with the interquartile band of the
   energy ratio over all episodes (log scale).
 * ``force.png`` (fig 3.2e-f): the force applied to body 2 over time (first episode, first
-  30 ms after the touch) and its amplitude spectrum over the episode, with the thesis's
-  20-1000 Hz band shaded.
+  30 ms after the touch) and its amplitude spectrum over the episode, with the scene's filter
+  band (the force transducer's, when the scene filters) shaded.
 * ``motion.png`` (fig 3.2c-d): velocities and displacements of both bodies (first episode),
   upwards positive as in the thesis's plots.
+* ``catch_time.png``: the catch time of every episode per policy (box and points), episodes not
+  caught within the horizon counted above it.
 
-Time is measured from the first touch.
+Time is measured from the first touch.  Each policy keeps one colour in every panel and figure
+(:func:`impact_env.eval.labels.policy_colors`).
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
+from impact_env.eval.labels import metric_label, policy_colors
 
 
 def _plt():
@@ -52,22 +57,24 @@ def _t_ms(run):
 
 def plot_energy(runs, path: Path, scene) -> Path:
     plt = _plt()
+    colors = policy_colors(runs)
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     for spec, run in runs.items():
         if run.trace0 is None:
             continue
-        (line,) = ax[0].plot(_t_ms(run), run.trace0["catch_energy"] * 1e3, lw=1, label=spec)
+        ax[0].plot(_t_ms(run), run.trace0["catch_energy"] * 1e3, lw=1, color=colors[spec], label=spec)
         if run.energy_ratio is not None and run.energy_ratio.size:
             t = (run.energy_t - run.t_touch0) * 1e3
             q25, q50, q75 = np.quantile(run.energy_ratio, [0.25, 0.5, 0.75], axis=1)
             floor = 1e-6
-            ax[1].semilogy(t, np.maximum(q50, floor), color=line.get_color(), lw=1, label=spec)
-            ax[1].fill_between(t, np.maximum(q25, floor), np.maximum(q75, floor), color=line.get_color(),
+            ax[1].semilogy(t, np.maximum(q50, floor), color=colors[spec], lw=1, label=spec)
+            ax[1].fill_between(t, np.maximum(q25, floor), np.maximum(q75, floor), color=colors[spec],
                                alpha=0.2)
     ax[0].set_title("body 1's catch energy, episode 0 (cf. thesis fig 4.8a)", fontsize=9)
-    ax[0].set_ylabel("energy, mJ")
+    ax[0].set_ylabel("catch energy, mJ")
     n = max((len(r.episodes) for r in runs.values()), default=0)
-    ax[1].set_title(f"catch energy / impact energy: median and IQR of {n} episodes", fontsize=9)
+    ax[1].set_title(f"median and IQR of {n} episodes (dotted: 1 %)", fontsize=9)
+    ax[1].set_ylabel("catch energy / impact energy")
     ax[1].axhline(0.01, color="k", lw=0.6, ls=":")
     return _finish(plt, fig, ax, f"scene {scene.name}: energy of the falling body", path, 7, TOUCH_MS)
 
@@ -80,8 +87,23 @@ def force_spectrum(force: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
     return np.fft.rfftfreq(n, dt), amp
 
 
+def filter_band(scene) -> tuple[float, float] | None:
+    """(low, high) Hz of the band the scene's filters pass on the force transducer (the
+    accelerometer's if the force channel is unfiltered), or None if the scene does not filter."""
+    fx = scene.effects
+    if not fx.on("filters"):
+        return None
+    for ch in (fx.filters.force, fx.filters.accelerometer):
+        if ch.kind == "bandpass":
+            return ch.low_hz, ch.high_hz
+        if ch.kind == "lowpass":
+            return 0.0, ch.high_hz
+    return None
+
+
 def plot_force(runs, path: Path, scene, window_ms: float = 30.0) -> Path:
     plt = _plt()
+    colors = policy_colors(runs)
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     for spec, run in runs.items():
         if run.trace0 is None:
@@ -89,15 +111,19 @@ def plot_force(runs, path: Path, scene, window_ms: float = 30.0) -> Path:
         t = _t_ms(run)
         f = run.trace0["force_applied"]
         sel = (t >= -1.0) & (t <= window_ms)
-        ax[0].plot(t[sel], f[sel], lw=1, label=spec)
+        ax[0].plot(t[sel], f[sel], lw=1, color=colors[spec], label=spec)
         if np.any(f != 0):
             dt = float(run.trace_t[1] - run.trace_t[0]) if len(run.trace_t) > 1 else run.control_period
             freq, amp = force_spectrum(f, dt)
-            ax[1].loglog(freq[1:], np.maximum(amp[1:], 1e-6), lw=0.8, label=spec)
+            ax[1].loglog(freq[1:], np.maximum(amp[1:], 1e-6), lw=0.8, color=colors[spec], label=spec)
     ax[0].set_title("force on body 2 (up positive), episode 0 (cf. thesis fig 3.2e)", fontsize=9)
     ax[0].set_xlabel("time from first touch, ms")
     ax[0].set_ylabel("force, N")
-    ax[1].axvspan(20, 1000, color="0.85", zorder=0, label="20-1000 Hz")
+    band = filter_band(scene)
+    if band is not None:
+        lo, hi = band
+        ax[1].axvspan(max(lo, 1e-3), hi, color="0.85", zorder=0,
+                      label=f"scene's sensor filter band, {lo:g}-{hi:g} Hz")
     ax[1].set_title("its amplitude spectrum over the episode (cf. fig 3.2f)", fontsize=9)
     ax[1].set_xlabel("frequency, Hz")
     ax[1].set_ylabel("amplitude, N")
@@ -106,6 +132,7 @@ def plot_force(runs, path: Path, scene, window_ms: float = 30.0) -> Path:
 
 def plot_motion(runs, path: Path, scene, window_ms: float = 100.0) -> Path:
     plt = _plt()
+    colors = policy_colors(runs)
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     for spec, run in runs.items():
         if run.trace0 is None:
@@ -113,13 +140,53 @@ def plot_motion(runs, path: Path, scene, window_ms: float = 100.0) -> Path:
         t = _t_ms(run)
         sel = t <= window_ms
         tr = run.trace0
-        (line,) = ax[0].plot(t[sel], -tr["v1"][sel], lw=1, label=f"{spec}: body 1")
-        ax[0].plot(t[sel], -tr["v2"][sel], lw=1, ls="--", color=line.get_color(), label=f"{spec}: body 2")
-        ax[1].plot(t[sel], -tr["x1"][sel] * 1e3, lw=1, color=line.get_color(), label=f"{spec}: body 1")
-        ax[1].plot(t[sel], -tr["x2"][sel] * 1e3, lw=1, ls="--", color=line.get_color(),
-                   label=f"{spec}: body 2")
+        c = colors[spec]
+        ax[0].plot(t[sel], -tr["v1"][sel], lw=1, color=c, label=f"{spec}: body 1")
+        ax[0].plot(t[sel], -tr["v2"][sel], lw=1, ls="--", color=c, label=f"{spec}: body 2")
+        ax[1].plot(t[sel], -tr["x1"][sel] * 1e3, lw=1, color=c, label=f"{spec}: body 1")
+        ax[1].plot(t[sel], -tr["x2"][sel] * 1e3, lw=1, ls="--", color=c, label=f"{spec}: body 2")
     ax[0].set_title("velocities, up positive (cf. thesis fig 3.2c)", fontsize=9)
     ax[0].set_ylabel("velocity, m/s")
     ax[1].set_title("surface positions, up positive (cf. fig 3.2d)", fontsize=9)
     ax[1].set_ylabel("height, mm")
     return _finish(plt, fig, ax, f"scene {scene.name}: motion of the bodies, episode 0", path, 6, TOUCH_MS)
+
+
+def plot_catch_time(runs, path: Path, scene, horizon: float) -> Path:
+    """The catch time of every episode, per policy: a box (quartiles, whiskers at 1.5 IQR) over
+    the caught episodes and every episode as a point; episodes not caught within the horizon
+    are drawn as crosses above it and counted in the tick label."""
+    plt = _plt()
+    colors = policy_colors(runs)
+    specs = list(runs)
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(specs) + 2), 4.2))
+    rng = np.random.default_rng(0)  # only the points' horizontal jitter
+    labels = []
+    for i, spec in enumerate(specs):
+        ttc = np.asarray(runs[spec].metrics["time_to_catch_s"], dtype=float)
+        ttc = ttc[~np.isnan(ttc)]
+        caught = ttc[np.isfinite(ttc)]
+        missed = int(np.sum(np.isinf(ttc)))
+        if caught.size:
+            ax.boxplot([caught], positions=[i], widths=0.5, showfliers=False, patch_artist=True,
+                       boxprops={"facecolor": colors[spec], "alpha": 0.35},
+                       medianprops={"color": colors[spec], "lw": 2})
+            ax.scatter(i + rng.uniform(-0.18, 0.18, caught.size), caught, s=8, color=colors[spec], zorder=3)
+        if missed:
+            ax.scatter(i + rng.uniform(-0.18, 0.18, missed), np.full(missed, 1.04 * horizon), s=14,
+                       marker="x", color=colors[spec], zorder=3)
+        labels.append(f"{spec}\n{caught.size} caught" + (f", {missed} not" if missed else ""))
+    ax.axhline(horizon, color="k", lw=0.6, ls=":")
+    ax.set_xticks(range(len(specs)))
+    ax.set_xticklabels(labels, fontsize=7)
+    ax.set_xlim(-0.6, len(specs) - 0.4)
+    ax.set_ylim(0.0, 1.1 * horizon)
+    ax.set_ylabel(metric_label("time_to_catch_s"))
+    ax.grid(alpha=0.3, axis="y")
+    n = max((len(r.episodes) for r in runs.values()), default=0)
+    ax.set_title(f"scene {scene.name}: catch time per episode ({n} episodes; crosses above the dotted "
+                 f"horizon, {horizon:g} s: not caught)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path

@@ -22,9 +22,10 @@ def plot_trajectory(traj, path: str) -> None:
     ax[2].plot(t_ms, traj.shaker_force, label="shaker force (up)")
     ax[2].set_ylabel("force, N")
     e = traj.energies()
-    for key in ("kinetic1", "kinetic2", "elastic", "suspension"):
+    for key, label in (("kinetic1", "kinetic, body 1"), ("kinetic2", "kinetic, body 2"),
+                       ("elastic", "elastic, pad"), ("suspension", "suspension spring")):
         if e[key].max() > 0:
-            ax[3].plot(t_ms, e[key] * 1e3, label=key)
+            ax[3].plot(t_ms, e[key] * 1e3, label=label)
     ax[3].plot(t_ms, traj.catch_energy() * 1e3, "k--", label="catch energy of body 1")
     ax[3].set_ylabel("energy, mJ")
     ax[3].set_xlabel("time from first touch, ms")

@@ -204,7 +204,11 @@ def plot(res: SweepResult, path: Path, log: bool, title: str = "") -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from impact_env.eval.labels import metric_label
+
     m = res.metrics
+    units = _param_units(res.policy)
+    xlab, ylab = (f"{n}, {units[n]}" if units.get(n) else n for n in (res.x_name, res.y_name))
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.3))
     inside = res.within_limit
     ax[0].scatter(m["exit_speed_ratio"][~inside], m["peak_force_N"][~inside], s=8, c="0.6",
@@ -213,12 +217,12 @@ def plot(res: SweepResult, path: Path, log: bool, title: str = "") -> Path:
                   label=f"within {res.force_limit_N:g} N")
     ax[0].axhline(res.force_limit_N, color="k", lw=0.7, ls=":")
     ax[0].set_yscale("log")
-    ax[0].set_xlabel("body 1 speed at first separation / impact speed")
+    ax[0].set_xlabel(metric_label("exit_speed_ratio"))
     ax[0].set_ylabel("peak force on body 2, N")
     ax[0].set_title("each gain pair (cf. thesis fig 4.4)", fontsize=9)
     Z = m[res.objective]
     mesh = ax[1].pcolormesh(res.x, res.y, Z.T, shading="nearest", cmap="viridis")
-    fig.colorbar(mesh, ax=ax[1], label=res.objective)
+    fig.colorbar(mesh, ax=ax[1], label=metric_label(res.objective))
     if res.within_limit.any() and not res.within_limit.all():
         ax[1].contour(res.x, res.y, res.within_limit.T.astype(float), levels=[0.5], colors="w", linewidths=1)
     Xg, Yg = np.meshgrid(res.x, res.y, indexing="ij")
@@ -226,9 +230,9 @@ def plot(res: SweepResult, path: Path, log: bool, title: str = "") -> Path:
     if log:
         ax[1].set_xscale("log")
         ax[1].set_yscale("log")
-    ax[1].set_xlabel(res.x_name)
-    ax[1].set_ylabel(res.y_name)
-    ax[1].set_title(f"{res.objective} over the grid", fontsize=9)
+    ax[1].set_xlabel(xlab)
+    ax[1].set_ylabel(ylab)
+    ax[1].set_title("over the gain grid (colour: see the bar)", fontsize=9)
     if res.best is not None:
         b = res.best
         ax[0].scatter([b["exit_speed_ratio"]], [b["peak_force_N"]], marker="*", s=160, c="tab:red",
@@ -242,3 +246,13 @@ def plot(res: SweepResult, path: Path, log: bool, title: str = "") -> Path:
     fig.savefig(path, dpi=80)
     plt.close(fig)
     return path
+
+
+def _param_units(policy: str) -> dict[str, str]:
+    """Units of the swept policy's parameters (empty if it cannot be looked up)."""
+    try:
+        from impact_env.policy.registry import policy_class
+
+        return {k: p.unit for k, p in policy_class(policy).PARAMS.items()}
+    except Exception:  # noqa: BLE001  (labels only: a plot without units beats no plot)
+        return {}

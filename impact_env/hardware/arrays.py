@@ -10,17 +10,14 @@ from collections.abc import Callable
 
 import numpy as np
 
+from impact_env.hardware.stability import check_step
 from impact_env.plant import layout as L
 from impact_env.plant.dynamics import event_value
-from impact_env.plant.hertz import CONTACT_TIME_FACTOR, max_contact_frequency, max_penetration
+from impact_env.plant.hertz import max_penetration
 from impact_env.plant.restitution import tsuji_damping
 from impact_env.scene import Scene
 
 METHOD_CODES = {"euler": L.EULER, "symplectic-euler": L.SYMPLECTIC_EULER, "rk4": L.RK4, "dopri5": L.DOPRI5}
-# largest stable omega*dt of each fixed-step method on an undamped oscillator
-# (RK4: 2*sqrt(2) on the imaginary axis; symplectic Euler: 2); explicit Euler grows for any
-# step, we refuse steps past omega*dt = 1 where it gains over 40 % amplitude per step.
-STABILITY_LIMIT = {"euler": 1.0, "symplectic-euler": 2.0, "rk4": 2.0 * math.sqrt(2.0)}
 
 
 def plant_params(scene: Scene, zeta_of: Callable[[float], float] | None = None) -> np.ndarray:
@@ -63,26 +60,9 @@ def free_fall_state(v: float, g: float, tau: float) -> tuple[np.ndarray, float]:
 
 
 def check_stability(scene: Scene) -> None:
-    """Refuse, before simulating, a fixed step beyond the method's stability limit for the
-    stiffest contact oscillation the scene's drop will excite."""
-    method = scene.integrator.method
-    if method == "dopri5":
-        return
-    pl = scene.plant
-    m = pl.effective_mass
-    v = scene.impact_speed
-    d = max(max_penetration(m, pl.c, v) if v > 0 else 0.0, pl.static_penetration)
-    if d <= 0:
-        return
-    omega = max_contact_frequency(m, pl.c, d)
-    limit = STABILITY_LIMIT[method] / omega
-    if scene.integrator.dt > limit:
-        tc = CONTACT_TIME_FACTOR * d / v if v > 0 else 2 * math.pi / omega
-        raise ValueError(
-            f"integrator.dt = {scene.integrator.dt:g} s is beyond the stability limit of {method} "
-            f"for this contact: it needs dt < {limit:.3g} s (omega*dt < {STABILITY_LIMIT[method]:.3g}, "
-            f"contact time about {tc:.3g} s, penetration up to {d:.3g} m). "
-            "Reduce integrator.dt or use integrator.method = dopri5.")
+    """Refuse (ConfigError naming ``integrator.dt``), before simulating, a fixed step that the
+    drop's contact makes unstable or leaves unresolved: :func:`impact_env.hardware.stability.check_step`."""
+    check_step(scene)
 
 
 def initial_mode(scene: Scene, y0: np.ndarray, p: np.ndarray) -> int:

@@ -49,3 +49,32 @@ def energies(x1, v1, x2, v2, m1, m2, c, g, k2):
     }
     e["total"] = e["kinetic1"] + e["kinetic2"] + e["gravity"] + e["elastic"] + e["suspension"]
     return e
+
+
+def energy_above_rest(x1, v1, x2, v2, m1, m2, c, g, k2):
+    """The system's energy above its state of rest (J), which no passive motion can increase.
+
+    With a suspension (k2 > 0) rest is body 1 on the pad at ``d_s`` and body 2 at
+    ``x_r = m1 g / k2``; the total energy above that state is
+
+        ``E_rest = catch_energy + m2 v2^2 / 2 + k2 (x2 - x_r)^2 / 2``
+
+    (body 1's catch energy plus body 2's kinetic energy and the suspension's energy about its
+    loaded rest).  It is >= the catch energy and, without shaker force, non-increasing (its
+    rate is minus the pad's and the suspension's dissipation), so once it is below a level,
+    body 1's catch energy stays below that level for good.
+
+    Without a suspension (k2 = 0) body 2 is not held and the pair has no rest in the lab frame;
+    the energy of the relative motion above its rest is used instead,
+    ``m dd^2 / 2 + (2/5) c d_+^2.5 - m g d + (3/5) m g d*`` with m the effective mass and
+    ``d* = (m g / c)^(2/3)`` (non-increasing without shaker force as well; it does not bound
+    body 1's absolute kinetic energy, which grows as the unheld pair falls).
+    """
+    x1, v1, x2, v2 = (np.asarray(a, dtype=float) for a in (x1, v1, x2, v2))
+    if k2 > 0:
+        xr = m1 * g / k2
+        return catch_energy(x1, v1, x2, m1, c, g) + 0.5 * m2 * v2**2 + 0.5 * k2 * (x2 - xr) ** 2
+    m = m1 * m2 / (m1 + m2)
+    d = x1 - x2
+    ds = (m * g / c) ** (2.0 / 3.0)
+    return 0.5 * m * (v1 - v2) ** 2 + elastic_energy(d, c) - m * g * d + 0.6 * m * g * ds

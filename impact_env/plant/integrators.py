@@ -35,6 +35,7 @@ from impact_env.plant.layout import (
     M1,
     M2,
     OK,
+    RK4,
     STEP_UNDERFLOW,
     SYMPLECTIC_EULER,
     V1,
@@ -51,12 +52,19 @@ from impact_env.plant.layout import (
 EVENT_TOL = 1e-13  # event bracket width, relative to the step being split
 MAX_EVENT_ITER = 200
 DIVERGENCE_BOUND = 1e9  # |x1|+|x2|+|v1|+|v2| beyond this (or NaN) is reported as divergence
+MAX_EVENTS_PER_STEP = 16
+# graded zone after a touch on a damped pad (RK4): GRADE_STEPS steps taken in GRADE_PIECES pieces
+# ending at Z (k/GRADE_PIECES)^GRADE_POWER; a power >= p / (1 + 0.25) = 3.2 (p = 4, the d^0.25
+# singularity) is what a graded mesh needs to recover RK4's order (see _advance_fixed)
+GRADE_STEPS = 2
+GRADE_PIECES = 16
+GRADE_POWER = 4.0
 
 
 @jit(inline="always")
-def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, m1, m2, c, b, g, k2, c2):
+def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """One step of a fixed-step method; returns the new (x1, v1, x2, v2, W_ext, W_diss)."""
-    k1 = deriv(x1, v1, x2, v2, mode, f2, m1, m2, c, b, g, k2, c2)
+    k1 = deriv(x1, v1, x2, v2, mode, f2, im1, im2, c, b, g, k2, c2)
     # W_ext' = -f2 v2 with f2 constant over the step, so every method's W_ext update is
     # exactly -f2 times its x2 update: computed that way, off the stages' dependency chain
     if method == EULER:
@@ -70,11 +78,11 @@ def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, m1, m2, c, b, g, k2
         return x1 + h * nv1, nv1, nx2, nv2, we - f2 * (nx2 - x2), wd + h * k1[5]
     hh = 0.5 * h
     k2_ = deriv(x1 + hh * k1[0], v1 + hh * k1[1], x2 + hh * k1[2], v2 + hh * k1[3],
-                mode, f2, m1, m2, c, b, g, k2, c2)
+                mode, f2, im1, im2, c, b, g, k2, c2)
     k3 = deriv(x1 + hh * k2_[0], v1 + hh * k2_[1], x2 + hh * k2_[2], v2 + hh * k2_[3],
-               mode, f2, m1, m2, c, b, g, k2, c2)
+               mode, f2, im1, im2, c, b, g, k2, c2)
     k4 = deriv(x1 + h * k3[0], v1 + h * k3[1], x2 + h * k3[2], v2 + h * k3[3],
-               mode, f2, m1, m2, c, b, g, k2, c2)
+               mode, f2, im1, im2, c, b, g, k2, c2)
     h6 = h / 6.0
     nx2 = x2 + h6 * (k1[2] + 2.0 * (k2_[2] + k3[2]) + k4[2])
     return (x1 + h6 * (k1[0] + 2.0 * (k2_[0] + k3[0]) + k4[0]),
@@ -94,14 +102,41 @@ A61, A62, A63, A64, A65 = 9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0
 B1, B3, B4, B5, B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
 E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0,
                           22.0 / 525.0, -1.0 / 40.0)
+# its continuous extension (4th order, Dormand & Prince; the coefficients of scipy's RK45):
+# y(t + theta h) = y + h sum_s k_s (P[s,0] theta + P[s,1] theta^2 + P[s,2] theta^3 + P[s,3] theta^4)
+DENSE_P = np.array([
+    [1.0, -8048581381.0 / 2820520608.0, 8663915743.0 / 2820520608.0, -12715105075.0 / 11282082432.0],
+    [0.0, 0.0, 0.0, 0.0],
+    [0.0, 131558114200.0 / 32700410799.0, -68118460800.0 / 10900136933.0, 87487479700.0 / 32700410799.0],
+    [0.0, -1754552775.0 / 470086768.0, 14199869525.0 / 1410260304.0, -10690763975.0 / 1880347072.0],
+    [0.0, 127303824393.0 / 49829197408.0, -318862633887.0 / 49829197408.0,
+     701980252875.0 / 199316789632.0],
+    [0.0, -282668133.0 / 205662961.0, 2019193451.0 / 616988883.0, -1453857185.0 / 822651844.0],
+    [0.0, 40617522.0 / 29380423.0, -110615467.0 / 29380423.0, 69997945.0 / 29380423.0],
+])
+
+
+@jit(inline="always")
+def _dense(y, k, h, theta, out):
+    """Dormand-Prince's continuous extension: the state at ``theta`` (0..1) of the step of
+    length h from y whose stages are k; into ``out``."""
+    t2 = theta * theta
+    t3 = t2 * theta
+    t4 = t3 * theta
+    for j in range(6):
+        acc = 0.0
+        for s in range(7):
+            acc += k[s, j] * (DENSE_P[s, 0] * theta + DENSE_P[s, 1] * t2 + DENSE_P[s, 2] * t3
+                              + DENSE_P[s, 3] * t4)
+        out[j] = y[j] + h * acc
 
 
 @jit
-def _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2):
-    """One Dormand-Prince step from y; writes the 5th-order result to ``out`` and the
-    embedded error estimate to ``err`` (both length 6)."""
-    k = np.empty((7, 6))
-    r = deriv(y[0], y[1], y[2], y[3], mode, f2, m1, m2, c, b, g, k2, c2)
+def _dopri_step(y, out, err, k, mode, f2, h, im1, im2, c, b, g, k2, c2):
+    """One Dormand-Prince step from y; writes the 5th-order result to ``out``, the embedded
+    error estimate to ``err`` (both length 6) and the seven stages (the last one at ``out``)
+    to ``k`` (float64[7, 6]), which the dense output (:func:`_dense`) needs."""
+    r = deriv(y[0], y[1], y[2], y[3], mode, f2, im1, im2, c, b, g, k2, c2)
     for j in range(6):
         k[0, j] = r[j]
     t = np.empty(6)
@@ -123,7 +158,7 @@ def _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2):
         if s == 6:
             for j in range(6):
                 out[j] = t[j]
-        r = deriv(t[0], t[1], t[2], t[3], mode, f2, m1, m2, c, b, g, k2, c2)
+        r = deriv(t[0], t[1], t[2], t[3], mode, f2, im1, im2, c, b, g, k2, c2)
         for j in range(6):
             k[s, j] = r[j]
     for j in range(6):
@@ -132,13 +167,13 @@ def _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2):
 
 
 @jit
-def _trial(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
+def _trial(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """Take one step of length h from y into out (no error control)."""
     if method == DOPRI5:
-        _dopri_step(y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2)
+        _dopri_step(y, out, scratch, np.empty((7, 6)), mode, f2, h, im1, im2, c, b, g, k2, c2)
     else:
         r = _fixed_step(method, y[0], y[1], y[2], y[3], y[4], y[5], mode, f2, h,
-                        m1, m2, c, b, g, k2, c2)
+                        im1, im2, c, b, g, k2, c2)
         for j in range(6):
             out[j] = r[j]
 
@@ -149,13 +184,13 @@ def _crossed(mode, gv):
 
 
 @jit
-def _locate(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
+def _locate(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """Find the step length in (0, h] that lands on the switch; writes the state at the far
     side of the final bracket into ``out`` and returns that step length."""
     lo = 0.0
     glo = event_value(y[0], y[1], y[2], y[3], c, b)
     hi = h
-    _trial(method, y, out, scratch, mode, f2, hi, m1, m2, c, b, g, k2, c2)
+    _trial(method, y, out, scratch, mode, f2, hi, im1, im2, c, b, g, k2, c2)
     ghi = event_value(out[0], out[1], out[2], out[3], c, b)
     trial = np.empty(6)
     side = 0
@@ -171,7 +206,7 @@ def _locate(method, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2):
         w = hi - lo
         if not (lo + 0.01 * w < hm < hi - 0.01 * w):
             hm = min(max(hm, lo + 0.01 * w), hi - 0.01 * w)
-        _trial(method, y, trial, scratch, mode, f2, hm, m1, m2, c, b, g, k2, c2)
+        _trial(method, y, trial, scratch, mode, f2, hm, im1, im2, c, b, g, k2, c2)
         gm = event_value(trial[0], trial[1], trial[2], trial[3], c, b)
         if _crossed(mode, gm) or gm == 0.0:
             hi = hm
@@ -216,63 +251,115 @@ def _force_now(y, mode, p):
 
 
 @jit(inline="always")
-def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
+def _graded_piece(tau, zone_len, rem):
+    """Length of the next piece of the graded zone after a touch: from ``tau`` (s since the
+    touch) to the next node ``zone_len (k / GRADE_PIECES)^GRADE_POWER`` above it, at most ``rem``."""
+    k = int(GRADE_PIECES * (tau / zone_len) ** (1.0 / GRADE_POWER))
+    node = zone_len
+    while k <= GRADE_PIECES:
+        node = zone_len * (k / GRADE_PIECES) ** GRADE_POWER
+        if node - tau > 1e-9 * zone_len:  # (tau is a difference of times: skip a node it rounds onto)
+            break
+        k += 1
+    piece = node - tau
+    if not (piece > 0.0) or piece > rem:
+        piece = rem
+    return piece
+
+
+@jit(inline="always")
+def _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak):
     """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
-    at a contact switch."""
-    m1 = 1.0 / p[M1]  # inverse masses from here on
-    m2 = 1.0 / p[M2]
+    at a contact switch and in the graded zone after a touch.
+
+    Graded zone (RK4 on a damped pad): the force's ``d^0.25`` factor is not smooth at the
+    touch, which limits RK4 to order 1.25 in dt there, whatever the event location does.  The
+    span of ``GRADE_STEPS`` steps after each located touch is therefore taken in pieces that
+    end at the nodes ``Z (k / GRADE_PIECES)^GRADE_POWER`` (Z = GRADE_STEPS dt, time from the
+    touch; a mesh graded towards the singular point), crossing grid points as needed: the grid
+    itself is kept.  ``hstate[0]`` carries the time left in the zone from one call to the next.
+    """
+    im1 = 1.0 / p[M1]  # inverse masses (1/kg)
+    im2 = 1.0 / p[M2]
     c = p[C]
     b = p[B]
     g = p[G]
     k2 = p[K2]
     c2 = p[C2]
+    grade = method == RK4 and b != 0.0 and GRADE_STEPS > 0
+    zone_len = GRADE_STEPS * dt
+    zone = hstate[0] if grade and mode == CONTACT else 0.0  # time left in the graded zone, s
     x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
     pk = peak[0]
     n = int(round(span / dt))
     for i in range(n):
-        r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, m1, m2, c, b, g, k2, c2)
         fnew = -1.0  # contact force at the new state, when it is computed for the crossing test
-        if mode != AUTO:
-            # the crossing test needs only the sign of event_value: for d > 0 that is the sign
-            # of the damped force f = c d^0.25 q, which the peak tracking needs anyway
-            side = r[0] - r[2]
-            if side > 0.0:
-                sd = sqrt(side)
-                fnew = c * side * sd
-                if b != 0.0:
-                    fnew += b * sqrt(sd) * (r[1] - r[3])
-                if fnew <= 0.0:
-                    side = fnew
+        side = 0.0
+        if zone <= 0.0:
+            r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, im1, im2, c, b, g, k2, c2)
+            if mode != AUTO:
+                # the crossing test needs only the sign of event_value: for d > 0 that is the
+                # sign of the damped force f = c d^0.25 q, which the peak tracking needs anyway
+                side = r[0] - r[2]
+                if side > 0.0:
+                    sd = sqrt(side)
+                    fnew = c * side * sd
+                    if b != 0.0:
+                        fnew += b * sqrt(sd) * (r[1] - r[3])
+                    if fnew <= 0.0:
+                        side = fnew
+        else:
+            r = (x1, v1, x2, v2, we, wd)
         if mode == AUTO:
             if (x1 - x2 > 0.0) != (r[0] - r[2] > 0.0):
                 y[0], y[1], y[2], y[3], y[4], y[5] = r
                 _log_event(ev, evn, t0 + (i + 1) * dt, 1.0 if r[0] - r[2] > 0.0 else -1.0, y)
             x1, v1, x2, v2, we, wd = r
-        elif not _crossed(mode, side):
+        elif zone <= 0.0 and not _crossed(mode, side):
             x1, v1, x2, v2, we, wd = r
         else:
+            # a switch within this step, or a step in the graded zone: piece by piece
             fnew = -1.0
             y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
             out = np.empty(6)  # allocated only here: a switch is rare, a step is not
             scratch = np.empty(6)
             rem = dt
             tt = t0 + i * dt
-            for _ev in range(16):
-                hs = _locate(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
-                for j in range(6):
-                    y[j] = out[j]
-                tt += hs
-                rem -= hs
-                mode = FREE if mode == CONTACT else CONTACT
-                _log_event(ev, evn, tt, 1.0 if mode == CONTACT else -1.0, y)
-                if rem <= EVENT_TOL * dt:
-                    break
-                _trial(method, y, out, scratch, mode, f2, rem, m1, m2, c, b, g, k2, c2)
-                if not _crossed(mode, event_value(out[0], out[1], out[2], out[3], c, b)):
+            have = zone <= 0.0  # the whole step is already taken (in r) and crosses
+            if have:
+                out[0], out[1], out[2], out[3], out[4], out[5] = r
+            n_ev = 0
+            for _piece in range((MAX_EVENTS_PER_STEP + 1) * (GRADE_PIECES + 2)):
+                piece = rem
+                if zone > 0.0:
+                    piece = _graded_piece(zone_len - zone, zone_len, rem)
+                if not have:
+                    _trial(method, y, out, scratch, mode, f2, piece, im1, im2, c, b, g, k2, c2)
+                have = False
+                if _crossed(mode, event_value(out[0], out[1], out[2], out[3], c, b)):
+                    if n_ev == MAX_EVENTS_PER_STEP:
+                        break
+                    hs = _locate(method, y, out, scratch, mode, f2, piece, im1, im2, c, b, g, k2, c2)
                     for j in range(6):
                         y[j] = out[j]
+                    tt += hs
+                    rem -= hs
+                    mode = FREE if mode == CONTACT else CONTACT
+                    _log_event(ev, evn, tt, 1.0 if mode == CONTACT else -1.0, y)
+                    zone = zone_len if grade and mode == CONTACT else 0.0
+                    n_ev += 1
+                else:
+                    for j in range(6):
+                        y[j] = out[j]
+                    rem -= piece
+                    if zone > 0.0:
+                        zone -= piece
+                        if zone <= EVENT_TOL * dt:
+                            zone = 0.0
+                if rem <= EVENT_TOL * dt:
                     break
-            else:
+            if rem > EVENT_TOL * dt:
+                hstate[0] = zone
                 peak[0] = pk
                 return EVENT_OVERFLOW, mode
             x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
@@ -283,6 +370,7 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
             s = 0.0
         if not (s < DIVERGENCE_BOUND):
             y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+            hstate[0] = zone
             peak[0] = pk
             return DIVERGED, mode
         if mode != FREE and x1 > x2:
@@ -293,6 +381,7 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak):
             if f > pk:
                 pk = f
     y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+    hstate[0] = zone
     peak[0] = pk
     return OK, mode
 
@@ -312,9 +401,27 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     Returns ``(status, mode)``.
     """
     if method != DOPRI5:
-        return _advance_fixed(y, mode, f2, t0, span, p, method, dt, ev, evn, peak)
-    m1 = 1.0 / p[M1]  # inverse masses from here on
-    m2 = 1.0 / p[M2]
+        return _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak)
+    status, mode, _n = dopri_run(y, mode, f2, t0, span, p, rtol, scale, hstate, ev, evn, peak, 0,
+                                 np.empty((0, 6)), np.empty(0, dtype=np.int64), np.empty(0), 0)
+    return status, mode
+
+
+@jit
+def dopri_run(y, mode, f2, t0, span, p, rtol, scale, hstate, ev, evn, peak, n_rec, out_y, out_mode,
+              out_peak, k0):
+    """Adaptive Dormand-Prince 5(4) over ``span`` seconds from t0 under the constant force f2,
+    optionally recording: with ``n_rec > 0`` the state at ``t0 + r span / n_rec`` (r = 1 ..
+    n_rec) goes to ``out_y[k0 + r - 1]`` (with the mode and the peak contact force since the
+    previous record), taken from the continuous extension of the step that contains it.  The
+    steps are then those of an unrecorded run: the records do not cut them, so the recorded
+    states do not depend on the record rate (only the span's end and the contact events end a
+    step early).  ``n_rec = 0``: no records (:func:`advance`).
+
+    Returns ``(status, mode, records written)``.
+    """
+    im1 = 1.0 / p[M1]  # inverse masses (1/kg)
+    im2 = 1.0 / p[M2]
     c = p[C]
     b = p[B]
     g = p[G]
@@ -323,9 +430,12 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     status = OK
     out = np.empty(6)
     scratch = np.empty(6)
-
-    # adaptive Dormand-Prince 5(4)
+    kst = np.empty((7, 6))
+    rec = np.empty(6)
     err = np.empty(6)
+    rec_period = span / n_rec if n_rec > 0 else span
+    r = 0  # records written
+    pk = 0.0  # peak contact force since the last record
     t = 0.0
     h = hstate[0]
     if not (h > 0.0):
@@ -334,7 +444,7 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
     while span - t > 1e-12 * span:
         if h > span - t:
             h = span - t
-        _dopri_step(y, out, err, mode, f2, h, m1, m2, c, b, g, k2, c2)
+        _dopri_step(y, out, err, kst, mode, f2, h, im1, im2, c, b, g, k2, c2)
         en = 0.0
         for j in range(6):
             sc = rtol * scale[j] + rtol * max(abs(y[j]), abs(out[j]))
@@ -344,31 +454,65 @@ def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, 
             en = 1e10
         if en <= 1.0:
             gv = event_value(out[0], out[1], out[2], out[3], c, b)
+            step = h
+            new_mode = mode
             if mode != AUTO and _crossed(mode, gv):
-                hs = _locate(DOPRI5, y, out, scratch, mode, f2, h, m1, m2, c, b, g, k2, c2)
+                step = _locate(DOPRI5, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2)
+                new_mode = FREE if mode == CONTACT else CONTACT
+                if n_rec > 0:  # the stages of the step that ends on the switch, for the records
+                    _dopri_step(y, out, err, kst, mode, f2, step, im1, im2, c, b, g, k2, c2)
+            elif mode == AUTO and ((y[X1] - y[X2] > 0.0) != (out[X1] - out[X2] > 0.0)):
+                _log_event(ev, evn, t0 + t + h, 1.0 if out[X1] - out[X2] > 0.0 else -1.0, out)
+            t_new = t + step
+            # records inside this step, from its continuous extension (the last at its end)
+            while r < n_rec:
+                tr = (r + 1) * rec_period
+                if tr > t_new + 1e-12 * span and not (r == n_rec - 1 and span - t_new <= 1e-12 * span):
+                    break
+                if tr >= t_new - 1e-12 * span:
+                    for j in range(6):
+                        rec[j] = out[j]
+                else:
+                    _dense(y, kst, step, (tr - t) / step, rec)
+                fr, _fe = contact_force(rec[X1] - rec[X2], rec[V1] - rec[V2], mode, c, b)
                 for j in range(6):
-                    y[j] = out[j]
-                t += hs
-                mode = FREE if mode == CONTACT else CONTACT
+                    out_y[k0 + r, j] = rec[j]
+                out_mode[k0 + r] = mode
+                out_peak[k0 + r] = max(pk, fr)
+                pk = fr
+                r += 1
+            for j in range(6):
+                y[j] = out[j]
+            t = t_new
+            if new_mode != mode:
+                mode = new_mode
                 _log_event(ev, evn, t0 + t, 1.0 if mode == CONTACT else -1.0, y)
-            else:
-                if mode == AUTO and ((y[X1] - y[X2] > 0.0) != (out[X1] - out[X2] > 0.0)):
-                    _log_event(ev, evn, t0 + t + h, 1.0 if out[X1] - out[X2] > 0.0 else -1.0, out)
-                for j in range(6):
-                    y[j] = out[j]
-                t += h
             if _diverged(y):
                 hstate[0] = h
-                return DIVERGED, mode
+                return DIVERGED, mode, _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec)
             f = _force_now(y, mode, p)
             if f > peak[0]:
                 peak[0] = f
+            if f > pk:
+                pk = f
             fac = 5.0 if en < 1e-4 else min(5.0, 0.9 * en ** -0.2)
             h *= fac
         else:
             h *= max(0.1, 0.9 * en ** -0.25)
             if h < hmin:
                 hstate[0] = h
-                return STEP_UNDERFLOW, mode
+                return STEP_UNDERFLOW, mode, _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec)
     hstate[0] = h
-    return status, mode
+    return status, mode, r
+
+
+@jit
+def _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec):
+    """On failure, the state reached goes into the next record; returns the records written."""
+    if r < n_rec:
+        for j in range(6):
+            out_y[k0 + r, j] = y[j]
+        out_mode[k0 + r] = mode
+        out_peak[k0 + r] = 0.0
+        return r + 1
+    return r

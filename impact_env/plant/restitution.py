@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from math import sqrt
+from typing import NamedTuple
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -25,12 +26,23 @@ from scipy.optimize import brentq
 _S0 = 1e-12  # start just after the touch: s ~ tau there, so s0 = tau0 = 1e-12
 
 
-def restitution_of_zeta(zeta: float) -> float:
-    """Coefficient of restitution delivered by the scaled Tsuji collision with damping zeta."""
+class ScaledCollision(NamedTuple):
+    """The scaled Tsuji collision for one zeta (``s = d / D``, ``tau = t v / D``,
+    ``D = (m v^2 / c)^(2/5)``): restitution, deepest scaled penetration, scaled contact time."""
+
+    restitution: float
+    s_max: float
+    tau_contact: float
+
+
+@lru_cache(maxsize=256)
+def scaled_collision(zeta: float) -> ScaledCollision:
+    """Solve the scaled collision with damping zeta (``solve_ivp`` DOP853, rtol 1e-12): the
+    restitution, the deepest penetration ``s_max`` (a penetration ``D s_max``, m) and the
+    contact time ``tau_contact`` (``(D / v) tau_contact``, s) up to the separation (the damped
+    force falling to zero, or the touch)."""
     if zeta < 0.0 or not np.isfinite(zeta):
         raise ValueError(f"zeta must be a finite number >= 0, got {zeta!r}")
-    if zeta == 0.0:
-        return 1.0
 
     def rhs(_t, y):
         s = max(y[0], 0.0)
@@ -48,11 +60,24 @@ def restitution_of_zeta(zeta: float) -> float:
 
     touch.terminal = True
     touch.direction = -1
-    sol = solve_ivp(rhs, (0.0, 50.0), [_S0, 1.0], method="DOP853", rtol=1e-12, atol=1e-15,
-                    events=(force_zero, touch))
+
+    def deepest(_t, y):
+        return y[1]
+
+    deepest.direction = -1
+    events = (touch, deepest) if zeta == 0.0 else (force_zero, touch, deepest)
+    sol = solve_ivp(rhs, (0.0, 50.0), [_S0, 1.0], method="DOP853", rtol=1e-12, atol=1e-15, events=events)
     if sol.status != 1:
         raise RuntimeError(f"scaled collision with zeta={zeta} did not end by tau=50")
-    return float(-sol.y[1, -1])
+    deep = sol.y_events[-1]
+    s_max = float(deep[0][0]) if len(deep) else float(np.max(sol.y[0]))
+    e = 1.0 if zeta == 0.0 else float(-sol.y[1, -1])
+    return ScaledCollision(e, s_max, float(sol.t[-1]))
+
+
+def restitution_of_zeta(zeta: float) -> float:
+    """Coefficient of restitution delivered by the scaled Tsuji collision with damping zeta."""
+    return scaled_collision(float(zeta)).restitution
 
 
 @lru_cache(maxsize=256)

@@ -38,7 +38,7 @@ class EffectsConfig:
             check_choice(f"effects.active[{i}]", name, EFFECTS)
         if len(set(self.active)) != len(self.active):
             raise ConfigError(f"effects.active lists an effect twice: {list(self.active)}")
-        check_range("effects.command_scale", self.command_scale, "N", 0.0, None, lo_open=True)
+        check_range("effects.command_scale", self.command_scale, "N", 0.0, 1e7, lo_open=True)
         if "detector" in self.active and "sensors" not in self.active:
             raise ConfigError("effects.active: 'detector' works on sensor readings; add 'sensors'")
 

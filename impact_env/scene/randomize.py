@@ -72,22 +72,22 @@ def _r(unit: str, dist: str, target: str, lo: float, hi: float | None, lo_open: 
 class RandomizeConfig:
     """Per-episode ranges on scene parameters (see :mod:`impact_env.scene.randomize`)."""
 
-    m1: tuple[float, ...] = _r("kg", UNIFORM, "plant.m1", 0.0, None, True, "")
+    m1: tuple[float, ...] = _r("kg", UNIFORM, "plant.m1", 1e-9, 1e6, False, "")
     drop_height: tuple[float, ...] = _r("m", UNIFORM, "initial.drop_height", 0.0, 100.0, False, "")
     impact_speed: tuple[float, ...] = _r("m/s", UNIFORM, "initial.impact_speed", 0.0, 1000.0, False, "")
-    c: tuple[float, ...] = _r("N/m^1.5", LOG, "plant.c", 0.0, None, True, "")
-    restitution: tuple[float, ...] = _r("", UNIFORM, "plant.restitution", 0.0, 1.0, True, "")
-    suspension_stiffness: tuple[float, ...] = _r("N/m", UNIFORM, "plant.suspension_stiffness", 0.0, None,
+    c: tuple[float, ...] = _r("N/m^1.5", LOG, "plant.c", 1.0, 1e15, False, "")
+    restitution: tuple[float, ...] = _r("", UNIFORM, "plant.restitution", 1e-3, 1.0, False, "")
+    suspension_stiffness: tuple[float, ...] = _r("N/m", UNIFORM, "plant.suspension_stiffness", 0.0, 1e12,
                                                  False, "")
-    suspension_damping: tuple[float, ...] = _r("N s/m", UNIFORM, "plant.suspension_damping", 0.0, None,
+    suspension_damping: tuple[float, ...] = _r("N s/m", UNIFORM, "plant.suspension_damping", 0.0, 1e9,
                                                False, "")
     noise_scale: tuple[float, ...] = _r("", LOG, "every effects.sensors.*.noise_std", 0.0, 1e6, True,
                                         "Factor on the scene's noise levels")
     command_gain: tuple[float, ...] = _r("", UNIFORM, "effects.command_scale", 0.0, 100.0, True,
                                          "Factor on the scene's command scale (amplifier gain error)")
-    shaker_lowpass_hz: tuple[float, ...] = _r("Hz", LOG, "effects.shaker.lowpass_hz", 0.0, None, True, "")
-    shaker_coil_inductance: tuple[float, ...] = _r("H", LOG, "effects.shaker.coil_inductance", 0.0, None,
-                                                   True, "")
+    shaker_lowpass_hz: tuple[float, ...] = _r("Hz", LOG, "effects.shaker.lowpass_hz", 1e-3, 1e7, False, "")
+    shaker_coil_inductance: tuple[float, ...] = _r("H", LOG, "effects.shaker.coil_inductance", 1e-9, 10.0,
+                                                   False, "")
     sensor_delay_s: tuple[float, ...] = _r("s", SAMPLES, "effects.delay.sensor_s", 0.0, 10.0, False,
                                            "Ends must be whole control periods")
     actuator_delay_s: tuple[float, ...] = _r("s", SAMPLES, "effects.delay.actuator_s", 0.0, 10.0, False,
@@ -205,7 +205,8 @@ def check_scene_ranges(scene) -> None:
             raise ConfigError(f"randomize.{name} varies the coil model, but effects.shaker.model = "
                               f"{fx.shaker.model!r}")
     if "drop_height" in names and "impact_speed" in names:
-        raise ConfigError("randomize: give a range on drop_height or on impact_speed, not both")
+        raise ConfigError("randomize.drop_height and randomize.impact_speed are both ranged: give a range on "
+                          "one of them (clear the other with [])")
     if "drop_height" in names and scene.initial.drop_height is None:
         raise ConfigError("randomize.drop_height: the scene is given by initial.impact_speed; "
                           "range randomize.impact_speed instead (or set initial.drop_height)")

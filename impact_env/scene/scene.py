@@ -30,6 +30,8 @@ from impact_env.scene.effects import EffectsConfig
 from impact_env.scene.randomize import RandomizeConfig, check_scene_ranges, overrides_for
 
 METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
+DEFAULT_DROP_HEIGHT = 0.05  # m (notes' start value: about 1 m/s at the touch)
+MAX_STEPS_PER_PERIOD = 1e6  # integration steps in one control period (one env step)
 
 
 _f = doc_field
@@ -42,20 +44,23 @@ class PlantConfig:
     m1: float = _f(0.1, "kg", "falling body (thesis gives only m2 = 10 m1; notes' start value)")
     m2: float = _f(1.0, "kg", "body 2: shaker armature + pad + fixture (thesis sec 4.4: 10 m1)")
     c: float = _f(2.0e6, "N/m^1.5", "Hertz contact stiffness of the pad (thesis sec 4.1, eq 4.1-4.2)")
-    restitution: float = _f(1.0, "", "delivered coefficient of restitution of the pad, in (0, 1]; "
+    restitution: float = _f(1.0, "", "delivered coefficient of restitution of the pad, 0.001 to 1; "
                             "1 = elastic Hertz")
     gravity: float = _f(9.81, "m/s^2", "gravity on body 1 (body 2's weight is carried by its suspension)")
     suspension_stiffness: float = _f(0.0, "N/m", "spring pulling body 2 back to x2 = 0")
     suspension_damping: float = _f(0.0, "N s/m", "damper on body 2's motion")
 
     def __post_init__(self):
-        check_range("plant.m1", self.m1, "kg", 0.0, None, lo_open=True)
-        check_range("plant.m2", self.m2, "kg", 0.0, None, lo_open=True)
-        check_range("plant.c", self.c, "N/m^1.5", 0.0, None, lo_open=True)
-        check_range("plant.restitution", self.restitution, "", 0.0, 1.0, lo_open=True)
-        check_range("plant.gravity", self.gravity, "m/s^2", 0.0)
-        check_range("plant.suspension_stiffness", self.suspension_stiffness, "N/m", 0.0)
-        check_range("plant.suspension_damping", self.suspension_damping, "N s/m", 0.0)
+        # bounds: a nanogram to a thousand tonnes, a pad from 1 N/m^1.5 to steel on steel
+        # (about 1e11) with room, a pad deader than e = 0.001 (its damping solve needs zeta = 35)
+        # is a plastic stop; beyond these the plant's numbers overflow before anything is learnt
+        check_range("plant.m1", self.m1, "kg", 1e-9, 1e6)
+        check_range("plant.m2", self.m2, "kg", 1e-9, 1e6)
+        check_range("plant.c", self.c, "N/m^1.5", 1.0, 1e15)
+        check_range("plant.restitution", self.restitution, "", 1e-3, 1.0)
+        check_range("plant.gravity", self.gravity, "m/s^2", 0.0, 1e3)
+        check_range("plant.suspension_stiffness", self.suspension_stiffness, "N/m", 0.0, 1e12)
+        check_range("plant.suspension_damping", self.suspension_damping, "N s/m", 0.0, 1e9)
 
     @property
     def effective_mass(self) -> float:
@@ -77,14 +82,19 @@ class InitialConfig:
     (or at the release, if the fall is shorter), with body 2 at rest at x2 = 0.
     """
 
-    drop_height: float | None = _f(0.05, "m",
-                                   "gap between the facing surfaces at release (notes' start value)")
+    drop_height: float | None = _f(None, "m", "gap between the facing surfaces at release; 0.05 (notes' "
+                                   "start value) when impact_speed is not given either")
     impact_speed: float | None = _f(None, "m/s", "speed of body 1 at the first touch, instead of drop_height")
     pre_contact_time: float = _f(1.0e-3, "s", "simulated time before the first touch")
 
     def __post_init__(self):
-        if (self.drop_height is None) == (self.impact_speed is None):
-            raise ConfigError("initial: give exactly one of drop_height (m) or impact_speed (m/s)")
+        if self.drop_height is None and self.impact_speed is None:
+            # the default drop; set here rather than as the field's default so that a scene given
+            # by impact_speed alone (as its TOML is written) does not also get a drop height
+            object.__setattr__(self, "drop_height", DEFAULT_DROP_HEIGHT)
+        if self.drop_height is not None and self.impact_speed is not None:
+            raise ConfigError("initial: give exactly one of drop_height (m) or impact_speed (m/s), "
+                              f"got both ({self.drop_height!r} m and {self.impact_speed!r} m/s)")
         if self.drop_height is not None:
             check_range("initial.drop_height", self.drop_height, "m", 0.0, 100.0)
         if self.impact_speed is not None:
@@ -102,11 +112,15 @@ class IntegratorConfig:
     dt: float = _f(1.0e-6, "s", "step of the fixed-step methods")
     rtol: float = _f(1.0e-9, "", "relative tolerance of dopri5")
     event_location: bool = _f(True, "", "locate contact onset/separation instead of stepping across them")
+    min_steps_per_contact: float = _f(8.0, "", "fixed-step methods: refuse a dt that takes the shortest "
+                                      "contact in fewer steps (8: RK4's restitution within about 1e-3, "
+                                      "measured by scripts/steps_per_contact.py); 0 = no check")
 
     def __post_init__(self):
         check_choice("integrator.method", self.method, METHODS)
-        check_range("integrator.dt", self.dt, "s", 0.0, 1e-2, lo_open=True)
+        check_range("integrator.dt", self.dt, "s", 1e-10, 1e-2)
         check_range("integrator.rtol", self.rtol, "", 1e-14, 1e-2)
+        check_range("integrator.min_steps_per_contact", self.min_steps_per_contact, "", 0.0, 1e6)
 
 
 @dataclass(frozen=True)
@@ -118,7 +132,7 @@ class ControlConfig:
 
     def __post_init__(self):
         if self.rate is not None:
-            check_range("control.rate", self.rate, "Hz", 0.0, 1e8, lo_open=True)
+            check_range("control.rate", self.rate, "Hz", 1.0, 1e8)
 
 
 @dataclass(frozen=True)
@@ -145,6 +159,10 @@ class Scene:
     effects: EffectsConfig = field(default_factory=EffectsConfig)
     randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
 
+    # a drop given by impact speed has no drop height to range over, and the other way round
+    _override_clears_dotted = {"initial.impact_speed": ("randomize.drop_height",),
+                               "initial.drop_height": ("randomize.impact_speed",)}
+
     def __post_init__(self):
         if self.initial.drop_height is not None and self.initial.drop_height > 0 and self.plant.gravity == 0:
             raise ConfigError("initial.drop_height needs plant.gravity > 0; with no gravity give "
@@ -159,6 +177,11 @@ class Scene:
                     f"control.rate = {self.control.rate:g} Hz does not divide the integration grid: "
                     f"the control period {self.control_period:g} s must be a whole multiple of "
                     f"integrator.dt = {self.integrator.dt:g} s")
+            if ratio > MAX_STEPS_PER_PERIOD:
+                raise ConfigError(
+                    f"control.rate = {self.control.rate:g} Hz holds {ratio:.3g} steps of integrator.dt = "
+                    f"{self.integrator.dt:g} s per control period, more than {MAX_STEPS_PER_PERIOD:g}: one "
+                    "env step would run for minutes; raise control.rate or integrator.dt")
         self._check_effects_at_rate()
         check_scene_ranges(self)
 
@@ -167,8 +190,7 @@ class Scene:
         fx = self.effects
         if fx.on("filters"):
             fx.filters.check_rate(rate)
-        if fx.on("sensor_delay") or fx.on("actuator_delay"):
-            fx.delay.samples(rate)
+        fx.delay.samples(rate)  # (always: the Simulator sizes its delay lines from them)
         if fx.on("shaker"):
             fx.shaker.check_coupling(self.plant.m2, rate)
 

@@ -1,0 +1,36 @@
+"""The README's table is written by scripts/readme_table.py from the README's own command."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+import readme_table as RT  # noqa: E402
+
+
+def test_the_readme_command_is_the_main_job():
+    cmd = RT.main_command((ROOT / "README.md").read_text())
+    assert cmd[:3] == ["compare", "--scene", "rig"] and "--out" in cmd
+    assert "--episodes" in cmd and cmd[cmd.index("--episodes") + 1] == "100"
+
+
+def test_the_table_sits_between_the_markers_and_is_replaced_whole():
+    text = "a\n" + RT.START + "\nold\n" + RT.END + "\nb\n"
+    new = RT.between_markers(text, "new table")
+    assert new == "a\n" + RT.START + "\nnew table\n" + RT.END + "\nb\n"
+    assert RT.between_markers(new, "again").count("again") == 1
+
+
+def test_the_readme_holds_a_table_of_the_main_job():
+    """README.md holds the command's table between the markers, one row per policy of the
+    command (the numbers are checked by ``python scripts/readme_table.py --check``, which
+    runs the command: too long for the suite)."""
+    readme = (ROOT / "README.md").read_text()
+    inside = readme.split(RT.START)[1].split(RT.END)[0]
+    cmd = RT.main_command(readme)
+    policies = cmd[cmd.index("--policies") + 1].split(",")
+    assert "catch s: median (IQR)" in inside and "int E ms" in inside
+    rows = [ln.split()[0] for ln in inside.splitlines() if ln.split() and ln.split()[0] in policies]
+    assert rows == policies
