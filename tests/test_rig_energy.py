@@ -12,12 +12,14 @@ from impact_env.rig import energy as EN
 from impact_env.rig import log as L
 from impact_env.rig.safety import CLAMP_RMS
 from impact_env.scene import load_scene
-from impact_env.sim import pipeline_kernel as K
+from impact_env.hardware import stage as K
 from impact_env.sim.drop import simulate
 from impact_env.sim.simulator import Simulator
 
 G = 9.81
-RIG_RAW = {"effects.active": ["shaker", "saturation", "sensors", "detector"]}  # the log holds raw sensors
+# the log holds raw sensors; the nominal drop (0.1 kg from 50 mm), whose flight count the bounds were set for
+RIG_RAW = {"effects.active": ["shaker", "saturation", "sensors", "detector"],
+           "randomize.m1": [], "randomize.drop_height": []}
 
 
 def _flights_from_events(ev):
@@ -78,18 +80,18 @@ def simulated_log(scene, seed=0, policy=None):
     events = []
     for k in range(n):
         act[0] = 0.0 if policy is None else policy(sim)
-        t0, e0 = sim.t[0], int(sim.EVN[0, 0])
+        t0, e0 = sim.t[0], int(sim.hw.EVN[0, 0])
         sim.step(act)
-        for j in range(e0, int(sim.EVN[0, 0])):
-            row = sim.EV[0, j].copy()
+        for j in range(e0, int(sim.hw.EVN[0, 0])):
+            row = sim.hw.EV[0, j].copy()
             row[0] += t0
             events.append(row)
         r, info = sim.readings[0], sim.info[0]
         tl.record(tick=k + 1, t_s=sim.t[0], accelerometer_mps2=r[0], force_N=r[1], potentiometer_m=r[2],
-                  action=act[0], force_demand_N=info[K.I_F_DEMAND], force_applied_N=info[K.I_F_APPLIED],
-                  contact_detected=info[K.I_DETECTED], step=k + 1, x2_m=sim.Y[0, 2], v2_mps=sim.Y[0, 3],
+                  action=act[0], force_demand_N=info[K.INFO_F_DEMAND], force_applied_N=info[K.INFO_F_APPLIED],
+                  contact_detected=sim.detected[0], step=k + 1, x2_m=sim.Y[0, 2], v2_mps=sim.Y[0, 3],
                   catch_energy_J=sim.catch_energy()[0],
-                  peak_contact_N=max(info[K.I_PEAK_FORCE], info[K.I_CONTACT_FORCE]))
+                  peak_contact_N=max(info[K.INFO_PEAK_FORCE], info[K.INFO_CONTACT_FORCE]))
     meta = L.EpisodeMeta(scene_toml=scene.to_toml(), mode="onboard", hold_ticks=1, seed=seed,
                          control_rate_hz=scene.control_rate)
     return tl.to_episode(meta), np.array(events), float(sim.impact_energy[0])
