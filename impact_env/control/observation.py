@@ -34,6 +34,7 @@ import numpy as np
 
 from impact_env.config import ConfigError, check_choice
 from impact_env.effects.sensors import CHANNELS, UNITS
+from impact_env.plant import hertz
 from impact_env.scene import Scene
 
 OBSERVATIONS = ("sensors", "privileged", "both")
@@ -56,8 +57,8 @@ class References:
     def of(cls, scene: Scene) -> References:
         p = scene.plant
         v0 = max(scene.impact_speed, MIN_REF_SPEED)
-        d = (5.0 * p.effective_mass * v0**2 / (4.0 * p.c)) ** 0.4
-        f = p.c * d**1.5
+        d = hertz.max_penetration(p.effective_mass, p.c, v0)
+        f = hertz.peak_force(p.effective_mass, p.c, v0)
         return cls(length=d, speed=v0, force=f, accel=f / p.m2)
 
 

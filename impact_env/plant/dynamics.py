@@ -46,6 +46,14 @@ def contact_force(d, dd, mode, c, b):
     return 0.0, 0.0
 
 
+@jit
+def contact_forces(d, dd, mode, c, b, out):
+    """:func:`contact_force` (its total force, N) of each sample: penetrations ``d`` (m), rates
+    ``dd`` (m/s) and modes ``mode`` (int64) into ``out``."""
+    for i in range(d.shape[0]):
+        out[i] = contact_force(d[i], dd[i], mode[i], c, b)[0]
+
+
 @jit(inline="always")
 def event_value(x1, v1, x2, v2, c, b):
     """Switching function: positive in contact, negative in free flight, continuous.

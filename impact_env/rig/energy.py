@@ -76,8 +76,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-HERTZ_CONTACT_FACTOR = 2.9432  # contact time = factor * d_max / v for an elastic Hertz impact (Johnson)
-
+from impact_env.plant import hertz
 
 def flight_energy(T, m1: float, g: float):
     """Thesis eq 4.5: ``g^2 T^2 m1 / 8`` (J) for flight times T (s)."""
@@ -90,8 +89,7 @@ def hertz_contact_time(v: float, m_eff: float, c: float) -> float:
     ``m_eff`` (kg), stiffness ``c`` (N/m^1.5)."""
     if not v > 0:
         return 0.0
-    d_max = (5.0 * m_eff * v * v / (4.0 * c)) ** 0.4
-    return HERTZ_CONTACT_FACTOR * d_max / v
+    return hertz.contact_time(m_eff, c, v)
 
 
 @dataclass(frozen=True)

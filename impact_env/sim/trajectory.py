@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from impact_env.plant import layout as L
-from impact_env.plant.dynamics import contact_force
+from impact_env.plant.dynamics import contact_forces
 from impact_env.plant.energy import catch_energy, energies, energy_above_rest
 from impact_env.scene import Scene
 
@@ -41,7 +41,6 @@ class Trajectory:
     params: np.ndarray
     wall_time_s: float = 0.0
     n_events_dropped: int = 0
-    extras: dict = field(default_factory=dict)
 
     @property
     def penetration(self) -> np.ndarray:
@@ -170,20 +169,11 @@ def build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_tou
     x1, v1, x2, v2 = (out_y[:, j].copy() for j in range(4))
     d = x1 - x2
     mode = out_mode
-    fc = np.array([contact_force(d[i], v1[i] - v2[i], L.AUTO if mode[i] == L.AUTO else int(mode[i]),
-                                 p[L.C], p[L.B])[0] for i in range(n)]) if n < 50_000 else \
-        _contact_force_vec(d, v1 - v2, mode, p)
+    fc = np.empty(n)
+    contact_forces(d, v1 - v2, mode.astype(np.int64), p[L.C], p[L.B], fc)
     contact = (mode == L.CONTACT) if mode[0] != L.AUTO else (fc > 0)
     k = int(min(evn[0], ev.shape[0]))
     return Trajectory(t=t, x1=x1, v1=v1, x2=x2, v2=v2, contact=contact, contact_force=fc,
                       peak_force=out_peak.copy(), shaker_force=f2_rec, work_shaker=out_y[:, L.W_EXT].copy(),
                       dissipated=out_y[:, L.W_DISS].copy(), events=ev[:k].copy(), t_first_contact=t_touch,
                       scene=scene, params=p, wall_time_s=wall, n_events_dropped=int(evn[0]) - k)
-
-
-def _contact_force_vec(d, dd, mode, p):
-    c, b = p[L.C], p[L.B]
-    dp = np.maximum(d, 0.0)
-    f = c * dp * np.sqrt(dp) + b * np.sqrt(np.sqrt(dp)) * dd
-    f = np.where((d > 0) & (mode != L.FREE), f, 0.0)
-    return np.maximum(f, 0.0)
