@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
+from impact_env.hardware import stage as K
 from impact_env.rig import energy as EN
 from impact_env.rig import log as L
 from impact_env.rig.safety import CLAMP_RMS
 from impact_env.scene import load_scene
-from impact_env.hardware import stage as K
 from impact_env.sim.drop import simulate
 from impact_env.sim.simulator import Simulator
 

@@ -95,6 +95,23 @@ def test_compare_rig_equals_compare_scene(lockstep):
     assert rig["pd-penetration"].metrics["peak_force_N"].max() > 100.0
 
 
+def test_compare_rig_cli_prints_both_tables_the_gap_and_writes_the_outputs(lockstep, tmp_path, capsys):
+    """``impact-env compare --rig ADDR --scene rig --out DIR``: the rig's table, the simulation's
+    on the same seeds, the gap lines (0 for a law run onboard in lock-step) and the files."""
+    from impact_env.cli.main import main
+
+    addr, _ = lockstep
+    rc = main(["compare", "--rig", addr, "--scene", "rig", "--policies", "passive,pd-penetration",
+               "--episodes", "2", "--horizon", "0.03", "--seed", "7", "--workers", "1", "--out", str(tmp_path / "out"),
+               "--no-progress"])
+    text = capsys.readouterr().out
+    assert rc == 0
+    assert "simulation (scene rig)" in text and "sim-to-rig gap" in text
+    gaps = [ln for ln in text.splitlines() if ln.startswith("  pd-penetration:")]
+    assert gaps and "energy_integral_ms +0" in gaps[-1].replace("-0", "+0")
+    assert list((tmp_path / "out").iterdir())
+
+
 @pytest.mark.parametrize("loss, burst, dup, reorder", [(0.01, 1, 0.0, 0.0), (0.10, 1, 0.05, 0.05),
                                                         (0.50, 1, 0.0, 0.0), (0.10, 5, 0.1, 0.1)])
 def test_lossy_link_costs_time_not_the_episode(lockstep, loss, burst, dup, reorder):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from impact_env.cli.args import output_dir, scene_from_args
 from impact_env.eval.compare import compare, format_table, split_policies, summary_json, write_outputs

@@ -78,6 +78,7 @@ import numpy as np
 
 from impact_env.plant import hertz
 
+
 def flight_energy(T, m1: float, g: float):
     """Thesis eq 4.5: ``g^2 T^2 m1 / 8`` (J) for flight times T (s)."""
     T = np.asarray(T, dtype=float)

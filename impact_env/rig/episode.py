@@ -199,7 +199,8 @@ class Episode:
         hw_args = hw.args()
         lat = self.lateness
         ctl.start(drv.read().copy(), drv.truth())
-        pace = np.array([0.0 if self.lockstep else 1.0, float(_now()) + cpt, cpt, nspc])  # tick 0 due in a period
+        # tick 0 due in a period
+        pace = np.array([0.0 if self.lockstep else 1.0, float(_now()) + cpt, cpt, nspc])
         stop = np.zeros(1, dtype=np.int64)
         ticks = lambda m0, m1, action: CT.run_ticks(  # noqa: E731
             m0, m1, self.hold, not self.host, action, self.age, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety,

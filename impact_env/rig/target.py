@@ -68,10 +68,13 @@ class TargetConfig:
     # host may pause between steps, e.g. for a PPO update), so the timeout only frees the target.
     link_timeout_s: float = 0.5
     lockstep_link_timeout_s: float = 60.0
-    resend_s: float = 0.02  # lock-step host mode: the OBSERVATION is sent again after this long without a command
-    rearm_idle_s: float = 1.0  # lock-step: idle time assumed between episodes (the coil cools in the RMS window)
+    # lock-step host mode: the OBSERVATION is sent again after this long without a command
+    resend_s: float = 0.02
+    # lock-step: idle time assumed between episodes (the coil cools in the RMS window)
+    rearm_idle_s: float = 1.0
     poll_every: int = 64  # onboard lock-step: ticks between checks for DISARM
-    python_loop: bool = False  # the per-tick Python loop even for the virtual rig (the loop a physical driver uses)
+    # the per-tick Python loop even for the virtual rig (the loop a physical driver uses)
+    python_loop: bool = False
     seed_offset: int = 0  # added to every ARM's seed (0: the drops ImpactCatch-v0 meets for the same seeds)
 
 
