@@ -18,6 +18,14 @@ from typing import Any
 import tomllib
 
 
+def whole_multiple(ratio: float) -> int:
+    """``round(ratio)`` when ``ratio`` (a period over a step, say) is a whole number >= 1 up to
+    float noise (1e-6 relative: 0.3 s / 0.1 s is 2.9999999999999996 in floats), else 0."""
+    if not ratio >= 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+        return 0
+    return int(round(ratio))
+
+
 def doc_field(default, unit: str, doc: str):
     """A dataclass field whose unit and documentation ``scene show`` prints beside the value."""
     return dataclasses.field(default=default, metadata={"unit": unit, "doc": doc})

@@ -24,6 +24,7 @@ from impact_env.config import (
     doc_field,
     dumps_toml,
     to_dict,
+    whole_multiple,
     with_overrides,
 )
 from impact_env.scene.effects import EffectsConfig
@@ -172,7 +173,7 @@ class Scene:
                               "which has no fixed step to sample at")
         if self.integrator.method != "dopri5" and self.control.rate is not None:
             ratio = self.control_period / self.integrator.dt
-            if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+            if not whole_multiple(ratio):
                 raise ConfigError(
                     f"control.rate = {self.control.rate:g} Hz does not divide the integration grid: "
                     f"the control period {self.control_period:g} s must be a whole multiple of "

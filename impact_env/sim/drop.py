@@ -13,6 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from impact_env.config import whole_multiple
 from impact_env.hardware.arrays import (
     METHOD_CODES,
     check_stability,
@@ -72,16 +73,15 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     rec_period = 1.0 / record_rate
     if controller is None:
         per = rec_period / integ.dt if integ.method != "dopri5" else 1.0
-        if integ.method != "dopri5" and (per < 1 - 1e-9 or abs(per - round(per)) > 1e-6 * per):
+        if integ.method != "dopri5" and not whole_multiple(per):
             raise ValueError(f"record_rate = {record_rate:g} Hz: its period must be a whole number "
                              f"of integration steps (integrator.dt = {integ.dt:g} s)")
         sub = 1
     else:
-        ratio = rec_period / ctrl_period
-        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+        sub = whole_multiple(rec_period / ctrl_period)
+        if not sub:
             raise ValueError(f"record_rate = {record_rate:g} Hz must divide control.rate = "
                              f"{scene.control_rate:g} Hz")
-        sub = int(round(ratio))
     n = int(round(t_end / rec_period))
     if n < 1:
         raise ValueError(f"t_end = {t_end:g} s is shorter than one record period ({rec_period:g} s)")
