@@ -8,9 +8,10 @@ with its host on the same network.
 
 1. Real time, onboard: episodes of the rig's 0.4 s horizon, back to back, until N ticks have
    run (default 10^5: 25 episodes), with the compiled pd-penetration law and with the committed
-   PPO agent (its compiled policy file); from the episodes' logs: tick lateness (start minus deadline) p50 / p99 / p99.9 / max, overruns (ticks
-   that started more than a period late) per 10^5 ticks, and the tick's work (read, front end,
-   policy, safety, apply to the virtual rig, log) p50 / p99.
+   PPO agent (its compiled policy file); from the episodes' logs: tick lateness (start minus
+   deadline) p50 / p99 / p99.9 / max, overruns (ticks that started more than a period late) per
+   10^5 ticks, and the tick's work (read, front end, policy, safety, apply to the virtual rig,
+   log) p50 / p99.
 2. Host mode round trip: the host's time from sending COMMAND n to receiving OBSERVATION n + 1,
    p50 / p99, in lock-step (pure round trip plus one tick of work) and in real time with
    hold_ticks = 10 (1 ms policy period: the host must answer within it).
@@ -108,8 +109,9 @@ def main() -> int:
             print("|---|---|---|---|---|---|---|---|---|")
             for spec in ("pd-penetration", MODEL):
                 r = onboard(rt_addr, spec, ticks)
-                print(f"| {spec} | {r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['p999_us']:.1f} | {r['max_us']:.0f} | "
-                      f"{r['overruns_per_1e5']:.0f} | {r['work_p50_us']:.1f} | {r['work_p99_us']:.1f} | {r['end']} |")
+                print(f"| {spec} | {r['p50_us']:.1f} | {r['p99_us']:.1f} | {r['p999_us']:.1f} | "
+                      f"{r['max_us']:.0f} | {r['overruns_per_1e5']:.0f} | {r['work_p50_us']:.1f} | "
+                      f"{r['work_p99_us']:.1f} | {r['end']} |")
             rt_host = round_trip(rt_addr, steps, 10)
         finally:
             stop(rt)

@@ -44,7 +44,7 @@ def run_pair(env, ref, seed, steps, scale=0.5):
     o2, _ = ref.reset(seed=seed)
     bad = int(not np.array_equal(o1, o2))
     rng = np.random.default_rng(seed)
-    for n in range(1, steps + 1):
+    for n in range(1, steps + 1):  # noqa: B007 (n is returned: the number of steps taken)
         a = rng.uniform(-scale, scale, 1).astype(np.float32)
         o1, r1, te1, tr1, i1 = env.step(a)
         o2, r2, te2, tr2, i2 = ref.step(a)
@@ -84,7 +84,8 @@ def test_compare_rig_equals_compare_scene(lockstep):
     paths = {}
     for k, spec in enumerate(specs[:3]):
         paths[spec] = f"compiled:{export_policy(spec, scene).save(Path(lockstep[1]) / f'p{k}.policy.json')}"
-    sim = compare(scene, [*paths.values(), specs[3]], episodes=2, seed=7, horizon=0.03, workers=1, progress=False)
+    sim = compare(scene, [*paths.values(), specs[3]], episodes=2, seed=7, horizon=0.03, workers=1,
+                  progress=False)
     for spec in specs:
         a, b = rig[spec].metrics, sim[paths.get(spec, spec)].metrics
         for key in a:
@@ -102,8 +103,8 @@ def test_compare_rig_cli_prints_both_tables_the_gap_and_writes_the_outputs(locks
 
     addr, _ = lockstep
     rc = main(["compare", "--rig", addr, "--scene", "rig", "--policies", "passive,pd-penetration",
-               "--episodes", "2", "--horizon", "0.03", "--seed", "7", "--workers", "1", "--out", str(tmp_path / "out"),
-               "--no-progress"])
+               "--episodes", "2", "--horizon", "0.03", "--seed", "7", "--workers", "1",
+               "--out", str(tmp_path / "out"), "--no-progress"])
     text = capsys.readouterr().out
     assert rc == 0
     assert "simulation (scene rig)" in text and "sim-to-rig gap" in text
@@ -134,7 +135,8 @@ def test_lossy_link_costs_time_not_the_episode(lockstep, loss, burst, dup, reord
     assert proxy.counts["dropped"] > 0
     log = _wait_log(logs, ep, env.client.link.session)
     c = log.meta.counters
-    assert c["datagrams_received"] == c["datagrams_accepted"] + sum(v for k, v in c.items() if k.startswith("dropped_"))
+    assert c["datagrams_received"] == (c["datagrams_accepted"]
+                                       + sum(v for k, v in c.items() if k.startswith("dropped_")))
     if dup or reorder:
         assert c["dropped_duplicate"] + c["dropped_out_of_order"] + c["dropped_late"] > 0
 
@@ -159,7 +161,8 @@ def test_fuzzed_datagrams_are_all_counted(lockstep):
     good = __import__("impact_env.rig.protocol", fromlist=["P"])
     rng = np.random.default_rng(0)
     seed_msgs = [good.encode(good.Message(b, session=client.link.session, seq=int(rng.integers(1 << 32))))
-                 for b in (good.Command(1, 0, (0.1,)), good.Heartbeat(), good.Fetch(1, 0, 0, 64), good.Disarm(0))]
+                 for b in (good.Command(1, 0, (0.1,)), good.Heartbeat(), good.Fetch(1, 0, 0, 64),
+                           good.Disarm(0))]
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         for k in range(100_000):

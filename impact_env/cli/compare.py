@@ -29,7 +29,8 @@ def add_parser(sub, scene_args) -> None:
     p.add_argument("--list", action="store_true", help="list the baselines and their parameters, then exit")
     p.add_argument("--rig", metavar="udp://HOST:PORT",
                    help="measure on the rig behind this target (impact-env rig serve): classic and compiled "
-                        "policies onboard, SB3 models in host mode; with --scene too, the simulation beside it")
+                        "policies onboard, SB3 models in host mode; with --scene too, the simulation "
+                        "beside it")
     p.set_defaults(func=cmd_compare)
 
 
@@ -81,8 +82,8 @@ def _compare_rig(args, specs) -> int:
     from impact_env.policy.export import export_policy
     from impact_env.policy.registry import is_model_spec
 
-    rig_scene, rig_runs = rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
-                                      progress=not args.no_progress and not args.json)
+    rig_scene, rig_runs = rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
+                                      horizon=args.horizon, progress=not args.no_progress and not args.json)
     horizon = rig_scene.episode.horizon if args.horizon is None else args.horizon
     sim_runs = None
     if args.scene:
@@ -96,7 +97,8 @@ def _compare_rig(args, specs) -> int:
                     path = export_policy(spec, scene).save(Path(tmp) / f"p{k}.policy.json")
                     sim_specs[spec] = f"compiled:{path}"
             runs = compare(scene, list(sim_specs.values()), episodes=args.episodes, seed=args.seed,
-                           horizon=args.horizon, workers=args.workers, progress=not args.no_progress and not args.json)
+                           horizon=args.horizon, workers=args.workers,
+                           progress=not args.no_progress and not args.json)
         sim_runs = {spec: runs[s] for spec, s in sim_specs.items()}
         for spec, run in sim_runs.items():
             run.spec = spec
@@ -106,7 +108,8 @@ def _compare_rig(args, specs) -> int:
             out["sim"] = summary_json(sim_runs)
         print(json.dumps(out))
     else:
-        print(f"rig at {args.rig} (scene {rig_scene.name}): {args.episodes} episodes of {horizon:g} s, seed {args.seed}")
+        print(f"rig at {args.rig} (scene {rig_scene.name}): {args.episodes} episodes of {horizon:g} s, "
+              f"seed {args.seed}")
         print(format_table(rig_runs, horizon))
         if sim_runs is not None:
             print(f"\nsimulation (scene {scene.name}), the same seeds and policies:")
@@ -114,8 +117,9 @@ def _compare_rig(args, specs) -> int:
             print("\nsim-to-rig gap (rig minus simulation):")
             for spec in specs:
                 a, b = rig_runs[spec].summary, sim_runs[spec].summary
-                gaps = ", ".join(_gap(k, a.get(k), b.get(k)) for k in ("time_to_catch_median_s", "energy_integral_ms",
-                                                                         "exit_speed_ratio", "rms_force_N"))
+                gaps = ", ".join(_gap(k, a.get(k), b.get(k))
+                                 for k in ("time_to_catch_median_s", "energy_integral_ms", "exit_speed_ratio",
+                                           "rms_force_N"))
                 print(f"  {spec}: {gaps}")
     for run in rig_runs.values():
         for f in run.failures[:5]:

@@ -19,8 +19,8 @@ def add_parser(sub, scene_args) -> None:
                    help="advance a tick when its command is there (deterministic; tests), not on the clock")
     s.add_argument("--log-dir", metavar="DIR", help="write one HDF5 log per episode here")
     s.add_argument("--seed", type=int, default=0,
-                   help="added to every episode's seed (default 0: the drops ImpactCatch-v0 meets for the same "
-                        "reset seeds)")
+                   help="added to every episode's seed (default 0: the drops ImpactCatch-v0 meets for the "
+                        "same reset seeds)")
     s.set_defaults(func=cmd_serve)
     g = rsub.add_parser("log", help="summarise an episode log with compare's metrics")
     g.add_argument("file", help="an episode's .h5 file (impact-env rig serve --log-dir)")
@@ -38,8 +38,8 @@ def cmd_serve(args) -> int:
     from impact_env.rig.target import Target, TargetConfig
 
     if not args.virtual:
-        raise ConfigError("rig serve: give --virtual (a simulated rig); a physical rig needs a RigDriver for its "
-                          "DAQ card (docs/rig.md, 'Writing a driver')")
+        raise ConfigError("rig serve: give --virtual (a simulated rig); a physical rig needs a RigDriver "
+                          "for its DAQ card (docs/rig.md, 'Writing a driver')")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port} is out of range: 0 to 65535")
     if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
@@ -55,7 +55,8 @@ def cmd_serve(args) -> int:
           f"{'lock-step' if args.lockstep else 'real time'} at {scene.control_rate:g} Hz)", flush=True)
     target.serve()
     try:
-        print(f"impact-env rig: stopped after {target.counters['episodes']} episodes; shaker at 0 N", flush=True)
+        print(f"impact-env rig: stopped after {target.counters['episodes']} episodes; shaker at 0 N",
+              flush=True)
     except BrokenPipeError:  # whoever started us is gone; the shaker is at 0 N all the same
         pass
     return 0
@@ -90,13 +91,13 @@ def cmd_log(args) -> int:
         print(json.dumps(out))
     else:
         print(f"{args.file}: episode {log.meta.episode} ({log.meta.mode} mode, seed {log.meta.seed}, "
-              f"policy {log.meta.policy or 'from the host'}), {log.n_ticks} ticks, ended by {log.meta.end_reason}; "
-              f"status seen: {', '.join(out['status_bits']) or 'none'}")
+              f"policy {log.meta.policy or 'from the host'}), {log.n_ticks} ticks, "
+              f"ended by {log.meta.end_reason}; status seen: {', '.join(out['status_bits']) or 'none'}")
         keys = ("time_to_catch_s", "residual_energy_10ms", "residual_energy_50ms", "residual_energy_100ms",
                 "energy_integral_ms", "exit_speed_ratio", "bounces", "peak_force_N", "rms_force_N",
                 "contact_fraction", "saturation_time_s")
-        print(f"  {'metric':24s} {'estimated (eq 4.5, ballistic)':>30s}" + ("  true (virtual rig)" if "true" in out
-                                                                          else ""))
+        print(f"  {'metric':24s} {'estimated (eq 4.5, ballistic)':>30s}"
+              + ("  true (virtual rig)" if "true" in out else ""))
         for k in keys:
             line = f"  {k:24s} {_fmt(est.get(k)):>30s}"
             if "true" in out:

@@ -28,11 +28,12 @@ from impact_env.sim.metrics import EPISODE_METRICS
 
 TRACE_MAP = {"x1": "true_x1_m", "v1": "true_v1_mps", "x2": "true_x2_m", "v2": "true_v2_mps",
              "force_demand": "hw_force_demand_N", "force_applied": "hw_force_applied_N",
-             "contact_force": "hw_contact_force_N", "detected": "contact_detected", "saturated": "hw_saturated"}
+             "contact_force": "hw_contact_force_N", "detected": "contact_detected",
+             "saturated": "hw_saturated"}
 
 
-def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 0, horizon: float | None = None,
-                progress: bool = True) -> tuple[object, dict[str, PolicyRun]]:
+def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 0,
+                horizon: float | None = None, progress: bool = True) -> tuple[object, dict[str, PolicyRun]]:
     """(the target's scene, spec -> PolicyRun) measured on the rig at ``address``."""
     from impact_env.policy.export import export_policy
     from impact_env.policy.registry import is_model_spec, make_policy
@@ -157,5 +158,5 @@ def _run(spec: str, logs: list, failures: list, wall: float) -> PolicyRun:
     else:
         ratio = None
     return PolicyRun(spec=spec, episodes=np.arange(n), metrics=metrics, failures=failures, trace_t=trace_t,
-                     trace0=trace0, t_touch0=t_touch0, impact_energy0=e00, energy_t=energy_t, energy_ratio=ratio,
-                     control_period=period, wall_time_s=wall)
+                     trace0=trace0, t_touch0=t_touch0, impact_energy0=e00, energy_t=energy_t,
+                     energy_ratio=ratio, control_period=period, wall_time_s=wall)

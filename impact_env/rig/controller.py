@@ -132,7 +132,8 @@ class Controller:
             pi, pf, m = residual.arrays()
             self.law = (True, pi, pf, np.zeros((1, m)), observation_buffers(residual.layout, 1))
         else:
-            self.law = (False, np.zeros(1, np.int64), np.zeros(1), np.zeros((1, 1)), observation_buffers(layout, 1))
+            self.law = (False, np.zeros(1, np.int64), np.zeros(1), np.zeros((1, 1)),
+                        observation_buffers(layout, 1))
         self.safety_cfg = safety or SafetyConfig()
         params = safety_params(self.safety_cfg, self.scale, self.rate, self.hold, mode)
         self.safety = (params, SF.make_safety_state(params), self.rate)
@@ -161,8 +162,8 @@ class Controller:
     def act(self, m: int, host_action: float, age: int, ticks_armed: int, raw: np.ndarray):
         log = self.log
         return act_tick(m, self.mode == "onboard", float(host_action), int(age), int(ticks_armed), self.hold,
-                        self.fe.fe, self.fe.ob, self.law, self.pol, self.safety, self.scale, raw, self.st, log.rows,
-                        log.obs, log.count)
+                        self.fe.fe, self.fe.ob, self.law, self.pol, self.safety, self.scale, raw, self.st,
+                        log.rows, log.obs, log.count)
 
     @property
     def obs(self) -> np.ndarray:
@@ -177,7 +178,8 @@ class Controller:
 # -- the virtual rig's compiled tick loop ---------------------------------------------------------
 END_NONE, END_FIRST_COMMAND, END_SAFETY, END_FAULT, END_STOP = range(5)
 # the truth columns a virtual rig logs (their indices in ``tc``, :data:`impact_env.rig.target.TRUTH_COLUMNS`)
-TC_COMMAND, TC_X1, TC_V1, TC_X2, TC_V2, TC_FD, TC_FA, TC_SAT, TC_FC, TC_STATUS, TC_E0, TC_V0, TC_TT = range(13)
+(TC_COMMAND, TC_X1, TC_V1, TC_X2, TC_V2, TC_FD, TC_FA, TC_SAT, TC_FC, TC_STATUS, TC_E0, TC_V0,
+ TC_TT) = range(13)
 
 
 @jit(nogil=True)
@@ -223,8 +225,8 @@ def run_ticks(m0, m1, hold, onboard, host_action, age0, fe, ob, law, pol, safety
         w0 = cycles()
         raw = raw_all[0]
         age = age0 + (m - m0) if age0 >= 0 else -1
-        cmd, f, status, row = act_tick(m, onboard, host_action, age, m, hold, fe, ob, law, pol, safety, scale, raw,
-                                       st, rows, obs_log, count)
+        cmd, f, status, row = act_tick(m, onboard, host_action, age, m, hold, fe, ob, law, pol, safety, scale,
+                                       raw, st, rows, obs_log, count)
         if overrun:
             status |= SF.OVERRUN
             overrun = False

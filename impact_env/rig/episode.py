@@ -173,13 +173,15 @@ class Episode:
             rec[:, R.REC_STATUS] = rows[:, c["hw_status"]]
             telem += rec.ravel().tolist()
         obs = tuple(float(x) for x in self.ctl.obs)
-        self.obs_msg = P.Observation(self.ep, self.m // self.hold, int(self.status_or) & P.U32, 4, obs, tuple(telem))
+        self.obs_msg = P.Observation(self.ep, self.m // self.hold, int(self.status_or) & P.U32, 4, obs,
+                                     tuple(telem))
         self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
 
     def final_row(self, raw: np.ndarray) -> None:
         """The row of tick ``horizon``: its readings and observation, no command."""
-        self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate, accelerometer_mps2=raw[0],
-                            force_N=raw[1], potentiometer_m=raw[2], action=math.nan, step=self.m // self.hold,
+        self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
+                            accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
+                            action=math.nan, step=self.m // self.hold,
                             contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1)
 
     # -- the virtual rig's compiled loop ---------------------------------------------------------------
@@ -203,8 +205,9 @@ class Episode:
         pace = np.array([0.0 if self.lockstep else 1.0, float(_now()) + cpt, cpt, nspc])
         stop = np.zeros(1, dtype=np.int64)
         ticks = lambda m0, m1, action: CT.run_ticks(  # noqa: E731
-            m0, m1, self.hold, not self.host, action, self.age, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety,
-            ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw_args, tc, tvals, pace, lat, stop)
+            m0, m1, self.hold, not self.host, action, self.age, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol,
+            ctl.safety, ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw_args, tc, tvals, pace,
+            lat, stop)
         if not self.host:  # onboard: the whole episode in one compiled call; a thread hears the host
             why = self._listen_while(lambda: ticks(0, self.horizon, 0.0), stop)
             self._after(t_col)

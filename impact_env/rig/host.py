@@ -62,7 +62,8 @@ class RigClient:
         self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1)
         try:
             nonce = int.from_bytes(os.urandom(4), "little")
-            info = self.link.request(P.Hello(nonce), lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
+            info = self.link.request(P.Hello(nonce),
+                                     lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
                                      "INFO (answer to HELLO)", self.timeout_s, self.retries).body
             self.info = info
             self.lockstep = bool(info.lockstep)
@@ -87,8 +88,8 @@ class RigClient:
 
             data = (json.dumps(policy.to_dict()) + "\n").encode()
             upload(self.link, data, self.timeout_s, self.retries)
-        arm = P.Arm(mode, observation, int(history), 0, int(hold_ticks), int(seed) & P.U64, int(horizon_ticks),
-                    int(first_command_timeout_ticks), int(link_timeout_ms), len(data),
+        arm = P.Arm(mode, observation, int(history), 0, int(hold_ticks), int(seed) & P.U64,
+                    int(horizon_ticks), int(first_command_timeout_ticks), int(link_timeout_ms), len(data),
                     hashlib.sha256(data).digest() if data else bytes(32))
         # arming builds the target's controller and readies the rig: allow it a quarter second a try
         armed = self.link.request(arm, lambda m: m.type == P.MsgType.ARMED, "ARMED (answer to ARM)",
@@ -155,7 +156,8 @@ class RigClient:
         if self.endpoint.closed:
             return
         if wait:
-            self.link.request(P.Disarm(0), lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
+            self.link.request(P.Disarm(0),
+                              lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
                               "ACK of DISARM", self.timeout_s, self.retries)
         else:
             self.link.send(P.Disarm(1))
@@ -185,9 +187,11 @@ class RigEnv(gym.Env):
     def __init__(self, address: str, *, observation: str = "sensors", history: int = 1, hold_ticks: int = 1,
                  residual: str | None = None, horizon: float | None = None, catch_threshold: float = 0.01,
                  catch_hold: float = 0.01, terminate_on_catch: bool = True, effort_weight: float = 0.0,
-                 limit_weight: float = 0.0, action_bounds: str = "clip", timeout_s: float = 0.05, retries: int = 20):
-        self.config = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks, residual=residual,
-                                 horizon=horizon, catch_threshold=catch_threshold, catch_hold=catch_hold,
+                 limit_weight: float = 0.0, action_bounds: str = "clip", timeout_s: float = 0.05,
+                 retries: int = 20):
+        self.config = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks,
+                                 residual=residual, horizon=horizon, catch_threshold=catch_threshold,
+                                 catch_hold=catch_hold,
                                  terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
                                  limit_weight=limit_weight, action_bounds=action_bounds)
         self.client = RigClient(address, timeout_s, retries)
@@ -217,7 +221,8 @@ class RigEnv(gym.Env):
         self.tp[TK.T_CMD] = scene.effects.command_scale
         self.tp[TK.T_MAX_STEPS] = self.max_steps
         self._hw = Hardware(scene, 1) if self.client.virtual else None
-        self._a = {k: np.zeros(1, dt) for k, dt in (("steps", np.int64), ("below", np.int64), ("energy", float))}
+        self._a = {k: np.zeros(1, dt)
+                   for k, dt in (("steps", np.int64), ("below", np.int64), ("energy", float))}
         self._div = np.zeros(1, dtype=bool)
         self._rows = np.zeros((1, TK.N_COL))
         self._rew, self._te, self._tr = np.zeros(1), np.zeros(1, bool), np.zeros(1, bool)
@@ -233,8 +238,8 @@ class RigEnv(gym.Env):
         if self._running:
             self.client.disarm()
         c = self.client
-        c.arm("host", ep_seed, self.max_steps * self.hold, self.config.observation, self.config.history, self.hold,
-              self.residual)
+        c.arm("host", ep_seed, self.max_steps * self.hold, self.config.observation, self.config.history,
+              self.hold, self.residual)
         self._running = True
         self._n = 0
         obs = self._wait_obs(0, resend=None)
@@ -255,7 +260,8 @@ class RigEnv(gym.Env):
                 return got
             if resend is not None:
                 c.command(step - 1, resend)
-        raise RigTimeout(f"OBSERVATION of step {step}", (c.retries + 1) * c.timeout_s, c.address, c.retries + 1)
+        raise RigTimeout(f"OBSERVATION of step {step}", (c.retries + 1) * c.timeout_s, c.address,
+                         c.retries + 1)
 
     def step(self, action):
         if not self._running:
@@ -275,8 +281,8 @@ class RigEnv(gym.Env):
         if self._hw is not None and len(tel) > N_TEL:
             recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, R.N_REC)
             TK.task_step(np.ones(1, bool), recs, recs[:, -1, R.REC_X1:R.REC_V2 + 1].copy(), self._hw.P,
-                         self._hw.impact_energy, self._hw.impact_speed, *self._task_state(), self._rew, self._te,
-                         self._tr, self._rows)
+                         self._hw.impact_energy, self._hw.impact_speed, *self._task_state(), self._rew,
+                         self._te, self._tr, self._rows)
             reward, term, trunc = float(self._rew[0]), bool(self._te[0]), bool(self._tr[0])
         else:
             reward, term, trunc = 0.0, False, self._n >= self.max_steps
@@ -288,8 +294,10 @@ class RigEnv(gym.Env):
 
     def _info(self, obs: P.Observation) -> dict[str, Any]:
         tel = obs.telemetry
-        out: dict[str, Any] = {"step": obs.step, "status": obs.status, "reward_available": self._hw is not None,
-                               "force_demand": tel[0] if tel else 0.0, "force_applied": tel[1] if len(tel) > 1 else 0.0,
+        out: dict[str, Any] = {"step": obs.step, "status": obs.status,
+                               "reward_available": self._hw is not None,
+                               "force_demand": tel[0] if tel else 0.0,
+                               "force_applied": tel[1] if len(tel) > 1 else 0.0,
                                "command_age_ticks": tel[2] if len(tel) > 2 else -1.0}
         if self._hw is not None:
             vals = self._rows[0].tolist()

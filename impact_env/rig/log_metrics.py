@@ -37,7 +37,8 @@ def log_records(log: EpisodeLog) -> np.ndarray:
     return rec
 
 
-def exact_metrics(log: EpisodeLog, catch_fraction: float = 0.01, min_flight_s: float = 1e-3) -> dict[str, float]:
+def exact_metrics(log: EpisodeLog, catch_fraction: float = 0.01,
+                  min_flight_s: float = 1e-3) -> dict[str, float]:
     """The episode's metrics from a virtual rig's true columns (NaN where the plant failed).  The
     drop's constants (plant row, start state, impact energy and speed, first touch) are those the
     virtual rig drew from the log's seed, rebuilt the same way."""

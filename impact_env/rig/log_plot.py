@@ -35,13 +35,15 @@ def plot_log(log, path, estimate: dict | None = None) -> Path:
     scene = log.scene()
     plant = Plant.of(scene)
     est = estimate_energy(log["t_s"], contact_from_log(log), plant, log["potentiometer_m"])
-    ax[2].semilogy(t_ms, np.maximum(est.energy_J / est.e0_J, 1e-6), lw=1, label="estimated (thesis eq 4.5, ballistic)")
+    ax[2].semilogy(t_ms, np.maximum(est.energy_J / est.e0_J, 1e-6), lw=1,
+                   label="estimated (thesis eq 4.5, ballistic)")
     if "true_x1_m" in log.columns:
         from impact_env.plant.energy import catch_energy
 
         p = scene.plant
         e = catch_energy(log["true_x1_m"], log["true_v1_mps"], log["true_x2_m"], p.m1, p.c, p.gravity)
-        ax[2].semilogy(t_ms, np.maximum(e / log["impact_energy_J"][0], 1e-6), lw=1, label="true (virtual rig)")
+        ax[2].semilogy(t_ms, np.maximum(e / log["impact_energy_J"][0], 1e-6), lw=1,
+                       label="true (virtual rig)")
     ax[2].axhline(0.01, color="k", lw=0.6, ls=":")
     ax[2].set_ylabel("body 1's energy / impact energy")
     ax[2].set_xlabel("time from the release, ms")
@@ -49,7 +51,8 @@ def plot_log(log, path, estimate: dict | None = None) -> Path:
     for a in ax:
         a.grid(alpha=0.3)
     m = log.meta
-    fig.suptitle(f"rig episode {m.episode}: {m.mode} mode, seed {m.seed}, ended by {m.end_reason}", fontsize=10)
+    fig.suptitle(f"rig episode {m.episode}: {m.mode} mode, seed {m.seed}, ended by {m.end_reason}",
+                 fontsize=10)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=80)

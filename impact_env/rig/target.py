@@ -82,7 +82,8 @@ class Target:
     """The target process for one ``driver`` (see the module doc).  ``serve()`` runs until
     :meth:`stop`, SIGTERM or SIGINT (installed by :meth:`install_signal_handlers`)."""
 
-    def __init__(self, driver: RigDriver, bind: str = "udp://127.0.0.1:0", config: TargetConfig | None = None):
+    def __init__(self, driver: RigDriver, bind: str = "udp://127.0.0.1:0",
+                 config: TargetConfig | None = None):
         self.driver = driver
         self.cfg = config or TargetConfig()
         self.scene = driver.scene
@@ -112,7 +113,8 @@ class Target:
 
         layout = make_layout(self.scene, "sensors", 1)
         law = CompiledPolicy.from_law("passive", {}, {}, self.scene, "sensors")
-        ctl = Controller(self.scene, layout, 1, 4, "onboard", law, law, self.cfg.safety, extra_columns=TRUTH_COLUMNS)
+        ctl = Controller(self.scene, layout, 1, 4, "onboard", law, law, self.cfg.safety,
+                         extra_columns=TRUTH_COLUMNS)
         raw = np.zeros(4)
         ctl.start(raw, None)
         ctl.observe(1, raw, None)
@@ -127,9 +129,9 @@ class Target:
             hw = self.driver.hw
             hw.refill_noise(1)
             tc = np.array([ctl.log.col(k) for k in TRUTH_COLUMNS[:13]], dtype=np.int64)
-            run_ticks(1, 2, 1, True, 0.0, 0, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety, ctl.scale, ctl.st,
-                      ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc, np.zeros(3), np.array([0.0, 0, 1, 1]),
-                      np.zeros(4), np.zeros(1, dtype=np.int64))
+            run_ticks(1, 2, 1, True, 0.0, 0, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety, ctl.scale,
+                      ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc, np.zeros(3),
+                      np.array([0.0, 0, 1, 1]), np.zeros(4), np.zeros(1, dtype=np.int64))
 
     @property
     def address(self) -> str:
@@ -186,7 +188,8 @@ class Target:
             self._arm(msg)
         elif t == P.MsgType.DISARM:
             self._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, 0), msg)
-        elif t == P.MsgType.COMMAND and self._last_obs is not None and msg.body.episode == self._last_obs.episode:
+        elif (t == P.MsgType.COMMAND and self._last_obs is not None
+                and msg.body.episode == self._last_obs.episode):
             # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
             self.link.send(self._last_obs, addr=self.link.last_sender)
         elif t == P.MsgType.HEARTBEAT:
@@ -198,7 +201,8 @@ class Target:
             self._reply(chunk_reply(self.scene_toml, b, msg.seq), msg)
         elif b.resource == P.Resource.EPISODE and b.item in self.episodes:
             self._reply(chunk_reply(self.episodes[b.item], b, msg.seq), msg)
-        elif b.resource == P.Resource.EPISODE and b.item == self.episode and self.state == P.TargetState.RUNNING:
+        elif (b.resource == P.Resource.EPISODE and b.item == self.episode
+                and self.state == P.TargetState.RUNNING):
             self._error(msg, P.ErrorCode.BUSY, f"episode {b.item} is still running")
         else:
             self._error(msg, P.ErrorCode.UNKNOWN_RESOURCE, f"no resource {b.resource} item {b.item}")
@@ -211,17 +215,18 @@ class Target:
             if a.policy_size:
                 data = self.upload.data if self.upload.complete else b""
                 if len(data) != a.policy_size or hashlib.sha256(data).digest() != a.policy_sha256:
-                    raise _Refused(P.ErrorCode.POLICY_REJECTED, "the uploaded policy file does not match ARM's size "
-                                   "and sha256 (upload it first)")
+                    raise _Refused(P.ErrorCode.POLICY_REJECTED, "the uploaded policy file does not match "
+                                   "ARM's size and sha256 (upload it first)")
                 pol = CompiledPolicy.from_dict(__import__("json").loads(data.decode()), "the uploaded policy")
                 pol.check_scene(self.scene)
                 if a.mode == "onboard":
                     policy, residual = pol, pol.residual_policy()
-                elif pol.law is not None:  # host mode: an uploaded law is the residual under the host's actions
+                # host mode: an uploaded law is the residual under the host's actions
+                elif pol.law is not None:
                     residual = pol
                 else:
-                    raise _Refused(P.ErrorCode.POLICY_REJECTED, "host mode takes a classic law as the residual, "
-                                   "not a network")
+                    raise _Refused(P.ErrorCode.POLICY_REJECTED, "host mode takes a classic law as the "
+                                   "residual, not a network")
             elif a.mode == "onboard":
                 raise _Refused(P.ErrorCode.BAD_REQUEST, "onboard mode needs an uploaded policy")
             if a.mode == "onboard":
@@ -232,7 +237,8 @@ class Target:
                 raise _Refused(P.ErrorCode.BAD_REQUEST, f"horizon_ticks = {a.horizon_ticks} is not a whole "
                                f"number of policy steps of {hold} ticks")
             layout = make_layout(self.scene, observation, history)
-            ctl = Controller(self.scene, layout, hold, a.horizon_ticks, a.mode, policy, residual, self.cfg.safety,
+            ctl = Controller(self.scene, layout, hold, a.horizon_ticks, a.mode, policy, residual,
+                             self.cfg.safety,
                              extra_columns=TRUTH_COLUMNS if self.driver.virtual else ("command",),
                              observation=observation)
         except _Refused as exc:
@@ -275,12 +281,13 @@ class Target:
         counters = {**{f"dropped_{k}": v for k, v in counts.items() if k != "accepted"},
                     "datagrams_accepted": counts["accepted"], "datagrams_received": self.endpoint.received,
                     **{k: int(ctl.safety[1][i]) for k, i in SF.COUNTERS.items()}, "overruns": ep.overruns}
-        meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold, seed=ep.seed,
-                              control_rate_hz=self.rate, episode=ep.ep, session=self.link.session or 0,
-                              policy="" if policy is None else policy.name,
-                              policy_sha256="" if policy is None else hashlib.sha256(self.upload.data).hexdigest(),
-                              observation=ctl.observation, history=ctl.layout.history, obs_names=ctl.layout.names,
-                              end_reason=end.name, counters=counters)
+        meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold,
+                              seed=ep.seed, control_rate_hz=self.rate, episode=ep.ep,
+                              session=self.link.session or 0, policy="" if policy is None else policy.name,
+                              policy_sha256=("" if policy is None
+                                             else hashlib.sha256(self.upload.data).hexdigest()),
+                              observation=ctl.observation, history=ctl.layout.history,
+                              obs_names=ctl.layout.names, end_reason=end.name, counters=counters)
         if self.cfg.log_dir is not None:
             data = LG.write_episode(ctl.log, self.cfg.log_dir, meta).read_bytes()
         else:
@@ -292,8 +299,8 @@ class Target:
         self.counters["episodes"] += 1
         self.counters["overruns"] += ep.overruns
         self.counters["watchdog_trips"] += counters.get("watchdog_trips", 0)
-        self.last_end = P.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & P.U32, ctl.log.n, ctl.log.n // ctl.hold,
-                                     len(data), hashlib.sha256(data).digest())
+        self.last_end = P.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & P.U32, ctl.log.n,
+                                     ctl.log.n // ctl.hold, len(data), hashlib.sha256(data).digest())
         self.link.send(self.last_end, addr=self.link.last_sender)
 
     def _info(self, nonce: int) -> P.Info:
