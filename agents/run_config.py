@@ -183,7 +183,7 @@ SAC_SCHEMA = {
     "tau": _float(0.0, 1.0, lo_open=True), "gamma": _GAMMA, "train_freq": _train_freq,
     "gradient_steps": _int(-1), "ent_coef": _ent_coef_sac, "target_update_interval": _int(1),
     "target_entropy": _target_entropy, "use_sde": _bool, "sde_sample_freq": _int(-1),
-    "use_sde_at_warmup": _bool, "stats_window_size": _int(1),
+    "use_sde_at_warmup": _bool, "stats_window_size": _int(1), "n_steps": _int(1),
 }
 POLICY_SCHEMA = {"log_std_init": _float(-20.0, 5.0), "squash_output": _bool, "ortho_init": _bool,
                  "frame_size": _int(1), "actor_frame_size": _int(1), "history": _int(1, 64)}
