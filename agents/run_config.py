@@ -316,8 +316,8 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
     if not isinstance(env_kwargs, dict):
         raise ConfigError(f"env_kwargs must be a mapping, got {env_kwargs!r}")
     if entry.pop("env_wrapper", None) is not None:
-        raise ConfigError("env_wrapper: agents.train uses no env wrapper; give hold_ticks and residual (the env's "
-                          "own options) in env_kwargs")
+        raise ConfigError("env_wrapper: agents.train uses no env wrapper; give hold_ticks and residual "
+                          "(the env's own options) in env_kwargs")
     policy_kwargs = dict(entry.pop("policy_kwargs", None) or {})
     if not isinstance(policy_kwargs, dict):
         raise ConfigError("policy_kwargs must be a mapping (net_arch, log_std_init, ...), got "

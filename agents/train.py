@@ -346,7 +346,8 @@ def train(algo: str = "ppo", scene=None, overrides: dict | None = None, *, steps
     """Train ``algo`` into ``out``: the YAML entry of ``conf_file`` (default
     ``agents/hyperparams/ALGO.yml``) with these arguments overriding it (None: the file's value).
     ``env_kwargs`` go to ``ImpactCatch-v0``; ``options`` are more env kwargs (``hold_ticks``,
-    ``residual``; kept for callers of the first version); ``hyperparameters`` override single hyperparameters or policy kwargs.
+    ``residual``; kept for callers of the first version); ``hyperparameters`` override single
+    hyperparameters or policy kwargs.
     Raises :class:`~impact_env.config.ConfigError` (a ValueError) on any bad value, before
     anything is created.  Default ``tooling``: evaluation every 100k steps, no checkpoints."""
     cfg = make_config(algo, conf_file, scene=scene, overrides=overrides, steps=steps, envs=envs, seed=seed,

@@ -134,7 +134,8 @@ def scene_stats(d: dict, args) -> dict:
             "energy_ms": float(np.mean(e)), "energy_ci": bootstrap(e, np.mean, idx),
             "gap_ms": float(np.mean(gap)), "gap_ci": bootstrap(gap, np.mean, idx),
             "gap_median_ms": float(np.median(gap)), "gap_min_ms": float(np.min(gap)),
-            "bounces": float(np.mean(d[f"{label}|bounces"])), "rms_N": float(np.mean(d[f"{label}|rms_force_N"])),
+            "bounces": float(np.mean(d[f"{label}|bounces"])),
+            "rms_N": float(np.mean(d[f"{label}|rms_force_N"])),
             "failed": int(d[f"{label}|failed"]),
         }
     src = [str(s) for s in d["oracle|source"]]
@@ -177,7 +178,8 @@ def training_table(infos: list[dict]) -> str:
             "(step) |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for i in infos:
         m = i["meta"]
-        rows.append(f"| {i['label']} | {m['scene']} | {m['steps']:,} | {m['ticks']:,} | {m['wall_time_s']:.0f} | "
+        rows.append(f"| {i['label']} | {m['scene']} | {m['steps']:,} | {m['ticks']:,} | "
+                    f"{m['wall_time_s']:.0f} | "
                     f"{m['steps'] / m['wall_time_s']:.0f} | {m['ticks'] / m['wall_time_s']:.0f} | "
                     f"{i['val_best']:.2f} ({i['val_best_step']:,}) |")
     return "\n".join(rows)
@@ -192,14 +194,16 @@ def figure(all_stats: dict, path: Path, shipped: str) -> Path:
         st = {k: v for k, v in all_stats[scene].items() if not k.startswith("_")}
         labels = list(st)[::-1]
         y = np.arange(len(labels))
-        for c, (key, ci, title) in enumerate((("median_catch_s", "median_catch_ci", "median time to catch, s"),
-                                               ("energy_ms", "energy_ci", "energy integral, ms (mean)"))):
+        panels = (("median_catch_s", "median_catch_ci", "median time to catch, s"),
+                  ("energy_ms", "energy_ci", "energy integral, ms (mean)"))
+        for c, (key, ci, title) in enumerate(panels):
             ax = axes[r, c]
             v = np.array([min(st[k][key], 0.45) for k in labels])
             lo = np.array([min(st[k][ci][0], 0.45) if c == 0 else st[k][ci][0] for k in labels])
             hi = np.array([min(st[k][ci][1], 0.45) if c == 0 else st[k][ci][1] for k in labels])
-            colors = ["tab:red" if k == shipped else "tab:gray" if k in BASELINES else "black" if k == "oracle"
-                      else "tab:blue" if k.startswith("ppo") else "tab:green" for k in labels]
+            colors = ["tab:red" if k == shipped else "tab:gray" if k in BASELINES
+                      else "black" if k == "oracle" else "tab:blue" if k.startswith("ppo") else "tab:green"
+                      for k in labels]
             ax.errorbar(v, y, xerr=[v - lo, hi - v], fmt="none", ecolor=colors, capsize=3)
             ax.scatter(v, y, c=colors, zorder=3)
             ax.set_yticks(y, labels)
@@ -244,7 +248,8 @@ def write_doc(doc: Path, text: str) -> None:
 
 
 def report_text(infos, all_stats, shipped, args, walls) -> str:
-    lines = ["*Written by `python scripts/agents_report.py " + " ".join(args.argv) + "`; do not edit by hand.*", ""]
+    lines = ["*Written by `python scripts/agents_report.py " + " ".join(args.argv) + "`; do not edit by "
+             "hand.*", ""]
     lines += [f"Test drops: seeds {args.seed}..{args.seed + args.episodes - 1} of each scene (training used "
               "seeds 0-15, 100-115, 200-215 and draws from their Generators; validation 900000-900015). "
               f"Intervals: percentile bootstrap over drops, {args.resamples} resamples "
@@ -256,26 +261,30 @@ def report_text(infos, all_stats, shipped, args, walls) -> str:
         o = st["_oracle"]
         src = ", ".join(f"{k} {v}" for k, v in o["sources"].items())
         lines += [f"### `{scene}`, {o['episodes']} held-out drops", "", scene_table(st), "",
-                  f"Oracle: {o['cpu_s_per_drop']:.1f} s of CPU per drop; its sequence per drop came from: {src} "
+                  f"Oracle: {o['cpu_s_per_drop']:.1f} s of CPU per drop; its sequence per drop came from: "
+                  f"{src} "
                   f"(a name other than `cma`: that policy's own recorded commands were the best found). "
                   f"Evaluation wall time {walls[scene]:.0f} s.", ""]
         pd, ag = st["pd-penetration"], st[shipped]
         b = beats(ag, pd)
+        verdict = {k: "non-overlapping: beats it" if v else "intervals overlap or worse: NOT shown"
+                   for k, v in b.items()}
         share = (pd["energy_ms"] - ag["energy_ms"]) / (pd["energy_ms"] - st["oracle"]["energy_ms"]) \
             if pd["energy_ms"] > st["oracle"]["energy_ms"] else math.nan
         lines += [f"Shipped agent against pd-penetration on `{scene}`: median catch "
                   f"{_t(ag['median_catch_s'])} {_ci(ag['median_catch_ci'], t=True)} s against "
                   f"{_t(pd['median_catch_s'])} {_ci(pd['median_catch_ci'], t=True)} s "
-                  f"({'non-overlapping: beats it' if b['catch'] else 'intervals overlap or worse: NOT shown'}); "
+                  f"({verdict['catch']}); "
                   f"energy integral {ag['energy_ms']:.2f} {_ci(ag['energy_ci'], '{:.2f}')} ms against "
                   f"{pd['energy_ms']:.2f} {_ci(pd['energy_ci'], '{:.2f}')} ms "
-                  f"({'non-overlapping: beats it' if b['energy'] else 'intervals overlap or worse: NOT shown'}); "
+                  f"({verdict['energy']}); "
                   f"it closes {100 * share:.0f} % of pd-penetration's gap to the oracle "
                   f"({pd['gap_ms']:.2f} ms -> {ag['gap_ms']:.2f} ms).", ""]
         worst = min((s["gap_min_ms"], k) for k, s in st.items() if not k.startswith("_") and k != "oracle")
         lines += [f"No policy beats the oracle on any drop: the smallest per-drop gap is {worst[0]:.3f} ms "
                   f"({worst[1]})." if worst[0] >= 0 else
-                  f"**{worst[1]} beats the oracle on a drop (gap {worst[0]:.3f} ms): the optimiser is too weak.**",
+                  f"**{worst[1]} beats the oracle on a drop (gap {worst[0]:.3f} ms): the optimiser is too "
+                  "weak.**",
                   ""]
     return "\n".join(lines)
 

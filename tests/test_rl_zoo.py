@@ -49,7 +49,8 @@ def test_rl_zoo_trains_with_the_project_yaml_and_the_model_runs(tmp_path, algo):
     from agents.run_config import read_conf, resolve
 
     cfg = resolve(algo, read_conf(conf))
-    meta = {"algo": algo, "observation": cfg.observation, "history": cfg.history, "env_kwargs": cfg.env_kwargs}
+    meta = {"algo": algo, "observation": cfg.observation, "history": cfg.history,
+            "env_kwargs": cfg.env_kwargs}
     (run / "ImpactCatch-v0.json").write_text(json.dumps(meta))
     rows = {}
     for compiled in (False, True):
