@@ -1,19 +1,18 @@
-"""Evaluate a model trained with the experimental options (hold, residual) on held-out drops,
-next to classic laws, with ``impact-env compare``'s metrics and table.
+"""Evaluate a trained model on held-out drops, next to classic laws, with ``impact-env compare``'s
+metrics and table.
 
-    python -m agents.evaluate --model runs/e1/model.zip --scene rig --episodes 50 --seed 1000 \\
+    python -m agents.evaluate --model runs/e1/best_model.zip --scene rig --episodes 100 --seed 1000 \\
         [--baselines passive,pd-penetration] [--set initial.pre_contact_time=1.0] [--horizon 0.4] \\
-        [--json OUT.json]
+        [--compiled] [--json OUT.json]
 
-``impact-env compare`` runs a saved model as a plain policy at the control rate; a model trained
-through :mod:`agents.experimental_wrappers` needs its hold and its residual law around it.  This
-reads them from ``model.json`` (``learnability``, ``observation``, ``history``, ``algo``), wraps
-the model in :class:`~agents.experimental_wrappers.HeldPolicy` and runs it, and every baseline,
-through :func:`impact_env.eval.rollout.rollout` on episodes seeded ``seed + j`` (the drops and
-sensor noise ``compare --seed`` gives), so the rows equal ``compare``'s for the baselines and for
-a model trained without options (same rollout, same metrics, same summary).  The scene is the one
-given here (``--scene``, ``--set``), the same for every row; ``model.json``'s training overrides
-are printed, not applied.
+A thin front end of :func:`impact_env.eval.compare.compare`: the model joins as the policy spec
+``ALGO:PATH.zip``, whose ``model.json`` (or ``PATH.json``) gives its observation, history,
+``hold_ticks`` and ``residual`` (:mod:`impact_env.policy.sb3`), so the rows are exactly
+``impact-env compare --seed SEED``'s on the same drops.  ``--compiled`` first exports the model
+to a compiled policy (:mod:`impact_env.policy.export`, written next to the model as
+``PATH.policy.json``) and runs that instead: the same commands to about 1e-6 of the command
+scale, in the compiled rollout loop, much faster.  The scene is the one given here (``--scene``,
+``--set``); the model's training overrides are printed, not applied.
 """
 
 from __future__ import annotations
@@ -24,58 +23,48 @@ import sys
 from pathlib import Path
 
 
-def load_held_policy(model_path: Path, scene):
-    """The model at ``model_path`` with the options of its ``model.json``, as a tick-level policy."""
-    import stable_baselines3 as sb3
+def model_meta(model_path: Path) -> dict:
+    """The ``model.json`` (or ``PATH.json``) written next to a model by ``agents.train``, or {}."""
+    for p in (model_path.with_suffix(".json"), model_path.parent / "model.json"):
+        if p.is_file():
+            return json.loads(p.read_text())
+    return {}
 
-    from agents.experimental_wrappers import HeldPolicy, LearnabilityOptions
 
-    meta_path = model_path.with_suffix(".json") if model_path.with_suffix(".json").is_file() \
-        else model_path.parent / "model.json"
-    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
-    algo = str(meta.get("algo", "ppo")).upper()
-    model = getattr(sb3, algo).load(str(model_path), device="cpu")
-    options = LearnabilityOptions(**meta.get("learnability", {}))
-    policy = HeldPolicy(model, options, scene, observation=meta.get("observation", "sensors"),
-                        history=int(meta.get("history", 1)), name=str(model_path))
-    return policy, meta
+def model_spec(model_path, meta: dict | None = None) -> str:
+    """The compare spec of a saved model: ``ALGO:PATH.zip`` (ALGO from its ``model.json``)."""
+    model_path = Path(model_path)
+    meta = model_meta(model_path) if meta is None else meta
+    algo = str(meta.get("algo", "")).lower()
+    return f"{algo}:{model_path}" if algo else str(model_path)
+
+
+def export_compiled(model_path, scene, out=None) -> str:
+    """Export the model (with its hold and residual) to a compiled policy file; its spec."""
+    from impact_env.policy.export import export_policy
+
+    model_path = Path(model_path)
+    out = Path(out) if out is not None else model_path.with_suffix(".policy.json")
+    export_policy(model_spec(model_path), scene).save(out)
+    return f"compiled:{out}"
 
 
 def evaluate(model_path, scene, baselines=("passive", "pd-penetration"), episodes: int = 50, seed: int = 1000,
-             horizon: float | None = None, label: str | None = None) -> dict:
-    """{row name: PolicyRun with ``summary``} for the baselines and the model, on the same drops."""
-    import numpy as np
-
-    from baselines import make_policy
-    from impact_env.eval.compare import PolicyRun, summarize
-    from impact_env.eval.rollout import rollout
+             horizon: float | None = None, label: str | None = None, compiled: bool = False,
+             workers: int | None = 1) -> tuple[dict, dict]:
+    """({row name: PolicyRun with ``summary``}, the model's metadata) for the baselines and the
+    model on the same drops (``compare``'s rows; the model's row is named ``label`` if given)."""
+    from impact_env.eval.compare import compare
     from impact_env.scene import load_scene
 
     scene = load_scene(scene)
-    seeds = [seed + j for j in range(episodes)]
-    horizon = scene.episode.horizon if horizon is None else float(horizon)
-    policy, meta = load_held_policy(Path(model_path), scene)
-    rows = [(spec, _baseline(spec, scene, make_policy)) for spec in baselines]
-    rows.append((label or str(model_path), policy))
-    runs = {}
-    for name, pol in rows:
-        r = rollout(scene, pol, seeds, horizon=horizon, trace_rate=0.0, name=name)
-        run = PolicyRun(spec=name, episodes=np.arange(episodes), metrics=r.metrics, failures=r.failures,
-                        trace_t=r.trace_t, trace0=None, t_touch0=float(r.t_touch[0]),
-                        impact_energy0=float(r.impact_energy[0]), energy_t=None, energy_ratio=None,
-                        control_period=r.control_period, wall_time_s=r.wall_time_s)
-        run.summary = summarize(run)
-        runs[name] = run
+    meta = model_meta(Path(model_path))
+    spec = export_compiled(model_path, scene) if compiled else model_spec(model_path, meta)
+    runs = compare(scene, [*baselines, spec], episodes=episodes, seed=seed, horizon=horizon, workers=workers,
+                   progress=False)
+    if label:
+        runs = {(label if k == spec else k): v for k, v in runs.items()}
     return runs, meta
-
-
-def _baseline(spec: str, scene, make_policy):
-    """A classic law of this project by spec, without the entry-point registry (which loads every
-    installed package's policies); other names through the registry."""
-    from baselines import POLICIES, parse_spec
-
-    name, params = parse_spec(spec)
-    return POLICIES[name](scene, **params) if name in POLICIES else make_policy(spec, scene)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,7 +79,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=1000, help="episode j is seeded seed + j (default 1000)")
     p.add_argument("--horizon", type=float, default=None, help="s (default: the scene's)")
     p.add_argument("--baselines", default="passive,pd-penetration", help="comma-separated named policies")
-    p.add_argument("--label", default=None, help="row name of the model (default: its path)")
+    p.add_argument("--label", default=None, help="row name of the model (default: its spec)")
+    p.add_argument("--compiled", action="store_true", help="export the model and run the compiled policy")
+    p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     p.add_argument("--json", default=None, metavar="FILE", help="also write the summaries as JSON")
     args = p.parse_args(argv)
     if args.episodes < 1 or args.seed < 0:
@@ -102,14 +93,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         scene = scene_from_args(args)
         base = [s for s in (x.strip() for x in args.baselines.split(",")) if s]
-        runs, meta = evaluate(args.model, scene, base, args.episodes, args.seed, args.horizon, args.label)
+        runs, meta = evaluate(args.model, scene, base, args.episodes, args.seed, args.horizon, args.label,
+                              compiled=args.compiled, workers=args.workers)
     except (ValueError, ConfigError) as exc:
         print(f"agents.evaluate: {exc}", file=sys.stderr)
         return 2
     horizon = args.horizon if args.horizon is not None else scene.episode.horizon
     print(f"scene {scene.name} ({', '.join(args.set) or 'no overrides'}), episodes seeded "
-          f"{args.seed}..{args.seed + args.episodes - 1}; model options {meta.get('learnability', {})}, "
-          f"trained with overrides {meta.get('overrides', {})}")
+          f"{args.seed}..{args.seed + args.episodes - 1}; model hold_ticks {meta.get('hold_ticks', 1)}, "
+          f"residual {meta.get('residual')}, trained on {meta.get('scene')} with overrides "
+          f"{meta.get('overrides', {})}")
     print(format_table(runs, horizon))
     if args.json:
         Path(args.json).write_text(json.dumps({"scene": scene.name, "overrides": args.set, "seed": args.seed,

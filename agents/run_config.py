@@ -8,11 +8,11 @@ Zoo's special keys, which this module understands the same way:
   periods when ``hold_ticks`` is 1);
 * ``policy_kwargs`` (a mapping: ``net_arch``, ``log_std_init``, ``squash_output``, ``ortho_init``);
 * ``env_kwargs``: the keyword arguments of ``gymnasium.make("ImpactCatch-v0", **env_kwargs)``
-  (``scene``, ``overrides``, ``observation``, ``history``, ``horizon``, ``effort_weight``, ...);
-* ``env_wrapper``: RL Zoo's list of ``{class path: kwargs}``; the one accepted here is
-  :class:`agents.experimental_wrappers.HoldResidualWrapper` (``hold_ticks``, ``residual``,
-  ``chatter_weight``), which ``agents.train`` applies as the equivalent vector wrapper.  Once
-  the env takes these options itself they may be given in ``env_kwargs`` instead;
+  (``scene``, ``overrides``, ``observation``, ``history``, ``horizon``, ``hold_ticks``,
+  ``residual``, ``effort_weight``, ``terminate_on_catch``, ...): the learnability options are the
+  env's own, so RL Zoo and ``agents.train`` build the same env from the same mapping;
+* ``env_wrapper`` is refused (no wrapper is needed; the experimental wrappers of the first
+  experiments are retired, their options are env kwargs now);
 * ``learning_rate`` / ``clip_range`` as a number or RL Zoo's ``lin_<value>`` (linear decay to 0);
 * ``normalize`` only ``false`` (the env's observations are already of order one; a model.zip is
   then the whole policy).
@@ -29,15 +29,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from agents.experimental_wrappers import OPTION_KEYS, LearnabilityOptions, check_residual_observation
 from impact_env.config import ConfigError
 
 ENV_ID = "ImpactCatch-v0"
 ALGOS = ("ppo", "sac")
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
-WRAPPER_PATH = "agents.experimental_wrappers.HoldResidualWrapper"
 ASYMMETRIC = "agents.policies.AsymmetricActorCriticPolicy"
 ZOO_KEYS = ("policy", "n_envs", "n_timesteps", "env_kwargs", "env_wrapper", "policy_kwargs", "normalize")
+# options of the first experiments that the env never took: refused with a pointer to docs/agents.md
+RETIRED_KEYS = {"chatter_weight": "the chatter penalty did not help (docs/agents.md, e7) and was dropped; "
+                                  "the env's effort_weight is its effort penalty"}
 
 
 # -- value checks: each returns the value (possibly converted) or raises ConfigError -------------
@@ -182,7 +183,7 @@ SAC_SCHEMA = {
     "tau": _float(0.0, 1.0, lo_open=True), "gamma": _GAMMA, "train_freq": _train_freq,
     "gradient_steps": _int(-1), "ent_coef": _ent_coef_sac, "target_update_interval": _int(1),
     "target_entropy": _target_entropy, "use_sde": _bool, "sde_sample_freq": _int(-1),
-    "use_sde_at_warmup": _bool, "stats_window_size": _int(1),
+    "use_sde_at_warmup": _bool, "stats_window_size": _int(1), "n_steps": _int(1),
 }
 POLICY_SCHEMA = {"log_std_init": _float(-20.0, 5.0), "squash_output": _bool, "ortho_init": _bool,
                  "frame_size": _int(1), "actor_frame_size": _int(1), "history": _int(1, 64)}
@@ -206,20 +207,18 @@ def check_hyperparameter(algo: str, key: str, value: Any) -> Any:
 class RunConfig:
     """Everything a run needs, validated.  ``hyperparameters`` are the algorithm's keyword arguments
     (schedules still as strings), ``policy_kwargs`` the policy's; ``env_kwargs`` go to the native
-    vector env (scene and overrides apart); ``options`` are the experimental wrapper's."""
+    vector env (scene and overrides apart), ``hold_ticks`` and ``residual`` included."""
 
     algo: str
     scene: str
     overrides: dict
     env_kwargs: dict
-    options: LearnabilityOptions
     hyperparameters: dict
     policy_kwargs: dict
     n_envs: int
     n_timesteps: int
     seed: int
     conf_file: str | None = None
-    native_options: tuple = ()  # options the env itself took (once it has them)
     policy: str = "MlpPolicy"
     extra: dict = field(default_factory=dict)
 
@@ -231,21 +230,27 @@ class RunConfig:
     def history(self) -> int:
         return int(self.env_kwargs.get("history", 1))
 
+    @property
+    def hold_ticks(self) -> int:
+        return int(self.env_kwargs.get("hold_ticks", 1))
+
+    @property
+    def residual(self) -> str | None:
+        return self.env_kwargs.get("residual")
+
     def to_dict(self) -> dict:
         return {"algo": self.algo, "scene": self.scene, "overrides": dict(self.overrides),
-                "env_kwargs": dict(self.env_kwargs), "learnability": self.options.as_dict(),
+                "env_kwargs": dict(self.env_kwargs),
                 "hyperparameters": dict(self.hyperparameters), "policy_kwargs": dict(self.policy_kwargs),
                 "n_envs": self.n_envs, "n_timesteps": self.n_timesteps, "seed": self.seed,
-                "conf_file": self.conf_file, "native_options": list(self.native_options),
-                "policy": self.policy}
+                "conf_file": self.conf_file, "policy": self.policy}
 
     @classmethod
     def from_dict(cls, d: dict) -> RunConfig:
         return cls(algo=d["algo"], scene=d["scene"], overrides=d["overrides"], env_kwargs=d["env_kwargs"],
-                   options=LearnabilityOptions(**d["learnability"]), hyperparameters=d["hyperparameters"],
-                   policy_kwargs=d["policy_kwargs"], n_envs=d["n_envs"], n_timesteps=d["n_timesteps"],
-                   seed=d["seed"], conf_file=d.get("conf_file"),
-                   native_options=tuple(d.get("native_options", ())), policy=d.get("policy", "MlpPolicy"))
+                   hyperparameters=d["hyperparameters"], policy_kwargs=d["policy_kwargs"], n_envs=d["n_envs"],
+                   n_timesteps=d["n_timesteps"], seed=d["seed"], conf_file=d.get("conf_file"),
+                   policy=d.get("policy", "MlpPolicy"))
 
 
 def default_conf_file(algo: str) -> Path:
@@ -280,24 +285,6 @@ def _env_signature() -> set[str]:
     return params - {"self", "num_envs", "autoreset_mode", "render_mode"}
 
 
-def _wrapper_options(value) -> dict:
-    """The kwargs of the one HoldResidualWrapper entry of RL Zoo's ``env_wrapper``."""
-    if value is None:
-        return {}
-    items = value if isinstance(value, list) else [value]
-    out: dict = {}
-    for item in items:
-        name, kwargs = (next(iter(item.items())) if isinstance(item, dict) and len(item) == 1
-                        else (item, {}))
-        if name != WRAPPER_PATH:
-            raise ConfigError(f"env_wrapper {name!r}: agents.train supports only {WRAPPER_PATH} "
-                              "(hold_ticks, residual, chatter_weight)")
-        if not isinstance(kwargs, dict):
-            raise ConfigError(f"env_wrapper {name}: its arguments must be a mapping, got {kwargs!r}")
-        out.update(kwargs)
-    return out
-
-
 def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = None,
             n_envs: int | None = None,
             hp_overrides: dict | None = None, env_overrides: dict | None = None, scene: str | None = None,
@@ -328,7 +315,9 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
     env_kwargs = dict(entry.pop("env_kwargs", None) or {})
     if not isinstance(env_kwargs, dict):
         raise ConfigError(f"env_kwargs must be a mapping, got {env_kwargs!r}")
-    options = _wrapper_options(entry.pop("env_wrapper", None))
+    if entry.pop("env_wrapper", None) is not None:
+        raise ConfigError("env_wrapper: agents.train uses no env wrapper; give hold_ticks and residual "
+                          "(the env's own options) in env_kwargs")
     policy_kwargs = dict(entry.pop("policy_kwargs", None) or {})
     if not isinstance(policy_kwargs, dict):
         raise ConfigError("policy_kwargs must be a mapping (net_arch, log_std_init, ...), got "
@@ -366,36 +355,43 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
     env_kwargs.pop("scene", None)
     ov = dict(env_kwargs.pop("overrides", None) or {})
     ov.update(overrides or {})
-    for key in OPTION_KEYS:
-        if key in env_kwargs:
-            options[key] = env_kwargs.pop(key)
     valid = _env_signature()
-    native = tuple(k for k in OPTION_KEYS if k in valid and k in options)
-    for key in native:  # the env has the option itself now: let it do the work
-        env_kwargs[key] = options.pop(key)
+    for key in sorted(set(env_kwargs) & set(RETIRED_KEYS)):
+        raise ConfigError(f"env_kwargs {key}: {RETIRED_KEYS[key]}")
     unknown = sorted(set(env_kwargs) - valid)
     if unknown:
         raise ConfigError(f"unknown env_kwargs {', '.join(map(repr, unknown))} for {ENV_ID}; valid: "
-                          f"{', '.join(sorted(valid | set(OPTION_KEYS) | {'scene', 'overrides'}))}")
-    opts = LearnabilityOptions(**options)
-    cfg = RunConfig(algo=algo, scene=str(scene), overrides=ov, env_kwargs=env_kwargs, options=opts,
-                    hyperparameters=hp, policy_kwargs=policy_kwargs, n_envs=n_envs, n_timesteps=steps,
-                    seed=seed, conf_file=str(conf_file) if conf_file else None, native_options=native,
-                    policy=policy)
+                          f"{', '.join(sorted(valid | {'scene', 'overrides'}))}")
+    cfg = RunConfig(algo=algo, scene=str(scene), overrides=ov, env_kwargs=env_kwargs, hyperparameters=hp,
+                    policy_kwargs=policy_kwargs, n_envs=n_envs, n_timesteps=steps, seed=seed,
+                    conf_file=str(conf_file) if conf_file else None, policy=policy)
     check_env(cfg)
     return cfg
 
 
 def check_env(cfg: RunConfig) -> None:
-    """Scene, overrides, env kwargs and options checked without building an env (no simulation,
-    no compilation): the scene is loaded, the task's settings and the residual law built."""
+    """Scene, overrides and env kwargs checked without building an env (no simulation, no
+    compilation): the scene is loaded, the task's settings and the residual law built."""
     from impact_env.env.task import TaskConfig
     from impact_env.scene import load_scene
 
     scene = load_scene(cfg.scene, cfg.overrides or None)
     task_keys = set(inspect.signature(TaskConfig).parameters)
-    TaskConfig(**{k: v for k, v in cfg.env_kwargs.items() if k in task_keys})
-    from impact_env.sim.observation import make_layout
+    try:
+        task = TaskConfig(**{k: v for k, v in cfg.env_kwargs.items() if k in task_keys})
+    except ValueError as exc:  # the env's own messages name the setting, its range and unit
+        raise ConfigError(str(exc)) from None
+    if task.residual is not None:
+        from impact_env.policy.export import export_policy
+
+        try:
+            law = export_policy(task.residual, scene)
+        except ValueError as exc:
+            raise ConfigError(f"residual = {task.residual!r}: {exc}") from None
+        if law.mlp is not None:
+            raise ConfigError(f"residual = {task.residual!r} is a network; the residual's base must be a "
+                              "classic law (e.g. 'pd-penetration')")
+    from impact_env.control.observation import make_layout
 
     layout = make_layout(scene, cfg.observation, cfg.history)
     if cfg.policy == ASYMMETRIC:
@@ -412,5 +408,3 @@ def check_env(cfg: RunConfig) -> None:
     elif set(cfg.policy_kwargs) & {"frame_size", "actor_frame_size", "history"}:
         raise ConfigError("policy_kwargs frame_size, actor_frame_size, history belong to "
                           f"{ASYMMETRIC}; policy is {cfg.policy!r}")
-    cfg.options.make_law(scene)
-    check_residual_observation(cfg.options, cfg.observation)

@@ -14,15 +14,14 @@ reads as it is; the options above override single values.  Every value is checke
 anything is created: a bad one exits with status 2 and a message naming it.
 
 The vector env is the native one (:func:`impact_env.env.sb3.make_sb3_vec_env`, all ``--envs``
-rigs stepped in one compiled call), with the experimental options of
-:mod:`agents.experimental_wrappers` (``hold_ticks``, ``residual``, ``chatter_weight``) around it
-when asked for, and SB3's ``VecMonitor``.  It is **not** normalised: the env divides every
+rigs stepped in one compiled call, the env's own ``hold_ticks`` and ``residual`` included) in
+SB3's ``VecMonitor``.  It is **not** normalised: the env divides every
 observation by a reference scale, and leaving ``VecNormalize`` out makes ``model.zip`` the whole
 policy.  ``--steps`` counts SB3 timesteps, i.e. policy steps (control periods when
 ``hold_ticks`` is 1); ``model.json`` also gives ``ticks``, the control periods simulated.
 
 Writes into OUT: ``model.zip`` and ``model.json`` (observation, history, algo, scene, overrides,
-env kwargs, learnability options, steps, ticks, seed, wall time, hyperparameters, versions; read
+env kwargs, hold_ticks, residual, steps, ticks, seed, wall time, hyperparameters, versions; read
 by ``impact-env compare`` and :mod:`agents.evaluate`), ``run.json`` (the resolved settings, for
 ``--resume``), ``best_model.zip`` / ``best_model.json`` (the evaluation callback's best),
 ``eval/evaluations.npz``, ``checkpoints/model_<steps>_steps.zip`` (and SAC's replay buffer), and
@@ -35,7 +34,7 @@ Seeds (none of the three ranges meets another; checked):
   reseeds env i with ``seed + r * envs + i`` (the envs' Generators are not checkpointed);
 * validation (``EvalCallback``, keeps ``best_model.zip``): ``--eval-episodes`` drops seeded
   ``eval_seed + j`` (default 900000 + j), the same drops at every evaluation, on the env
-  without reward penalties (``effort_weight``, ``limit_weight``, ``chatter_weight`` = 0) and
+  without reward penalties (``effort_weight``, ``limit_weight`` = 0) and
   without termination on catch, as ``compare`` runs them: the best model is the one with the
   lowest energy integral over the whole horizon (a model that catches and then lets go loses);
 * test: ``impact-env compare --seed 1000`` (drops 1000 + j), what the README's tables use; the
@@ -140,22 +139,18 @@ class Tooling:
 
 # -- building -----------------------------------------------------------------------------------
 def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
-    from agents.experimental_wrappers import HoldResidualVecEnv, LearnabilityOptions
+    """The bare native SB3 vector env of ``cfg`` (no monitor); ``evaluation``: the test's objective,
+    without reward penalties and with every episode the whole horizon."""
     from impact_env.env.sb3 import make_sb3_vec_env
 
     kwargs = dict(cfg.env_kwargs)
-    options = cfg.options
-    if evaluation:  # the test's objective: no reward penalties, every episode the whole horizon
-        for key in ("effort_weight", "limit_weight", "chatter_weight"):
+    if evaluation:
+        for key in ("effort_weight", "limit_weight"):
             if key in kwargs:
                 kwargs[key] = 0.0
         kwargs["terminate_on_catch"] = False
-        options = LearnabilityOptions(options.hold_ticks, options.residual, 0.0)
-    raw = make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, monitor=False,
-                           **kwargs)
-    if not options.trivial:
-        raw = HoldResidualVecEnv(raw, options)
-    return raw
+    return make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, monitor=False,
+                            **kwargs)
 
 
 def _algo_kwargs(cfg: RunConfig) -> dict:
@@ -175,8 +170,7 @@ def _period_per_step(cfg: RunConfig) -> tuple[float, float]:
     from impact_env.scene import load_scene
 
     scene = load_scene(cfg.scene, cfg.overrides or None)
-    hold = cfg.options.hold_ticks * int(cfg.env_kwargs.get("hold_ticks", 1))
-    return scene.control_period * hold, scene.control_period
+    return scene.control_period * cfg.hold_ticks, scene.control_period
 
 
 def _latest_checkpoint(out: Path) -> tuple[Path, int] | None:
@@ -282,7 +276,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
                 reset_num_timesteps=not resume, tb_log_name=tb_name)
     wall = time.perf_counter() - t0
     done_steps = int(model.num_timesteps)
-    ticks = int(getattr(raw, "ticks", done_steps - start_step))
+    ticks = (done_steps - start_step) * cfg.hold_ticks  # every policy step is hold_ticks ticks
     model.save(out / "model.zip")
     venv.close()
 
@@ -298,7 +292,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     best = _best(out / "eval" / "evaluations.npz")
     meta = {"algo": cfg.algo, "observation": cfg.observation, "history": cfg.history, "scene": cfg.scene,
             "overrides": dict(cfg.overrides), "env_kwargs": dict(cfg.env_kwargs),
-            "learnability": cfg.options.as_dict(), "steps": done_steps, "ticks": ticks_total,
+            "hold_ticks": cfg.hold_ticks, "residual": cfg.residual, "steps": done_steps, "ticks": ticks_total,
             "envs": cfg.n_envs, "seed": cfg.seed, "wall_time_s": round(wall_total, 2),
             "steps_per_s": round(seg_steps / wall, 1), "ticks_per_s": round(ticks / wall, 1),
             "control_period_s": period, "policy_period_s": step_time,
@@ -351,8 +345,9 @@ def train(algo: str = "ppo", scene=None, overrides: dict | None = None, *, steps
           torch_threads: int | None = 1, verbose: int = 0) -> TrainResult:
     """Train ``algo`` into ``out``: the YAML entry of ``conf_file`` (default
     ``agents/hyperparams/ALGO.yml``) with these arguments overriding it (None: the file's value).
-    ``env_kwargs`` go to ``ImpactCatch-v0``; ``options`` are ``hold_ticks``, ``residual``,
-    ``chatter_weight``; ``hyperparameters`` override single hyperparameters or policy kwargs.
+    ``env_kwargs`` go to ``ImpactCatch-v0``; ``options`` are more env kwargs (``hold_ticks``,
+    ``residual``; kept for callers of the first version); ``hyperparameters`` override single
+    hyperparameters or policy kwargs.
     Raises :class:`~impact_env.config.ConfigError` (a ValueError) on any bad value, before
     anything is created.  Default ``tooling``: evaluation every 100k steps, no checkpoints."""
     cfg = make_config(algo, conf_file, scene=scene, overrides=overrides, steps=steps, envs=envs, seed=seed,
@@ -438,7 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: the scene's)")
     p.add_argument("--env-kwargs", action="append", default=[], metavar="KEY=VALUE",
                    help="an ImpactCatch-v0 argument or option (effort_weight=0.1, hold_ticks=4, "
-                        "residual=pd-penetration, chatter_weight=0.01); repeatable")
+                        "residual=pd-penetration, terminate_on_catch=False); repeatable")
     p.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                    help="override a hyperparameter (Python literal), e.g. --hp learning_rate=1e-4")
     p.add_argument("--tensorboard", default=None, metavar="DIR", help="TensorBoard log folder")

@@ -8,8 +8,8 @@ Rows (random actions, ``rig``, 16 envs, control periods per second of wall time)
 * ``native``: :func:`impact_env.env.sb3.make_sb3_vec_env`, what ``agents.train`` steps (reference);
 * ``dummy``: SB3's ``DummyVecEnv`` of ``gymnasium.make("ImpactCatch-v0")``, what ``rl_zoo3.train``
   steps;
-* ``hold4``, ``hold4+residual``: :class:`agents.experimental_wrappers.HoldResidualVecEnv` on the
-  native adapter (policy steps of 4 periods; the residual law evaluated every period).
+* ``hold4``, ``hold4+residual``: the native adapter with the env's own ``hold_ticks=4`` (and
+  ``residual="pd-penetration"``: the compiled law evaluated every period inside the step).
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ def main(argv=None) -> int:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     import impact_env  # noqa: F401
-    from agents.experimental_wrappers import HoldResidualVecEnv, LearnabilityOptions
     from impact_env.env.sb3 import make_sb3_vec_env
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -49,9 +48,8 @@ def main(argv=None) -> int:
     rows = {
         "native": (make_sb3_vec_env("rig", num_envs=n), 1),
         "dummy": (DummyVecEnv([lambda: gym.make("ImpactCatch-v0", scene="rig") for _ in range(n)]), 1),
-        "hold4": (HoldResidualVecEnv(make_sb3_vec_env("rig", num_envs=n), LearnabilityOptions(4)), 4),
-        "hold4+residual": (HoldResidualVecEnv(make_sb3_vec_env("rig", num_envs=n),
-                                              LearnabilityOptions(4, "pd-penetration")), 4),
+        "hold4": (make_sb3_vec_env("rig", num_envs=n, hold_ticks=4), 4),
+        "hold4+residual": (make_sb3_vec_env("rig", num_envs=n, hold_ticks=4, residual="pd-penetration"), 4),
     }
     ref = None
     print(f"{'path':16s} {'periods/s':>10s} {'ratio':>6s}")

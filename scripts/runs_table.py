@@ -21,13 +21,13 @@ def _row(d: Path) -> dict:
     if ev.is_file():
         z = np.load(ev)
         curve = " ".join(f"{x:.1f}" for x in z["results"].mean(axis=1))
-    opts = meta.get("learnability", {})
-    settings = [f"{meta['algo']}", f"hold {opts.get('hold_ticks', 1)}"]
+    kw = meta.get("env_kwargs", {})
+    opts = {**meta.get("learnability", {}), **kw}  # "learnability": model.json of the first experiments
+    settings = [f"{meta['algo']}", f"{meta.get('scene', '?')}", f"hold {opts.get('hold_ticks', 1)}"]
     if opts.get("residual"):
         settings.append(f"res {opts['residual']}")
     if opts.get("chatter_weight"):
         settings.append(f"chatter {opts['chatter_weight']}")
-    kw = meta.get("env_kwargs", {})
     for k in ("effort_weight", "history", "terminate_on_catch"):
         if k in kw:
             settings.append(f"{k} {kw[k]}")

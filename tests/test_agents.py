@@ -56,10 +56,11 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
         args += ["--hp", f"{key}={value}"]
     assert main(args) == 0
     meta = json.loads((out / "model.json").read_text())
-    # agents/hyperparams/ppo.yml holds the wrapper (hold 4, residual); --env-kwargs overrides the hold
-    assert meta["learnability"] == {"hold_ticks": 2, "residual": "pd-penetration", "chatter_weight": 0.0}
+    # agents/hyperparams/ppo.yml holds hold 4 and the residual in env_kwargs; --env-kwargs overrides the hold
+    assert (meta["hold_ticks"], meta["residual"]) == (2, "pd-penetration")
+    assert meta["env_kwargs"]["hold_ticks"] == 2 and meta["env_kwargs"]["residual"] == "pd-penetration"
     assert meta["env_kwargs"]["terminate_on_catch"] is False and meta["hyperparameters"]["gae_lambda"] == 1.0
-    assert meta["steps"] == 256 and meta["ticks"] > 256  # two control periods per policy step, but for ends
+    assert meta["steps"] == 256 and meta["ticks"] == 512  # two control periods per policy step
     assert meta["validation"]["seeds"] == [900_000, 900_001]
     assert meta["validation"]["best"]["evaluations"] == 2
     assert (out / "best_model.zip").is_file() and (out / "best_model.json").is_file()
@@ -93,13 +94,13 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     (["--hp", "net_arch=[64, -1]"], ["net_arch", "layer widths"]),
     (["--hp", "n_step=8"], ["n_step", "did you mean 'n_steps'"]),
     (["--env-kwargs", "effort_weight=-1"], ["effort_weight", ">= 0"]),
-    (["--env-kwargs", "hold_ticks=0"], ["hold_ticks", "integer from 1"]),
+    (["--env-kwargs", "hold_ticks=0"], ["hold_ticks", "[1, 10000]"]),
     (["--env-kwargs", "residual=pd"], ["unknown policy 'pd'"]),
     (["--env-kwargs", "colour=red"], ["unknown env_kwargs 'colour'"]),
+    (["--env-kwargs", "chatter_weight=0.1"], ["chatter_weight", "did not help"]),
     (["--set", "plant.m1=-1"], ["plant.m1"]),
     (["--scene", "moon"], ["unknown scene 'moon'"]),
-    (["--observation", "privileged", "--env-kwargs", "residual=pd-penetration"],
-     ["needs observation = 'sensors'"]),
+    (["--env-kwargs", f"residual=ppo:{ROOT}/agents/models/ppo_rig/model.zip"], ["residual", "classic law"]),
     (["--seed", "990"], ["test drops 1000..1099"]),
     (["--eval-seed", "5"], ["validation seeds 5..20"]),
 ])
@@ -154,6 +155,8 @@ def test_schedules_and_sac_entropy_follow_rl_zoo_conventions():
         resolve("ppo", {"n_timesteps": 10, "n_envs": 2, "n_steps": 8, "batch_size": 64})
     with pytest.raises(ConfigError, match="env_wrapper"):
         resolve("ppo", {"n_timesteps": 10, "env_wrapper": ["gymnasium.wrappers.ClipAction"]})
+    with pytest.raises(ConfigError, match="residual"):
+        resolve("ppo", {"n_timesteps": 10, "env_kwargs": {"residual": "pd-penetrashun"}})
 
 
 def test_yaml_without_the_env_id_is_refused_naming_what_it_has(tmp_path):

@@ -1,11 +1,13 @@
 """RL Zoo (rl_zoo3) trains on ImpactCatch-v0 with the project's YAML files as they are, with a
 tiny budget, and what it saves joins the evaluation."""
 
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -39,18 +41,22 @@ def test_rl_zoo_trains_with_the_project_yaml_and_the_model_runs(tmp_path, algo):
     model = run / "ImpactCatch-v0.zip"
     assert model.is_file() and (run / "best_model.zip").is_file()  # the evaluation callback ran
     saved = (run / "ImpactCatch-v0" / "config.yml").read_text()  # what RL Zoo used, for reproduction
-    assert "env_kwargs" in saved and "scene: rig" in saved
+    assert "env_kwargs" in saved and "scene: rig" in saved  # rig or rig-randomized
 
-    # the model, with the YAML's options, on two held-out drops through the evaluation wrapper
+    # the model, with the YAML's hold and residual (its sidecar JSON), on two held-out drops of the
+    # comparison, as the SB3 model and as its compiled export
     from agents.evaluate import evaluate
     from agents.run_config import read_conf, resolve
 
     cfg = resolve(algo, read_conf(conf))
     meta = {"algo": algo, "observation": cfg.observation, "history": cfg.history,
-            "learnability": cfg.options.as_dict()}
-    import json
-
+            "env_kwargs": cfg.env_kwargs}
     (run / "ImpactCatch-v0.json").write_text(json.dumps(meta))
-    runs, _ = evaluate(model, cfg.scene, baselines=("passive",), episodes=2, seed=1000, horizon=0.01)
-    s = runs[str(model)].summary
-    assert s["episodes"] == 2 and s["failed_episodes"] == 0
+    rows = {}
+    for compiled in (False, True):
+        runs, _ = evaluate(model, cfg.scene, baselines=("passive",), episodes=2, seed=1000, horizon=0.01,
+                           label="agent", compiled=compiled)
+        s = runs["agent"].summary
+        assert s["episodes"] == 2 and s["failed_episodes"] == 0
+        rows[compiled] = runs["agent"].metrics["energy_integral_ms"]
+    np.testing.assert_allclose(rows[True], rows[False], rtol=1e-4)

@@ -27,9 +27,11 @@ scene, the episodes' seeds (int64[N]), the horizon (s, a whole number of policy 
 ``{}``); whatever it leaves in ``policy.stats`` (a dict) is returned in ``extras["policy_stats"]``.
 A policy whose ``open_loop`` attribute is then not None (float[n_steps, N], commands in [-1, 1])
 is replayed from it: step k applies ``open_loop[k - 1]`` and ``predict`` is never called.
-``record_commands=True`` keeps the commands the rollout applied (after clipping, 0 for failed
-episodes) in ``extras["commands"]`` (float64[n_steps, N]); replaying them open loop on the same
-seeds reproduces the bodies' motion bitwise (sensor noise does not move the bodies).
+``record_commands=True`` keeps the drive command of every control period (after clipping; with
+``hold_ticks`` k, k periods per policy step; with a ``residual``, the law's part included; 0 for
+failed episodes) in ``extras["commands"]`` (float64[n_steps * hold_ticks, N]): replaying them open
+loop, one per period, on the same seeds reproduces the bodies' motion bitwise (sensor noise does
+not move the bodies), whatever hold and residual the policy had.
 """
 
 from __future__ import annotations
@@ -216,7 +218,7 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     extras: dict = {}
     open_loop = _prepare(policy, scene, seeds, n_steps, step_s, warm_starts, extras,
                          lambda msg: fail(np.ones(n, dtype=bool), 0.0, msg))
-    commands = np.zeros((n_steps, n)) if record_commands else None
+    commands = np.zeros((n_steps * hold, n)) if record_commands else None
     if compiled and (open_loop is not None or commands is not None):
         compiled = False  # replay and recording are Python-loop features (same numbers: tested)
     if compiled:
@@ -258,10 +260,11 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             if bad.any():
                 fail(bad, t_prev, f"non-finite action {a[bad][0]!r}")
             a = np.clip(np.where(failed, 0.0, a), -1.0, 1.0)  # the env's action space
-            if commands is not None:
-                commands[k - 1] = a
             active = None if not failed.any() else ~failed
             sim.step(a, active)
+            if commands is not None:  # every period's drive command (hold, residual law included)
+                u = sim.records[:, :, R.REC_U].T
+                commands[(k - 1) * hold:k * hold] = u if active is None else np.where(active, u, 0.0)
             metrics.step(sim.records, sim.P, active)
             div = sim.records[:, -1, R.REC_STATUS] != 0.0
             if active is not None:

@@ -1,0 +1,337 @@
+"""The agents' results (issue 11, item 4): trained runs next to the classic laws and the oracle on
+held-out drops of ``rig`` and ``rig-randomized``, with bootstrap 95 % intervals; writes the
+results section of ``docs/agents.md``, a figure, and ships the best agent.
+
+    python scripts/agents_report.py --runs runs/ppo_s0 runs/ppo_s100 runs/ppo_s200 runs/sac_s0 ... \\
+        [--episodes 100] [--seed 1000] [--scenes rig,rig-randomized] [--oracle oracle:warm=given] \\
+        [--workers 2] [--out runs/report] [--reuse] [--doc docs/agents.md] \\
+        [--figure docs/figures/agents_results.png] [--ship agents/models/best]
+
+What it does:
+
+* every run's ``best_model.zip`` (the evaluation callback's pick on the validation drops
+  900000..900015) is exported to a compiled policy (``best_model.policy.json`` next to it,
+  :func:`impact_env.policy.export.export_policy`: the network, its hold and its residual law);
+* for each scene one :func:`impact_env.eval.compare.compare` on drops ``seed .. seed + episodes - 1``
+  (seeds apart from training's, ``seed + envs``, and validation's, checked by ``agents.train``):
+  ``passive``, ``thesis-rig``, ``pd-penetration``, every agent, and the oracle last, which gets
+  every other policy's commands on each drop (its final choice includes them, so no policy can
+  beat it on any drop; with ``warm=given`` they are also the bases of its search).  Per-episode
+  metrics are kept in ``OUT/SCENE.npz`` (``--reuse`` reads them instead of running again);
+* intervals: percentile bootstrap over drops (``--resamples`` 10000, ``numpy.random.default_rng``
+  seeded ``--boot-seed``), the same resampled drops for every policy, of the median time to catch
+  (an episode not caught within the horizon counts as infinitely long, as in ``compare``) and of
+  the mean energy integral (ms: ``compare``'s ``int E ms``); the gap to the oracle is the mean
+  over drops of the policy's energy integral minus the oracle's on the same drop, with its own
+  paired interval;
+* the agent shipped is the run whose best model has the best validation return (the
+  validation drops, not the test drops, choose it); it is copied to ``--ship`` with its
+  ``model.json``, its compiled policy ``best.policy.json`` and ``best.onnx``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+BASELINES = ("passive", "thesis-rig", "pd-penetration")
+BEGIN, END = "<!-- agents_report:begin -->", "<!-- agents_report:end -->"
+
+
+# -- runs ---------------------------------------------------------------------------------------------
+def run_info(d: Path) -> dict:
+    meta = json.loads((d / "model.json").read_text())
+    best = (meta.get("validation") or {}).get("best") or {}
+    model = d / "best_model.zip" if (d / "best_model.zip").is_file() else d / "model.zip"
+    return {"dir": d, "label": f"{meta['algo']}-s{meta['seed']}", "algo": meta["algo"], "seed": meta["seed"],
+            "model": model, "meta": meta, "val_best": best.get("mean_reward", -math.inf),
+            "val_best_step": best.get("step")}
+
+
+def export(info: dict, scene) -> str:
+    from impact_env.policy.export import export_policy
+
+    out = info["model"].with_suffix(".policy.json")
+    export_policy(f"{info['algo']}:{info['model']}", scene).save(out)
+    return f"compiled:{out}"
+
+
+# -- evaluation -----------------------------------------------------------------------------------------
+def evaluate_scene(scene_name: str, infos: list[dict], args) -> dict:
+    """{label: {metric: float64[E]}} plus the oracle's per-drop source, from one compare."""
+    from impact_env.eval.compare import compare
+    from impact_env.scene import load_scene
+
+    scene = load_scene(scene_name)
+    specs = {b: b for b in BASELINES}
+    for info in infos:
+        specs[info["label"]] = export(info, scene)
+    specs["oracle"] = args.oracle
+    t0 = time.perf_counter()
+    runs = compare(scene, list(specs.values()), episodes=args.episodes, seed=args.seed, workers=args.workers,
+                   progress=False, trace_rate=2000.0)
+    wall = time.perf_counter() - t0
+    out = {"labels": list(specs), "specs": list(specs.values()), "wall_time_s": wall}
+    for label, spec in specs.items():
+        r = runs[spec]
+        for key in ("energy_integral_ms", "time_to_catch_s", "bounces", "rms_force_N", "peak_force_N"):
+            out[f"{label}|{key}"] = np.asarray(r.metrics[key], dtype=np.float64)
+        out[f"{label}|failed"] = np.array(len(r.failures))
+    st = runs[args.oracle].stats
+    out["oracle|source"] = np.asarray(st.get("source", []), dtype=str)
+    out["oracle|cpu_seconds"] = np.asarray(st.get("cpu_seconds", []), dtype=np.float64)
+    return out
+
+
+def save(path: Path, data: dict) -> None:
+    np.savez(path, **{k: (np.asarray(v) if not isinstance(v, (str, float)) else np.array(v))
+                      for k, v in data.items() if k not in ("labels", "specs")},
+             labels=np.array(data["labels"]), specs=np.array(data["specs"]))
+
+
+def load(path: Path) -> dict:
+    z = np.load(path)
+    d = {k: z[k] for k in z.files}
+    d["labels"] = [str(x) for x in z["labels"]]
+    d["specs"] = [str(x) for x in z["specs"]]
+    d["wall_time_s"] = float(z["wall_time_s"])
+    return d
+
+
+# -- statistics -------------------------------------------------------------------------------------------
+def median_catch(ttc: np.ndarray) -> float:
+    """compare's median: not caught (inf) counts as infinitely long."""
+    return float(np.median(np.where(np.isnan(ttc), np.inf, ttc)))
+
+
+def bootstrap(values: np.ndarray, stat, idx: np.ndarray) -> tuple[float, float]:
+    """2.5 and 97.5 percentiles of ``stat`` over the resampled drops ``idx`` (int[B, E])."""
+    reps = np.array([stat(values[i]) for i in idx]) if stat is not np.mean else values[idx].mean(axis=1)
+    lo, hi = np.percentile(np.where(np.isinf(reps), 1e300, reps), [2.5, 97.5])
+    return (float(lo) if lo < 1e299 else math.inf), (float(hi) if hi < 1e299 else math.inf)
+
+
+def scene_stats(d: dict, args) -> dict:
+    n = len(d[f"{d['labels'][0]}|energy_integral_ms"])
+    idx = np.random.default_rng(args.boot_seed).integers(0, n, (args.resamples, n))
+    oracle = d["oracle|energy_integral_ms"]
+    out = {}
+    for label in d["labels"]:
+        e = d[f"{label}|energy_integral_ms"]
+        t = d[f"{label}|time_to_catch_s"]
+        gap = e - oracle
+        out[label] = {
+            "median_catch_s": median_catch(t), "median_catch_ci": bootstrap(t, median_catch, idx),
+            "caught": float(np.mean(np.isfinite(t))),
+            "energy_ms": float(np.mean(e)), "energy_ci": bootstrap(e, np.mean, idx),
+            "gap_ms": float(np.mean(gap)), "gap_ci": bootstrap(gap, np.mean, idx),
+            "gap_median_ms": float(np.median(gap)), "gap_min_ms": float(np.min(gap)),
+            "bounces": float(np.mean(d[f"{label}|bounces"])),
+            "rms_N": float(np.mean(d[f"{label}|rms_force_N"])),
+            "failed": int(d[f"{label}|failed"]),
+        }
+    src = [str(s) for s in d["oracle|source"]]
+    out["_oracle"] = {"sources": {s: src.count(s) for s in sorted(set(src))},
+                      "cpu_s_per_drop": float(np.mean(d["oracle|cpu_seconds"])), "episodes": n}
+    return out
+
+
+def beats(a: dict, b: dict) -> dict:
+    """Does ``a`` beat ``b`` with non-overlapping 95 % intervals (lower is better)?"""
+    return {"catch": a["median_catch_ci"][1] < b["median_catch_ci"][0],
+            "energy": a["energy_ci"][1] < b["energy_ci"][0]}
+
+
+# -- output ---------------------------------------------------------------------------------------------
+def _t(x: float) -> str:
+    return ">0.4" if math.isinf(x) else f"{x:.3f}"
+
+
+def _ci(ci, fmt="{:.3f}", t=False) -> str:
+    f = _t if t else (lambda x: fmt.format(x))
+    return f"[{f(ci[0])}, {f(ci[1])}]"
+
+
+def scene_table(stats: dict) -> str:
+    rows = ["| policy | median catch s [95 % CI] | caught | energy integral ms [95 % CI] | gap to oracle ms, "
+            "mean [95 % CI] (median) | bounces | RMS N |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for label, s in stats.items():
+        if label.startswith("_"):
+            continue
+        rows.append(f"| {label} | {_t(s['median_catch_s'])} {_ci(s['median_catch_ci'], t=True)} | "
+                    f"{100 * s['caught']:.0f} % | {s['energy_ms']:.2f} {_ci(s['energy_ci'], '{:.2f}')} | "
+                    f"{s['gap_ms']:.2f} {_ci(s['gap_ci'], '{:.2f}')} ({s['gap_median_ms']:.2f}) | "
+                    f"{s['bounces']:.1f} | {s['rms_N']:.1f} |")
+    return "\n".join(rows)
+
+
+def training_table(infos: list[dict]) -> str:
+    rows = ["| run | scene | policy steps | control periods | wall s | steps/s | periods/s | best validation "
+            "(step) |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for i in infos:
+        m = i["meta"]
+        rows.append(f"| {i['label']} | {m['scene']} | {m['steps']:,} | {m['ticks']:,} | "
+                    f"{m['wall_time_s']:.0f} | "
+                    f"{m['steps'] / m['wall_time_s']:.0f} | {m['ticks'] / m['wall_time_s']:.0f} | "
+                    f"{i['val_best']:.2f} ({i['val_best_step']:,}) |")
+    return "\n".join(rows)
+
+
+def figure(all_stats: dict, path: Path, shipped: str) -> Path:
+    import matplotlib.pyplot as plt
+
+    scenes = list(all_stats)
+    fig, axes = plt.subplots(len(scenes), 2, figsize=(11, 3.2 + 2.2 * len(scenes)), squeeze=False)
+    for r, scene in enumerate(scenes):
+        st = {k: v for k, v in all_stats[scene].items() if not k.startswith("_")}
+        labels = list(st)[::-1]
+        y = np.arange(len(labels))
+        panels = (("median_catch_s", "median_catch_ci", "median time to catch, s"),
+                  ("energy_ms", "energy_ci", "energy integral, ms (mean)"))
+        for c, (key, ci, title) in enumerate(panels):
+            ax = axes[r, c]
+            v = np.array([min(st[k][key], 0.45) for k in labels])
+            lo = np.array([min(st[k][ci][0], 0.45) if c == 0 else st[k][ci][0] for k in labels])
+            hi = np.array([min(st[k][ci][1], 0.45) if c == 0 else st[k][ci][1] for k in labels])
+            colors = ["tab:red" if k == shipped else "tab:gray" if k in BASELINES
+                      else "black" if k == "oracle" else "tab:blue" if k.startswith("ppo") else "tab:green"
+                      for k in labels]
+            ax.errorbar(v, y, xerr=[v - lo, hi - v], fmt="none", ecolor=colors, capsize=3)
+            ax.scatter(v, y, c=colors, zorder=3)
+            ax.set_yticks(y, labels)
+            if c == 0:
+                ax.axvline(0.4, color="0.7", ls=":")
+                ax.set_xlim(0, 0.46)
+            ax.set_xscale("linear" if c == 0 else "log")
+            ax.set_title(f"{scene}: {title}", fontsize=10)
+            ax.grid(axis="x", alpha=0.3)
+    fig.suptitle("Held-out drops: values with bootstrap 95 % intervals (red: the shipped agent; "
+                 "0.4 s = not caught within the horizon)", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def ship(info: dict, dest: Path) -> dict:
+    """Copy the best model with its model.json; write its compiled policy and ONNX next to it."""
+    from impact_env.policy.export import export_policy, write_onnx
+
+    dest.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(info["model"], dest / "model.zip")
+    meta_src = info["model"].with_suffix(".json")
+    meta = json.loads((meta_src if meta_src.is_file() else info["dir"] / "model.json").read_text())
+    meta["shipped_from"] = {"run": str(info["dir"]), "model": info["model"].name, "label": info["label"]}
+    (dest / "model.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
+    pol = export_policy(f"{info['algo']}:{dest / 'model.zip'}", meta["scene"])
+    pol.save(dest / "best.policy.json")
+    write_onnx(pol, dest / "best.onnx")
+    return meta
+
+
+def write_doc(doc: Path, text: str) -> None:
+    old = doc.read_text()
+    if BEGIN not in old or END not in old:
+        raise SystemExit(f"{doc}: no {BEGIN} ... {END} markers; add them where the results go")
+    head, _, rest = old.partition(BEGIN)
+    _, _, tail = rest.partition(END)
+    doc.write_text(head + BEGIN + "\n" + text.strip() + "\n" + END + tail)
+
+
+def report_text(infos, all_stats, shipped, args, walls) -> str:
+    lines = ["*Written by `python scripts/agents_report.py " + " ".join(args.argv) + "`; do not edit by "
+             "hand.*", ""]
+    lines += [f"Test drops: seeds {args.seed}..{args.seed + args.episodes - 1} of each scene (training used "
+              "seeds 0-15, 100-115, 200-215 and draws from their Generators; validation 900000-900015). "
+              f"Intervals: percentile bootstrap over drops, {args.resamples} resamples "
+              f"(`numpy.random.default_rng({args.boot_seed})`), the same resamples for every policy. "
+              f"Oracle: `{args.oracle}`.", ""]
+    lines += ["### Training runs", "", training_table(infos), "",
+              f"Shipped (`{args.ship}`): **{shipped}**, the best validation return among the runs.", ""]
+    for scene, st in all_stats.items():
+        o = st["_oracle"]
+        src = ", ".join(f"{k} {v}" for k, v in o["sources"].items())
+        lines += [f"### `{scene}`, {o['episodes']} held-out drops", "", scene_table(st), "",
+                  f"Oracle: {o['cpu_s_per_drop']:.1f} s of CPU per drop; its sequence per drop came from: "
+                  f"{src} "
+                  f"(a name other than `cma`: that policy's own recorded commands were the best found). "
+                  f"Evaluation wall time {walls[scene]:.0f} s.", ""]
+        pd, ag = st["pd-penetration"], st[shipped]
+        b = beats(ag, pd)
+        verdict = {k: "non-overlapping: beats it" if v else "intervals overlap or worse: NOT shown"
+                   for k, v in b.items()}
+        share = (pd["energy_ms"] - ag["energy_ms"]) / (pd["energy_ms"] - st["oracle"]["energy_ms"]) \
+            if pd["energy_ms"] > st["oracle"]["energy_ms"] else math.nan
+        lines += [f"Shipped agent against pd-penetration on `{scene}`: median catch "
+                  f"{_t(ag['median_catch_s'])} {_ci(ag['median_catch_ci'], t=True)} s against "
+                  f"{_t(pd['median_catch_s'])} {_ci(pd['median_catch_ci'], t=True)} s "
+                  f"({verdict['catch']}); "
+                  f"energy integral {ag['energy_ms']:.2f} {_ci(ag['energy_ci'], '{:.2f}')} ms against "
+                  f"{pd['energy_ms']:.2f} {_ci(pd['energy_ci'], '{:.2f}')} ms "
+                  f"({verdict['energy']}); "
+                  f"it closes {100 * share:.0f} % of pd-penetration's gap to the oracle "
+                  f"({pd['gap_ms']:.2f} ms -> {ag['gap_ms']:.2f} ms).", ""]
+        worst = min((s["gap_min_ms"], k) for k, s in st.items() if not k.startswith("_") and k != "oracle")
+        lines += [f"No policy beats the oracle on any drop: the smallest per-drop gap is {worst[0]:.3f} ms "
+                  f"({worst[1]})." if worst[0] >= 0 else
+                  f"**{worst[1]} beats the oracle on a drop (gap {worst[0]:.3f} ms): the optimiser is too "
+                  "weak.**",
+                  ""]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--runs", nargs="+", required=True, help="run folders of agents.train")
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=1000)
+    p.add_argument("--scenes", default="rig,rig-randomized")
+    p.add_argument("--oracle", default="oracle:warm=given")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--resamples", type=int, default=10000)
+    p.add_argument("--boot-seed", type=int, default=20251122)
+    p.add_argument("--out", default="runs/report")
+    p.add_argument("--reuse", action="store_true", help="read OUT/SCENE.npz instead of evaluating again")
+    p.add_argument("--doc", default="docs/agents.md")
+    p.add_argument("--figure", default="docs/figures/agents_results.png")
+    p.add_argument("--ship", default="agents/models/best")
+    p.add_argument("--no-ship", action="store_true")
+    args = p.parse_args(argv)
+    args.argv = sys.argv[1:] if argv is None else list(argv)
+    infos = [run_info(Path(d)) for d in args.runs]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    all_stats, walls = {}, {}
+    for scene in args.scenes.split(","):
+        path = out / f"{scene}.npz"
+        if args.reuse and path.is_file():
+            d = load(path)
+        else:
+            d = evaluate_scene(scene, infos, args)
+            save(path, d)
+        walls[scene] = d["wall_time_s"]
+        all_stats[scene] = scene_stats(d, args)
+        print(f"== {scene} ({walls[scene]:.0f} s)\n{scene_table(all_stats[scene])}\n", flush=True)
+    best = max(infos, key=lambda i: i["val_best"])
+    (out / "stats.json").write_text(json.dumps(all_stats, indent=1, default=list) + "\n")
+    if not args.no_ship:
+        ship(best, Path(args.ship))
+    fig = figure(all_stats, Path(args.figure), best["label"])
+    text = report_text(infos, all_stats, best["label"], args, walls)
+    text += f"\n![results]({Path(args.figure).relative_to(Path(args.doc).parent)})\n"
+    write_doc(Path(args.doc), text)
+    print(f"shipped {best['label']} to {args.ship}; wrote {args.doc} and {fig}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
