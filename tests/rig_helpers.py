@@ -18,11 +18,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def start_target(*args: str, timeout_s: float = 300.0) -> tuple[subprocess.Popen, str]:
-    """``impact-env rig serve --virtual --port 0 ARGS``; returns (process, address) once it
-    listens (its first run may compile the kernels: up to ``timeout_s``)."""
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    cmd = [sys.executable, "-m", "impact_env.cli.main", "rig", "serve", "--virtual", "--port", "0", *args]
+def start_target(*args: str, timeout_s: float = 300.0,
+                 driver: str | None = None) -> tuple[subprocess.Popen, str]:
+    """``impact-env rig serve --virtual --port 0 ARGS`` (``--driver DRIVER`` instead of
+    ``--virtual`` if given, with the repository on PYTHONPATH so that ``tests.rig_drivers``
+    imports); returns (process, address) once it listens (its first run may compile the
+    kernels: up to ``timeout_s``)."""
+    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=path)
+    which = ["--virtual"] if driver is None else ["--driver", driver]
+    cmd = [sys.executable, "-m", "impact_env.cli.main", "rig", "serve", *which, "--port", "0", *args]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env)
     deadline = time.monotonic() + timeout_s
     line = ""

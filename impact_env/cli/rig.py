@@ -12,7 +12,11 @@ def add_parser(sub, scene_args) -> None:
     rsub = p.add_subparsers(dest="rig_command", required=True)
     s = rsub.add_parser("serve", help="run the 10 kHz target until SIGTERM (prints a line with 'listening')")
     scene_args(s)
-    s.add_argument("--virtual", action="store_true", help="drive a simulated rig (the only driver built in)")
+    d = s.add_mutually_exclusive_group(required=True)
+    d.add_argument("--virtual", action="store_true", help="drive a simulated rig (the driver built in)")
+    d.add_argument("--driver", metavar="MODULE:CLASS",
+                   help="drive a rig through a RigDriver subclass (importable; constructed with the scene): "
+                        "a DAQ card's driver, docs/rig.md 'Writing a driver'")
     s.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: loopback only)")
     s.add_argument("--port", type=int, default=5600, help="UDP port (default 5600; 0: any free port)")
     s.add_argument("--lockstep", action="store_true",
@@ -37,21 +41,20 @@ def cmd_serve(args) -> int:
     from impact_env.rig.driver import VirtualRig
     from impact_env.rig.target import Target, TargetConfig
 
-    if not args.virtual:
-        raise ConfigError("rig serve: give --virtual (a simulated rig); a physical rig needs a RigDriver "
-                          "for its DAQ card (docs/rig.md, 'Writing a driver')")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port} is out of range: 0 to 65535")
     if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
         raise ConfigError(f"--log-dir {args.log_dir!r} exists and is not a folder")
     scene = scene_from_args(args)
+    driver = VirtualRig(scene) if args.virtual else load_driver(args.driver, scene)
+    kind = "virtual rig" if driver.virtual else f"driver {type(driver).__name__}"
     print(f"impact-env rig: compiling the target's kernels for scene {scene.name!r} ...", file=sys.stderr,
           flush=True)
-    target = Target(VirtualRig(scene), f"udp://{args.host}:{args.port}",
+    target = Target(driver, f"udp://{args.host}:{args.port}",
                     TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
                                  seed_offset=args.seed))
     target.install_signal_handlers()
-    print(f"impact-env rig: listening on {target.address} (virtual rig, scene {scene.name}, "
+    print(f"impact-env rig: listening on {target.address} ({kind}, scene {scene.name}, "
           f"{'lock-step' if args.lockstep else 'real time'} at {scene.control_rate:g} Hz)", flush=True)
     target.serve()
     try:
@@ -60,6 +63,33 @@ def cmd_serve(args) -> int:
     except BrokenPipeError:  # whoever started us is gone; the shaker is at 0 N all the same
         pass
     return 0
+
+
+def load_driver(spec: str, scene):
+    """``MODULE:CLASS`` -> an instance of that :class:`~impact_env.rig.driver.RigDriver` subclass,
+    constructed with ``scene``; ConfigError naming what is wrong before any device is opened."""
+    import importlib
+
+    from impact_env.config import ConfigError
+    from impact_env.rig.driver import RigDriver
+
+    module, sep, name = spec.partition(":")
+    if not sep or not module or not name:
+        raise ConfigError(f"--driver {spec!r}: expected MODULE:CLASS, e.g. myrig.driver:NiRig")
+    try:
+        mod = importlib.import_module(module)
+    except ImportError as e:
+        raise ConfigError(f"--driver {spec!r}: cannot import module {module!r} ({e}); is it on PYTHONPATH?") \
+            from e
+    cls = getattr(mod, name, None)
+    if not (isinstance(cls, type) and issubclass(cls, RigDriver)):
+        raise ConfigError(f"--driver {spec!r}: {module}.{name} is not a subclass of "
+                          "impact_env.rig.driver.RigDriver")
+    driver = cls(scene)
+    if driver.scene.control_rate != scene.control_rate:
+        raise ConfigError(f"--driver {spec!r}: its scene's control rate ({driver.scene.control_rate:g} Hz) "
+                          f"is not the served scene's ({scene.control_rate:g} Hz)")
+    return driver
 
 
 def cmd_log(args) -> int:
