@@ -42,7 +42,7 @@ from impact_env.rig.clock import lateness_summary  # noqa: E402
 from impact_env.rig.host import RigClient  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
 
-MODEL = "ppo:agents/models/ppo_rig/model.zip"
+MODEL = "ppo:agents/models/best/model.zip"  # the shipped agent: residual on pd-penetration, hold 4
 
 
 def onboard(addr: str, spec: str, ticks: int) -> dict:

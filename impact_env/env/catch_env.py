@@ -75,10 +75,15 @@ class ImpactCatchEnv(gym.Env):
     ## Arguments
 
     ``gymnasium.make("ImpactCatch-v0", scene="rig", overrides=None, observation="sensors",
-    history=1, horizon=None, catch_threshold=0.01, catch_hold=0.01, terminate_on_catch=True,
-    effort_weight=0.0, limit_weight=0.0, action_bounds="clip", render_mode=None)``.
+    history=1, hold_ticks=1, residual=None, horizon=None, catch_threshold=0.01, catch_hold=0.01,
+    terminate_on_catch=True, effort_weight=0.0, limit_weight=0.0, action_bounds="clip",
+    render_mode=None)``.
     ``scene``: a preset name, a :class:`~impact_env.scene.Scene`, a dict or a TOML path;
-    ``overrides``: dotted keys (``{"plant.m1": 0.05}``).
+    ``overrides``: dotted keys (``{"plant.m1": 0.05}``).  ``hold_ticks``: control periods per
+    policy step (the action is held, rewards summed, the observation is the last period's; an
+    episode ending inside a hold ends the step there).  ``residual``: a classic law's name
+    (``"pd-penetration"``, ...), evaluated every control period on its own copy of the sensor frame
+    by the compiled policy code; the action adds to its command (clipped to [-1, 1]).
 
     ``info`` holds (SI): ``t``, ``catch_energy``, ``catch_energy_ratio``, ``impact_energy``,
     ``impact_speed``, ``contact`` (true contact), ``contact_force``, ``force_demand``,
