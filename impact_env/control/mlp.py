@@ -11,9 +11,8 @@ by code (:data:`ACTIVATIONS`), then the output transform stable-baselines3 appli
 
 Packing (int64 ``layers``: per layer n_in, n_out, activation, offset of W, offset of b into the
 float64 ``weights``) and the kernel, which needs a scratch row of ``2 * widest`` floats and
-allocates nothing.  W is packed transposed (in x out), so that the kernel adds each input's
-column to all outputs at once: that loop has no reduction in it and LLVM vectorises it without
-reassociating anything (each output is still summed in input order, ``b + W[:, 0] x0 + ...``).
+allocates nothing.  W is packed transposed (in x out); the kernel sums eight outputs at a time
+in registers, each in input order (``b + W[:, 0] x0 + ...``), so nothing is reassociated.
 """
 
 from __future__ import annotations
@@ -99,13 +98,36 @@ def mlp_forward(layers, w, obs, scratch):
         code = layers[j, L_ACT]
         a0 = w[layers[j, L_A0]]
         a1 = w[layers[j, L_A1]]
-        for o in range(n_out):
-            y[o] = w[ob + o]
-        for i in range(n_in):
-            xi = x[i]
-            col = ow + i * n_out
-            for o in range(n_out):
-                y[o] += w[col + o] * xi
+        # eight outputs at a time in locals: eight independent add chains in registers, where
+        # y[o] += ... in memory made every step a load and a store (y may alias w for LLVM).
+        # Each output is still summed b + W[:, 0] x0 + W[:, 1] x1 + ...: bitwise the same.
+        o = 0
+        while o + 8 <= n_out:
+            c0, c1, c2, c3 = w[ob + o], w[ob + o + 1], w[ob + o + 2], w[ob + o + 3]
+            c4, c5, c6, c7 = w[ob + o + 4], w[ob + o + 5], w[ob + o + 6], w[ob + o + 7]
+            col = ow + o
+            for i in range(n_in):
+                xi = x[i]
+                c0 += w[col] * xi
+                c1 += w[col + 1] * xi
+                c2 += w[col + 2] * xi
+                c3 += w[col + 3] * xi
+                c4 += w[col + 4] * xi
+                c5 += w[col + 5] * xi
+                c6 += w[col + 6] * xi
+                c7 += w[col + 7] * xi
+                col += n_out
+            y[o], y[o + 1], y[o + 2], y[o + 3] = c0, c1, c2, c3
+            y[o + 4], y[o + 5], y[o + 6], y[o + 7] = c4, c5, c6, c7
+            o += 8
+        while o < n_out:
+            c = w[ob + o]
+            col = ow + o
+            for i in range(n_in):
+                c += w[col] * x[i]
+                col += n_out
+            y[o] = c
+            o += 1
         for o in range(n_out):
             x[o] = _activate(code, y[o], a0, a1)
     return x[:layers[layers.shape[0] - 1, L_OUT]]
