@@ -198,19 +198,27 @@ def figure(all_stats: dict, path: Path, shipped: str) -> Path:
                   ("energy_ms", "energy_ci", "energy integral, ms (mean)"))
         for c, (key, ci, title) in enumerate(panels):
             ax = axes[r, c]
-            v = np.array([min(st[k][key], 0.45) for k in labels])
+            v = np.array([min(st[k][key], 0.45) if c == 0 else st[k][key] for k in labels])
             lo = np.array([min(st[k][ci][0], 0.45) if c == 0 else st[k][ci][0] for k in labels])
             hi = np.array([min(st[k][ci][1], 0.45) if c == 0 else st[k][ci][1] for k in labels])
             colors = ["tab:red" if k == shipped else "tab:gray" if k in BASELINES
                       else "black" if k == "oracle" else "tab:blue" if k.startswith("ppo") else "tab:green"
                       for k in labels]
-            ax.errorbar(v, y, xerr=[v - lo, hi - v], fmt="none", ecolor=colors, capsize=3)
+            for yi, vi, li, hii, ci_ in zip(y, v, lo, hi, colors, strict=True):  # one ecolor per call
+                ax.errorbar([vi], [yi], xerr=[[vi - li], [hii - vi]], fmt="none", ecolor=ci_, capsize=3)
             ax.scatter(v, y, c=colors, zorder=3)
             ax.set_yticks(y, labels)
             if c == 0:
                 ax.axvline(0.4, color="0.7", ls=":")
                 ax.set_xlim(0, 0.46)
             ax.set_xscale("linear" if c == 0 else "log")
+            if c == 1:  # plain numbers at a few ticks, no crowded minor labels
+                from matplotlib.ticker import NullFormatter, ScalarFormatter
+
+                ticks = (2, 3, 5, 10, 20, 50, 100)
+                ax.set_xticks([t for t in ticks if lo.min() / 1.5 <= t <= hi.max() * 1.5])
+                ax.xaxis.set_major_formatter(ScalarFormatter())
+                ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_title(f"{scene}: {title}", fontsize=10)
             ax.grid(axis="x", alpha=0.3)
     fig.suptitle("Held-out drops: values with bootstrap 95 % intervals (red: the shipped agent; "
@@ -248,7 +256,10 @@ def write_doc(doc: Path, text: str) -> None:
 
 
 def report_text(infos, all_stats, shipped, args, walls) -> str:
-    lines = ["*Written by `python scripts/agents_report.py " + " ".join(args.argv) + "`; do not edit by "
+    # --reuse reads the per-drop results the same command saved, --no-ship skips a copy it made: the
+    # command that makes all of this is the one without them
+    argv = [a for a in args.argv if a not in ("--reuse", "--no-ship")]
+    lines = ["*Written by `python scripts/agents_report.py " + " ".join(argv) + "`; do not edit by "
              "hand.*", ""]
     lines += [f"Test drops: seeds {args.seed}..{args.seed + args.episodes - 1} of each scene (training used "
               "seeds 0-15, 100-115, 200-215 and draws from their Generators; validation 900000-900015). "
@@ -329,7 +340,8 @@ def main(argv=None) -> int:
     text = report_text(infos, all_stats, best["label"], args, walls)
     text += f"\n![results]({Path(args.figure).relative_to(Path(args.doc).parent)})\n"
     write_doc(Path(args.doc), text)
-    print(f"shipped {best['label']} to {args.ship}; wrote {args.doc} and {fig}")
+    shipped = "picked (not shipped: --no-ship)" if args.no_ship else f"shipped to {args.ship}"
+    print(f"{best['label']} {shipped}; wrote {args.doc} and {fig}")
     return 0
 
 
