@@ -122,3 +122,16 @@ def jit(func=None, **options):
     if func is None:
         return lambda f: numba.njit(**options)(f)
     return numba.njit(**options)(func)
+
+
+def bound_call(dispatcher, args: tuple):
+    """A caller for ``dispatcher(*args)`` and later calls with arguments of exactly these types,
+    which skips numba's per-call typing of the arguments (3 us of a single env's step, whose
+    kernel takes 52 arrays in nested tuples).  Calls the dispatcher once (compiling or loading
+    the kernel), then returns the compiled entry point for these types, or the dispatcher itself
+    where numba did not record it.  Only for arguments whose types never change (the caller keeps
+    its arrays, dtypes and layouts fixed); arrays must be C-contiguous where they were."""
+    dispatcher(*args)
+    sig = tuple(numba.typeof(a) for a in args)
+    cres = dispatcher.overloads.get(sig)
+    return dispatcher if cres is None else cres.entry_point

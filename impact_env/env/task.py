@@ -29,11 +29,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from impact_env._jit import bound_call
 from impact_env.config import ConfigError, check_choice, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.env import task_kernel as TK
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.simulator import Simulator, check_hold_ticks
+
+# info_dict's scalar entries in INFO_KEYS order: (key, column, is a flag); the state goes as one array
+_INFO_SCALARS = tuple((key, j, key in TK.BOOL_KEYS) for j, key in enumerate(TK.INFO_KEYS)
+                      if not TK.COL_X1 <= j <= TK.COL_V2)
 
 REWARD_TIME_UNIT = 1e-3  # s
 
@@ -125,6 +130,7 @@ class CatchTask:
         self._a1 = np.zeros(1)
         self._all = np.ones(n, dtype=bool)
         self._state = (tp, self.steps, self.below, self.diverged, self.energy)
+        self._task_step = None  # TK.task_step bound to these arrays' types (first step)
 
     @property
     def obs(self) -> np.ndarray:
@@ -169,10 +175,15 @@ class CatchTask:
         Returns (rewards float64[N], terminated bool[N], truncated bool[N]), arrays owned by the
         task (copy them to keep them)."""
         sim = self.sim
-        sim.step(a, active)
-        act = self._all if active is None else active
-        TK.task_step(act, sim.records, sim.Y, sim.P, sim.impact_energy, self.impact_speed, *self._state,
-                     self.rewards, self.terminated, self.truncated, self.rows)
+        # the types the bound kernel was made for: writable C-contiguous bool[n]
+        act = self._all if active is None else np.array(active, dtype=bool).reshape(self.n)
+        sim.step(a, None if active is None else act)  # None: every env, without a mask
+        args = (act, sim.records, sim.Y, sim.P, sim.impact_energy, self.impact_speed, *self._state,
+                self.rewards, self.terminated, self.truncated, self.rows)
+        if self._task_step is None:
+            self._task_step = bound_call(TK.task_step, args)
+        else:
+            self._task_step(*args)
         return self.rewards, self.terminated, self.truncated
 
     # -- info ---------------------------------------------------------------------------------
@@ -191,9 +202,6 @@ class CatchTask:
     def info_dict(self, i: int) -> dict:
         """Env i's info as Python scalars (and ``state`` as float64[4])."""
         vals = self.rows[i].tolist()
-        out = dict(zip(TK.INFO_KEYS, vals, strict=True))
-        for key in TK.BOOL_KEYS:
-            out[key] = out[key] > 0.5
-        del out["x1"], out["v1"], out["x2"], out["v2"]
+        out = {key: (vals[j] > 0.5 if flag else vals[j]) for key, j, flag in _INFO_SCALARS}
         out["state"] = np.array(vals[TK.COL_X1:TK.COL_V2 + 1])
         return out

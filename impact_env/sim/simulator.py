@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from impact_env._jit import bound_call
 from impact_env.control.front_end import FrontEnd, observation_buffers, start_rows
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.control.policy import CompiledPolicy
@@ -61,6 +62,7 @@ class Simulator:
         self.records = np.zeros((self.n, self.hold, N_REC))
         self._all = np.ones(self.n, dtype=bool)
         self._hw_args = hw.args()
+        self._step = None  # sim_step bound to this simulator's argument types (first step)
         self.residual = residual
         if residual is not None:
             if residual.mlp is not None or residual.history != 1:
@@ -89,12 +91,17 @@ class Simulator:
         """One policy step (``hold_ticks`` ticks) of every env (or of those where ``active`` is
         true: the others are left exactly as they are) under float64[N] commands in [-1, 1]."""
         n = self.n
-        a = actions if (type(actions) is np.ndarray and actions.dtype == np.float64 and actions.ndim == 1
-                        and actions.shape[0] == n and actions.flags.c_contiguous) \
-            else np.ascontiguousarray(actions, dtype=np.float64).reshape(n)
-        act = self._all if active is None else np.asarray(active, dtype=bool)
+        # the types the bound kernel was made for: writable C-contiguous float64[n] and bool[n]
+        own = (type(actions) is np.ndarray and actions.dtype == np.float64 and actions.ndim == 1
+               and actions.shape[0] == n and actions.flags.c_contiguous and actions.flags.writeable)
+        a = actions if own else np.array(actions, dtype=np.float64).reshape(n)
+        act = self._all if active is None else np.array(active, dtype=bool).reshape(n)
         self.hw.refill_noise(self.hold, None if active is None else act)
-        sim_step(a, act, self.hold, self._hw_args, self.fe.fe, self.fe.ob, self.law, self.records)
+        args = (a, act, self.hold, self._hw_args, self.fe.fe, self.fe.ob, self.law, self.records)
+        if self._step is None:  # its argument types are fixed from here on: float64[::1], bool[::1]
+            self._step = bound_call(sim_step, args)
+        else:
+            self._step(*args)
 
     # -- what the rest of the project reads ---------------------------------------------------
     @property
