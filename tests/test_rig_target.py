@@ -210,7 +210,7 @@ import sys, time, numpy as np
 from impact_env.rig.host import RigClient
 c = RigClient(sys.argv[1])
 c.arm("host", 5, 100_000, hold_ticks=10, link_timeout_ms=300)
-step = 0
+step, applied = 0, 0
 t0 = time.perf_counter()
 while True:  # a host stepping in real time until it is killed
     obs = c.observation(step, 0.05)
@@ -218,7 +218,9 @@ while True:  # a host stepping in real time until it is killed
         step = obs.step
         c.command(step, 0.1)
         step += 1
-        if time.perf_counter() - t0 > 0.3:
+        applied += obs.telemetry[0] != 0.0  # force demanded: a command of ours is in use
+        # "stepping" once commands have been applied (on a loaded machine many arrive too late)
+        if time.perf_counter() - t0 > 0.3 and applied >= 20:
             print("stepping", flush=True)
 """
 
