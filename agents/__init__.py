@@ -15,8 +15,8 @@ reads, so a model trained without options joins the comparison::
     impact-env compare --scene rig --policies passive,pd-penetration,ppo:runs/ppo0/model.zip \\
         --episodes 100 --seed 1000
 
-(seed 1000 and up: drops that training did not start from).  A model trained with ``hold_ticks``
-or ``residual`` (:mod:`agents.experimental_wrappers`) is evaluated the same way by
-``python -m agents.evaluate --model runs/x/model.zip --episodes 100 --seed 1000``.  See
-docs/agents.md.
+(seed 1000 and up: drops that training did not start from).  A model trained with the env's
+``hold_ticks`` or ``residual`` options runs in compare with them (they are in ``model.json``), and
+its compiled export too (``python -m agents.evaluate --model runs/x/model.zip --episodes 100
+--seed 1000 --compiled``).  See docs/agents.md.
 """
