@@ -22,22 +22,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# run in the other checkout's package (PYTHONPATH); bench_env's timer comes from this checkout's
+# scripts/ (given as argv[1]), which imports whichever impact_env is first on the path
 PROBE = r'''
-import json, time
+import json, sys, time
 import gymnasium as gym, numpy as np
 import impact_env
-
-def per_step(env, acts, reps):
-    best = np.inf
-    for _ in range(reps):
-        env.reset(seed=0)
-        t0 = time.perf_counter()
-        for a in acts:
-            _, _, te, tr, _ = env.step(a)
-            if te or tr:
-                env.reset()
-        best = min(best, (time.perf_counter() - t0) / len(acts))
-    return best * 1e6
+sys.path.insert(1, sys.argv[1])
+from bench_env import per_step_us as per_step
 
 def vec_rate(env, n, steps, reps):
     rng = np.random.default_rng(0)
@@ -79,8 +71,8 @@ print(json.dumps({"package": impact_env.__file__, "mc_us": m, "rig_us": r, "step
 
 def probe(checkout: Path) -> dict:
     env = dict(os.environ, PYTHONPATH=str(checkout))
-    out = subprocess.run([sys.executable, "-c", PROBE], cwd=checkout, env=env, capture_output=True, text=True,
-                         timeout=900)
+    out = subprocess.run([sys.executable, "-c", PROBE, str(ROOT / "scripts")], cwd=checkout, env=env,
+                         capture_output=True, text=True, timeout=900)
     if out.returncode != 0:
         raise SystemExit(f"probe in {checkout} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
