@@ -25,10 +25,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from numba import njit
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -37,23 +34,10 @@ from baselines import make_policy  # noqa: E402
 from impact_env.control.policy import act, act_batch  # noqa: E402
 from impact_env.eval.rollout import rollout  # noqa: E402
 from impact_env.policy.export import export_policy  # noqa: E402
+from impact_env.rig.cycles import cycles, ns_per_cycle  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
 
 MODEL = "ppo:agents/models/ppo_rig/model.zip"
-
-
-@intrinsic
-def _cycles(typingctx):
-    def codegen(context, builder, signature, args):
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.IntType(64), []),
-                                            "llvm.readcyclecounter")
-        return builder.call(fn, [])
-    return types.uint64(), codegen
-
-
-@njit(cache=False)
-def cycles_now():
-    return _cycles()
 
 
 @njit(cache=False)
@@ -63,9 +47,9 @@ def timed_calls(pi, pf, obs, mem, reps, out):
     k = 0
     for _ in range(reps):
         for i in range(obs.shape[0]):
-            t0 = _cycles()
+            t0 = cycles()
             sink += act(pi, pf, obs[i], mem)
-            t1 = _cycles()
+            t1 = cycles()
             out[k] = t1 - t0
             k += 1
     return sink
@@ -74,21 +58,9 @@ def timed_calls(pi, pf, obs, mem, reps, out):
 @njit(cache=False)
 def timed_empty(n, out):
     for k in range(n):
-        t0 = _cycles()
-        t1 = _cycles()
+        t0 = cycles()
+        t1 = cycles()
         out[k] = t1 - t0
-
-
-def ns_per_cycle() -> float:
-    cycles_now()
-    best = []
-    for _ in range(5):
-        c0, t0 = cycles_now(), time.perf_counter_ns()
-        while time.perf_counter_ns() - t0 < 20_000_000:
-            pass
-        c1, t1 = cycles_now(), time.perf_counter_ns()
-        best.append((t1 - t0) / float(c1 - c0))
-    return float(np.median(best))
 
 
 def episode_obs(scene, observation: str, n_rows: int) -> tuple[np.ndarray, np.ndarray]:

@@ -399,6 +399,17 @@ class Armed(Body):
         _digest("scene_sha256", self.scene_sha256)
 
 
+def _check_window(chunk) -> None:
+    """A chunk's ``total``, ``offset`` and ``data`` (POLICY_CHUNK, CHUNK): the piece fits in one
+    datagram and lies within the transfer."""
+    _uint("total", chunk.total, MAX_TRANSFER)
+    _uint("offset", chunk.offset, chunk.total)
+    _data("data", chunk.data, min(U16, MAX_PAYLOAD - chunk.FMT.size))
+    if chunk.offset + len(chunk.data) > chunk.total:
+        raise ValueError(f"chunk [{chunk.offset}, {chunk.offset + len(chunk.data)}) B runs past the "
+                         f"total {chunk.total} B")
+
+
 @dataclass(frozen=True)
 class PolicyChunk(Body):
     TYPE: ClassVar = MsgType.POLICY_CHUNK
@@ -410,12 +421,7 @@ class PolicyChunk(Body):
 
     def __post_init__(self):
         _uint("upload_id", self.upload_id, U64)
-        _uint("total", self.total, MAX_TRANSFER)
-        _uint("offset", self.offset, self.total)
-        _data("data", self.data, min(U16, MAX_PAYLOAD - self.FMT.size))
-        if self.offset + len(self.data) > self.total:
-            raise ValueError(f"chunk [{self.offset}, {self.offset + len(self.data)}) B runs past the "
-                             f"total {self.total} B")
+        _check_window(self)
 
     def pack(self):
         return self.FMT.pack(self.upload_id, self.total, self.offset, len(self.data)) + self.data
@@ -564,12 +570,7 @@ class Chunk(Body):
     def __post_init__(self):
         _uint("resource", self.resource, U8)
         _uint("item", self.item, U32)
-        _uint("total", self.total, MAX_TRANSFER)
-        _uint("offset", self.offset, self.total)
-        _data("data", self.data, min(U16, MAX_PAYLOAD - self.FMT.size))
-        if self.offset + len(self.data) > self.total:
-            raise ValueError(f"chunk [{self.offset}, {self.offset + len(self.data)}) B runs past the "
-                             f"total {self.total} B")
+        _check_window(self)
 
     def pack(self):
         return self.FMT.pack(self.resource, self.item, self.total, self.offset, len(self.data)) + self.data
