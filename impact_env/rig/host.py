@@ -228,6 +228,8 @@ class RigEnv(gym.Env):
         self._rew, self._te, self._tr = np.zeros(1), np.zeros(1, bool), np.zeros(1, bool)
         self._n = 0
         self._running = False
+        if self._hw is not None:
+            self._warm_up()
 
     def _task_state(self):
         return (self.tp, self._a["steps"], self._a["below"], self._div, self._a["energy"])
@@ -237,20 +239,36 @@ class RigEnv(gym.Env):
         ep_seed = int(seed) if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
         if self._running:
             self.client.disarm()
+        if self._hw is not None:  # before ARM: nothing of the host's may stall a running episode
+            self._start_drop(ep_seed, self._task_state(), self._rows)
         c = self.client
         c.arm("host", ep_seed, self.max_steps * self.hold, self.config.observation, self.config.history,
               self.hold, self.residual)
         self._running = True
         self._n = 0
         obs = self._wait_obs(0, resend=None)
-        if self._hw is not None:  # the drop's constants, as the virtual rig draws them from the seed
-            from gymnasium.utils import seeding
-
-            self._hw.reset([seeding.np_random(ep_seed)[0]])
-            self._rows[0, TK.COL_TTOUCH] = self._hw.t_touch[0]
-            TK.task_reset_rows(np.zeros(1, np.int64), np.zeros((1, 1, R.N_REC)), self._hw.Y, self._hw.P,
-                               self._hw.impact_energy, self._hw.impact_speed, *self._task_state(), self._rows)
         return np.asarray(obs.obs, dtype=np.float32), self._info(obs)
+
+    def _start_drop(self, ep_seed: int, state: tuple, rows: np.ndarray) -> None:
+        """The drop's constants, as the virtual rig draws them from the seed, and the task's rows."""
+        from gymnasium.utils import seeding
+
+        self._hw.reset([seeding.np_random(ep_seed)[0]])
+        rows[0, TK.COL_TTOUCH] = self._hw.t_touch[0]
+        TK.task_reset_rows(np.zeros(1, np.int64), np.zeros((1, 1, R.N_REC)), self._hw.Y, self._hw.P,
+                           self._hw.impact_energy, self._hw.impact_speed, *state, rows)
+
+    def _task_step(self, recs: np.ndarray, state: tuple, out: tuple) -> None:
+        TK.task_step(np.ones(1, bool), recs, recs[:, -1, R.REC_X1:R.REC_V2 + 1].copy(), self._hw.P,
+                     self._hw.impact_energy, self._hw.impact_speed, *state, *out)
+
+    def _warm_up(self) -> None:
+        """Compile (or load) the reward kernels now, on copies, so that no episode waits for them:
+        a host that stalls mid-episode loses ticks of control to the watchdog."""
+        state = tuple(a.copy() for a in self._task_state())
+        rows, out = self._rows.copy(), (self._rew.copy(), self._te.copy(), self._tr.copy())
+        self._start_drop(0, state, rows)
+        self._task_step(np.zeros((1, self.hold, R.N_REC)), state, (*out, rows))
 
     def _wait_obs(self, step: int, resend) -> P.Observation:
         c = self.client
@@ -280,9 +298,7 @@ class RigEnv(gym.Env):
         tel = obs.telemetry
         if self._hw is not None and len(tel) > N_TEL:
             recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, R.N_REC)
-            TK.task_step(np.ones(1, bool), recs, recs[:, -1, R.REC_X1:R.REC_V2 + 1].copy(), self._hw.P,
-                         self._hw.impact_energy, self._hw.impact_speed, *self._task_state(), self._rew,
-                         self._te, self._tr, self._rows)
+            self._task_step(recs, self._task_state(), (self._rew, self._te, self._tr, self._rows))
             reward, term, trunc = float(self._rew[0]), bool(self._te[0]), bool(self._tr[0])
         else:
             reward, term, trunc = 0.0, False, self._n >= self.max_steps
