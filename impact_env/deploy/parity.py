@@ -49,6 +49,41 @@ def build_shared(c_dir, out: Path | None = None, float32: bool = False, extra: t
     return out
 
 
+RT_DIR = Path(__file__).resolve().parent / "rt"
+ARM_FLAGS = ("-mcpu=cortex-m7", "-mfpu=fpv5-d16", "-mfloat-abi=hard", "-mthumb", "-Os", "-std=c99", "-Wall",
+             "-Wextra", "-Werror", "-ffp-contract=off")
+
+
+def build_rt_example(c_dir, out, float32: bool = False) -> Path:
+    """The real-time Linux example (``impact_env/deploy/rt``: main.c, the replay driver) linked
+    with ``c_dir``'s impact_policy.c; returns the executable."""
+    c_dir, out = Path(c_dir), Path(out)
+    cmd = [find_cc(), *CFLAGS, *(("-DIMPACT_FLOAT32",) if float32 else ()), f"-I{c_dir}", f"-I{RT_DIR}",
+           "-o", str(out), str(RT_DIR / "main.c"), str(RT_DIR / "replay_driver.c"), str(c_dir / SOURCE_NAME), "-lm"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    if r.returncode != 0:
+        raise ConfigError(f"compiling the real-time example failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
+    return out
+
+
+def build_arm(c_dir, out, float32: bool = False, cc: str = "arm-none-eabi-gcc") -> dict[str, int]:
+    """Compile ``c_dir``'s impact_policy.c for a Cortex-M7 with its double FPU (:data:`ARM_FLAGS`,
+    Debian's gcc-arm-none-eabi) into object ``out``; returns its sizes (bytes: text, data, bss)
+    from ``arm-none-eabi-size``."""
+    c_dir, out = Path(c_dir), Path(out)
+    exe = shutil.which(cc)
+    if exe is None:
+        raise ConfigError(f"{cc} not found: install Debian's gcc-arm-none-eabi")
+    cmd = [exe, *ARM_FLAGS, *(("-DIMPACT_FLOAT32",) if float32 else ()), "-c", "-o", str(out),
+           str(c_dir / SOURCE_NAME)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    if r.returncode != 0:
+        raise ConfigError(f"cross-compiling failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
+    size = subprocess.run([shutil.which("arm-none-eabi-size") or "arm-none-eabi-size", str(out)],
+                          capture_output=True, text=True, timeout=60, check=True).stdout.split("\n")[1].split()
+    return {"text": int(size[0]), "data": int(size[1]), "bss": int(size[2])}
+
+
 class CPolicy:
     """A built library: one ``impact_state`` (caller-owned memory, here a ctypes buffer) and its
     four functions."""
