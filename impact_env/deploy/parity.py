@@ -102,6 +102,10 @@ class CPolicy:
         self._cmd, self._f = self.real(), self.real()
         self.lib.impact_init(self.state)
 
+    def init(self) -> None:
+        """Power-on: all state zero, the RMS window cool."""
+        self.lib.impact_init(self.state)
+
     def reset(self) -> None:
         self.lib.impact_reset(self.state)
 
@@ -168,7 +172,9 @@ def record(policy: CompiledPolicy, scene, seed: int, ticks: int) -> Recording:
 
 
 def replay(cp: CPolicy, rec: Recording) -> Recording:
-    """The C step on the recorded readings (open loop): its commands, forces and status."""
+    """The C step on the recorded readings (open loop), from power-on as the recording's fresh
+    controller (a cool RMS window): its commands, forces and status."""
+    cp.init()
     cp.reset()
     n = rec.readings.shape[0]
     out = np.zeros((3, n))
@@ -185,6 +191,7 @@ def closed_loop(cp: CPolicy, scene, seed: int, ticks: int) -> Recording:
     drv.initialise()
     drv.arm(int(seed))
     drv.release()
+    cp.init()
     cp.reset()
     raw = np.zeros((ticks, 4))
     out = np.zeros((3, ticks))
