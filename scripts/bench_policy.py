@@ -256,7 +256,15 @@ def c_step(scene, quick: bool) -> None:
             (d / "bench.c").write_text(C_BENCH)
             rec = PA.record(pol, scene, 0, 4000)
             rec.readings.astype("<f8").tofile(d / "r.f64")
-            counts.append((name, *op_count(pol)))
+            sizes = []
+            for f32 in (False, True):
+                try:
+                    arm = PA.build_arm(d, d / f"arm{int(f32)}.o", f32)["text"]
+                except Exception as exc:  # no cross-compiler here: say so in the table
+                    arm = f"n/a ({str(exc).splitlines()[0][:40]})"
+                lib = PA.CPolicy(PA.build_shared(d, d / f"lib{int(f32)}.so", f32), f32)
+                sizes.append((arm, int(lib.lib.impact_state_bytes())))
+            counts.append((name, *op_count(pol), sizes))
             for f32 in (False, True):
                 exe = d / ("bench32" if f32 else "bench64")
                 subprocess.run([PA.find_cc(), *PA.CFLAGS, *(["-DIMPACT_FLOAT32"] if f32 else []), f"-I{d}",
@@ -271,12 +279,14 @@ def c_step(scene, quick: bool) -> None:
           "for the FPU) and 4 per double one, about 100 cycles per float32 transcendental and 200 per "
           "double one in newlib's libm, memory from tightly coupled RAM; not measured on a board):")
     print()
-    print("| policy | multiply-adds | transcendental calls | est. float32 us | est. double us |")
-    print("|---|---|---|---|---|")
-    for name, macs, trans in counts:
+    print("| policy | multiply-adds | transcendental calls | est. float32 us | est. double us | Cortex-M7 "
+          "code+constants B (double / float32) | state B (double / float32) |")
+    print("|---|---|---|---|---|---|---|")
+    for name, macs, trans, sizes in counts:
         f32 = (2 * macs + 100 * trans) / 600.0
         f64 = (4 * macs + 200 * trans) / 600.0
-        print(f"| {name} | {macs} | {trans} | {f32:.1f} | {f64:.1f} |")
+        print(f"| {name} | {macs} | {trans} | {f32:.1f} | {f64:.1f} | {sizes[0][0]} / {sizes[1][0]} | "
+              f"{sizes[0][1]} / {sizes[1][1]} |")
 
 
 if __name__ == "__main__":
