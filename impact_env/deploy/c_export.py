@@ -317,7 +317,8 @@ static const impact_real COMMAND_SCALE_N = {_r(self.pol.command_scale)};"""
         sos = fe.sos
         chan_rows = []
         for c in range(sos.shape[0]):
-            secs = ",\n        ".join("{" + ", ".join(_r(x) for x in sos[c, k]) + "}" for k in range(sos.shape[1]))
+            secs = ",\n        ".join("{" + ", ".join(_r(x) for x in sos[c, k]) + "}"
+                                         for k in range(sos.shape[1]))
             chan_rows.append(f"    {{ /* {CHANNELS[c]} */\n        {secs}\n    }}")
         sos_txt = ",\n".join(chan_rows)
         filt_code = """
@@ -378,16 +379,16 @@ static void condition(impact_state *s, const impact_real readings[IMPACT_N_READI
         pref = "OBS" if main else "RES_OBS"
         shift = ""
         if main and lay.history > 1:
-            shift = f"""
-    if (push) {{
+            shift = """
+    if (push) {
         for (int h = IMPACT_HISTORY - 1; h > 0; h--) s->past_actions[h] = s->past_actions[h - 1];
         s->past_actions[0] = action;
-    }}
+    }
     for (int h = IMPACT_HISTORY - 1; h > 0; h--)
         for (int j = 0; j < IMPACT_FRAME_SIZE; j++) s->frames[h][j] = s->frames[h - 1][j];"""
         f0 = f"{frames}[0]" if main else frames
         det = f"\n    {f0}[j++] = s->detected;" if lay.detector else ""
-        out = (f"""
+        out = ("""
     for (int h = 0; h < IMPACT_HISTORY; h++)
         for (int k = 0; k < IMPACT_FRAME_SIZE; k++) s->obs[h * IMPACT_FRAME_SIZE + k] = (float)s->frames[h][k];"""
                + ("""
@@ -424,7 +425,7 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
         return self._mlp()
 
     def _law(self, which: str, pol) -> str:
-        """A classic law's C function: ``static impact_real {which}_act(const float *obs, impact_real *mem)``."""
+        """A classic law's C function, ``policy_act`` or ``residual_act`` (obs row, memory)."""
         kind, slots, k = LW.pack_law(pol.law["name"], pol.law["constants"], pol.layout.names)
         name = pol.law["name"]
         lay = pol.layout
@@ -535,13 +536,13 @@ static impact_real policy_act(const float *obs, impact_real *mem)
     def _safety(self) -> str:
         sp = self.sp
         budget = sp[SF.P_BUDGET]
-        rms = "" if budget < 0 else f"""
+        rms = "" if budget < 0 else """
     /* RMS clamp: the squares of the last RMS_WINDOW ticks' forces, in whole quanta, stay within
      * the budget n (continuous_n / sqrt 2)^2 */
     int64_t head = s->rms_head;
     double others = s->rms_sum - s->rms_ring[head];
     double sq = floor((double)f * (double)f / RMS_QUANTUM_N2 + 0.5);
-    if (others + sq > RMS_BUDGET_QUANTA) {{
+    if (others + sq > RMS_BUDGET_QUANTA) {
         double room = RMS_BUDGET_QUANTA - others;
         if (room < 0.0) room = 0.0;
         double mag = sqrt(room * RMS_QUANTUM_N2);
@@ -550,7 +551,7 @@ static impact_real policy_act(const float *obs, impact_real *mem)
         if (sq > room) sq = room;
         status |= IMPACT_STATUS_CLAMP_RMS;
         s->clamp_rms_ticks++;
-    }}
+    }
     s->rms_ring[head] = sq;
     s->rms_sum = others + sq;
     s->rms_head = (head + 1) % IMPACT_RMS_WINDOW_TICKS;"""
