@@ -42,7 +42,8 @@ def build_shared(c_dir, out: Path | None = None, float32: bool = False, extra: t
     c_dir = Path(c_dir)
     out = Path(out) if out is not None else c_dir / ("libimpact_f32.so" if float32 else "libimpact.so")
     cmd = [find_cc(), *CFLAGS, "-fPIC", "-shared", *(("-DIMPACT_FLOAT32",) if float32 else ()), *extra,
-           "-o", str(out), str(c_dir / SOURCE_NAME), "-lm"]
+           "-o", str(out), str(c_dir / SOURCE_NAME),
+           "-lm"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     if r.returncode != 0:
         raise ConfigError(f"compiling {c_dir / SOURCE_NAME} failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
@@ -59,7 +60,8 @@ def build_rt_example(c_dir, out, float32: bool = False) -> Path:
     with ``c_dir``'s impact_policy.c; returns the executable."""
     c_dir, out = Path(c_dir), Path(out)
     cmd = [find_cc(), *CFLAGS, *(("-DIMPACT_FLOAT32",) if float32 else ()), f"-I{c_dir}", f"-I{RT_DIR}",
-           "-o", str(out), str(RT_DIR / "main.c"), str(RT_DIR / "replay_driver.c"), str(c_dir / SOURCE_NAME), "-lm"]
+           "-o", str(out), str(RT_DIR / "main.c"), str(RT_DIR / "replay_driver.c"), str(c_dir / SOURCE_NAME),
+           "-lm"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     if r.returncode != 0:
         raise ConfigError(f"compiling the real-time example failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
@@ -79,8 +81,10 @@ def build_arm(c_dir, out, float32: bool = False, cc: str = "arm-none-eabi-gcc") 
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     if r.returncode != 0:
         raise ConfigError(f"cross-compiling failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
-    size = subprocess.run([shutil.which("arm-none-eabi-size") or "arm-none-eabi-size", str(out)],
-                          capture_output=True, text=True, timeout=60, check=True).stdout.split("\n")[1].split()
+    size_exe = shutil.which("arm-none-eabi-size") or "arm-none-eabi-size"
+    lines = subprocess.run([size_exe, str(out)], capture_output=True, text=True, timeout=60,
+                           check=True).stdout.split("\n")
+    size = lines[1].split()
     return {"text": int(size[0]), "data": int(size[1]), "bss": int(size[2])}
 
 
@@ -95,8 +99,8 @@ class CPolicy:
         self.lib.impact_state_bytes.restype = ctypes.c_ulong
         self.state = ctypes.create_string_buffer(int(self.lib.impact_state_bytes()))
         self.lib.impact_step.restype = ctypes.c_uint32
-        self.lib.impact_step.argtypes = [ctypes.c_void_p, ctypes.POINTER(self.real), ctypes.POINTER(self.real),
-                                         ctypes.POINTER(self.real)]
+        ptr = ctypes.POINTER(self.real)
+        self.lib.impact_step.argtypes = [ctypes.c_void_p, ptr, ptr, ptr]
         self.lib.impact_idle.argtypes = [ctypes.c_void_p, ctypes.c_int64]
         self._r = np.zeros(4, dtype=self.dtype)
         self._cmd, self._f = self.real(), self.real()
