@@ -15,6 +15,14 @@
 3. ``compare``'s rollout of the committed agent on 16 rig drops of 0.4 s: the SB3 model through
    the Python loop against its compiled policy in the compiled loop; the speed-up is the ratio
    of the two wall times in this run (minimum of repeats).
+4. The generated C step (``impact-env export --c``, :mod:`impact_env.deploy`): one
+   ``impact_step`` (the whole tick: filters, detector, observation, policy, hold, residual,
+   safety) for the shipped agent and each deployable classic law, double and float32 builds
+   (gcc -O2 -ffp-contract=off), timed in C with ``clock_gettime(CLOCK_MONOTONIC)`` around each
+   call on readings recorded from the virtual rig (the timer's own cost printed beside, not
+   subtracted); goal p99 <= 2 us for the 64 x 64 MLP.  Then the operation count of one tick
+   (multiply-adds, transcendental calls) and, as an estimate only, its cycles on a 600 MHz
+   Cortex-M7.
 """
 
 from __future__ import annotations
@@ -163,7 +171,122 @@ def main() -> int:
     tp, tc = min(times["python"]), min(times["compiled"])
     print(f"SB3 predict in the Python loop: {tp:.2f} s; compiled policy in the compiled loop: {tc:.2f} s; "
           f"speed-up {tp / tc:.1f}x")
+    c_step(scene, args.quick)
     return 0
+
+
+C_BENCH = r"""
+#define _GNU_SOURCE
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include "impact_policy.h"
+static impact_state st;
+static int cmp(const void *a, const void *b) { long x = *(const long *)a, y = *(const long *)b; return (x > y) - (x < y); }
+static long now(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec * 1000000000L + t.tv_nsec; }
+int main(int argc, char **argv) {
+    if (argc < 3) return 2;
+    FILE *f = fopen(argv[1], "rb"); int reps = atoi(argv[2]);
+    fseek(f, 0, SEEK_END); long n = ftell(f) / 32; fseek(f, 0, SEEK_SET);
+    double *r = malloc(n * 32); if (fread(r, 8, n * 4, f) != (size_t)(n * 4)) return 1; fclose(f);
+    long *dt = malloc(sizeof(long) * n * reps), *e = malloc(sizeof(long) * n); long k = 0; double sink = 0;
+    impact_init(&st);
+    for (int p = 0; p < reps; p++) {
+        impact_reset(&st);
+        for (long m = 0; m < n; m++) {
+            impact_real x[4] = {(impact_real)r[4 * m], (impact_real)r[4 * m + 1], (impact_real)r[4 * m + 2],
+                                (impact_real)r[4 * m + 3]};
+            impact_real c, fo;
+            long t0 = now(); impact_step(&st, x, &c, &fo); long t1 = now();
+            dt[k++] = t1 - t0; sink += c;
+        }
+    }
+    for (long m = 0; m < n; m++) { long t0 = now(); long t1 = now(); e[m] = t1 - t0; }
+    qsort(dt, k, sizeof(long), cmp); qsort(e, n, sizeof(long), cmp);
+    printf("%ld %ld %ld %ld %ld %g\n", dt[k / 2], dt[(long)(0.99 * (k - 1))], dt[(long)(0.999 * (k - 1))], dt[k - 1],
+           e[n / 2], sink);
+    return 0;
+}
+"""
+
+
+def op_count(pol) -> tuple[int, int]:
+    """(multiply-adds, transcendental calls) of one tick at a policy step: the filters (5
+    products and 4 sums per section and channel, counted as 5 multiply-adds), the detector, the
+    policy (a law: a few dozen; an MLP: its weights), the residual law and the safety layer."""
+    from impact_env.control.front_end import FrontEnd
+
+    fe = FrontEnd(load_scene("rig"), pol.layout, 1)
+    macs = 5 * fe.sos.shape[0] * fe.sos.shape[1] + 2 + pol.layout.size + 4
+    trans = 1  # the safety layer's square root (on a clamped tick)
+    for p in [pol] + ([pol.residual_policy()] if pol.residual is not None else []):
+        if p.mlp is not None:
+            for ly in p.mlp["layers"]:
+                w = np.asarray(ly["weight"])
+                macs += w.size
+                trans += w.shape[0] if ly.get("activation") in ("tanh", "elu") else 0
+            trans += 1 if p.mlp["output"] == "squash" else 0
+        elif p.law["name"] != "passive":
+            macs += 20
+            trans += 1  # the penetration's power 2/3
+    return macs, trans
+
+
+def c_step(scene, quick: bool) -> None:
+    import subprocess
+    import tempfile
+
+    from impact_env.deploy import parity as PA
+    from impact_env.deploy.c_export import write_c
+
+    print()
+    print("## 4. The generated C step (impact-env export --c): one impact_step, the whole tick")
+    print()
+    print("| policy | build | p50 ns | p99 ns | p99.9 ns | max ns | the timer alone, p50 ns |")
+    print("|---|---|---|---|---|---|---|")
+    specs = [("shipped agent (64x64 tanh MLP + pd residual)", "compiled:agents/models/best/best.policy.json"),
+             ("passive", "passive"), ("thesis-rig", "thesis-rig"), ("pd-penetration", "pd-penetration")]
+    counts = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for name, spec in specs:
+            pol = export_policy(spec, scene)
+            d = tmp / name.split()[0]
+            write_c(pol, scene, d)
+            (d / "bench.c").write_text(C_BENCH)
+            rec = PA.record(pol, scene, 0, 4000)
+            rec.readings.astype("<f8").tofile(d / "r.f64")
+            sizes = []
+            for f32 in (False, True):
+                try:
+                    arm = PA.build_arm(d, d / f"arm{int(f32)}.o", f32)["text"]
+                except Exception as exc:  # no cross-compiler here: say so in the table
+                    arm = f"n/a ({str(exc).splitlines()[0][:40]})"
+                lib = PA.CPolicy(PA.build_shared(d, d / f"lib{int(f32)}.so", f32), f32)
+                sizes.append((arm, int(lib.lib.impact_state_bytes())))
+            counts.append((name, *op_count(pol), sizes))
+            for f32 in (False, True):
+                exe = d / ("bench32" if f32 else "bench64")
+                subprocess.run([PA.find_cc(), *PA.CFLAGS, *(["-DIMPACT_FLOAT32"] if f32 else []), f"-I{d}",
+                                "-o", str(exe), str(d / "bench.c"), str(d / "impact_policy.c"), "-lm"], check=True)
+                out = subprocess.run([str(exe), str(d / "r.f64"), "3" if quick else "25"], capture_output=True,
+                                     text=True, check=True).stdout.split()
+                p50, p99, p999, mx, timer = (int(x) for x in out[:5])
+                print(f"| {name} | {'float32' if f32 else 'double'} | {p50} | {p99} | {p999} | {mx} | {timer} |")
+    print()
+    print("Operation count of one tick at a policy step, and a Cortex-M7 estimate (600 MHz; ESTIMATE: "
+          "about 2 cycles per float32 multiply-add with -ffp-contract=off (VMUL + VADD, single-issue "
+          "for the FPU) and 4 per double one, about 100 cycles per float32 transcendental and 200 per "
+          "double one in newlib's libm, memory from tightly coupled RAM; not measured on a board):")
+    print()
+    print("| policy | multiply-adds | transcendental calls | est. float32 us | est. double us | Cortex-M7 "
+          "code+constants B (double / float32) | state B (double / float32) |")
+    print("|---|---|---|---|---|---|---|")
+    for name, macs, trans, sizes in counts:
+        f32 = (2 * macs + 100 * trans) / 600.0
+        f64 = (4 * macs + 200 * trans) / 600.0
+        print(f"| {name} | {macs} | {trans} | {f32:.1f} | {f64:.1f} | {sizes[0][0]} / {sizes[1][0]} | "
+              f"{sizes[0][1]} / {sizes[1][1]} |")
 
 
 if __name__ == "__main__":

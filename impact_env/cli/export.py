@@ -11,8 +11,17 @@ def add_parser(sub, scene_args) -> None:
     p.add_argument("spec", help="a policy spec as compare takes it: pd-penetration:kp=3e5, ppo:PATH.zip, "
                                 "compiled:FILE")
     scene_args(p)
-    p.add_argument("--out", required=True, metavar="FILE", help="the policy file to write (JSON)")
+    p.add_argument("--out", metavar="FILE", help="the policy file to write (JSON)")
     p.add_argument("--onnx", metavar="FILE.onnx", help="also write the network as ONNX (MLP policies only)")
+    p.add_argument("--c", metavar="DIR", dest="c_dir",
+                   help="also write impact_policy.c/.h: the target's whole tick (front end, policy, hold, "
+                        "residual, safety) as one dependency-free C99 file (docs/rig.md, 'Deploying to "
+                        "real-time hardware')")
+    p.add_argument("--force", action="store_true", help="with --c: overwrite the files of an existing DIR")
+    p.add_argument("--check", action="store_true",
+                   help="with --c: build it with gcc and replay readings recorded from the virtual rig "
+                        "through it beside the simulator's kernels; exit 1 unless the double build is "
+                        "bitwise equal")
     p.set_defaults(func=cmd_export)
 
 
@@ -22,20 +31,50 @@ def cmd_export(args) -> int:
     from impact_env.config import ConfigError
     from impact_env.policy.export import export_policy, write_onnx
 
+    if not (args.out or args.onnx or args.c_dir):
+        raise ConfigError("nothing to write: give --out FILE (policy file), --c DIR (C source) and/or "
+                          "--onnx FILE")
+    if (args.force or args.check) and not args.c_dir:
+        raise ConfigError("--force and --check go with --c DIR")
     scene = scene_from_args(args)
-    for path in (args.out, args.onnx):
+    for path in (args.out, args.onnx, args.c_dir):
         if path and not Path(path).resolve().parent.is_dir():
             raise ConfigError(f"cannot write {path!r}: its folder does not exist")
+    if args.c_dir and Path(args.c_dir).exists() and not args.force:
+        raise ConfigError(f"--c {args.c_dir}: the folder exists; pass --force to overwrite its files")
     pol = export_policy(args.spec, scene)
     if args.onnx and pol.mlp is None:
         raise ConfigError(f"--onnx: {args.spec!r} is a classic law; only MLP policies are exported to ONNX")
-    pol.save(args.out)
     what = f"law {pol.law['name']}" if pol.law is not None else \
         f"MLP {' x '.join(str(len(ly['bias'])) for ly in pol.mlp['layers'])} ({pol.mlp['output']})"
     names = ", ".join(pol.layout.names)
-    print(f"{args.out}: {what}, observation {pol.observation} (history {pol.history}: {names}), "
-          f"command scale {pol.command_scale:g} N, sha256 {pol.sha256()[:16]}")
+    if args.c_dir:
+        from impact_env.deploy.c_export import generate_c
+
+        generate_c(pol, scene, spec=args.spec)  # refuses what C cannot express before writing anything
+    if args.out:
+        pol.save(args.out)
+        print(f"{args.out}: {what}, observation {pol.observation} (history {pol.history}: {names}), "
+              f"command scale {pol.command_scale:g} N, sha256 {pol.sha256()[:16]}")
     if args.onnx:
         write_onnx(pol, args.onnx)
-        print(f"{args.onnx}: ONNX, input obs float32[N, {pol.layout.size}], output action float32[N, 1]")
+        print(f"{args.onnx}: ONNX, input obs float32[N, {pol.layout.size}], output action float32[N, 1], "
+              "with the observation's meaning in its metadata")
+    if args.c_dir:
+        from impact_env.deploy.c_export import write_c
+
+        h, c = write_c(pol, scene, args.c_dir, force=args.force, spec=args.spec)
+        print(f"{c}, {h}: C99, {what}; impact_step(state, readings[4], &command, &force_n) once per tick "
+              f"at {pol.control_rate:g} Hz")
+        if args.check:
+            from impact_env.deploy.parity import check
+
+            ok = True
+            for f32 in (False, True):
+                for seed, rep in zip((0, 1), check(pol, scene, args.c_dir, float32=f32), strict=True):
+                    print(f"  check {'float32' if f32 else 'double '} build, drop seed {seed}: {rep}")
+                    ok &= f32 or rep.differing == 0
+            if not ok:
+                print("  the double build is NOT bitwise the simulator's kernels", flush=True)
+                return 1
     return 0

@@ -123,6 +123,41 @@ def export_sb3(policy, scene, spec: str = "") -> CompiledPolicy:
                                    hold_ticks=policy.hold_ticks, residual=residual, source=source)
 
 
+def onnx_metadata(pol: CompiledPolicy) -> dict[str, str]:
+    """What a user of another toolchain needs to feed the network and use its output, as ONNX
+    ``metadata_props`` (strings; lists and dicts as JSON): the observation (kind, entry names,
+    units, reference scales: obs = value / scale, clipped to +-obs_limit; history), the command
+    scale and rate, the hold and the residual law (whose output is added every tick, the sum
+    clipped to [-1, 1]), and the policy file's sha256."""
+    import json
+
+    from impact_env.control.observation import OBS_LIMIT
+
+    lay = pol.layout
+    names = list(lay.names)
+    full = [f"{n}[t-{h}]" if h else n for h in range(lay.history) for n in names]
+    if lay.history > 1:
+        full += [f"action[t-{h + 1}]" for h in range(lay.history)]
+    res = pol.residual_policy()
+    return {
+        "impact_env.observation": pol.observation,
+        "impact_env.observation_names": json.dumps(full),
+        "impact_env.frame_names": json.dumps(names),
+        "impact_env.frame_units": json.dumps(list(lay.units)),
+        "impact_env.frame_scales": json.dumps([float(x) for x in lay.scales]),
+        "impact_env.obs_limit": repr(float(OBS_LIMIT)),
+        "impact_env.history": str(lay.history),
+        "impact_env.hold_ticks": str(pol.hold_ticks),
+        "impact_env.control_rate_hz": repr(float(pol.control_rate)),
+        "impact_env.command_scale_n": repr(float(pol.command_scale)),
+        "impact_env.action": "command in [-1, 1]; 1 = command_scale_n newtons upwards on body 2",
+        "impact_env.residual_law": json.dumps(None if res is None else {
+            "name": res.law["name"], "params": res.law["params"], "constants": res.law["constants"]}),
+        "impact_env.policy_sha256": pol.sha256(),
+        "impact_env.scene": json.dumps(pol.scene),
+    }
+
+
 def write_onnx(pol: CompiledPolicy, path) -> Path:
     """The compiled MLP ``pol`` as an ONNX model: input ``obs`` float32[N, obs size], output
     ``action`` float32[N, 1] (the command in [-1, 1])."""
@@ -177,6 +212,7 @@ def write_onnx(pol: CompiledPolicy, path) -> Path:
                               [helper.make_tensor_value_info("action", TensorProto.FLOAT, [None, 1])], inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="impact_env")
     model.ir_version = 8
+    helper.set_model_props(model, onnx_metadata(pol))
     onnx.checker.check_model(model)
     path = Path(path)
     onnx.save(model, str(path))

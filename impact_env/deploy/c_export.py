@@ -1,0 +1,676 @@
+"""A compiled policy as one dependency-free C99 translation unit: ``impact_policy.c`` and
+``impact_policy.h`` (``impact-env export SPEC --scene S --c DIR``).
+
+The C file does, tick by tick, what the rig target's tick does between the DAQ readings and the
+drive command (:mod:`impact_env.rig.controller`, onboard mode): sensor conditioning (the scene's
+SOS filters), the contact detector of thesis eq 4.4, the observation (scaling, clipping,
+history frame), the policy (a classic law, or an MLP with stable-baselines3's output
+transform), the hold (the policy acts every ``hold_ticks`` ticks) and residual law, and the
+safety layer (non-finite commands, the latched travel limit, the peak and RMS clamps;
+:mod:`impact_env.rig.safety`).  Every number in it is printed from the same arrays the numba
+kernels read (the policy's packed arrays, the scene's filter coefficients, the detector's and the
+safety layer's parameter vectors), with ``repr`` (shortest round-trip), never retyped; the code
+mirrors the kernels operation by operation, in the same order, so that the float64 build is
+bitwise the numba target where both use the same libm (:mod:`impact_env.deploy.parity`).
+
+The generated API (``impact_real`` is ``double``, or ``float`` when ``IMPACT_FLOAT32`` is
+defined before including the header or on the compiler's command line)::
+
+    void impact_init(impact_state *s);     /* power-on: all state zero, the RMS window cool */
+    void impact_reset(impact_state *s);    /* a new episode: the next step is its tick 0 */
+    void impact_idle(impact_state *s, long ticks);   /* time disarmed: the RMS window cools */
+    uint32_t impact_step(impact_state *s, const impact_real readings[4],
+                         impact_real *command, impact_real *force_n);
+
+No allocation, no mutable globals, only ``<math.h>``, ``<stdint.h>`` and ``<string.h>``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from impact_env.config import ConfigError
+from impact_env.control import laws as LW
+from impact_env.control import mlp as MLP
+from impact_env.control.front_end import F_DETECTOR, F_FILTERS, FrontEnd
+from impact_env.control.observation import OBS_LIMIT
+from impact_env.control.policy import CompiledPolicy
+from impact_env.effects import detector as DT
+from impact_env.rig import safety as SF
+
+HEADER_NAME = "impact_policy.h"
+SOURCE_NAME = "impact_policy.c"
+CHANNELS = ("accelerometer_mps2", "force_N", "potentiometer_m", "body1_displacement_m")
+
+
+def _r(x: float) -> str:
+    """A C double literal that parses back to exactly ``x``."""
+    x = float(x)
+    if not math.isfinite(x):
+        raise ConfigError(f"cannot write the non-finite constant {x!r} into C")
+    s = repr(x)
+    return s if ("e" in s or "." in s) else s + ".0"
+
+
+def _arr(values, per_line: int = 4) -> str:
+    vals = [_r(v) for v in np.asarray(values, dtype=np.float64).ravel()]
+    lines = [", ".join(vals[i:i + per_line]) for i in range(0, len(vals), per_line)]
+    return "{\n    " + ",\n    ".join(lines) + "\n}" if vals else "{0}"
+
+
+def _ident(name: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in name).upper()
+
+
+def _drop_unused(src: str) -> str:
+    """Without the scalar constants nothing reads (e.g. a law's own detector threshold when the
+    front end's detector bit is in the observation): -Wall -Werror refuses unused ones."""
+    out = []
+    for line in src.split("\n"):
+        m = re.match(r"static const (?:impact_real|double) ([A-Z0-9_]+) = ", line)
+        if m and len(re.findall(rf"\b{m.group(1)}\b", src)) == 1:
+            continue
+        out.append(line)
+    return "\n".join(out)
+
+
+@dataclass(frozen=True)
+class CArtifact:
+    """The generated pair and what it was made from."""
+
+    header: str
+    source: str
+    scene_sha256: str
+    policy_sha256: str
+    obs_size: int
+    hold_ticks: int
+    rms_window: int
+
+
+def generate_c(policy: CompiledPolicy, scene, safety: SF.SafetyConfig | None = None,
+               spec: str = "") -> CArtifact:
+    """The C header and source of ``policy`` on ``scene`` with the target's ``safety`` limits.
+    ConfigError for what C cannot express here: a privileged observation (a rig measures no
+    body-1 state), a law that reads one."""
+    policy.check_scene(scene)
+    if policy.layout.privileged:
+        raise ConfigError(f"policy {policy.name!r} reads a privileged observation ({policy.observation}): "
+                          "a rig measures no body-1 state, so it cannot be deployed; export one made "
+                          "with observation='sensors'")
+    residual = policy.residual_policy()
+    if policy.law is not None and policy.law["name"] == "thesis-ideal":
+        raise ConfigError("thesis-ideal reads the true state (x1, v1, x2, v2), which a rig does not "
+                          "measure: deploy thesis-rig (eq 4.3, from the sensors) instead")
+    scene_toml = scene.to_toml().encode()
+    scene_sha = hashlib.sha256(scene_toml).hexdigest()
+    pol_sha = policy.sha256()
+    fe = FrontEnd(scene, policy.layout, 1)
+    rfe = FrontEnd(scene, residual.layout, 1) if residual is not None else None
+    cfg = safety or SF.SafetyConfig()
+    sp = SF.safety_params(cfg, policy.command_scale, policy.control_rate, policy.hold_ticks, "onboard")
+    g = _Gen(policy, residual, scene, fe, rfe, sp, cfg, scene_sha, pol_sha, spec)
+    return CArtifact(g.header(), g.source(), scene_sha, pol_sha, policy.layout.size, policy.hold_ticks,
+                     int(sp[SF.P_WINDOW]))
+
+
+def write_c(policy: CompiledPolicy, scene, out_dir, force: bool = False,
+            safety: SF.SafetyConfig | None = None, spec: str = "") -> tuple[Path, Path]:
+    """Write ``impact_policy.h`` and ``impact_policy.c`` into ``out_dir`` (created; an existing
+    folder only with ``force``)."""
+    out = Path(out_dir)
+    if out.exists() and not force:
+        raise ConfigError(f"--c {out}: the folder exists; pass --force to overwrite its "
+                          f"{HEADER_NAME} and {SOURCE_NAME}")
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--c {out}: exists and is not a folder")
+    art = generate_c(policy, scene, safety, spec)
+    out.mkdir(parents=True, exist_ok=True)
+    h, c = out / HEADER_NAME, out / SOURCE_NAME
+    h.write_text(art.header)
+    c.write_text(art.source)
+    return h, c
+
+
+class _Gen:
+    """Builds the two texts (one method per section, in the order of the tick)."""
+
+    def __init__(self, pol, res, scene, fe, rfe, sp, cfg, scene_sha, pol_sha, spec):
+        self.pol, self.res, self.scene, self.fe, self.rfe = pol, res, scene, fe, rfe
+        self.sp, self.cfg, self.scene_sha, self.pol_sha, self.spec = sp, cfg, scene_sha, pol_sha, spec
+        lay = pol.layout
+        self.F, self.H, self.size = lay.frame_size, lay.history, lay.size
+        self.nsec = fe.sos.shape[1]
+        self.window = int(sp[SF.P_WINDOW])
+        self.widest = 1
+        if pol.mlp is not None:
+            _, _, self.widest = MLP.pack_mlp(pol.mlp["layers"])
+
+    # -- the header ------------------------------------------------------------------------------
+    def _banner(self) -> str:
+        pol, lay = self.pol, self.pol.layout
+        what = (f"classic law {pol.law['name']}" if pol.law is not None else
+                f"MLP {' x '.join(str(len(ly['bias'])) for ly in pol.mlp['layers'])}, output "
+                f"{pol.mlp['output']} to [{pol.mlp['low']:g}, {pol.mlp['high']:g}]")
+        rows = []
+        for h in range(self.H):
+            for j, (n, u, s) in enumerate(zip(lay.names, lay.units, lay.scales, strict=True)):
+                age = "" if h == 0 else f" ({h} policy steps ago)"
+                rows.append(f" *   [{h * self.F + j:3d}] {n}{age}: value [{u or '1'}] / {_r(s)}, clipped to "
+                            f"+-{OBS_LIMIT:g}")
+        if self.H > 1:
+            for h in range(self.H):
+                rows.append(f" *   [{self.H * self.F + h:3d}] the policy's action {h + 1} steps ago "
+                            "(dimensionless)")
+        res = (f"residual law {self.res.law['name']} added every tick, the sum clipped to [-1, 1]"
+               if self.res is not None else "no residual law")
+        return f"""/*
+ * Generated by impact-env export{(' ' + self.spec) if self.spec else ''} --c: do not edit; regenerate.
+ *
+ * Policy  {pol.name}: {what}
+ *         sha256 {self.pol_sha} (of its compiled policy file)
+ * Scene   {self.scene.name}: sha256 {self.scene_sha} (of its TOML)
+ * Timing  {pol.control_rate:g} Hz ticks; the policy acts every {pol.hold_ticks} tick(s); {res}
+ *
+ * Inputs, per tick (the DAQ's readings, SI, the thesis's frame: x down, force up):
+ *   readings[0] accelerometer on body 2   m/s^2  down positive
+ *   readings[1] force transducer          N      compression positive
+ *   readings[2] potentiometer (x2)        m      down positive, 0 at rest
+ *   readings[3] body-1 sensor             m      (none on the rig: pass NaN; unused)
+ * Outputs, per tick:
+ *   *command   the drive command, dimensionless: 1 = {_r(pol.command_scale)} N upwards (the
+ *              amplifier's input; the driver turns it into volts)
+ *   *force_n   the same in newtons after the safety layer (= command * {_r(pol.command_scale)})
+ *   return     status bits (IMPACT_STATUS_*), as the rig target logs them
+ * Timing contract: call impact_step once per tick with the readings sampled at the tick's start
+ * and apply *command at once; it acts until the next call (the DAC holds it).  Tick 0 of an
+ * episode is the first call after impact_reset() (the release).
+ *
+ * Observation ({self.size} entries, {pol.observation}, history {self.H}):
+{chr(10).join(rows)}
+ *
+ * Arithmetic: double by default (the reference: bitwise the simulator's numba kernels on the
+ * same libm); define IMPACT_FLOAT32 for float (MCUs without a double FPU; within the bound of
+ * docs/rig.md).  The RMS clamp's ledger stays in double in both builds (its sums are exact).
+ */"""
+
+    def header(self) -> str:
+        res_state = ""
+        if self.res is not None:
+            rl = self.res.layout
+            res_state = f"""
+    /* the residual law's frame and memory (history 1) */
+    impact_real res_frame[{rl.frame_size}];
+    float res_obs[{rl.size}];
+    impact_real res_mem[{LW.MEMORY}];"""
+        law_mem = f"\n    impact_real law_mem[{LW.MEMORY}];  /* previous penetration d (m), previous x2 (m) */" \
+            if self.pol.law is not None else ""
+        return f"""{self._banner()}
+#ifndef IMPACT_POLICY_H
+#define IMPACT_POLICY_H
+
+#include <stdint.h>
+
+#ifdef IMPACT_FLOAT32
+typedef float impact_real;
+#else
+typedef double impact_real;
+#endif
+
+#define IMPACT_N_READINGS 4
+#define IMPACT_OBS_SIZE {self.size}
+#define IMPACT_FRAME_SIZE {self.F}
+#define IMPACT_HISTORY {self.H}
+#define IMPACT_HOLD_TICKS {self.pol.hold_ticks}
+#define IMPACT_CONTROL_RATE_HZ {_r(self.pol.control_rate)}
+#define IMPACT_COMMAND_SCALE_N {_r(self.pol.command_scale)}
+#define IMPACT_RMS_WINDOW_TICKS {self.window}
+
+/* status bits (impact_env.rig.safety): bits 0-15 the safety layer */
+#define IMPACT_STATUS_NONFINITE   0x{SF.NONFINITE:04x}u  /* the command was NaN or infinite: 0 N */
+#define IMPACT_STATUS_CLAMP_PEAK  0x{SF.CLAMP_PEAK:04x}u  /* |f| cut to the peak rating */
+#define IMPACT_STATUS_CLAMP_RMS   0x{SF.CLAMP_RMS:04x}u  /* cut by the continuous (RMS) rating */
+#define IMPACT_STATUS_TRAVEL      0x{SF.TRAVEL:04x}u  /* latched: |x2| beyond the travel limit, 0 N */
+#define IMPACT_STATUS_SENSOR_FAULT 0x{SF.SENSOR_FAULT:04x}u  /* latched: x2 not finite, 0 N */
+
+typedef struct {{
+    int64_t tick;                               /* ticks since the episode's release */
+    /* front end: SOS filter memory (transposed direct form II), detector, conditioned readings */
+    impact_real filt[IMPACT_N_READINGS][{self.nsec}][2];
+    impact_real det_prev_s, det_latch;           /* eq 4.4 signal (N) at the last tick, contact bit */
+    impact_real cond[IMPACT_N_READINGS];
+    impact_real detected;
+    /* the observation: frames newest first (scaled), past actions, the row the policy reads */
+    impact_real frames[IMPACT_HISTORY][IMPACT_FRAME_SIZE];
+    impact_real past_actions[IMPACT_HISTORY];
+    float obs[IMPACT_OBS_SIZE];{res_state}{law_mem}
+    impact_real action;                          /* the policy's action, held for a policy step */
+    /* safety: latched bits, the RMS window of squared forces (whole quanta), per-episode counts */
+    uint32_t latch;
+    int64_t rms_head;
+    double rms_sum;
+    double rms_ring[IMPACT_RMS_WINDOW_TICKS];
+    int64_t nonfinite_ticks, clamp_peak_ticks, clamp_rms_ticks, travel_trips;
+}} impact_state;
+
+/* Power-on: every state zero (the RMS window cool). */
+void impact_init(impact_state *s);
+/* A new episode (the release): front end, policy and latches cleared; the RMS window, the coil's
+ * heat, is kept. */
+void impact_reset(impact_state *s);
+/* Time spent disarmed, in ticks: the RMS window cools by that many 0 N ticks. */
+void impact_idle(impact_state *s, int64_t ticks);
+/* sizeof(impact_state), for callers that allocate it from another language */
+unsigned long impact_state_bytes(void);
+/* One tick (see the banner): returns the status bits. */
+uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READINGS],
+                     impact_real *command, impact_real *force_n);
+
+#endif /* IMPACT_POLICY_H */
+"""
+
+    # -- the source -------------------------------------------------------------------------------
+    def source(self) -> str:
+        parts = [self._banner(), self._prelude(), self._front_end(), self._observe("main", self.pol.layout),
+                 self._policy()]
+        if self.res is not None:
+            parts += [self._observe("res", self.res.layout), self._law("res", self.res)]
+        parts += [self._safety(), self._step()]
+        return _drop_unused("\n\n".join(parts) + "\n")
+
+    def _prelude(self) -> str:
+        return f"""#include <math.h>
+#include <string.h>
+
+#include "{HEADER_NAME}"
+
+#ifdef IMPACT_FLOAT32
+#define R_SQRT sqrtf
+#define R_POW powf
+#define R_TANH tanhf
+#define R_EXPM1 expm1f
+#else
+#define R_SQRT sqrt
+#define R_POW pow
+#define R_TANH tanh
+#define R_EXPM1 expm1
+#endif
+
+/* a literal in the build's arithmetic (float literals would be promoted to double otherwise) */
+#define RL(x) ((impact_real)(x))
+
+/* every entry of an observation is clipped to this many reference units */
+static const impact_real OBS_LIMIT = {_r(OBS_LIMIT)};
+/* the force that command 1 demands, N upwards */
+static const impact_real COMMAND_SCALE_N = {_r(self.pol.command_scale)};"""
+
+    def _front_end(self) -> str:
+        fe = self.fe
+        dp = fe.det_params
+        filters = bool(fe.flags & F_FILTERS)
+        detector = bool(fe.flags & F_DETECTOR)
+        sos = fe.sos
+        chan_rows = []
+        for c in range(sos.shape[0]):
+            secs = ",\n        ".join("{" + ", ".join(_r(x) for x in sos[c, k]) + "}"
+                                         for k in range(sos.shape[1]))
+            chan_rows.append(f"    {{ /* {CHANNELS[c]} */\n        {secs}\n    }}")
+        sos_txt = ",\n".join(chan_rows)
+        filt_code = """
+    for (int c = 0; c < IMPACT_N_READINGS; c++) {
+        impact_real v = s->cond[c];
+        for (int k = 0; k < N_SECTIONS; k++) {
+            const impact_real *b = SOS[c][k];
+            impact_real y = b[0] * v + s->filt[c][k][0];
+            s->filt[c][k][0] = b[1] * v - b[4] * y + s->filt[c][k][1];
+            s->filt[c][k][1] = b[2] * v - b[5] * y;
+            v = y;
+        }
+        s->cond[c] = v;
+    }""" if filters else "\n    /* the scene has no filters effect: the readings pass as they are */"
+        if not detector:
+            det_code = "\n    s->detected = 0.0;  /* the scene has no detector effect */"
+        elif dp[DT.P_USE_DERIV] == 0.0:
+            det_code = """
+    /* thesis eq 4.4: the contact force is m2' a2 + T; contact while it exceeds the threshold */
+    impact_real sig = DET_TOP_MASS_KG * s->cond[0] + s->cond[1];
+    s->det_latch = (sig > DET_THRESHOLD_N) ? 1.0 : 0.0;
+    s->det_prev_s = sig;
+    s->detected = (s->det_latch != 0.0) ? 1.0 : 0.0;"""
+        else:
+            det_code = """
+    /* thesis eq 4.4 with a derivative trigger: d/dt (m2' a2 + T) beyond +-threshold sets/clears */
+    impact_real sig = DET_TOP_MASS_KG * s->cond[0] + s->cond[1];
+    impact_real ds = (sig - s->det_prev_s) * DET_RATE_HZ;
+    if (ds > DET_DTHRESHOLD_N_PER_S) s->det_latch = 1.0;
+    else if (ds < -DET_DTHRESHOLD_N_PER_S) s->det_latch = 0.0;
+    s->det_prev_s = sig;
+    s->detected = (s->det_latch != 0.0) ? 1.0 : 0.0;"""
+        return f"""/* ---- front end: the scene's filters and the contact detector (impact_env.control.front_end) ---- */
+
+#define N_SECTIONS {sos.shape[1]}
+/* Butterworth second-order sections per channel (b0 b1 b2 a0 a1 a2; scipy's sos layout; identity
+ * sections pad short cascades), from the scene's effects.filters at {self.pol.control_rate:g} Hz */
+static const impact_real SOS[IMPACT_N_READINGS][N_SECTIONS][6] = {{
+{sos_txt}
+}};
+/* the contact detector (effects.detector): m2' (kg), threshold (N), derivative threshold (N/s), rate */
+static const impact_real DET_TOP_MASS_KG = {_r(dp[DT.P_MASS])};
+static const impact_real DET_THRESHOLD_N = {_r(dp[DT.P_THRESH])};
+static const impact_real DET_DTHRESHOLD_N_PER_S = {_r(dp[DT.P_DTHRESH])};
+static const impact_real DET_RATE_HZ = {_r(dp[DT.P_RATE])};
+
+/* the readings of a tick through the filters, then the detector */
+static void condition(impact_state *s, const impact_real readings[IMPACT_N_READINGS])
+{{
+    for (int c = 0; c < IMPACT_N_READINGS; c++) s->cond[c] = readings[c];{filt_code}{det_code}
+}}"""
+
+    def _observe(self, which: str, lay) -> str:
+        main = which == "main"
+        chans = ", ".join(str(int(c)) for c in lay.sensor_channels) or "0"
+        n_ch = len(lay.sensor_channels)
+        frames = "s->frames" if main else "s->res_frame"
+        pref = "OBS" if main else "RES_OBS"
+        shift = ""
+        if main and lay.history > 1:
+            shift = """
+    if (push) {
+        for (int h = IMPACT_HISTORY - 1; h > 0; h--) s->past_actions[h] = s->past_actions[h - 1];
+        s->past_actions[0] = action;
+    }
+    for (int h = IMPACT_HISTORY - 1; h > 0; h--)
+        for (int j = 0; j < IMPACT_FRAME_SIZE; j++) s->frames[h][j] = s->frames[h - 1][j];"""
+        f0 = f"{frames}[0]" if main else frames
+        det = f"\n    {f0}[j++] = s->detected;" if lay.detector else ""
+        out = ("""
+    for (int h = 0; h < IMPACT_HISTORY; h++)
+        for (int k = 0; k < IMPACT_FRAME_SIZE; k++) s->obs[h * IMPACT_FRAME_SIZE + k] = (float)s->frames[h][k];"""
+               + ("""
+    for (int h = 0; h < IMPACT_HISTORY; h++) s->obs[IMPACT_HISTORY * IMPACT_FRAME_SIZE + h] = (float)s->past_actions[h];"""
+                  if lay.history > 1 else "")) if main else f"""
+    for (int k = 0; k < {lay.frame_size}; k++) s->res_obs[k] = (float)s->res_frame[k];"""
+        sig = "static void observe(impact_state *s, int push, impact_real action)" if main else \
+            "static void observe_residual(impact_state *s)"
+        unused = "" if (main and lay.history > 1) or not main else ""
+        if main and lay.history == 1:
+            unused = "\n    (void)push;\n    (void)action;"
+        names = ", ".join(lay.names)
+        return f"""/* ---- the {'policy' if main else 'residual law'}'s observation ({names}; impact_env.control.front_end.observe) ---- */
+
+static const int {pref}_CHANNELS[{max(n_ch, 1)}] = {{{chans}}};
+/* reference scales: obs = value / scale (impact_env.control.observation) */
+static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
+
+{sig}
+{{{unused}{shift}
+    int j = 0;
+    for (int k = 0; k < {n_ch}; k++) {f0}[j++] = s->cond[{pref}_CHANNELS[k]];{det}
+    for (j = 0; j < {lay.frame_size}; j++) {{
+        impact_real v = {f0}[j] / {pref}_SCALES[j];
+        if (v > OBS_LIMIT) v = OBS_LIMIT;
+        else if (v < -OBS_LIMIT) v = -OBS_LIMIT;
+        {f0}[j] = v;
+    }}{out}
+}}"""
+
+    def _policy(self) -> str:
+        if self.pol.law is not None:
+            return self._law("main", self.pol)
+        return self._mlp()
+
+    def _law(self, which: str, pol) -> str:
+        """A classic law's C function, ``policy_act`` or ``residual_act`` (obs row, memory)."""
+        kind, slots, k = LW.pack_law(pol.law["name"], pol.law["constants"], pol.layout.names)
+        name = pol.law["name"]
+        lay = pol.layout
+        consts = LW.CONSTANTS[name]
+        P = _ident(which)
+        cdefs = "\n".join(f"static const impact_real {P}_{_ident(c)} = {_r(v)};"
+                          for c, v in zip(consts, k, strict=True))
+        sl = {s: int(slots[i]) for i, s in enumerate(LW.SLOTS)}
+        est = ""
+        if name in ("thesis-rig", "pd-penetration"):
+            top, c, rate, thr = (f"{P}_TOP_MASS", f"{P}_C", f"{P}_RATE", f"{P}_THRESHOLD")
+            det = (f"v[{sl['contact_detected']}] > 0.5" if sl["contact_detected"] >= 0
+                   else f"{top} * a2 + t > {thr}")
+            est = f"""
+    /* the contact force by thesis eq 4.4, the penetration by Hertz (Phi = c d^1.5), their rates */
+    impact_real a2 = v[{sl['accelerometer']}], t = v[{sl['force']}], x2 = v[{sl['potentiometer']}];
+    impact_real sig = {top} * a2 + t;
+    impact_real phi = sig > 0.0 ? sig : 0.0;
+    impact_real d = R_POW(phi / {c}, (impact_real)(2.0 / 3.0));
+    impact_real d_rate = (d - mem[0]) * {rate};
+    impact_real v2 = (x2 - mem[1]) * {rate};
+    int detected = {det};
+    mem[0] = d;
+    mem[1] = x2;"""
+        if name == "passive":
+            body = "\n    (void)v;\n    (void)mem;\n    f = 0.0;"
+        elif name == "thesis-rig":
+            body = est + f"""
+    /* thesis eq 4.3 (its derivative term corrected), gated by the detector */
+    if (!detected) f = 0.0;
+    else f = {P}_M2 * (phi * ({P}_M1 + {P}_M2) / ({P}_M1 * {P}_M2) - {P}_G - {P}_H11 * d_rate
+                       - {P}_H01 * (d - {P}_DREF)) - {P}_H12 * v2 - {P}_H02 * x2;"""
+        elif name == "pd-penetration":
+            body = est + f"""
+    (void)v2;
+    /* PD on the penetration's error, gated by the detector */
+    if (!detected) f = 0.0;
+    else f = -{P}_M2 * ({P}_KP * (d - {P}_DREF) + {P}_KD * d_rate);"""
+        else:
+            raise ConfigError(f"law {name!r} cannot be deployed from the sensors")
+        fn = "policy_act" if which == "main" else "residual_act"
+        return f"""/* ---- {'the policy' if which == 'main' else 'the residual law'}: {name} (impact_env.control.laws, kind {kind}) ---- */
+
+{cdefs or '/* (no constants) */'}
+static const impact_real {P}_COMMAND_SCALE_N = {_r(pol.command_scale)};
+static const impact_real {P}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
+
+/* the command in [-1, 1] for the observation row obs; mem: the law's memory (2 values) */
+static impact_real {fn}(const float *obs, impact_real *mem)
+{{
+    impact_real v[{lay.frame_size}];
+    impact_real f;
+    for (int j = 0; j < {lay.frame_size}; j++) v[j] = (impact_real)obs[j] * {P}_SCALES[j];{body}
+    impact_real u = f / {P}_COMMAND_SCALE_N;
+    if (u < -1.0) return -1.0;
+    if (u > 1.0) return 1.0;
+    return u;
+}}"""
+
+    def _mlp(self) -> str:
+        m = self.pol.mlp
+        layers = m["layers"]
+        decl, calls = [], []
+        for j, ly in enumerate(layers):
+            W = np.asarray(ly["weight"], dtype=np.float64)
+            b = np.asarray(ly["bias"], dtype=np.float64)
+            act = ly.get("activation", "identity")
+            a0, a1 = ([*map(float, ly.get("params", [0.0, 0.0])), 0.0, 0.0])[:2]
+            n_out, n_in = W.shape
+            rows = ",\n".join("    {" + ", ".join(_r(x) for x in W[o]) + "}" for o in range(n_out))
+            decl.append(f"/* layer {j}: {n_in} -> {n_out}, {act} */\n"
+                        f"static const impact_real W{j}[{n_out}][{n_in}] = {{\n{rows}\n}};\n"
+                        f"static const impact_real B{j}[{n_out}] = {_arr(b)};")
+            actc = {"identity": "c", "tanh": "R_TANH(c)", "relu": "(c > 0.0 ? c : 0.0)",
+                    "hardtanh": f"(c < {_r(a0)} ? {_r(a0)} : (c > {_r(a1)} ? {_r(a1)} : c))",
+                    "leaky_relu": f"(c > 0.0 ? c : RL({_r(a0)}) * c)",
+                    "elu": f"(c > 0.0 ? c : RL({_r(a0)}) * R_EXPM1(c))"}[act]
+            calls.append(f"""    for (int o = 0; o < {n_out}; o++) {{
+        impact_real c = B{j}[o];
+        for (int i = 0; i < {n_in}; i++) c += W{j}[o][i] * x[i];
+        y[o] = {actc};
+    }}
+    for (int o = 0; o < {n_out}; o++) x[o] = y[o];""")
+        low, high = _r(m["low"]), _r(m["high"])
+        if m["output"] == "squash":
+            out = f"return RL({low}) + (RL(0.5) * (R_TANH(a) + RL(1.0)) * (RL({high}) - RL({low})));"
+            what = "tanh, then unscaled to [low, high] (SB3's squash)"
+        else:
+            out = f"return a < RL({low}) ? RL({low}) : (a > RL({high}) ? RL({high}) : a);"
+            what = "clipped to [low, high] (SB3's predict for a Box action)"
+        return f"""/* ---- the policy: an MLP actor (impact_env.control.mlp), each output summed b + W[o][0] x0 + ... in
+ * input order, as the numba kernel does; output {what} ---- */
+
+{chr(10).join(decl)}
+
+#define MLP_WIDEST {self.widest}
+
+static impact_real policy_act(const float *obs, impact_real *mem)
+{{
+    impact_real x[MLP_WIDEST], y[MLP_WIDEST];
+    (void)mem;
+    for (int i = 0; i < IMPACT_OBS_SIZE; i++) x[i] = (impact_real)obs[i];
+{chr(10).join(calls)}
+    impact_real a = x[0];
+    {out}
+}}"""
+
+    def _safety(self) -> str:
+        sp = self.sp
+        budget = sp[SF.P_BUDGET]
+        rms = "" if budget < 0 else """
+    /* RMS clamp: the squares of the last RMS_WINDOW ticks' forces, in whole quanta, stay within
+     * the budget n (continuous_n / sqrt 2)^2 */
+    int64_t head = s->rms_head;
+    double others = s->rms_sum - s->rms_ring[head];
+    double sq = floor((double)f * (double)f / RMS_QUANTUM_N2 + 0.5);
+    if (others + sq > RMS_BUDGET_QUANTA) {
+        double room = RMS_BUDGET_QUANTA - others;
+        if (room < 0.0) room = 0.0;
+        double mag = sqrt(room * RMS_QUANTUM_N2);
+        f = f > 0.0 ? (impact_real)mag : (impact_real)-mag;
+        sq = floor((double)f * (double)f / RMS_QUANTUM_N2 + 0.5);
+        if (sq > room) sq = room;
+        status |= IMPACT_STATUS_CLAMP_RMS;
+        s->clamp_rms_ticks++;
+    }
+    s->rms_ring[head] = sq;
+    s->rms_sum = others + sq;
+    s->rms_head = (head + 1) % IMPACT_RMS_WINDOW_TICKS;"""
+        return f"""/* ---- the safety layer (impact_env.rig.safety, onboard mode): non-finite commands, the
+ * latched travel limit, the peak and RMS clamps ---- */
+
+static const impact_real SAFETY_PEAK_N = {_r(sp[SF.P_PEAK])};          /* peak rating (thesis sec 4.3) */
+static const impact_real SAFETY_TRAVEL_LIMIT_M = {_r(sp[SF.P_TRAVEL])};  /* |x2| beyond it: 0 N, latched */
+static const double RMS_QUANTUM_N2 = {_r(sp[SF.P_QUANTUM])};        /* N^2 per quantum */
+static const double RMS_BUDGET_QUANTA = {_r(budget)};  /* {'no RMS clamp' if budget < 0 else 'continuous rating'} */
+
+#define MODIFIED (IMPACT_STATUS_NONFINITE | IMPACT_STATUS_CLAMP_PEAK | IMPACT_STATUS_CLAMP_RMS \\
+                  | IMPACT_STATUS_TRAVEL | IMPACT_STATUS_SENSOR_FAULT)
+
+/* the force to apply (N, up) for the demanded command u; x2: the potentiometer's reading */
+static impact_real safety(impact_state *s, impact_real u, impact_real x2, uint32_t *bits)
+{{
+    uint32_t status = 0;
+    impact_real f = u * COMMAND_SCALE_N;
+    if (!isfinite(f)) {{
+        status |= IMPACT_STATUS_NONFINITE;
+        s->nonfinite_ticks++;
+        f = 0.0;
+    }}
+    uint32_t latch = s->latch;
+    if (!isfinite(x2)) latch |= IMPACT_STATUS_SENSOR_FAULT;
+    else if (fabs((double)x2) > (double)SAFETY_TRAVEL_LIMIT_M) {{
+        if ((latch & IMPACT_STATUS_TRAVEL) == 0) s->travel_trips++;
+        latch |= IMPACT_STATUS_TRAVEL;
+    }}
+    s->latch = latch;
+    if (latch != 0) {{
+        status |= latch;
+        f = 0.0;
+    }}
+    if (f > SAFETY_PEAK_N) {{
+        f = SAFETY_PEAK_N;
+        status |= IMPACT_STATUS_CLAMP_PEAK;
+    }} else if (f < -SAFETY_PEAK_N) {{
+        f = -SAFETY_PEAK_N;
+        status |= IMPACT_STATUS_CLAMP_PEAK;
+    }}
+    if (status & IMPACT_STATUS_CLAMP_PEAK) s->clamp_peak_ticks++;{rms}
+    *bits = status;
+    return f;
+}}"""
+
+    def _step(self) -> str:
+        res = self.res is not None
+        start_res = """
+    memset(s->res_frame, 0, sizeof s->res_frame);
+    memset(s->res_mem, 0, sizeof s->res_mem);
+    observe_residual(s);""" if res else ""
+        tick_res = "\n        observe_residual(s);" if res else ""
+        add_res = """
+    u = u + residual_act(s->res_obs, s->res_mem);
+    u = u < -1.0 ? -1.0 : (u > 1.0 ? 1.0 : u);""" if res else ""
+        mem = "s->law_mem" if self.pol.law is not None else "NULL"
+        clear_mem = "\n    memset(s->law_mem, 0, sizeof s->law_mem);" if self.pol.law is not None else ""
+        return f"""/* ---- the tick (impact_env.rig.controller: observe_tick, then act_tick) ---- */
+
+/* the release: the front end starts from these readings, unfiltered (as the simulator's reset) */
+static void start(impact_state *s, const impact_real readings[IMPACT_N_READINGS])
+{{
+    for (int c = 0; c < IMPACT_N_READINGS; c++) s->cond[c] = readings[c];
+    memset(s->filt, 0, sizeof s->filt);
+    s->det_prev_s = 0.0;
+    s->det_latch = 0.0;
+    s->detected = 0.0;
+    memset(s->frames, 0, sizeof s->frames);
+    memset(s->past_actions, 0, sizeof s->past_actions);
+    observe(s, 0, 0.0);{start_res}{clear_mem}
+    s->action = 0.0;
+}}
+
+unsigned long impact_state_bytes(void)
+{{
+    return (unsigned long)sizeof(impact_state);
+}}
+
+void impact_init(impact_state *s)
+{{
+    memset(s, 0, sizeof *s);
+}}
+
+void impact_reset(impact_state *s)
+{{
+    s->tick = 0;
+    s->latch = 0;
+    s->nonfinite_ticks = s->clamp_peak_ticks = s->clamp_rms_ticks = s->travel_trips = 0;
+}}
+
+void impact_idle(impact_state *s, int64_t ticks)
+{{
+    int64_t head = s->rms_head;
+    for (int64_t k = 0; k < ticks && k < IMPACT_RMS_WINDOW_TICKS; k++) {{
+        s->rms_sum -= s->rms_ring[head];
+        s->rms_ring[head] = 0.0;
+        head = (head + 1) % IMPACT_RMS_WINDOW_TICKS;
+    }}
+    s->rms_head = head;
+}}
+
+uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READINGS],
+                     impact_real *command, impact_real *force_n)
+{{
+    int boundary = (s->tick % IMPACT_HOLD_TICKS) == 0;
+    if (s->tick == 0) {{
+        start(s, readings);
+    }} else {{
+        condition(s, readings);{tick_res}
+        if (boundary) observe(s, 1, s->action);
+    }}
+    if (boundary) s->action = policy_act(s->obs, {mem});
+    impact_real u = s->action;{add_res}
+    uint32_t status;
+    impact_real f = safety(s, u, readings[2], &status);
+    *command = (status & MODIFIED) ? f / COMMAND_SCALE_N : u;
+    *force_n = f;
+    s->tick++;
+    return status;
+}}"""

@@ -1,0 +1,246 @@
+"""Proof that a generated C file acts as the simulator's kernels do: build it with gcc, load it
+with :mod:`ctypes`, and drive it tick by tick beside the numba target (the rig target's
+:class:`~impact_env.rig.controller.Controller`, onboard mode) on readings recorded from the
+virtual rig (:class:`~impact_env.rig.driver.VirtualRig`), or in closed loop with the virtual
+rig as the plant.
+
+``impact-env export SPEC --scene S --c DIR --check`` runs :func:`check` after writing; the
+tests (``tests/test_c_export.py``) run it over scenes, seeds, laws and networks.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from impact_env.config import ConfigError
+from impact_env.control.policy import CompiledPolicy
+from impact_env.deploy.c_export import HEADER_NAME, SOURCE_NAME
+
+CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off")
+F32_EPS = float(np.finfo(np.float32).eps)
+
+
+def find_cc() -> str:
+    """The C compiler: ``$CC`` or gcc."""
+    cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    if not cc:
+        raise ConfigError("no C compiler found (install gcc, or set CC)")
+    return cc
+
+
+def build_shared(c_dir, out: Path | None = None, float32: bool = False, extra: tuple[str, ...] = ()) -> Path:
+    """Compile ``c_dir``'s impact_policy.c as a shared library with :data:`CFLAGS` (and
+    ``-DIMPACT_FLOAT32``); returns its path.  A warning is an error."""
+    c_dir = Path(c_dir)
+    out = Path(out) if out is not None else c_dir / ("libimpact_f32.so" if float32 else "libimpact.so")
+    cmd = [find_cc(), *CFLAGS, "-fPIC", "-shared", *(("-DIMPACT_FLOAT32",) if float32 else ()), *extra,
+           "-o", str(out), str(c_dir / SOURCE_NAME),
+           "-lm"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    if r.returncode != 0:
+        raise ConfigError(f"compiling {c_dir / SOURCE_NAME} failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
+    return out
+
+
+RT_DIR = Path(__file__).resolve().parent / "rt"
+ARM_FLAGS = ("-mcpu=cortex-m7", "-mfpu=fpv5-d16", "-mfloat-abi=hard", "-mthumb", "-Os", "-std=c99", "-Wall",
+             "-Wextra", "-Werror", "-ffp-contract=off")
+
+
+def build_rt_example(c_dir, out, float32: bool = False) -> Path:
+    """The real-time Linux example (``impact_env/deploy/rt``: main.c, the replay driver) linked
+    with ``c_dir``'s impact_policy.c; returns the executable."""
+    c_dir, out = Path(c_dir), Path(out)
+    cmd = [find_cc(), *CFLAGS, *(("-DIMPACT_FLOAT32",) if float32 else ()), f"-I{c_dir}", f"-I{RT_DIR}",
+           "-o", str(out), str(RT_DIR / "main.c"), str(RT_DIR / "replay_driver.c"), str(c_dir / SOURCE_NAME),
+           "-lm"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    if r.returncode != 0:
+        raise ConfigError(f"compiling the real-time example failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
+    return out
+
+
+def build_arm(c_dir, out, float32: bool = False, cc: str = "arm-none-eabi-gcc") -> dict[str, int]:
+    """Compile ``c_dir``'s impact_policy.c for a Cortex-M7 with its double FPU (:data:`ARM_FLAGS`,
+    Debian's gcc-arm-none-eabi) into object ``out``; returns its sizes (bytes: text, data, bss)
+    from ``arm-none-eabi-size``."""
+    c_dir, out = Path(c_dir), Path(out)
+    exe = shutil.which(cc)
+    if exe is None:
+        raise ConfigError(f"{cc} not found: install Debian's gcc-arm-none-eabi")
+    cmd = [exe, *ARM_FLAGS, *(("-DIMPACT_FLOAT32",) if float32 else ()), "-c", "-o", str(out),
+           str(c_dir / SOURCE_NAME)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    if r.returncode != 0:
+        raise ConfigError(f"cross-compiling failed ({' '.join(cmd)}):\n{r.stderr[-4000:]}")
+    size_exe = shutil.which("arm-none-eabi-size") or "arm-none-eabi-size"
+    lines = subprocess.run([size_exe, str(out)], capture_output=True, text=True, timeout=60,
+                           check=True).stdout.split("\n")
+    size = lines[1].split()
+    return {"text": int(size[0]), "data": int(size[1]), "bss": int(size[2])}
+
+
+class CPolicy:
+    """A built library: one ``impact_state`` (caller-owned memory, here a ctypes buffer) and its
+    four functions."""
+
+    def __init__(self, lib_path, float32: bool = False):
+        self.lib = ctypes.CDLL(str(lib_path))
+        self.real = ctypes.c_float if float32 else ctypes.c_double
+        self.dtype = np.float32 if float32 else np.float64
+        self.lib.impact_state_bytes.restype = ctypes.c_ulong
+        self.state = ctypes.create_string_buffer(int(self.lib.impact_state_bytes()))
+        self.lib.impact_step.restype = ctypes.c_uint32
+        ptr = ctypes.POINTER(self.real)
+        self.lib.impact_step.argtypes = [ctypes.c_void_p, ptr, ptr, ptr]
+        self.lib.impact_idle.argtypes = [ctypes.c_void_p, ctypes.c_int64]
+        self._r = np.zeros(4, dtype=self.dtype)
+        self._cmd, self._f = self.real(), self.real()
+        self.lib.impact_init(self.state)
+
+    def init(self) -> None:
+        """Power-on: all state zero, the RMS window cool."""
+        self.lib.impact_init(self.state)
+
+    def reset(self) -> None:
+        self.lib.impact_reset(self.state)
+
+    def idle(self, ticks: int) -> None:
+        self.lib.impact_idle(self.state, int(ticks))
+
+    def step(self, readings) -> tuple[float, float, int]:
+        """(command, force N, status bits) of one tick."""
+        self._r[:] = readings
+        st = self.lib.impact_step(self.state, self._r.ctypes.data_as(ctypes.POINTER(self.real)),
+                                  ctypes.byref(self._cmd), ctypes.byref(self._f))
+        return float(self._cmd.value), float(self._f.value), int(st)
+
+
+def numba_controller(policy: CompiledPolicy, scene, horizon_ticks: int):
+    """The rig target's controller for ``policy`` in onboard mode (its residual law included)."""
+    from impact_env.control.observation import make_layout
+    from impact_env.rig.controller import Controller
+
+    layout = make_layout(scene, policy.observation, policy.history)
+    return Controller(scene, layout, policy.hold_ticks, horizon_ticks, "onboard", policy,
+                      policy.residual_policy())
+
+
+def _numba_tick(ctl, m: int, raw: np.ndarray) -> tuple[float, float, int]:
+    if m == 0:
+        ctl.start(raw, None)
+    else:
+        ctl.observe(m, raw, None)
+    cmd, f, status, _row = ctl.act(m, 0.0, 0, m, raw)
+    return float(cmd), float(f), int(status)
+
+
+@dataclass
+class Recording:
+    """One closed-loop episode of the numba target on the virtual rig: the readings of every
+    tick (float64[n, 4]) and what the target answered (command, force N, status)."""
+
+    readings: np.ndarray
+    command: np.ndarray
+    force: np.ndarray
+    status: np.ndarray
+
+
+def record(policy: CompiledPolicy, scene, seed: int, ticks: int) -> Recording:
+    """The numba target in closed loop with the virtual rig for ``ticks`` ticks of the drop
+    ``seed`` (the drop and noise ``ImpactCatch-v0`` meets for that reset seed)."""
+    from impact_env.rig.driver import VirtualRig
+
+    drv = VirtualRig(scene)
+    drv.initialise()
+    drv.arm(int(seed))
+    drv.release()
+    ctl = numba_controller(policy, scene, ticks)
+    raw = np.zeros((ticks, 4))
+    out = np.zeros((3, ticks))
+    for m in range(ticks):
+        raw[m] = drv.read()
+        cmd, f, st = _numba_tick(ctl, m, raw[m].copy())
+        out[:, m] = cmd, f, st
+        drv.apply(cmd)
+    drv.shutdown()
+    return Recording(raw, out[0], out[1], out[2].astype(np.int64))
+
+
+def replay(cp: CPolicy, rec: Recording) -> Recording:
+    """The C step on the recorded readings (open loop), from power-on as the recording's fresh
+    controller (a cool RMS window): its commands, forces and status."""
+    cp.init()
+    cp.reset()
+    n = rec.readings.shape[0]
+    out = np.zeros((3, n))
+    for m in range(n):
+        out[:, m] = cp.step(rec.readings[m])
+    return Recording(rec.readings, out[0], out[1], out[2].astype(np.int64))
+
+
+def closed_loop(cp: CPolicy, scene, seed: int, ticks: int) -> Recording:
+    """The C step in closed loop with the virtual rig (its hardware stage as the plant)."""
+    from impact_env.rig.driver import VirtualRig
+
+    drv = VirtualRig(scene)
+    drv.initialise()
+    drv.arm(int(seed))
+    drv.release()
+    cp.init()
+    cp.reset()
+    raw = np.zeros((ticks, 4))
+    out = np.zeros((3, ticks))
+    for m in range(ticks):
+        raw[m] = drv.read()
+        out[:, m] = cp.step(raw[m])
+        drv.apply(out[0, m])
+    drv.shutdown()
+    return Recording(raw, out[0], out[1], out[2].astype(np.int64))
+
+
+@dataclass
+class ParityReport:
+    """How a build compares with the numba target: ticks compared, ticks whose command differs
+    bitwise, the largest |command difference| and the status bits that differ."""
+
+    ticks: int
+    differing: int
+    max_abs: float
+    status_differing: int
+
+    def __str__(self) -> str:
+        return (f"{self.ticks} ticks: {self.differing} commands differ (max |diff| {self.max_abs:.3g}), "
+                f"{self.status_differing} status words differ")
+
+
+def compare_runs(a: Recording, b: Recording) -> ParityReport:
+    d = np.abs(a.command - b.command)
+    return ParityReport(int(a.command.size), int(np.count_nonzero(a.command != b.command)), float(d.max()),
+                        int(np.count_nonzero(a.status != b.status)))
+
+
+def check(policy: CompiledPolicy, scene, c_dir, seeds=(0, 1), ticks: int = 2000,
+          float32: bool = False) -> list[ParityReport]:
+    """Build ``c_dir`` and replay recorded readings of each seed through it; one report per
+    seed (:func:`compare_runs`)."""
+    with tempfile.TemporaryDirectory(prefix="impact-c-") as tmp:
+        lib = build_shared(c_dir, Path(tmp) / "libimpact.so", float32)
+        cp = CPolicy(lib, float32)
+        out = []
+        for s in seeds:
+            rec = record(policy, scene, s, ticks)
+            out.append(compare_runs(rec, replay(cp, rec)))
+        return out
+
+
+__all__ = ["CPolicy", "HEADER_NAME", "ParityReport", "Recording", "build_shared", "check", "closed_loop",
+           "compare_runs", "record", "replay"]
