@@ -101,7 +101,7 @@ class Target:
         self._pending: P.Message | None = None  # an ARM that ended the episode before it
         self._last_obs: P.Observation | None = None  # the last OBSERVATION of the last episode
         self._closed = False
-        self.counters = {"episodes": 0, "overruns": 0, "watchdog_trips": 0}
+        self.counters = {"episodes": 0, "overruns": 0, "skipped_ticks": 0, "watchdog_trips": 0}
         driver.initialise()
         self._warm_up()
 
@@ -118,7 +118,7 @@ class Target:
         raw = np.zeros(4)
         ctl.start(raw, None)
         ctl.observe(1, raw, None)
-        ctl.act(1, 0.0, 0, 1, raw)
+        ctl.act(1, 0.0, 0, 1, 1, raw)
         ctl.drain(1)
         ctl.log.record(tick=0)
         if isinstance(self.driver, VirtualRig):  # its compiled loop, on a throwaway drop
@@ -129,9 +129,13 @@ class Target:
             hw = self.driver.hw
             hw.refill_noise(1)
             tc = np.array([ctl.log.col(k) for k in TRUTH_COLUMNS[:13]], dtype=np.int64)
-            run_ticks(1, 2, 1, True, 0.0, 0, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety, ctl.scale,
-                      ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc, np.zeros(3),
-                      np.array([0.0, 0, 1, 1]), np.zeros(4), np.zeros(1, dtype=np.int64))
+            from impact_env.sim.records import N_REC
+
+            for onboard in (True, False):
+                run_ticks(1, 2, 1, onboard, 0.0, 0, 1, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety,
+                          ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc, np.zeros(3),
+                          np.array([0.0, 0, 1, 1]), np.zeros(4), np.zeros(1, dtype=np.int64),
+                          np.zeros(3, dtype=np.int64), np.zeros((4, N_REC)))
 
     @property
     def address(self) -> str:
@@ -256,6 +260,9 @@ class Target:
     # -- one episode ---------------------------------------------------------------------------------
     def _run_episode(self, arm_msg: P.Message, ctl: Controller, hold: int, policy) -> None:
         a: P.Arm = arm_msg.body
+        datagrams0 = self._datagram_counts()
+        datagrams0["accepted"] -= 1  # the ARM itself is the episode's
+        datagrams0["received"] -= 1
         drv = self.driver
         seed = (a.seed + self.cfg.seed_offset) & P.U64
         drv.arm(seed)
@@ -266,6 +273,7 @@ class Target:
         self._reply(armed, arm_msg)
         drv.release()
         ep = Episode(self, arm_msg, armed, ctl, hold, seed)
+        ep.datagrams0 = datagrams0
         compiled = isinstance(drv, VirtualRig) and not self.cfg.python_loop
         try:
             end = ep.run_compiled() if compiled else ep.run_python()
@@ -275,12 +283,22 @@ class Target:
         self._last_obs = ep.obs_msg
         self._finish(ep, end, policy)
 
+    def _datagram_counts(self) -> dict[str, int]:
+        """The link's datagram counters since the target started (see :meth:`_finish`)."""
+        return {**self.link.filter.counts(), "received": self.endpoint.received}
+
     def _finish(self, ep: Episode, end, policy) -> None:
         ctl, a = ep.ctl, ep.a
-        counts = self.link.filter.counts()
-        counters = {**{f"dropped_{k}": v for k, v in counts.items() if k != "accepted"},
-                    "datagrams_accepted": counts["accepted"], "datagrams_received": self.endpoint.received,
-                    **{k: int(ctl.safety[1][i]) for k, i in SF.COUNTERS.items()}, "overruns": ep.overruns}
+        # every counter of the log is of this episode alone (ARM to EPISODE_END)
+        now = self._datagram_counts()
+        counts = {k: v - ep.datagrams0.get(k, 0) for k, v in now.items()}
+        counters = {**{f"dropped_{k}": v for k, v in counts.items() if k not in ("accepted", "received")},
+                    "datagrams_accepted": counts["accepted"], "datagrams_received": counts["received"],
+                    **{k: int(ctl.safety[1][i]) for k, i in SF.COUNTERS.items()}, "overruns": ep.overruns,
+                    "skipped_ticks": ep.skipped_ticks,
+                    **(ep.command_counters() if ep.host else {})}
+        if ep.host:
+            counters["commands_late"] = counts["late"]
         meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold,
                               seed=ep.seed, control_rate_hz=self.rate, episode=ep.ep,
                               session=self.link.session or 0, policy="" if policy is None else policy.name,
@@ -298,6 +316,7 @@ class Target:
             del self.episodes[old]
         self.counters["episodes"] += 1
         self.counters["overruns"] += ep.overruns
+        self.counters["skipped_ticks"] += ep.skipped_ticks
         self.counters["watchdog_trips"] += counters.get("watchdog_trips", 0)
         self.last_end = P.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & P.U32, ctl.log.n,
                                      ctl.log.n // ctl.hold, len(data), hashlib.sha256(data).digest())
