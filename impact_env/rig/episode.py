@@ -108,6 +108,8 @@ class Episode:
                 self.cmd_counts["commands_superseded"] += 1
         elif t == P.MsgType.DISARM:
             tg._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, self.ep), msg)
+            if msg.body.reason == 1:  # the host is closing: its session ends with the episode
+                tg._close_session = True
             return "DISARMED"
         elif t == P.MsgType.ARM:
             if msg.body == self.a:  # the same request again (its ARMED was lost): answer it again

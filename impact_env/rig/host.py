@@ -39,11 +39,17 @@ from impact_env.env import task_kernel as TK
 from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig
 from impact_env.hardware.batch import Hardware
 from impact_env.rig import protocol as P
-from impact_env.rig.transport import Endpoint, Link, RigTimeout, fetch, parse_address, upload
+from impact_env.rig import safety as SF
+from impact_env.rig.transport import Endpoint, Link, RigError, RigTimeout, fetch, parse_address, upload
 from impact_env.scene import scene_from_dict
 from impact_env.sim import records as R
 
 N_TEL = len(P.TELEMETRY_FIELDS)
+
+
+def status_names(status: int) -> list[str]:
+    """The names of the status bits set in ``status`` (:data:`impact_env.rig.safety.STATUS_BITS`)."""
+    return [name for name, bit in SF.STATUS_BITS.items() if int(status) & bit]
 
 
 class RigClient:
@@ -52,19 +58,31 @@ class RigClient:
     Every wait is bounded (``timeout_s`` per try, ``retries`` tries): a dead target raises
     :class:`~impact_env.rig.transport.RigTimeout`, and :meth:`close` never blocks."""
 
-    def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10):
+    def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10, key=None):
+        from impact_env.rig.auth import key_from
+
+        key = key_from(key, "key")
         host, port = parse_address(address)
         local = "udp://[::1]:0" if ":" in host else ("udp://127.0.0.1:0" if host in ("127.0.0.1", "localhost")
                                                       else "udp://0.0.0.0:0")
         self.address = address
         self.timeout_s, self.retries = float(timeout_s), int(retries)
         self.endpoint = Endpoint(local, peer=address)
-        self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1)
+        self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1, key=key)
+        self.link.filter.peer = self.endpoint.peer  # only the target's replies count
         try:
             nonce = int.from_bytes(os.urandom(4), "little")
-            info = self.link.request(P.Hello(nonce),
-                                     lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
-                                     "INFO (answer to HELLO)", self.timeout_s, self.retries).body
+            try:
+                info = self.link.request(P.Hello(nonce),
+                                         lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
+                                         "INFO (answer to HELLO)", self.timeout_s, self.retries).body
+            except RigTimeout:
+                if self.link.filter.auth_refusal:  # a target with another key (or none) refused us
+                    raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED,
+                                   f"{self.link.filter.auth_refusal} (this host "
+                                   f"{'has a key' if key else 'has no key'})") from None
+                raise
+            self.link.filter.nonce = info.session_nonce
             self.info = info
             self.lockstep = bool(info.lockstep)
             self.virtual = info.driver == 0
@@ -100,9 +118,12 @@ class RigClient:
     def command(self, step: int, action: float) -> None:
         self.link.send(P.Command(self.episode, int(step), (float(action),)))
 
-    def observation(self, step: int, timeout_s: float) -> P.Observation | None:
-        """The OBSERVATION of ``step`` of the current episode (newer ones are returned too),
-        or None after ``timeout_s``; an EPISODE_END is kept in ``last_end``."""
+    def observation(self, step: int, timeout_s: float) -> P.Observation | P.EpisodeEnd | None:
+        """The OBSERVATION of ``step`` of the current episode (newer ones are returned too), the
+        EPISODE_END of the current episode if the target ended it first (also kept in
+        ``last_end``), or None after ``timeout_s``."""
+        if self.last_end is not None and self.last_end.episode == self.episode:
+            return self.last_end
         deadline = time.perf_counter() + timeout_s
         while (left := deadline - time.perf_counter()) > 0:
             msg = self.link.recv(left)
@@ -113,6 +134,7 @@ class RigClient:
                 return b
             if msg.type == P.MsgType.EPISODE_END and b.episode == self.episode:
                 self.last_end = b
+                return b
         return None
 
     last_end: P.EpisodeEnd | None = None
@@ -178,8 +200,9 @@ class RigEnv(gym.Env):
     measures no body-1 state; ``history``, ``hold_ticks``, ``residual``, ``horizon``,
     ``catch_threshold``, ``catch_hold``, ``terminate_on_catch``, ``effort_weight``,
     ``limit_weight``, ``action_bounds``), plus ``address`` (``udp://HOST:PORT``), ``timeout_s``
-    (per try; a step waits at most ``(retries + 1) timeout_s`` in all, then raises RigTimeout)
-    and ``retries``.
+    (per try; a step waits at most ``(retries + 1) timeout_s`` in all, then raises RigTimeout),
+    ``retries`` and ``key`` (the path of the key file the target was started with, ``rig serve
+    --key FILE``, or the key's bytes; None: no key, for a target without one on loopback).
     """
 
     metadata = {"render_modes": []}
@@ -188,13 +211,13 @@ class RigEnv(gym.Env):
                  residual: str | None = None, horizon: float | None = None, catch_threshold: float = 0.01,
                  catch_hold: float = 0.01, terminate_on_catch: bool = True, effort_weight: float = 0.0,
                  limit_weight: float = 0.0, action_bounds: str = "clip", timeout_s: float = 0.05,
-                 retries: int = 20):
+                 retries: int = 20, key=None):
         self.config = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks,
                                  residual=residual, horizon=horizon, catch_threshold=catch_threshold,
                                  catch_hold=catch_hold,
                                  terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
                                  limit_weight=limit_weight, action_bounds=action_bounds)
-        self.client = RigClient(address, timeout_s, retries)
+        self.client = RigClient(address, timeout_s, retries, key=key)
         self.scene = scene = self.client.scene
         self.layout = make_layout(scene, observation, history)
         if self.layout.privileged:
@@ -246,7 +269,11 @@ class RigEnv(gym.Env):
               self.hold, self.residual)
         self._running = True
         self._n = 0
+        self._last_obs = None
         obs = self._wait_obs(0, resend=None)
+        if isinstance(obs, P.EpisodeEnd):
+            raise RuntimeError(f"the target ended episode {obs.episode} at once: "
+                               f"{P.EndReason(obs.reason).name}")
         return np.asarray(obs.obs, dtype=np.float32), self._info(obs)
 
     def _start_drop(self, ep_seed: int, state: tuple, rows: np.ndarray) -> None:
@@ -270,13 +297,13 @@ class RigEnv(gym.Env):
         self._start_drop(0, state, rows)
         self._task_step(np.zeros((1, self.hold, R.N_REC)), state, (*out, rows))
 
-    def _wait_obs(self, step: int, resend) -> P.Observation:
+    def _wait_obs(self, step: int, resend) -> P.Observation | P.EpisodeEnd:
         c = self.client
         for _ in range(c.retries + 1):
             got = c.observation(step, c.timeout_s)
             if got is not None:
                 return got
-            if resend is not None:
+            if resend is not None and c.lockstep:  # real time: a resent command would only be late
                 c.command(step - 1, resend)
         raise RigTimeout(f"OBSERVATION of step {step}", (c.retries + 1) * c.timeout_s, c.address,
                          c.retries + 1)
@@ -294,23 +321,59 @@ class RigEnv(gym.Env):
         u = float(a[0])
         self.client.command(self._n, u)
         self._n += 1
-        obs = self._wait_obs(self._n, resend=u)
+        got = self._wait_obs(self._n, resend=u)
+        if isinstance(got, P.EpisodeEnd):
+            return self._ended(got)
+        obs = got
+        extra: dict[str, Any] = {}
+        if obs.step > self._n:  # the OBSERVATIONs of the steps between were lost on the way
+            extra["steps_missed"] = obs.step - self._n
+            self._n = obs.step
         tel = obs.telemetry
         if self._hw is not None and len(tel) > N_TEL:
             recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, R.N_REC)
             self._task_step(recs, self._task_state(), (self._rew, self._te, self._tr, self._rows))
             reward, term, trunc = float(self._rew[0]), bool(self._te[0]), bool(self._tr[0])
-        else:
-            reward, term, trunc = 0.0, False, self._n >= self.max_steps
+            extra["reward_available"] = True
+        else:  # a physical rig, or a step whose true records are incomplete (ticks the target skipped)
+            reward, term, trunc = 0.0, False, False
+            extra["reward_available"] = False
+        trunc = trunc or (not term and self._n >= self.max_steps)
         if term or trunc:
             self._running = False
             if term:
                 self.client.disarm()
-        return np.asarray(obs.obs, dtype=np.float32), reward, term, trunc, self._info(obs)
+        info = self._info(obs)
+        info.update(extra)
+        if term or trunc:
+            info["end_reason"] = "CAUGHT" if term else "HORIZON"
+        return np.asarray(obs.obs, dtype=np.float32), reward, term, trunc, info
+
+    # the target's end reasons that are the task's own terminal states; any other end (the host
+    # disarmed, the link, a fault, no first command) cuts the episode short: truncated
+    TERMINAL_REASONS = frozenset({"CAUGHT", "SAFETY"})
+
+    def _ended(self, end: P.EpisodeEnd):
+        """The step the target ended the episode in (EPISODE_END before the step's OBSERVATION):
+        the last observation again, no reward (no records came), terminated or truncated by the
+        reason."""
+        self._running = False
+        try:
+            reason = P.EndReason(end.reason).name
+        except ValueError:
+            reason = f"reason {end.reason}"
+        term = reason in self.TERMINAL_REASONS
+        obs = self._last_obs
+        info = self._info(obs) if obs is not None else {}
+        info.update(end_reason=reason, reward_available=False, status=int(end.status),
+                    status_flags=status_names(end.status), ticks=int(end.n_ticks))
+        o = np.asarray(obs.obs if obs is not None else np.zeros(self.layout.size), dtype=np.float32)
+        return o, 0.0, term, not term, info
 
     def _info(self, obs: P.Observation) -> dict[str, Any]:
+        self._last_obs = obs
         tel = obs.telemetry
-        out: dict[str, Any] = {"step": obs.step, "status": obs.status,
+        out: dict[str, Any] = {"step": obs.step, "status": obs.status, "status_flags": status_names(obs.status),
                                "reward_available": self._hw is not None,
                                "force_demand": tel[0] if tel else 0.0,
                                "force_applied": tel[1] if len(tel) > 1 else 0.0,

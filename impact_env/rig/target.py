@@ -34,9 +34,11 @@ SIGTERM, SIGINT and :meth:`Target.close` leave the shaker at zero (``driver.idle
 from __future__ import annotations
 
 import hashlib
+import secrets
 import signal
 import tempfile
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,6 +78,10 @@ class TargetConfig:
     # the per-tick Python loop even for the virtual rig (the loop a physical driver uses)
     python_loop: bool = False
     seed_offset: int = 0  # added to every ARM's seed (0: the drops ImpactCatch-v0 meets for the same seeds)
+    # the shared key (impact_env.rig.auth); b"": none, and then only loopback peers are answered
+    key: bytes = b""
+    # an idle session whose host has sent nothing for this long is closed (another host may open one)
+    session_timeout_s: float = 5.0
 
 
 class Target:
@@ -89,7 +95,11 @@ class Target:
         self.scene = driver.scene
         self.rate = float(self.scene.control_rate)
         self.endpoint = Endpoint(bind)
-        self.link = Link(self.endpoint, "target")
+        self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
+        self.link.on_unauthenticated = self._unauthenticated
+        self.link.filter.loopback_only = not self.cfg.key
+        self._heard = 0.0  # perf_counter of the session host's last accepted datagram
+        self._close_session = False
         self.scene_toml = self.scene.to_toml().encode()
         self.scene_sha = hashlib.sha256(self.scene_toml).digest()
         self.upload = UploadAssembler()
@@ -101,7 +111,7 @@ class Target:
         self._pending: P.Message | None = None  # an ARM that ended the episode before it
         self._last_obs: P.Observation | None = None  # the last OBSERVATION of the last episode
         self._closed = False
-        self.counters = {"episodes": 0, "overruns": 0, "skipped_ticks": 0, "watchdog_trips": 0}
+        self.counters = {"episodes": 0, "sessions": 0, "overruns": 0, "skipped_ticks": 0, "watchdog_trips": 0}
         driver.initialise()
         self._warm_up()
 
@@ -169,9 +179,64 @@ class Target:
                 if msg is None:
                     msg = self.link.recv(idle_poll_s)
                 if msg is not None:
+                    self._heard = time.perf_counter()
                     self._handle_idle(msg)
+                if self._close_session or (self.link.filter.peer is not None
+                                           and time.perf_counter() - self._heard > self.cfg.session_timeout_s):
+                    self.end_session()
         finally:
             self.close()
+
+    # -- sessions ----------------------------------------------------------------------------------
+    @property
+    def keyed(self) -> bool:
+        return bool(self.cfg.key)
+
+    def open_session(self, msg: P.Message) -> None:
+        """A HELLO from the session's host (or any allowed peer while none is open): a new
+        session id gets a fresh nonce and pins the host's address and port; the same id again
+        (a retried HELLO) keeps them."""
+        f = self.link.filter
+        if f.session != msg.session or f.peer is None:
+            self.link.session = msg.session  # a new session's streams start empty
+            f.nonce = secrets.randbits(64) | 1
+            f.peer = self.link.last_sender
+            self.counters["sessions"] += 1
+
+    def end_session(self) -> None:
+        """Forget the session: the next HELLO from any allowed peer opens one."""
+        f = self.link.filter
+        self.link.session = None
+        f.peer, f.nonce = None, 0
+        self._close_session = False
+
+    def _stranger(self, msg: P.Message, addr: tuple) -> None:
+        """A well-tagged datagram from another address than the session's host's: counted by the
+        filter (``stranger``); a HELLO is answered with an ERROR (BUSY), the session kept."""
+        if msg.type == P.MsgType.HELLO:
+            p = self.link.filter.peer
+            self._send_raw(P.Error.shorten(P.ErrorCode.BUSY, msg.seq, f"busy: a session of {p[0]}:{p[1]} is "
+                                           f"open (it ends {self.cfg.session_timeout_s:g} s after its host "
+                                           f"falls silent while idle)"), msg.session, addr, self.cfg.key)
+
+    def _unauthenticated(self, data: bytes, addr: tuple) -> None:
+        """A HELLO whose tag does not check: answered (tagged without a key, so that a host with
+        none or another can read it) with an ERROR that names the option to fix."""
+        if self.keyed:
+            text = ("HELLO refused: its tag does not check with this target's key (rig serve --key FILE): "
+                    "give the host the same key file (ImpactCatchRig-v0(key=FILE), compare --key FILE)")
+        else:
+            text = ("HELLO refused: this target was started without a key; start it with rig serve --key "
+                    "FILE to use one, or give the host no key")
+        try:
+            head = P.HEADER.unpack_from(data)
+        except Exception:  # noqa: BLE001 (a datagram shorter than a header: nothing to answer)
+            return
+        self._send_raw(P.Error.shorten(P.ErrorCode.UNAUTHENTICATED, head[6], text), head[5], addr, b"")
+
+    def _send_raw(self, body: P.Body, session: int, addr: tuple, key: bytes) -> None:
+        msg = P.Message(body, session=session, seq=0, target_ns=time.perf_counter_ns() & P.U64)
+        self.endpoint.send(P.encode(msg, key, 0), addr)
 
     def _reply(self, body: P.Body, to: P.Message) -> None:
         self.link.send(body, reply_to=to, addr=self.link.last_sender)
@@ -182,7 +247,7 @@ class Target:
     def _handle_idle(self, msg: P.Message) -> None:
         t = msg.type
         if t == P.MsgType.HELLO:
-            self.link.session = msg.session  # a new session's streams start empty
+            self.open_session(msg)
             self._reply(self._info(msg.body.nonce), msg)
         elif t == P.MsgType.FETCH:
             self._serve_fetch(msg)
@@ -192,6 +257,8 @@ class Target:
             self._arm(msg)
         elif t == P.MsgType.DISARM:
             self._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, 0), msg)
+            if msg.body.reason == 1:  # the host is closing: its session ends
+                self._close_session = True
         elif (t == P.MsgType.COMMAND and self._last_obs is not None
                 and msg.body.episode == self._last_obs.episode):
             # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
@@ -280,6 +347,7 @@ class Target:
         finally:
             drv.idle()
             self.state = P.TargetState.IDLE
+            self._heard = time.perf_counter()
         self._last_obs = ep.obs_msg
         self._finish(ep, end, policy)
 
@@ -324,7 +392,7 @@ class Target:
 
     def _info(self, nonce: int) -> P.Info:
         return P.Info(nonce, self.rate, int(self.state), 0 if self.driver.virtual else 1, self.cfg.lockstep,
-                      len(self.scene_toml), self.scene_sha)
+                      len(self.scene_toml), self.scene_sha, self.link.filter.nonce, self.keyed)
 
 
 class _Refused(Exception):
