@@ -25,6 +25,9 @@ def add_parser(sub, scene_args) -> None:
     s.add_argument("--key", metavar="FILE",
                    help="the session key file (impact-env rig keygen FILE); every datagram is then "
                         "authenticated (HMAC-SHA256).  Without it only loopback peers are answered")
+    s.add_argument("--session-timeout", type=float, default=60.0, metavar="S",
+                   help="close an idle session whose host has been silent this long (default 60 s); until "
+                        "then a HELLO from any other address is refused")
     s.add_argument("--seed", type=int, default=0,
                    help="added to every episode's seed (default 0: the drops ImpactCatch-v0 meets for the "
                         "same reset seeds)")
@@ -47,6 +50,8 @@ def cmd_serve(args) -> int:
     from impact_env.rig.driver import VirtualRig
     from impact_env.rig.target import Target, TargetConfig
 
+    if not args.session_timeout > 0:
+        raise ConfigError(f"--session-timeout {args.session_timeout} s must be > 0 s")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port} is out of range: 0 to 65535")
     if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
@@ -64,7 +69,7 @@ def cmd_serve(args) -> int:
           flush=True)
     target = Target(driver, f"udp://{args.host}:{args.port}",
                     TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
-                                 seed_offset=args.seed, key=key))
+                                 seed_offset=args.seed, key=key, session_timeout_s=args.session_timeout))
     target.install_signal_handlers()
     if key:
         print(f"impact-env rig: session key from {args.key}: every datagram is authenticated", file=sys.stderr,
@@ -76,6 +81,9 @@ def cmd_serve(args) -> int:
           f"{'lock-step' if args.lockstep else 'real time'} at {scene.control_rate:g} Hz)", flush=True)
     target.serve()
     try:
+        counts = {**target.lifetime_counts(), "commands_after_end": target.counters["commands_after_end"]}
+        print(f"impact-env rig: datagrams since start: "
+              f"{', '.join(f'{k} {v}' for k, v in counts.items() if v) or 'none'}", flush=True)
         print(f"impact-env rig: stopped after {target.counters['episodes']} episodes; shaker at 0 N",
               flush=True)
     except BrokenPipeError:  # whoever started us is gone; the shaker is at 0 N all the same

@@ -130,12 +130,18 @@ def act_tick(m, onboard, host_action, cmd_step, cmd_id, ticks_armed, hold, fe, o
 
 
 @jit
-def skip_allowed(m, late_ticks, hold, m1):
-    """How many of the ticks from m on a loop ``late_ticks`` whole periods behind lets pass
-    unrun: never a policy step's first tick (every step has its observation and acts), so at
-    most up to the next step boundary, and none at a boundary (it runs late instead)."""
+def skip_allowed(m, late_ticks, hold, m1, onboard):
+    """How many of the ticks from m (before m1) a loop ``late_ticks`` whole periods behind lets
+    pass unrun.  Onboard: all of them.  Host mode: never a policy step's first tick (every step
+    has its observation sent, its command's chance to act, and the host its step's records), so
+    at most up to the next step boundary, and none at a boundary: that tick runs late instead,
+    and the loop catches up over the step's other ticks."""
+    if late_ticks <= 0:
+        return 0
+    if onboard:
+        return max(0, min(late_ticks, m1 - m))
     r = m % hold
-    if r == 0 or late_ticks <= 0:
+    if r == 0:
         return 0
     k = min(late_ticks, hold - r)
     return max(0, min(k, m1 - m))
@@ -234,7 +240,7 @@ def run_ticks(m0, m1, hold, onboard, host_action, cmd_step, cmd_id, fe, ob, law,
     -> the hardware stage -> the log row with the truth -> the front end on the new readings.
     The front end has seen tick m0's readings already.  ``pace`` = (real time, deadline of tick 0
     in cycles, cycles per tick, ns per cycle).  A tick that starts one period or more late lets
-    the ticks that cannot run on time pass (:func:`skip_allowed`: never a step's first tick):
+    the ticks that cannot run on time pass (:func:`skip_allowed`: in host mode never a step's first tick):
     the DAC holds the last command sent (the hardware stage runs them with it), the controller
     and the safety layer do not run and they get no log row; the front end then conditions the
     readings after them, and the next row carries OVERRUN and their number in ``skipped_ticks``.
@@ -263,7 +269,7 @@ def run_ticks(m0, m1, hold, onboard, host_action, cmd_step, cmd_id, fe, ob, law,
             while now < dl:
                 now = float(cycles())
             late = now - dl
-            k = skip_allowed(m, int(late // cpt), hold, m1) if late >= cpt else 0
+            k = skip_allowed(m, int(late // cpt), hold, m1, onboard) if late >= cpt else 0
             if k > 0:
                 for _ in range(k):
                     hardware_tick(0, st[ST_COMMAND], cfg, plant, fx, noise, out)

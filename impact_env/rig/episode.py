@@ -224,11 +224,17 @@ class Episode:
         self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
 
     def final_row(self, raw: np.ndarray) -> None:
-        """The row of tick ``horizon``: its readings and observation, no command."""
+        """The row of tick ``horizon``: its readings and observation, no command (and the ticks
+        skipped just before it, if any, flagged on it)."""
+        skipped = int(self.acct[0])
         self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
                             accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
                             action=math.nan, step=self.m // self.hold,
-                            contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1)
+                            contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1, command_step=-1,
+                            skipped_ticks=skipped, status=SF.OVERRUN if skipped else 0)
+        if skipped:
+            self.acct[0] = 0
+            self.acct[2] += 1
 
     # -- the virtual rig's compiled loop ---------------------------------------------------------------
     def run_compiled(self) -> P.EndReason:
@@ -375,7 +381,7 @@ class Episode:
             if not self.lockstep:
                 tick = clock.wait(poll=lambda budget: self.drain(budget) and None)
                 behind = tick.index - self.m  # whole periods behind (the clock jumps to the due tick)
-                k = int(CT.skip_allowed(self.m, behind, self.hold, self.horizon))
+                k = int(CT.skip_allowed(self.m, behind, self.hold, self.horizon, not self.host))
                 if k:  # the ticks that cannot run on time pass with the command held (the DAC holds it)
                     drv.apply(u, k)
                     self.m += k

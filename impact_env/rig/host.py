@@ -71,19 +71,7 @@ class RigClient:
         self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1, key=key)
         self.link.filter.peer = self.endpoint.peer  # only the target's replies count
         try:
-            nonce = int.from_bytes(os.urandom(4), "little")
-            try:
-                info = self.link.request(P.Hello(nonce),
-                                         lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
-                                         "INFO (answer to HELLO)", self.timeout_s, self.retries).body
-            except RigTimeout:
-                if self.link.filter.auth_refusal:  # a target with another key (or none) refused us
-                    raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED,
-                                   f"{self.link.filter.auth_refusal} (this host "
-                                   f"{'has a key' if key else 'has no key'})") from None
-                raise
-            self.link.filter.nonce = info.session_nonce
-            self.info = info
+            info = self.hello()
             self.lockstep = bool(info.lockstep)
             self.virtual = info.driver == 0
             toml = fetch(self.link, P.Resource.SCENE, 0, info.scene_sha256, self.timeout_s, self.retries)
@@ -96,10 +84,31 @@ class RigClient:
         self.episode = 0
         self.step = 0
 
+    def hello(self) -> P.Info:
+        """HELLO -> INFO: opens the session (or confirms it: the same session id again keeps it;
+        one that the target closed after its idle timeout is opened anew, with a new nonce)."""
+        nonce = int.from_bytes(os.urandom(4), "little")
+        try:
+            info = self.link.request(P.Hello(nonce),
+                                     lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
+                                     "INFO (answer to HELLO)", self.timeout_s, self.retries).body
+        except RigTimeout:
+            if self.link.filter.auth_refusal:  # a target with another key (or none) refused us
+                raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED,
+                               f"{self.link.filter.auth_refusal} (this host "
+                               f"{'has a key' if self.link.filter.key else 'has no key'})") from None
+            raise
+        self.link.filter.nonce = info.session_nonce
+        self.info = info
+        return info
+
     def arm(self, mode: str, seed: int, horizon_ticks: int, observation: str = "sensors", history: int = 1,
             hold_ticks: int = 1, policy: CompiledPolicy | None = None, link_timeout_ms: int = 0,
             first_command_timeout_ticks: int = 1000) -> P.Armed:
-        """Upload ``policy`` (onboard: the policy; host mode: a residual law) and arm an episode."""
+        """Upload ``policy`` (onboard: the policy; host mode: a residual law) and arm an episode
+        (the session confirmed first: a host may have paused longer than the target's session
+        timeout, e.g. for a training update)."""
+        self.hello()
         data = b""
         if policy is not None:
             import json
@@ -173,8 +182,9 @@ class RigClient:
                 fh.write(data)
             return read_episode(path)
 
-    def disarm(self, wait: bool = False) -> None:
-        """Stop the episode (best effort: one datagram, or a bounded request with ``wait``)."""
+    def disarm(self, wait: bool = False, closing: bool = False) -> None:
+        """Stop the episode (best effort: one datagram, or a bounded request with ``wait``);
+        ``closing``: the session ends too (another host may then open one at once)."""
         if self.endpoint.closed:
             return
         if wait:
@@ -182,11 +192,11 @@ class RigClient:
                               lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
                               "ACK of DISARM", self.timeout_s, self.retries)
         else:
-            self.link.send(P.Disarm(1))
+            self.link.send(P.Disarm(1 if closing else 0))
 
     def close(self) -> None:
         try:
-            self.disarm()
+            self.disarm(closing=True)
         except OSError:
             pass
         self.endpoint.close()

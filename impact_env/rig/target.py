@@ -81,7 +81,7 @@ class TargetConfig:
     # the shared key (impact_env.rig.auth); b"": none, and then only loopback peers are answered
     key: bytes = b""
     # an idle session whose host has sent nothing for this long is closed (another host may open one)
-    session_timeout_s: float = 5.0
+    session_timeout_s: float = 60.0
 
 
 class Target:
@@ -111,7 +111,9 @@ class Target:
         self._pending: P.Message | None = None  # an ARM that ended the episode before it
         self._last_obs: P.Observation | None = None  # the last OBSERVATION of the last episode
         self._closed = False
-        self.counters = {"episodes": 0, "sessions": 0, "overruns": 0, "skipped_ticks": 0, "watchdog_trips": 0}
+        # since the target started (the logs' counters are per episode)
+        self.counters = {"episodes": 0, "sessions": 0, "overruns": 0, "skipped_ticks": 0, "watchdog_trips": 0,
+                         "commands_after_end": 0}
         driver.initialise()
         self._warm_up()
 
@@ -259,10 +261,11 @@ class Target:
             self._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, 0), msg)
             if msg.body.reason == 1:  # the host is closing: its session ends
                 self._close_session = True
-        elif (t == P.MsgType.COMMAND and self._last_obs is not None
-                and msg.body.episode == self._last_obs.episode):
-            # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
-            self.link.send(self._last_obs, addr=self.link.last_sender)
+        elif t == P.MsgType.COMMAND:
+            self.counters["commands_after_end"] += 1  # for an episode already over: never applied
+            if self._last_obs is not None and msg.body.episode == self._last_obs.episode:
+                # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
+                self.link.send(self._last_obs, addr=self.link.last_sender)
         elif t == P.MsgType.HEARTBEAT:
             self._reply(P.Heartbeat(int(self.state), self.episode, 0, msg.seq), msg)
 
@@ -351,6 +354,12 @@ class Target:
         self._last_obs = ep.obs_msg
         self._finish(ep, end, policy)
 
+    def lifetime_counts(self) -> dict[str, int]:
+        """The datagram counters since the target started (the logs' are per episode)."""
+        c = self._datagram_counts()
+        return {"datagrams_received": c.pop("received"), "datagrams_accepted": c.pop("accepted"),
+                **{f"dropped_{k}": v for k, v in c.items()}}
+
     def _datagram_counts(self) -> dict[str, int]:
         """The link's datagram counters since the target started (see :meth:`_finish`)."""
         return {**self.link.filter.counts(), "received": self.endpoint.received}
@@ -387,7 +396,7 @@ class Target:
         self.counters["skipped_ticks"] += ep.skipped_ticks
         self.counters["watchdog_trips"] += counters.get("watchdog_trips", 0)
         self.last_end = P.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & P.U32, ctl.log.n,
-                                     ctl.log.n // ctl.hold, len(data), hashlib.sha256(data).digest())
+                                     ep.m // ctl.hold, len(data), hashlib.sha256(data).digest())
         self.link.send(self.last_end, addr=self.link.last_sender)
 
     def _info(self, nonce: int) -> P.Info:
