@@ -194,11 +194,18 @@ class RigClient:
         else:
             self.link.send(P.Disarm(1 if closing else 0))
 
-    def close(self) -> None:
-        try:
-            self.disarm(closing=True)
-        except OSError:
-            pass
+    def close(self, budget_s: float = 0.3) -> None:
+        """End the session (DISARM "host closing", acknowledged, so that the target frees it for
+        another host at once; retried for at most ``budget_s`` s: a lost datagram would otherwise
+        hold the target for its session timeout) and close the socket.  Never raises."""
+        if not self.endpoint.closed:
+            tries = max(1, min(self.retries + 1, int(budget_s / self.timeout_s)))
+            try:
+                self.link.request(P.Disarm(1),
+                                  lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
+                                  "ACK of DISARM", min(self.timeout_s, budget_s), tries - 1)
+            except (RigTimeout, RigError, OSError):
+                pass
         self.endpoint.close()
 
 
