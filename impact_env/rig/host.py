@@ -92,11 +92,14 @@ class RigClient:
             info = self.link.request(P.Hello(nonce),
                                      lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
                                      "INFO (answer to HELLO)", self.timeout_s, self.retries).body
-        except RigTimeout:
-            if self.link.filter.auth_refusal:  # a target with another key (or none) refused us
+        except (RigTimeout, RigError) as exc:
+            text = self.link.filter.auth_refusal  # a target with another key (or none) refused us
+            if isinstance(exc, RigError) and exc.code == P.ErrorCode.UNAUTHENTICATED:
+                text = exc.text  # a host without key reads the refusal as it is
+            if text:
                 raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED,
-                               f"{self.link.filter.auth_refusal} (this host "
-                               f"{'has a key' if self.link.filter.key else 'has no key'})") from None
+                               f"{text} (this host {'has a key' if self.link.filter.key else 'has no key'})") \
+                    from None
             raise
         self.link.filter.nonce = info.session_nonce
         self.info = info
