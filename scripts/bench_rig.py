@@ -202,7 +202,8 @@ def main() -> int:
           "overrun rows | tick lateness p50/p99/p99.9 us | RigTimeouts |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     dp, lp = hr["delay_p"], hr["lateness_p"]
-    print(f"| {hr['sent']} | {hr['acted']} | {hr['late']} | {hr['superseded']} | {hr['expired']} | {after_end} | "
+    print(f"| {hr['sent']} | {hr['acted']} | {hr['late']} | {hr['superseded']} | {hr['expired']} | "
+          f"{after_end} | "
           f"{lost} | {hr['acted_late']} ({hr['acted']}) | {dp[0]:.0f} / {dp[1]:.0f} / {dp[2]:.0f} | "
           f"{hr['skipped']} | {hr['skipped_flagged']} | {hr['overrun_rows']} | "
           f"{lp[0]:.0f} / {lp[1]:.0f} / {lp[2]:.0f} | {hr['rig_timeouts']} |")

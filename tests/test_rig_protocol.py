@@ -31,7 +31,8 @@ AFTER_TYPE = "00" "04030201" "05000000" "1027000000000000" "07ca9a3b00000000" "0
 GOLDEN = [
     (P.Hello(nonce=0xDEADBEEF), "01", "0400", "efbeadde", "8999afd7c2fdeeb3dd3243e253728dcf"),
     (P.Info(nonce=0xDEADBEEF, control_rate_hz=1e4, state=P.TargetState.IDLE, driver=0, lockstep=True,
-            scene_size=2345, scene_sha256=SHA_SCENE, session_nonce=0x1122334455667788, keyed=True), "02", "3c00",
+            scene_size=2345, scene_sha256=SHA_SCENE, session_nonce=0x1122334455667788, keyed=True),
+     "02", "3c00",
      # nonce | rate 1e4 (f64) | state 00 | driver 00 | lockstep 01 | scene_size 2345 | sha256 |
      # session_nonce (u64) | keyed 01
      "efbeadde" "000000000088c340" "00" "00" "01" "29090000" + SHA_SCENE.hex() + "8877665544332211" "01",
@@ -48,7 +49,8 @@ GOLDEN = [
      "03000000" "40e2010000000000" "0a00" "0100" "04" "02" "0a00" "000000000088c340" + SHA_SCENE.hex(),
      "41deed6b6586e214e47caeefdc510cda"),
     (P.PolicyChunk(upload_id=0x0807060504030201, total=100000, offset=2048, data=b"\x00\x01\x02\xff"),
-     "05", "1600", "0102030405060708" "a0860100" "00080000" "0400" "000102ff", "708aad16243536c8e25165c3f62dcabe"),
+     "05", "1600", "0102030405060708" "a0860100" "00080000" "0400" "000102ff",
+     "708aad16243536c8e25165c3f62dcabe"),
     (P.Ack(acked_type=P.MsgType.POLICY_CHUNK, code=0, acked_seq=77, value=2052), "06", "0e00",
      "05" "00" "4d000000" "0408000000000000", "0f1bbebb04fe2ae07075a3bb80f4837d"),
     (P.Command(episode=3, step=7, action=(0.25,)), "07", "1200",
@@ -60,7 +62,8 @@ GOLDEN = [
      "c6fadfee754944373d9879b04ebf7cc1"),
     (P.EpisodeEnd(episode=3, reason=P.EndReason.HORIZON, status=0x4, n_ticks=4000, n_steps=400,
                   data_size=65536, data_sha256=SHA_POLICY), "09", "3900",
-     "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(), "16524a356a24cbf14d52d0ed41be9fcb"),
+     "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(),
+     "16524a356a24cbf14d52d0ed41be9fcb"),
     (P.Fetch(resource=P.Resource.EPISODE, item=3, offset=1024, max_len=1024), "0a", "0b00",
      "02" "03000000" "00040000" "0004", "a7296c41fa2f112f7c9a5b911d178324"),
     (P.Chunk(resource=P.Resource.EPISODE, item=3, total=65536, offset=1024, data=b"HDF"), "0b", "1200",
@@ -401,7 +404,7 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
         elif kind == 1:  # random bytes
             data = r.randbytes(r.choice([r.randint(0, 60), r.randint(0, 2000)]))
             allowed = set(P.DatagramFilter.REASONS)
-        elif kind == 2:  # 1-3 flipped bits (the tag detects them all; magic/version/length flips count as such)
+        elif kind == 2:  # 1-3 flipped bits (the tag detects them; magic/version/length flips count as such)
             b = bytearray(base)
             for bit in r.sample(range(8 * len(b)), r.randint(1, 3)):  # distinct bits
                 b[bit // 8] ^= 1 << (bit % 8)

@@ -116,8 +116,8 @@ def test_every_tick_late_is_flagged_and_every_command_accounted(monkeypatch, pyt
     assert not np.any(status & SF.NONFINITE)  # and no NaN latched
     acted_steps = set(step_col[~none].tolist())
     assert len(acted_steps) <= c["commands_acted"]
-    assert steps - len(acted_steps) <= c["commands_late"] + c["commands_expired"] + c["commands_superseded"] + \
-        c["commands_unused_at_end"] + after_end
+    assert steps - len(acted_steps) <= (c["commands_late"] + c["commands_expired"] + c["commands_superseded"]
+                                        + c["commands_unused_at_end"] + after_end)
     assert np.all(age[~none] >= 0)
     # a row's command is for its own step, or the one before (REPEATED); an older one is zeroed
     behind = tick[rows] // hold - step_col

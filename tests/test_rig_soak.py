@@ -143,8 +143,8 @@ def test_realtime_soak_under_cpu_load(tmp_path):
     after_end = _since_start(proc.stdout.read()).get("commands_after_end", 0)
     assert totals["sent"] == totals["accounted"] + after_end  # not one command unaccounted for
     assert ticks >= 100_000
-    print(f"soak: {ticks} ticks, {skipped} skipped (all flagged), {overruns} overrun rows, commands {totals}, "
-          f"ends {ends}")
+    print(f"soak: {ticks} ticks, {skipped} skipped (all flagged), {overruns} overrun rows, "
+          f"commands {totals}, ends {ends}")
 
 
 STRANGER = r"""

@@ -84,11 +84,10 @@ def _compare_rig(args, specs) -> int:
     """``--rig``: the rig's table, and with ``--scene`` the simulation's and the gap."""
     import tempfile
 
+    from impact_env.config import ConfigError
     from impact_env.eval.rig_compare import rig_compare
     from impact_env.policy.export import export_policy
     from impact_env.policy.registry import is_model_spec
-
-    from impact_env.config import ConfigError
     from impact_env.rig.auth import KeyFileError, load_key
 
     try:

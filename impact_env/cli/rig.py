@@ -72,7 +72,8 @@ def cmd_serve(args) -> int:
                                  seed_offset=args.seed, key=key, session_timeout_s=args.session_timeout))
     target.install_signal_handlers()
     if key:
-        print(f"impact-env rig: session key from {args.key}: every datagram is authenticated", file=sys.stderr,
+        print(f"impact-env rig: session key from {args.key}: every datagram is authenticated",
+              file=sys.stderr,
               flush=True)
     else:
         print("impact-env rig: no --key: answering loopback peers only (127.0.0.0/8, ::1); give --key FILE "
@@ -99,7 +100,8 @@ def cmd_keygen(args) -> int:
         path = write_key(args.file)
     except FileExistsError:
         raise ConfigError(f"keygen: {args.file} exists; not overwritten (remove it first)") from None
-    print(f"impact-env rig: wrote a 32-byte session key to {path} (mode 0600); give it to rig serve --key and "
+    print(f"impact-env rig: wrote a 32-byte session key to {path} (mode 0600); give it to rig serve --key "
+          "and "
           "to the host", flush=True)
     return 0
 
@@ -174,13 +176,15 @@ def cmd_log(args) -> int:
                 line += f"  {_fmt(out['true'].get(k)):>18s}"
             print(line)
         t = out["timing"]
-        print(f"  timing: {t['overruns']} overruns (rows flagged OVERRUN), {t['skipped_ticks']} ticks skipped "
+        print(f"  timing: {t['overruns']} overruns (rows flagged OVERRUN), {t['skipped_ticks']} ticks "
+              "skipped "
               f"(the DAC held the last command), lateness p50 {t['lateness_p50_us']:.1f} us, "
               f"p99 {t['lateness_p99_us']:.1f} us, max {t['lateness_max_us']:.1f} us")
         if log.meta.mode == "host":
             c = log.meta.counters
-            print(f"  commands (this episode): {c.get('commands_acted', 0)} acted, {c.get('commands_late', 0)} "
-                  f"late, {c.get('commands_superseded', 0)} superseded, {c.get('commands_expired', 0)} expired "
+            print(f"  commands (this episode): {c.get('commands_acted', 0)} acted, "
+                  f"{c.get('commands_late', 0)} late, {c.get('commands_superseded', 0)} superseded, "
+                  f"{c.get('commands_expired', 0)} expired "
                   f"(their step's ticks skipped), {c.get('commands_unused_at_end', 0)} unused at the end")
         print(f"  counters (this episode): "
               f"{', '.join(f'{k} {v}' for k, v in log.meta.counters.items() if v) or 'all 0'}")
@@ -209,7 +213,8 @@ def timing_summary(log) -> dict:
     return {"overruns": int(np.count_nonzero(status & OVERRUN)), "skipped_ticks": int(skipped.sum()),
             "counted_overruns": int(log.meta.counters.get("overruns", 0)),
             "counted_skipped_ticks": int(log.meta.counters.get("skipped_ticks", 0)),
-            "lateness_p50_us": float(np.percentile(lat, 50)), "lateness_p99_us": float(np.percentile(lat, 99)),
+            "lateness_p50_us": float(np.percentile(lat, 50)),
+            "lateness_p99_us": float(np.percentile(lat, 99)),
             "lateness_max_us": float(lat.max())}
 
 

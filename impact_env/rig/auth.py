@@ -27,7 +27,8 @@ def load_key(path, option: str = "--key") -> bytes:
     try:
         text = p.read_text(encoding="ascii")
     except FileNotFoundError:
-        raise KeyFileError(f"{option} {p}: no such key file (make one with: impact-env rig keygen {p})") from None
+        raise KeyFileError(f"{option} {p}: no such key file (make one with: impact-env rig keygen {p})") \
+            from None
     except (OSError, UnicodeDecodeError) as exc:
         raise KeyFileError(f"{option} {p}: cannot read the key file: {exc}") from None
     digits = "".join(text.split())

@@ -69,8 +69,8 @@ def observe_tick(m, raw, hold, fe, ob, law, truth, st):
 
 
 @jit
-def act_tick(m, onboard, host_action, cmd_step, cmd_id, ticks_armed, hold, fe, ob, law, pol, safety, scale, raw,
-             st, rows, obs_log, count):
+def act_tick(m, onboard, host_action, cmd_step, cmd_id, ticks_armed, hold, fe, ob, law, pol, safety, scale,
+             raw, st, rows, obs_log, count):
     """Step 2 of tick m: returns (command for the driver, force demanded after safety N, status
     bits, log row index or -1 when the log is full).
 
@@ -240,8 +240,8 @@ def run_ticks(m0, m1, hold, onboard, host_action, cmd_step, cmd_id, fe, ob, law,
     -> the hardware stage -> the log row with the truth -> the front end on the new readings.
     The front end has seen tick m0's readings already.  ``pace`` = (real time, deadline of tick 0
     in cycles, cycles per tick, ns per cycle).  A tick that starts one period or more late lets
-    the ticks that cannot run on time pass (:func:`skip_allowed`: in host mode never a step's first tick):
-    the DAC holds the last command sent (the hardware stage runs them with it), the controller
+    the ticks that cannot run on time pass (:func:`skip_allowed`: in host mode never a step's first
+    tick): the DAC holds the last command sent (the hardware stage runs them with it), the controller
     and the safety layer do not run and they get no log row; the front end then conditions the
     readings after them, and the next row carries OVERRUN and their number in ``skipped_ticks``.
     ``acct`` (int64[3], kept across calls): ticks skipped not yet reported on a row, the

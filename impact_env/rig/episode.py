@@ -257,9 +257,9 @@ class Episode:
         pace = np.array([0.0 if self.lockstep else 1.0, float(_now()) + cpt, cpt, nspc])
         stop = np.zeros(1, dtype=np.int64)
         ticks = lambda m0, m1: CT.run_ticks(  # noqa: E731
-            m0, m1, self.hold, not self.host, self.cmd_value, self.cmd_step, self.cmd_id, ctl.fe.fe, ctl.fe.ob,
-            ctl.law, ctl.pol, ctl.safety, ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw_args,
-            tc, tvals, pace, lat, stop, self.acct, self.trec)
+            m0, m1, self.hold, not self.host, self.cmd_value, self.cmd_step, self.cmd_id, ctl.fe.fe,
+            ctl.fe.ob, ctl.law, ctl.pol, ctl.safety, ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs,
+            ctl.log.count, hw_args, tc, tvals, pace, lat, stop, self.acct, self.trec)
         if not self.host:  # onboard: the whole episode in one compiled call; a thread hears the host
             why = self._listen_while(lambda: ticks(0, self.horizon), stop)
             self._after(t_col)

@@ -97,9 +97,9 @@ class RigClient:
             if isinstance(exc, RigError) and exc.code == P.ErrorCode.UNAUTHENTICATED:
                 text = exc.text  # a host without key reads the refusal as it is
             if text:
+                side = "has a key" if self.link.filter.key else "has no key"
                 raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED,
-                               f"{text} (this host {'has a key' if self.link.filter.key else 'has no key'})") \
-                    from None
+                               f"{text} (this host {side})") from None
             raise
         self.link.filter.nonce = info.session_nonce
         self.info = info
@@ -393,7 +393,8 @@ class RigEnv(gym.Env):
     def _info(self, obs: P.Observation) -> dict[str, Any]:
         self._last_obs = obs
         tel = obs.telemetry
-        out: dict[str, Any] = {"step": obs.step, "status": obs.status, "status_flags": status_names(obs.status),
+        out: dict[str, Any] = {"step": obs.step, "status": obs.status,
+                               "status_flags": status_names(obs.status),
                                "reward_available": self._hw is not None,
                                "force_demand": tel[0] if tel else 0.0,
                                "force_applied": tel[1] if len(tel) > 1 else 0.0,

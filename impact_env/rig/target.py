@@ -145,7 +145,8 @@ class Target:
 
             for onboard in (True, False):
                 run_ticks(1, 2, 1, onboard, 0.0, 0, 1, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety,
-                          ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc, np.zeros(3),
+                          ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc,
+                          np.zeros(3),
                           np.array([0.0, 0, 1, 1]), np.zeros(4), np.zeros(1, dtype=np.int64),
                           np.zeros(3, dtype=np.int64), np.zeros((4, N_REC)))
 
@@ -183,8 +184,8 @@ class Target:
                 if msg is not None:
                     self._heard = time.perf_counter()
                     self._handle_idle(msg)
-                if self._close_session or (self.link.filter.peer is not None
-                                           and time.perf_counter() - self._heard > self.cfg.session_timeout_s):
+                silent = time.perf_counter() - self._heard > self.cfg.session_timeout_s
+                if self._close_session or (self.link.filter.peer is not None and silent):
                     self.end_session()
         finally:
             self.close()
