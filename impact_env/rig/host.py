@@ -12,9 +12,15 @@ Timing contract (host mode; H = ``hold_ticks``, T the control period):
   the release.
 * ``step(a)`` sends a at policy step n; the target applies it over ticks nH .. nH + H - 1 and
   returns the observation of tick (n + 1) H, made from the readings after tick (n + 1) H - 1.
-  In lock-step that is exact; in real time a takes effect at the first tick after it arrives
-  (one round trip after the observation it answers), is held H ticks and repeated at most once
-  more, after which the target zeroes the force (its watchdog).
+  In lock-step that is exact; in real time a acts from the first tick at or after its arrival
+  (one round trip after the observation it answers) to the end of step n, is repeated through
+  step n + 1, after which the target zeroes the force (its watchdog); arriving after step n
+  is over it is counted late by the target and never applied.
+* Episodes end as ``ImpactCatch-v0``'s (truncated at the horizon, terminated on a catch), or as
+  the target ends them: an EPISODE_END received while waiting for an observation returns at
+  once, terminated for SAFETY, truncated otherwise, with ``info["end_reason"]``.
+* ``key``: the session key (:mod:`impact_env.rig.auth`), the same file as the target's
+  ``rig serve --key FILE``.
 * Reward and termination: from a virtual rig, which reports the true records of each step's
   ticks, they are computed here by the env's own kernel (:mod:`impact_env.env.task_kernel`), so
   they equal ``ImpactCatch-v0``'s; a physical rig measures no body-1 state: the reward is 0.0,

@@ -1,7 +1,9 @@
-"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 1.0).
+"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 2.0).
 
 Every datagram is one message: a 42-byte header, a payload whose layout the message type fixes,
-and a CRC-32 trailer.  Integers are unsigned little-endian, floats IEEE-754 little-endian.
+and a 16-byte tag (HMAC-SHA256, :func:`tag`).  Version 2.0 replaced 1.0's CRC-32 trailer with
+the tag and appended session_nonce and keyed to INFO.  Integers are unsigned little-endian,
+floats IEEE-754 little-endian.
 
 Header (42 bytes) and trailer
 =============================
@@ -10,7 +12,7 @@ Header (42 bytes) and trailer
 offset  size  type        field
 ======  ====  ==========  =================================================================
 0       4     bytes       magic ``b"IMPR"``
-4       1     u8          major version (1): a receiver drops any other major
+4       1     u8          major version (2): a receiver drops any other major
 5       1     u8          minor version (0): see *Versioning*
 6       1     u8          message type (table below)
 7       1     u8          flags: bit 0 ``FLAG_RETRY`` (a request sent again); others reserved
@@ -25,7 +27,9 @@ offset  size  type        field
                           by the host in COMMANDs answering an OBSERVATION)
 40      2     u16         payload length L, bytes (at most ``MAX_PAYLOAD``)
 42      L     bytes       payload
-42+L    4     u32         CRC-32 (``zlib.crc32``) of bytes 0 .. 42+L-1 (header and payload)
+42+L    16    bytes       tag: HMAC-SHA256(key, nonce u64 LE + bytes 0 .. 42+L-1)[:16]; key the
+                          shared key (b"" without one), nonce the session's (from INFO; 0 for
+                          HELLO, INFO and ERROR)
 ======  ====  ==========  =================================================================
 
 Message types and payloads (offsets from the payload start; ``H`` host, ``T`` target)
@@ -37,7 +41,8 @@ code   type          dir    payload (offset type field [unit])
 1      HELLO         H->T   0 u32 nonce (echoed in INFO).  Opens a session: the header's session id.
 2      INFO          T->H   0 u32 nonce; 4 f64 control_rate_hz [Hz]; 12 u8 state (0 idle, 1 armed,
                             2 running, 3 fault); 13 u8 driver (0 virtual, 1 hardware); 14 u8 lockstep
-                            (0/1); 15 u32 scene_size [B] (resource SCENE); 19 32s scene_sha256.  = 51 B
+                            (0/1); 15 u32 scene_size [B] (resource SCENE); 19 32s scene_sha256; 51 u64
+                            session_nonce (drawn per session; in every later tag); 59 u8 keyed.  = 60 B
 3      ARM           H->T   0 u8 mode (1 host, 2 onboard); 1 u8 observation (0 sensors, 1 privileged,
                             2 both); 2 u8 history [frames, 1..64]; 3 u8 options (bit 0
                             ``ARM_TERMINATE_ON_CATCH``); 4 u16 hold_ticks [ticks per policy step,
@@ -77,7 +82,7 @@ code   type          dir    payload (offset type field [unit])
                             6 u16 n; 8 n bytes UTF-8 text (at most 1024).  = 8 + n B
 =====  ============  =====  ===========================================================================
 
-Sizes.  ``MAX_PAYLOAD`` (65461 B) fills the largest UDP datagram over IPv4.  Datagrams up to
+Sizes.  ``MAX_PAYLOAD`` (65449 B) fills the largest UDP datagram over IPv4.  Datagrams up to
 ``MTU_DATAGRAM`` (1472 B, an Ethernet frame) are never fragmented by IP; POLICY_CHUNK and CHUNK
 carry at most ``CHUNK_DATA`` (1024 B) each so that they stay below it, and so does any
 OBSERVATION below about 1400 B (175 float64 entries).  Larger observations are sent whole and IP
@@ -99,6 +104,13 @@ the target keeps only the newest accepted command; a command for a future step w
 Requests (HELLO, ARM, POLICY_CHUNK, FETCH, DISARM) are idempotent and retried with new sequence
 numbers until their reply (INFO, ARMED, ACK, CHUNK, ACK) arrives
 (:meth:`impact_env.rig.transport.Link.request`).
+
+Authentication (:class:`DatagramFilter` with ``key``, ``nonce``, ``peer``, ``loopback_only``).
+A datagram whose tag does not check is dropped first (``unauthenticated``); a receiver without
+key takes loopback peers only (``not_loopback``); once a target's session is open it takes its
+host's address and port only (``stranger``: a HELLO from elsewhere is answered ERROR BUSY by
+the target, never evicting the session).  The session nonce in the tag makes a datagram of one
+session fail in any other; the sequence window refuses a copy within the session.
 """
 
 from __future__ import annotations
@@ -217,7 +229,7 @@ class ProtocolError(ValueError):
 
 
 class CorruptDatagram(ProtocolError):
-    """Bad magic, length, CRC or payload (``detail``: truncated, magic, length, crc, payload)."""
+    """Bad magic, length or payload (``detail``: truncated, magic, length, payload)."""
 
 
 class WrongVersion(ProtocolError):
@@ -798,7 +810,8 @@ class DatagramFilter:
     COMMAND for an (episode, step) before the given one is ``late`` (it still moves its stream
     on: a copy of it is then a ``duplicate``).  ``counts()`` is a dict of
     plain ints: ``accepted`` and one entry per reason in ``REASONS``, which add up to the number
-    of datagrams seen; ``detail`` splits ``corrupt`` (truncated, magic, length, crc, payload).
+    of datagrams seen; ``detail`` splits ``corrupt`` (truncated, magic, length, payload) and
+    ``unauthenticated``, ``stranger`` (by message type).
     """
 
     REASONS: ClassVar[tuple[str, ...]] = ("corrupt", "wrong_version", "unauthenticated", "not_loopback",

@@ -18,8 +18,9 @@ and at m = horizon the last observation only.  Modes:
   per policy step.  *Lock-step* (``--lockstep``): at a step boundary the target waits for the
   COMMAND of that step, re-sending the OBSERVATION every ``resend_s`` while it waits (lost
   datagrams cost time, never the episode), up to the link timeout.  *Real time*: the ticks run
-  on the clock; a command takes effect at the first tick after it arrives, is held H ticks and
-  repeated at most once more, then the force is 0 (:mod:`impact_env.rig.safety`).
+  on the clock; the newest accepted command for the current step acts from the first tick at
+  or after its arrival to the step's end, is repeated through the next step, then the force is
+  0 (:mod:`impact_env.rig.safety`); a command for a step already over is counted late.
 * **onboard**: the uploaded compiled policy (or a classic law) acts inside the tick; in
   lock-step the ticks run back to back.
 
