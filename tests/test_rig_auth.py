@@ -10,7 +10,6 @@ import threading
 import numpy as np
 import pytest
 
-from impact_env.cli.main import main
 from impact_env.rig import protocol as P
 from impact_env.rig.auth import KeyFileError, load_key, write_key
 from impact_env.rig.driver import VirtualRig
@@ -42,6 +41,10 @@ def _episode(env, seed=1, steps=20):
 
 
 def test_key_file_errors_name_the_option(tmp_path, capsys):
+    # imported here: importing the submodule impact_env.cli.main at collection would shadow the
+    # package's main() that tests/test_scene_cli.py imports (``from impact_env.cli import main``)
+    from impact_env.cli.main import main
+
     with pytest.raises(KeyFileError, match="--key .*no such key file"):
         load_key(tmp_path / "missing.key")
     (tmp_path / "bad.key").write_text("not hex at all\n")
