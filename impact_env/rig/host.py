@@ -138,10 +138,12 @@ class RigClient:
 
     def observation(self, step: int, timeout_s: float) -> P.Observation | P.EpisodeEnd | None:
         """The OBSERVATION of ``step`` of the current episode (newer ones are returned too), the
-        EPISODE_END of the current episode if the target ended it first (also kept in
-        ``last_end``), or None after ``timeout_s``."""
-        if self.last_end is not None and self.last_end.episode == self.episode:
-            return self.last_end
+        EPISODE_END of the current episode if the target ended it before that step's observation
+        (also kept in ``last_end``), or None after ``timeout_s``.  An episode that reached its
+        horizon has a last OBSERVATION: its EPISODE_END is kept, and the wait goes on for it."""
+        end = self.last_end
+        if end is not None and end.episode == self.episode and not self._has_last_obs(end, step):
+            return end
         deadline = time.perf_counter() + timeout_s
         while (left := deadline - time.perf_counter()) > 0:
             msg = self.link.recv(left)
@@ -152,8 +154,15 @@ class RigClient:
                 return b
             if msg.type == P.MsgType.EPISODE_END and b.episode == self.episode:
                 self.last_end = b
-                return b
+                if not self._has_last_obs(b, step):
+                    return b
         return None
+
+    @staticmethod
+    def _has_last_obs(end: P.EpisodeEnd, step: int) -> bool:
+        """Whether the target sent an OBSERVATION of ``step`` before ending (at the horizon it
+        sends the last step's)."""
+        return end.reason == P.EndReason.HORIZON and step <= end.n_steps
 
     last_end: P.EpisodeEnd | None = None
 
@@ -329,8 +338,13 @@ class RigEnv(gym.Env):
             got = c.observation(step, c.timeout_s)
             if got is not None:
                 return got
-            if resend is not None and c.lockstep:  # real time: a resent command would only be late
+            ended = c.last_end is not None and c.last_end.episode == c.episode
+            # a COMMAND again: in lock-step the target re-sends the observation it waits with; after
+            # the episode's end the last one (real time: a resent command would only be late)
+            if resend is not None and (c.lockstep or ended):
                 c.command(step - 1, resend)
+        if c.last_end is not None and c.last_end.episode == c.episode:
+            return c.last_end  # its last observation never came: the step is marked, not a timeout
         raise RigTimeout(f"OBSERVATION of step {step}", (c.retries + 1) * c.timeout_s, c.address,
                          c.retries + 1)
 
