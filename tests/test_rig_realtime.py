@@ -51,9 +51,26 @@ def _episode_log(env):
     return env.client.fetch_log(env.client.episode)
 
 
+def _rig_log_json(target, episode, tmp_path) -> dict:
+    """What ``impact-env rig log FILE --json`` prints for the target's log of ``episode``."""
+    import json
+
+    from impact_env.cli.main import main
+
+    path = tmp_path / "episode.h5"
+    path.write_bytes(target.episodes[episode])
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["rig", "log", str(path), "--json"]) == 0
+    return json.loads(buf.getvalue())
+
+
 @pytest.mark.parametrize("python_loop", [False, True], ids=["compiled", "python-loop"])
 @pytest.mark.parametrize("hold", [1, 4])
-def test_every_tick_late_is_flagged_and_every_command_accounted(monkeypatch, python_loop, hold):
+def test_every_tick_late_is_flagged_and_every_command_accounted(monkeypatch, tmp_path, python_loop, hold):
     _late_clock(monkeypatch, python_loop)
     target, th = _serve(python_loop=python_loop)
     horizon = 0.01  # 100 ticks
@@ -78,6 +95,7 @@ def test_every_tick_late_is_flagged_and_every_command_accounted(monkeypatch, pyt
             assert time.monotonic() < deadline, (c, target.counters)
             time.sleep(0.01)
         after_end = target.counters["commands_after_end"]
+        timing = _rig_log_json(target, env.client.episode, tmp_path)["timing"]
     finally:
         env.close()
         target.stop()
@@ -103,6 +121,9 @@ def test_every_tick_late_is_flagged_and_every_command_accounted(monkeypatch, pyt
     c = log.meta.counters
     assert c["skipped_ticks"] == skipped.sum()
     assert c["overruns"] == np.count_nonzero(status & SF.OVERRUN)
+    # impact-env rig log prints them, from the rows and from the counters alike
+    assert timing["skipped_ticks"] == timing["counted_skipped_ticks"] == skipped.sum()
+    assert timing["overruns"] == timing["counted_overruns"] == c["overruns"] > 0
     # commands: each one sent acted, or is counted with what became of it (one that came after the
     # episode's end, as the target ran ahead of its host, in the target's own counter)
     assert c["commands_accepted"] + c["commands_late"] + after_end == steps
