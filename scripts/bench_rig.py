@@ -15,7 +15,13 @@ with its host on the same network.
 2. Host mode round trip: the host's time from sending COMMAND n to receiving OBSERVATION n + 1,
    p50 / p99, in lock-step (pure round trip plus one tick of work) and in real time with
    hold_ticks = 10 (1 ms policy period: the host must answer within it).
-3. The onboard ``act`` alone is measured by ``scripts/bench_policy.py``.
+3. Host mode in real time, ``ImpactCatchRig-v0`` with hold_ticks = 4 and the pd-penetration
+   residual (the docs' example), episodes to their end: what became of the host's commands
+   (sent, acted, counted late, superseded, expired; lost = sent and counted nowhere, goal 0),
+   the steps whose command acted after the step's first tick (and by how many ticks: p50 /
+   p99 / p99.9), skipped ticks and whether every one is flagged on the next row, and tick
+   lateness p50 / p99 / p99.9.
+4. The onboard ``act`` alone is measured by ``scripts/bench_policy.py``.
 
 Wall-clock figures of a shared machine without a real-time kernel: they say what this machine
 does, not what a rig controller with an isolated core would (see README).
@@ -93,6 +99,66 @@ def round_trip(addr: str, steps: int, hold: int) -> dict:
     return {"p50_us": float(np.percentile(x, 50)), "p99_us": float(np.percentile(x, 99)), "steps": len(x)}
 
 
+def host_realtime(addr: str, hold: int, episodes: int) -> dict:
+    """``episodes`` episodes of ImpactCatchRig-v0 in real time (module doc, 3)."""
+    from impact_env.rig.host import RigEnv
+    from impact_env.rig.safety import OVERRUN
+
+    env = RigEnv(addr, hold_ticks=hold, residual="pd-penetration", terminate_on_catch=False, timeout_s=0.1,
+                 retries=20)
+    rng = np.random.default_rng(0)
+    tot = {"sent": 0, "accounted": 0, "acted": 0, "late": 0, "superseded": 0, "expired": 0, "unused": 0,
+           "steps": 0, "acted_late": 0, "ticks": 0, "skipped": 0, "skipped_flagged": 0, "overrun_rows": 0,
+           "rig_timeouts": 0}
+    delay, late_ns, ends = [], [], {}
+    try:
+        for k in range(episodes):
+            env.reset(seed=1000 + k)
+            sent = 0
+            for _ in range(env.max_steps):
+                sent += 1
+                _o, _r, te, tr, info = env.step(np.array([rng.uniform(-0.3, 0.3)], np.float32))
+                if te or tr:
+                    break
+            why = info.get("end_reason", "?")
+            ends[why] = ends.get(why, 0) + 1
+            log = env.client.fetch_log(env.client.episode)
+            c = log.meta.counters
+            tot["sent"] += sent
+            tot["steps"] += sent
+            tot["accounted"] += c["commands_accepted"] + c["commands_late"]
+            tot["acted"] += c["commands_acted"]
+            tot["late"] += c["commands_late"]
+            tot["superseded"] += c["commands_superseded"]
+            tot["expired"] += c["commands_expired"]
+            tot["unused"] += c["commands_unused_at_end"]
+            tick = log["tick"].astype(np.int64)
+            step = log["command_step"].astype(np.int64)
+            skipped = log["skipped_ticks"].astype(np.int64)
+            status = log["status"].astype(np.int64)
+            tot["ticks"] += int(tick[-1]) + 1
+            tot["skipped"] += int(c["skipped_ticks"])
+            gaps = np.diff(tick) - 1
+            tot["skipped_flagged"] += int(np.sum(gaps[(gaps == skipped[1:]) & ((status[1:] & OVERRUN) != 0)]))
+            tot["overrun_rows"] += int(c["overruns"])
+            # each acted command: its first tick after its step's first tick, in ticks
+            acted = step >= 0
+            _u, first = np.unique(step[acted], return_index=True)
+            d = tick[acted][first] - step[acted][first] * hold
+            delay.append(d)
+            tot["acted_late"] += int(np.count_nonzero(d > 0))
+            late_ns.append(log["lateness_ns"][1:-1])
+    finally:
+        env.close()
+    d = np.concatenate(delay) if delay else np.zeros(1)
+    lat = np.concatenate(late_ns) / 1e3
+    tot["delay_p"] = [float(x) for x in np.percentile(d, [50, 99, 99.9])] if d.size else [0.0] * 3
+    tot["lateness_p"] = [float(x) for x in np.percentile(lat, [50, 99, 99.9])]
+    tot["ends"] = ends
+    tot["episodes"] = episodes
+    return tot
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="10^4 ticks and fewer round trips")
@@ -113,8 +179,10 @@ def main() -> int:
                       f"{r['max_us']:.0f} | {r['overruns_per_1e5']:.0f} | {r['work_p50_us']:.1f} | "
                       f"{r['work_p99_us']:.1f} | {r['end']} |")
             rt_host = round_trip(rt_addr, steps, 10)
+            hr = host_realtime(rt_addr, 4, 3 if args.quick else 20)
         finally:
             stop(rt)
+        after_end = _after_end(rt.stdout.read())
         ls, ls_addr = start_target("--scene", "rig", "--lockstep")
         try:
             ls_host = round_trip(ls_addr, steps, 1)
@@ -126,7 +194,28 @@ def main() -> int:
     print(f"| lock-step, hold 1 | {ls_host['p50_us']:.0f} | {ls_host['p99_us']:.0f} | {ls_host['steps']} |")
     print(f"| real time, hold 10 (1 ms policy period) | {rt_host['p50_us']:.0f} | {rt_host['p99_us']:.0f} | "
           f"{rt_host['steps']} |")
+    lost = hr["sent"] - hr["accounted"] - after_end
+    print(f"\n## 3. Host mode, real time: ImpactCatchRig-v0, hold 4, pd-penetration residual, "
+          f"{hr['episodes']} episodes ({hr['ticks']} ticks; ends {hr['ends']})\n")
+    print("| commands sent | acted | counted late | superseded | expired | after the end | lost | "
+          "steps acted late (of acted) | delay p50/p99/p99.9 ticks | skipped ticks | flagged | "
+          "overrun rows | tick lateness p50/p99/p99.9 us | RigTimeouts |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    dp, lp = hr["delay_p"], hr["lateness_p"]
+    print(f"| {hr['sent']} | {hr['acted']} | {hr['late']} | {hr['superseded']} | {hr['expired']} | "
+          f"{after_end} | "
+          f"{lost} | {hr['acted_late']} ({hr['acted']}) | {dp[0]:.0f} / {dp[1]:.0f} / {dp[2]:.0f} | "
+          f"{hr['skipped']} | {hr['skipped_flagged']} | {hr['overrun_rows']} | "
+          f"{lp[0]:.0f} / {lp[1]:.0f} / {lp[2]:.0f} | {hr['rig_timeouts']} |")
     return 0
+
+
+def _after_end(text: str) -> int:
+    """Commands the target received for episodes already over (its stop line)."""
+    import re
+
+    m = re.search(r"commands_after_end (\d+)", text)
+    return int(m.group(1)) if m else 0
 
 
 if __name__ == "__main__":

@@ -4,9 +4,9 @@ and a fuzz run of 10^5 datagrams."""
 from __future__ import annotations
 
 import hashlib
+import hmac
 import random
 import struct
-import zlib
 
 import pytest
 from hypothesis import given, settings
@@ -19,52 +19,60 @@ SHA_POLICY = hashlib.sha256(b"policy").digest()  # 823412d1eacb6795...
 HEAD = dict(session=0x01020304, seq=5, tick=10000, host_ns=1_000_000_007, target_ns=2_000_000_011)
 
 # Header bytes common to every golden message, then per message: type byte, payload length,
-# payload, CRC.  Header: magic "IMPR" | major 01 | minor 00 | type | flags 00 | session 04030201 |
+# payload, tag (HMAC-SHA256 under GOLDEN_KEY with the session nonce GOLDEN_NONCE, 16 bytes).
+# Header: magic "IMPR" | major 02 | minor 00 | type | flags 00 | session 04030201 |
 # seq 05000000 | tick 1027000000000000 (10000) | host_ns 07ca9a3b00000000 (1000000007) |
 # target_ns 0b94357700000000 (2000000011) | payload length (u16).
-MAGIC_VER = "494d5052" "01" "00"
+MAGIC_VER = "494d5052" "02" "00"
+GOLDEN_KEY = bytes(range(32))
+GOLDEN_NONCE = 0x0123456789ABCDEF
 AFTER_TYPE = "00" "04030201" "05000000" "1027000000000000" "07ca9a3b00000000" "0b94357700000000"
 
 GOLDEN = [
-    (P.Hello(nonce=0xDEADBEEF), "01", "0400", "efbeadde", "87521191"),
+    (P.Hello(nonce=0xDEADBEEF), "01", "0400", "efbeadde", "8999afd7c2fdeeb3dd3243e253728dcf"),
     (P.Info(nonce=0xDEADBEEF, control_rate_hz=1e4, state=P.TargetState.IDLE, driver=0, lockstep=True,
-            scene_size=2345, scene_sha256=SHA_SCENE), "02", "3300",
-     # nonce | rate 1e4 (f64) | state 00 | driver 00 | lockstep 01 | scene_size 2345 | sha256
-     "efbeadde" "000000000088c340" "00" "00" "01" "29090000" + SHA_SCENE.hex(), "cf68b3b7"),
+            scene_size=2345, scene_sha256=SHA_SCENE, session_nonce=0x1122334455667788, keyed=True),
+     "02", "3c00",
+     # nonce | rate 1e4 (f64) | state 00 | driver 00 | lockstep 01 | scene_size 2345 | sha256 |
+     # session_nonce (u64) | keyed 01
+     "efbeadde" "000000000088c340" "00" "00" "01" "29090000" + SHA_SCENE.hex() + "8877665544332211" "01",
+     "bf2b1db0a76a4cf93a2b2c0e9af2fede"),
     (P.Arm(mode="onboard", observation="sensors", history=2, options=P.ARM_TERMINATE_ON_CATCH, hold_ticks=10,
            seed=42, horizon_ticks=4000, first_command_timeout_ticks=1000, link_timeout_ms=500,
            policy_size=100000, policy_sha256=SHA_POLICY), "03", "3e00",
      # mode 02 | obs 00 | history 02 | options 01 | hold 10 | seed 42 | horizon 4000 | timeout 1000 |
      # link 500 ms | size 100000 | sha256
      "02" "00" "02" "01" "0a00" "2a00000000000000" "a00f0000" "e8030000" "f4010000" "a0860100"
-     + SHA_POLICY.hex(), "b014d998"),
+     + SHA_POLICY.hex(), "8cbb333fde46ab25d8ddac04cf44f4b8"),
     (P.Armed(episode=3, start_tick=123456, obs_size=10, action_size=1, obs_dtype=4, telemetry_size=2,
              hold_ticks=10, control_rate_hz=1e4, scene_sha256=SHA_SCENE), "04", "3c00",
      "03000000" "40e2010000000000" "0a00" "0100" "04" "02" "0a00" "000000000088c340" + SHA_SCENE.hex(),
-     "9c255698"),
+     "41deed6b6586e214e47caeefdc510cda"),
     (P.PolicyChunk(upload_id=0x0807060504030201, total=100000, offset=2048, data=b"\x00\x01\x02\xff"),
-     "05", "1600", "0102030405060708" "a0860100" "00080000" "0400" "000102ff", "297f844f"),
+     "05", "1600", "0102030405060708" "a0860100" "00080000" "0400" "000102ff",
+     "708aad16243536c8e25165c3f62dcabe"),
     (P.Ack(acked_type=P.MsgType.POLICY_CHUNK, code=0, acked_seq=77, value=2052), "06", "0e00",
-     "05" "00" "4d000000" "0408000000000000", "aa5aeabe"),
+     "05" "00" "4d000000" "0408000000000000", "0f1bbebb04fe2ae07075a3bb80f4837d"),
     (P.Command(episode=3, step=7, action=(0.25,)), "07", "1200",
-     "03000000" "07000000" "0100" "000000000000d03f", "4ecc78f5"),
+     "03000000" "07000000" "0100" "000000000000d03f", "89dd9d5e48cca0e1dc3992fe0c6bad7c"),
     (P.Observation(episode=3, step=7, status=0x10002, dtype=4, obs=(1.5, -0.25, 0.0), telemetry=(12.5,)),
      "08", "2500",
      # episode | step | status | dtype 04 | n 3 | m 1 (u16) | 1.5f -0.25f 0.0f | 12.5 (f64)
      "03000000" "07000000" "02000100" "04" "0300" "0100" "0000c03f" "000080be" "00000000" "0000000000002940",
-     "b839d71c"),
+     "c6fadfee754944373d9879b04ebf7cc1"),
     (P.EpisodeEnd(episode=3, reason=P.EndReason.HORIZON, status=0x4, n_ticks=4000, n_steps=400,
                   data_size=65536, data_sha256=SHA_POLICY), "09", "3900",
-     "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(), "27aa9c34"),
+     "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(),
+     "16524a356a24cbf14d52d0ed41be9fcb"),
     (P.Fetch(resource=P.Resource.EPISODE, item=3, offset=1024, max_len=1024), "0a", "0b00",
-     "02" "03000000" "00040000" "0004", "58880ecb"),
+     "02" "03000000" "00040000" "0004", "a7296c41fa2f112f7c9a5b911d178324"),
     (P.Chunk(resource=P.Resource.EPISODE, item=3, total=65536, offset=1024, data=b"HDF"), "0b", "1200",
-     "02" "03000000" "00000100" "00040000" "0300" "484446", "a9fa1d88"),
-    (P.Disarm(reason=1), "0c", "0100", "01", "7c7ef642"),
+     "02" "03000000" "00000100" "00040000" "0300" "484446", "3b6a5ed0a179c807a22b1b3d8f077b9a"),
+    (P.Disarm(reason=1), "0c", "0100", "01", "8dd21b6df6262f1250f9a47d91dd51e5"),
     (P.Heartbeat(state=P.TargetState.RUNNING, episode=3, step=7, peer_seq=99), "0d", "0d00",
-     "02" "03000000" "07000000" "63000000", "8dcd5838"),
+     "02" "03000000" "07000000" "63000000", "eea0a279f9ec3445712d6a2857656ea5"),
     (P.Error(code=P.ErrorCode.BUSY, ref_seq=5, text="busy: session 0x1"), "0e", "1900",
-     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "57ef6da3"),
+     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "ad49cf5893eaf6a2b6c2c0e109b12772"),
 ]
 
 
@@ -72,15 +80,26 @@ def test_golden_cover_every_type():
     assert {type(b) for b, *_ in GOLDEN} == set(P.BODIES.values())
 
 
-@pytest.mark.parametrize("body,mtype,plen,payload,crc", GOLDEN, ids=[type(g[0]).__name__ for g in GOLDEN])
-def test_golden_bytes(body, mtype, plen, payload, crc):
-    expected = bytes.fromhex(MAGIC_VER + mtype + AFTER_TYPE + plen + payload + crc)
+@pytest.mark.parametrize("body,mtype,plen,payload,tag", GOLDEN, ids=[type(g[0]).__name__ for g in GOLDEN])
+def test_golden_bytes(body, mtype, plen, payload, tag):
+    expected = bytes.fromhex(MAGIC_VER + mtype + AFTER_TYPE + plen + payload + tag)
     msg = P.Message(body, **HEAD)
-    assert P.encode(msg) == expected
-    assert P.decode(expected) == msg
-    # the trailer is zlib's CRC-32 of everything before it
-    assert struct.unpack("<I", expected[-4:])[0] == zlib.crc32(expected[:-4])
+    assert P.encode(msg, GOLDEN_KEY, GOLDEN_NONCE) == expected
+    assert P.decode(expected, GOLDEN_KEY, GOLDEN_NONCE) == msg
+    # the trailer is the standard library's HMAC-SHA256 of the nonce (0 for HELLO, INFO and ERROR,
+    # sent before both sides know it) and everything before it, cut to 16 bytes
+    nonce = 0 if msg.type in (P.MsgType.HELLO, P.MsgType.INFO, P.MsgType.ERROR) else GOLDEN_NONCE
+    mac = hmac.new(GOLDEN_KEY, nonce.to_bytes(8, "little") + expected[:-16], hashlib.sha256).digest()[:16]
+    assert expected[-16:] == mac
     assert len(expected) == P.OVERHEAD + len(payload) // 2
+    # another key, no key, or (but for the open types) another session nonce: refused
+    with pytest.raises(P.Unauthenticated):
+        P.decode(expected, bytes(32), GOLDEN_NONCE)
+    with pytest.raises(P.Unauthenticated):
+        P.decode(expected)
+    if nonce:
+        with pytest.raises(P.Unauthenticated):
+            P.decode(expected, GOLDEN_KEY, GOLDEN_NONCE + 1)
 
 
 # -- round trips -------------------------------------------------------------------------------------
@@ -177,7 +196,8 @@ def test_error_shorten_cuts_at_a_character_boundary():
 
 # -- decoding errors ---------------------------------------------------------------------------------
 def _with_crc(frame: bytes) -> bytes:
-    return frame + struct.pack("<I", zlib.crc32(frame))
+    """``frame`` with the tag of a side without a key (nonce 0)."""
+    return frame + P.tag(b"", 0, frame)
 
 
 def _frame(mtype=P.MsgType.HELLO, payload=b"\0\0\0\0", major=P.VERSION_MAJOR, minor=P.VERSION_MINOR,
@@ -189,11 +209,11 @@ def _frame(mtype=P.MsgType.HELLO, payload=b"\0\0\0\0", major=P.VERSION_MAJOR, mi
 
 @pytest.mark.parametrize("data,exc,detail", [
     (b"", P.CorruptDatagram, "truncated"),
-    (b"IMPR" + bytes(40), P.CorruptDatagram, "truncated"),
+    (b"IMPR" + bytes(50), P.CorruptDatagram, "truncated"),
     (_frame(magic=b"XXXX"), P.CorruptDatagram, "magic"),
-    (_frame(major=2), P.WrongVersion, "major"),
+    (_frame(major=1), P.WrongVersion, "major"),
     (_frame(plen=3), P.CorruptDatagram, "length"),
-    (_frame()[:-1] + b"\0", P.CorruptDatagram, "crc"),
+    (_frame()[:-1] + b"\0", P.Unauthenticated, "HELLO"),
     (_frame(mtype=99), P.UnknownType, "type"),
     (_frame(payload=b"\0\0\0"), P.CorruptDatagram, "payload"),  # HELLO needs 4 bytes
     (_frame(payload=b"\0" * 5), P.CorruptDatagram, "payload"),  # and exactly 4 at minor 0
@@ -237,7 +257,8 @@ def test_filter_sequence_window():
     assert f.accept(_cmd(12)) is None and f.last_reason == "duplicate"  # 63 back: the window's edge
     assert f.accept(_cmd(12 + 64)) is not None
     assert f.accept(_cmd(12)) is None and f.last_reason == "out_of_order"  # left the window
-    assert f.counts() == {"accepted": 4, "corrupt": 0, "wrong_version": 0, "wrong_session": 0,
+    assert f.counts() == {"accepted": 4, "corrupt": 0, "wrong_version": 0, "unauthenticated": 0,
+                          "not_loopback": 0, "stranger": 0, "wrong_session": 0,
                           "unexpected": 0, "duplicate": 3, "out_of_order": 2, "late": 0}
 
 
@@ -329,7 +350,8 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
     counters add up to the number of datagrams."""
     r = random.Random(20240611)
     session = 0x5EED
-    f = P.DatagramFilter("target", session=session)
+    home, elsewhere = ("127.0.0.1", 5600), ("127.0.0.1", 5601)
+    f = P.DatagramFilter("target", session=session, peer=home, loopback_only=True)
     seq = 0
     episode, step = 1, 0
     sent: dict[int, list[bytes]] = {}  # type -> accepted datagrams, newest last
@@ -347,9 +369,9 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
                 body = P.Command(episode, step + r.randint(0, 2), body.action)
         return P.Message(body, session=session, seq=seq, tick=r.getrandbits(40))
 
-    def feed(data, allowed):
+    def feed(data, allowed, sender=home):
         before = f.total
-        msg = f.accept(data, episode, step)
+        msg = f.accept(data, episode, step, sender)
         assert f.total == before + 1, (i, kind)  # one counter moved, by one
         outcome = "accepted" if msg is not None else f.last_reason
         assert outcome in allowed, (i, kind, outcome, f.last_error)
@@ -371,28 +393,31 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
             step += 1
             if step > 400:
                 episode, step = episode + 1, 0
-        kind = r.randrange(12 if f.total < N_FUZZ - 1 else 11)
+        kind = r.randrange(15)
+        if kind == 11 and f.total >= N_FUZZ - 1:
+            kind = 0
         t = r.choice(h2t)
+        sender = home
         base = P.encode(fresh(t))
         if kind == 0:  # a valid, fresh datagram
             data, allowed = base, {"accepted"}
         elif kind == 1:  # random bytes
             data = r.randbytes(r.choice([r.randint(0, 60), r.randint(0, 2000)]))
             allowed = set(P.DatagramFilter.REASONS)
-        elif kind == 2:  # 1-3 flipped bits (CRC-32 detects them all; magic/version flips count as such)
+        elif kind == 2:  # 1-3 flipped bits (the tag detects them; magic/version/length flips count as such)
             b = bytearray(base)
             for bit in r.sample(range(8 * len(b)), r.randint(1, 3)):  # distinct bits
                 b[bit // 8] ^= 1 << (bit % 8)
-            data, allowed = bytes(b), {"corrupt", "wrong_version"}
+            data, allowed = bytes(b), {"corrupt", "wrong_version", "unauthenticated"}
         elif kind == 3:  # truncated or extended
             cut = r.randint(0, len(base) - 1)
             data = base[:cut] if r.random() < 0.5 else base + r.randbytes(r.randint(1, 20))
             allowed = {"corrupt"}
         elif kind == 4:  # a valid frame (good CRC) around a bad header field or payload
-            b = bytearray(base[:-4])
+            b = bytearray(base[:-P.TAG_SIZE])
             what = r.randrange(5)
             if what == 0:
-                b[4] = r.choice([0, 2, 255])
+                b[4] = r.choice([0, 1, 3, 255])
                 allowed = {"wrong_version"}
             elif what == 1:
                 b[6] = r.choice([0, 15, 16, 200, 255])
@@ -420,6 +445,12 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
             past = (episode, step - r.randint(1, 5)) if step > 5 else (episode - 1, r.randint(0, 400))
             data = P.encode(fresh(P.MsgType.COMMAND, P.Command(past[0], past[1], (0.0,))))
             allowed = {"late"}
+        elif kind == 12:  # from an address that is not loopback (this side has no key)
+            data, allowed, sender = base, {"not_loopback"}, ("192.0.2.7", 5600)
+        elif kind == 13:  # a well-tagged datagram from another port than the session's host's
+            data, allowed, sender = base, {"stranger"}, elsewhere
+        elif kind == 14:  # the right frame under another key (a stranger without ours)
+            data, allowed = base[:-P.TAG_SIZE] + P.tag(b"k" * 32, 0, base[:-P.TAG_SIZE]), {"unauthenticated"}
         elif kind == 8:  # a type for the other direction
             data = P.encode(fresh(r.choice(t2h_only)))
             allowed = {"unexpected"}
@@ -433,7 +464,7 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
             if kind == 11:
                 feed(base, {"accepted"})
                 allowed = {"duplicate"}
-        feed(data, allowed)
+        feed(data, allowed, sender)
 
     counts = f.counts()
     assert sum(counts.values()) == N_FUZZ == f.total

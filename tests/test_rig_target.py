@@ -155,15 +155,19 @@ def _wait_log(logs: Path, episode: int, session: int, timeout_s: float = 20.0):
 
 
 def test_fuzzed_datagrams_are_all_counted(lockstep):
-    """10^5 random and mutated datagrams at a serving target: it keeps serving, and every datagram
-    it received is accepted or counted under a reason."""
+    """10^5 random and mutated datagrams at a target during an episode (from another socket: the
+    well-formed ones are strangers'): it keeps serving, and every datagram it received in the
+    episode is accepted or counted under a reason in the episode's log."""
     addr, logs = lockstep
     host, port = parse_address(addr)
     client = RigClient(addr)
     good = __import__("impact_env.rig.protocol", fromlist=["P"])
     rng = np.random.default_rng(0)
-    seed_msgs = [good.encode(good.Message(b, session=client.link.session, seq=int(rng.integers(1 << 32))))
-                 for b in (good.Command(1, 0, (0.1,)), good.Heartbeat(), good.Fetch(1, 0, 0, 64),
+    client.arm("host", 1, 100, link_timeout_ms=60_000)  # lock-step: it waits for the first command
+    nonce = client.link.filter.nonce  # the fuzz knows the session's nonce (not that it would help)
+    seed_msgs = [good.encode(good.Message(b, session=client.link.session, seq=int(rng.integers(1 << 32))),
+                             b"", nonce)
+                 for b in (good.Command(client.episode, 0, (0.1,)), good.Heartbeat(), good.Fetch(1, 0, 0, 64),
                            good.Disarm(0))]
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
@@ -181,15 +185,18 @@ def test_fuzzed_datagrams_are_all_counted(lockstep):
                 time.sleep(0.002)  # leave the target time to read: a full socket buffer is not the test
     finally:
         s.close()
-    client.arm("host", 1, 2, link_timeout_ms=200)  # an episode whose log reports the counters
+    client.disarm(wait=True)
     end = client.wait_end(timeout_s=20.0)
+    assert end.reason == 3  # DISARMED by its host: no stranger's DISARM or COMMAND got in
     log = client.fetch_log(end.episode, end.data_sha256)
     client.close()
     c = log.meta.counters
     counted = c["datagrams_accepted"] + sum(v for k, v in c.items() if k.startswith("dropped_"))
     assert c["datagrams_received"] == counted
     assert c["datagrams_received"] > 90_000  # loopback kept (almost) everything
-    assert c["dropped_corrupt"] > 10_000
+    assert c["dropped_corrupt"] > 10_000 and c["dropped_unauthenticated"] > 10_000
+    assert c["dropped_stranger"] > 1_000  # the unmutated copies: well tagged, from the wrong port
+    assert c.get("commands_accepted", 0) == 0
 
 
 def test_target_killed_host_raises_soon_and_close_does_not_hang():

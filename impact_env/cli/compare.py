@@ -31,6 +31,8 @@ def add_parser(sub, scene_args) -> None:
                    help="measure on the rig behind this target (impact-env rig serve): classic and compiled "
                         "policies onboard, SB3 models in host mode; with --scene too, the simulation "
                         "beside it")
+    p.add_argument("--key", metavar="FILE",
+                   help="with --rig: the session key file the target was started with (rig serve --key FILE)")
     p.set_defaults(func=cmd_compare)
 
 
@@ -43,6 +45,10 @@ def cmd_compare(args) -> int:
     texts = args.policies or ["passive,thesis-rig,pd-penetration"]
     specs = [s for text in texts for s in split_policies(text)]
     out_dir = output_dir(args.out) if args.out else None  # checked before anything runs
+    if args.key and not args.rig:
+        from impact_env.config import ConfigError
+
+        raise ConfigError("--key FILE is the rig's session key: it goes with --rig udp://HOST:PORT")
     if args.rig:
         return _compare_rig(args, specs)
     scene = scene_from_args(args, scene=args.scene or "rig")
@@ -78,12 +84,19 @@ def _compare_rig(args, specs) -> int:
     """``--rig``: the rig's table, and with ``--scene`` the simulation's and the gap."""
     import tempfile
 
+    from impact_env.config import ConfigError
     from impact_env.eval.rig_compare import rig_compare
     from impact_env.policy.export import export_policy
     from impact_env.policy.registry import is_model_spec
+    from impact_env.rig.auth import KeyFileError, load_key
 
+    try:
+        key = load_key(args.key, "--key") if args.key else None
+    except KeyFileError as exc:
+        raise ConfigError(str(exc)) from None
     rig_scene, rig_runs = rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
-                                      horizon=args.horizon, progress=not args.no_progress and not args.json)
+                                      horizon=args.horizon, progress=not args.no_progress and not args.json,
+                                      key=key)
     horizon = rig_scene.episode.horizon if args.horizon is None else args.horizon
     sim_runs = None
     if args.scene:

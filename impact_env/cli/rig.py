@@ -22,10 +22,19 @@ def add_parser(sub, scene_args) -> None:
     s.add_argument("--lockstep", action="store_true",
                    help="advance a tick when its command is there (deterministic; tests), not on the clock")
     s.add_argument("--log-dir", metavar="DIR", help="write one HDF5 log per episode here")
+    s.add_argument("--key", metavar="FILE",
+                   help="the session key file (impact-env rig keygen FILE); every datagram is then "
+                        "authenticated (HMAC-SHA256).  Without it only loopback peers are answered")
+    s.add_argument("--session-timeout", type=float, default=60.0, metavar="S",
+                   help="close an idle session whose host has been silent this long (default 60 s); until "
+                        "then a HELLO from any other address is refused")
     s.add_argument("--seed", type=int, default=0,
                    help="added to every episode's seed (default 0: the drops ImpactCatch-v0 meets for the "
                         "same reset seeds)")
     s.set_defaults(func=cmd_serve)
+    k = rsub.add_parser("keygen", help="write a new random session key file (32 bytes, hex, mode 0600)")
+    k.add_argument("file", help="the key file to create (never overwritten)")
+    k.set_defaults(func=cmd_keygen)
     g = rsub.add_parser("log", help="summarise an episode log with compare's metrics")
     g.add_argument("file", help="an episode's .h5 file (impact-env rig serve --log-dir)")
     g.add_argument("--plot", metavar="OUT.png", help="plot the raw sensors, the forces and the energy")
@@ -41,10 +50,18 @@ def cmd_serve(args) -> int:
     from impact_env.rig.driver import VirtualRig
     from impact_env.rig.target import Target, TargetConfig
 
+    if not args.session_timeout > 0:
+        raise ConfigError(f"--session-timeout {args.session_timeout} s must be > 0 s")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port} is out of range: 0 to 65535")
     if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
         raise ConfigError(f"--log-dir {args.log_dir!r} exists and is not a folder")
+    from impact_env.rig.auth import KeyFileError, load_key
+
+    try:
+        key = load_key(args.key, "--key") if args.key else b""
+    except KeyFileError as exc:
+        raise ConfigError(str(exc)) from None
     scene = scene_from_args(args)
     driver = VirtualRig(scene) if args.virtual else load_driver(args.driver, scene)
     kind = "virtual rig" if driver.virtual else f"driver {type(driver).__name__}"
@@ -52,16 +69,40 @@ def cmd_serve(args) -> int:
           flush=True)
     target = Target(driver, f"udp://{args.host}:{args.port}",
                     TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
-                                 seed_offset=args.seed))
+                                 seed_offset=args.seed, key=key, session_timeout_s=args.session_timeout))
     target.install_signal_handlers()
+    if key:
+        print(f"impact-env rig: session key from {args.key}: every datagram is authenticated",
+              file=sys.stderr,
+              flush=True)
+    else:
+        print("impact-env rig: no --key: answering loopback peers only (127.0.0.0/8, ::1); give --key FILE "
+              "to serve a network", file=sys.stderr, flush=True)
     print(f"impact-env rig: listening on {target.address} ({kind}, scene {scene.name}, "
           f"{'lock-step' if args.lockstep else 'real time'} at {scene.control_rate:g} Hz)", flush=True)
     target.serve()
     try:
+        counts = {**target.lifetime_counts(), "commands_after_end": target.counters["commands_after_end"]}
+        print(f"impact-env rig: datagrams since start: "
+              f"{', '.join(f'{k} {v}' for k, v in counts.items() if v) or 'none'}", flush=True)
         print(f"impact-env rig: stopped after {target.counters['episodes']} episodes; shaker at 0 N",
               flush=True)
     except BrokenPipeError:  # whoever started us is gone; the shaker is at 0 N all the same
         pass
+    return 0
+
+
+def cmd_keygen(args) -> int:
+    from impact_env.config import ConfigError
+    from impact_env.rig.auth import write_key
+
+    try:
+        path = write_key(args.file)
+    except FileExistsError:
+        raise ConfigError(f"keygen: {args.file} exists; not overwritten (remove it first)") from None
+    print(f"impact-env rig: wrote a 32-byte session key to {path} (mode 0600); give it to rig serve --key "
+          "and "
+          "to the host", flush=True)
     return 0
 
 
@@ -115,6 +156,7 @@ def cmd_log(args) -> int:
            "counters": log.meta.counters, "estimated": {k: _num(v) for k, v in est.items()}}
     status = int(np.bitwise_or.reduce(log["status"])) if log.n_ticks else 0
     out["status_bits"] = describe_status(status)
+    out["timing"] = timing_summary(log)
     if has_truth(log):
         out["true"] = {k: _num(v) for k, v in exact_metrics(log).items()}
     if args.json:
@@ -133,7 +175,19 @@ def cmd_log(args) -> int:
             if "true" in out:
                 line += f"  {_fmt(out['true'].get(k)):>18s}"
             print(line)
-        print(f"  counters: {', '.join(f'{k} {v}' for k, v in log.meta.counters.items() if v) or 'all 0'}")
+        t = out["timing"]
+        print(f"  timing: {t['overruns']} overruns (rows flagged OVERRUN), {t['skipped_ticks']} ticks "
+              "skipped "
+              f"(the DAC held the last command), lateness p50 {t['lateness_p50_us']:.1f} us, "
+              f"p99 {t['lateness_p99_us']:.1f} us, max {t['lateness_max_us']:.1f} us")
+        if log.meta.mode == "host":
+            c = log.meta.counters
+            print(f"  commands (this episode): {c.get('commands_acted', 0)} acted, "
+                  f"{c.get('commands_late', 0)} late, {c.get('commands_superseded', 0)} superseded, "
+                  f"{c.get('commands_expired', 0)} expired "
+                  f"(their step's ticks skipped), {c.get('commands_unused_at_end', 0)} unused at the end")
+        print(f"  counters (this episode): "
+              f"{', '.join(f'{k} {v}' for k, v in log.meta.counters.items() if v) or 'all 0'}")
     if args.plot:
         from impact_env.rig.log_plot import plot_log
 
@@ -141,6 +195,27 @@ def cmd_log(args) -> int:
         if not args.json:
             print(f"  plot written to {args.plot}")
     return 0
+
+
+def timing_summary(log) -> dict:
+    """Overruns and skipped ticks of an episode log, from its rows (and its counters, which the
+    target wrote: both are given so that a reader sees they agree), with the lateness percentiles."""
+    import numpy as np
+
+    from impact_env.rig.safety import OVERRUN
+
+    n = log.n_ticks
+    status = np.asarray(log["status"], dtype=np.int64) if n else np.zeros(0, np.int64)
+    skipped = np.asarray(log["skipped_ticks"], dtype=np.int64) if n and "skipped_ticks" in log.columns \
+        else np.zeros(0, np.int64)
+    lat = np.asarray(log["lateness_ns"], dtype=float) / 1e3 if n else np.zeros(1)
+    lat = lat if lat.size else np.zeros(1)
+    return {"overruns": int(np.count_nonzero(status & OVERRUN)), "skipped_ticks": int(skipped.sum()),
+            "counted_overruns": int(log.meta.counters.get("overruns", 0)),
+            "counted_skipped_ticks": int(log.meta.counters.get("skipped_ticks", 0)),
+            "lateness_p50_us": float(np.percentile(lat, 50)),
+            "lateness_p99_us": float(np.percentile(lat, 99)),
+            "lateness_max_us": float(lat.max())}
 
 
 def _num(v):

@@ -33,13 +33,15 @@ TRACE_MAP = {"x1": "true_x1_m", "v1": "true_v1_mps", "x2": "true_x2_m", "v2": "t
 
 
 def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 0,
-                horizon: float | None = None, progress: bool = True) -> tuple[object, dict[str, PolicyRun]]:
-    """(the target's scene, spec -> PolicyRun) measured on the rig at ``address``."""
+                horizon: float | None = None, progress: bool = True,
+                key=None) -> tuple[object, dict[str, PolicyRun]]:
+    """(the target's scene, spec -> PolicyRun) measured on the rig at ``address`` (``key``: the
+    session key file the target was started with, or None)."""
     from impact_env.policy.export import export_policy
     from impact_env.policy.registry import is_model_spec, make_policy
     from impact_env.rig.host import RigClient
 
-    client = RigClient(address)
+    client = RigClient(address, key=key)
     scene = client.scene
     horizon = scene.episode.horizon if horizon is None else float(horizon)
     runs = {}

@@ -2,7 +2,7 @@
 
 Modules (each small and documented; nothing here imports gymnasium or the env layer):
 
-* :mod:`~impact_env.rig.protocol`: the UDP wire format (versioned binary layout, CRC-32) and the
+* :mod:`~impact_env.rig.protocol`: the UDP wire format (versioned binary layout, HMAC-SHA256 tag) and the
   receiver-side :class:`~impact_env.rig.protocol.DatagramFilter` that drops and counts bad datagrams.
 * :mod:`~impact_env.rig.transport`: a loopback-testable UDP endpoint, ``udp://HOST:PORT``
   addresses, :class:`~impact_env.rig.transport.Link` (sequence numbers, filtering, reliable

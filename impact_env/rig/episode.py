@@ -61,18 +61,37 @@ class Episode:
         cfg = target.cfg
         self.link_timeout_s = self.a.link_timeout_ms / 1e3 if self.a.link_timeout_ms else (
             cfg.lockstep_link_timeout_s if self.lockstep else cfg.link_timeout_s)
-        self.cmd_value, self.cmd_step, self.cmd_first = math.nan, -1, -1
+        # the command in use (value, step, serial id; step -1: none yet) and the newest one
+        # accepted but not yet in use (a later step's); counts of what became of the commands
+        self.cmd_value, self.cmd_step, self.cmd_id = 0.0, -1, -1
+        self.cmd_acted = True
         self.next_cmd: tuple[int, float] | None = None
+        self.n_cmd = 0
+        self.cmd_counts = {"commands_accepted": 0, "commands_acted": 0, "commands_superseded": 0,
+                           "commands_expired": 0, "commands_unused_at_end": 0}
+        self.acct = np.zeros(3, dtype=np.int64)  # see controller.run_ticks
         self.last_heard = time.perf_counter()
         self.status_or = 0
         self.m = 0
         self.obs_msg: P.Observation | None = None
-        self.overruns = 0
         self.end_code = CT.END_NONE
         self._n0 = 0
         self.lateness = np.zeros(self.horizon + 1)
+        # a virtual rig's true record of every tick (NaN: not known, e.g. skipped by the Python loop)
+        self.trec = np.full((self.horizon + 1, R.N_REC), np.nan) if target.driver.virtual else None
         log = ctl.log
         self.cols = {name: log.col(name) for name in log.names}
+
+    @property
+    def overruns(self) -> int:
+        """Rows flagged OVERRUN this episode (a tick that started a period or more late, or
+        after skipped ticks)."""
+        return int(self.acct[2])
+
+    @property
+    def skipped_ticks(self) -> int:
+        """Ticks of this episode that did not run (overruns), each reported on the next row."""
+        return int(self.acct[1])
 
     # -- messages ----------------------------------------------------------------------------------------
     def take(self, msg: P.Message) -> str | None:
@@ -80,10 +99,17 @@ class Episode:
         t, tg = msg.type, self.t
         self.last_heard = time.perf_counter()
         if t == P.MsgType.COMMAND and msg.body.episode == self.ep:
+            self.cmd_counts["commands_accepted"] += 1
             if self.next_cmd is None or msg.body.step >= self.next_cmd[0]:
-                self.next_cmd = (msg.body.step, float(msg.body.action[0]))  # latest wins
+                if self.next_cmd is not None:  # latest wins: the one it replaces never acts
+                    self.cmd_counts["commands_superseded"] += 1
+                self.next_cmd = (msg.body.step, float(msg.body.action[0]))
+            else:
+                self.cmd_counts["commands_superseded"] += 1
         elif t == P.MsgType.DISARM:
             tg._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, self.ep), msg)
+            if msg.body.reason == 1:  # the host is closing: its session ends with the episode
+                tg._close_session = True
             return "DISARMED"
         elif t == P.MsgType.ARM:
             if msg.body == self.a:  # the same request again (its ARMED was lost): answer it again
@@ -138,51 +164,77 @@ class Episode:
             why = self.drain(0.0)
             if not why and time.perf_counter() - self.last_heard > self.link_timeout_s:
                 why = "LINK_LOST"
-        nxt = self.next_cmd
-        if nxt is not None and nxt[0] <= step and nxt[0] != self.cmd_step:
-            self.cmd_step, self.cmd_value, self.cmd_first = nxt[0], nxt[1], self.m
+        self.select_command(step)
         return why
 
+    def select_command(self, step: int) -> None:
+        """The newest accepted command for ``step`` (or an earlier, still live one) becomes the
+        one in use from this tick on; one whose step is over without it having acted (the
+        ticks left in its step were skipped) expires, counted."""
+        self.note_acted()
+        nxt = self.next_cmd
+        if nxt is None or nxt[0] > step:
+            return
+        self.next_cmd = None
+        if nxt[0] < step:  # accepted in time, but its step ended before a tick could run it
+            self.cmd_counts["commands_expired"] += 1
+            return
+        if not self.cmd_acted:  # the one in use never reached a tick
+            self.cmd_counts["commands_superseded"] += 1
+        self.n_cmd += 1
+        self.cmd_step, self.cmd_value, self.cmd_id, self.cmd_acted = nxt[0], nxt[1], self.n_cmd, False
+
+    def note_acted(self) -> None:
+        """Whether the command in use has acted on a tick yet (the controller keeps its id)."""
+        if not self.cmd_acted and int(self.ctl.st[CT.ST_CMD_ID]) == self.cmd_id:
+            self.cmd_acted = True
+            self.cmd_counts["commands_acted"] += 1
+
+    def command_counters(self) -> dict[str, int]:
+        """What became of this episode's commands (every accepted one is counted once)."""
+        self.note_acted()
+        out = dict(self.cmd_counts)
+        out["commands_unused_at_end"] = (self.next_cmd is not None) + (not self.cmd_acted)
+        return out
+
     @property
-    def age(self) -> int:
-        if not self.host:
-            return 0
-        return self.m - self.cmd_first if self.cmd_first >= 0 else -1
+    def cmd_first(self) -> int:
+        """The tick the command in use first acted at (-1: none, or it has not acted yet)."""
+        self.note_acted()
+        return int(self.ctl.st[CT.ST_CMD_FIRST]) if self.cmd_acted and self.cmd_step >= 0 else -1
 
     def send_observation(self) -> None:
-        """The OBSERVATION of the step that starts at tick m (host mode)."""
-        log, c = self.ctl.log, self.cols
+        """The OBSERVATION of the step that starts at tick m (host mode), with a virtual rig's
+        true records of the previous step's ticks when every one of them is known (a tick the
+        Python loop skipped has none: then the OBSERVATION carries no records and the host marks
+        the step)."""
+        log = self.ctl.log
         n = log.n
         last = log.rows[n - 1] if n else None
+        first = self.cmd_first
         telem = [float(last[LG.FORCE_DEMAND]) if n else 0.0, float(last[LG.FORCE_APPLIED]) if n else 0.0,
-                 float(self.m - self.cmd_first) if self.cmd_first >= 0 else -1.0]
-        if "true_x1_m" in c and n >= self.hold and self.m > 0:
-            rows = log.rows[n - self.hold:n]
-            rec = np.zeros((self.hold, R.N_REC))
-            rec[:, R.REC_T] = rows[:, c["true_t_s"]]
-            for j, name in enumerate(("true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps")):
-                rec[:, R.REC_X1 + j] = rows[:, c[name]]
-            rec[:, R.REC_U] = rows[:, c["command"]]
-            rec[:, R.REC_F_DEMAND] = rows[:, c["hw_force_demand_N"]]
-            rec[:, R.REC_F_APPLIED] = rows[:, c["hw_force_applied_N"]]
-            rec[:, R.REC_SATURATED] = rows[:, c["hw_saturated"]]
-            rec[:, R.REC_CONTACT_FORCE] = rows[:, c["hw_contact_force_N"]]
-            # a tick's detector bit is the one of the readings it produced: the next row's
-            rec[:-1, R.REC_DETECTED] = rows[1:, LG.DETECTED]
-            rec[-1, R.REC_DETECTED] = self.ctl.fe.detected[0]
-            rec[:, R.REC_STATUS] = rows[:, c["hw_status"]]
-            telem += rec.ravel().tolist()
+                 float(self.m - first) if first >= 0 else -1.0]
+        if self.trec is not None and self.m >= self.hold:
+            rec = self.trec[self.m - self.hold:self.m]
+            if not np.isnan(rec).any():
+                telem += rec.ravel().tolist()
         obs = tuple(float(x) for x in self.ctl.obs)
         self.obs_msg = P.Observation(self.ep, self.m // self.hold, int(self.status_or) & P.U32, 4, obs,
                                      tuple(telem))
         self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
 
     def final_row(self, raw: np.ndarray) -> None:
-        """The row of tick ``horizon``: its readings and observation, no command."""
+        """The row of tick ``horizon``: its readings and observation, no command (and the ticks
+        skipped just before it, if any, flagged on it)."""
+        skipped = int(self.acct[0])
         self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
                             accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
                             action=math.nan, step=self.m // self.hold,
-                            contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1)
+                            contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1, command_step=-1,
+                            skipped_ticks=skipped, status=SF.OVERRUN if skipped else 0)
+        if skipped:
+            self.acct[0] = 0
+            self.acct[2] += 1
 
     # -- the virtual rig's compiled loop ---------------------------------------------------------------
     def run_compiled(self) -> P.EndReason:
@@ -204,12 +256,12 @@ class Episode:
         # tick 0 due in a period
         pace = np.array([0.0 if self.lockstep else 1.0, float(_now()) + cpt, cpt, nspc])
         stop = np.zeros(1, dtype=np.int64)
-        ticks = lambda m0, m1, action: CT.run_ticks(  # noqa: E731
-            m0, m1, self.hold, not self.host, action, self.age, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol,
-            ctl.safety, ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw_args, tc, tvals, pace,
-            lat, stop)
+        ticks = lambda m0, m1: CT.run_ticks(  # noqa: E731
+            m0, m1, self.hold, not self.host, self.cmd_value, self.cmd_step, self.cmd_id, ctl.fe.fe,
+            ctl.fe.ob, ctl.law, ctl.pol, ctl.safety, ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs,
+            ctl.log.count, hw_args, tc, tvals, pace, lat, stop, self.acct, self.trec)
         if not self.host:  # onboard: the whole episode in one compiled call; a thread hears the host
-            why = self._listen_while(lambda: ticks(0, self.horizon, 0.0), stop)
+            why = self._listen_while(lambda: ticks(0, self.horizon), stop)
             self._after(t_col)
             if why:
                 return P.EndReason[why]
@@ -231,7 +283,7 @@ class Episode:
                 return P.EndReason.DISARMED
             m1 = self.m + (self.hold if self.lockstep else 1)
             n0 = ctl.log.n
-            m, status, end = ticks(self.m, m1, self.cmd_value)
+            m, status, end = ticks(self.m, m1)
             self._chunk_done(n0, m, status, t_col)
             if end != CT.END_NONE:
                 return _END[end]
@@ -271,7 +323,6 @@ class Episode:
     def _chunk_done(self, n0: int, m: int, status: int, t_col: int) -> None:
         rows = self.ctl.log.rows[n0:self.ctl.log.n]
         rows[:, t_col] = _tick_times(rows[:, LG.TICK], self.t.rate)
-        self.overruns += int(np.count_nonzero(rows[:, LG.STATUS].astype(np.int64) & SF.OVERRUN))
         self.m = m
         self.status_or |= status
 
@@ -282,12 +333,15 @@ class Episode:
         clock = TickClock(self.t.rate, lockstep=self.lockstep)
         ctl.start(drv.read().copy(), drv.truth())
         clock.start()
-        missed = 0
+        late_flag = False
         u = 0.0
+        period_ns = 1e9 / self.t.rate
         while True:
             t_work = time.perf_counter_ns()
             raw = drv.read()
             boundary = ctl.observe(self.m, raw, drv.truth()) if self.m > 0 else True
+            if virtual and self.m > 0:  # a tick's detector bit is the one of the readings it produced
+                self.trec[self.m - 1, R.REC_DETECTED] = ctl.fe.detected[0]
             if boundary and self.host:
                 self.send_observation()
             if self.m >= self.horizon:
@@ -299,8 +353,10 @@ class Episode:
                 return P.EndReason[why]
             if self.t._stop.is_set():
                 return P.EndReason.DISARMED
-            u, _f, status, row = ctl.act(self.m, self.cmd_value, self.age, self.m, raw)
-            status |= SF.OVERRUN if missed else 0
+            u, _f, status, row = ctl.act(self.m, self.cmd_value, self.cmd_step, self.cmd_id, self.m, raw)
+            if late_flag or self.acct[0] > 0:
+                status |= SF.OVERRUN
+                self.acct[2] += 1
             f_applied = drv.apply(u)
             self.status_or |= status
             if row >= 0:
@@ -308,10 +364,12 @@ class Episode:
                 r[LG.FORCE_APPLIED] = f_applied
                 r[LG.STATUS] = status
                 r[LG.LATENESS_NS] = self.lateness[self.m]
+                r[LG.SKIPPED] = self.acct[0]
                 r[c["command"]] = u
                 if virtual:
                     self._truth_row(r)
                 r[LG.COMPUTE_NS] = time.perf_counter_ns() - t_work
+            self.acct[0] = 0
             if drv.error():
                 return P.EndReason.FAULT
             if status & SF.FIRST_COMMAND_TIMEOUT:
@@ -319,15 +377,21 @@ class Episode:
             if status & SF.LATCHING:
                 return P.EndReason.SAFETY
             self.m += 1
-            missed = 0
+            late_flag = False
             if not self.lockstep:
                 tick = clock.wait(poll=lambda budget: self.drain(budget) and None)
-                if tick.missed:  # the ticks that could not run on time pass with the command held
-                    missed = min(tick.missed, self.horizon - self.m)
-                    drv.apply(u, missed)
-                    self.m += missed
-                    self.overruns += 1
-                self.lateness[self.m] = tick.lateness_ns
+                behind = tick.index - self.m  # whole periods behind (the clock jumps to the due tick)
+                k = int(CT.skip_allowed(self.m, behind, self.hold, self.horizon, not self.host))
+                if k:  # the ticks that cannot run on time pass with the command held (the DAC holds it)
+                    drv.apply(u, k)
+                    self.m += k
+                    self.acct[0] += k
+                    self.acct[1] += k
+                # a step's first tick is never skipped: it runs late, and the clock follows
+                clock.next_index = self.m + 1
+                late_ns = tick.start_ns - clock.deadline(self.m)
+                late_flag = late_ns >= period_ns
+                self.lateness[self.m] = late_ns
 
     def _truth_row(self, r: np.ndarray) -> None:
         drv, c = self.t.driver, self.cols
@@ -343,6 +407,16 @@ class Episode:
         r[c["impact_speed_mps"]] = hw.impact_speed[0]
         r[c["t_touch_s"]] = hw.t_touch[0]
         r[c["true_t_s"]] = hw.t[0]
+        t = self.trec[self.m]
+        t[R.REC_T] = hw.t[0]
+        t[R.REC_X1:R.REC_V2 + 1] = y[:4]
+        t[R.REC_U] = r[c["command"]]
+        t[R.REC_F_DEMAND] = info[HS.INFO_F_DEMAND]
+        t[R.REC_F_APPLIED] = info[HS.INFO_F_APPLIED]
+        t[R.REC_SATURATED] = info[HS.INFO_SATURATED]
+        t[R.REC_CONTACT_FORCE] = info[HS.INFO_CONTACT_FORCE]
+        t[R.REC_STATUS] = r[c["hw_status"]]
+        t[R.REC_DETECTED] = self.ctl.fe.detected[0]  # until the front end has seen its readings
 
 
 def _now() -> int:

@@ -12,9 +12,15 @@ Timing contract (host mode; H = ``hold_ticks``, T the control period):
   the release.
 * ``step(a)`` sends a at policy step n; the target applies it over ticks nH .. nH + H - 1 and
   returns the observation of tick (n + 1) H, made from the readings after tick (n + 1) H - 1.
-  In lock-step that is exact; in real time a takes effect at the first tick after it arrives
-  (one round trip after the observation it answers), is held H ticks and repeated at most once
-  more, after which the target zeroes the force (its watchdog).
+  In lock-step that is exact; in real time a acts from the first tick at or after its arrival
+  (one round trip after the observation it answers) to the end of step n, is repeated through
+  step n + 1, after which the target zeroes the force (its watchdog); arriving after step n
+  is over it is counted late by the target and never applied.
+* Episodes end as ``ImpactCatch-v0``'s (truncated at the horizon, terminated on a catch), or as
+  the target ends them: an EPISODE_END received while waiting for an observation returns at
+  once, terminated for SAFETY, truncated otherwise, with ``info["end_reason"]``.
+* ``key``: the session key (:mod:`impact_env.rig.auth`), the same file as the target's
+  ``rig serve --key FILE``.
 * Reward and termination: from a virtual rig, which reports the true records of each step's
   ticks, they are computed here by the env's own kernel (:mod:`impact_env.env.task_kernel`), so
   they equal ``ImpactCatch-v0``'s; a physical rig measures no body-1 state: the reward is 0.0,
@@ -39,11 +45,17 @@ from impact_env.env import task_kernel as TK
 from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig
 from impact_env.hardware.batch import Hardware
 from impact_env.rig import protocol as P
-from impact_env.rig.transport import Endpoint, Link, RigTimeout, fetch, parse_address, upload
+from impact_env.rig import safety as SF
+from impact_env.rig.transport import Endpoint, Link, RigError, RigTimeout, fetch, parse_address, upload
 from impact_env.scene import scene_from_dict
 from impact_env.sim import records as R
 
 N_TEL = len(P.TELEMETRY_FIELDS)
+
+
+def status_names(status: int) -> list[str]:
+    """The names of the status bits set in ``status`` (:data:`impact_env.rig.safety.STATUS_BITS`)."""
+    return [name for name, bit in SF.STATUS_BITS.items() if int(status) & bit]
 
 
 class RigClient:
@@ -52,20 +64,20 @@ class RigClient:
     Every wait is bounded (``timeout_s`` per try, ``retries`` tries): a dead target raises
     :class:`~impact_env.rig.transport.RigTimeout`, and :meth:`close` never blocks."""
 
-    def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10):
+    def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10, key=None):
+        from impact_env.rig.auth import key_from
+
+        key = key_from(key, "key")
         host, port = parse_address(address)
         local = "udp://[::1]:0" if ":" in host else ("udp://127.0.0.1:0" if host in ("127.0.0.1", "localhost")
                                                       else "udp://0.0.0.0:0")
         self.address = address
         self.timeout_s, self.retries = float(timeout_s), int(retries)
         self.endpoint = Endpoint(local, peer=address)
-        self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1)
+        self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1, key=key)
+        self.link.filter.peer = self.endpoint.peer  # only the target's replies count
         try:
-            nonce = int.from_bytes(os.urandom(4), "little")
-            info = self.link.request(P.Hello(nonce),
-                                     lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
-                                     "INFO (answer to HELLO)", self.timeout_s, self.retries).body
-            self.info = info
+            info = self.hello()
             self.lockstep = bool(info.lockstep)
             self.virtual = info.driver == 0
             toml = fetch(self.link, P.Resource.SCENE, 0, info.scene_sha256, self.timeout_s, self.retries)
@@ -78,10 +90,34 @@ class RigClient:
         self.episode = 0
         self.step = 0
 
+    def hello(self) -> P.Info:
+        """HELLO -> INFO: opens the session (or confirms it: the same session id again keeps it;
+        one that the target closed after its idle timeout is opened anew, with a new nonce)."""
+        nonce = int.from_bytes(os.urandom(4), "little")
+        try:
+            info = self.link.request(P.Hello(nonce),
+                                     lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
+                                     "INFO (answer to HELLO)", self.timeout_s, self.retries).body
+        except (RigTimeout, RigError) as exc:
+            text = self.link.filter.auth_refusal  # a target with another key (or none) refused us
+            if isinstance(exc, RigError) and exc.code == P.ErrorCode.UNAUTHENTICATED:
+                text = exc.text  # a host without key reads the refusal as it is
+            if text:
+                side = "has a key" if self.link.filter.key else "has no key"
+                raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED,
+                               f"{text} (this host {side})") from None
+            raise
+        self.link.filter.nonce = info.session_nonce
+        self.info = info
+        return info
+
     def arm(self, mode: str, seed: int, horizon_ticks: int, observation: str = "sensors", history: int = 1,
             hold_ticks: int = 1, policy: CompiledPolicy | None = None, link_timeout_ms: int = 0,
             first_command_timeout_ticks: int = 1000) -> P.Armed:
-        """Upload ``policy`` (onboard: the policy; host mode: a residual law) and arm an episode."""
+        """Upload ``policy`` (onboard: the policy; host mode: a residual law) and arm an episode
+        (the session confirmed first: a host may have paused longer than the target's session
+        timeout, e.g. for a training update)."""
+        self.hello()
         data = b""
         if policy is not None:
             import json
@@ -100,9 +136,14 @@ class RigClient:
     def command(self, step: int, action: float) -> None:
         self.link.send(P.Command(self.episode, int(step), (float(action),)))
 
-    def observation(self, step: int, timeout_s: float) -> P.Observation | None:
-        """The OBSERVATION of ``step`` of the current episode (newer ones are returned too),
-        or None after ``timeout_s``; an EPISODE_END is kept in ``last_end``."""
+    def observation(self, step: int, timeout_s: float) -> P.Observation | P.EpisodeEnd | None:
+        """The OBSERVATION of ``step`` of the current episode (newer ones are returned too), the
+        EPISODE_END of the current episode if the target ended it before that step's observation
+        (also kept in ``last_end``), or None after ``timeout_s``.  An episode that reached its
+        horizon has a last OBSERVATION: its EPISODE_END is kept, and the wait goes on for it."""
+        end = self.last_end
+        if end is not None and end.episode == self.episode and not self._has_last_obs(end, step):
+            return end
         deadline = time.perf_counter() + timeout_s
         while (left := deadline - time.perf_counter()) > 0:
             msg = self.link.recv(left)
@@ -113,7 +154,15 @@ class RigClient:
                 return b
             if msg.type == P.MsgType.EPISODE_END and b.episode == self.episode:
                 self.last_end = b
+                if not self._has_last_obs(b, step):
+                    return b
         return None
+
+    @staticmethod
+    def _has_last_obs(end: P.EpisodeEnd, step: int) -> bool:
+        """Whether the target sent an OBSERVATION of ``step`` before ending (at the horizon it
+        sends the last step's)."""
+        return end.reason == P.EndReason.HORIZON and step <= end.n_steps
 
     last_end: P.EpisodeEnd | None = None
 
@@ -151,8 +200,9 @@ class RigClient:
                 fh.write(data)
             return read_episode(path)
 
-    def disarm(self, wait: bool = False) -> None:
-        """Stop the episode (best effort: one datagram, or a bounded request with ``wait``)."""
+    def disarm(self, wait: bool = False, closing: bool = False) -> None:
+        """Stop the episode (best effort: one datagram, or a bounded request with ``wait``);
+        ``closing``: the session ends too (another host may then open one at once)."""
         if self.endpoint.closed:
             return
         if wait:
@@ -160,13 +210,20 @@ class RigClient:
                               lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
                               "ACK of DISARM", self.timeout_s, self.retries)
         else:
-            self.link.send(P.Disarm(1))
+            self.link.send(P.Disarm(1 if closing else 0))
 
-    def close(self) -> None:
-        try:
-            self.disarm()
-        except OSError:
-            pass
+    def close(self, budget_s: float = 0.3) -> None:
+        """End the session (DISARM "host closing", acknowledged, so that the target frees it for
+        another host at once; retried for at most ``budget_s`` s: a lost datagram would otherwise
+        hold the target for its session timeout) and close the socket.  Never raises."""
+        if not self.endpoint.closed:
+            tries = max(1, min(self.retries + 1, int(budget_s / self.timeout_s)))
+            try:
+                self.link.request(P.Disarm(1),
+                                  lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
+                                  "ACK of DISARM", min(self.timeout_s, budget_s), tries - 1)
+            except (RigTimeout, RigError, OSError):
+                pass
         self.endpoint.close()
 
 
@@ -178,8 +235,9 @@ class RigEnv(gym.Env):
     measures no body-1 state; ``history``, ``hold_ticks``, ``residual``, ``horizon``,
     ``catch_threshold``, ``catch_hold``, ``terminate_on_catch``, ``effort_weight``,
     ``limit_weight``, ``action_bounds``), plus ``address`` (``udp://HOST:PORT``), ``timeout_s``
-    (per try; a step waits at most ``(retries + 1) timeout_s`` in all, then raises RigTimeout)
-    and ``retries``.
+    (per try; a step waits at most ``(retries + 1) timeout_s`` in all, then raises RigTimeout),
+    ``retries`` and ``key`` (the path of the key file the target was started with, ``rig serve
+    --key FILE``, or the key's bytes; None: no key, for a target without one on loopback).
     """
 
     metadata = {"render_modes": []}
@@ -188,13 +246,13 @@ class RigEnv(gym.Env):
                  residual: str | None = None, horizon: float | None = None, catch_threshold: float = 0.01,
                  catch_hold: float = 0.01, terminate_on_catch: bool = True, effort_weight: float = 0.0,
                  limit_weight: float = 0.0, action_bounds: str = "clip", timeout_s: float = 0.05,
-                 retries: int = 20):
+                 retries: int = 20, key=None):
         self.config = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks,
                                  residual=residual, horizon=horizon, catch_threshold=catch_threshold,
                                  catch_hold=catch_hold,
                                  terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
                                  limit_weight=limit_weight, action_bounds=action_bounds)
-        self.client = RigClient(address, timeout_s, retries)
+        self.client = RigClient(address, timeout_s, retries, key=key)
         self.scene = scene = self.client.scene
         self.layout = make_layout(scene, observation, history)
         if self.layout.privileged:
@@ -246,7 +304,11 @@ class RigEnv(gym.Env):
               self.hold, self.residual)
         self._running = True
         self._n = 0
+        self._last_obs = None
         obs = self._wait_obs(0, resend=None)
+        if isinstance(obs, P.EpisodeEnd):
+            raise RuntimeError(f"the target ended episode {obs.episode} at once: "
+                               f"{P.EndReason(obs.reason).name}")
         return np.asarray(obs.obs, dtype=np.float32), self._info(obs)
 
     def _start_drop(self, ep_seed: int, state: tuple, rows: np.ndarray) -> None:
@@ -270,14 +332,19 @@ class RigEnv(gym.Env):
         self._start_drop(0, state, rows)
         self._task_step(np.zeros((1, self.hold, R.N_REC)), state, (*out, rows))
 
-    def _wait_obs(self, step: int, resend) -> P.Observation:
+    def _wait_obs(self, step: int, resend) -> P.Observation | P.EpisodeEnd:
         c = self.client
         for _ in range(c.retries + 1):
             got = c.observation(step, c.timeout_s)
             if got is not None:
                 return got
-            if resend is not None:
+            ended = c.last_end is not None and c.last_end.episode == c.episode
+            # a COMMAND again: in lock-step the target re-sends the observation it waits with; after
+            # the episode's end the last one (real time: a resent command would only be late)
+            if resend is not None and (c.lockstep or ended):
                 c.command(step - 1, resend)
+        if c.last_end is not None and c.last_end.episode == c.episode:
+            return c.last_end  # its last observation never came: the step is marked, not a timeout
         raise RigTimeout(f"OBSERVATION of step {step}", (c.retries + 1) * c.timeout_s, c.address,
                          c.retries + 1)
 
@@ -294,23 +361,60 @@ class RigEnv(gym.Env):
         u = float(a[0])
         self.client.command(self._n, u)
         self._n += 1
-        obs = self._wait_obs(self._n, resend=u)
+        got = self._wait_obs(self._n, resend=u)
+        if isinstance(got, P.EpisodeEnd):
+            return self._ended(got)
+        obs = got
+        extra: dict[str, Any] = {}
+        if obs.step > self._n:  # the OBSERVATIONs of the steps between were lost on the way
+            extra["steps_missed"] = obs.step - self._n
+            self._n = obs.step
         tel = obs.telemetry
         if self._hw is not None and len(tel) > N_TEL:
             recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, R.N_REC)
             self._task_step(recs, self._task_state(), (self._rew, self._te, self._tr, self._rows))
             reward, term, trunc = float(self._rew[0]), bool(self._te[0]), bool(self._tr[0])
-        else:
-            reward, term, trunc = 0.0, False, self._n >= self.max_steps
+            extra["reward_available"] = True
+        else:  # a physical rig, or a step whose true records are incomplete (ticks the target skipped)
+            reward, term, trunc = 0.0, False, False
+            extra["reward_available"] = False
+        trunc = trunc or (not term and self._n >= self.max_steps)
         if term or trunc:
             self._running = False
             if term:
                 self.client.disarm()
-        return np.asarray(obs.obs, dtype=np.float32), reward, term, trunc, self._info(obs)
+        info = self._info(obs)
+        info.update(extra)
+        if term or trunc:
+            info["end_reason"] = "CAUGHT" if term else "HORIZON"
+        return np.asarray(obs.obs, dtype=np.float32), reward, term, trunc, info
+
+    # the target's end reasons that are the task's own terminal states; any other end (the host
+    # disarmed, the link, a fault, no first command) cuts the episode short: truncated
+    TERMINAL_REASONS = frozenset({"CAUGHT", "SAFETY"})
+
+    def _ended(self, end: P.EpisodeEnd):
+        """The step the target ended the episode in (EPISODE_END before the step's OBSERVATION):
+        the last observation again, no reward (no records came), terminated or truncated by the
+        reason."""
+        self._running = False
+        try:
+            reason = P.EndReason(end.reason).name
+        except ValueError:
+            reason = f"reason {end.reason}"
+        term = reason in self.TERMINAL_REASONS
+        obs = self._last_obs
+        info = self._info(obs) if obs is not None else {}
+        info.update(end_reason=reason, reward_available=False, status=int(end.status),
+                    status_flags=status_names(end.status), ticks=int(end.n_ticks))
+        o = np.asarray(obs.obs if obs is not None else np.zeros(self.layout.size), dtype=np.float32)
+        return o, 0.0, term, not term, info
 
     def _info(self, obs: P.Observation) -> dict[str, Any]:
+        self._last_obs = obs
         tel = obs.telemetry
         out: dict[str, Any] = {"step": obs.step, "status": obs.status,
+                               "status_flags": status_names(obs.status),
                                "reward_available": self._hw is not None,
                                "force_demand": tel[0] if tel else 0.0,
                                "force_applied": tel[1] if len(tel) > 1 else 0.0,

@@ -21,27 +21,32 @@ dataset                 dtype     unit     meaning
 ``accelerometer_mps2``  float64   m/s^2    raw accelerometer reading (body 2, down positive)
 ``force_N``             float64   N        raw force transducer reading (compression positive)
 ``potentiometer_m``     float64   m        raw potentiometer reading (body 2's travel, down positive)
-``action``              float64            the command in use before safety (1 = command_scale N; NaN:
-                                           none yet)
+``action``              float64            the command in use before safety (1 = command_scale N; 0
+                                           with status NO_COMMAND: none yet)
 ``force_demand_N``      float64   N        action * command_scale
 ``force_applied_N``     float64   N        the force the driver applied (after the safety layer)
-``command_age_ticks``   int64     ticks    ticks since the command in use was first applied (-1: none)
+``command_age_ticks``   int64     ticks    ticks since the command in use first acted (-1: none)
 ``status``              uint32             status bits (:mod:`impact_env.rig.safety`)
 ``step``                int64              policy step (tick // hold_ticks)
 ``contact_detected``    uint8              the front end's contact detector (0/1)
 ``lateness_ns``         int64     ns       tick start minus its deadline (:mod:`impact_env.rig.clock`)
 ``compute_ns``          int64     ns       time the tick's work took
+``command_step``        int64              host mode: the policy step of the command that acted (-1:
+                                           none; onboard: the row's own step)
+``skipped_ticks``       int64     ticks    ticks skipped (not run: an overrun) just before this row;
+                                           > 0 only on rows with the OVERRUN bit
 ``observation``         float64            [n_ticks, obs_size]: the front end's observation (names in
                                            its ``names`` attribute)
 (extra)                 float64   (attr)   columns named at construction, e.g. a virtual rig's truth
 ======================  ========  =======  ==========================================================
 
-Attributes of the file: ``format`` ("impact_env.rig.episode"), ``format_version`` (1), and the
+Attributes of the file: ``format`` ("impact_env.rig.episode"), ``format_version`` (2), and the
 :class:`EpisodeMeta` fields: ``scene_toml`` (``scene.to_toml()``), ``mode``, ``hold_ticks``,
 ``seed``, ``control_rate_hz``, ``episode``, ``session``, ``policy``, ``policy_sha256`` (hex; empty
 in host mode), ``observation``, ``history``, ``end_reason``, ``created_utc``; groups ``versions``
-(package, python, numpy, numba, h5py) and ``counters`` (plain ints: dropped datagrams by
-reason, watchdog trips, overruns, ...).
+(package, python, numpy, numba, h5py) and ``counters`` (plain ints, all of this episode only,
+from its ARM to its end: datagrams received, accepted and dropped by reason, commands late,
+watchdog trips, overruns (rows flagged OVERRUN), skipped_ticks, ...).
 """
 
 from __future__ import annotations
@@ -58,10 +63,10 @@ import numpy as np
 from impact_env._jit import jit
 
 FORMAT = "impact_env.rig.episode"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: command_step and skipped_ticks columns; per-episode counters
 
 (TICK, T_S, ACCEL, FORCE, POT, ACTION, FORCE_DEMAND, FORCE_APPLIED, COMMAND_AGE, STATUS, STEP, DETECTED,
- LATENESS_NS, COMPUTE_NS) = range(14)
+ LATENESS_NS, COMPUTE_NS, COMMAND_STEP, SKIPPED) = range(16)
 # name, unit, dtype on disk, in column order
 COLUMNS = (
     ("tick", "", "int64"), ("t_s", "s", "float64"), ("accelerometer_mps2", "m/s^2", "float64"),
@@ -69,6 +74,7 @@ COLUMNS = (
     ("force_demand_N", "N", "float64"), ("force_applied_N", "N", "float64"),
     ("command_age_ticks", "ticks", "int64"), ("status", "", "uint32"), ("step", "", "int64"),
     ("contact_detected", "", "uint8"), ("lateness_ns", "ns", "int64"), ("compute_ns", "ns", "int64"),
+    ("command_step", "", "int64"), ("skipped_ticks", "ticks", "int64"),
 )
 N_FIXED = len(COLUMNS)
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")

@@ -1,7 +1,9 @@
-"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 1.0).
+"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 2.0).
 
 Every datagram is one message: a 42-byte header, a payload whose layout the message type fixes,
-and a CRC-32 trailer.  Integers are unsigned little-endian, floats IEEE-754 little-endian.
+and a 16-byte tag (HMAC-SHA256, :func:`tag`).  Version 2.0 replaced 1.0's CRC-32 trailer with
+the tag and appended session_nonce and keyed to INFO.  Integers are unsigned little-endian,
+floats IEEE-754 little-endian.
 
 Header (42 bytes) and trailer
 =============================
@@ -10,7 +12,7 @@ Header (42 bytes) and trailer
 offset  size  type        field
 ======  ====  ==========  =================================================================
 0       4     bytes       magic ``b"IMPR"``
-4       1     u8          major version (1): a receiver drops any other major
+4       1     u8          major version (2): a receiver drops any other major
 5       1     u8          minor version (0): see *Versioning*
 6       1     u8          message type (table below)
 7       1     u8          flags: bit 0 ``FLAG_RETRY`` (a request sent again); others reserved
@@ -25,7 +27,9 @@ offset  size  type        field
                           by the host in COMMANDs answering an OBSERVATION)
 40      2     u16         payload length L, bytes (at most ``MAX_PAYLOAD``)
 42      L     bytes       payload
-42+L    4     u32         CRC-32 (``zlib.crc32``) of bytes 0 .. 42+L-1 (header and payload)
+42+L    16    bytes       tag: HMAC-SHA256(key, nonce u64 LE + bytes 0 .. 42+L-1)[:16]; key the
+                          shared key (b"" without one), nonce the session's (from INFO; 0 for
+                          HELLO, INFO and ERROR)
 ======  ====  ==========  =================================================================
 
 Message types and payloads (offsets from the payload start; ``H`` host, ``T`` target)
@@ -37,7 +41,8 @@ code   type          dir    payload (offset type field [unit])
 1      HELLO         H->T   0 u32 nonce (echoed in INFO).  Opens a session: the header's session id.
 2      INFO          T->H   0 u32 nonce; 4 f64 control_rate_hz [Hz]; 12 u8 state (0 idle, 1 armed,
                             2 running, 3 fault); 13 u8 driver (0 virtual, 1 hardware); 14 u8 lockstep
-                            (0/1); 15 u32 scene_size [B] (resource SCENE); 19 32s scene_sha256.  = 51 B
+                            (0/1); 15 u32 scene_size [B] (resource SCENE); 19 32s scene_sha256; 51 u64
+                            session_nonce (drawn per session; in every later tag); 59 u8 keyed.  = 60 B
 3      ARM           H->T   0 u8 mode (1 host, 2 onboard); 1 u8 observation (0 sensors, 1 privileged,
                             2 both); 2 u8 history [frames, 1..64]; 3 u8 options (bit 0
                             ``ARM_TERMINATE_ON_CATCH``); 4 u16 hold_ticks [ticks per policy step,
@@ -77,7 +82,7 @@ code   type          dir    payload (offset type field [unit])
                             6 u16 n; 8 n bytes UTF-8 text (at most 1024).  = 8 + n B
 =====  ============  =====  ===========================================================================
 
-Sizes.  ``MAX_PAYLOAD`` (65461 B) fills the largest UDP datagram over IPv4.  Datagrams up to
+Sizes.  ``MAX_PAYLOAD`` (65449 B) fills the largest UDP datagram over IPv4.  Datagrams up to
 ``MTU_DATAGRAM`` (1472 B, an Ethernet frame) are never fragmented by IP; POLICY_CHUNK and CHUNK
 carry at most ``CHUNK_DATA`` (1024 B) each so that they stay below it, and so does any
 OBSERVATION below about 1400 B (175 float64 entries).  Larger observations are sent whole and IP
@@ -99,28 +104,39 @@ the target keeps only the newest accepted command; a command for a future step w
 Requests (HELLO, ARM, POLICY_CHUNK, FETCH, DISARM) are idempotent and retried with new sequence
 numbers until their reply (INFO, ARMED, ACK, CHUNK, ACK) arrives
 (:meth:`impact_env.rig.transport.Link.request`).
+
+Authentication (:class:`DatagramFilter` with ``key``, ``nonce``, ``peer``, ``loopback_only``).
+A datagram whose tag does not check is dropped first (``unauthenticated``); a receiver without
+key takes loopback peers only (``not_loopback``); once a target's session is open it takes its
+host's address and port only (``stranger``: a HELLO from elsewhere is answered ERROR BUSY by
+the target, never evicting the session).  The session nonce in the tag makes a datagram of one
+session fail in any other; the sequence window refuses a copy within the session.
 """
 
 from __future__ import annotations
 
 import enum
 import functools
+import hashlib
+import hmac
 import math
 import struct
-import zlib
 from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
 MAGIC = b"IMPR"
-VERSION_MAJOR = 1
+VERSION_MAJOR = 2
 VERSION_MINOR = 0
 
 HEADER = struct.Struct("<4sBBBBIIQQQH")
-TRAILER = struct.Struct("<I")
+TAG_SIZE = 16  # bytes of HMAC-SHA256 kept (128 bits)
 HEADER_SIZE = HEADER.size  # 42
-OVERHEAD = HEADER_SIZE + TRAILER.size  # 46
+OVERHEAD = HEADER_SIZE + TAG_SIZE  # 58
 MAX_DATAGRAM = 65507  # largest UDP payload over IPv4, B
-MAX_PAYLOAD = MAX_DATAGRAM - OVERHEAD  # 65461 B
+MAX_PAYLOAD = MAX_DATAGRAM - OVERHEAD  # 65449 B
+MIN_KEY = 16  # bytes of a shared key, at least
+# the types tagged with nonce 0: those sent before the session's nonce is known to both sides
+OPEN_TYPES = frozenset({1, 2, 14})  # HELLO, INFO, ERROR
 MTU_DATAGRAM = 1472  # Ethernet MTU 1500 - IPv4 20 - UDP 8, B
 CHUNK_DATA = 1024  # data bytes per POLICY_CHUNK / CHUNK
 MAX_TEXT = 1024  # ERROR text, B (UTF-8)
@@ -191,6 +207,7 @@ class ErrorCode(enum.IntEnum):
     DRIVER_FAULT = 5
     UNKNOWN_RESOURCE = 6
     OUT_OF_RANGE = 7  # a FETCH offset past the end
+    UNAUTHENTICATED = 8  # a HELLO whose tag does not check with this side's key (or lack of one)
 
 
 MODES = {"host": 1, "onboard": 2}
@@ -212,11 +229,18 @@ class ProtocolError(ValueError):
 
 
 class CorruptDatagram(ProtocolError):
-    """Bad magic, length, CRC or payload (``detail``: truncated, magic, length, crc, payload)."""
+    """Bad magic, length or payload (``detail``: truncated, magic, length, payload)."""
 
 
 class WrongVersion(ProtocolError):
     reason = "wrong_version"
+
+
+class Unauthenticated(ProtocolError):
+    """The tag does not check (``detail``: the message type's name, or its number): the sender
+    has no key, another key, or the datagram was altered or replayed into another session."""
+
+    reason = "unauthenticated"
 
 
 class UnknownType(ProtocolError):
@@ -296,7 +320,7 @@ class Hello(Body):
 @dataclass(frozen=True)
 class Info(Body):
     TYPE: ClassVar = MsgType.INFO
-    FMT: ClassVar = struct.Struct("<IdBBBI32s")
+    FMT: ClassVar = struct.Struct("<IdBBBI32sQB")
     nonce: int = 0
     control_rate_hz: float = 1.0e4
     state: int = TargetState.IDLE
@@ -304,6 +328,8 @@ class Info(Body):
     lockstep: bool = False
     scene_size: int = 0
     scene_sha256: bytes = bytes(32)
+    session_nonce: int = 0
+    keyed: bool = False
 
     def __post_init__(self):
         _uint("nonce", self.nonce, U32)
@@ -316,14 +342,17 @@ class Info(Body):
             raise ValueError(f"lockstep must be a bool, got {self.lockstep!r}")
         _uint("scene_size", self.scene_size, U32)
         _digest("scene_sha256", self.scene_sha256)
+        _uint("session_nonce", self.session_nonce, U64)
+        if not isinstance(self.keyed, bool):
+            raise ValueError(f"keyed must be a bool, got {self.keyed!r}")
 
     @classmethod
     def unpack(cls, payload, newer):
         _need(payload, cls.FMT.size, newer, exact=True)
-        nonce, rate, state, driver, lock, size, sha = cls.FMT.unpack_from(payload)
-        if lock > 1:
-            raise CorruptDatagram("payload", f"INFO lockstep byte {lock} is not 0 or 1")
-        return cls(nonce, rate, state, driver, bool(lock), size, sha)
+        nonce, rate, state, driver, lock, size, sha, snonce, keyed = cls.FMT.unpack_from(payload)
+        if lock > 1 or keyed > 1:
+            raise CorruptDatagram("payload", f"INFO lockstep/keyed byte {lock}/{keyed} is not 0 or 1")
+        return cls(nonce, rate, state, driver, bool(lock), size, sha, snonce, bool(keyed))
 
 
 @dataclass(frozen=True)
@@ -684,8 +713,17 @@ class Message:
         return self.body.TYPE
 
 
-def encode(msg: Message) -> bytes:
-    """The datagram of ``msg`` (header, payload, CRC-32)."""
+def tag(key: bytes, nonce: int, frame) -> bytes:
+    """The datagram's tag: HMAC-SHA256 under ``key`` (b"": no key, an integrity check only) of
+    the session nonce (u64 little-endian; 0 for HELLO, INFO and ERROR) and the header and payload
+    bytes ``frame``, its first ``TAG_SIZE`` bytes."""
+    h = hmac.new(key, nonce.to_bytes(8, "little"), hashlib.sha256)
+    h.update(frame)
+    return h.digest()[:TAG_SIZE]
+
+
+def encode(msg: Message, key: bytes = b"", nonce: int = 0) -> bytes:
+    """The datagram of ``msg`` (header, payload, tag under ``key`` and the session ``nonce``)."""
     try:
         payload = msg.body.pack()
     except (struct.error, OverflowError) as exc:
@@ -694,11 +732,14 @@ def encode(msg: Message) -> bytes:
         raise ValueError(f"{msg.type.name} payload of {len(payload)} B exceeds MAX_PAYLOAD = {MAX_PAYLOAD} B")
     head = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, msg.type, msg.flags, msg.session, msg.seq,
                        msg.tick, msg.host_ns, msg.target_ns, len(payload))
-    return head + payload + TRAILER.pack(zlib.crc32(payload, zlib.crc32(head)))
+    frame = head + payload
+    return frame + tag(key, 0 if int(msg.type) in OPEN_TYPES else nonce, frame)
 
 
-def decode(data: bytes) -> Message:
-    """The message in datagram ``data``; raises :class:`ProtocolError` (never anything else)."""
+def decode(data: bytes, key: bytes = b"", nonce: int = 0) -> Message:
+    """The message in datagram ``data``; raises :class:`ProtocolError` (never anything else).
+    The tag is checked (under ``key`` and the session ``nonce``) before anything of the payload
+    is read."""
     n = len(data)
     if n < OVERHEAD:
         raise CorruptDatagram("truncated", f"datagram of {n} B is shorter than the {OVERHEAD} B frame")
@@ -708,16 +749,21 @@ def decode(data: bytes) -> Message:
     if major != VERSION_MAJOR:
         raise WrongVersion("major", f"protocol version {major}.{minor}, this side speaks "
                            f"{VERSION_MAJOR}.{VERSION_MINOR}")
-    if HEADER_SIZE + plen + TRAILER.size != n:
+    if HEADER_SIZE + plen + TAG_SIZE != n:
         raise CorruptDatagram("length", f"payload length {plen} B does not match the datagram's {n} B")
     end = HEADER_SIZE + plen
-    (crc,) = TRAILER.unpack_from(data, end)
-    if zlib.crc32(memoryview(data)[:end]) != crc:
-        raise CorruptDatagram("crc", "CRC-32 mismatch")
+    mv = memoryview(data)
+    if not hmac.compare_digest(tag(key, 0 if mtype in OPEN_TYPES else nonce, mv[:end]), bytes(mv[end:])):
+        try:
+            name = MsgType(mtype).name
+        except ValueError:
+            name = str(mtype)
+        raise Unauthenticated(name, f"{name}: the tag does not check "
+                              f"({'with this side' + chr(39) + 's key' if key else 'this side has no key'})")
     cls = BODIES.get(mtype)
     if cls is None:
         raise UnknownType("type", f"unknown message type {mtype} (minor {minor})")
-    payload = memoryview(data)[HEADER_SIZE:end]
+    payload = mv[HEADER_SIZE:end]
     try:
         body = cls.unpack(payload, minor > VERSION_MINOR)
     except ProtocolError:
@@ -729,6 +775,16 @@ def decode(data: bytes) -> Message:
     msg.__dict__.update(body=body, session=session, seq=seq, tick=tick, host_ns=hns, target_ns=tns,
                         flags=flags)
     return msg
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (an address as the socket gives it) is a loopback address."""
+    import ipaddress
+
+    try:
+        return ipaddress.ip_address(host.split("%")[0]).is_loopback
+    except ValueError:
+        return False
 
 
 # -- receiver-side filter -----------------------------------------------------------------------------
@@ -754,11 +810,13 @@ class DatagramFilter:
     COMMAND for an (episode, step) before the given one is ``late`` (it still moves its stream
     on: a copy of it is then a ``duplicate``).  ``counts()`` is a dict of
     plain ints: ``accepted`` and one entry per reason in ``REASONS``, which add up to the number
-    of datagrams seen; ``detail`` splits ``corrupt`` (truncated, magic, length, crc, payload).
+    of datagrams seen; ``detail`` splits ``corrupt`` (truncated, magic, length, payload) and
+    ``unauthenticated``, ``stranger`` (by message type).
     """
 
-    REASONS: ClassVar[tuple[str, ...]] = ("corrupt", "wrong_version", "wrong_session", "unexpected",
-                                          "duplicate", "out_of_order", "late")
+    REASONS: ClassVar[tuple[str, ...]] = ("corrupt", "wrong_version", "unauthenticated", "not_loopback",
+                                          "stranger", "wrong_session", "unexpected", "duplicate",
+                                          "out_of_order", "late")
     WINDOW: ClassVar[int] = 64
     MAX_STREAMS: ClassVar[int] = 1024  # other sessions' streams kept before the oldest is forgotten
 
@@ -769,6 +827,13 @@ class DatagramFilter:
     detail: dict = field(default_factory=dict)
     last_reason: str = ""
     last_error: str = ""
+    key: bytes = b""
+    nonce: int = 0
+    peer: tuple | None = None
+    loopback_only: bool = False
+    last_stranger: Message | None = None
+    last_unauth: bool = False  # the last datagram dropped was a HELLO whose tag did not check
+    auth_refusal: str = ""
 
     def __post_init__(self):
         if self.role not in ("host", "target"):
@@ -784,6 +849,8 @@ class DatagramFilter:
         if name == "session" and value is not None:
             _uint("session", value, U32)
         super().__setattr__(name, value)
+        if name == "key" and value and len(value) < MIN_KEY:
+            raise ValueError(f"a key of {len(value)} B is too short: at least {MIN_KEY} B")
         if name == "session" and "_streams" in self.__dict__:
             self._streams.clear()
             self._foreign.clear()
@@ -802,13 +869,25 @@ class DatagramFilter:
             self.detail[key] = self.detail.get(key, 0) + 1
         self.last_reason, self.last_error = reason, why
 
-    def accept(self, data: bytes, episode: int | None = None, step: int | None = None) -> Message | None:
+    def accept(self, data: bytes, episode: int | None = None, step: int | None = None,
+               sender: tuple | None = None) -> Message | None:
+        if self.loopback_only and sender is not None and not is_loopback(sender[0]):
+            self._drop("not_loopback", f"{sender[0]} is not a loopback address and this side has no key")
+            return None
         try:
-            msg = decode(data)
+            msg = decode(data, self.key, self.nonce)
         except ProtocolError as exc:
             self._drop(exc.reason, str(exc), exc.detail)
+            if isinstance(exc, Unauthenticated) and exc.detail == "ERROR" and self.role == "host":
+                self._refusal(data)
+            self.last_unauth = isinstance(exc, Unauthenticated) and exc.detail == "HELLO"
             return None
         t = msg.type
+        if self.peer is not None and sender is not None and tuple(sender[:2]) != tuple(self.peer[:2]):
+            self._drop("stranger", f"{t.name} from {sender[0]}:{sender[1]}, not the session's host",
+                       t.name)
+            self.last_stranger = msg
+            return None
         if t not in self._types:
             self._drop("unexpected", f"{t.name} is not for the {self.role}")
             return None
@@ -825,6 +904,17 @@ class DatagramFilter:
             return None
         self.counters["accepted"] += 1
         return msg
+
+    def _refusal(self, data: bytes) -> None:
+        """A target refuses a HELLO whose tag does not check with an ERROR tagged without a key
+        (the host may hold none, or another): its text, for the host to raise, is kept in
+        ``auth_refusal`` (the datagram is still counted ``unauthenticated``)."""
+        try:
+            msg = decode(data)
+        except ProtocolError:
+            return
+        if msg.body.code == ErrorCode.UNAUTHENTICATED:
+            self.auth_refusal = msg.body.text
 
     def _fresh(self, msg: Message) -> bool:
         # the open session's streams are never evicted; other sessions' (open types only: a

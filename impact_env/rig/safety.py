@@ -5,17 +5,18 @@ force to apply (N, up positive, the thesis's f2) and status bits.  Its inputs:
 
 * ``demand``: the command, dimensionless (1.0 = the scene's ``effects.command_scale`` newtons):
   the host's latest COMMAND in host mode, the onboard policy's output in onboard mode.
-* ``age_ticks``: ticks since the command in use was first applied (0 on its first tick; < 0:
-  no command yet this episode).  Host mode only; onboard mode passes 0.
+* ``age_ticks``: ticks since the first tick of the policy step the command in use is for (the
+  controller passes ``m - step H``: a command that arrived late in its step gets no extra
+  time; < 0: no command yet this episode).  Host mode only; onboard mode passes 0.
 * ``ticks_armed``: ticks since the episode was armed.
 * ``x2_m``: the potentiometer's reading of body 2's travel (m, down positive, 0 at rest).
 
 Rules, in the order applied (host mode = ``mode="host"``; H = hold_ticks):
 
-1. **Watchdog** (host mode).  A command is applied for H ticks (``age < H``) and repeated at most
-   once more (``H <= age < 2H``: ``REPEATED``); from ``age = 2H`` on the force is 0
+1. **Watchdog** (host mode).  A command acts in its own step (``age < H``) and is repeated
+   through the next (``H <= age < 2H``: ``REPEATED``); from ``age = 2H`` on the force is 0
    (``WATCHDOG``) until a new command arrives.  So the demanded force is 0 within 2 policy
-   periods of the last command's first tick (the shaker's own response then decays it).
+   periods of the last command's step (the shaker's own response then decays it).
    Each start of a watchdog stretch counts one trip.
 2. **First command.**  Before the first command the force is 0 (``NO_COMMAND``); once
    ``ticks_armed`` reaches ``first_command_timeout_s`` (in ticks, rounded up) with none,
@@ -63,7 +64,8 @@ bit   name                       meaning
 6     ``CLAMP_RMS``              the continuous (RMS) clamp cut the force
 7     ``TRAVEL``                 (latched) body 2 beyond its travel limit: 0 N
 8     ``SENSOR_FAULT``           (latched) the potentiometer reading was not finite: 0 N
-16    ``OVERRUN``                (target loop) the tick started more than a period late
+16    ``OVERRUN``                (target loop) the tick started a period or more late, or ticks
+                                 were skipped just before it (the log's ``skipped_ticks``)
 ====  =========================  ==============================================================
 """
 

@@ -18,8 +18,9 @@ and at m = horizon the last observation only.  Modes:
   per policy step.  *Lock-step* (``--lockstep``): at a step boundary the target waits for the
   COMMAND of that step, re-sending the OBSERVATION every ``resend_s`` while it waits (lost
   datagrams cost time, never the episode), up to the link timeout.  *Real time*: the ticks run
-  on the clock; a command takes effect at the first tick after it arrives, is held H ticks and
-  repeated at most once more, then the force is 0 (:mod:`impact_env.rig.safety`).
+  on the clock; the newest accepted command for the current step acts from the first tick at
+  or after its arrival to the step's end, is repeated through the next step, then the force is
+  0 (:mod:`impact_env.rig.safety`); a command for a step already over is counted late.
 * **onboard**: the uploaded compiled policy (or a classic law) acts inside the tick; in
   lock-step the ticks run back to back.
 
@@ -34,9 +35,11 @@ SIGTERM, SIGINT and :meth:`Target.close` leave the shaker at zero (``driver.idle
 from __future__ import annotations
 
 import hashlib
+import secrets
 import signal
 import tempfile
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,6 +79,10 @@ class TargetConfig:
     # the per-tick Python loop even for the virtual rig (the loop a physical driver uses)
     python_loop: bool = False
     seed_offset: int = 0  # added to every ARM's seed (0: the drops ImpactCatch-v0 meets for the same seeds)
+    # the shared key (impact_env.rig.auth); b"": none, and then only loopback peers are answered
+    key: bytes = b""
+    # an idle session whose host has sent nothing for this long is closed (another host may open one)
+    session_timeout_s: float = 60.0
 
 
 class Target:
@@ -89,7 +96,11 @@ class Target:
         self.scene = driver.scene
         self.rate = float(self.scene.control_rate)
         self.endpoint = Endpoint(bind)
-        self.link = Link(self.endpoint, "target")
+        self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
+        self.link.on_unauthenticated = self._unauthenticated
+        self.link.filter.loopback_only = not self.cfg.key
+        self._heard = 0.0  # perf_counter of the session host's last accepted datagram
+        self._close_session = False
         self.scene_toml = self.scene.to_toml().encode()
         self.scene_sha = hashlib.sha256(self.scene_toml).digest()
         self.upload = UploadAssembler()
@@ -101,7 +112,9 @@ class Target:
         self._pending: P.Message | None = None  # an ARM that ended the episode before it
         self._last_obs: P.Observation | None = None  # the last OBSERVATION of the last episode
         self._closed = False
-        self.counters = {"episodes": 0, "overruns": 0, "watchdog_trips": 0}
+        # since the target started (the logs' counters are per episode)
+        self.counters = {"episodes": 0, "sessions": 0, "overruns": 0, "skipped_ticks": 0, "watchdog_trips": 0,
+                         "commands_after_end": 0}
         driver.initialise()
         self._warm_up()
 
@@ -118,7 +131,7 @@ class Target:
         raw = np.zeros(4)
         ctl.start(raw, None)
         ctl.observe(1, raw, None)
-        ctl.act(1, 0.0, 0, 1, raw)
+        ctl.act(1, 0.0, 0, 1, 1, raw)
         ctl.drain(1)
         ctl.log.record(tick=0)
         if isinstance(self.driver, VirtualRig):  # its compiled loop, on a throwaway drop
@@ -129,9 +142,14 @@ class Target:
             hw = self.driver.hw
             hw.refill_noise(1)
             tc = np.array([ctl.log.col(k) for k in TRUTH_COLUMNS[:13]], dtype=np.int64)
-            run_ticks(1, 2, 1, True, 0.0, 0, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety, ctl.scale,
-                      ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc, np.zeros(3),
-                      np.array([0.0, 0, 1, 1]), np.zeros(4), np.zeros(1, dtype=np.int64))
+            from impact_env.sim.records import N_REC
+
+            for onboard in (True, False):
+                run_ticks(1, 2, 1, onboard, 0.0, 0, 1, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety,
+                          ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc,
+                          np.zeros(3),
+                          np.array([0.0, 0, 1, 1]), np.zeros(4), np.zeros(1, dtype=np.int64),
+                          np.zeros(3, dtype=np.int64), np.zeros((4, N_REC)))
 
     @property
     def address(self) -> str:
@@ -165,9 +183,64 @@ class Target:
                 if msg is None:
                     msg = self.link.recv(idle_poll_s)
                 if msg is not None:
+                    self._heard = time.perf_counter()
                     self._handle_idle(msg)
+                silent = time.perf_counter() - self._heard > self.cfg.session_timeout_s
+                if self._close_session or (self.link.filter.peer is not None and silent):
+                    self.end_session()
         finally:
             self.close()
+
+    # -- sessions ----------------------------------------------------------------------------------
+    @property
+    def keyed(self) -> bool:
+        return bool(self.cfg.key)
+
+    def open_session(self, msg: P.Message) -> None:
+        """A HELLO from the session's host (or any allowed peer while none is open): a new
+        session id gets a fresh nonce and pins the host's address and port; the same id again
+        (a retried HELLO) keeps them."""
+        f = self.link.filter
+        if f.session != msg.session or f.peer is None:
+            self.link.session = msg.session  # a new session's streams start empty
+            f.nonce = secrets.randbits(64) | 1
+            f.peer = self.link.last_sender
+            self.counters["sessions"] += 1
+
+    def end_session(self) -> None:
+        """Forget the session: the next HELLO from any allowed peer opens one."""
+        f = self.link.filter
+        self.link.session = None
+        f.peer, f.nonce = None, 0
+        self._close_session = False
+
+    def _stranger(self, msg: P.Message, addr: tuple) -> None:
+        """A well-tagged datagram from another address than the session's host's: counted by the
+        filter (``stranger``); a HELLO is answered with an ERROR (BUSY), the session kept."""
+        if msg.type == P.MsgType.HELLO:
+            p = self.link.filter.peer
+            self._send_raw(P.Error.shorten(P.ErrorCode.BUSY, msg.seq, f"busy: a session of {p[0]}:{p[1]} is "
+                                           f"open (it ends {self.cfg.session_timeout_s:g} s after its host "
+                                           f"falls silent while idle)"), msg.session, addr, self.cfg.key)
+
+    def _unauthenticated(self, data: bytes, addr: tuple) -> None:
+        """A HELLO whose tag does not check: answered (tagged without a key, so that a host with
+        none or another can read it) with an ERROR that names the option to fix."""
+        if self.keyed:
+            text = ("HELLO refused: its tag does not check with this target's key (rig serve --key FILE): "
+                    "give the host the same key file (ImpactCatchRig-v0(key=FILE), compare --key FILE)")
+        else:
+            text = ("HELLO refused: this target was started without a key; start it with rig serve --key "
+                    "FILE to use one, or give the host no key")
+        try:
+            head = P.HEADER.unpack_from(data)
+        except Exception:  # noqa: BLE001 (a datagram shorter than a header: nothing to answer)
+            return
+        self._send_raw(P.Error.shorten(P.ErrorCode.UNAUTHENTICATED, head[6], text), head[5], addr, b"")
+
+    def _send_raw(self, body: P.Body, session: int, addr: tuple, key: bytes) -> None:
+        msg = P.Message(body, session=session, seq=0, target_ns=time.perf_counter_ns() & P.U64)
+        self.endpoint.send(P.encode(msg, key, 0), addr)
 
     def _reply(self, body: P.Body, to: P.Message) -> None:
         self.link.send(body, reply_to=to, addr=self.link.last_sender)
@@ -178,7 +251,7 @@ class Target:
     def _handle_idle(self, msg: P.Message) -> None:
         t = msg.type
         if t == P.MsgType.HELLO:
-            self.link.session = msg.session  # a new session's streams start empty
+            self.open_session(msg)
             self._reply(self._info(msg.body.nonce), msg)
         elif t == P.MsgType.FETCH:
             self._serve_fetch(msg)
@@ -188,10 +261,13 @@ class Target:
             self._arm(msg)
         elif t == P.MsgType.DISARM:
             self._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, 0), msg)
-        elif (t == P.MsgType.COMMAND and self._last_obs is not None
-                and msg.body.episode == self._last_obs.episode):
-            # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
-            self.link.send(self._last_obs, addr=self.link.last_sender)
+            if msg.body.reason == 1:  # the host is closing: its session ends
+                self._close_session = True
+        elif t == P.MsgType.COMMAND:
+            self.counters["commands_after_end"] += 1  # for an episode already over: never applied
+            if self._last_obs is not None and msg.body.episode == self._last_obs.episode:
+                # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
+                self.link.send(self._last_obs, addr=self.link.last_sender)
         elif t == P.MsgType.HEARTBEAT:
             self._reply(P.Heartbeat(int(self.state), self.episode, 0, msg.seq), msg)
 
@@ -256,6 +332,9 @@ class Target:
     # -- one episode ---------------------------------------------------------------------------------
     def _run_episode(self, arm_msg: P.Message, ctl: Controller, hold: int, policy) -> None:
         a: P.Arm = arm_msg.body
+        datagrams0 = self._datagram_counts()
+        datagrams0["accepted"] -= 1  # the ARM itself is the episode's
+        datagrams0["received"] -= 1
         drv = self.driver
         seed = (a.seed + self.cfg.seed_offset) & P.U64
         drv.arm(seed)
@@ -266,21 +345,39 @@ class Target:
         self._reply(armed, arm_msg)
         drv.release()
         ep = Episode(self, arm_msg, armed, ctl, hold, seed)
+        ep.datagrams0 = datagrams0
         compiled = isinstance(drv, VirtualRig) and not self.cfg.python_loop
         try:
             end = ep.run_compiled() if compiled else ep.run_python()
         finally:
             drv.idle()
             self.state = P.TargetState.IDLE
+            self._heard = time.perf_counter()
         self._last_obs = ep.obs_msg
         self._finish(ep, end, policy)
 
+    def lifetime_counts(self) -> dict[str, int]:
+        """The datagram counters since the target started (the logs' are per episode)."""
+        c = self._datagram_counts()
+        return {"datagrams_received": c.pop("received"), "datagrams_accepted": c.pop("accepted"),
+                **{f"dropped_{k}": v for k, v in c.items()}}
+
+    def _datagram_counts(self) -> dict[str, int]:
+        """The link's datagram counters since the target started (see :meth:`_finish`)."""
+        return {**self.link.filter.counts(), "received": self.endpoint.received}
+
     def _finish(self, ep: Episode, end, policy) -> None:
         ctl, a = ep.ctl, ep.a
-        counts = self.link.filter.counts()
-        counters = {**{f"dropped_{k}": v for k, v in counts.items() if k != "accepted"},
-                    "datagrams_accepted": counts["accepted"], "datagrams_received": self.endpoint.received,
-                    **{k: int(ctl.safety[1][i]) for k, i in SF.COUNTERS.items()}, "overruns": ep.overruns}
+        # every counter of the log is of this episode alone (ARM to EPISODE_END)
+        now = self._datagram_counts()
+        counts = {k: v - ep.datagrams0.get(k, 0) for k, v in now.items()}
+        counters = {**{f"dropped_{k}": v for k, v in counts.items() if k not in ("accepted", "received")},
+                    "datagrams_accepted": counts["accepted"], "datagrams_received": counts["received"],
+                    **{k: int(ctl.safety[1][i]) for k, i in SF.COUNTERS.items()}, "overruns": ep.overruns,
+                    "skipped_ticks": ep.skipped_ticks,
+                    **(ep.command_counters() if ep.host else {})}
+        if ep.host:
+            counters["commands_late"] = counts["late"]
         meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold,
                               seed=ep.seed, control_rate_hz=self.rate, episode=ep.ep,
                               session=self.link.session or 0, policy="" if policy is None else policy.name,
@@ -298,14 +395,15 @@ class Target:
             del self.episodes[old]
         self.counters["episodes"] += 1
         self.counters["overruns"] += ep.overruns
+        self.counters["skipped_ticks"] += ep.skipped_ticks
         self.counters["watchdog_trips"] += counters.get("watchdog_trips", 0)
         self.last_end = P.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & P.U32, ctl.log.n,
-                                     ctl.log.n // ctl.hold, len(data), hashlib.sha256(data).digest())
+                                     ep.m // ctl.hold, len(data), hashlib.sha256(data).digest())
         self.link.send(self.last_end, addr=self.link.last_sender)
 
     def _info(self, nonce: int) -> P.Info:
         return P.Info(nonce, self.rate, int(self.state), 0 if self.driver.virtual else 1, self.cfg.lockstep,
-                      len(self.scene_toml), self.scene_sha)
+                      len(self.scene_toml), self.scene_sha, self.link.filter.nonce, self.keyed)
 
 
 class _Refused(Exception):

@@ -233,13 +233,16 @@ class Link:
     """
 
     def __init__(self, endpoint: Endpoint, role: str, session: int | None = None,
-                 clock: Callable[[], int] = time.perf_counter_ns):
+                 clock: Callable[[], int] = time.perf_counter_ns, key: bytes = b"",
+                 on_stranger: Callable[[P.Message, tuple], None] | None = None):
         self.endpoint = endpoint
         self.role = role
-        self.filter = P.DatagramFilter(role, session=session)
+        self.filter = P.DatagramFilter(role, session=session, key=bytes(key))
         self.clock = clock
         self.seq = 0
         self.last_sender: tuple | None = None
+        self.on_stranger = on_stranger
+        self.on_unauthenticated: Callable[[bytes, tuple], None] | None = None
 
     @property
     def session(self) -> int | None:
@@ -258,7 +261,7 @@ class Link:
              addr: tuple | None = None) -> P.Message:
         """Stamp, number and send ``body``; returns the message sent."""
         msg = self.stamp(body, tick, reply_to, flags)
-        self.endpoint.send(P.encode(msg), addr)
+        self.endpoint.send(P.encode(msg, self.filter.key, self.filter.nonce), addr)
         return msg
 
     def stamp(self, body: P.Body, tick: int = 0, reply_to: P.Message | None = None,
@@ -284,10 +287,17 @@ class Link:
             got = self.endpoint.recv(max(deadline - time.perf_counter(), 0.0))
             if got is None:
                 return None
-            msg = self.filter.accept(got[0], episode, step)
+            msg = self.filter.accept(got[0], episode, step, got[1])
             if msg is not None:
                 self.last_sender = got[1]
                 return msg
+            if self.filter.last_unauth and self.on_unauthenticated is not None:
+                self.on_unauthenticated(got[0], got[1])
+            self.filter.last_unauth = False
+            if self.filter.last_stranger is not None:
+                stranger, self.filter.last_stranger = self.filter.last_stranger, None
+                if self.on_stranger is not None:
+                    self.on_stranger(stranger, got[1])
             if time.perf_counter() >= deadline:
                 return None
 

@@ -1,0 +1,127 @@
+"""Authenticated rig sessions (impact_env.rig.auth, the protocol's HMAC tag, the target's session
+pinning): the right key works, a wrong or missing key is a clear error at start naming the
+option, and a HELLO from another address never takes an open session.  Targets in threads of this
+process, lock-step, on loopback."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from impact_env.rig import protocol as P
+from impact_env.rig.auth import KeyFileError, load_key, write_key
+from impact_env.rig.driver import VirtualRig
+from impact_env.rig.host import RigClient, RigEnv
+from impact_env.rig.target import Target, TargetConfig
+from impact_env.rig.transport import RigError
+
+
+@pytest.fixture(scope="module")
+def keys(tmp_path_factory):
+    d = tmp_path_factory.mktemp("keys")
+    return write_key(d / "rig.key"), write_key(d / "other.key")
+
+
+@pytest.fixture(scope="module")
+def keyed(keys):
+    target = Target(VirtualRig("rig"), config=TargetConfig(lockstep=True, key=load_key(keys[0])))
+    th = threading.Thread(target=target.serve, daemon=True)
+    th.start()
+    yield target
+    target.stop()
+    th.join(10)
+
+
+def _episode(env, seed=1, steps=20):
+    env.reset(seed=seed)
+    for _ in range(steps):
+        env.step(np.array([0.1], np.float32))
+
+
+def test_key_file_errors_name_the_option(tmp_path, capsys):
+    # imported here: importing the submodule impact_env.cli.main at collection would shadow the
+    # package's main() that tests/test_scene_cli.py imports (``from impact_env.cli import main``)
+    from impact_env.cli.main import main
+
+    with pytest.raises(KeyFileError, match="--key .*no such key file"):
+        load_key(tmp_path / "missing.key")
+    (tmp_path / "bad.key").write_text("not hex at all\n")
+    with pytest.raises(KeyFileError, match="--key .*hexadecimal"):
+        load_key(tmp_path / "bad.key")
+    (tmp_path / "short.key").write_text("00ff" * 4)
+    with pytest.raises(KeyFileError, match="8 B; at least 16 B"):
+        load_key(tmp_path / "short.key")
+    assert main(["rig", "serve", "--virtual", "--port", "0", "--key", str(tmp_path / "missing.key")]) == 2
+    assert "--key" in capsys.readouterr().err
+    with pytest.raises(FileExistsError):
+        write_key(tmp_path / "bad.key")  # a key file is never overwritten
+
+
+def test_the_right_key_runs_an_episode(keyed, keys):
+    env = RigEnv(keyed.address, key=keys[0], horizon=0.01, timeout_s=0.2, retries=25)
+    try:
+        assert env.client.info.keyed
+        _episode(env)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("which", ["none", "other"])
+def test_a_host_without_the_key_is_refused_with_a_clear_error(keyed, keys, which):
+    key = None if which == "none" else keys[1]
+    with pytest.raises(RigError, match="UNAUTHENTICATED.*--key FILE") as info:
+        RigClient(keyed.address, key=key, timeout_s=0.05, retries=3)
+    assert ("has no key" if key is None else "has a key") in str(info.value)
+    assert keyed.link.filter.counts()["unauthenticated"] > 0
+
+
+def test_a_keyed_host_at_a_target_without_key_is_told_so(keys):
+    target = Target(VirtualRig("rig"), config=TargetConfig(lockstep=True))
+    th = threading.Thread(target=target.serve, daemon=True)
+    th.start()
+    try:
+        assert target.link.filter.loopback_only  # no key: loopback peers only
+        with pytest.raises(RigError, match="started without a key.*--key FILE"):
+            RigClient(target.address, key=keys[0], timeout_s=0.05, retries=3)
+    finally:
+        target.stop()
+        th.join(10)
+
+
+def test_a_hello_from_elsewhere_never_takes_the_session(keyed, keys):
+    """Another process with the key (another port) says HELLO while a session is open, idle and
+    during an episode: refused (ERROR BUSY), counted as ``stranger``; the session goes on."""
+    env = RigEnv(keyed.address, key=keys[0], horizon=0.01, timeout_s=0.2, retries=25)
+    try:
+        before = keyed.link.filter.counts()["stranger"]
+        with pytest.raises(RigError, match="BUSY"):
+            RigClient(keyed.address, key=keys[0], timeout_s=0.05, retries=3)
+        env.reset(seed=2)
+        with pytest.raises(RigError, match="BUSY"):
+            RigClient(keyed.address, key=keys[0], timeout_s=0.05, retries=3)
+        for _ in range(env.max_steps):
+            _o, _r, te, tr, _i = env.step(np.array([0.1], np.float32))
+            if te or tr:
+                break
+        assert te or tr
+        assert keyed.link.filter.counts()["stranger"] >= before + 2
+    finally:
+        env.close()
+    # closed: the next host opens a session at once
+    other = RigClient(keyed.address, key=keys[0], timeout_s=0.2, retries=10)
+    other.close()
+
+
+def test_a_replayed_datagram_of_another_session_is_refused(keys):
+    """The tag covers the session's nonce: a COMMAND recorded in one session does not check in the
+    next, even with the same session id and a fresh sequence number."""
+    key = load_key(keys[0])
+    msg = P.Message(P.Command(1, 0, (1.0,)), session=7, seq=9)
+    recorded = P.encode(msg, key, nonce=1111)
+    f = P.DatagramFilter("target", session=7, key=key, nonce=2222)
+    assert f.accept(recorded) is None and f.last_reason == "unauthenticated"
+    f.nonce = 1111
+    assert f.accept(recorded) is not None
+    assert f.accept(recorded) is None and f.last_reason == "duplicate"

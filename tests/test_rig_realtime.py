@@ -1,0 +1,220 @@
+"""The rig's real-time host mode (impact_env.rig.episode, controller.run_ticks): commands act from
+their arrival, every skipped tick is flagged, episodes end the way the target says.  Lateness is
+injected (the target's clock started far in the past: every tick is late), so what the tests
+assert does not depend on the machine's load; each checks that the fault really happened."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from impact_env.rig import controller as CT
+from impact_env.rig import log as LG
+from impact_env.rig import safety as SF
+from impact_env.rig.driver import VirtualRig
+from impact_env.rig.host import RigEnv
+from impact_env.rig.target import Target, TargetConfig
+
+LAG_S = 1000.0  # the injected lateness: far more than any episode lasts
+
+
+def _serve(**cfg):
+    target = Target(VirtualRig("rig"), config=TargetConfig(**cfg))
+    th = threading.Thread(target=target.serve, daemon=True)
+    th.start()
+    return target, th
+
+
+def _late_clock(monkeypatch, python_loop: bool):
+    """Every tick of the target's episodes starts LAG_S late (the compiled loop's cycle counter
+    anchor, or the Python loop's TickClock, started in the past)."""
+    from impact_env.rig import episode as E
+    from impact_env.rig.cycles import ns_per_cycle
+
+    if python_loop:
+        class LateClock(E.TickClock):
+            def start(self, t0_ns=None, index=0):
+                super().start(self.now_ns() - int(LAG_S * 1e9), index)
+
+        monkeypatch.setattr(E, "TickClock", LateClock)
+    else:
+        lag = LAG_S * 1e9 / ns_per_cycle()
+        real = E._now
+        monkeypatch.setattr(E, "_now", lambda: int(real() - lag))
+
+
+def _episode_log(env):
+    """The episode's log, fetched from the target (it waits, boundedly, while the log is written)."""
+    return env.client.fetch_log(env.client.episode)
+
+
+def _rig_log_json(target, episode, tmp_path) -> dict:
+    """What ``impact-env rig log FILE --json`` prints for the target's log of ``episode``."""
+    import json
+
+    from impact_env.cli.main import main
+
+    path = tmp_path / "episode.h5"
+    path.write_bytes(target.episodes[episode])
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["rig", "log", str(path), "--json"]) == 0
+    return json.loads(buf.getvalue())
+
+
+@pytest.mark.parametrize("python_loop", [False, True], ids=["compiled", "python-loop"])
+@pytest.mark.parametrize("hold", [1, 4])
+def test_every_tick_late_is_flagged_and_every_command_accounted(monkeypatch, tmp_path, python_loop, hold):
+    _late_clock(monkeypatch, python_loop)
+    target, th = _serve(python_loop=python_loop)
+    horizon = 0.01  # 100 ticks
+    env = RigEnv(target.address, hold_ticks=hold, horizon=horizon, terminate_on_catch=False,
+                 timeout_s=0.2, retries=25)
+    try:
+        env.reset(seed=5)
+        steps, infos = 0, []
+        while True:
+            _o, r, te, tr, info = env.step(np.array([0.1 + 0.01 * (steps % 5)], np.float32))
+            steps += 1
+            infos.append(info)
+            assert np.isfinite(r)
+            if te or tr:
+                break
+        # the env ended at the horizon, as ImpactCatch-v0 does, never by a RigTimeout
+        assert tr and not te and steps == env.max_steps and info["end_reason"] == "HORIZON"
+        log = _episode_log(env)
+        c = log.meta.counters
+        deadline = time.monotonic() + 10.0
+        while c["commands_accepted"] + c["commands_late"] + target.counters["commands_after_end"] < steps:
+            assert time.monotonic() < deadline, (c, target.counters)
+            time.sleep(0.01)
+        after_end = target.counters["commands_after_end"]
+        timing = _rig_log_json(target, env.client.episode, tmp_path)["timing"]
+    finally:
+        env.close()
+        target.stop()
+        th.join(10)
+    assert log.meta.end_reason == "HORIZON"
+    n_ticks = env.max_steps * hold
+    tick = log["tick"].astype(np.int64)
+    status = log["status"].astype(np.int64)
+    skipped = log["skipped_ticks"].astype(np.int64)
+    rows = slice(0, -1)  # the last row is the horizon's readings, no command
+    # the fault happened: every tick after the first started a period or more late
+    late_rows = status[rows][tick[rows] >= 1]
+    assert late_rows.size and np.all(late_rows & SF.OVERRUN)
+    # every tick is accounted for: run (a row) or skipped (counted on the next row)
+    assert tick[-1] == n_ticks
+    gaps = np.diff(tick) - 1
+    assert np.array_equal(gaps, skipped[1:]) and skipped[0] == 0
+    assert np.all(status[1:][skipped[1:] > 0] & SF.OVERRUN)
+    if hold == 1:  # a step's first tick is never skipped: with one tick a step none is
+        assert skipped.sum() == 0
+    else:  # only the steps' first ticks ran: the rest were skipped
+        assert np.all(tick % hold == 0) and skipped.sum() == n_ticks - env.max_steps
+    c = log.meta.counters
+    assert c["skipped_ticks"] == skipped.sum()
+    assert c["overruns"] == np.count_nonzero(status & SF.OVERRUN)
+    # impact-env rig log prints them, from the rows and from the counters alike
+    assert timing["skipped_ticks"] == timing["counted_skipped_ticks"] == skipped.sum()
+    assert timing["overruns"] == timing["counted_overruns"] == c["overruns"] > 0
+    # commands: each one sent acted, or is counted with what became of it (one that came after the
+    # episode's end, as the target ran ahead of its host, in the target's own counter)
+    assert c["commands_accepted"] + c["commands_late"] + after_end == steps
+    assert c["commands_accepted"] == (c["commands_acted"] + c["commands_superseded"] + c["commands_expired"]
+                                      + c["commands_unused_at_end"])
+    step_col = log["command_step"].astype(np.int64)[rows]
+    age = log["command_age_ticks"].astype(np.int64)[rows]
+    none = step_col < 0
+    assert np.all((status[rows] & SF.NO_COMMAND != 0) == none)  # "no command yet" is its own state
+    assert np.all(log["force_demand_N"][rows][none] == 0.0)
+    assert not np.any(status & SF.NONFINITE)  # and no NaN latched
+    acted_steps = set(step_col[~none].tolist())
+    assert len(acted_steps) <= c["commands_acted"]
+    assert steps - len(acted_steps) <= (c["commands_late"] + c["commands_expired"] + c["commands_superseded"]
+                                        + c["commands_unused_at_end"] + after_end)
+    assert np.all(age[~none] >= 0)
+    # a row's command is for its own step, or the one before (REPEATED); an older one is zeroed
+    behind = tick[rows] // hold - step_col
+    assert np.all(behind[~none] >= 0)
+    old = ~none & (behind >= 2)
+    assert np.all(status[rows][old] & SF.WATCHDOG) and np.all(log["force_demand_N"][rows][old] == 0.0)
+    # every step has its reward, or is marked: the compiled loop knows every tick's truth
+    marked = [i for i in infos if not i["reward_available"]]
+    if python_loop and hold > 1:
+        assert len(marked) == len(infos)  # every step lost ticks of its truth (the Python loop has none)
+    else:
+        assert not marked
+
+
+def test_host_commands_act_from_their_arrival_tick():
+    """The controller's tick (act_tick): a command for step n that arrives at the third tick of
+    the step acts from that tick, is held for the step, repeated through the next (REPEATED) and
+    zeroed after (WATCHDOG); before any command the force is 0 with NO_COMMAND (not NaN)."""
+    from impact_env.control.observation import make_layout
+    from impact_env.scene import load_scene
+
+    scene = load_scene("rig")
+    hold = 4
+    ctl = CT.Controller(scene, make_layout(scene, "sensors", 1), hold, 40, "host")
+    raw = np.zeros(4)
+    ctl.start(raw, None)
+    out = []
+    for m in range(20):
+        if m < 6:
+            cmd = (0.0, -1, -1)  # none yet
+        else:
+            cmd = (0.2, 1, 7)  # the command of step 1, arrived at tick 6 (the step's third)
+        ctl.observe(m, raw, None)
+        u, f, status, _row = ctl.act(m, cmd[0], cmd[1], cmd[2], m, raw)
+        out.append((m, u, f, status))
+    rows = ctl.log.rows[:ctl.log.n]
+    for m, u, f, status in out:
+        if m < 6:
+            assert status & SF.NO_COMMAND and f == 0.0 and u == 0.0
+            assert rows[m, LG.COMMAND_STEP] == -1 and rows[m, LG.COMMAND_AGE] == -1
+        elif m < 8:  # its own step: acts at once
+            assert status & (SF.NO_COMMAND | SF.REPEATED | SF.WATCHDOG) == 0 and u == pytest.approx(0.2)
+        elif m < 12:  # the next step: held once more
+            assert status & SF.REPEATED and u == pytest.approx(0.2) and f != 0.0
+        else:
+            assert status & SF.WATCHDOG and f == 0.0
+        if m >= 6:
+            assert rows[m, LG.COMMAND_STEP] == 1 and rows[m, LG.COMMAND_AGE] == m - 6
+    assert ctl.st[CT.ST_CMD_FIRST] == 6
+
+
+def test_skip_rule():
+    # host mode never skips a step's first tick; onboard skips what is late
+    assert CT.skip_allowed(4, 10, 4, 100, False) == 0
+    assert CT.skip_allowed(5, 10, 4, 100, False) == 3
+    assert CT.skip_allowed(5, 1, 4, 100, False) == 1
+    assert CT.skip_allowed(5, 10, 4, 7, False) == 2
+    assert CT.skip_allowed(3, 10, 1, 100, False) == 0
+    assert CT.skip_allowed(4, 10, 4, 100, True) == 10
+
+
+def test_target_ended_episode_comes_back_as_terminated_with_its_reason():
+    """A command that drives the armature past its travel limit: the target ends the episode
+    (SAFETY); the env returns terminated with info["end_reason"], at once, not a RigTimeout."""
+    target, th = _serve(lockstep=True)
+    env = RigEnv(target.address, hold_ticks=4, terminate_on_catch=False, timeout_s=0.2, retries=25)
+    try:
+        env.reset(seed=3)
+        for _ in range(env.max_steps):
+            _o, _r, te, tr, info = env.step(np.array([-1.0], np.float32))
+            if te or tr:
+                break
+        assert te and not tr and info["end_reason"] == "SAFETY"
+        assert "TRAVEL" in info["status_flags"] and info["reward_available"] is False
+        assert target.last_end.reason == 5
+    finally:
+        env.close()
+        target.stop()
+        th.join(10)

@@ -1,0 +1,209 @@
+"""The real-time target under load and under attack, on loopback (targets as processes, as on a
+rig; every loop bounded).
+
+* Soak: host mode in real time, hold 1 and 4, a second process loading the CPU, >= 10^5 ticks:
+  every command the host sent either acted (the log's command_step shows it) or is counted with
+  what became of it, every tick missing from the log is flagged on the next row, no RigTimeout.
+* Stranger: a process that knows the protocol but not the key sends HELLO, ARM, COMMAND and FETCH
+  at about 1 kHz, while the target is idle and during the real host's episodes: the host's
+  episodes run to their horizon with its own commands, and every stranger's datagram is counted.
+
+What is asserted holds whatever the machine's load (accounting, not timing); the wall-clock
+figures (how many commands were late, how many ticks skipped) are scripts/bench_rig.py's."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from impact_env.rig import safety as SF
+from impact_env.rig.auth import write_key
+from impact_env.rig.host import RigEnv
+from impact_env.rig.log import read_episode
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from rig_helpers import start_target, stop  # noqa: E402
+
+pytestmark = pytest.mark.slow
+
+LOADER = "import time\nt = time.time()\nwhile time.time() - t < 300: pass\n"
+
+
+def _log(log_dir: Path, session: int, episode: int, timeout_s: float = 20.0):
+    path = log_dir / f"episode_{session:08x}_{episode:06d}.h5"
+    deadline = time.monotonic() + timeout_s
+    while not path.exists():
+        assert time.monotonic() < deadline, f"no log {path}"
+        time.sleep(0.02)
+    return read_episode(path)
+
+
+def _since_start(text: str) -> dict[str, int]:
+    """The counters the target prints when it stops (datagrams since it started, ...)."""
+    line = text.split("datagrams since start:")[1].splitlines()[0]
+    return {k: int(v) for k, v in re.findall(r"(\w+) (\d+)", line)}
+
+
+def check_ticks(log, horizon_ticks: int) -> tuple[int, int]:
+    """Every tick 0..horizon (or to the tick the target ended the episode at) is a row or skipped
+    and counted on the next row; returns (skipped ticks, rows flagged OVERRUN), which must equal
+    the log's counters."""
+    tick = log["tick"].astype(np.int64)
+    status = log["status"].astype(np.int64)
+    skipped = log["skipped_ticks"].astype(np.int64)
+    assert tick[0] == 0 and skipped[0] == 0
+    assert tick[-1] == horizon_ticks if log.meta.end_reason == "HORIZON" else tick[-1] < horizon_ticks
+    assert np.array_equal(np.diff(tick) - 1, skipped[1:])
+    assert np.all(status[skipped > 0] & SF.OVERRUN)
+    c = log.meta.counters
+    assert c["skipped_ticks"] == skipped.sum()
+    assert c["overruns"] == np.count_nonzero(status & SF.OVERRUN)
+    return int(skipped.sum()), int(c["overruns"])
+
+
+def check_commands(log, actions: dict[int, float], exact: bool = True) -> dict[str, int]:
+    """Every command sent (``actions``: step -> value) acted or is counted (those that arrived
+    after the episode's end in the target's own counter, checked by the caller); the rows that a
+    command drove carry exactly the host's value for that step (``exact``; with a residual law the
+    action column is the sum)."""
+    c = log.meta.counters
+    sent = len(actions)
+    accounted = c["commands_accepted"] + c["commands_late"]
+    assert accounted <= sent
+    assert c["commands_accepted"] == (c["commands_acted"] + c["commands_superseded"] + c["commands_expired"]
+                                      + c["commands_unused_at_end"])
+    step = log["command_step"].astype(np.int64)[:-1]
+    act = log["action"][:-1]
+    drove = step >= 0
+    assert not exact or all(act[i] == actions[int(step[i])] for i in np.flatnonzero(drove))
+    missing = sent - len(set(step[drove].tolist()))
+    assert missing <= (c["commands_late"] + c["commands_superseded"] + c["commands_expired"]
+                       + c["commands_unused_at_end"] + (sent - accounted))
+    assert not np.any(log["status"].astype(np.int64) & SF.NONFINITE)
+    return {"sent": sent, "accounted": accounted, "acted": c["commands_acted"], "late": c["commands_late"],
+            "superseded": c["commands_superseded"], "expired": c["commands_expired"]}
+
+
+def run_episode(env, seed: int, rng) -> tuple[dict[int, float], str]:
+    """One episode to its end (no RigTimeout may escape): the actions sent by step, and the end
+    reason the env returned (the horizon, at max_steps, or the one the target ended it for)."""
+    env.reset(seed=seed)
+    actions = {}
+    for n in range(env.max_steps):
+        a = float(np.float32(rng.uniform(-0.3, 0.3)))
+        actions[n] = a
+        _o, _r, te, tr, info = env.step(np.array([a], np.float32))
+        if te or tr:
+            assert tr and not te  # no catch termination asked for; a target-ended episode is truncated
+            assert info["end_reason"] != "HORIZON" or n + 1 == env.max_steps
+            return actions, info["end_reason"]
+    raise AssertionError("the env did not end the episode at its horizon")
+
+
+def test_realtime_soak_under_cpu_load(tmp_path):
+    proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path))
+    loader = subprocess.Popen([sys.executable, "-c", LOADER])
+    rng = np.random.default_rng(0)
+    ticks = skipped = overruns = 0
+    totals: dict[str, int] = {}
+    ends: dict[str, int] = {}
+    try:
+        for hold, residual in ((4, "pd-penetration"), (1, None)):
+            env = RigEnv(addr, hold_ticks=hold, residual=residual, terminate_on_catch=False, timeout_s=0.1,
+                         retries=20)
+            try:
+                start = ticks
+                for k in range(120):  # until 52 000 ticks of this hold (13 full episodes; more if cut short)
+                    if ticks - start >= 52_000:
+                        break
+                    actions, why = run_episode(env, 100 * hold + k, rng)
+                    log = _log(tmp_path, env.client.link.session, env.client.episode)
+                    assert log.meta.end_reason == why  # what the target said, never a timeout
+                    ends[why] = ends.get(why, 0) + 1
+                    horizon = env.max_steps * hold
+                    s, o = check_ticks(log, horizon)
+                    got = check_commands(log, actions, exact=residual is None)
+                    for key, v in got.items():
+                        totals[key] = totals.get(key, 0) + v
+                    ticks += int(log["tick"][-1]) + 1
+                    skipped += s
+                    overruns += o
+            finally:
+                env.close()
+    finally:
+        loader.kill()
+        loader.wait(5)
+        assert stop(proc) == 0
+    after_end = _since_start(proc.stdout.read()).get("commands_after_end", 0)
+    assert totals["sent"] == totals["accounted"] + after_end  # not one command unaccounted for
+    assert ticks >= 100_000
+    print(f"soak: {ticks} ticks, {skipped} skipped (all flagged), {overruns} overrun rows, "
+          f"commands {totals}, ends {ends}")
+
+
+STRANGER = r"""
+import os, sys, time
+from impact_env.rig import protocol as P
+host, port, stop_file = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+import socket
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+s.bind(("127.0.0.1", 0))
+key = os.urandom(32)  # not the target's
+bodies = [P.Hello(1234), P.Arm("host", "sensors", 1, 0, 4, 7, 4000, 1000, 0, 0, bytes(32)),
+          P.Command(1, 0, (1.0,)), P.Fetch(P.Resource.SCENE, 0, 0, 1024)]
+sent, seq, t0 = 0, 1, time.perf_counter()
+print("ready", flush=True)
+while not os.path.exists(stop_file) and time.perf_counter() - t0 < 120:
+    for b in bodies:  # every field valid, but the tag
+        s.sendto(P.encode(P.Message(b, session=0xBAD, seq=seq), key, 42), (host, port))
+        seq += 1
+        sent += 1
+        time.sleep(0.001)
+print("sent", sent, flush=True)
+"""
+
+
+def test_a_stranger_without_the_key_changes_nothing(tmp_path):
+    key = write_key(tmp_path / "rig.key")
+    logs = tmp_path / "logs"
+    proc, addr = start_target("--scene", "rig", "--log-dir", str(logs), "--key", str(key))
+    host, port = re.match(r"udp://([^:]+):(\d+)", addr).groups()
+    stop_file = tmp_path / "stop"
+    stranger = subprocess.Popen([sys.executable, "-c", STRANGER, host, port, str(stop_file)],
+                                stdout=subprocess.PIPE, text=True)
+    rng = np.random.default_rng(1)
+    try:
+        assert stranger.stdout.readline().strip() == "ready"
+        time.sleep(0.3)  # the stranger alone, while the target is idle
+        env = RigEnv(addr, key=key, hold_ticks=4, terminate_on_catch=False, timeout_s=0.1, retries=20)
+        try:
+            for seed in (1, 2):
+                actions, _why = run_episode(env, seed, rng)
+                log = _log(logs, env.client.link.session, env.client.episode)
+                assert log.meta.end_reason == "HORIZON"
+                check_ticks(log, env.max_steps * 4)
+                check_commands(log, actions)
+                c = log.meta.counters
+                assert c["dropped_unauthenticated"] > 0  # the stranger was there during the episode
+                assert c["datagrams_accepted"] + sum(v for k, v in c.items() if k.startswith("dropped_")) \
+                    == c["datagrams_received"]
+        finally:
+            env.close()
+        time.sleep(0.3)  # the stranger alone again
+    finally:
+        stop_file.write_text("")
+        out, _ = stranger.communicate(timeout=30)
+        assert stop(proc) == 0
+    sent = int(re.search(r"sent (\d+)", out).group(1))
+    counts = _since_start(proc.stdout.read())
+    assert sent > 1000
+    # every stranger's datagram was counted, by its reason (and none was anything but unauthenticated)
+    assert counts["dropped_unauthenticated"] == sent
+    assert counts["datagrams_received"] == counts["datagrams_accepted"] + sum(
+        v for k, v in counts.items() if k.startswith("dropped_"))
