@@ -139,7 +139,7 @@ def _numba_tick(ctl, m: int, raw: np.ndarray) -> tuple[float, float, int]:
         ctl.start(raw, None)
     else:
         ctl.observe(m, raw, None)
-    cmd, f, status, _row = ctl.act(m, 0.0, 0, m, raw)
+    cmd, f, status, _row = ctl.act(m, 0.0, -1, -1, m, raw)  # onboard: no host command
     return float(cmd), float(f), int(status)
 
 
