@@ -235,6 +235,50 @@ def max_stable_dt(drop: Drop, method: str, d_max: float, b: float) -> float:
     return lo
 
 
+# dopri5: its position error grows in proportion to rtol, about 1.6e3 rtol of the deepest
+# penetration on `rig` (1.6e-3 at rtol 1e-6, 1.8e-4 at 1e-7, 1.7e-5 at 1e-8, 1.6e-6 at 1e-9, against
+# rtol 1e-12: tests/test_trust_results.py measures it); above DOPRI_MAX_RTOL it passes 1e-4
+DOPRI_ERROR_PER_RTOL = 1.6e3
+DOPRI_MAX_RTOL = 1e-7
+DOPRI_SAFE_RTOL = 1e-8
+# without event location a fixed step crosses each switch blind: one step's error at each end of a
+# contact, so an elastic pad needs this many steps per contact for a contact time within 1e-3
+NO_EVENT_MIN_STEPS = 2000
+
+
+def accuracy_warnings(scene) -> list[str]:
+    """Settings the scene accepts (they are stable, and some tests and comparisons want them)
+    whose results are nevertheless off by more than the energy ledger shows, in words: dopri5
+    above ``DOPRI_MAX_RTOL``; a fixed step without event location on a damped pad (a different
+    contact model: the damping keeps pulling while body 1 is inside the pad), or with fewer than
+    ``NO_EVENT_MIN_STEPS`` steps per contact on an elastic one."""
+    integ = scene.integrator
+    out = []
+    if integ.method == "dopri5":
+        if integ.rtol > DOPRI_MAX_RTOL:
+            out.append(f"integrator.rtol = {integ.rtol:g} is loose for a contact: dopri5's position error "
+                       f"is about {DOPRI_ERROR_PER_RTOL:g} rtol = {DOPRI_ERROR_PER_RTOL * integ.rtol:.2g} of the "
+                       f"deepest penetration here (measured on rig); use integrator.rtol <= {DOPRI_SAFE_RTOL:g}")
+        return out
+    if integ.event_location:
+        return out
+    drop = Drop.of(scene)
+    if drop.restitution < 1.0:
+        out.append(f"integrator.event_location = false on a damped pad (restitution {drop.restitution:g}): "
+                   "stepping across the separation, the pad's damping keeps pulling body 1 while it is inside "
+                   "the pad, where the located model lets go when the force reaches zero; contact times are "
+                   "then about 8 % off and the restitution about 5e-3, whatever the dt (measured on rig from "
+                   "35 to 3500 steps per contact); use integrator.event_location = true")
+        return out
+    sc = contact_scales(drop)
+    steps = sc["t_contact"] / integ.dt
+    if math.isfinite(steps) and steps < NO_EVENT_MIN_STEPS:
+        out.append(f"integrator.event_location = false with {steps:.3g} steps per contact: each switch costs "
+                   f"up to a step, about {2.0 / steps:.1g} of the contact time; use integrator.dt <= "
+                   f"{_down(sc['t_contact'] / NO_EVENT_MIN_STEPS)} s or integrator.event_location = true")
+    return out
+
+
 def check_step(scene) -> None:
     """Refuse (ConfigError) a fixed step that is unstable or resolves the shortest contact
     with fewer than ``integrator.min_steps_per_contact`` steps, for the scene and, if it is
