@@ -198,10 +198,11 @@ def plot_catch_time(runs, path: Path, scene, horizon: float) -> Path:
     ax.set_xlabel("time after the release, s")
     ax.set_ylabel("fraction of drops not yet caught")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right", framealpha=0.85)
+    # the curves start at 1 and fall late: the lower left is where no curve runs
+    ax.legend(fontsize=7, loc="lower left", framealpha=0.9)
     n = max((len(r.episodes) for r in runs.values()), default=0)
-    ax.set_title(f"scene {scene.name}: catch time ({n} drops per policy; caught: catch energy below 1 % for "
-                 f"good; a triangle at {horizon:g} s: the share never caught)", fontsize=8)
+    ax.set_title(f"scene {scene.name}: catch time, {n} drops per policy (caught: catch energy below 1 % for "
+                 f"good)\ndots: the median; triangles at {horizon:g} s: the share never caught", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=150)
     plt.close(fig)
