@@ -95,3 +95,36 @@ def test_catch_time_figure_tells_the_tables_story(tmp_path):
     from PIL import Image
 
     assert Image.open(path).info["dpi"][0] >= 149  # paper quality (150 dpi)
+
+
+def test_a_model_without_its_settings_is_refused_once_naming_the_file_and_keys(tmp_path, capsys):
+    """An interrupted run left best_model.zip without its .json: compare failed every episode with
+    the same error, exit 0, and the suggested `:observation=sensors,history=1` ran the agent
+    without its hold and residual law.  Now: one error before anything runs, naming the file it
+    needs and the keys that may stand in; given them all, it runs."""
+    from stable_baselines3 import PPO
+
+    from impact_env.cli.main import main
+    from impact_env.env.sb3 import make_sb3_vec_env
+
+    path = tmp_path / "best_model.zip"
+    PPO("MlpPolicy", make_sb3_vec_env("rig", num_envs=1), n_steps=64, batch_size=32,
+        policy_kwargs={"net_arch": [8]}, seed=0).save(path)
+    argv = ["compare", "--scene", "rig", "--episodes", "2", "--horizon", "0.005", "--workers", "1",
+            "--no-progress", "--policies"]
+    assert main([*argv, f"passive,ppo:{path}:observation=sensors,history=1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("error") == 1 and str(path.with_suffix(".json")) in err
+    assert "hold_ticks, residual" in err and "residual=none" in err
+    assert main([*argv, f"ppo:{path}:observation=sensors,history=1,hold_ticks=4,residual=pd-penetration"]) == 0
+
+
+def test_compare_exits_non_zero_when_a_policy_failed_every_episode():
+    from types import SimpleNamespace
+
+    from impact_env.cli.compare import _all_failed
+
+    ok = SimpleNamespace(episodes=[0, 1], failures=[{"episode": 1}])
+    dead = SimpleNamespace(episodes=[0, 1], failures=[{"episode": 0}, {"episode": 1}])
+    assert _all_failed({"a": ok}) == 0
+    assert _all_failed({"a": ok, "b": dead}) == 1

@@ -71,7 +71,17 @@ def cmd_compare(args) -> int:
         paths = write_outputs(runs, out_dir, scene, args.seed, horizon)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
-    return 0
+    return _all_failed(runs)
+
+
+def _all_failed(runs) -> int:
+    """1 (and a line on stderr) when some policy failed in every episode: its row is no result."""
+    dead = [spec for spec, run in runs.items() if run.episodes is not None and len(run.failures) > 0
+            and len(run.failures) >= len(run.episodes)]
+    for spec in dead:
+        print(f"impact-env compare: policy {spec!r} failed in every episode: no result for it (exit 1)",
+              file=sys.stderr)
+    return 1 if dead else 0
 
 
 def _compare_rig(args, specs) -> int:
