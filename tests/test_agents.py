@@ -65,7 +65,8 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     assert meta["validation"]["best"]["evaluations"] == 2
     assert (out / "best_model.zip").is_file() and (out / "best_model.json").is_file()
     saved = sorted(p.name for p in (out / "checkpoints").iterdir())
-    assert saved == ["model_128_steps.json", "model_128_steps.zip", "model_256_steps.json", "model_256_steps.zip"]
+    assert saved == ["model_128_steps.json", "model_128_steps.zip", "model_256_steps.json",
+                     "model_256_steps.zip"]
     # every saved model carries its settings: a checkpoint runs with its hold and residual law
     from impact_env.policy.registry import make_policy
 

@@ -116,7 +116,8 @@ def test_a_model_without_its_settings_is_refused_once_naming_the_file_and_keys(t
     err = capsys.readouterr().err
     assert err.count("error") == 1 and str(path.with_suffix(".json")) in err
     assert "hold_ticks, residual" in err and "residual=none" in err
-    assert main([*argv, f"ppo:{path}:observation=sensors,history=1,hold_ticks=4,residual=pd-penetration"]) == 0
+    full = f"ppo:{path}:observation=sensors,history=1,hold_ticks=4,residual=pd-penetration"
+    assert main([*argv, full]) == 0
 
 
 def test_compare_exits_non_zero_when_a_policy_failed_every_episode():

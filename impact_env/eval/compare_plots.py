@@ -18,12 +18,11 @@ Time is measured from the first touch.  Each policy keeps one colour in every pa
 from __future__ import annotations
 
 import math
-
 from pathlib import Path
 
 import numpy as np
 
-from impact_env.eval.labels import metric_label, policy_colors
+from impact_env.eval.labels import policy_colors
 
 
 def _plt():

@@ -257,16 +257,17 @@ def accuracy_warnings(scene) -> list[str]:
     if integ.method == "dopri5":
         if integ.rtol > DOPRI_MAX_RTOL:
             out.append(f"integrator.rtol = {integ.rtol:g} is loose for a contact: dopri5's position error "
-                       f"is about {DOPRI_ERROR_PER_RTOL:g} rtol = {DOPRI_ERROR_PER_RTOL * integ.rtol:.2g} of the "
-                       f"deepest penetration here (measured on rig); use integrator.rtol <= {DOPRI_SAFE_RTOL:g}")
+                       f"is about {DOPRI_ERROR_PER_RTOL:g} rtol = {DOPRI_ERROR_PER_RTOL * integ.rtol:.2g} "
+                       "of the deepest penetration here (measured on rig); use integrator.rtol <= "
+                       f"{DOPRI_SAFE_RTOL:g}")
         return out
     if integ.event_location:
         return out
     drop = Drop.of(scene)
     if drop.restitution < 1.0:
         out.append(f"integrator.event_location = false on a damped pad (restitution {drop.restitution:g}): "
-                   "stepping across the separation, the pad's damping keeps pulling body 1 while it is inside "
-                   "the pad, where the located model lets go when the force reaches zero; contact times are "
+                   "stepping across the separation, the pad's damping keeps pulling body 1 while it is "
+                   "inside the pad, where the located model lets go when the force reaches zero; contact times are "
                    "then about 8 % off and the restitution about 5e-3, whatever the dt (measured on rig from "
                    "35 to 3500 steps per contact); use integrator.event_location = true")
         return out

@@ -49,7 +49,8 @@ def parse_model_spec(spec: str) -> tuple[str | None, Path, dict]:
             try:
                 opts[key] = int(opts[key])
             except ValueError:
-                raise ConfigError(f"model spec {spec!r}: {key} must be an integer, got {opts[key]!r}") from None
+                raise ConfigError(f"model spec {spec!r}: {key} must be an integer, "
+                                  f"got {opts[key]!r}") from None
     if "residual" in opts and opts["residual"].lower() == "none":
         opts["residual"] = None
     if "observation" in opts and opts["observation"] not in OBSERVATIONS:

@@ -108,7 +108,8 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     done = n
     if controller is None:
         status, mode, done = run_periods(y, mode, 0.0, 0.0, rec_period, n, p, method, integ.dt,
-                                         integ.rtol, scale, hstate, ev, evn, out_y, out_mode, out_peak, 1, peak)
+                                         integ.rtol, scale, hstate, ev, evn, out_y, out_mode, out_peak, 1,
+                                         peak)
     else:
         scr_y = np.empty((1, L.N_STATE))
         scr_mode = np.empty(1, dtype=np.int64)

@@ -188,4 +188,5 @@ def build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_tou
     return Trajectory(t=t, x1=x1, v1=v1, x2=x2, v2=v2, contact=contact, contact_force=fc,
                       peak_force=out_peak.copy(), shaker_force=f2_rec, work_shaker=out_y[:, L.W_EXT].copy(),
                       dissipated=out_y[:, L.W_DISS].copy(), events=ev[:k].copy(), t_first_contact=t_touch,
-                      scene=scene, params=p, wall_time_s=wall, n_events_dropped=int(evn[0]) - k, peak_penetration=peak_penetration)
+                      scene=scene, params=p, wall_time_s=wall, n_events_dropped=int(evn[0]) - k,
+                      peak_penetration=peak_penetration)
