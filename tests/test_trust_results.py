@@ -129,3 +129,60 @@ def test_compare_exits_non_zero_when_a_policy_failed_every_episode():
     dead = SimpleNamespace(episodes=[0, 1], failures=[{"episode": 0}, {"episode": 1}])
     assert _all_failed({"a": ok}) == 0
     assert _all_failed({"a": ok, "b": dead}) == 1
+
+
+def test_smaller_traps_each_with_its_fix(tmp_path, capsys):
+    """Scene files with ``base``: values keep their TOML types (``name = "2024"`` was refused,
+    ``m1 = "0.2"`` accepted); a base cycle is named once (it repeated "scene file ..." eight
+    times); --seed -1 names --seed; --t-end off the record grid says so."""
+    from impact_env.cli.main import main
+    from impact_env.config import ConfigError
+
+    def toml(name, text):
+        p = tmp_path / name
+        p.write_text(text)
+        return p
+
+    assert load_scene(toml("a.toml", 'base = "rig"\nname = "2024"\n')).name == "2024"
+    with pytest.raises(ConfigError, match="plant.m1 must be a number"):
+        load_scene(toml("b.toml", 'base = "rig"\n[plant]\nm1 = "0.2"\n'))
+    with pytest.raises(ConfigError, match="integrator.dt must be a number"):
+        load_scene(toml("c.toml", 'base = "rig"\n[integrator]\ndt = "1e-6"\n'))
+    cyc = toml("d.toml", f'base = "{tmp_path / "e.toml"}"\n')
+    toml("e.toml", f'base = "{cyc}"\n')
+    with pytest.raises(ConfigError) as info:
+        load_scene(cyc)
+    msg = str(info.value)
+    assert "cycle" in msg and msg.count("scene file '") == 0 and "d.toml' -> " in msg
+    assert main(["compare", "--seed", "-1", "--episodes", "1"]) == 2
+    assert "--seed -1" in capsys.readouterr().err
+    assert main(["drop", "--scene", "rig", "--seed", "-1"]) == 2
+    assert "--seed -1" in capsys.readouterr().err
+    assert main(["drop", "--scene", "rig", "--t-end", "0.00123", "--json"]) == 0
+    assert "not a whole number of record periods" in capsys.readouterr().err
+
+
+def test_the_stability_refusal_suggests_a_step_every_check_accepts():
+    """m2 = 1e-9 kg: the refusal's suggested dt used to be refused by the steps-per-contact
+    check (and off the control grid, and unstable at a randomize corner); now it passes."""
+    from impact_env.config import ConfigError
+
+    with pytest.raises(ConfigError) as info:
+        simulate("rig", t_end=1e-4, overrides={"plant.m2": 1e-9})
+    dt = float(str(info.value).split("every check of this scene: integrator.dt = ")[1].split()[0])
+    tr = simulate("rig", t_end=1e-4, overrides={"plant.m2": 1e-9, "integrator.dt": dt})
+    assert tr.t[-1] == pytest.approx(1e-4)
+
+
+def test_summary_csv_and_json_agree_on_non_finite(tmp_path):
+    import csv
+    import json
+
+    from impact_env.eval.compare import compare, write_outputs
+
+    scene = load_scene("rig")
+    runs = compare(scene, ["thesis-rig"], episodes=2, seed=0, horizon=0.01, workers=1, progress=False)
+    write_outputs(runs, tmp_path, scene, 0, 0.01)
+    js = json.loads((tmp_path / "summary.json").read_text())["policies"]["thesis-rig"]
+    row = next(csv.DictReader(open(tmp_path / "summary.csv")))
+    assert js["time_to_catch_median_s"] is None and row["time_to_catch_median_s"] == ""

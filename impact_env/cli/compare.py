@@ -43,6 +43,10 @@ def cmd_compare(args) -> int:
     texts = args.policies or ["passive,thesis-rig,pd-penetration"]
     specs = [s for text in texts for s in split_policies(text)]
     out_dir = output_dir(args.out) if args.out else None  # checked before anything runs
+    if args.seed < 0:
+        from impact_env.config import ConfigError
+
+        raise ConfigError(f"--seed {args.seed} must be an integer >= 0 (episode j is seeded seed + j)")
     if args.rig:
         return _compare_rig(args, specs)
     scene = scene_from_args(args, scene=args.scene or "rig")

@@ -284,10 +284,28 @@ def check_step(scene) -> None:
     """Refuse (ConfigError) a fixed step that is unstable or resolves the shortest contact
     with fewer than ``integrator.min_steps_per_contact`` steps, for the scene and, if it is
     randomised, every corner of its plant ranges.  dopri5 is not checked (adaptive)."""
-    if scene.integrator.method == "dopri5":
+    integ = scene.integrator
+    if integ.method == "dopri5":
         return
-    for drop, label in _corners(scene):
-        _check_one(scene.integrator, drop, label)
+    corners = list(_corners(scene))
+    for drop, label in corners:
+        try:
+            _check_one(integ, drop, label, scene.control_period)
+        except ConfigError as exc:
+            # one dt for the whole scene: stable and resolved at every corner, on the control grid
+            safe = min(_safe_dt(integ, d, scene.control_period) for d, _ in corners)
+            raise ConfigError(f"{exc} A step that passes every check of this scene: integrator.dt = "
+                              f"{_grid_text(safe, scene.control_period)}.") from None
+
+
+def _safe_dt(integ, drop: Drop, period: float | None) -> float:
+    """The largest step that is stable and resolves the contact for ``drop``, on the grid."""
+    sc = contact_scales(drop)
+    dt = max_stable_dt(drop, integ.method, sc["d_max"], sc["b"])
+    need = integ.min_steps_per_contact
+    if need > 0 and math.isfinite(sc["t_contact"]):
+        dt = min(dt, sc["t_contact"] / need)
+    return _fits(dt, period)
 
 
 def _corners(scene):
@@ -319,12 +337,31 @@ def _down(x: float) -> str:
     return f"{math.floor(x / 10.0**e) * 10.0**e:.3g}"
 
 
-def _check_one(integ, drop: Drop, label: str) -> None:
+def _fits(dt: float, period: float | None) -> float:
+    """The largest step <= dt that divides the control period (the grid every scene needs)."""
+    if not period or not (dt > 0):
+        return dt
+    return period / math.ceil(period / dt * (1.0 - 1e-12))
+
+
+def _grid_text(dt: float, period: float | None) -> str:
+    """A suggested step as text that passes when typed back: on the control grid, exactly."""
+    if period and dt > 0:
+        n = round(period / dt)
+        return f"{period / n!r} s (the control period / {n})"
+    return f"{_down(dt)} s"
+
+
+def _check_one(integ, drop: Drop, label: str, period: float | None = None) -> None:
     method, dt = integ.method, integ.dt
     sc = contact_scales(drop)
     bad_d = first_unstable(drop, method, dt, sc["d_max"], sc["b"])
     if bad_d is not None:
         limit = max_stable_dt(drop, method, sc["d_max"], sc["b"])
+        if integ.min_steps_per_contact > 0 and math.isfinite(sc["t_contact"]):
+            # suggest a dt the resolution check below, and the control grid, accept too
+            limit = min(limit, sc["t_contact"] / integ.min_steps_per_contact)
+        limit = _fits(limit, period)
         k = 1.5 * drop.c * math.sqrt(bad_d)
         cd = sc["b"] * bad_d**0.25
         lam = np.linalg.eigvals(linear_matrix(drop.m1, drop.m2, k, cd, drop.k2, drop.c2))
@@ -334,7 +371,7 @@ def _check_one(integ, drop: Drop, label: str) -> None:
             f"penetration of {bad_d:.3g} m (pad stiffness {k:.3g} N/m, pad damping {cd:.3g} N s/m, "
             f"deepest penetration of the drop {sc['d_max']:.3g} m) the fastest mode has "
             f"h*lambda = {dt * fastest:.3g}, outside the method's stability region; it needs "
-            f"dt <= {_down(limit)} s. Reduce integrator.dt or use integrator.method = dopri5. "
+            f"dt <= {_grid_text(limit, period)}. Reduce integrator.dt or use integrator.method = dopri5. "
             f"The drop: {drop.describe()}.")
     need = integ.min_steps_per_contact
     if need > 0 and math.isfinite(sc["t_contact"]):
@@ -344,5 +381,6 @@ def _check_one(integ, drop: Drop, label: str) -> None:
                 f"integrator.dt = {dt:g} s resolves {sc['what']}{label} (about {sc['t_contact']:.3g} s "
                 f"of contact) with {steps:.3g} steps, fewer than integrator.min_steps_per_contact = "
                 f"{need:g} (below that RK4's restitution error exceeds about 1e-3): use "
-                f"integrator.dt <= {_down(sc['t_contact'] / need)} s, or integrator.method = dopri5. "
+                f"integrator.dt <= {_down(_fits(sc['t_contact'] / need, period))} s, or "
+                "integrator.method = dopri5. "
                 f"The drop: {drop.describe()}.")

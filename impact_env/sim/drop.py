@@ -99,7 +99,9 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     out_y = np.empty((n + 1, L.N_STATE))
     out_mode = np.empty(n + 1, dtype=np.int64)
     out_peak = np.zeros(n + 1)
-    peak = np.zeros(2)  # the period's peak force (scratch) and the largest penetration of the run, m
+    # the period's peak force (scratch), and the largest penetration of the run (m; negative: the
+    # closest approach, when the bodies never touch)
+    peak = np.array([0.0, -np.inf])
     f2_rec = np.zeros(n + 1)
     out_y[0] = y
     out_mode[0] = mode
