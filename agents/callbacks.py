@@ -3,8 +3,11 @@ of the evaluation callback."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 
@@ -63,3 +66,37 @@ class FixedSeeds(VecEnvWrapper):
 
     def step_wait(self):
         return self.venv.step_wait()
+
+
+def write_settings(model_path: Path, settings: dict, **extra) -> Path:
+    """``PATH.json`` beside the model ``PATH.zip`` (the file compare reads)."""
+    path = Path(model_path).with_suffix(".json")
+    path.write_text(json.dumps({**settings, **extra}, indent=2, default=str) + "\n")
+    return path
+
+
+class SettingsBeside(BaseCallback):
+    """EvalCallback's ``callback_on_new_best``: the new best_model.zip gets its settings file."""
+
+    def __init__(self, model_path: Path, settings: dict):
+        super().__init__()
+        self.model_path, self.settings = Path(model_path), settings
+
+    def _on_step(self) -> bool:
+        write_settings(self.model_path, self.settings, steps=int(self.model.num_timesteps))
+        return True
+
+
+class CheckpointWithSettings(CheckpointCallback):
+    """SB3's CheckpointCallback, each checkpoint with its settings file beside it."""
+
+    def __init__(self, settings: dict, **kwargs):
+        super().__init__(**kwargs)
+        self.settings = settings
+
+    def _on_step(self) -> bool:
+        ok = super()._on_step()
+        if self.n_calls % self.save_freq == 0:
+            write_settings(Path(self._checkpoint_path(extension="zip")), self.settings,
+                           steps=int(self.model.num_timesteps))
+        return ok

@@ -82,6 +82,7 @@ class TrainResult:
     stats: dict = field(default_factory=dict)
     ticks: int = 0
     best: dict = field(default_factory=dict)
+    interrupted: bool = False
 
     def summary(self) -> str:
         s = self.stats
@@ -98,6 +99,8 @@ class TrainResult:
             lines.append(f"first {s['episodes_first']} episodes: return {s['return_first_mean']:.2f}")
         if self.best:
             lines.append(f"best validation return {self.best['mean_reward']:.2f} at step {self.best['step']}")
+        if self.interrupted:
+            lines.append(f"interrupted (Ctrl-C) at step {self.steps}: the model so far is saved")
         lines.append(f"saved {self.model_path} and {self.meta_path}")
         return "\n".join(lines)
 
@@ -220,10 +223,10 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
 
     import torch
     from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from agents.callbacks import EpisodeStats, FixedSeeds
+    from agents.callbacks import CheckpointWithSettings, EpisodeStats, FixedSeeds, SettingsBeside
 
     if torch_threads is not None:
         torch.set_num_threads(int(torch_threads))
@@ -259,21 +262,27 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     stats = EpisodeStats(window=100)
     callbacks = [stats]
     eval_cb = None
+    settings = model_settings(cfg)
     if tooling.eval_every is not None:
         eval_raw = _vec_env(cfg, tooling.eval_episodes, evaluation=True)
         eval_env = VecMonitor(FixedSeeds(eval_raw, tooling.eval_seed))
         eval_cb = EvalCallback(eval_env, n_eval_episodes=tooling.eval_episodes,
                                eval_freq=max(tooling.eval_every // cfg.n_envs, 1), log_path=str(out / "eval"),
-                               best_model_save_path=str(out), deterministic=True, verbose=verbose)
+                               best_model_save_path=str(out), deterministic=True, verbose=verbose,
+                               callback_on_new_best=SettingsBeside(out / "best_model.zip", settings))
         _restore_evaluations(eval_cb, out / "eval" / "evaluations.npz")
         callbacks.append(eval_cb)
     if tooling.checkpoint_every is not None:
-        callbacks.append(CheckpointCallback(save_freq=max(tooling.checkpoint_every // cfg.n_envs, 1),
-                                            save_path=str(out / "checkpoints"), name_prefix="model",
-                                            save_replay_buffer=cfg.algo == "sac"))
+        every = max(tooling.checkpoint_every // cfg.n_envs, 1)
+        callbacks.append(CheckpointWithSettings(settings, save_freq=every, save_path=str(out / "checkpoints"),
+                                                name_prefix="model", save_replay_buffer=cfg.algo == "sac"))
     t0 = time.perf_counter()
-    model.learn(total_timesteps=cfg.n_timesteps - start_step, callback=callbacks, progress_bar=progress,
-                reset_num_timesteps=not resume, tb_log_name=tb_name)
+    interrupted = False
+    try:
+        model.learn(total_timesteps=cfg.n_timesteps - start_step, callback=callbacks, progress_bar=progress,
+                    reset_num_timesteps=not resume, tb_log_name=tb_name)
+    except KeyboardInterrupt:  # Ctrl-C: keep what was learnt, with its settings, below
+        interrupted = True
     wall = time.perf_counter() - t0
     done_steps = int(model.num_timesteps)
     ticks = (done_steps - start_step) * cfg.hold_ticks  # every policy step is hold_ticks ticks
@@ -301,14 +310,22 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             "episodes": len(stats.returns), "train_stats_last_episodes": train_stats,
             "validation": {"seeds": [tooling.eval_seed, tooling.eval_seed + tooling.eval_episodes - 1],
                            "best": best} if eval_cb is not None else None,
-            "segments": state["segments"], "versions": _versions()}
+            "segments": state["segments"], "versions": _versions(), "interrupted": interrupted}
     meta_path = out / "model.json"
     meta_path.write_text(json.dumps(meta, indent=2, default=str) + "\n")
     if (out / "best_model.zip").is_file():
         (out / "best_model.json").write_text(json.dumps({**meta, "steps": best.get("step")}, indent=2,
                                                         default=str) + "\n")
-    return TrainResult(out / "model.zip", meta_path, cfg.algo, done_steps, wall, seg_steps / wall,
-                       len(stats.returns), train_stats, ticks=ticks, best=best)
+    return TrainResult(out / "model.zip", meta_path, cfg.algo, done_steps, wall, seg_steps / max(wall, 1e-9),
+                       len(stats.returns), train_stats, ticks=ticks, best=best, interrupted=interrupted)
+
+
+def model_settings(cfg: RunConfig) -> dict:
+    """What a saved model means only with (``impact_env.policy.sb3.SETTINGS`` and its origin):
+    written beside every model file, so that no saved model is ever evaluated without them."""
+    return {"algo": cfg.algo, "observation": cfg.observation, "history": cfg.history, "scene": cfg.scene,
+            "overrides": dict(cfg.overrides), "env_kwargs": dict(cfg.env_kwargs),
+            "hold_ticks": cfg.hold_ticks, "residual": cfg.residual, "policy": cfg.policy}
 
 
 def _restore_evaluations(cb, path: Path) -> None:
@@ -503,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"agents.train: {exc}", file=sys.stderr)
         return 2
     print(result.summary())
-    return 0
+    return 130 if result.interrupted else 0
 
 
 if __name__ == "__main__":

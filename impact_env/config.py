@@ -191,8 +191,11 @@ def _dataclass_of(tp: Any):
     return None
 
 
-def with_overrides(obj, overrides: dict[str, Any]):
+def with_overrides(obj, overrides: dict[str, Any], parse: bool = True):
     """A copy of config ``obj`` with all dotted overrides applied at once, then validated.
+    ``parse``: string values are TOML text (``--set``: ``"1e-6"`` is a number); a scene file's
+    values are typed already and are taken as they are (``name = "2024"`` stays a string,
+    ``m1 = "0.2"`` is refused as a string, with or without ``base``).
 
     A class may define ``_override_clears_dotted``, a dict from a dotted key to the dotted keys
     (anywhere in it) that setting it resets to their defaults, unless the same overrides set
@@ -200,7 +203,7 @@ def with_overrides(obj, overrides: dict[str, Any]):
     data = to_dict(obj)
     clears = getattr(type(obj), "_override_clears_dotted", {})
     for key, value in overrides.items():
-        if isinstance(value, str):
+        if parse and isinstance(value, str):
             value = parse_value(value)
         set_dotted(type(obj), data, key, value)
         if value is not None:

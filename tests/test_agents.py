@@ -65,7 +65,15 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     assert meta["validation"]["best"]["evaluations"] == 2
     assert (out / "best_model.zip").is_file() and (out / "best_model.json").is_file()
     saved = sorted(p.name for p in (out / "checkpoints").iterdir())
-    assert saved == ["model_128_steps.zip", "model_256_steps.zip"]
+    assert saved == ["model_128_steps.json", "model_128_steps.zip", "model_256_steps.json",
+                     "model_256_steps.zip"]
+    # every saved model carries its settings: a checkpoint runs with its hold and residual law
+    from impact_env.policy.registry import make_policy
+
+    ck = make_policy(f"ppo:{out / 'checkpoints' / 'model_128_steps.zip'}", "rig")
+    assert (ck.hold_ticks, ck.residual) == (2, "pd-penetration")
+    best = json.loads((out / "best_model.json").read_text())
+    assert (best["hold_ticks"], best["residual"]) == (2, "pd-penetration")
     assert list(tb.rglob("events.out.tfevents.*"))
 
     # resume from the 128-step checkpoint, as after a crash: the step counter goes on from 128
@@ -165,3 +173,24 @@ def test_yaml_without_the_env_id_is_refused_naming_what_it_has(tmp_path):
     with pytest.raises(ConfigError, match="CartPole-v1"):
         read_conf(p)
     shutil.rmtree(tmp_path)
+
+
+@pytest.mark.training
+def test_ctrl_c_saves_the_model_and_its_settings(tmp_path, capsys, monkeypatch):
+    """A run interrupted with Ctrl-C (KeyboardInterrupt inside learn) leaves model.zip and
+    model.json, says so, and exits 130 without a traceback."""
+    from stable_baselines3 import PPO
+
+    def interrupted(self, *args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(PPO, "learn", interrupted)
+    out = tmp_path / "run"
+    args = ["--algo", "ppo", "--out", str(out), "--steps", "128", "--envs", "4", "--horizon", str(HORIZON),
+            "--eval-every", "0"]
+    for key, value in TINY_PPO.items():
+        args += ["--hp", f"{key}={value}"]
+    assert main(args) == 130
+    meta = json.loads((out / "model.json").read_text())
+    assert meta["interrupted"] is True and (out / "model.zip").is_file()
+    assert "interrupted (Ctrl-C)" in capsys.readouterr().out

@@ -46,7 +46,7 @@ def test_registry_errors_name_the_valid_choices(spec, match):
 def test_model_spec_errors():
     with pytest.raises(ConfigError, match="not found"):
         parse_model_spec("ppo:/nonexistent/agent.zip")
-    with pytest.raises(ConfigError, match="observation=... or history=N"):
+    with pytest.raises(ConfigError, match="must be one of observation=..., history=..., hold_ticks=..."):
         parse_model_spec("x.zip:colour=red")
 
 

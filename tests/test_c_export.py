@@ -43,7 +43,7 @@ def sac_spec(tmp_path_factory):
     model = sb3.SAC("MlpPolicy", venv, policy_kwargs={"net_arch": [16, 16]}, seed=1, device="cpu")
     path = tmp_path_factory.mktemp("sac") / "m.zip"
     model.save(path)
-    return f"sac:{path}:observation=sensors,history=2"
+    return f"sac:{path}:observation=sensors,history=2,hold_ticks=1,residual=none"
 
 
 def _build(pol, scene, tmp_path, float32=False):

@@ -162,10 +162,12 @@ def test_a_saved_sb3_model_joins_the_table(tmp_path):
     env = make_sb3_vec_env("rig", num_envs=1)
     path = tmp_path / "agent.zip"
     PPO("MlpPolicy", env, n_steps=64, batch_size=32, policy_kwargs={"net_arch": [8]}, seed=0).save(path)
-    # on rig the sensor frame and the true state both have 4 entries: the spec must say which
-    with pytest.raises(Exception, match="say which"):
+    # without its settings file nothing is guessed: the spec must give the env settings
+    with pytest.raises(Exception, match="hold_ticks, residual in the spec"):
+        registry.make_policy(f"{path}:observation=sensors,history=1", RIG)
+    with pytest.raises(Exception, match="no settings file"):
         registry.make_policy(str(path), RIG)
-    spec = f"ppo:{path}:observation=sensors"
+    spec = f"ppo:{path}:observation=sensors,history=1,hold_ticks=1,residual=none"
     runs = compare(RIG, ["passive", spec], episodes=2, seed=0, horizon=0.005, workers=1, progress=False)
     s = runs[spec].summary
     assert s["failed_episodes"] == 0 and s["peak_demand_N"] <= 200.0 + 1e-9

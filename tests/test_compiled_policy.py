@@ -117,7 +117,7 @@ def test_compiled_networks_of_other_algorithms(algo, tmp_path):
                         policy_kwargs={"net_arch": [16], "squash_output": True})
     path = tmp_path / "m.zip"
     model.save(path)
-    spec = f"{algo.split('-')[0]}:{path}:observation=sensors,history=2"
+    spec = f"{algo.split('-')[0]}:{path}:observation=sensors,history=2,hold_ticks=1,residual=none"
     comp = export_policy(spec, RIG)
     x = np.random.default_rng(2).normal(0, 2, (10_000, comp.layout.size)).astype(np.float32)
     want, _ = make_policy(spec, RIG).model.predict(x, deterministic=True)

@@ -45,10 +45,12 @@ def cmd_compare(args) -> int:
     texts = args.policies or ["passive,thesis-rig,pd-penetration"]
     specs = [s for text in texts for s in split_policies(text)]
     out_dir = output_dir(args.out) if args.out else None  # checked before anything runs
-    if args.key and not args.rig:
-        from impact_env.config import ConfigError
+    from impact_env.config import ConfigError
 
+    if args.key and not args.rig:
         raise ConfigError("--key FILE is the rig's session key: it goes with --rig udp://HOST:PORT")
+    if args.seed < 0:
+        raise ConfigError(f"--seed {args.seed} must be an integer >= 0 (episode j is seeded seed + j)")
     if args.rig:
         return _compare_rig(args, specs)
     scene = scene_from_args(args, scene=args.scene or "rig")
@@ -77,7 +79,17 @@ def cmd_compare(args) -> int:
         paths = write_outputs(runs, out_dir, scene, args.seed, horizon)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
-    return 0
+    return _all_failed(runs)
+
+
+def _all_failed(runs) -> int:
+    """1 (and a line on stderr) when some policy failed in every episode: its row is no result."""
+    dead = [spec for spec, run in runs.items() if run.episodes is not None and len(run.failures) > 0
+            and len(run.failures) >= len(run.episodes)]
+    for spec in dead:
+        print(f"impact-env compare: policy {spec!r} failed in every episode: no result for it (exit 1)",
+              file=sys.stderr)
+    return 1 if dead else 0
 
 
 def _compare_rig(args, specs) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 
 from impact_env.cli.args import output_file, parse_overrides, scene_from_args
@@ -15,6 +16,18 @@ def cmd_drop(args) -> int:
     if args.plot:
         output_file(args.plot, "--plot")  # checked before simulating
     record_rate = args.record_rate
+    if args.seed is not None and args.seed < 0:
+        from impact_env.config import ConfigError
+
+        raise ConfigError(f"--seed {args.seed} must be an integer >= 0")
+    if args.t_end is not None and args.t_end > 0 and math.isfinite(args.t_end):
+        rate = record_rate or scene.control_rate
+        n = round(args.t_end * rate)
+        if n >= 1 and abs(n / rate - args.t_end) > 1e-9 * args.t_end:
+            # simulate() runs whole record periods: say so rather than report another span silently
+            print(f"impact-env drop: --t-end {args.t_end:g} s is not a whole number of record periods "
+                  f"(1/{rate:g} s): simulating {n / rate:g} s ({n} records; --record-rate sets the grid)",
+                  file=sys.stderr)
     drawn = None
     if args.seed is not None and scene.randomized:
         import numpy as np

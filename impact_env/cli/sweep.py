@@ -63,6 +63,10 @@ def cmd_sweep(args) -> int:
     out = output_dir(args.out)  # checked before anything runs
     axes = axes_from_args(args)
     _, fixed = parse_spec(f"{args.policy}:{args.fixed}") if args.fixed else (None, {})
+    if args.seed < 0:
+        from impact_env.config import ConfigError
+
+        raise ConfigError(f"--seed {args.seed} must be an integer >= 0")
     res = sweep(scene, args.policy, axes, fixed, seed=args.seed, t_end=args.t_end, limit=args.limit,
                 objective=args.objective, workers=args.workers, progress=not (args.no_progress or args.json))
     csv_path = write_csv(res, out / "sweep.csv")

@@ -14,8 +14,9 @@ Aggregates (one row per policy; per-episode values in ``episodes.csv``):
 
 * ``time_to_catch_median_s``, ``time_to_catch_q25_s``, ``time_to_catch_q75_s``,
   ``time_to_catch_iqr_s``: over episodes, an episode not caught within the horizon counting as
-  infinitely long (so a median of ``inf``, printed as ``>H`` and written as null in JSON, means
-  that half the episodes or more were not caught); ``caught_fraction``.
+  infinitely long (so a median of ``inf``, printed as ``>H``, written as null in summary.json and
+  as an empty cell in summary.csv, means that half the episodes or more were not caught);
+  ``caught_fraction``.
 * the means over episodes of every other per-episode metric of :mod:`impact_env.eval.rollout`
   (``residual_energy_50ms``, ``exit_speed_ratio``, ``bounces``, ``peak_force_N``, ...).
 * ``episodes``, ``failed_episodes``, ``failures`` (episode, seed, time, error), ``wall_time_s``.
@@ -352,6 +353,13 @@ def _json_value(v):
     return v
 
 
+def _csv_value(v):
+    """summary.csv's cell: an empty one where summary.json has null (a non-finite number)."""
+    if isinstance(v, float) and not math.isfinite(v):
+        return ""
+    return "" if v is None else v
+
+
 def summary_json(runs: dict[str, PolicyRun]) -> dict:
     """{policy: {metric: value}} with non-finite numbers as null."""
     out = {}
@@ -379,7 +387,7 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
         keys += [k for k in ORACLE_KEYS if any(k in run.summary for run in runs.values())]
         w.writerow(["policy", *keys])
         for spec, run in runs.items():
-            w.writerow([spec, *(run.summary.get(k) for k in keys)])
+            w.writerow([spec, *(_csv_value(run.summary.get(k)) for k in keys)])
     paths.append(p)
     p = out_dir / "summary.json"
     p.write_text(json.dumps({"scene": scene.name, "seed": seed, "horizon_s": horizon,

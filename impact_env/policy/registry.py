@@ -125,11 +125,13 @@ def make_policy(spec: str, scene: Scene | str | dict):
 
 
 def check_spec(spec: str, scene) -> None:
-    """Validate a spec without the cost of loading a model (models: syntax and file)."""
+    """Validate a spec without the cost of loading a model (models: syntax, file and settings,
+    so that a model without its settings is one error before anything runs, not one per episode)."""
     if is_model_spec(spec) and not spec.startswith("compiled:"):
-        from impact_env.policy.sb3 import parse_model_spec
+        from impact_env.policy.sb3 import model_settings, parse_model_spec
 
-        parse_model_spec(spec)
+        _algo, path, opts = parse_model_spec(spec)
+        model_settings(path, opts, spec)
     else:
         make_policy(spec, scene)
 

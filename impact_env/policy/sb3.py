@@ -1,12 +1,16 @@
 """Saved stable-baselines3 models as policies, so trained agents join the same comparison.
 
 Spec: ``PATH.zip``, ``ALGO:PATH.zip`` (``ppo``, ``sac``, ``td3``, ``a2c``, ``ddpg``), optionally
-followed by ``:observation=sensors,history=4`` (or ``,observation=...``).  Without an algorithm
-each one is tried in turn.  The observation the model was trained on is taken, in this order,
-from the spec, from a JSON file next to the model (``PATH.json`` with keys ``observation`` and
-``history``, if present), or from the size of the model's observation space, when exactly one
-(observation, history) pair of the scene has that size (on ``rig`` the sensor frame and the
-privileged frame both have 4 entries: then give ``observation=`` explicitly).
+followed by ``:observation=sensors,history=4,hold_ticks=4,residual=pd-penetration`` (or
+``,observation=...``).  Without an algorithm each one is tried in turn.
+
+A model acts as it was trained only with the env settings it was trained with: the
+observation, its history, ``hold_ticks`` and the ``residual`` law its actions are added to.
+They come from the settings file next to the model (``PATH.json``, which ``agents.train``
+writes beside every model it saves: ``model``, ``best_model``, each checkpoint, an interrupted
+run's), the spec overriding it key by key.  Nothing is guessed: without the file, the spec
+must give all four (``residual=none`` for none), and a model whose observation space does not
+have the size those settings give is refused.
 """
 
 from __future__ import annotations
@@ -19,6 +23,8 @@ from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.scene import load_scene
 
 ALGOS = ("ppo", "sac", "td3", "a2c", "ddpg")
+# the env settings a model's actions mean something only with (its settings file, or the spec)
+SETTINGS = ("observation", "history", "hold_ticks", "residual")
 
 
 def parse_model_spec(spec: str) -> tuple[str | None, Path, dict]:
@@ -34,15 +40,19 @@ def parse_model_spec(spec: str) -> tuple[str | None, Path, dict]:
     opts: dict = {}
     for item in filter(None, (s.strip() for s in tail.lstrip(":,").replace(":", ",").split(","))):
         key, eq, value = item.partition("=")
-        if not eq or key.strip() not in ("observation", "history"):
-            raise ConfigError(f"model spec {spec!r}: option {item!r} must be observation=... or history=N")
+        if not eq or key.strip() not in SETTINGS:
+            raise ConfigError(f"model spec {spec!r}: option {item!r} must be one of "
+                              f"{', '.join(k + '=...' for k in SETTINGS)}")
         opts[key.strip()] = value.strip()
-    if "history" in opts:
-        try:
-            opts["history"] = int(opts["history"])
-        except ValueError:
-            raise ConfigError(f"model spec {spec!r}: history must be an integer, "
-                              f"got {opts['history']!r}") from None
+    for key in ("history", "hold_ticks"):
+        if key in opts:
+            try:
+                opts[key] = int(opts[key])
+            except ValueError:
+                raise ConfigError(f"model spec {spec!r}: {key} must be an integer, "
+                                  f"got {opts[key]!r}") from None
+    if "residual" in opts and opts["residual"].lower() == "none":
+        opts["residual"] = None
     if "observation" in opts and opts["observation"] not in OBSERVATIONS:
         raise ConfigError(f"model spec {spec!r}: observation must be one of {', '.join(OBSERVATIONS)}")
     p = Path(path)
@@ -83,30 +93,50 @@ def _load(algo: str | None, path: Path):
     raise ConfigError(f"could not load {str(path)!r} as a stable-baselines3 model ({'; '.join(errors)})")
 
 
+def model_settings(path: Path, opts: dict, spec: str) -> dict:
+    """The model's env settings (:data:`SETTINGS`): its settings file, overridden by the spec's
+    keys; ConfigError naming the file and the keys when neither gives all of them."""
+    sidecar = path.with_suffix(".json")
+    settings: dict = {}
+    if sidecar.is_file():
+        try:
+            meta = json.loads(sidecar.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"the settings file {str(sidecar)!r} of model {str(path)!r} is not JSON: "
+                              f"{exc}") from None
+        env_kwargs = meta.get("env_kwargs") or {}
+        settings = {"observation": meta.get("observation", "sensors"), "history": int(meta.get("history", 1)),
+                    "hold_ticks": int(meta.get("hold_ticks", env_kwargs.get("hold_ticks", 1))),
+                    "residual": meta.get("residual", env_kwargs.get("residual"))}
+    settings.update(opts)
+    missing = [k for k in SETTINGS if k not in settings]
+    if missing:
+        example = ",".join(f"{k}={v}" for k, v in zip(SETTINGS, ("sensors", "1", "1", "none"), strict=True))
+        raise ConfigError(
+            f"model {str(path)!r} has no settings file {str(sidecar)!r} (agents.train writes one beside "
+            f"every model it saves), so the env settings it was trained with are unknown and would be "
+            f"guessed; give {', '.join(missing)} in the spec, e.g. "
+            f"{spec.split('.zip')[0]}.zip:{example} (residual=none for none), with the values it was "
+            "trained with")
+    if settings["observation"] not in OBSERVATIONS:
+        raise ConfigError(f"model {str(path)!r}: observation {settings['observation']!r} is not one of "
+                          f"{', '.join(OBSERVATIONS)}")
+    return settings
+
+
 def load_model_policy(spec: str, scene) -> ModelPolicy:
     scene = load_scene(scene)
     algo, path, opts = parse_model_spec(spec)
-    sidecar = path.with_suffix(".json")
-    env_kwargs: dict = {}
-    if sidecar.is_file():
-        meta = json.loads(sidecar.read_text())
-        for key in ("observation", "history"):
-            if key in meta and key not in opts:
-                opts[key] = meta[key]
-        env_kwargs = meta.get("env_kwargs") or {}
+    st = model_settings(path, opts, spec)
     model = _load(algo, path)
     size = int(model.observation_space.shape[0])
-    obs, hist = opts.get("observation"), opts.get("history")
-    cands = [(o, h) for o in ((obs,) if obs else OBSERVATIONS) for h in ((hist,) if hist else range(1, 65))
-             if _size(scene, o, h) == size]
-    if len(cands) != 1:
-        what = "no" if not cands else f"{len(cands)}"
-        listed = f" ({', '.join(map(str, cands[:6]))})" if cands else ""
-        raise ConfigError(f"model {str(path)!r} takes {size} observation entries: {what} (observation, "
-                          f"history) pairs of scene {scene.name!r} fit{listed}; say which with "
-                          f"{spec.split('.zip')[0]}.zip:observation=sensors,history=1")
-    return ModelPolicy(model, cands[0][0], cands[0][1], spec, hold_ticks=int(env_kwargs.get("hold_ticks", 1)),
-                       residual=env_kwargs.get("residual"))
+    want = _size(scene, st["observation"], st["history"])
+    if want != size:
+        raise ConfigError(f"model {str(path)!r} takes {size} observation entries, but observation "
+                          f"{st['observation']!r} with history {st['history']} on scene {scene.name!r} gives "
+                          f"{want}: the settings are not the ones it was trained with")
+    return ModelPolicy(model, st["observation"], st["history"], spec, hold_ticks=int(st["hold_ticks"]),
+                       residual=st["residual"])
 
 
 def _size(scene, observation, history) -> int | None:

@@ -25,11 +25,12 @@ from typing import Any
 
 import tomllib
 
-from impact_env.config import ConfigError, from_dict
+from impact_env.config import ConfigError, from_dict, with_overrides
 from impact_env.scene.presets import PRESETS
 from impact_env.scene.scene import Scene
 
 MAX_BASE_DEPTH = 8
+_CHAIN: list[str] = []  # the scene files being loaded, outermost first (a base cycle is named)
 
 
 def scene_from_dict(data: dict, origin: Path | None = None, _depth: int = 0) -> Scene:
@@ -51,7 +52,7 @@ def scene_from_dict(data: dict, origin: Path | None = None, _depth: int = 0) -> 
             base = str(joined)
     scene = _load(base, _depth + 1)
     flat = _flatten(data)
-    return scene.with_overrides(flat) if flat else scene
+    return with_overrides(scene, flat, parse=False) if flat else scene
 
 
 def _flatten(data: dict, prefix: str = "") -> dict[str, Any]:
@@ -80,10 +81,19 @@ def load_toml(path: str | Path, _depth: int = 0) -> Scene:
         raise ConfigError(f"scene file {str(path)!r} is not valid TOML: {exc}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"scene file {str(path)!r} cannot be read: {exc}") from None
+    key = str(path.resolve())
+    if key in _CHAIN:
+        chain = " -> ".join(repr(p) for p in [*_CHAIN, key])
+        raise ConfigError(f"base: the scene files form a cycle: {chain}")
+    _CHAIN.append(key)
     try:
         return scene_from_dict(data, origin=path, _depth=_depth)
     except ConfigError as exc:
-        raise ConfigError(f"scene file {str(path)!r}: {exc}") from None
+        msg = str(exc)  # the innermost file names itself once; outer files do not repeat it
+        raise ConfigError(msg if msg.startswith(("scene file ", "base: ")) else
+                          f"scene file {str(path)!r}: {msg}") from None
+    finally:
+        _CHAIN.pop()
 
 
 def _load(text: str, depth: int = 0) -> Scene:

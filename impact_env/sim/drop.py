@@ -99,6 +99,9 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     out_y = np.empty((n + 1, L.N_STATE))
     out_mode = np.empty(n + 1, dtype=np.int64)
     out_peak = np.zeros(n + 1)
+    # the period's peak force (scratch), and the largest penetration of the run (m; negative: the
+    # closest approach, when the bodies never touch)
+    peak = np.array([0.0, -np.inf])
     f2_rec = np.zeros(n + 1)
     out_y[0] = y
     out_mode[0] = mode
@@ -107,14 +110,15 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     done = n
     if controller is None:
         status, mode, done = run_periods(y, mode, 0.0, 0.0, rec_period, n, p, method, integ.dt,
-                                         integ.rtol, scale, hstate, ev, evn, out_y, out_mode, out_peak, 1)
+                                         integ.rtol, scale, hstate, ev, evn, out_y, out_mode, out_peak, 1,
+                                         peak)
     else:
         scr_y = np.empty((1, L.N_STATE))
         scr_mode = np.empty(1, dtype=np.int64)
         scr_peak = np.zeros(1)
         k_ctrl = 0
         for k in range(1, n + 1):
-            peak = 0.0
+            peak_k = 0.0
             for _ in range(sub):
                 t = k_ctrl * ctrl_period
                 f2 = float(controller(t, y[:4].copy()))
@@ -122,19 +126,20 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
                     raise ValueError(f"controller returned a non-finite force {f2!r} N at t = {t:g} s")
                 status, mode, _done = run_periods(y, mode, f2, t, ctrl_period, 1, p, method, integ.dt,
                                                   integ.rtol, scale, hstate, ev, evn, scr_y, scr_mode,
-                                                  scr_peak, 0)
-                peak = max(peak, scr_peak[0])
+                                                  scr_peak, 0, peak)
+                peak_k = max(peak_k, scr_peak[0])
                 k_ctrl += 1
                 if status != L.OK:
                     break
-            out_y[k], out_mode[k], out_peak[k], f2_rec[k] = y, mode, peak, f2
+            out_y[k], out_mode[k], out_peak[k], f2_rec[k] = y, mode, peak_k, f2
             if status != L.OK:
                 done = k
                 break
     wall = time.perf_counter() - t0
     if status != L.OK:
         _raise_status(status, out_y, done, rec_period, scene)
-    return build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_touch, rec_period, wall)
+    return build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_touch, rec_period, wall,
+                            float(peak[1]))
 
 
 def _raise_status(status, out_y, done, rec_period, scene):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +42,8 @@ class Trajectory:
     params: np.ndarray
     wall_time_s: float = 0.0
     n_events_dropped: int = 0
+    # the largest penetration, m, tracked by the integrator at every step (not from the records)
+    peak_penetration: float = float("nan")
 
     @property
     def penetration(self) -> np.ndarray:
@@ -88,7 +91,12 @@ class Trajectory:
         return float(later[0, 0] - on[0, 0]) if len(later) else None
 
     def max_penetration(self) -> float:
-        """Largest penetration (m), refined by a parabola through the three samples at the peak."""
+        """Largest penetration (m): the integrator's own maximum over every step (and the top
+        between two steps where the penetration turned), so a contact shorter than the record
+        period is not under-reported; without it (a trajectory built elsewhere), from the
+        samples, refined by a parabola through the three at the peak."""
+        if math.isfinite(self.peak_penetration):
+            return float(max(self.peak_penetration, float(np.max(self.penetration))))
         d = self.penetration
         k = int(np.argmax(d))
         if 0 < k < len(d) - 1:
@@ -130,10 +138,13 @@ class Trajectory:
         return float(max(t - self.t_first_contact, 0.0))
 
     def warnings(self) -> list[str]:
-        """What makes this run's numbers doubtful, in words (empty when nothing does): an
-        energy ledger that misses more than ``ENERGY_BALANCE_BOUND`` of the energy, events
-        beyond the buffer."""
-        out = []
+        """What makes this run's numbers doubtful, in words (empty when nothing does): the
+        integrator's settings where they are known to be inaccurate although the ledger may
+        balance (:func:`impact_env.hardware.stability.accuracy_warnings`), an energy ledger that
+        misses more than ``ENERGY_BALANCE_BOUND`` of the energy, events beyond the buffer."""
+        from impact_env.hardware.stability import accuracy_warnings
+
+        out = accuracy_warnings(self.scene)
         err = self.energy_balance_error()
         if not err <= ENERGY_BALANCE_BOUND:
             integ = self.scene.integrator
@@ -163,7 +174,8 @@ class Trajectory:
         }
 
 
-def build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_touch, rec_period, wall):
+def build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_touch, rec_period, wall,
+                     peak_penetration: float = float("nan")):
     n = out_y.shape[0]
     t = np.arange(n) * rec_period
     x1, v1, x2, v2 = (out_y[:, j].copy() for j in range(4))
@@ -176,4 +188,5 @@ def build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_tou
     return Trajectory(t=t, x1=x1, v1=v1, x2=x2, v2=v2, contact=contact, contact_force=fc,
                       peak_force=out_peak.copy(), shaker_force=f2_rec, work_shaker=out_y[:, L.W_EXT].copy(),
                       dissipated=out_y[:, L.W_DISS].copy(), events=ev[:k].copy(), t_first_contact=t_touch,
-                      scene=scene, params=p, wall_time_s=wall, n_events_dropped=int(evn[0]) - k)
+                      scene=scene, params=p, wall_time_s=wall, n_events_dropped=int(evn[0]) - k,
+                      peak_penetration=peak_penetration)
