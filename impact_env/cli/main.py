@@ -19,7 +19,10 @@ from impact_env.config import ConfigError
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from impact_env import __version__
+
     ap = argparse.ArgumentParser(prog="impact-env", description="Catching a falling body with a shaker.")
+    ap.add_argument("--version", action="version", version=f"impact-env {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("drop", help="simulate one uncontrolled drop and summarise it")
