@@ -32,7 +32,7 @@ def main() -> int:
                           "--episodes", "1"], capture_output=True, text=True, timeout=600)
     assert out.returncode == 2 and "impact-env[sb3]" in out.stderr, out.stderr[-2000:]
     print("minimal install check OK: the env checker, a classic-law compare and a drop ran without torch "
-          "and stable-baselines3; a saved model refused with the install hint)")
+          "and stable-baselines3; a saved model refused with the install hint")
     return 0
 
 
