@@ -65,8 +65,9 @@ class ProgressLine(BaseCallback):
     def _line(self) -> str:
         s = self.stats
         n = min(s.window, len(s.returns))
-        recent = (f", last {n}: return {np.mean(s.returns[-n:]):.2f}, caught {100 * np.mean(s.caught[-n:]):.0f} %"
-                  if n else "")
+        recent = ""
+        if n:
+            recent = f", last {n}: return {np.mean(s.returns[-n:]):.2f}, caught {100 * np.mean(s.caught[-n:]):.0f} %"
         return f"\rtraining: {self.num_timesteps}/{self.total} steps, {len(s.returns)} episodes{recent}   "
 
     def _on_step(self) -> bool:

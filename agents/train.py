@@ -227,7 +227,13 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from agents.callbacks import CheckpointWithSettings, EpisodeStats, FixedSeeds, ProgressLine, SettingsBeside
+    from agents.callbacks import (
+        CheckpointWithSettings,
+        EpisodeStats,
+        FixedSeeds,
+        ProgressLine,
+        SettingsBeside,
+    )
 
     if torch_threads is not None:
         torch.set_num_threads(int(torch_threads))
