@@ -67,7 +67,8 @@ class ProgressLine(BaseCallback):
         n = min(s.window, len(s.returns))
         recent = ""
         if n:
-            recent = f", last {n}: return {np.mean(s.returns[-n:]):.2f}, caught {100 * np.mean(s.caught[-n:]):.0f} %"
+            caught = 100 * np.mean(s.caught[-n:])
+            recent = f", last {n}: return {np.mean(s.returns[-n:]):.2f}, caught {caught:.0f} %"
         return f"\rtraining: {self.num_timesteps}/{self.total} steps, {len(s.returns)} episodes{recent}   "
 
     def _on_step(self) -> bool:
