@@ -233,11 +233,17 @@ def figure(all_stats: dict, path: Path, shipped: str) -> Path:
                 ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_title(f"{scene}: {title}", fontsize=10)
             ax.grid(axis="x", alpha=0.3)
-    fig.suptitle("Held-out drops: values with bootstrap 95 % intervals (red: the shipped agent; "
-                 "0.4 s = not caught within the horizon)", fontsize=10)
-    fig.tight_layout()
+    fig.suptitle("Held-out drops: values with bootstrap 95 % intervals (0.4 s = not caught within the "
+                 "horizon)", fontsize=10)
+    from matplotlib.lines import Line2D  # a key for every colour used
+
+    key = [("tab:red", "the shipped agent"), ("tab:blue", "other PPO runs"), ("tab:green", "SAC runs"),
+           ("tab:gray", "classic laws"), ("black", "oracle (per-drop optimum)")]
+    fig.legend([Line2D([], [], marker="o", ls="", color=c) for c, _ in key], [t for _, t in key],
+               loc="lower center", ncol=len(key), fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.02))
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=150, bbox_inches="tight")
     plt.close(fig)
     return path
 

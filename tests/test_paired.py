@@ -68,5 +68,12 @@ def test_agents_report_says_better_from_the_paired_difference():
     except KeyError:  # training_table wants more of a run's meta: the verdict is in the stats anyway
         text = None
     assert st["_paired"]["ppo-s0"]["energy"].a_better
+    from PIL import Image
+
+    fig = AR.figure({"rig": st}, ROOT / ".pytest_fig.png", "ppo-s0")  # every colour keyed, 150 dpi
+    try:
+        assert Image.open(fig).info["dpi"][0] >= 149
+    finally:
+        fig.unlink()
     if text is not None:
         assert "paired difference" in text and "NOT shown better" in text  # catch times: no difference
