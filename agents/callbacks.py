@@ -52,6 +52,40 @@ class EpisodeStats(BaseCallback):
                 "episodes_first": m, "return_first_mean": float(np.mean(self.returns[:m]))}
 
 
+class ProgressLine(BaseCallback):
+    """One status line on ``stream`` (a terminal's stderr), rewritten at most every
+    ``every_s`` seconds: policy steps done of the total, episodes finished, the mean return and
+    the caught fraction of the last episodes (from ``stats``, an :class:`EpisodeStats`)."""
+
+    def __init__(self, stats: EpisodeStats, total: int, stream, every_s: float = 2.0):
+        super().__init__()
+        self.stats, self.total, self.stream, self.every_s = stats, int(total), stream, float(every_s)
+        self._last = 0.0
+
+    def _line(self) -> str:
+        s = self.stats
+        n = min(s.window, len(s.returns))
+        recent = ""
+        if n:
+            caught = 100 * np.mean(s.caught[-n:])
+            recent = f", last {n}: return {np.mean(s.returns[-n:]):.2f}, caught {caught:.0f} %"
+        return f"\rtraining: {self.num_timesteps}/{self.total} steps, {len(s.returns)} episodes{recent}   "
+
+    def _on_step(self) -> bool:
+        import time
+
+        now = time.monotonic()
+        if now - self._last >= self.every_s:
+            self._last = now
+            self.stream.write(self._line())
+            self.stream.flush()
+        return True
+
+    def _on_training_end(self) -> None:
+        self.stream.write(self._line() + "\n")
+        self.stream.flush()
+
+
 class FixedSeeds(VecEnvWrapper):
     """Every ``reset()`` seeds env i with ``seed + i``: each evaluation of ``EvalCallback`` then
     meets the same drops and the same sensor noise, so evaluations compare models, not luck."""

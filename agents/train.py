@@ -64,6 +64,7 @@ from impact_env.config import ConfigError
 
 OBSERVATIONS = ("sensors", "privileged", "both")
 EVAL_SEED = 900_000  # validation drops: eval_seed + j
+CHECKPOINT_EVERY = 100_000  # policy steps between checkpoints by default (--resume needs one)
 TEST_SEED = 1000  # the README's held-out drops (compare --seed 1000)
 TEST_EPISODES = 100
 
@@ -226,7 +227,13 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from agents.callbacks import CheckpointWithSettings, EpisodeStats, FixedSeeds, SettingsBeside
+    from agents.callbacks import (
+        CheckpointWithSettings,
+        EpisodeStats,
+        FixedSeeds,
+        ProgressLine,
+        SettingsBeside,
+    )
 
     if torch_threads is not None:
         torch.set_num_threads(int(torch_threads))
@@ -261,6 +268,8 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
 
     stats = EpisodeStats(window=100)
     callbacks = [stats]
+    if progress:  # on a terminal by default (main): steps, episodes, recent return and caught fraction
+        callbacks.append(ProgressLine(stats, cfg.n_timesteps, sys.stderr))
     eval_cb = None
     settings = model_settings(cfg)
     if tooling.eval_every is not None:
@@ -279,7 +288,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     t0 = time.perf_counter()
     interrupted = False
     try:
-        model.learn(total_timesteps=cfg.n_timesteps - start_step, callback=callbacks, progress_bar=progress,
+        model.learn(total_timesteps=cfg.n_timesteps - start_step, callback=callbacks, progress_bar=False,
                     reset_num_timesteps=not resume, tb_log_name=tb_name)
     except KeyboardInterrupt:  # Ctrl-C: keep what was learnt, with its settings, below
         interrupted = True
@@ -438,8 +447,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--conf-file", default=None, metavar="YML",
                    help="RL-Zoo-style hyperparameters (default agents/hyperparams/ALGO.yml)")
     p.add_argument("--env", default=ENV_ID, help=f"entry of the YAML file (default {ENV_ID})")
-    add_scene_arguments(p, default=None)
-    p.add_argument("--steps", type=int, default=None, help="policy steps to train for (default: n_timesteps)")
+    add_scene_arguments(p, default=None, default_text="the YAML's, rig")
+    p.add_argument("--steps", type=int, default=None,
+                   help="policy steps to train for (default: the YAML's n_timesteps; PPO trains whole "
+                        "rollouts of n_steps x n_envs, so N is rounded up to one, and says so)")
     p.add_argument("--envs", type=int, default=None, help="rigs stepped together (default: n_envs)")
     p.add_argument("--seed", type=int, default=0, help="model seed; env i starts from seed + i (default 0)")
     p.add_argument("--out", metavar="DIR", help="run folder (required unless --resume)")
@@ -454,8 +465,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                    help="override a hyperparameter (Python literal), e.g. --hp learning_rate=1e-4")
     p.add_argument("--tensorboard", default=None, metavar="DIR", help="TensorBoard log folder")
-    p.add_argument("--checkpoint-every", type=int, default=None, metavar="N",
-                   help="save a checkpoint every N policy steps (needed by --resume)")
+    p.add_argument("--checkpoint-every", type=int, default=CHECKPOINT_EVERY, metavar="N",
+                   help=f"save a checkpoint (and its settings file) every N policy steps, what --resume "
+                        f"continues from (default {CHECKPOINT_EVERY}; 0: never)")
     p.add_argument("--eval-every", type=int, default=100_000, metavar="N",
                    help="evaluate on the validation drops every N policy steps, keep the best (0: never)")
     p.add_argument("--eval-episodes", type=int, default=16, help="validation drops (default 16)")
@@ -463,7 +475,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"first validation seed (default {EVAL_SEED})")
     p.add_argument("--resume", metavar="DIR", default=None,
                    help="continue the run in DIR from its last checkpoint, with its settings")
-    p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="a status line on stderr: steps, episodes, recent return and caught fraction "
+                        "(default: on when stderr is a terminal)")
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (0, 1, 2)")
     return p
@@ -477,7 +491,8 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
     from impact_env.cli import parse_overrides
 
     if args.resume is not None:
-        given = [f"--{k.replace('_', '-')}" for k in SETTING_FLAGS if getattr(args, k) not in (None, [])]
+        given = [f"--{k.replace('_', '-')}" for k in SETTING_FLAGS if getattr(args, k) not in (None, [])
+                 and not (k == "checkpoint_every" and args.checkpoint_every == CHECKPOINT_EVERY)]
         if given:
             raise ConfigError(f"--resume takes the run's settings from {args.resume}/run.json; drop "
                               f"{', '.join(given)} (only --steps, --progress, --torch-threads, --verbose go "
@@ -504,17 +519,31 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
                       overrides=parse_overrides(args.set) or None, steps=args.steps, envs=args.envs,
                       seed=args.seed, observation=args.observation, history=args.history,
                       env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"), policy=args.policy)
-    tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every,
+    tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every or None,
                       eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
                       eval_seed=args.eval_seed)
     return cfg, Path(args.out), tooling, False
+
+
+def _note_rounding(cfg: RunConfig) -> None:
+    """PPO learns whole rollouts (n_steps x n_envs policy steps): say when the budget grows to one."""
+    n_steps = cfg.hyperparameters.get("n_steps") if cfg.algo == "ppo" else None
+    if not n_steps:
+        return
+    per = int(n_steps) * cfg.n_envs
+    if cfg.n_timesteps % per:
+        whole = -(-cfg.n_timesteps // per) * per
+        print(f"agents.train: --steps {cfg.n_timesteps} is not a whole number of PPO rollouts of "
+              f"{n_steps} x {cfg.n_envs} = {per} steps: training {whole} steps", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         cfg, out, tooling, resume = _from_args(args)
-        result = run(cfg, out, tooling, progress=args.progress, torch_threads=args.torch_threads,
+        progress = sys.stderr.isatty() if args.progress is None else args.progress
+        _note_rounding(cfg)
+        result = run(cfg, out, tooling, progress=progress, torch_threads=args.torch_threads,
                      verbose=args.verbose, resume=resume)
     except ConfigError as exc:
         print(f"agents.train: {exc}", file=sys.stderr)

@@ -14,4 +14,4 @@ from impact_env.sim.trajectory import Trajectory
 register_envs()
 
 __all__ = ["ENV_ID", "Scene", "SimulationDiverged", "Trajectory", "load_scene", "simulate"]
-__version__ = "0.1.0"
+__version__ = "0.2.0"  # the package's version, read by pyproject.toml, --version and CITATION.cff

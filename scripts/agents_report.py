@@ -32,6 +32,7 @@ What it does:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import shutil
@@ -42,6 +43,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from impact_env.eval.paired import PairedDifference, paired_difference  # noqa: E402
 BASELINES = ("passive", "thesis-rig", "pd-penetration")
 BEGIN, END = "<!-- agents_report:begin -->", "<!-- agents_report:end -->"
 
@@ -138,16 +142,24 @@ def scene_stats(d: dict, args) -> dict:
             "rms_N": float(np.mean(d[f"{label}|rms_force_N"])),
             "failed": int(d[f"{label}|failed"]),
         }
+    # the agents against pd-penetration on the same drops: paired differences (impact_env.eval.paired)
+    out["_paired"] = {label: {"energy": paired_difference(d[f"{label}|energy_integral_ms"],
+                                                          d["pd-penetration|energy_integral_ms"], "mean",
+                                                          resamples=args.resamples, seed=args.boot_seed),
+                              "catch": paired_difference(d[f"{label}|time_to_catch_s"],
+                                                         d["pd-penetration|time_to_catch_s"], "median_catch",
+                                                         resamples=args.resamples, seed=args.boot_seed)}
+                      for label in d["labels"] if label not in ("pd-penetration", "oracle")}
     src = [str(s) for s in d["oracle|source"]]
     out["_oracle"] = {"sources": {s: src.count(s) for s in sorted(set(src))},
                       "cpu_s_per_drop": float(np.mean(d["oracle|cpu_seconds"])), "episodes": n}
     return out
 
 
-def beats(a: dict, b: dict) -> dict:
-    """Does ``a`` beat ``b`` with non-overlapping 95 % intervals (lower is better)?"""
-    return {"catch": a["median_catch_ci"][1] < b["median_catch_ci"][0],
-            "energy": a["energy_ci"][1] < b["energy_ci"][0]}
+def _json(o):
+    if isinstance(o, PairedDifference):
+        return dataclasses.asdict(o)
+    return list(o)
 
 
 # -- output ---------------------------------------------------------------------------------------------
@@ -221,11 +233,17 @@ def figure(all_stats: dict, path: Path, shipped: str) -> Path:
                 ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_title(f"{scene}: {title}", fontsize=10)
             ax.grid(axis="x", alpha=0.3)
-    fig.suptitle("Held-out drops: values with bootstrap 95 % intervals (red: the shipped agent; "
-                 "0.4 s = not caught within the horizon)", fontsize=10)
-    fig.tight_layout()
+    fig.suptitle("Held-out drops: values with bootstrap 95 % intervals (0.4 s = not caught within the "
+                 "horizon)", fontsize=10)
+    from matplotlib.lines import Line2D  # a key for every colour used
+
+    key = [("tab:red", "the shipped agent"), ("tab:blue", "other PPO runs"), ("tab:green", "SAC runs"),
+           ("tab:gray", "classic laws"), ("black", "oracle (per-drop optimum)")]
+    fig.legend([Line2D([], [], marker="o", ls="", color=c) for c, _ in key], [t for _, t in key],
+               loc="lower center", ncol=len(key), fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.02))
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=150, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -277,9 +295,11 @@ def report_text(infos, all_stats, shipped, args, walls) -> str:
                   f"(a name other than `cma`: that policy's own recorded commands were the best found). "
                   f"Evaluation wall time {walls[scene]:.0f} s.", ""]
         pd, ag = st["pd-penetration"], st[shipped]
-        b = beats(ag, pd)
-        verdict = {k: "non-overlapping: beats it" if v else "intervals overlap or worse: NOT shown"
-                   for k, v in b.items()}
+        pe, pt = st["_paired"][shipped]["energy"], st["_paired"][shipped]["catch"]
+        verdict = {"catch": f"paired difference {pt.text('s')}: "
+                            f"{'better' if pt.a_better else 'NOT shown better'}",
+                   "energy": f"paired difference {pe.text('ms', '{:.2f}')}: "
+                             f"{'better' if pe.a_better else 'NOT shown better'}"}
         share = (pd["energy_ms"] - ag["energy_ms"]) / (pd["energy_ms"] - st["oracle"]["energy_ms"]) \
             if pd["energy_ms"] > st["oracle"]["energy_ms"] else math.nan
         lines += [f"Shipped agent against pd-penetration on `{scene}`: median catch "
@@ -333,7 +353,7 @@ def main(argv=None) -> int:
         all_stats[scene] = scene_stats(d, args)
         print(f"== {scene} ({walls[scene]:.0f} s)\n{scene_table(all_stats[scene])}\n", flush=True)
     best = max(infos, key=lambda i: i["val_best"])
-    (out / "stats.json").write_text(json.dumps(all_stats, indent=1, default=list) + "\n")
+    (out / "stats.json").write_text(json.dumps(all_stats, indent=1, default=_json) + "\n")
     if not args.no_ship:
         ship(best, Path(args.ship))
     fig = figure(all_stats, Path(args.figure), best["label"])

@@ -1,7 +1,7 @@
 """Figures of ``scripts/reproduce_thesis.py``: our versions of the thesis's figures 3.1, 3.2a-f,
 4.6, 4.7 and 4.8 from :class:`impact_env.eval.compare.PolicyRun` results (fig 4.4 is drawn by
 :func:`impact_env.eval.sweep.plot`).  Time is from the first touch; heights and velocities are drawn
-upwards positive, as in the thesis.  Small PNGs (dpi 70)."""
+upwards positive, as in the thesis.  PNGs at impact_env.eval.figstyle's 150 dpi."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from impact_env.eval.compare_plots import force_spectrum  # noqa: E402
+from impact_env.eval.compare_plots import force_asd, force_spectrum  # noqa: E402, F401
 from impact_env.plant.energy import catch_energy, energies, energy_above_rest  # noqa: E402
 
-DPI = 70
+DPI = 150
 
 
 def t_ms(run):
@@ -96,12 +96,12 @@ def fig_3_2(on, scene, path):
     a.set_ylabel("force, N")
     a = ax[2, 1]
     dt = float(on.trace_t[1] - on.trace_t[0])
-    f, amp = force_spectrum(tr["force_applied"], dt)
-    a.loglog(f[1:], np.maximum(amp[1:], 1e-6))
+    f, amp = force_asd(tr["force_applied"], dt)
+    a.loglog(f[1:], np.maximum(amp[1:], 1e-9))
     a.axvspan(20, 1000, color="0.85", zorder=0, label="the thesis's 20-1000 Hz (sec 3.4)")
     a.set_xlim(3, 5e4)
-    a.set_title("(f) force spectrum (amplitude per bin)", fontsize=9)
-    a.set_ylabel("amplitude, N")
+    a.set_title("(f) force spectrum (amplitude spectral density, Welch)", fontsize=9)
+    a.set_ylabel("amplitude density, N/sqrt(Hz)")
     a.set_xlabel("frequency, Hz")
     for a in ax.ravel():
         a.grid(alpha=0.3, which="both")

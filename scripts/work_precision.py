@@ -237,7 +237,7 @@ def plot(rows: list[dict], path: Path) -> None:
     fig.suptitle("impact_env plant: work-precision (fixed-step methods: dt 1e-5..1e-8 s; "
                  "dopri5: rtol 1e-4..1e-12)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=150, bbox_inches="tight")
     plt.close(fig)
 
 

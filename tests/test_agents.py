@@ -194,3 +194,24 @@ def test_ctrl_c_saves_the_model_and_its_settings(tmp_path, capsys, monkeypatch):
     meta = json.loads((out / "model.json").read_text())
     assert meta["interrupted"] is True and (out / "model.zip").is_file()
     assert "interrupted (Ctrl-C)" in capsys.readouterr().out
+
+
+@pytest.mark.training
+def test_progress_line_checkpoints_by_default_and_the_rounding_is_said(tmp_path, capsys):
+    """--steps 100 with 4 envs x n_steps 32: trained 128 steps, and stderr says so; --progress
+    writes the status line (on by default on a terminal); a checkpoint with its settings file is
+    written without asking (the default --checkpoint-every, here crossed by the budget's end)."""
+    out = tmp_path / "run"
+    args = ["--algo", "ppo", "--out", str(out), "--steps", "100", "--envs", "4", "--horizon", str(HORIZON),
+            "--eval-every", "0", "--progress", "--checkpoint-every", "64"]
+    for key, value in TINY_PPO.items():
+        args += ["--hp", f"{key}={value}"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "not a whole number of PPO rollouts" in err and "training 128 steps" in err
+    assert "training: 128/100 steps" in err or "training: 128/128 steps" in err
+    assert json.loads((out / "model.json").read_text())["steps"] == 128
+    assert (out / "checkpoints" / "model_64_steps.json").is_file()
+    from agents.train import CHECKPOINT_EVERY, build_parser
+
+    assert build_parser().parse_args(["--algo", "ppo"]).checkpoint_every == CHECKPOINT_EVERY

@@ -93,3 +93,32 @@ def test_trajectory_plot_energy_legend_has_no_code_names(tmp_path, monkeypatch):
     plot_trajectory(impact_env.simulate("rig", t_end=0.02), str(tmp_path / "t.png"))
     assert legends and not any(re.search(r"kinetic\d|_", t) for t in legends), legends
     assert np.all([t for t in legends])
+
+
+def test_one_style_formats_welch_and_no_flat_zero_lines(runs, tmp_path, monkeypatch):
+    """Every figure at 150 dpi; compare --format writes pdf or svg; the force spectrum is a Welch
+    density (steady: a pure 50 Hz sine peaks in its bin); a policy that applies no force is
+    named in the title, not drawn as a flat zero line."""
+    from PIL import Image
+
+    from impact_env.eval.compare import write_outputs
+    from impact_env.eval.figstyle import figure_path
+
+    scene = load_scene("rig")
+    paths = write_outputs(runs, tmp_path / "png", scene, 0, 0.05)
+    assert all(Image.open(p).info["dpi"][0] >= 149 for p in paths if p.suffix == ".png")
+    svg = write_outputs(runs, tmp_path / "svg", scene, 0, 0.05, fmt="svg")
+    assert sum(p.suffix == ".svg" for p in svg) == 4 and b"<svg" in svg[-1].read_bytes()[:400]
+    with pytest.raises(ValueError, match="png, pdf, svg"):
+        figure_path(tmp_path / "x.jpg")
+    dt = 1e-4
+    t = np.arange(20_000) * dt
+    freq, asd = CP.force_asd(np.sin(2 * np.pi * 50.0 * t), dt)
+    assert abs(freq[np.argmax(asd)] - 50.0) <= freq[1]
+    seen = capture(monkeypatch)
+    titles = []
+    monkeypatch.setattr(CP, "_finish", lambda plt, fig, ax, title, *a, **k: (titles.append(title),
+                                                                              plt.close(fig))[0])
+    CP.plot_force(runs, tmp_path / "f.png", scene)
+    assert "no force: passive" in titles[0]
+    del seen

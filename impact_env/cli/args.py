@@ -22,7 +22,7 @@ def parse_overrides(pairs: list[str] | None) -> dict[str, str]:
 
 
 def add_scene_arguments(p: argparse.ArgumentParser, positional: bool = False, default: str | None = "ideal",
-                        scene: bool = True) -> None:
+                        scene: bool = True, default_text: str | None = None) -> None:
     """Give a (sub)command the shared scene options: the scene (``--scene NAME|FILE.toml``, or a
     positional ``scene`` with ``positional=True``) and the repeatable ``--set KEY=VALUE``.
     Every command that builds a scene uses this and :func:`scene_from_args`, so ``--set`` works
@@ -32,7 +32,7 @@ def add_scene_arguments(p: argparse.ArgumentParser, positional: bool = False, de
             p.add_argument("scene", help="preset name or path to a scene .toml")
         else:
             p.add_argument("--scene", default=default,
-                           help=f"preset name or path to a scene .toml (default: {default})")
+                           help=f"preset name or path to a scene .toml (default: {default_text or default})")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
                    help="override a scene field, e.g. --set plant.m1=0.05 (repeatable; values are TOML, "
                         "e.g. --set 'randomize.m1=[0.08, 0.12]')")

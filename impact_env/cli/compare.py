@@ -25,6 +25,8 @@ def add_parser(sub, scene_args) -> None:
     p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
     p.add_argument("--out", metavar="DIR", help="write summary.csv/json, episodes.csv and plots here")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
+    p.add_argument("--format", default="png", choices=("png", "pdf", "svg"),
+                   help="the plots' file format with --out (default png, 150 dpi)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--list", action="store_true", help="list the baselines and their parameters, then exit")
     p.add_argument("--rig", metavar="udp://HOST:PORT",
@@ -76,7 +78,7 @@ def cmd_compare(args) -> int:
     if len(failures) > 20:
         print(f"impact-env compare: ... and {len(failures) - 20} more failed episodes", file=sys.stderr)
     if args.out:
-        paths = write_outputs(runs, out_dir, scene, args.seed, horizon)
+        paths = write_outputs(runs, out_dir, scene, args.seed, horizon, fmt=args.format)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
     return _all_failed(runs)
@@ -151,7 +153,7 @@ def _compare_rig(args, specs) -> int:
             print(f"impact-env compare --rig: policy {f['policy']!r} failed in episode {f['episode']} "
                   f"(seed {f['seed']}): {f['error']}", file=sys.stderr)
     if args.out:
-        paths = write_outputs(rig_runs, Path(args.out), rig_scene, args.seed, horizon)
+        paths = write_outputs(rig_runs, Path(args.out), rig_scene, args.seed, horizon, fmt=args.format)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
     return 0

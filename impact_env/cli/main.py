@@ -19,11 +19,15 @@ from impact_env.config import ConfigError
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from impact_env import __version__
+
     ap = argparse.ArgumentParser(prog="impact-env", description="Catching a falling body with a shaker.")
+    ap.add_argument("--version", action="version", version=f"impact-env {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("drop", help="simulate one uncontrolled drop and summarise it")
-    add_scene_arguments(p)
+    add_scene_arguments(p, default_text="ideal, the thesis's ch. 3 drop without the rig's effects; "
+                                        "compare, sweep and the envs default to rig")
     p.add_argument("--seed", type=int, default=None,
                    help="for a scene with [randomize] ranges: draw this drop's values with this seed "
                         "(default: the scene's nominal values); the JSON lists them under 'drawn'")
@@ -47,7 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_scene_arguments(q, positional=True)
     q.set_defaults(func=cmd_scene_show)
 
-    compare.add_parser(sub, lambda p: add_scene_arguments(p, default=None))  # None: rig, or --rig's own
+    compare.add_parser(sub, lambda p: add_scene_arguments(  # None: rig, or with --rig the rig's own
+        p, default=None, default_text="rig; with --rig, the simulation beside it only when given"))
     sweep.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
     export.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
     rig.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))

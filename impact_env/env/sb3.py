@@ -25,7 +25,12 @@ from typing import Any
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+
+try:
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+except ImportError as exc:  # the optional extra: say how to get it
+    raise ImportError("impact_env.env.sb3 adapts the vector env to stable-baselines3, which is not "
+                      "installed: pip install 'impact-env[sb3]' (stable-baselines3 and torch)") from exc
 
 from impact_env.env.vector import ImpactCatchVectorEnv
 

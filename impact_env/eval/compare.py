@@ -371,8 +371,10 @@ def summary_json(runs: dict[str, PolicyRun]) -> dict:
     return out
 
 
-def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, horizon: float) -> list[Path]:
-    """summary.csv, summary.json, episodes.csv and the plots into ``out_dir``; returns the paths."""
+def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, horizon: float,
+                  fmt: str = "png") -> list[Path]:
+    """summary.csv, summary.json, episodes.csv and the plots (``fmt``: png, pdf or svg) into
+    ``out_dir``; returns the paths."""
     import csv
 
     from impact_env.eval.compare_plots import plot_catch_time, plot_energy, plot_force, plot_motion
@@ -402,8 +404,8 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
                 w.writerow([spec, int(j), seed + int(j),
                             *(float(run.metrics[k][i]) for k in EPISODE_METRICS)])
     paths.append(p)
-    paths.append(plot_energy(runs, out_dir / "energy.png", scene))
-    paths.append(plot_force(runs, out_dir / "force.png", scene))
-    paths.append(plot_motion(runs, out_dir / "motion.png", scene))
-    paths.append(plot_catch_time(runs, out_dir / "catch_time.png", scene, horizon))
+    paths.append(plot_energy(runs, out_dir / f"energy.{fmt}", scene))
+    paths.append(plot_force(runs, out_dir / f"force.{fmt}", scene))
+    paths.append(plot_motion(runs, out_dir / f"motion.{fmt}", scene))
+    paths.append(plot_catch_time(runs, out_dir / f"catch_time.{fmt}", scene, horizon))
     return paths

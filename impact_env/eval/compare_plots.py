@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from impact_env.eval.figstyle import save_figure
 from impact_env.eval.labels import policy_colors
 
 
@@ -47,9 +48,7 @@ def _finish(plt, fig, ax, title: str, path: Path, legend_size: int, xlabel: str 
         a.legend(fontsize=legend_size)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _t_ms(run):
@@ -81,11 +80,23 @@ def plot_energy(runs, path: Path, scene) -> Path:
 
 
 def force_spectrum(force: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """(frequency Hz, amplitude N) of a force record: |rfft| * 2 / n, i.e. the amplitude of each
-    sinusoidal component (a 1 N sine at a bin frequency reads 1 N)."""
+    """(frequency Hz, amplitude N) of a force record: |rfft| * 2 / n, the amplitude of each
+    sinusoidal component (a 1 N sine at a bin frequency reads 1 N).  For energy shares by band
+    (Parseval: ``scripts/reproduce_thesis.py``); plots use :func:`force_asd`."""
     n = len(force)
     amp = np.abs(np.fft.rfft(force)) * 2.0 / max(n, 1)
     return np.fft.rfftfreq(n, dt), amp
+
+
+def force_asd(force: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(frequency Hz, amplitude spectral density N/sqrt(Hz)) of a force record by Welch's method
+    (``scipy.signal.welch``: Hann segments of up to 1024 samples, half overlapping, averaged):
+    steadier than one raw FFT of the whole record, whose bins scatter by their own variance."""
+    from scipy import signal
+
+    n = len(force)
+    freq, psd = signal.welch(force, fs=1.0 / dt, nperseg=min(n, 1024), scaling="density")
+    return freq, np.sqrt(psd)
 
 
 def filter_band(scene) -> tuple[float, float] | None:
@@ -106,17 +117,20 @@ def plot_force(runs, path: Path, scene, window_ms: float = 30.0) -> Path:
     plt = _plt()
     colors = policy_colors(runs)
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    silent: list[str] = []
     for spec, run in runs.items():
         if run.trace0 is None:
             continue
         t = _t_ms(run)
         f = run.trace0["force_applied"]
         sel = (t >= -1.0) & (t <= window_ms)
+        if not np.any(f != 0):  # a policy that applies no force: said, not drawn as a flat line
+            silent.append(spec)
+            continue
         ax[0].plot(t[sel], f[sel], lw=1, color=colors[spec], label=spec)
-        if np.any(f != 0):
-            dt = float(run.trace_t[1] - run.trace_t[0]) if len(run.trace_t) > 1 else run.control_period
-            freq, amp = force_spectrum(f, dt)
-            ax[1].loglog(freq[1:], np.maximum(amp[1:], 1e-6), lw=0.8, color=colors[spec], label=spec)
+        dt = float(run.trace_t[1] - run.trace_t[0]) if len(run.trace_t) > 1 else run.control_period
+        freq, amp = force_asd(f, dt)
+        ax[1].loglog(freq[1:], np.maximum(amp[1:], 1e-9), lw=0.8, color=colors[spec], label=spec)
     ax[0].set_title("force on body 2 (up positive), episode 0 (cf. thesis fig 3.2e)", fontsize=9)
     ax[0].set_xlabel("time from first touch, ms")
     ax[0].set_ylabel("force, N")
@@ -125,10 +139,11 @@ def plot_force(runs, path: Path, scene, window_ms: float = 30.0) -> Path:
         lo, hi = band
         ax[1].axvspan(max(lo, 1e-3), hi, color="0.85", zorder=0,
                       label=f"scene's sensor filter band, {lo:g}-{hi:g} Hz")
-    ax[1].set_title("its amplitude spectrum over the episode (cf. fig 3.2f)", fontsize=9)
+    ax[1].set_title("its amplitude spectral density over the episode (Welch; cf. fig 3.2f)", fontsize=9)
     ax[1].set_xlabel("frequency, Hz")
-    ax[1].set_ylabel("amplitude, N")
-    return _finish(plt, fig, ax, f"scene {scene.name}: shaker force", path, 7, which="both")
+    ax[1].set_ylabel("amplitude density, N/sqrt(Hz)")
+    none = f" (no force: {', '.join(silent)})" if silent else ""
+    return _finish(plt, fig, ax, f"scene {scene.name}: shaker force{none}", path, 7, which="both")
 
 
 def plot_motion(runs, path: Path, scene, window_ms: float = 100.0) -> Path:
@@ -203,6 +218,4 @@ def plot_catch_time(runs, path: Path, scene, horizon: float) -> Path:
     ax.set_title(f"scene {scene.name}: catch time, {n} drops per policy (caught: catch energy below 1 % for "
                  f"good)\ndots: the median; triangles at {horizon:g} s: the share never caught", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -128,10 +128,11 @@ def check_spec(spec: str, scene) -> None:
     """Validate a spec without the cost of loading a model (models: syntax, file and settings,
     so that a model without its settings is one error before anything runs, not one per episode)."""
     if is_model_spec(spec) and not spec.startswith("compiled:"):
-        from impact_env.policy.sb3 import model_settings, parse_model_spec
+        from impact_env.policy.sb3 import model_settings, parse_model_spec, require_sb3
 
         _algo, path, opts = parse_model_spec(spec)
         model_settings(path, opts, spec)
+        require_sb3()
     else:
         make_policy(spec, scene)
 

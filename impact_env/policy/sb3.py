@@ -79,8 +79,22 @@ class ModelPolicy:
         return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
 
 
+SB3_HINT = ("stable-baselines3 and torch, which are not installed: they are the optional extra 'sb3' "
+            "(pip install 'impact-env[sb3]'; on a machine without a GPU install torch's CPU build "
+            "first, README)")
+
+
+def require_sb3():
+    """The stable_baselines3 module, or ConfigError with the install hint."""
+    try:
+        import stable_baselines3
+    except ImportError:
+        raise ConfigError(f"a saved stable-baselines3 model needs {SB3_HINT}") from None
+    return stable_baselines3
+
+
 def _load(algo: str | None, path: Path):
-    import stable_baselines3 as sb3
+    sb3 = require_sb3()
 
     names = [algo] if algo else list(ALGOS)
     errors = []

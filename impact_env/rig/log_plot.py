@@ -55,6 +55,6 @@ def plot_log(log, path, estimate: dict | None = None) -> Path:
                  fontsize=10)
     fig.tight_layout()
     path = Path(path)
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=150, bbox_inches="tight")  # impact_env.eval.figstyle's style (rig sits below eval)
     plt.close(fig)
     return path
