@@ -80,7 +80,7 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
         if value is None:
             return None
         return _coerce(args[0], value, where)
-    if dataclasses.is_dataclass(tp):
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         if isinstance(value, tp):
             return value
         if not isinstance(value, dict):
@@ -88,8 +88,6 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
         return from_dict(tp, value, where)
     if origin is tuple:
         (inner, *_rest) = typing.get_args(tp)
-        if isinstance(value, str):
-            value = [v.strip() for v in value.split(",") if v.strip()]
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{where} must be a list, got {value!r}")
         return tuple(_coerce(inner, v, f"{where}[{i}]") for i, v in enumerate(value))
@@ -154,12 +152,14 @@ def parse_value(text: str) -> Any:
         return text.strip()
 
 
-def set_dotted(cls, data: dict, key: str, value: Any, path: str = "") -> None:
+def set_dotted(cls, data: dict, key: str, value: Any, path: str = "", split_lists: bool = False) -> None:
     """Set the dotted ``key`` of the plain dict ``data`` (shaped like dataclass ``cls``) in place.
 
     The key is checked against the schema (unknown keys raise with the nearest valid one); the
     value is checked when the dataclass is built.  A class may define ``_override_clears``,
-    a dict from a field to the sibling fields that setting it clears.
+    a dict from a field to the sibling fields that setting it clears.  ``split_lists``: a string
+    for a list field is split at commas (``--set effects.active=shaker,sensors``); a scene file's
+    string is not, and is refused as not a list.
     """
     head, _, rest = key.partition(".")
     names = [f.name for f in dataclasses.fields(cls)]
@@ -171,8 +171,10 @@ def set_dotted(cls, data: dict, key: str, value: Any, path: str = "") -> None:
     if rest:
         if sub is None:
             raise ConfigError(f"{where} is a value, not a table: cannot set {where}.{rest}")
-        set_dotted(sub, data.setdefault(head, {}), rest, value, where)
+        set_dotted(sub, data.setdefault(head, {}), rest, value, where, split_lists)
         return
+    if split_lists and isinstance(value, str) and typing.get_origin(tp) is tuple:
+        value = [v.strip() for v in value.split(",") if v.strip()]
     if sub is not None and not isinstance(value, dict):
         raise ConfigError(f"{where} is a table: set one of its keys, e.g. {where}.<key>=value")
     data[head] = value
@@ -205,7 +207,7 @@ def with_overrides(obj, overrides: dict[str, Any], parse: bool = True):
     for key, value in overrides.items():
         if parse and isinstance(value, str):
             value = parse_value(value)
-        set_dotted(type(obj), data, key, value)
+        set_dotted(type(obj), data, key, value, split_lists=parse)
         if value is not None:
             for other in clears.get(key, ()):
                 if other not in overrides:

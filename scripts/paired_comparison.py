@@ -43,7 +43,8 @@ def main(argv=None) -> int:
         e = paired_difference(ag["energy_integral_ms"], pd["energy_integral_ms"], "mean")
         t = paired_difference(ag["time_to_catch_s"], pd["time_to_catch_s"], "median_catch")
         print(f"| `{scene}` | {e.difference:.2f} [{e.low:.2f}, {e.high:.2f}] | "
-              f"{t.difference:.3f} [{t.low:.3f}, {t.high:.3f}] | {'yes' if e.a_better and t.a_better else 'no'} |")
+              f"{t.difference:.3f} [{t.low:.3f}, {t.high:.3f}] | "
+              f"{'yes' if e.a_better and t.a_better else 'no'} |")
     print(f"\n{args.episodes} drops per scene seeded {args.seed}..{args.seed + args.episodes - 1}; paired "
           "percentile bootstrap, 10000 resamples (scipy.stats.bootstrap, paired=True).")
     return 0

@@ -186,3 +186,18 @@ def test_summary_csv_and_json_agree_on_non_finite(tmp_path):
     js = json.loads((tmp_path / "summary.json").read_text())["policies"]["thesis-rig"]
     row = next(csv.DictReader(open(tmp_path / "summary.csv")))
     assert js["time_to_catch_median_s"] is None and row["time_to_catch_median_s"] == ""
+
+
+def test_a_list_field_given_as_a_string_in_a_scene_file_is_refused(tmp_path):
+    """``active = "shaker"`` in a scene file was accepted (split at commas, as --set does); a file
+    holds typed TOML, so it must be a list there; --set keeps its comma form."""
+    from impact_env.config import ConfigError
+
+    p = tmp_path / "s.toml"
+    p.write_text('base = "rig"\n[effects]\nactive = "shaker"\n')
+    with pytest.raises(ConfigError, match="effects.active must be a list"):
+        load_scene(p)
+    p.write_text('[effects]\nactive = "shaker"\n')
+    with pytest.raises(ConfigError, match="effects.active must be a list"):
+        load_scene(p)
+    assert load_scene("rig", {"effects.active": "shaker,sensors"}).effects.active == ("shaker", "sensors")

@@ -77,7 +77,7 @@ def cmd_compare(args) -> int:
               f"at t = {f['t_s']:.6g} s: {f['error']}", file=sys.stderr)
     if len(failures) > 20:
         print(f"impact-env compare: ... and {len(failures) - 20} more failed episodes", file=sys.stderr)
-    if args.out:
+    if out_dir is not None:
         paths = write_outputs(runs, out_dir, scene, args.seed, horizon, fmt=args.format)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))

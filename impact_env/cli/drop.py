@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+from typing import Any
 
 from impact_env.cli.args import output_file, parse_overrides, scene_from_args
 
@@ -81,7 +82,7 @@ def cmd_scenes(args) -> int:
             flat = to_dict(scene)
             shown = []
             for key in ov:
-                v = flat
+                v: Any = flat
                 for part in key.split("."):
                     v = v.get(part) if isinstance(v, dict) else None
                 shown.append(f"{key}={v!r}" if not isinstance(v, dict) else f"{key}=(table)")

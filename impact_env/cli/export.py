@@ -45,8 +45,9 @@ def cmd_export(args) -> int:
     pol = export_policy(args.spec, scene)
     if args.onnx and pol.mlp is None:
         raise ConfigError(f"--onnx: {args.spec!r} is a classic law; only MLP policies are exported to ONNX")
+    mlp: dict = pol.mlp or {}
     what = f"law {pol.law['name']}" if pol.law is not None else \
-        f"MLP {' x '.join(str(len(ly['bias'])) for ly in pol.mlp['layers'])} ({pol.mlp['output']})"
+        f"MLP {' x '.join(str(len(ly['bias'])) for ly in mlp['layers'])} ({mlp['output']})"
     names = ", ".join(pol.layout.names)
     if args.c_dir:
         from impact_env.deploy.c_export import generate_c

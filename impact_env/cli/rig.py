@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+import typing
 
 
 def add_parser(sub, scene_args) -> None:
@@ -126,7 +127,7 @@ def load_driver(spec: str, scene):
     if not (isinstance(cls, type) and issubclass(cls, RigDriver)):
         raise ConfigError(f"--driver {spec!r}: {module}.{name} is not a subclass of "
                           "impact_env.rig.driver.RigDriver")
-    driver = cls(scene)
+    driver = typing.cast(typing.Any, cls)(scene)  # a driver class is constructed with the scene
     if driver.scene.control_rate != scene.control_rate:
         raise ConfigError(f"--driver {spec!r}: its scene's control rate ({driver.scene.control_rate:g} Hz) "
                           f"is not the served scene's ({scene.control_rate:g} Hz)")

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -186,15 +187,16 @@ class CompiledPolicy:
             kind, slots, consts = LW.pack_law(self.law["name"], self.law["constants"], lay.names)
             n_layers, out, table, body, mem = 0, 0, np.zeros(0, np.int64), consts, LW.MEMORY + F
         else:
-            table2, body, widest = MLP.pack_mlp(self.mlp["layers"])
+            mlp = typing.cast(dict, self.mlp)  # exactly one of law and mlp (__post_init__)
+            table2, body, widest = MLP.pack_mlp(mlp["layers"])
             if table2[0, MLP.L_IN] != lay.size:
                 raise ConfigError(f"the network takes {table2[0, MLP.L_IN]} inputs but the observation "
                                   f"({self.observation}, history {lay.history}) has {lay.size}")
             if table2[-1, MLP.L_OUT] != 1:
                 raise ConfigError(f"the network gives {table2[-1, MLP.L_OUT]} outputs; the shaker takes one")
-            kind, n_layers, out, table, mem = KIND_MLP, table2.shape[0], MLP.OUT[self.mlp["output"]], \
+            kind, n_layers, out, table, mem = KIND_MLP, table2.shape[0], MLP.OUT[mlp["output"]], \
                 table2.ravel(), 2 * widest
-            head_f[PF_LOW], head_f[PF_HIGH] = self.mlp["low"], self.mlp["high"]
+            head_f[PF_LOW], head_f[PF_HIGH] = mlp["low"], mlp["high"]
         pi = np.concatenate([np.array([kind, lay.size, F, mem, n_layers, out], dtype=np.int64), slots, table])
         pf = np.concatenate([np.array(head_f, dtype=np.float64), body])
         self._packed = (pi.astype(np.int64), pf, int(mem))
@@ -253,8 +255,9 @@ class CompiledPolicy:
     def check_scene(self, scene) -> None:
         """ConfigError unless ``scene`` gives this policy's observation (same entries and scales)
         at its control rate."""
-        if self.residual is not None:
-            self.residual_policy().check_scene(scene)
+        res = self.residual_policy()
+        if res is not None:
+            res.check_scene(scene)
         lay = make_layout(scene, self.observation, self.history)
         if lay.names != self.layout.names or not np.array_equal(lay.scales, self.layout.scales):
             raise ConfigError(f"policy {self.name!r} reads {self.layout.names} with scales "

@@ -227,8 +227,8 @@ def discrete_emf_model(cfg: ShakerConfig, rate: float):
 @functools.lru_cache(maxsize=64)
 def _discrete_emf_model(cfg: ShakerConfig, rate: float):
     if not cfg.back_emf:
-        A, B, C, D = discrete_model(cfg, rate)
-        return A, B, C, D, np.zeros_like(B)
+        A0, B0, C0, D0 = discrete_model(cfg, rate)
+        return A0, B0, C0, D0, np.zeros_like(B0)
     A, B2, C, D2 = signal.cont2discrete(continuous_emf_model(cfg), 1.0 / rate, method="zoh")[:4]
     Bu, E = B2[:, :1], B2[:, 1:]
     D = D2[:, :1]

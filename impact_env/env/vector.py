@@ -73,6 +73,7 @@ class ImpactCatchVectorEnv(VectorEnv):
 
     # -- seeding ---------------------------------------------------------------------------------
     def _seed(self, seed) -> None:
+        seeds: list[int | None]
         if seed is None:
             seeds = [None] * self.num_envs
         elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):

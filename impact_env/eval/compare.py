@@ -38,6 +38,10 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from impact_env.scene import Scene
 
 SUMMARY_KEYS = ("time_to_catch_median_s", "time_to_catch_q25_s", "time_to_catch_q75_s", "time_to_catch_iqr_s",
                 "caught_fraction", "residual_energy_10ms", "residual_energy_50ms", "residual_energy_100ms",
@@ -70,7 +74,7 @@ def split_policies(text: str) -> list[str]:
 @dataclass
 class Task:
     spec: str
-    scene: object
+    scene: Scene
     episodes: list[int]
     seed: int
     horizon: float
@@ -85,19 +89,19 @@ class PolicyRun:
     of the first episode (for the plots) and the catch-energy ratio of every episode."""
 
     spec: str
-    episodes: object
+    episodes: Any  # int64[E]
     metrics: dict
     failures: list
-    trace_t: object
+    trace_t: Any
     trace0: dict | None
     t_touch0: float
     impact_energy0: float
-    energy_t: object
-    energy_ratio: object  # float64[T, E]
+    energy_t: Any
+    energy_ratio: Any  # float64[T, E]
     control_period: float
     wall_time_s: float = 0.0
     summary: dict = field(default_factory=dict)
-    commands: object = None  # float64[n_steps, E] when recorded
+    commands: Any = None  # float64[n_steps, E] when recorded
     stats: dict = field(default_factory=dict)  # a prepared policy's per-episode figures (the oracle's)
 
 
@@ -325,7 +329,7 @@ def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
             "exit v/v0", "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
     gaps = any("gap_to_oracle_ms" in run.summary for run in runs.values())
     if gaps:
-        cols = cols[:7] + ("gap to oracle",) + cols[7:]
+        cols = (*cols[:7], "gap to oracle", *cols[7:])  # type: ignore[assignment]  # one more column
     rows = []
     for spec, run in runs.items():
         s = run.summary

@@ -90,12 +90,13 @@ def force_spectrum(force: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
 
 def force_asd(force: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """(frequency Hz, amplitude spectral density N/sqrt(Hz)) of a force record by Welch's method
-    (``scipy.signal.welch``: Hann segments of up to 1024 samples, half overlapping, averaged):
-    steadier than one raw FFT of the whole record, whose bins scatter by their own variance."""
+    (``scipy.signal.welch``: Hann segments of half the record, half overlapping, three averaged:
+    steadier than one raw FFT of the whole record, whose bins scatter by their own variance, and
+    fine enough for the thesis's 20 Hz band edge on a 0.1 s record)."""
     from scipy import signal
 
     n = len(force)
-    freq, psd = signal.welch(force, fs=1.0 / dt, nperseg=min(n, 1024), scaling="density")
+    freq, psd = signal.welch(force, fs=1.0 / dt, nperseg=max(min(n, 16), n // 2), scaling="density")
     return freq, np.sqrt(psd)
 
 

@@ -93,7 +93,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -491,7 +491,9 @@ class OraclePolicy:
                                         self.budget))
         # full-horizon choice: every drop's finalists and its warm starts as recorded, one rollout
         names = list(warm)
-        cols, owner, label = [], [], []
+        cols: list = []
+        owner: Any = []  # the drop of each candidate (a list, then an int array)
+        label: list[str] = []
         for i, s in enumerate(searches):
             for u in s.finalists:
                 cols.append(u)
@@ -505,8 +507,9 @@ class OraclePolicy:
         ei = np.where(np.isnan(r.metrics["energy_integral_ms"]), np.inf, r.metrics["energy_integral_ms"])
         owner = np.asarray(owner)
         self.open_loop = np.zeros((n_steps, n))
-        st = {k: np.zeros(n) for k in ("energy_integral_ms", "best_warm_ms", "improvement_ms", "evaluations",
-                                         "seconds", "cpu_seconds", "window_objective_ms")}
+        keys = ("energy_integral_ms", "best_warm_ms", "improvement_ms", "evaluations", "seconds",
+                "cpu_seconds", "window_objective_ms")
+        st: dict[str, Any] = {k: np.zeros(n) for k in keys}
         st.update(best_warm=[""] * n, source=[""] * n, base=[""] * n)
         for i in range(n):
             rows = np.nonzero(owner == i)[0]

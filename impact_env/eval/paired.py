@@ -64,7 +64,8 @@ def paired_difference(a, b, statistic: str = "mean", confidence: float = 0.95, r
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     if a.shape != b.shape or a.ndim != 1 or a.size < 2:
-        raise ValueError(f"a and b must be the same drops (equal 1-d shapes of >= 2), got {a.shape}, {b.shape}")
+        raise ValueError(f"a and b must be the same drops (equal 1-d shapes of >= 2), got {a.shape}, "
+                         f"{b.shape}")
 
     def diff(x, y, axis=-1):
         with np.errstate(invalid="ignore"):
@@ -76,4 +77,5 @@ def paired_difference(a, b, statistic: str = "mean", confidence: float = 0.95, r
                               n_resamples=resamples, method="percentile",
                               random_state=np.random.default_rng(seed))
     ci = res.confidence_interval
-    return PairedDifference(statistic, float(diff(a, b)), float(ci.low), float(ci.high), confidence, int(a.size))
+    return PairedDifference(statistic, float(diff(a, b)), float(ci.low), float(ci.high), confidence,
+                            int(a.size))

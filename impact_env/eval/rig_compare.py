@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +35,7 @@ TRACE_MAP = {"x1": "true_x1_m", "v1": "true_v1_mps", "x2": "true_x2_m", "v2": "t
 
 def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 0,
                 horizon: float | None = None, progress: bool = True,
-                key=None) -> tuple[object, dict[str, PolicyRun]]:
+                key=None) -> tuple[Any, dict[str, PolicyRun]]:
     """(the target's scene, spec -> PolicyRun) measured on the rig at ``address`` (``key``: the
     session key file the target was started with, or None)."""
     from impact_env.policy.export import export_policy
@@ -124,7 +125,7 @@ def _run(spec: str, logs: list, failures: list, wall: float) -> PolicyRun:
     period = math.nan
     trace0, trace_t, t_touch0, e00 = None, None, math.nan, math.nan
     ratios = []
-    energy_t = None
+    energy_t: Any = None
     for j, log in enumerate(logs):
         if log is None:
             continue

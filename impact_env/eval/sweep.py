@@ -23,6 +23,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -93,7 +94,7 @@ class SweepResult:
 @dataclass
 class _Chunk:
     policy: str
-    scene: object
+    scene: Any
     x_name: str
     y_name: str
     xs: np.ndarray

@@ -10,6 +10,8 @@ controller's front end after it; a virtual rig uses it alone.
 
 from __future__ import annotations
 
+import typing
+
 import numpy as np
 
 from impact_env.effects import delay as DL
@@ -189,7 +191,7 @@ class Hardware:
             self.rngs[i] = rng
             if self.randomized:  # (a fixed scene's rows were filled once, in __init__)
                 self.drawn[i] = values = self.scene.draw(rng)
-                self._set_env(i, self._env_arrays(self.scene.with_draws(values)))
+                self._set_env(int(i), self._env_arrays(self.scene.with_draws(values)))
             self.Y[i] = self.y0[i]
             self.modes[i] = self.mode0[i]
             self.EVN[i] = 0
@@ -245,7 +247,9 @@ class Hardware:
             left = nb - c
             if left:
                 self.noise[i, :left] = self.noise[i, c:]
-            self.noise[i, left:] = self.rngs[i].standard_normal((nb - left, SE.N_CHANNELS))
+            # every env is reset (seeded) before it steps
+            rng = typing.cast(np.random.Generator, self.rngs[i])
+            self.noise[i, left:] = rng.standard_normal((nb - left, SE.N_CHANNELS))
             self.cursor[i] = 0
         # inactive envs were not topped up: check every env again at the next step
         self._refill_in = 0 if active is not None else int(nb - self.cursor.max()) - ticks

@@ -141,7 +141,7 @@ def step_matrix(method: str, hA: np.ndarray) -> np.ndarray:
     raise ValueError(f"no step matrix for method {method!r}")
 
 
-def stable(method: str, hA: np.ndarray) -> np.ndarray:
+def stable(method: str, hA: np.ndarray) -> bool | np.ndarray:
     """Whether ``method``'s step is stable on ``y' = A y``, per matrix of the stack ``hA``
     (see the module doc)."""
     hA = np.asarray(hA, dtype=float)
@@ -205,7 +205,7 @@ def first_unstable(drop: Drop, method: str, dt: float, d_max: float, b: float) -
     """The deepest penetration (m) in [0, d_max] at which the step dt is unstable, or None."""
     d = _grid(d_max)
     A = linear_matrix(drop.m1, drop.m2, 1.5 * drop.c * np.sqrt(d), b * d**0.25, drop.k2, drop.c2)
-    ok = stable(method, dt * A)
+    ok = np.asarray(stable(method, dt * A))
     return None if ok.all() else float(d[np.argmin(ok)])
 
 
@@ -267,8 +267,8 @@ def accuracy_warnings(scene) -> list[str]:
     if drop.restitution < 1.0:
         out.append(f"integrator.event_location = false on a damped pad (restitution {drop.restitution:g}): "
                    "stepping across the separation, the pad's damping keeps pulling body 1 while it is "
-                   "inside the pad, where the located model lets go when the force reaches zero; contact times are "
-                   "then about 8 % off and the restitution about 5e-3, whatever the dt (measured on rig from "
+                   "inside the pad, where the located model lets go when the force reaches zero; "
+                   "contact times are then about 8 % off and the restitution about 5e-3, whatever the dt (measured on rig from "
                    "35 to 3500 steps per contact); use integrator.event_location = true")
         return out
     sc = contact_scales(drop)

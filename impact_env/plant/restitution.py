@@ -52,19 +52,20 @@ def scaled_collision(zeta: float) -> ScaledCollision:
         s = max(y[0], 0.0)
         return s**1.25 + zeta * y[1]
 
-    force_zero.terminal = True
-    force_zero.direction = -1
+    # solve_ivp reads an event's terminal/direction as attributes of the function (its documented API)
+    force_zero.terminal = True  # type: ignore[attr-defined]
+    force_zero.direction = -1  # type: ignore[attr-defined]
 
     def touch(_t, y):
         return y[0]
 
-    touch.terminal = True
-    touch.direction = -1
+    touch.terminal = True  # type: ignore[attr-defined]
+    touch.direction = -1  # type: ignore[attr-defined]
 
     def deepest(_t, y):
         return y[1]
 
-    deepest.direction = -1
+    deepest.direction = -1  # type: ignore[attr-defined]
     events = (touch, deepest) if zeta == 0.0 else (force_zero, touch, deepest)
     sol = solve_ivp(rhs, (0.0, 50.0), [_S0, 1.0], method="DOP853", rtol=1e-12, atol=1e-15, events=events)
     if sol.status != 1:

@@ -17,6 +17,7 @@ and branches and are not exported to ONNX.
 
 from __future__ import annotations
 
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -152,7 +153,7 @@ def onnx_metadata(pol: CompiledPolicy) -> dict[str, str]:
         "impact_env.command_scale_n": repr(float(pol.command_scale)),
         "impact_env.action": "command in [-1, 1]; 1 = command_scale_n newtons upwards on body 2",
         "impact_env.residual_law": json.dumps(None if res is None else {
-            "name": res.law["name"], "params": res.law["params"], "constants": res.law["constants"]}),
+            k: typing.cast(dict, res.law)[k] for k in ("name", "params", "constants")}),
         "impact_env.policy_sha256": pol.sha256(),
         "impact_env.scene": json.dumps(pol.scene),
     }
@@ -165,7 +166,8 @@ def write_onnx(pol: CompiledPolicy, path) -> Path:
     from onnx import TensorProto, helper, numpy_helper
 
     if pol.mlp is None:
-        raise ConfigError(f"policy {pol.name!r} is a classic law ({pol.law['name']}): only MLP policies are "
+        law = typing.cast(dict, pol.law)
+        raise ConfigError(f"policy {pol.name!r} is a classic law ({law['name']}): only MLP policies are "
                           "exported to ONNX (a law keeps memory between calls)")
     nodes, inits = [], []
     x = "obs"

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import functools
 from importlib.metadata import entry_points
+from typing import Any
 
 from impact_env.config import ConfigError
 from impact_env.scene import Scene, load_scene
@@ -30,7 +31,7 @@ REGISTERED: dict[str, type] = {}  # added at run time with register_policy (they
 
 @functools.cache
 def _entry_points() -> dict:
-    out = {}
+    out: dict = {}
     for ep in entry_points(group=GROUP):  # in the order each package declares them
         out.setdefault(ep.name, ep)
     return out
@@ -50,7 +51,7 @@ def policy_names() -> list[str]:
     return list(dict.fromkeys([*_entry_points(), *REGISTERED]))
 
 
-def policy_classes() -> dict[str, type]:
+def policy_classes() -> dict[str, Any]:
     """Every named policy that loads: name -> class, from the entry points (each loaded when
     first asked for) and :func:`register_policy`."""
     out = {}
@@ -62,13 +63,13 @@ def policy_classes() -> dict[str, type]:
     return out
 
 
-def register_policy(cls: type, name: str | None = None) -> None:
+def register_policy(cls: Any, name: str | None = None) -> None:
     """Make ``cls`` available by ``name`` (default ``cls.name``) in this process, e.g. a policy
     written in a notebook.  Worker processes of ``compare`` inherit it where they are forked."""
     REGISTERED[name or cls.name] = cls
 
 
-def policy_class(name: str) -> type:
+def policy_class(name: str) -> Any:
     if name in REGISTERED:
         return REGISTERED[name]
     if name in _entry_points():

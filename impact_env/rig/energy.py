@@ -400,7 +400,7 @@ def summarize(log, source: str = "force", threshold_n: float | None = None, min_
     out["caught"] = bool(math.isfinite(ttc))
     for mark in RESIDUAL_MARKS_S:
         key = f"residual_energy_{int(round(mark * 1e3))}ms"
-        idx = np.flatnonzero(t - t_touch >= mark - 1e-12) if not math.isnan(t_touch) else []
+        idx = np.flatnonzero(t - t_touch >= mark - 1e-12) if not math.isnan(t_touch) else np.zeros(0, int)
         out[key] = float(ratio[idx[0]]) if len(idx) else math.nan
     out["energy_integral_ms"] = float(np.sum(ratio) * period * 1e3)
     fl = est.flights

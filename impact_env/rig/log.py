@@ -265,9 +265,12 @@ def write_episode(log: TickLog | EpisodeLog, directory: str | os.PathLike, meta:
     """Write one episode to ``directory/name`` (default :func:`episode_filename`) atomically
     (temporary file, fsync, ``os.replace``).  ``log``: a TickLog (with ``meta``) or an EpisodeLog."""
     h5py = _h5py()
-    ep = log.to_episode(meta) if isinstance(log, TickLog) else log
-    if isinstance(log, TickLog) and meta is None:
-        raise ValueError("write_episode(TickLog) needs meta")
+    if isinstance(log, TickLog):
+        if meta is None:  # said before anything is converted
+            raise ValueError("write_episode(TickLog) needs meta")
+        ep = log.to_episode(meta)
+    else:
+        ep = log
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     name = name or episode_filename(ep.meta.episode, ep.meta.session)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -210,7 +211,8 @@ class Scene:
         """Speed of body 1 at the first touch, m/s."""
         if self.initial.impact_speed is not None:
             return self.initial.impact_speed
-        return math.sqrt(2.0 * self.plant.gravity * self.initial.drop_height)
+        h = typing.cast(float, self.initial.drop_height)  # one of the two is set (InitialConfig)
+        return math.sqrt(2.0 * self.plant.gravity * h)
 
     def with_overrides(self, overrides: dict[str, Any] | None = None, **kw) -> Scene:
         """A copy with dotted keys set, e.g. ``{"plant.m1": 0.05, "integrator.method": "dopri5"}``.
