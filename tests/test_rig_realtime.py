@@ -200,10 +200,11 @@ def test_skip_rule():
     assert CT.skip_allowed(4, 10, 4, 100, True) == 10
 
 
-def test_target_ended_episode_comes_back_as_terminated_with_its_reason():
+@pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "realtime"])
+def test_target_ended_episode_comes_back_as_terminated_with_its_reason(lockstep):
     """A command that drives the armature past its travel limit: the target ends the episode
     (SAFETY); the env returns terminated with info["end_reason"], at once, not a RigTimeout."""
-    target, th = _serve(lockstep=True)
+    target, th = _serve(lockstep=lockstep)
     env = RigEnv(target.address, hold_ticks=4, terminate_on_catch=False, timeout_s=0.2, retries=25)
     try:
         env.reset(seed=3)
@@ -218,3 +219,33 @@ def test_target_ended_episode_comes_back_as_terminated_with_its_reason():
         env.close()
         target.stop()
         th.join(10)
+
+
+def test_the_hosts_first_command_allowance_is_the_targets():
+    """ARM's first_command_timeout_ticks (RigEnv's first_command_timeout_s) is what the target
+    waits for a first command: a host that sends none sees the episode end FIRST_COMMAND_TIMEOUT
+    after that many ticks, as a truncation with its reason."""
+    target, th = _serve()
+    env = RigEnv(target.address, hold_ticks=4, terminate_on_catch=False, timeout_s=0.2, retries=25,
+                 first_command_timeout_s=0.005)
+    try:
+        env.reset(seed=2)
+        deadline = time.monotonic() + 10.0
+        while target.last_end is None and time.monotonic() < deadline:
+            time.sleep(0.01)  # no command: the target gives up after 50 ticks
+        assert target.last_end is not None and target.last_end.reason == 4  # FIRST_COMMAND_TIMEOUT
+        # 0.005 s at 10 kHz: tick 50 trips it, or the first tick run after it if the loop skipped
+        # ticks there (it never skips a step's first tick: 52 at the latest with hold 4)
+        last = int(_episode_log(env)["tick"][-1])
+        assert 50 <= last <= 52
+        for _ in range(env.max_steps):  # the observations it sent before ending come first
+            _o, r, te, tr, info = env.step(np.array([0.0], np.float32))
+            if te or tr:
+                break
+        assert tr and not te and info["end_reason"] == "FIRST_COMMAND_TIMEOUT" and r == 0.0
+    finally:
+        env.close()
+        target.stop()
+        th.join(10)
+    with pytest.raises(ValueError, match="first_command_timeout_s"):
+        RigEnv("udp://127.0.0.1:9", first_command_timeout_s=0.0)

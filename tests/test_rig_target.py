@@ -182,7 +182,11 @@ def test_fuzzed_datagrams_are_all_counted(lockstep):
                 data = bytes(data)
             s.sendto(data, (host, port))
             if k % 200 == 199:
-                time.sleep(0.002)  # leave the target time to read: a full socket buffer is not the test
+                # flow control: the target answers a HEARTBEAT only after reading every datagram
+                # before it, so no socket buffer fills whatever the machine's load (a full buffer
+                # is not the test)
+                client.link.request(good.Heartbeat(), lambda m: m.type == good.MsgType.HEARTBEAT,
+                                    "HEARTBEAT", 1.0, 20)
     finally:
         s.close()
     client.disarm(wait=True)
@@ -193,7 +197,7 @@ def test_fuzzed_datagrams_are_all_counted(lockstep):
     c = log.meta.counters
     counted = c["datagrams_accepted"] + sum(v for k, v in c.items() if k.startswith("dropped_"))
     assert c["datagrams_received"] == counted
-    assert c["datagrams_received"] > 90_000  # loopback kept (almost) everything
+    assert c["datagrams_received"] >= 100_000  # every fuzzed datagram reached it (and the host's own)
     assert c["dropped_corrupt"] > 10_000 and c["dropped_unauthenticated"] > 10_000
     assert c["dropped_stranger"] > 1_000  # the unmutated copies: well tagged, from the wrong port
     assert c.get("commands_accepted", 0) == 0

@@ -31,6 +31,7 @@ Timing contract (host mode; H = ``hold_ticks``, T the control period):
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import time
 from typing import Any
@@ -76,6 +77,7 @@ class RigClient:
         self.endpoint = Endpoint(local, peer=address)
         self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1, key=key)
         self.link.filter.peer = self.endpoint.peer  # only the target's replies count
+        self.link.on_accept = self._seen
         try:
             info = self.hello()
             self.lockstep = bool(info.lockstep)
@@ -158,6 +160,12 @@ class RigClient:
                     return b
         return None
 
+    def _seen(self, msg: P.Message) -> None:
+        """Every accepted message: an EPISODE_END is kept even when a request (a FETCH, an
+        ARM's retry) was waiting when it came."""
+        if msg.type == P.MsgType.EPISODE_END:
+            self.last_end = msg.body
+
     @staticmethod
     def _has_last_obs(end: P.EpisodeEnd, step: int) -> bool:
         """Whether the target sent an OBSERVATION of ``step`` before ending (at the horizon it
@@ -236,8 +244,10 @@ class RigEnv(gym.Env):
     ``catch_threshold``, ``catch_hold``, ``terminate_on_catch``, ``effort_weight``,
     ``limit_weight``, ``action_bounds``), plus ``address`` (``udp://HOST:PORT``), ``timeout_s``
     (per try; a step waits at most ``(retries + 1) timeout_s`` in all, then raises RigTimeout),
-    ``retries`` and ``key`` (the path of the key file the target was started with, ``rig serve
-    --key FILE``, or the key's bytes; None: no key, for a target without one on loopback).
+    ``retries``, ``key`` (the path of the key file the target was started with, ``rig serve
+    --key FILE``, or the key's bytes; None: no key, for a target without one on loopback) and
+    ``first_command_timeout_s`` (s: the target disarms an episode whose first COMMAND has not
+    arrived by then; the safety layer's own 0.1 s by default).
     """
 
     metadata = {"render_modes": []}
@@ -246,7 +256,10 @@ class RigEnv(gym.Env):
                  residual: str | None = None, horizon: float | None = None, catch_threshold: float = 0.01,
                  catch_hold: float = 0.01, terminate_on_catch: bool = True, effort_weight: float = 0.0,
                  limit_weight: float = 0.0, action_bounds: str = "clip", timeout_s: float = 0.05,
-                 retries: int = 20, key=None):
+                 retries: int = 20, key=None, first_command_timeout_s: float = 0.1):
+        if not (isinstance(first_command_timeout_s, (int, float)) and 0.0 < first_command_timeout_s <= 60.0):
+            raise ValueError(f"first_command_timeout_s = {first_command_timeout_s!r} s is out of range: "
+                             "must be > 0 s and <= 60 s")
         self.config = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks,
                                  residual=residual, horizon=horizon, catch_threshold=catch_threshold,
                                  catch_hold=catch_hold,
@@ -267,6 +280,7 @@ class RigEnv(gym.Env):
         self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, (self.layout.size,), np.float32)
         period = scene.control_period
         self.hold = int(hold_ticks)
+        self._first_ticks = int(math.ceil(first_command_timeout_s * scene.control_rate - 1e-9))
         h = self.config.horizon if horizon is not None else scene.episode.horizon
         self.max_steps = max(1, int(round(h / (period * self.hold))))
         self.tp = np.zeros(TK.N_TASK)
@@ -301,7 +315,7 @@ class RigEnv(gym.Env):
             self._start_drop(ep_seed, self._task_state(), self._rows)
         c = self.client
         c.arm("host", ep_seed, self.max_steps * self.hold, self.config.observation, self.config.history,
-              self.hold, self.residual)
+              self.hold, self.residual, first_command_timeout_ticks=self._first_ticks)
         self._running = True
         self._n = 0
         self._last_obs = None

@@ -47,8 +47,9 @@ code   type          dir    payload (offset type field [unit])
                             2 both); 2 u8 history [frames, 1..64]; 3 u8 options (bit 0
                             ``ARM_TERMINATE_ON_CATCH``); 4 u16 hold_ticks [ticks per policy step,
                             >= 1]; 6 u64 seed; 14 u32 horizon_ticks [ticks, >= 1]; 18 u32
-                            first_command_timeout_ticks [ticks; host mode]; 22 u32 link_timeout_ms [ms;
-                            0 = none]; 26 u32 policy_size [B; onboard, else 0]; 30 32s policy_sha256
+                            first_command_timeout_ticks [ticks; host mode; 0: the target's
+                            safety.first_command_timeout_s]; 22 u32 link_timeout_ms [ms; 0 = none];
+                            26 u32 policy_size [B; onboard, else 0]; 30 32s policy_sha256
                             (onboard: of the uploaded file; host mode: zeros).  = 62 B
 4      ARMED         T->H   0 u32 episode; 4 u64 start_tick; 12 u16 obs_size [entries]; 14 u16
                             action_size; 16 u8 obs_dtype (4 float32, 8 float64); 17 u8 telemetry_size

@@ -317,6 +317,9 @@ class Target:
                              self.cfg.safety,
                              extra_columns=TRUTH_COLUMNS if self.driver.virtual else ("command",),
                              observation=observation)
+            if a.mode == "host" and a.first_command_timeout_ticks > 0:
+                # the host's own allowance for its first command (the force is 0 N until then)
+                ctl.safety[0][SF.P_FIRST] = a.first_command_timeout_ticks
         except _Refused as exc:
             self._error(msg, exc.code, str(exc))
             return

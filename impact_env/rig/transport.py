@@ -243,6 +243,8 @@ class Link:
         self.last_sender: tuple | None = None
         self.on_stranger = on_stranger
         self.on_unauthenticated: Callable[[bytes, tuple], None] | None = None
+        # sees every accepted message, whoever waits for it (a request's wait drops the others)
+        self.on_accept: Callable[[P.Message], None] | None = None
 
     @property
     def session(self) -> int | None:
@@ -290,6 +292,8 @@ class Link:
             msg = self.filter.accept(got[0], episode, step, got[1])
             if msg is not None:
                 self.last_sender = got[1]
+                if self.on_accept is not None:
+                    self.on_accept(msg)
                 return msg
             if self.filter.last_unauth and self.on_unauthenticated is not None:
                 self.on_unauthenticated(got[0], got[1])
