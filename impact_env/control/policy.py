@@ -40,6 +40,9 @@ from impact_env.control.observation import OBSERVATIONS, ObservationLayout, Refe
 FORMAT = "impact-env-policy"
 VERSION = 1
 KIND_MLP = len(LW.LAWS)
+# an open-loop command sequence (an identification excitation, impact_env.rig.excitation): the
+# observation is not read; pf's body holds the commands, memory[0] counts the calls
+KIND_SEQUENCE = len(LW.LAWS) + 1
 
 # pi (int64): header, the law's slots, then the MLP's layer table
 PI_KIND, PI_OBS, PI_FRAME, PI_MEM, PI_NLAYERS, PI_OUT = range(6)
@@ -58,6 +61,10 @@ def act(pi, pf, obs, mem):
     kind = pi[PI_KIND]
     F = pi[PI_FRAME]
     body = PF_SCALES + F
+    if kind == KIND_SEQUENCE:
+        k = int(mem[0])
+        mem[0] = k + 1.0
+        return pf[body + k] if body + k < pf.shape[0] else 0.0
     if kind == KIND_MLP:
         nl = pi[PI_NLAYERS]
         layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
@@ -81,6 +88,17 @@ def act_batch(pi, pf, obs, mem, out):
     for i in range(obs.shape[0]):
         out[i] = act(pi, pf, obs[i], mem[i])
     return out
+
+
+def sequence_arrays(commands: np.ndarray, obs_size: int, command_scale: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """(pi, pf, memory size) for :func:`act` of an open-loop sequence: call k returns
+    ``commands[k]`` (dimensionless, 1 = ``command_scale`` N up), then 0 once they run out."""
+    c = np.asarray(commands, dtype=np.float64).ravel()
+    if not np.all(np.isfinite(c)) or np.any(np.abs(c) > 1.0):
+        raise ConfigError("an open-loop command sequence must be finite and within [-1, 1]")
+    pi = np.concatenate([np.array([KIND_SEQUENCE, int(obs_size), 0, 1, 0, 0], dtype=np.int64),
+                         np.full(len(LW.SLOTS), -1, dtype=np.int64)])
+    return pi, np.concatenate([[float(command_scale), -1.0, 1.0], c]), 1
 
 
 def _layout_dict(layout: ObservationLayout, kind: str) -> dict:

@@ -122,6 +122,7 @@ class Hardware:
         self._refill_in = 0  # ticks that every env can still run on its noise block
         self.drawn: list[dict[str, float]] = [{} for _ in range(n)]
         self.rngs: list[np.random.Generator | None] = [None] * n
+        self._gravity = np.zeros(n)  # each env's gravity on body 1 (a held body 1 has none)
         for i in range(n):
             self._set_env(i, base)
         self._cfg = (np.int64(self.flags), np.int64(self.method), float(scene.integrator.dt),
@@ -160,11 +161,19 @@ class Hardware:
                                  f"{block.shape}): a randomised range changes the shaker's model order")
             block[:] = value
         self.P[i] = arrays["P"]
+        self._gravity[i] = arrays["P"][L.G]
         self.scale[i] = arrays["scale"]
         self.y0[i] = arrays["y0"]
         self.t_touch[i] = arrays["t_touch"]
         self.mode0[i] = arrays["mode0"]
         self.impact_energy[i] = arrays["impact_energy"]
+
+    def set_scene(self, i: int, scene: Scene) -> None:
+        """Give env i the fixed ``scene``'s hardware (its plant row, drop, command scale, shaker,
+        sensors, delays), as a randomised draw would: the scene must keep the effects, the shaker's
+        model order and delay lengths this batch was built for.  Kept until the next draw (a
+        randomised scene draws anew at each reset; a fixed one keeps it)."""
+        self._set_env(int(i), self._env_arrays(scene, exact=True))
 
     def param_block(self, name: str) -> np.ndarray:
         """The parameter block ``name`` of every env (a view: float64[N, size])."""
@@ -193,6 +202,7 @@ class Hardware:
                 self.drawn[i] = values = self.scene.draw(rng)
                 self._set_env(int(i), self._env_arrays(self.scene.with_draws(values)))
             self.Y[i] = self.y0[i]
+            self.P[i, L.G] = self._gravity[i]  # (after a held episode)
             self.modes[i] = self.mode0[i]
             self.EVN[i] = 0
             self.EV[i] = 0.0
@@ -209,6 +219,22 @@ class Hardware:
                                          + 2.0 * self.P[idx, L.G] * gap)
         self._refill_in = 0
         return idx
+
+    def hold_body1(self, idx) -> None:
+        """Keep body 1 on the electromagnet in envs ``idx`` (after :meth:`reset`): at its release
+        height above body 2 (the scene's drop height; 0.05 m for a scene given by impact speed),
+        at rest, gravity on it cancelled by the magnet, so body 2, its shaker and sensors run
+        alone (the identification episodes of kind shaker and quiet).  Body 2 starts at rest."""
+        h = self.scene.initial.drop_height
+        gap = float(h) if h else 0.05
+        for i in np.atleast_1d(idx):
+            d = self.drawn[i].get("drop_height", gap)
+            y = self.Y[i]
+            y[:] = 0.0
+            y[L.X1] = -max(float(d), 0.01)
+            self.P[i, L.G] = 0.0
+            self.modes[i] = L.AUTO if self.modes[i] == L.AUTO else L.FREE
+            self.raw[i] = (0.0, 0.0, y[L.X2], y[L.X1])
 
     def set_noise_block(self, ticks: int) -> None:
         """Hold ``ticks`` ticks of noise per env (e.g. a whole episode, drawn before it starts);

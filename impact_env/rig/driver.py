@@ -54,6 +54,16 @@ class RigDriver(abc.ABC):
     def release(self) -> None:
         """Drop body 1: tick 0 of the episode."""
 
+    def hold(self) -> None:
+        """This episode keeps body 1 on the electromagnet (identification episodes of kind
+        shaker and quiet, :class:`impact_env.rig.protocol.EpisodeKind`): it starts with the next
+        ``read`` and :meth:`release` is not called.  A physical rig needs nothing here."""
+
+    def nominal_drop(self) -> None:
+        """The coming release drops the scene's nominal body from its nominal height (an
+        identification drop): a virtual rig draws no per-episode drop; on a physical rig the
+        experimenter has put the identification body on the magnet (nothing to do here)."""
+
     @abc.abstractmethod
     def read(self) -> np.ndarray:
         """The raw readings of this tick: float64[4] = accelerometer (m/s^2, body 2, down
@@ -84,17 +94,29 @@ class RigDriver(abc.ABC):
 
 class VirtualRig(RigDriver):
     """A simulated rig: the rig-physics stage (:mod:`impact_env.hardware`) of one env of
-    ``scene``.  ``arm(seed)`` starts the drop ``ImpactCatch-v0`` reset with ``seed`` starts
-    (randomised values, then sensor noise, from ``gymnasium.utils.seeding.np_random(seed)``)."""
+    ``physics`` (default: ``scene``).  ``arm(seed)`` starts the drop ``ImpactCatch-v0`` reset
+    with ``seed`` starts (randomised values, then sensor noise, from
+    ``gymnasium.utils.seeding.np_random(seed)``).
+
+    ``scene`` is the rig's description, what the target is told and builds its controller from;
+    ``physics`` the hardware that runs, when it differs from the description (as every physical
+    rig's does: identification and the mismatch map are tested on such rigs).  Both must have
+    the same control rate."""
 
     virtual = True
 
-    def __init__(self, scene: Scene | str = "rig"):
+    def __init__(self, scene: Scene | str = "rig", physics: Scene | str | None = None):
         self.scene = load_scene(scene)
-        self.hw = Hardware(self.scene, 1)
+        self.physics = self.scene if physics is None else load_scene(physics)
+        if abs(self.physics.control_rate - self.scene.control_rate) > 1e-9 * self.scene.control_rate:
+            raise ValueError(f"the virtual rig's physics runs at control.rate = {self.physics.control_rate:g} Hz, "
+                             f"its description at {self.scene.control_rate:g} Hz: they must agree")
+        self._hw_drawn = self.hw = Hardware(self.physics, 1)
+        self._hw_nominal: Hardware | None = None
         self._u = np.zeros(1)
         self._armed = False
         self._fault: str | None = None
+        self._seed = 0
 
     def initialise(self) -> None:
         """Compile (or load) the rig-physics kernels now, on a throwaway drop."""
@@ -104,8 +126,27 @@ class VirtualRig(RigDriver):
         self._armed = False
 
     def arm(self, seed: int) -> None:
-        self.hw.reset([seeding.np_random(int(seed))[0]])
+        self.hw = self._hw_drawn
+        self._seed = int(seed)
+        self.hw.reset([seeding.np_random(self._seed)[0]])
         self._armed = True
+
+    @property
+    def physics_toml(self) -> str:
+        """The physics' TOML when it differs from the description (logged: a virtual rig's truth)."""
+        return "" if self.physics is self.scene else self.physics.to_toml()
+
+    def hold(self) -> None:
+        self.hw.hold_body1(0)
+
+    def nominal_drop(self) -> None:
+        """The physics' nominal drop (its fixed m1 and drop; any other range is still drawn)."""
+        if self._hw_nominal is None:
+            rz = {k: [] for k in ("m1", "drop_height", "impact_speed")}
+            self._hw_nominal = Hardware(self.physics.with_overrides({f"randomize.{k}": v for k, v in rz.items()}),
+                                        1)
+        self.hw = self._hw_nominal
+        self.hw.reset([seeding.np_random(self._seed)[0]])
 
     def release(self) -> None:
         if not self._armed:

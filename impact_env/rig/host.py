@@ -115,18 +115,25 @@ class RigClient:
 
     def arm(self, mode: str, seed: int, horizon_ticks: int, observation: str = "sensors", history: int = 1,
             hold_ticks: int = 1, policy: CompiledPolicy | None = None, link_timeout_ms: int = 0,
-            first_command_timeout_ticks: int = 1000) -> P.Armed:
-        """Upload ``policy`` (onboard: the policy; host mode: a residual law) and arm an episode
-        (the session confirmed first: a host may have paused longer than the target's session
-        timeout, e.g. for a training update)."""
+            first_command_timeout_ticks: int = 1000, kind: P.EpisodeKind = P.EpisodeKind.DROP,
+            excitation=None) -> P.Armed:
+        """Upload ``policy`` (onboard: the policy; host mode: a residual law) or, for an
+        identification episode of ``kind`` shaker, its ``excitation``
+        (:class:`impact_env.rig.excitation.Excitation`), and arm an episode (the session
+        confirmed first: a host may have paused longer than the target's session timeout, e.g.
+        for a training update)."""
         self.hello()
         data = b""
-        if policy is not None:
+        if excitation is not None:
+            data = (excitation.to_json() + "\n").encode()
+        elif policy is not None:
             import json
 
             data = (json.dumps(policy.to_dict()) + "\n").encode()
+        if data:
             upload(self.link, data, self.timeout_s, self.retries)
-        arm = P.Arm(mode, observation, int(history), 0, int(hold_ticks), int(seed) & P.U64,
+        options = int(P.EpisodeKind(kind)) << P.ARM_KIND_SHIFT
+        arm = P.Arm(mode, observation, int(history), options, int(hold_ticks), int(seed) & P.U64,
                     int(horizon_ticks), int(first_command_timeout_ticks), int(link_timeout_ms), len(data),
                     hashlib.sha256(data).digest() if data else bytes(32))
         # arming builds the target's controller and readies the rig: allow it a quarter second a try

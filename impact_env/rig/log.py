@@ -40,10 +40,12 @@ dataset                 dtype     unit     meaning
 (extra)                 float64   (attr)   columns named at construction, e.g. a virtual rig's truth
 ======================  ========  =======  ==========================================================
 
-Attributes of the file: ``format`` ("impact_env.rig.episode"), ``format_version`` (2), and the
+Attributes of the file: ``format`` ("impact_env.rig.episode"), ``format_version`` (3), and the
 :class:`EpisodeMeta` fields: ``scene_toml`` (``scene.to_toml()``), ``mode``, ``hold_ticks``,
 ``seed``, ``control_rate_hz``, ``episode``, ``session``, ``policy``, ``policy_sha256`` (hex; empty
-in host mode), ``observation``, ``history``, ``end_reason``, ``created_utc``; groups ``versions``
+in host mode), ``observation``, ``history``, ``end_reason``, ``created_utc``, ``kind`` (drop,
+ident_drop, shaker, quiet), ``excitation`` (the identification signal's JSON, or ""),
+``physics_toml`` (a virtual rig's hardware when it differs from ``scene_toml``, or ""); groups ``versions``
 (package, python, numpy, numba, h5py) and ``counters`` (plain ints, all of this episode only,
 from its ARM to its end: datagrams received, accepted and dropped by reason, commands late,
 watchdog trips, overruns (rows flagged OVERRUN), skipped_ticks, ...).
@@ -63,7 +65,10 @@ import numpy as np
 from impact_env._jit import jit
 
 FORMAT = "impact_env.rig.episode"
-FORMAT_VERSION = 2  # 2: command_step and skipped_ticks columns; per-episode counters
+FORMAT_VERSION = 3  # 2: command_step and skipped_ticks columns; per-episode counters; 3: kind, excitation
+KINDS = ("drop", "ident_drop", "shaker", "quiet")  # impact_env.rig.protocol.EpisodeKind's names
+# attributes a file of an older format lacks, with the value they mean there
+_SINCE_3 = {"kind": "drop", "excitation": "", "physics_toml": ""}
 
 (TICK, T_S, ACCEL, FORCE, POT, ACTION, FORCE_DEMAND, FORCE_APPLIED, COMMAND_AGE, STATUS, STEP, DETECTED,
  LATENESS_NS, COMPUTE_NS, COMMAND_STEP, SKIPPED) = range(16)
@@ -208,6 +213,12 @@ class EpisodeMeta:
                              .isoformat(timespec="seconds"))
     counters: dict[str, int] = field(default_factory=dict)
     versions: dict[str, str] = field(default_factory=versions)
+    # format 3: the episode's kind (impact_env.rig.protocol.EpisodeKind, lower case), the
+    # identification excitation played (its JSON, impact_env.rig.excitation; "" for none), and
+    # a virtual rig's physics when it differs from the scene it was described by ("" otherwise)
+    kind: str = "drop"
+    excitation: str = ""
+    physics_toml: str = ""
 
     def __post_init__(self):
         if self.mode not in ("host", "onboard"):
@@ -218,6 +229,8 @@ class EpisodeMeta:
                 raise ValueError(f"{name} = {v!r} must be an integer >= 0")
         if not self.control_rate_hz > 0:
             raise ValueError(f"control_rate_hz = {self.control_rate_hz!r} Hz must be > 0 Hz")
+        if self.kind not in KINDS:
+            raise ValueError(f"kind = {self.kind!r} must be one of {', '.join(KINDS)}")
         if self.policy_sha256 and not re.fullmatch(r"[0-9a-f]{64}", self.policy_sha256):
             raise ValueError(f"policy_sha256 = {self.policy_sha256!r} must be 64 lower-case hex digits or ''")
         for k, v in self.counters.items():
@@ -335,6 +348,9 @@ def read_episode(path: str | os.PathLike) -> EpisodeLog:
         kw = {}
         for fd in fields(EpisodeMeta):
             if fd.name in ("counters", "versions", "obs_names"):
+                continue
+            if fd.name in _SINCE_3 and fd.name not in f.attrs:
+                kw[fd.name] = _SINCE_3[fd.name]
                 continue
             v = f.attrs[fd.name]
             kw[fd.name] = v.item() if isinstance(v, np.generic) else v

@@ -1,8 +1,9 @@
-"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 2.0).
+"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 2.1).
 
 Every datagram is one message: a 42-byte header, a payload whose layout the message type fixes,
 and a 16-byte tag (HMAC-SHA256, :func:`tag`).  Version 2.0 replaced 1.0's CRC-32 trailer with
-the tag and appended session_nonce and keyed to INFO.  Integers are unsigned little-endian,
+the tag and appended session_nonce and keyed to INFO; 2.1 gave ARM's options bits 1-2, the
+episode kind (:class:`EpisodeKind`: drops, or identification episodes with body 1 held).  Integers are unsigned little-endian,
 floats IEEE-754 little-endian.
 
 Header (42 bytes) and trailer
@@ -45,7 +46,8 @@ code   type          dir    payload (offset type field [unit])
                             session_nonce (drawn per session; in every later tag); 59 u8 keyed.  = 60 B
 3      ARM           H->T   0 u8 mode (1 host, 2 onboard); 1 u8 observation (0 sensors, 1 privileged,
                             2 both); 2 u8 history [frames, 1..64]; 3 u8 options (bit 0
-                            ``ARM_TERMINATE_ON_CATCH``); 4 u16 hold_ticks [ticks per policy step,
+                            ``ARM_TERMINATE_ON_CATCH``; bits 1-2 the ``EpisodeKind``: 0 drop, 1
+                            identification drop, 2 shaker only, 3 quiet; 2.1); 4 u16 hold_ticks [ticks per policy step,
                             >= 1]; 6 u64 seed; 14 u32 horizon_ticks [ticks, >= 1]; 18 u32
                             first_command_timeout_ticks [ticks; host mode; 0: the target's
                             safety.first_command_timeout_s]; 22 u32 link_timeout_ms [ms; 0 = none];
@@ -127,7 +129,7 @@ from typing import ClassVar
 
 MAGIC = b"IMPR"
 VERSION_MAJOR = 2
-VERSION_MINOR = 0
+VERSION_MINOR = 1
 
 HEADER = struct.Struct("<4sBBBBIIQQQH")
 TAG_SIZE = 16  # bytes of HMAC-SHA256 kept (128 bits)
@@ -146,6 +148,8 @@ MAX_TRANSFER = 1 << 31  # bytes of one uploaded policy file or fetched resource
 
 FLAG_RETRY = 1
 ARM_TERMINATE_ON_CATCH = 1
+ARM_KIND_SHIFT = 1  # options bits 1-2: the episode kind (EpisodeKind)
+ARM_KIND_MASK = 0b110
 
 U8, U16, U32, U64 = 0xFF, 0xFFFF, 0xFFFF_FFFF, 0xFFFF_FFFF_FFFF_FFFF
 _FLT_MAX = 3.4028234663852886e38
@@ -197,6 +201,15 @@ class EndReason(enum.IntEnum):
     SAFETY = 5  # a latched safety trip (travel limit, sensor fault)
     LINK_LOST = 6  # nothing heard from the host within link_timeout_ms
     FAULT = 7  # the driver reported an error
+
+
+class EpisodeKind(enum.IntEnum):
+    """What an ARMed episode does (ARM options bits 1-2; :mod:`impact_env.rig.excitation`)."""
+
+    DROP = 0  # body 1 released: the drop the seed draws (a benchmark or host-mode episode)
+    IDENT_DROP = 1  # body 1 released from the scene's nominal drop (the same body and height each time)
+    SHAKER = 2  # body 1 held on the electromagnet; the uploaded excitation drives the shaker
+    QUIET = 3  # body 1 held; the shaker at 0 N (the sensors' offsets and noise)
 
 
 class ErrorCode(enum.IntEnum):
@@ -390,6 +403,10 @@ class Arm(Body):
     def _fixed(self):
         v = super()._fixed()
         return (MODES[self.mode], OBSERVATIONS[self.observation]) + v[2:]
+
+    @property
+    def kind(self) -> EpisodeKind:
+        return EpisodeKind((self.options & ARM_KIND_MASK) >> ARM_KIND_SHIFT)
 
     @classmethod
     def unpack(cls, payload, newer):

@@ -47,6 +47,7 @@ import numpy as np
 
 from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
+from impact_env.rig import excitation as EX
 from impact_env.rig import log as LG
 from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
@@ -288,7 +289,10 @@ class Target:
         a: P.Arm = msg.body
         try:
             policy = residual = None
-            if a.policy_size:
+            kind = a.kind
+            if kind in (P.EpisodeKind.SHAKER, P.EpisodeKind.QUIET):
+                policy = self._excitation(a, kind)
+            elif a.policy_size:
                 data = self.upload.data if self.upload.complete else b""
                 if len(data) != a.policy_size or hashlib.sha256(data).digest() != a.policy_sha256:
                     raise _Refused(P.ErrorCode.POLICY_REJECTED, "the uploaded policy file does not match "
@@ -332,6 +336,27 @@ class Target:
         self.episode += 1
         self._run_episode(msg, ctl, hold, policy)
 
+    def _excitation(self, a: P.Arm, kind: P.EpisodeKind):
+        """The open-loop "policy" of an identification episode with body 1 held: the uploaded
+        excitation (:mod:`impact_env.rig.excitation`), or 0 N for a quiet one without upload."""
+        if a.mode != "onboard":
+            raise _Refused(P.ErrorCode.BAD_REQUEST, f"a {kind.name.lower()} episode runs onboard (its "
+                           "excitation is played by the target), not in host mode")
+        exc = EX.Excitation()
+        if a.policy_size:
+            data = self.upload.data if self.upload.complete else b""
+            if len(data) != a.policy_size or hashlib.sha256(data).digest() != a.policy_sha256:
+                raise _Refused(P.ErrorCode.POLICY_REJECTED, "the uploaded excitation does not match ARM's "
+                               "size and sha256 (upload it first)")
+            exc = EX.Excitation.from_json(data, "the uploaded excitation")
+        if kind == P.EpisodeKind.QUIET and exc.signal != "zero":
+            raise _Refused(P.ErrorCode.BAD_REQUEST, f"a quiet episode drives 0 N; got a {exc.signal} excitation")
+        cfg = self.cfg.safety or SafetyConfig()
+        cmds = exc.commands(self.rate, a.horizon_ticks, float(self.scene.effects.command_scale), cfg.peak_n,
+                            cfg.continuous_n)
+        return EX.ExcitationPolicy(exc, cmds, make_layout(self.scene, "sensors", 1).size,
+                                   float(self.scene.effects.command_scale))
+
     # -- one episode ---------------------------------------------------------------------------------
     def _run_episode(self, arm_msg: P.Message, ctl: Controller, hold: int, policy) -> None:
         a: P.Arm = arm_msg.body
@@ -341,12 +366,18 @@ class Target:
         drv = self.driver
         seed = (a.seed + self.cfg.seed_offset) & P.U64
         drv.arm(seed)
+        kind = a.kind
+        if kind == P.EpisodeKind.IDENT_DROP:
+            drv.nominal_drop()
         if self.cfg.lockstep:
             ctl.drain(int(self.cfg.rearm_idle_s * self.rate))
         self.state = P.TargetState.RUNNING
         armed = P.Armed(self.episode, 0, ctl.layout.size, 1, 4, N_TELEMETRY, hold, self.rate, self.scene_sha)
         self._reply(armed, arm_msg)
-        drv.release()
+        if kind in (P.EpisodeKind.SHAKER, P.EpisodeKind.QUIET):
+            drv.hold()
+        else:
+            drv.release()
         ep = Episode(self, arm_msg, armed, ctl, hold, seed)
         ep.datagrams0 = datagrams0
         compiled = isinstance(drv, VirtualRig) and not self.cfg.python_loop
@@ -384,10 +415,14 @@ class Target:
         meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold,
                               seed=ep.seed, control_rate_hz=self.rate, episode=ep.ep,
                               session=self.link.session or 0, policy="" if policy is None else policy.name,
-                              policy_sha256=("" if policy is None
+                              policy_sha256=("" if policy is None or not a.policy_size
                                              else hashlib.sha256(self.upload.data).hexdigest()),
                               observation=ctl.observation, history=ctl.layout.history,
-                              obs_names=ctl.layout.names, end_reason=end.name, counters=counters)
+                              obs_names=ctl.layout.names, end_reason=end.name, counters=counters,
+                              kind=a.kind.name.lower(),
+                              excitation=(policy.excitation.to_json() if isinstance(policy, EX.ExcitationPolicy)
+                                          else ""),
+                              physics_toml=getattr(self.driver, "physics_toml", ""))
         if self.cfg.log_dir is not None:
             data = LG.write_episode(ctl.log, self.cfg.log_dir, meta).read_bytes()
         else:
