@@ -61,6 +61,8 @@ SPECIAL = {
     "randomize.shaker_coil_inductance": ({}, [30e-6, 80e-6]),
     "randomize.sensor_delay_s": ({}, [0.0, 2e-4]),
     "randomize.actuator_delay_s": ({}, [0.0, 2e-4]),
+    "randomize.m2": ({}, [0.8, 1.2]),
+    "randomize.top_mass": ({}, [0.08, 0.12]),
 }
 LABELS = ("name", "description")
 

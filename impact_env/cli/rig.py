@@ -1,4 +1,5 @@
-"""``impact-env rig serve | log``: the real-time target, and the summary of an episode log."""
+"""``impact-env rig serve | keygen | log | identify``: the real-time target, session keys, the summary
+of an episode log, and the identification plan run on a target."""
 
 from __future__ import annotations
 
@@ -32,7 +33,26 @@ def add_parser(sub, scene_args) -> None:
     s.add_argument("--seed", type=int, default=0,
                    help="added to every episode's seed (default 0: the drops ImpactCatch-v0 meets for the "
                         "same reset seeds)")
+    s.add_argument("--physics", metavar="SCENE",
+                   help="--virtual only: the virtual rig's hardware is this scene (preset or .toml) while the "
+                        "target is told --scene: a rig that differs from its description, as a physical one "
+                        "does (for trying identification and the mismatch map)")
     s.set_defaults(func=cmd_serve)
+    i = rsub.add_parser("identify", help="run the identification plan on a target (quiet, shaker-only and "
+                                         "identification-drop episodes), then calibrate its scene to the logs")
+    i.add_argument("--rig", required=True, metavar="udp://HOST:PORT", help="the target (impact-env rig serve)")
+    i.add_argument("--out", required=True, metavar="DIR",
+                   help="logs go to DIR/logs; the calibrated scene to DIR/identified.toml with DIR/report.md")
+    i.add_argument("--key", metavar="FILE", default=None, help="the session key file the target was started with")
+    i.add_argument("--quick", action="store_true", help="the short plan (shorter episodes, 3 drops): a first look")
+    i.add_argument("--drops", type=int, default=None, help="identification drops (default 5; quick: 3)")
+    i.add_argument("--seed", type=int, default=0, help="the episodes' seeds start here (default 0)")
+    i.add_argument("--no-fit", action="store_true", help="record the logs only (fit later: impact-env identify)")
+    i.add_argument("--force", action="store_true", help="add to a non-empty --out")
+    from impact_env.cli.identify import add_identify_arguments, cmd_rig_identify
+
+    add_identify_arguments(i)
+    i.set_defaults(func=cmd_rig_identify)
     k = rsub.add_parser("keygen", help="write a new random session key file (32 bytes, hex, mode 0600)")
     k.add_argument("file", help="the key file to create (never overwritten)")
     k.set_defaults(func=cmd_keygen)
@@ -64,7 +84,14 @@ def cmd_serve(args) -> int:
     except KeyFileError as exc:
         raise ConfigError(str(exc)) from None
     scene = scene_from_args(args)
-    driver = VirtualRig(scene) if args.virtual else load_driver(args.driver, scene)
+    if args.physics and not args.virtual:
+        raise ConfigError("--physics describes a virtual rig's hardware: give it with --virtual")
+    if args.virtual:
+        from impact_env.scene import load_scene
+
+        driver = VirtualRig(scene, load_scene(args.physics) if args.physics else None)
+    else:
+        driver = load_driver(args.driver, scene)
     kind = "virtual rig" if driver.virtual else f"driver {type(driver).__name__}"
     print(f"impact-env rig: compiling the target's kernels for scene {scene.name!r} ...", file=sys.stderr,
           flush=True)

@@ -213,15 +213,9 @@ def _best_delay(make, x0: np.ndarray, k0: int, quick_nfev: int = 6,
 
 
 # -- stage 2 and 3: first guesses -----------------------------------------------------------------------
-def _lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> int:
-    """The lag (ticks, >= 0) by which ``a`` best matches ``b`` delayed."""
-    best, k_best = -np.inf, 0
-    for k in range(max_lag + 1):
-        n = len(a) - k
-        c = float(np.dot(a[k:], b[:n])) / max(n, 1)
-        if c > best:
-            best, k_best = c, k
-    return k_best
+def _xcorr(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
+    """float64[max_lag + 1]: the mean product of ``a`` with ``b`` delayed by 0 .. max_lag ticks."""
+    return np.array([float(np.dot(a[k:], b[:len(a) - k])) / max(len(a) - k, 1) for k in range(max_lag + 1)])
 
 
 def _contacts(phi: np.ndarray, threshold: float) -> list[tuple[int, int]]:
@@ -302,10 +296,13 @@ def identify(exps: list[Experiment], base=None, progress=None) -> Fit:
 
     # 2: the shaker; the total delay first guessed from the accelerometer's lag behind the model's
     say("shaker stage")
-    R = model.simulate(shaker[0], x[None, :])[0]
-    m = shaker[0].usable
-    a_meas = np.where(m, shaker[0].readings[:, 0] - sensors["accelerometer"].offset, 0.0)
-    k0 = _lag(a_meas, R[:, 0] - sensors["accelerometer"].offset, MAX_DELAY)
+    # (differenced: the lag is sharpest in the high band, where a delay is a large phase)
+    corr = np.zeros(MAX_DELAY + 1)
+    for e in shaker:
+        R = model.simulate(e, x[None, :])[0]
+        a_meas = np.diff(np.where(e.usable, e.readings[:, 0], R[:, 0]))
+        corr += _xcorr(a_meas, np.diff(R[:, 0]), MAX_DELAY)
+    k0 = int(np.argmax(corr))
     x, k_tot, delay_cost["shaker"] = _best_delay(
         lambda k: Problem(model, shaker, sigma, STAGE["shaker"], x, k_act=k), x, k0)
     stages.append({"stage": "shaker", "delay_ticks": k_tot, "cost": delay_cost["shaker"][k_tot]})

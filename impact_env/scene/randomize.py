@@ -25,6 +25,8 @@ field                       sets                                draw
 ``shaker_coil_inductance``  ``effects.shaker.coil_inductance``  log-uniform
 ``sensor_delay_s``          ``effects.delay.sensor_s``          samples
 ``actuator_delay_s``        ``effects.delay.actuator_s``        samples
+``m2``                      ``plant.m2`` (kg)                   uniform
+``top_mass``                ``effects.sensors.force.top_mass``  uniform
 ==========================  ==================================  ============
 
 Seed policy.  Each env owns a numpy ``Generator`` (the caller's, e.g. the Gymnasium env's
@@ -92,6 +94,11 @@ class RandomizeConfig:
                                            "Ends must be whole control periods")
     actuator_delay_s: tuple[float, ...] = _r("s", SAMPLES, "effects.delay.actuator_s", 0.0, 10.0, False,
                                              "Ends must be whole control periods")
+    # (appended: a scene that ranges none of these draws exactly as before they existed)
+    m2: tuple[float, ...] = _r("kg", UNIFORM, "plant.m2", 1e-9, 1e6, False, "")
+    top_mass: tuple[float, ...] = _r("kg", UNIFORM, "effects.sensors.force.top_mass", 0.0, 1e6, False,
+                                     "The force transducer's m2' as the hardware has it (the controller's "
+                                     "eq 4.4 keeps the fixed value)")
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -165,7 +172,7 @@ class RandomizeConfig:
         """The corner whose drop excites the stiffest contact oscillation (smallest m1, stiffest
         pad, fastest impact, least damping): the one the integrator's stability check needs."""
         return self.ends({"m1": "lo", "c": "hi", "drop_height": "hi", "impact_speed": "hi",
-                                "restitution": "hi"})
+                                "restitution": "hi", "m2": "lo"})
 
 
 _FIELDS = {f.name: f for f in dataclasses.fields(RandomizeConfig)}
@@ -195,7 +202,8 @@ def check_scene_ranges(scene) -> None:
     if not names:
         return
     fx = scene.effects
-    need = {"noise_scale": "sensors", "shaker_lowpass_hz": "shaker", "shaker_coil_inductance": "shaker",
+    need = {"noise_scale": "sensors", "top_mass": "sensors", "shaker_lowpass_hz": "shaker",
+            "shaker_coil_inductance": "shaker",
             "sensor_delay_s": "sensor_delay", "actuator_delay_s": "actuator_delay"}
     for name in names:
         if name in need and not fx.on(need[name]):
