@@ -568,8 +568,20 @@ def _note_rounding(cfg: RunConfig) -> None:
               f"{n_steps} x {cfg.n_envs} = {per} steps: training {whole} steps", file=sys.stderr)
 
 
+def _missing_extra() -> list[str]:
+    """The modules of the extra ``impact-env[sb3]`` that training needs and this install lacks."""
+    import importlib.util
+
+    return [m for m in ("stable_baselines3", "torch", "yaml") if importlib.util.find_spec(m) is None]
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    missing = _missing_extra()
+    if missing:  # the core install (pip install -e .): one line with the fix, not a deep traceback
+        print(f"agents.train: training needs the extra 'sb3' ({', '.join(missing)} not installed): "
+              "pip install 'impact-env[sb3]' (README: install torch's CPU build first)", file=sys.stderr)
+        return 2
     try:
         cfg, out, tooling, resume = _from_args(args)
         progress = sys.stderr.isatty() if args.progress is None else args.progress

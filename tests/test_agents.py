@@ -167,6 +167,23 @@ def test_schedules_and_sac_entropy_follow_rl_zoo_conventions():
         resolve("ppo", {"n_timesteps": 10, "env_kwargs": {"residual": "pd-penetrashun"}})
 
 
+def test_training_without_the_extra_says_how_to_get_it(tmp_path, capsys, monkeypatch):
+    """In a core install (no stable-baselines3, torch or PyYAML: the extra 'sb3'), agents.train
+    exits 2 with the install command, before anything is created (tests/minimal_install_check.py
+    runs it for real in a core-only venv)."""
+    import importlib.util
+
+    import agents.train as T
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "yaml" else real(name, *a))
+    assert T.main(["--algo", "ppo", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "yaml not installed" in err and "pip install 'impact-env[sb3]'" in err
+    assert not (tmp_path / "run").exists()
+
+
 def test_yaml_without_the_env_id_is_refused_naming_what_it_has(tmp_path):
     p = tmp_path / "x.yml"
     p.write_text("CartPole-v1:\n  n_timesteps: 10\n")
