@@ -82,6 +82,11 @@ class ProgressLine(BaseCallback):
         return True
 
     def _on_training_end(self) -> None:
+        self.finish()
+
+    def finish(self) -> None:
+        """The last status line, ended: also called on Ctrl-C, where SB3 calls no
+        ``_on_training_end`` and the summary would otherwise be printed over the line."""
         self.stream.write(self._line() + "\n")
         self.stream.flush()
 

@@ -24,8 +24,9 @@ Writes into OUT: ``model.zip`` and ``model.json`` (observation, history, algo, s
 env kwargs, hold_ticks, residual, steps, ticks, seed, wall time, hyperparameters, versions; read
 by ``impact-env compare`` and :mod:`agents.evaluate`), ``run.json`` (the resolved settings, for
 ``--resume``), ``best_model.zip`` / ``best_model.json`` (the evaluation callback's best),
-``eval/evaluations.npz``, ``checkpoints/model_<steps>_steps.zip`` (and SAC's replay buffer), and
-TensorBoard logs under ``--tensorboard DIR`` (``tensorboard --logdir DIR``).
+``eval/evaluations.npz``, ``checkpoints/model_<steps>_steps.zip`` with its ``.json`` (and SAC's
+replay buffer) every ``--checkpoint-every`` steps and on Ctrl-C (exit 130; ``--resume OUT``
+continues from it), and TensorBoard logs under ``--tensorboard DIR`` (``tensorboard --logdir DIR``).
 
 Seeds (none of the three ranges meets another; checked):
 
@@ -84,6 +85,7 @@ class TrainResult:
     ticks: int = 0
     best: dict = field(default_factory=dict)
     interrupted: bool = False
+    checkpoint: Path | None = None  # written on Ctrl-C: what --resume continues from
 
     def summary(self) -> str:
         s = self.stats
@@ -101,7 +103,9 @@ class TrainResult:
         if self.best:
             lines.append(f"best validation return {self.best['mean_reward']:.2f} at step {self.best['step']}")
         if self.interrupted:
-            lines.append(f"interrupted (Ctrl-C) at step {self.steps}: the model so far is saved")
+            lines.append(f"interrupted (Ctrl-C) at step {self.steps}: the model so far is saved, and "
+                         f"checkpoint {self.checkpoint}; continue with python -m agents.train --resume "
+                         f"{self.model_path.parent} [--steps N]")
         lines.append(f"saved {self.model_path} and {self.meta_path}")
         return "\n".join(lines)
 
@@ -268,8 +272,10 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
 
     stats = EpisodeStats(window=100)
     callbacks = [stats]
+    progress_line = None
     if progress:  # on a terminal by default (main): steps, episodes, recent return and caught fraction
-        callbacks.append(ProgressLine(stats, cfg.n_timesteps, sys.stderr))
+        progress_line = ProgressLine(stats, cfg.n_timesteps, sys.stderr)
+        callbacks.append(progress_line)
     eval_cb = None
     settings = model_settings(cfg)
     if tooling.eval_every is not None:
@@ -292,10 +298,18 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
                     reset_num_timesteps=not resume, tb_log_name=tb_name)
     except KeyboardInterrupt:  # Ctrl-C: keep what was learnt, with its settings, below
         interrupted = True
+        if progress_line is not None:
+            progress_line.finish()
     wall = time.perf_counter() - t0
     done_steps = int(model.num_timesteps)
     ticks = (done_steps - start_step) * cfg.hold_ticks  # every policy step is hold_ticks ticks
     model.save(out / "model.zip")
+    checkpoint = None
+    if interrupted:
+        # --resume continues only from checkpoints/ (model.zip may be a finished run's), and a new run
+        # in this folder is refused: without this checkpoint an early Ctrl-C left a folder that
+        # neither could use.  Written whatever --checkpoint-every says.
+        checkpoint = _save_checkpoint(model, out, settings, replay_buffer=cfg.algo == "sac")
     venv.close()
 
     step_time, period = _period_per_step(cfg)
@@ -326,7 +340,24 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
         (out / "best_model.json").write_text(json.dumps({**meta, "steps": best.get("step")}, indent=2,
                                                         default=str) + "\n")
     return TrainResult(out / "model.zip", meta_path, cfg.algo, done_steps, wall, seg_steps / max(wall, 1e-9),
-                       len(stats.returns), train_stats, ticks=ticks, best=best, interrupted=interrupted)
+                       len(stats.returns), train_stats, ticks=ticks, best=best, interrupted=interrupted,
+                       checkpoint=checkpoint)
+
+
+def _save_checkpoint(model, out: Path, settings: dict, replay_buffer: bool) -> Path:
+    """``checkpoints/model_<steps>_steps.zip`` with its settings file (and SAC's replay buffer),
+    named as SB3's CheckpointCallback names them, so that :func:`_latest_checkpoint` finds it."""
+    from agents.callbacks import write_settings
+
+    steps = int(model.num_timesteps)
+    folder = out / "checkpoints"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"model_{steps}_steps.zip"
+    model.save(path)
+    write_settings(path, settings, steps=steps)
+    if replay_buffer:
+        model.save_replay_buffer(folder / f"model_replay_buffer_{steps}_steps.pkl")
+    return path
 
 
 def model_settings(cfg: RunConfig) -> dict:
@@ -537,8 +568,20 @@ def _note_rounding(cfg: RunConfig) -> None:
               f"{n_steps} x {cfg.n_envs} = {per} steps: training {whole} steps", file=sys.stderr)
 
 
+def _missing_extra() -> list[str]:
+    """The modules of the extra ``impact-env[sb3]`` that training needs and this install lacks."""
+    import importlib.util
+
+    return [m for m in ("stable_baselines3", "torch", "yaml") if importlib.util.find_spec(m) is None]
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    missing = _missing_extra()
+    if missing:  # the core install (pip install -e .): one line with the fix, not a deep traceback
+        print(f"agents.train: training needs the extra 'sb3' ({', '.join(missing)} not installed): "
+              "pip install 'impact-env[sb3]' (README: install torch's CPU build first)", file=sys.stderr)
+        return 2
     try:
         cfg, out, tooling, resume = _from_args(args)
         progress = sys.stderr.isatty() if args.progress is None else args.progress

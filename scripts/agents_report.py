@@ -5,7 +5,7 @@ results section of ``docs/agents.md``, a figure, and ships the best agent.
     python scripts/agents_report.py --runs runs/ppo_s0 runs/ppo_s100 runs/ppo_s200 runs/sac_s0 ... \\
         [--episodes 100] [--seed 1000] [--scenes rig,rig-randomized] [--oracle oracle:warm=given] \\
         [--workers 2] [--out runs/report] [--reuse] [--doc docs/agents.md] \\
-        [--figure docs/figures/agents_results.png] [--ship agents/models/best]
+        [--figure docs/figures/agents_results.png] [--format png|pdf|svg] [--ship agents/models/best]
 
 What it does:
 
@@ -46,8 +46,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from impact_env.eval.paired import PairedDifference, paired_difference  # noqa: E402
+from impact_env.figstyle import DPI, FORMATS, output_figure, save_figure  # noqa: E402
+
 BASELINES = ("passive", "thesis-rig", "pd-penetration")
 BEGIN, END = "<!-- agents_report:begin -->", "<!-- agents_report:end -->"
+DEFAULT_FIGURE = Path("docs/figures/agents_results.png")
 
 
 # -- runs ---------------------------------------------------------------------------------------------
@@ -206,9 +209,11 @@ def figure(all_stats: dict, path: Path, shipped: str) -> Path:
         st = {k: v for k, v in all_stats[scene].items() if not k.startswith("_")}
         labels = list(st)[::-1]
         y = np.arange(len(labels))
-        panels = (("median_catch_s", "median_catch_ci", "median time to catch, s"),
-                  ("energy_ms", "energy_ci", "energy integral, ms (mean)"))
-        for c, (key, ci, title) in enumerate(panels):
+        panels = (("median_catch_s", "median_catch_ci", "median time to catch, s",
+                   "median time to catch, s (right of 0.4: not caught)"),
+                  ("energy_ms", "energy_ci", "energy integral, ms (mean)",
+                   "mean energy integral, ms (log scale)"))
+        for c, (key, ci, title, xlabel) in enumerate(panels):
             ax = axes[r, c]
             v = np.array([min(st[k][key], 0.45) if c == 0 else st[k][key] for k in labels])
             lo = np.array([min(st[k][ci][0], 0.45) if c == 0 else st[k][ci][0] for k in labels])
@@ -232,6 +237,7 @@ def figure(all_stats: dict, path: Path, shipped: str) -> Path:
                 ax.xaxis.set_major_formatter(ScalarFormatter())
                 ax.xaxis.set_minor_formatter(NullFormatter())
             ax.set_title(f"{scene}: {title}", fontsize=10)
+            ax.set_xlabel(xlabel)
             ax.grid(axis="x", alpha=0.3)
     fig.suptitle("Held-out drops: values with bootstrap 95 % intervals (0.4 s = not caught within the "
                  "horizon)", fontsize=10)
@@ -243,9 +249,7 @@ def figure(all_stats: dict, path: Path, shipped: str) -> Path:
                loc="lower center", ncol=len(key), fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.02))
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def ship(info: dict, dest: Path) -> dict:
@@ -333,11 +337,20 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="runs/report")
     p.add_argument("--reuse", action="store_true", help="read OUT/SCENE.npz instead of evaluating again")
     p.add_argument("--doc", default="docs/agents.md")
-    p.add_argument("--figure", default="docs/figures/agents_results.png")
+    p.add_argument("--figure", default=None,
+                   help="the figure file (default docs/figures/agents_results.FORMAT; its suffix picks the "
+                        "format)")
+    p.add_argument("--format", default=None, choices=FORMATS,
+                   help=f"the figure's file format (default: --figure's suffix, else png; {DPI} dpi)")
     p.add_argument("--ship", default="agents/models/best")
     p.add_argument("--no-ship", action="store_true")
     args = p.parse_args(argv)
     args.argv = sys.argv[1:] if argv is None else list(argv)
+    try:  # checked before the evaluation, which takes minutes
+        args.figure = output_figure(args.figure or DEFAULT_FIGURE.with_suffix(f".{args.format or 'png'}"),
+                                    args.format if args.figure else None, "--figure")
+    except ValueError as exc:
+        p.error(str(exc))
     infos = [run_info(Path(d)) for d in args.runs]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -356,7 +369,7 @@ def main(argv=None) -> int:
     (out / "stats.json").write_text(json.dumps(all_stats, indent=1, default=_json) + "\n")
     if not args.no_ship:
         ship(best, Path(args.ship))
-    fig = figure(all_stats, Path(args.figure), best["label"])
+    fig = figure(all_stats, args.figure, best["label"])
     text = report_text(infos, all_stats, best["label"], args, walls)
     text += f"\n![results]({Path(args.figure).relative_to(Path(args.doc).parent)})\n"
     write_doc(Path(args.doc), text)

@@ -14,7 +14,7 @@ Runs (each is also an ``impact-env`` command, printed in the table next to the n
    ``thesis-rig`` at the three gains: figs 4.6 and 4.7, the bounce claims.
 4. the gain sweep of fig 4.4 (``impact-env sweep``, log grid, no force limit).
 
-    .venv/bin/python scripts/reproduce_thesis.py [--episodes 20] [--out docs]
+    .venv/bin/python scripts/reproduce_thesis.py [--episodes 20] [--out docs] [--format png|pdf|svg]
 
 About 2-3 minutes on two cores.
 """
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -35,6 +36,7 @@ import thesis_figures as F  # noqa: E402
 
 from impact_env.eval.compare import compare  # noqa: E402
 from impact_env.eval.sweep import parse_grid, plot, sweep, write_csv  # noqa: E402
+from impact_env.figstyle import DPI, FORMATS  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
 
 IDEAL_SET = {"initial.pre_contact_time": 0.0, "effects.command_scale": 5000.0}
@@ -81,7 +83,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--episodes", type=int, default=20, help="seeded drops per policy on rig (default 20)")
     ap.add_argument("--out", default="docs", help="output folder (default docs)")
+    ap.add_argument("--format", default="png", choices=FORMATS,
+                    help=f"the figures' file format (default png, {DPI} dpi; impact_env.figstyle)")
     args = ap.parse_args(argv)
+    fmt = args.format
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
@@ -91,8 +96,8 @@ def main(argv=None) -> int:
     ideal = load_scene("ideal", IDEAL_SET)
     runs = compare(ideal, ["passive", "thesis-ideal"], episodes=1, horizon=0.1, trace_rate=1e5)
     off, on = runs["passive"], runs["thesis-ideal"]
-    F.fig_3_1(off, on, ideal, out / "fig3_1.png")
-    F.fig_3_2(on, ideal, out / "fig3_2.png")
+    F.fig_3_1(off, on, ideal, out / f"fig3_1.{fmt}")
+    F.fig_3_2(on, ideal, out / f"fig3_2.{fmt}")
     t = F.t_ms(on)
     e = F.body_energies(on, ideal)
     after = t >= 0
@@ -137,7 +142,7 @@ def main(argv=None) -> int:
     n = args.episodes
     rr = compare(rig, RIG_POLICIES, episodes=n)
     F.fig_4_8({"control off (passive)": rr["passive"], "thesis-rig (2.3e6, 18)": rr["thesis-rig"],
-               "pd-penetration": rr["pd-penetration"]}, rig, out / "fig4_8.png")
+               "pd-penetration": rr["pd-penetration"]}, rig, out / f"fig4_8.{fmt}")
     rig_cmd = RIG_CMD.format(n=n)
     totals = {}
     for spec in ("passive", "thesis-rig", "pd-penetration"):
@@ -177,9 +182,9 @@ def main(argv=None) -> int:
     # -- 3. rig without force limit: the bounce sequences ----------------------------------------------
     unlim = load_scene("rig", UNLIM_SET)
     ru = compare(unlim, UNLIM_POLICIES, episodes=1)
-    F.fig_bounces({"h01 = 2.3e6": ru["thesis-rig"]}, unlim, out / "fig4_6.png",
+    F.fig_bounces({"h01 = 2.3e6": ru["thesis-rig"]}, unlim, out / f"fig4_6.{fmt}",
                   "Fig 4.6 (ours): thesis-rig h01 = 2.3e6, h11 = 18, rig without force limit")
-    F.fig_bounces({"h01 = 1.2e6": ru["thesis-rig:h01=1.2e6"]}, unlim, out / "fig4_7.png",
+    F.fig_bounces({"h01 = 1.2e6": ru["thesis-rig:h01=1.2e6"]}, unlim, out / f"fig4_7.{fmt}",
                   "Fig 4.7 (ours): thesis-rig h01 = 1.2e6, h11 = 18, rig without force limit")
     v0r = rig.impact_speed
     seqs = {}
@@ -210,7 +215,7 @@ def main(argv=None) -> int:
     # -- 4. fig 4.4: the gain sweep -----------------------------------------------------------------------
     axes = (("h01", parse_grid("h01", "1e5:5e6:20", True)), ("h11", parse_grid("h11", "1:1000:20", True)))
     sw = sweep(rig, "thesis-rig", axes, t_end=0.02)
-    plot(sw, out / "fig4_4.png", log=True,
+    plot(sw, out / f"fig4_4.{fmt}", log=True,
          title="Fig 4.4 (ours): thesis-rig gain sweep, rig without force limit")
     write_csv(sw, out / "fig4_4_sweep.csv")
     m = sw.metrics
@@ -234,7 +239,7 @@ def main(argv=None) -> int:
             "rig_unlimited": {k: v.summary for k, v in ru.items()}, "sweep": sw.to_json(),
             "separations": {f"{a}|{b}": v for (a, b), v in seqs.items()}, "episodes": n}
     (out / "reproduction.json").write_text(json.dumps(data, indent=1, default=_jsonable))
-    write_markdown(out / "reproduction.md", rows, n)
+    write_markdown(out / "reproduction.md", rows, n, fmt)
     print(f"wrote {out}/reproduction.md and figures in {data['seconds']:.0f} s")
     for r in rows:
         print(f"- {r[0]}: thesis {r[1]}; ours {r[2]}")
@@ -249,10 +254,13 @@ def _jsonable(v):
     return str(v)
 
 
-def write_markdown(path: Path, rows, n: int) -> None:
+def write_markdown(path: Path, rows, n: int, fmt: str = "png") -> None:
     notes = (Path(__file__).resolve().parent / "reproduction_notes.md").read_text()
+    # the notes link the figures as figN_M.png: point them at the files this run wrote
+    notes = re.sub(r"(\]\(fig[0-9_]+)\.png\)", rf"\1.{fmt})", notes)
+    command = "python scripts/reproduce_thesis.py" + ("" if fmt == "png" else f" --format {fmt}")
     lines = ["# Reproducing the thesis", "",
-             "Generated by `python scripts/reproduce_thesis.py` (figures `docs/fig*.png`, raw numbers in "
+             f"Generated by `{command}` (figures `docs/fig*.{fmt}`, raw numbers in "
              "`docs/reproduction.json`); do not edit by hand, edit `scripts/reproduction_notes.md` for the "
              "prose.",
              "", "| claim | thesis | ours | command |", "| --- | --- | --- | --- |"]

@@ -1,7 +1,8 @@
 """Figures of ``scripts/reproduce_thesis.py``: our versions of the thesis's figures 3.1, 3.2a-f,
 4.6, 4.7 and 4.8 from :class:`impact_env.eval.compare.PolicyRun` results (fig 4.4 is drawn by
 :func:`impact_env.eval.sweep.plot`).  Time is from the first touch; heights and velocities are drawn
-upwards positive, as in the thesis.  PNGs at impact_env.eval.figstyle's 150 dpi."""
+upwards positive, as in the thesis.  Each written by :func:`impact_env.figstyle.save_figure` (150 dpi;
+the file's suffix picks png, pdf or svg)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from impact_env.eval.compare_plots import force_asd, force_spectrum  # noqa: E402, F401
+from impact_env.figstyle import save_figure  # noqa: E402
 from impact_env.plant.energy import catch_energy, energies, energy_above_rest  # noqa: E402
-
-DPI = 150
 
 
 def t_ms(run):
@@ -36,9 +36,7 @@ def body_energies(run, scene) -> dict:
 
 def _save(fig, path):
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def fig_3_1(off, on, scene, path):

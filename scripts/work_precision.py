@@ -19,7 +19,8 @@ the repeats after a warm-up call that compiles):
 
 Each run records once, at its end, so that records do not cut dopri5's steps (the peak force
 is then the largest at step ends, as the plant tracks it).  Writes ``docs/work_precision.csv``
-and ``docs/work_precision.png`` and prints a summary table.
+and ``docs/work_precision.png`` (``--format pdf|svg``: that file type instead) and prints a
+summary table.
 
     .venv/bin/python scripts/work_precision.py            # about a minute on one core
     .venv/bin/python scripts/work_precision.py --quick    # a few seconds
@@ -44,6 +45,7 @@ from naive import Params, reference_drop, sim_overrides  # noqa: E402
 import impact_env  # noqa: E402
 from impact_env import SimulationDiverged  # noqa: E402
 from impact_env.config import ConfigError  # noqa: E402
+from impact_env.figstyle import DPI, FORMATS, save_figure  # noqa: E402
 from impact_env.hardware.arrays import initial_state, plant_params  # noqa: E402
 from impact_env.plant import hertz  # noqa: E402
 
@@ -237,8 +239,7 @@ def plot(rows: list[dict], path: Path) -> None:
     fig.suptitle("impact_env plant: work-precision (fixed-step methods: dt 1e-5..1e-8 s; "
                  "dopri5: rtol 1e-4..1e-12)")
     fig.tight_layout()
-    fig.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 PANELS = {  # metric -> (title, y label): what is measured, as a quantity
@@ -291,6 +292,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="fewer settings, one repeat, 20 bounces")
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats (default 3, quick 1)")
     ap.add_argument("--out", type=Path, default=ROOT / "docs", help="output folder (default docs/)")
+    ap.add_argument("--format", default="png", choices=FORMATS,
+                    help=f"the figure's file format (default png, {DPI} dpi; impact_env.figstyle)")
     args = ap.parse_args(argv)
     repeats = args.repeats or (1 if args.quick else 3)
     dts = DTS_QUICK if args.quick else DTS
@@ -314,7 +317,7 @@ def main(argv=None) -> int:
         w.writeheader()
         for r in rows:
             w.writerow({k: (f"{r[k]:.6e}" if isinstance(r[k], float) else r[k]) for k in w.fieldnames})
-    png_path = args.out / "work_precision.png"
+    png_path = args.out / f"work_precision.{args.format}"
     plot(rows, png_path)
     summary(rows, pr)
     print(f"rk4+events on the damped pad: error ~ dt^{damped_order(rows):.2f} (least-squares slope)")

@@ -167,6 +167,23 @@ def test_schedules_and_sac_entropy_follow_rl_zoo_conventions():
         resolve("ppo", {"n_timesteps": 10, "env_kwargs": {"residual": "pd-penetrashun"}})
 
 
+def test_training_without_the_extra_says_how_to_get_it(tmp_path, capsys, monkeypatch):
+    """In a core install (no stable-baselines3, torch or PyYAML: the extra 'sb3'), agents.train
+    exits 2 with the install command, before anything is created (tests/minimal_install_check.py
+    runs it for real in a core-only venv)."""
+    import importlib.util
+
+    import agents.train as T
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "yaml" else real(name, *a))
+    assert T.main(["--algo", "ppo", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "yaml not installed" in err and "pip install 'impact-env[sb3]'" in err
+    assert not (tmp_path / "run").exists()
+
+
 def test_yaml_without_the_env_id_is_refused_naming_what_it_has(tmp_path):
     p = tmp_path / "x.yml"
     p.write_text("CartPole-v1:\n  n_timesteps: 10\n")
@@ -175,25 +192,67 @@ def test_yaml_without_the_env_id_is_refused_naming_what_it_has(tmp_path):
     shutil.rmtree(tmp_path)
 
 
+TINY_SAC = {"buffer_size": 1000, "batch_size": 16, "net_arch": [8]}
+
+
 @pytest.mark.training
-def test_ctrl_c_saves_the_model_and_its_settings(tmp_path, capsys, monkeypatch):
-    """A run interrupted with Ctrl-C (KeyboardInterrupt inside learn) leaves model.zip and
-    model.json, says so, and exits 130 without a traceback."""
-    from stable_baselines3 import PPO
+@pytest.mark.parametrize("algo, hp", [("ppo", TINY_PPO), ("sac", TINY_SAC)])
+def test_ctrl_c_saves_the_model_and_its_settings(tmp_path, capsys, monkeypatch, algo, hp):
+    """A run interrupted with Ctrl-C (KeyboardInterrupt inside learn, here at step 64 of 128,
+    before any periodic checkpoint) leaves model.zip and model.json, a checkpoint with its settings
+    (and SAC's replay buffer), ends the progress line, says where they are and exits 130 without a
+    traceback; ``--resume`` then continues from that checkpoint to a tiny budget (it refused with
+    "no checkpoint" when the interrupted save went to model.zip only)."""
+    from agents.callbacks import EpisodeStats
 
-    def interrupted(self, *args, **kwargs):
-        raise KeyboardInterrupt
+    real_on_step = EpisodeStats._on_step
 
-    monkeypatch.setattr(PPO, "learn", interrupted)
+    def interrupted_at_64(self):
+        if self.num_timesteps >= 64:
+            raise KeyboardInterrupt
+        return real_on_step(self)
+
+    monkeypatch.setattr(EpisodeStats, "_on_step", interrupted_at_64)
     out = tmp_path / "run"
-    args = ["--algo", "ppo", "--out", str(out), "--steps", "128", "--envs", "4", "--horizon", str(HORIZON),
-            "--eval-every", "0"]
-    for key, value in TINY_PPO.items():
+    args = ["--algo", algo, "--out", str(out), "--steps", "128", "--envs", "4", "--horizon", str(HORIZON),
+            "--eval-every", "0", "--progress"]
+    for key, value in hp.items():
         args += ["--hp", f"{key}={value}"]
     assert main(args) == 130
     meta = json.loads((out / "model.json").read_text())
-    assert meta["interrupted"] is True and (out / "model.zip").is_file()
-    assert "interrupted (Ctrl-C)" in capsys.readouterr().out
+    assert meta["interrupted"] is True and (out / "model.zip").is_file() and meta["steps"] == 64
+    ck = out / "checkpoints"
+    saved = sorted(p.name for p in ck.iterdir())
+    expected = ["model_64_steps.json", "model_64_steps.zip"]
+    if algo == "sac":
+        expected.append("model_replay_buffer_64_steps.pkl")
+    assert saved == expected
+    assert json.loads((ck / "model_64_steps.json").read_text())["algo"] == algo
+    captured = capsys.readouterr()
+    assert "interrupted (Ctrl-C)" in captured.out and f"--resume {out}" in captured.out
+    assert captured.err.endswith("\n")  # the status line is ended, not overwritten by the next output
+
+    monkeypatch.setattr(EpisodeStats, "_on_step", real_on_step)
+    from stable_baselines3 import SAC
+
+    buffers = []  # what the resumed SAC loaded, and how many transitions: the first segment's
+    real_load = SAC.load_replay_buffer
+
+    def load_replay_buffer(self, path, *a, **kw):
+        real_load(self, path, *a, **kw)
+        buffers.append((Path(path).name, self.replay_buffer.size() * self.n_envs))
+
+    monkeypatch.setattr(SAC, "load_replay_buffer", load_replay_buffer)
+    assert main(["--resume", str(out)]) == 0  # the run's own budget, 128 steps
+    meta2 = json.loads((out / "model.json").read_text())
+    assert meta2["interrupted"] is False and meta2["steps"] >= 128
+    segs = json.loads((out / "run.json").read_text())["segments"]
+    assert [s["start_step"] for s in segs] == [0, 64]
+    if algo == "sac":  # the interrupted vector step (4 envs) was counted but its transitions not stored
+        assert [name for name, _ in buffers] == ["model_replay_buffer_64_steps.pkl"]
+        assert 64 - 4 <= buffers[0][1] <= 64
+    else:
+        assert buffers == []
 
 
 @pytest.mark.training

@@ -35,4 +35,28 @@ def test_licence_matches_pyproject_and_the_heavy_deps_are_optional():
     core = " ".join(meta["dependencies"])
     assert "torch" not in core and "stable-baselines3" not in core
     assert any("stable-baselines3" in d for d in meta["optional-dependencies"]["sb3"])
+    # PyYAML: only agents/run_config.py (training's YAML files) reads YAML, so it is the extra's
+    assert "PyYAML" not in core and any("PyYAML" in d for d in meta["optional-dependencies"]["sb3"])
+    users = [str(f.relative_to(ROOT)) for f in (ROOT / "impact_env").rglob("*.py")
+             if re.search(r"^\s*(import yaml|from yaml)", f.read_text(), re.M)]
+    assert users == [], f"impact_env imports yaml (a core module would need PyYAML back in the core): {users}"
     assert "sb3" in " ".join(meta["optional-dependencies"]["dev"])
+
+
+def test_gymnasium_make_with_the_module_prefix_in_a_fresh_interpreter():
+    """The documented form ``gymnasium.make("impact_env:ImpactCatch-v0")`` (no import of
+    impact_env first) works in a new interpreter: gymnasium imports the module, which registers
+    the env.  In this process impact_env is already imported, which would hide a failure."""
+    import subprocess
+    import sys
+
+    code = ("import sys, gymnasium as gym\n"
+            "assert 'impact_env' not in sys.modules\n"
+            "env = gym.make('impact_env:ImpactCatch-v0')\n"
+            "obs, info = env.reset(seed=0)\n"
+            "obs, r, te, tr, info = env.step(env.action_space.sample())\n"
+            "assert env.observation_space.contains(obs), obs\n"
+            "print('made', env.spec.id, obs.shape)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.startswith("made ImpactCatch-v0"), out.stdout

@@ -43,37 +43,68 @@ def test_median_catch_difference_with_uncaught_drops():
     assert same.difference == 0.0 and not same.a_better and not same.b_better
 
 
-def test_agents_report_says_better_from_the_paired_difference():
+def _run_info(label: str, algo: str, seed: int) -> dict:
+    """What scripts/agents_report.run_info reads from a run folder, without the folder."""
+    meta = {"algo": algo, "seed": seed, "scene": "rig-randomized", "steps": 1000, "ticks": 4000,
+            "wall_time_s": 2.0}
+    return {"label": label, "algo": algo, "seed": seed, "meta": meta, "val_best": -1.0, "val_best_step": 500}
+
+
+def test_agents_report_says_better_from_the_paired_difference(monkeypatch):
+    """The report's verdict comes from the paired difference: the agent's energy integral is a
+    steady 0.5 ms below pd-penetration's on the same drops (two unpaired intervals would overlap),
+    so 'better'; its catch times are drawn like pd-penetration's, so 'NOT shown better'.  The figure
+    keys every colour it draws (the shipped agent, other PPO runs, SAC runs, classic laws, the
+    oracle) and labels every x axis."""
     sys.path.insert(0, str(ROOT / "scripts"))
     import agents_report as AR
+    from matplotlib.colors import to_rgba
 
     base, better = _drops()
     n = base.size
     rng = np.random.default_rng(5)
-    d = {"labels": ["pd-penetration", "ppo-s0", "oracle"], "specs": ["pd", "ppo", "oracle"], "wall_time_s": 1.0,
+    labels = ["pd-penetration", "ppo-s0", "ppo-s1", "sac-s0", "oracle"]
+    d = {"labels": labels, "specs": labels, "wall_time_s": 1.0,
          "oracle|source": np.array(["cma"] * n), "oracle|cpu_seconds": np.ones(n)}
-    for label, e in (("pd-penetration", base), ("ppo-s0", better), ("oracle", base - 5.0)):
-        d[f"{label}|energy_integral_ms"] = e
+    energies = {"pd-penetration": base, "ppo-s0": better, "ppo-s1": base + 0.1, "sac-s0": base + 1.0,
+                "oracle": base - 5.0}
+    for label in labels:
+        d[f"{label}|energy_integral_ms"] = energies[label]
         d[f"{label}|time_to_catch_s"] = rng.uniform(0.05, 0.3, n)
         d[f"{label}|bounces"] = np.zeros(n)
         d[f"{label}|rms_force_N"] = np.zeros(n)
         d[f"{label}|failed"] = 0
-    args = SimpleNamespace(resamples=2000, boot_seed=7, argv=[], seed=1000, episodes=n, oracle="oracle",
-                           ship="agents/models/best")
+    args = SimpleNamespace(resamples=2000, boot_seed=7, argv=["--runs", "runs/x"], seed=1000, episodes=n,
+                           oracle="oracle", ship="agents/models/best")
     st = AR.scene_stats(d, args)
-    info = {"label": "ppo-s0", "algo": "ppo", "seed": 0, "meta": {"steps": 1, "wall_time_s": 1.0,
-            "steps_per_s": 1.0}, "val_best": 0.0, "val_best_step": 1}
-    try:
-        text = AR.report_text([info], {"rig": st}, "ppo-s0", args, {"rig": 1.0})
-    except KeyError:  # training_table wants more of a run's meta: the verdict is in the stats anyway
-        text = None
-    assert st["_paired"]["ppo-s0"]["energy"].a_better
+    assert st["_paired"]["ppo-s0"]["energy"].a_better and not st["_paired"]["ppo-s0"]["catch"].a_better
+    infos = [_run_info("ppo-s0", "ppo", 0), _run_info("ppo-s1", "ppo", 1), _run_info("sac-s0", "sac", 0)]
+    text = AR.report_text(infos, {"rig": st}, "ppo-s0", args, {"rig": 1.0})
+    verdict = next(line for line in text.splitlines() if line.startswith("Shipped agent against"))
+    catch, energy = verdict.split("; energy integral ")
+    assert "paired difference" in catch and catch.rstrip(")").endswith(": NOT shown better")
+    assert "paired difference -0.5" in energy and "ms [" in energy
+    assert energy.split(")")[1].endswith(": better")  # after '(95 % paired bootstrap over 100 drops)'
+    assert "non-overlapping" not in text and "beats it" not in text  # the old, unpaired wording
+
     from PIL import Image
 
-    fig = AR.figure({"rig": st}, ROOT / ".pytest_fig.png", "ppo-s0")  # every colour keyed, 150 dpi
+    seen = {}
+    real = AR.save_figure
+
+    def keep(fig, path):
+        drawn = {to_rgba(c) for a in fig.axes for coll in a.collections for c in coll.get_facecolors()}
+        keyed = {to_rgba(h.get_color()) for leg in fig.legends for h in leg.legend_handles}
+        seen.update(drawn=drawn, keyed=keyed, xlabels=[a.get_xlabel() for a in fig.axes],
+                    key_text=[t.get_text() for leg in fig.legends for t in leg.get_texts()])
+        return real(fig, path)
+
+    monkeypatch.setattr(AR, "save_figure", keep)
+    fig = AR.figure({"rig": st}, ROOT / ".pytest_fig.png", "ppo-s0")
     try:
         assert Image.open(fig).info["dpi"][0] >= 149
     finally:
         fig.unlink()
-    if text is not None:
-        assert "paired difference" in text and "NOT shown better" in text  # catch times: no difference
+    assert len(seen["drawn"]) == 5 and seen["drawn"] <= seen["keyed"], seen  # every colour drawn has a key
+    assert all(x.endswith(("s", "s (right of 0.4: not caught)", "ms (log scale)")) for x in seen["xlabels"])
+    assert "SAC runs" in seen["key_text"] and "other PPO runs" in seen["key_text"]

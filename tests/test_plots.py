@@ -102,7 +102,7 @@ def test_one_style_formats_welch_and_no_flat_zero_lines(runs, tmp_path, monkeypa
     from PIL import Image
 
     from impact_env.eval.compare import write_outputs
-    from impact_env.eval.figstyle import figure_path
+    from impact_env.figstyle import figure_path
 
     scene = load_scene("rig")
     paths = write_outputs(runs, tmp_path / "png", scene, 0, 0.05)
@@ -122,3 +122,128 @@ def test_one_style_formats_welch_and_no_flat_zero_lines(runs, tmp_path, monkeypa
     CP.plot_force(runs, tmp_path / "f.png", scene)
     assert "no force: passive" in titles[0]
     del seen
+
+
+# -- --format on every command that plots, and the rig log's plot ------------------------------------------
+MAGIC = {"png": b"\x89PNG", "pdf": b"%PDF", "svg": b"<svg"}
+
+
+@pytest.fixture(scope="module")
+def rig_logs(tmp_path_factory):
+    """Episode logs of ``passive`` and ``pd-penetration`` run onboard on the virtual rig (lock-step,
+    the target in a thread of this process): {policy: path}."""
+    import threading
+    import time
+
+    from impact_env.policy.export import export_policy
+    from impact_env.rig.driver import VirtualRig
+    from impact_env.rig.host import RigClient
+    from impact_env.rig.target import Target, TargetConfig
+
+    logs = tmp_path_factory.mktemp("rig-logs")
+    target = Target(VirtualRig("rig"), config=TargetConfig(lockstep=True, log_dir=logs))
+    threading.Thread(target=target.serve, daemon=True).start()
+    client = RigClient(target.address)
+    out = {}
+    try:
+        for policy in ("passive", "pd-penetration"):
+            before = set(logs.glob("episode_*.h5"))
+            client.arm("onboard", 3, 1500, policy=export_policy(policy, load_scene("rig")))
+            deadline = time.monotonic() + 120
+            while not (new := set(logs.glob("episode_*.h5")) - before):
+                assert time.monotonic() < deadline, f"no log of the {policy} episode"
+                time.sleep(0.05)
+            out[policy] = new.pop()
+    finally:
+        client.close()
+        target.stop()
+    return out
+
+
+def _written_type(path) -> str:
+    head = path.read_bytes()[:2000]
+    return next(fmt for fmt, magic in MAGIC.items()
+                if (head.startswith(magic) if fmt != "svg" else magic in head))  # svg: after <?xml ...>
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fmt", ["png", "pdf", "svg"])
+@pytest.mark.parametrize("command", ["sweep", "rig log", "rig log (suffix)", "drop"])
+def test_every_plotting_command_writes_the_format_asked(command, fmt, tmp_path, request, capsys):
+    """sweep --format, rig log --plot FILE --format (or the file's suffix alone), drop --plot with
+    --format: the file written is of that type (its magic bytes, not only its name), PNG at 150 dpi."""
+    from PIL import Image
+
+    from impact_env.cli.main import main
+
+    if command == "sweep":
+        argv = ["sweep", "--scene", "rig", "--h01", "1e5:1e6:2", "--h11", "1:10:2", "--t-end", "0.005",
+                "--workers", "1", "--no-progress", "--out", str(tmp_path), "--format", fmt]
+        want = tmp_path / f"sweep.{fmt}"
+    elif command.startswith("rig log"):
+        log = request.getfixturevalue("rig_logs")["pd-penetration"]
+        suffix = command.endswith("(suffix)")
+        want = tmp_path / f"log.{fmt}"
+        argv = ["rig", "log", str(log), "--plot", str(want if suffix else tmp_path / "log")] + \
+            ([] if suffix else ["--format", fmt])
+    else:
+        want = tmp_path / f"drop.{fmt}"
+        argv = ["drop", "--scene", "rig", "--t-end", "0.02", "--plot", str(tmp_path / "drop"),
+                "--format", fmt]
+    assert main(argv) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix != ".csv") == [want.name]
+    assert _written_type(want) == fmt
+    if fmt == "png":
+        assert Image.open(want).info["dpi"][0] >= 149
+
+
+@pytest.mark.parametrize("argv, names", [
+    (["rig", "log", "LOG", "--plot", "x.jpg"], ["--plot", "x.jpg", ".png, .pdf, .svg"]),
+    (["rig", "log", "LOG", "--plot", "x.png", "--format", "pdf"], ["--plot", ".png", "--format is pdf"]),
+    (["drop", "--scene", "rig", "--plot", "x.gif"], ["--plot", "x.gif"]),
+    (["sweep", "--format", "jpg"], ["--format", "'jpg'"]),
+])
+def test_a_bad_figure_format_is_refused_naming_the_option(argv, names, tmp_path, capsys, monkeypatch):
+    """Refused before anything runs (no log read, no simulation), exit 2."""
+    from impact_env.cli.main import main
+
+    log = tmp_path / "episode.h5"
+    log.write_bytes(b"not read: the plot's name is checked first")
+    monkeypatch.chdir(tmp_path)
+    argv = [str(log) if a == "LOG" else a for a in argv]
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's choices
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code == 2, err
+    for name in names:
+        assert name in err, (name, err)
+    assert not list(tmp_path.glob("x.*"))
+
+
+@pytest.mark.slow
+def test_rig_log_plot_draws_no_flat_zero_force_lines(rig_logs, tmp_path, monkeypatch):
+    """A passive episode's log has no force panel (no lines at 0 N that read like data): the title
+    says 'no force demanded or applied'; an episode with a force keeps the panel and both lines."""
+    import impact_env.figstyle as FS
+    from impact_env.rig.log import read_episode
+    from impact_env.rig.log_plot import plot_log
+
+    figs = {}
+    real = FS.save_figure
+
+    def keep(fig, path):
+        figs[path.stem] = {"title": fig._suptitle.get_text(),
+                           "lines": [ln.get_label() for a in fig.axes for ln in a.get_lines()],
+                           "ylabels": [a.get_ylabel() for a in fig.axes]}
+        return real(fig, path)
+
+    monkeypatch.setattr(FS, "save_figure", keep)
+    for policy, path in rig_logs.items():
+        plot_log(read_episode(path), tmp_path / f"{policy}.png")
+    passive, pd = figs["passive"], figs["pd-penetration"]
+    assert "no force demanded or applied (0 N throughout)" in passive["title"]
+    assert not {"demanded (after safety)", "applied"} & set(passive["lines"])
+    assert "force on body 2, N (up)" not in passive["ylabels"]
+    assert {"demanded (after safety)", "applied"} <= set(pd["lines"]) and "no force" not in pd["title"]

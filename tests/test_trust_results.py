@@ -162,6 +162,17 @@ def test_smaller_traps_each_with_its_fix(tmp_path, capsys):
     assert "not a whole number of record periods" in capsys.readouterr().err
 
 
+def test_sweep_seed_below_zero_names_seed_and_writes_nothing(tmp_path, capsys):
+    """--seed -1 on sweep (as on compare and drop): exit 2 naming --seed, before any pair runs."""
+    from impact_env.cli.main import main
+
+    out = tmp_path / "sweep"
+    assert main(["sweep", "--scene", "rig", "--seed", "-1", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--seed -1" in err and ">= 0" in err
+    assert not list(out.glob("sweep.*"))
+
+
 def test_the_stability_refusal_suggests_a_step_every_check_accepts():
     """m2 = 1e-9 kg: the refusal's suggested dt used to be refused by the steps-per-contact
     check (and off the control grid, and unstable at a randomize corner); now it passes."""

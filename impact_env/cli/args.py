@@ -69,6 +69,28 @@ def output_dir(path: str | Path, option: str = "--out") -> Path:
     return p
 
 
+def add_format_argument(p: argparse.ArgumentParser, default: str | None = "png",
+                        what: str = "the plots'") -> None:
+    """``--format png|pdf|svg``, the same on every command that plots (:mod:`impact_env.figstyle`)."""
+    from impact_env.figstyle import DPI, FORMATS
+
+    extra = f"default {default}, {DPI} dpi" if default else f"default: the file's suffix; PNG at {DPI} dpi"
+    p.add_argument("--format", default=default, choices=FORMATS, help=f"{what} file format ({extra})")
+
+
+def output_figure_file(path: str | Path, fmt: str | None, option: str) -> Path:
+    """The figure file ``option PATH [--format FMT]`` names (:func:`impact_env.figstyle.output_figure`:
+    the suffix and the format agree), writable; checked before anything runs.  ConfigError naming
+    the option otherwise."""
+    from impact_env.figstyle import output_figure
+
+    try:
+        p = output_figure(path, fmt, option)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    return output_file(p, option)
+
+
 def output_file(path: str | Path, option: str) -> Path:
     """Make sure the file ``path`` can be written, before anything runs (its folder exists and
     is writable, and it is not a folder); ConfigError naming the option otherwise."""

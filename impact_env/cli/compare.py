@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from impact_env.cli.args import output_dir, scene_from_args
+from impact_env.cli.args import add_format_argument, output_dir, scene_from_args
 from impact_env.eval.compare import compare, format_table, split_policies, summary_json, write_outputs
 
 
@@ -25,8 +25,7 @@ def add_parser(sub, scene_args) -> None:
     p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
     p.add_argument("--out", metavar="DIR", help="write summary.csv/json, episodes.csv and plots here")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
-    p.add_argument("--format", default="png", choices=("png", "pdf", "svg"),
-                   help="the plots' file format with --out (default png, 150 dpi)")
+    add_format_argument(p, what="with --out, the plots'")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--list", action="store_true", help="list the baselines and their parameters, then exit")
     p.add_argument("--rig", metavar="udp://HOST:PORT",

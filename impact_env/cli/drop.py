@@ -7,15 +7,14 @@ import math
 import sys
 from typing import Any
 
-from impact_env.cli.args import output_file, parse_overrides, scene_from_args
+from impact_env.cli.args import output_figure_file, parse_overrides, scene_from_args
 
 
 def cmd_drop(args) -> int:
     from impact_env.sim.drop import SimulationDiverged, simulate
 
     scene = scene_from_args(args)
-    if args.plot:
-        output_file(args.plot, "--plot")  # checked before simulating
+    plot = output_figure_file(args.plot, args.format, "--plot") if args.plot else None  # before simulating
     record_rate = args.record_rate
     if args.seed is not None and args.seed < 0:
         from impact_env.config import ConfigError
@@ -59,12 +58,12 @@ def cmd_drop(args) -> int:
                 print(f"  {k:28s} {v if v is None else f'{v:.6g}'}")
         for w in m["warnings"]:
             print(f"  warning: {w}")
-    if args.plot:
+    if plot is not None:
         from impact_env.eval.plots import plot_trajectory
 
-        plot_trajectory(traj, args.plot)
+        plot_trajectory(traj, str(plot))
         if not args.json:
-            print(f"  plot written to {args.plot}")
+            print(f"  plot written to {plot}")
     return 0
 
 

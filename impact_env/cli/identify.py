@@ -67,7 +67,7 @@ def _base(args, exps):
 
 
 def run_identification(args, paths, out: Path, report_dir: Path) -> int:
-    from impact_env.eval.figstyle import check_format
+    from impact_env.figstyle import check_format
     from impact_env.ident import report
     from impact_env.ident.experiments import load
     from impact_env.ident.fit import identify

@@ -13,7 +13,7 @@ import argparse
 import sys
 
 from impact_env.cli import compare, export, identify, rig, sweep
-from impact_env.cli.args import add_scene_arguments
+from impact_env.cli.args import add_format_argument, add_scene_arguments
 from impact_env.cli.drop import cmd_drop, cmd_scene_show, cmd_scenes
 from impact_env.config import ConfigError
 
@@ -38,7 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record-rate", type=float, default=None,
                    help="samples per second (default: control.rate)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--plot", metavar="FILE.png", help="write positions, velocities, forces and energies")
+    p.add_argument("--plot", metavar="FILE.png", help="write positions, velocities, forces and energies "
+                                                      "(the suffix picks png, pdf or svg)")
+    add_format_argument(p, default=None, what="--plot's")
     p.set_defaults(func=cmd_drop)
 
     p = sub.add_parser("scenes", help="list the preset scenes (with --set: each with the overrides applied)")

@@ -8,6 +8,8 @@ import math
 import sys
 import typing
 
+from impact_env.cli.args import add_format_argument, output_figure_file
+
 
 def add_parser(sub, scene_args) -> None:
     p = sub.add_parser("rig", help="the rig: serve a target (virtual rig), summarise an episode log")
@@ -58,7 +60,9 @@ def add_parser(sub, scene_args) -> None:
     k.set_defaults(func=cmd_keygen)
     g = rsub.add_parser("log", help="summarise an episode log with compare's metrics")
     g.add_argument("file", help="an episode's .h5 file (impact-env rig serve --log-dir)")
-    g.add_argument("--plot", metavar="OUT.png", help="plot the raw sensors, the forces and the energy")
+    g.add_argument("--plot", metavar="OUT.png", help="plot the raw sensors, the forces and the energy (the "
+                                                     "suffix picks png, pdf or svg)")
+    add_format_argument(g, default=None, what="--plot's")
     g.add_argument("--json", action="store_true", help="print one JSON object")
     g.set_defaults(func=cmd_log)
 
@@ -174,6 +178,7 @@ def cmd_log(args) -> int:
 
     if not Path(args.file).is_file():
         raise ConfigError(f"log file {args.file!r} not found")
+    plot = output_figure_file(args.plot, args.format, "--plot") if args.plot else None  # before reading
     try:
         log = read_episode(args.file)
     except (OSError, KeyError) as exc:
@@ -216,12 +221,12 @@ def cmd_log(args) -> int:
                   f"(their step's ticks skipped), {c.get('commands_unused_at_end', 0)} unused at the end")
         print(f"  counters (this episode): "
               f"{', '.join(f'{k} {v}' for k, v in log.meta.counters.items() if v) or 'all 0'}")
-    if args.plot:
+    if plot is not None:
         from impact_env.rig.log_plot import plot_log
 
-        plot_log(log, args.plot, est)
+        plot_log(log, plot, est)
         if not args.json:
-            print(f"  plot written to {args.plot}")
+            print(f"  plot written to {plot}")
     return 0
 
 

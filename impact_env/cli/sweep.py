@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from impact_env.cli.args import output_dir, scene_from_args
+from impact_env.cli.args import add_format_argument, output_dir, scene_from_args
 from impact_env.eval.sweep import DEFAULT_AXES, parse_grid, plot, sweep, write_csv
 
 
@@ -29,7 +29,9 @@ def add_parser(sub, scene_args) -> None:
     p.add_argument("--objective", default="exit_speed_ratio", help="metric the best pair minimises")
     p.add_argument("--seed", type=int, default=0, help="seed of the drop (the same for every pair)")
     p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
-    p.add_argument("--out", metavar="DIR", default=".", help="where sweep.csv and sweep.png go (default .)")
+    p.add_argument("--out", metavar="DIR", default=".",
+                   help="where sweep.csv and sweep.FORMAT go (default .)")
+    add_format_argument(p, what="the plot's")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_sweep)
@@ -70,7 +72,7 @@ def cmd_sweep(args) -> int:
     res = sweep(scene, args.policy, axes, fixed, seed=args.seed, t_end=args.t_end, limit=args.limit,
                 objective=args.objective, workers=args.workers, progress=not (args.no_progress or args.json))
     csv_path = write_csv(res, out / "sweep.csv")
-    png_path = plot(res, out / "sweep.png", args.log)
+    png_path = plot(res, out / f"sweep.{args.format}", args.log)
     if args.json:
         print(json.dumps(res.to_json()))
         return 0

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from impact_env.eval.figstyle import save_figure
 from impact_env.eval.labels import policy_colors
+from impact_env.figstyle import save_figure
 
 
 def _plt():

@@ -34,6 +34,6 @@ def plot_trajectory(traj, path: str) -> None:
         a.legend(loc="upper right", fontsize=8)
     fig.suptitle(f"scene {traj.scene.name}: drop at {traj.scene.impact_speed:.3g} m/s")
     fig.tight_layout()
-    from impact_env.eval.figstyle import save_figure
+    from impact_env.figstyle import save_figure
 
     save_figure(fig, path)

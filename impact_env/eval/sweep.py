@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from impact_env.eval.figstyle import DPI
+from impact_env.figstyle import save_figure
 from impact_env.policy.registry import policy_class
 
 UNLIMITED_SCALE = 1.0e5  # N: command_scale when the force is not limited
@@ -245,9 +245,7 @@ def plot(res: SweepResult, path: Path, log: bool, title: str = "") -> Path:
     limits = "no force limit" if res.limit == "none" else "scene limits"
     fig.suptitle(title or f"{res.policy}: gain sweep ({limits})", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _param_units(policy: str) -> dict[str, str]:

@@ -229,7 +229,7 @@ def plot(fit: Fit, exps, out_dir, fmt: str = "png") -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from impact_env.eval.figstyle import figure_path, save_figure
+    from impact_env.figstyle import figure_path, save_figure
 
     assert fit.model is not None
     out = []
