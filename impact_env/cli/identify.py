@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 
-def add_identify_arguments(p, scene_args=None) -> None:
+def add_identify_arguments(p) -> None:
     p.add_argument("--base", default=None, metavar="SCENE",
                    help="the scene to calibrate (preset or .toml; default: the scene the logs were recorded "
                         "with, i.e. the target's)")
@@ -16,7 +16,9 @@ def add_identify_arguments(p, scene_args=None) -> None:
                    help="write [randomize] ranges of +-K standard uncertainties around each identified value "
                         "(for training on the identified rig with its uncertainty); default: one-point ranges "
                         "for the fields the controller reads, fixed values for the others")
-    p.add_argument("--format", default="png", help="the report's figures: png | pdf | svg (default png)")
+    from impact_env.cli.args import add_format_argument
+
+    add_format_argument(p, what="the report's figures'")
     p.add_argument("--json", action="store_true", help="print the identification as one JSON object")
 
 
@@ -67,12 +69,10 @@ def _base(args, exps):
 
 
 def run_identification(args, paths, out: Path, report_dir: Path) -> int:
-    from impact_env.figstyle import check_format
     from impact_env.ident import report
     from impact_env.ident.experiments import load
     from impact_env.ident.fit import identify
 
-    check_format(args.format)
     if args.ranges is not None and not 0 < args.ranges <= 10:
         from impact_env.config import ConfigError
 

@@ -94,7 +94,7 @@ class Excitation:
         else:
             x = _prbs(n, max(1, int(round(rate / (3.0 * self.f_hi_Hz)))), self.seed)
         if self.signal != "prbs":
-            x = x * _taper(t, T, self.taper_s)
+            x = x * _taper(t, t[-1], self.taper_s)  # (0 at the first and the last tick)
         return self.amplitude_N * x
 
     def commands(self, rate: float, n: int, command_scale: float, peak_n: float | None = None,

@@ -268,6 +268,17 @@ class EpisodeLog:
 
         return scene_from_dict(tomllib.loads(self.meta.scene_toml))
 
+    def physics(self):
+        """The scene of the hardware that ran: a virtual rig's physics when it differed from its
+        description (``physics_toml``), else :meth:`scene`."""
+        import tomllib
+
+        from impact_env.scene import scene_from_dict
+
+        if not self.meta.physics_toml:
+            return self.scene()
+        return scene_from_dict(tomllib.loads(self.meta.physics_toml))
+
 
 def episode_filename(episode: int, session: int = 0) -> str:
     return f"episode_{int(session):08x}_{int(episode):06d}.h5"

@@ -41,13 +41,14 @@ def exact_metrics(log: EpisodeLog, catch_fraction: float = 0.01,
                   min_flight_s: float = 1e-3) -> dict[str, float]:
     """The episode's metrics from a virtual rig's true columns (NaN where the plant failed).  The
     drop's constants (plant row, start state, impact energy and speed, first touch) are those the
-    virtual rig drew from the log's seed, rebuilt the same way."""
+    virtual rig drew from the log's seed, rebuilt the same way (from its physics, when it differs
+    from the scene it was described by)."""
     from gymnasium.utils import seeding
 
     from impact_env.hardware.batch import Hardware
 
     rec = log_records(log)
-    hw = Hardware(log.scene(), 1)
+    hw = Hardware(log.physics(), 1)  # (a virtual rig's own hardware, when it differs from its description)
     hw.reset([seeding.np_random(int(log.meta.seed))[0]])
     m = EpisodeMetrics(1, 1.0 / log.meta.control_rate_hz, catch_fraction, min_flight_s)
     m.start(hw.t_touch, hw.impact_speed, hw.impact_energy, hw.Y[:, 0] - hw.Y[:, 2] > 0.0)
