@@ -1,4 +1,5 @@
-"""Command line: ``impact-env drop | scenes | scene show | compare | sweep | export | rig | identify``.
+"""Command line: ``impact-env drop | scenes | scene show | compare | sweep | export | rig | identify |
+robustness``.
 
 Every command takes ``--set KEY=VALUE`` (repeatable) through :func:`add_scene_arguments` and
 builds its scene with :func:`scene_from_args`; new commands should use the same two helpers.
@@ -12,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from impact_env.cli import compare, export, identify, rig, sweep
+from impact_env.cli import compare, export, identify, rig, robustness, sweep
 from impact_env.cli.args import add_format_argument, add_scene_arguments
 from impact_env.cli.drop import cmd_drop, cmd_scene_show, cmd_scenes
 from impact_env.config import ConfigError
@@ -59,6 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
     rig.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
     identify.add_parser(sub)
+    robustness.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
     return ap
 
 
