@@ -59,6 +59,7 @@ class Experiment:
     excitation: str
     seed: int
     physics_toml: str = ""
+    fit_mask: np.ndarray | None = None  # the rows a fit compares, if fewer than ``usable`` (set by the fit)
 
     @property
     def n(self) -> int:

@@ -1,0 +1,99 @@
+"""The mismatch map of docs/mismatch.md: the shipped agent, pd-penetration and thesis-rig on the
+same drops of ``rig`` while one hardware parameter at a time departs from the scene
+(``impact-env robustness``), over the parameters a real rig is most likely to get wrong.
+
+    python scripts/mismatch_map.py --episodes 50 --identified docs/identification/seed21/identification.json
+
+Writes ``docs/figures/mismatch_<field>.png``, ``docs/mismatch.json`` and the tables of
+``docs/mismatch.md`` between its markers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from impact_env.eval.robustness import identified_bands, parse_vary, plot, robustness
+from impact_env.scene import load_scene
+
+POLICIES = ["compiled:agents/models/best/best.policy.json", "pd-penetration", "thesis-rig"]
+NAMES = {POLICIES[0]: "shipped agent", "pd-penetration": "pd-penetration", "thesis-rig": "thesis-rig"}
+GRIDS = [  # a factor 2 or more either way of the nominal, or the physical range
+    "c=1e6:4e6:7", "restitution=0.6:0.95:8", "shaker_coil_inductance=25e-6:200e-6:7",
+    "sensor_delay_s=0:5e-4", "command_gain=0.6:1.4:9", "m1=0.05:0.2:7", "noise_scale=0.25:8:7",
+]
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--episodes", type=int, default=50)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--identified", default=None, help="an identification.json to mark")
+    ap.add_argument("--only", nargs="*", default=None, help="fields to run (default all)")
+    args = ap.parse_args(argv)
+    scene = load_scene("rig")
+    bands = identified_bands(args.identified, scene) if args.identified else {}
+    figs = ROOT / "docs" / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for grid in GRIDS:
+        name, values = parse_vary(grid, scene.control_rate)
+        if args.only and name not in args.only:
+            continue
+        res = robustness(scene, POLICIES, [(name, values)], args.episodes, args.seed, args.workers, progress=False)
+        res.identified = bands
+        plot(res, figs / f"mismatch_{name}.png")
+        results[name] = {"values": values.tolist(), "nominal": res.nominal[name], "wall_s": res.wall_s,
+                         "rows": [{spec: row[spec] for spec in POLICIES} for row in res.summaries]}
+        print(f"{name}: {res.wall_s:.0f} s", file=sys.stderr, flush=True)
+    out = ROOT / "docs" / "mismatch.json"
+    old = json.loads(out.read_text()) if out.exists() and args.only else {}
+    old.update(results)
+    out.write_text(json.dumps(old, indent=1, default=_json) + "\n")
+    tables = render(old, args)
+    doc = ROOT / "docs" / "mismatch.md"
+    text = doc.read_text() if doc.exists() else "<!-- mismatch:start -->\n<!-- mismatch:end -->\n"
+    a, b = text.index("<!-- mismatch:start -->"), text.index("<!-- mismatch:end -->")
+    doc.write_text(text[:a] + "<!-- mismatch:start -->\n" + tables + text[b:])
+    print(tables)
+    return 0
+
+
+def _json(v):
+    return None if isinstance(v, float) and not math.isfinite(v) else float(v)
+
+
+def _f(v, scale=1.0, digits=2):
+    if v is None or not math.isfinite(float(v)):
+        return ">0.4" if scale == "catch" else "-"
+    return f"{float(v):.3f}" if scale == "catch" else f"{float(v) * scale:.{digits}f}"
+
+
+def render(results: dict, args) -> str:
+    cmd = "python scripts/mismatch_map.py --episodes {} {}".format(
+        args.episodes, f"--identified {args.identified}" if args.identified else "").strip()
+    out = [f"Written by `{cmd}` ({args.episodes} drops of `rig` per point and policy, seeds "
+           f"{args.seed}-{args.seed + args.episodes - 1}; energy integral in ms, median catch time in s "
+           "(>0.4: half the drops or more not caught), mean time at the 200 N limit in ms, mean bounces).", ""]
+    for name, r in results.items():
+        out += [f"**{name}** (nominal {r['nominal']:g}; figure `docs/figures/mismatch_{name}.png`)", "",
+                "| " + name + " | " + " | ".join(f"{NAMES[p]}: int E / catch / sat / bounces" for p in POLICIES) + " |",
+                "|---|" + "---|" * len(POLICIES)]
+        for v, row in zip(r["values"], r["rows"], strict=True):
+            cells = []
+            for p in POLICIES:
+                s = row[p]
+                cells.append(f"{_f(s.get('energy_integral_ms'))} / {_f(s.get('time_to_catch_median_s'), 'catch')} / "
+                             f"{_f(s.get('saturation_time_s'), 1e3, 1)} / {_f(s.get('bounces'), 1.0, 1)}")
+            out.append(f"| {v:.4g} | " + " | ".join(cells) + " |")
+        out.append("")
+    return "\n".join(out) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
