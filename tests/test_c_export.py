@@ -18,6 +18,7 @@ from impact_env.config import ConfigError
 from impact_env.deploy import parity as PA
 from impact_env.deploy.c_export import generate_c, write_c
 from impact_env.policy.export import export_policy
+from impact_env.rig import safety as SF
 from impact_env.scene import load_scene
 
 pytestmark = pytest.mark.slow
@@ -66,6 +67,101 @@ def test_double_build_is_bitwise_the_numba_target(spec, scene_name, seed, sac_sp
     assert np.array_equal(got.force, rec.force)
     assert np.array_equal(got.status, rec.status)
     assert np.any(rec.command != 0.0) or spec == "passive"  # the policy did act: not a vacuous match
+
+
+def _bitwise(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal bit for bit (so -0.0 != 0.0 and NaN payloads count), not only as numbers."""
+    return a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64))
+
+
+def _sequences_agree(pol, scene, cp, episodes, idle) -> list[PA.Recording]:
+    """The C build and the numba target over the same consecutive episodes: every command,
+    force and status word of every tick bit for bit; returns the numba target's runs."""
+    want = PA.numba_sequence(pol, scene, episodes, idle)
+    got = PA.c_sequence(cp, episodes, idle)
+    for k, (w, g) in enumerate(zip(want, got, strict=True)):
+        assert _bitwise(g.command, w.command), (k, PA.compare_runs(w, g))
+        assert _bitwise(g.force, w.force), k
+        assert np.array_equal(g.status, w.status), (k, PA.compare_runs(w, g))
+    return want
+
+
+def _hot(readings: np.ndarray, start: int = 200) -> np.ndarray:
+    """Readings of repeated hard contacts: 2000 N added to the force transducer's reading for 80
+    of every 100 ticks from ``start``.  The sensor-fed laws answer each with a saturated command,
+    so the applied force's RMS reaches the continuous rating within a fraction of the window and
+    the RMS clamp cuts from then on (a physical rig would never see this; the safety layer must
+    still act the same in both builds)."""
+    r = readings.copy()
+    m = np.arange(start, len(r))
+    r[start:, 1] += np.where(m % 100 < 80, 2000.0, 0.0)
+    return r
+
+
+# seeds per scene of the long runs (drops the virtual rig plays back to back, as a target does)
+LONG_SEEDS = {"rig": (0, 4, 9), "rig-randomized": (3, 7, 11)}
+LONG_TICKS = 4000  # per recorded episode: 3 x 4000 + the hot one's 3000 > the 10 000-tick window
+
+
+@pytest.mark.parametrize("scene_name", sorted(LONG_SEEDS))
+@pytest.mark.parametrize("spec", ["pd-penetration", AGENT])
+def test_consecutive_episodes_wrap_the_rms_window_bitwise(spec, scene_name, tmp_path):
+    """Several episodes of one power-on, idle time between them (``impact_idle`` against
+    ``Controller.drain``, ``impact_reset`` against ``Controller.start``), more ticks than the RMS
+    window holds so its ring wraps; the last episode is a hot one whose RMS clamp depends on every
+    square the ring kept from the recorded drops before it (each tick's clamp level is the
+    budget minus the other n - 1 squares)."""
+    scene = load_scene(scene_name)
+    pol = export_policy(spec, scene)
+    cp = _build(pol, scene, tmp_path)
+    recs = [PA.record(pol, scene, s, LONG_TICKS).readings for s in LONG_SEEDS[scene_name]]
+    episodes = [*recs, _hot(recs[0][:3000], start=100)]
+    idle = [1500, 700, 300][:len(episodes) - 1]  # shorter than the window: the heat carries over
+    window = int(round(SF.SafetyConfig().rms_window_s * scene.control_rate))
+    assert sum(len(e) for e in episodes) > window  # the ring wraps on the episodes' own ticks
+    want = _sequences_agree(pol, scene, cp, episodes, idle)
+    assert all(np.any(w.command != 0.0) for w in want[:-1])  # the policy did act in every drop
+    assert np.any(want[-1].status & SF.CLAMP_RMS)  # the wrapped ring's sum decided the last episode's force
+
+
+# the drive command's scale of the safety-branch test: a law's command is clipped to [-1, 1], so at the
+# preset's 200 N (= the peak rating) the peak clamp cannot cut; an amplifier giving 300 N per unit can
+HOT_SCALE_N = 300.0
+
+
+@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT, "sac"])
+def test_safety_branches_bitwise(spec, sac_spec, tmp_path):
+    """Synthetic readings that drive every branch of the safety layer, as consecutive episodes of
+    one power-on: hard contacts at a 300 N command scale (CLAMP_PEAK on every saturated tick, then
+    CLAMP_RMS; twice, with less idle time than the window between, so the second starts hot and
+    the ring wraps while it clamps), a NaN accelerometer reading (the filters carry it: a tanh
+    network then acts NaN, NONFINITE), a NaN potentiometer reading (SENSOR_FAULT, latched), |x2|
+    beyond the 7 mm travel limit for three ticks (TRAVEL, latched), an infinite force reading;
+    the C double build against the numba target, bit for bit."""
+    scene = load_scene("rig", {"effects.command_scale": HOT_SCALE_N})
+    pol = export_policy(sac_spec if spec == "sac" else spec, scene)
+    cp = _build(pol, scene, tmp_path)
+    base = PA.record(export_policy("passive", scene), scene, 0, 6000).readings  # a drop nobody acts on
+    limit = SF.SafetyConfig().travel_limit_m
+    nan_acc, nan_pot, beyond, inf_force = (base[:2000].copy() for _ in range(4))
+    nan_acc[500, 0] = np.nan
+    nan_pot[300, 2] = np.nan
+    beyond[400:403, 2] = 1.15 * limit
+    inf_force[600, 1] = np.inf
+    episodes = [_hot(base), _hot(base), nan_acc, nan_pot, beyond, inf_force]
+    idle = [3000, 100, 100, 100, 100]
+    want = _sequences_agree(pol, scene, cp, episodes, idle)
+    bits = [int(np.bitwise_or.reduce(w.status)) for w in want]
+    assert bits[3] & SF.SENSOR_FAULT and np.all(want[3].status[300:] & SF.SENSOR_FAULT)  # latched
+    assert bits[4] & SF.TRAVEL and np.all(want[4].status[400:] & SF.TRAVEL)
+    assert not np.any(want[4].status[:400] & SF.TRAVEL)  # the latch was cleared by the reset
+    assert np.all(want[3].force[301:] == 0.0) and np.all(want[4].force[401:] == 0.0)
+    if spec == AGENT:  # a tanh network carries the NaN to its action; a ReLU one (the SAC actor)
+        assert bits[2] & SF.NONFINITE  # maps it to 0 (c > 0 ? c : 0 is false for NaN), in both builds
+    elif pol.law is not None:
+        rms = [np.flatnonzero(w.status & SF.CLAMP_RMS) for w in want[:2]]
+        assert bits[0] & SF.CLAMP_PEAK and rms[0].size and rms[1].size
+        assert rms[1][0] < rms[0][0]  # the second hot episode started with the first one's heat
 
 
 @pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])

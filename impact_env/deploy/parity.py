@@ -207,6 +207,40 @@ def closed_loop(cp: CPolicy, scene, seed: int, ticks: int) -> Recording:
     return Recording(raw, out[0], out[1], out[2].astype(np.int64))
 
 
+def numba_sequence(policy: CompiledPolicy, scene, episodes, idle_ticks) -> list[Recording]:
+    """The numba target over consecutive episodes on given readings (``episodes``: float64[n_k, 4]
+    each), as one target process runs them: one :class:`~impact_env.rig.controller.Controller`
+    from power-on, ``idle_ticks[k - 1]`` disarmed ticks before episode k > 0
+    (:meth:`~impact_env.rig.controller.Controller.drain`: the RMS window cools, and keeps the
+    heat the idle time does not cover), then the release (``start``: latches cleared)."""
+    ctl = numba_controller(policy, scene, max(len(r) for r in episodes))
+    out = []
+    for k, raw in enumerate(episodes):
+        if k:
+            ctl.drain(int(idle_ticks[k - 1]))
+        res = np.zeros((3, len(raw)))
+        for m in range(len(raw)):
+            res[:, m] = _numba_tick(ctl, m, np.array(raw[m], dtype=np.float64))
+        out.append(Recording(np.asarray(raw), res[0], res[1], res[2].astype(np.int64)))
+    return out
+
+
+def c_sequence(cp: CPolicy, episodes, idle_ticks) -> list[Recording]:
+    """:func:`numba_sequence` for the C step: ``impact_init`` once (power-on), then per episode
+    ``impact_idle(idle_ticks[k - 1])`` (k > 0), ``impact_reset`` and one ``impact_step`` a tick."""
+    cp.init()
+    out = []
+    for k, raw in enumerate(episodes):
+        if k:
+            cp.idle(int(idle_ticks[k - 1]))
+        cp.reset()
+        res = np.zeros((3, len(raw)))
+        for m in range(len(raw)):
+            res[:, m] = cp.step(raw[m])
+        out.append(Recording(np.asarray(raw), res[0], res[1], res[2].astype(np.int64)))
+    return out
+
+
 @dataclass
 class ParityReport:
     """How a build compares with the numba target: ticks compared, ticks whose command differs
@@ -242,5 +276,5 @@ def check(policy: CompiledPolicy, scene, c_dir, seeds=(0, 1), ticks: int = 2000,
         return out
 
 
-__all__ = ["CPolicy", "HEADER_NAME", "ParityReport", "Recording", "build_shared", "check", "closed_loop",
-           "compare_runs", "record", "replay"]
+__all__ = ["CPolicy", "HEADER_NAME", "ParityReport", "Recording", "build_shared", "c_sequence", "check",
+           "closed_loop", "compare_runs", "numba_sequence", "record", "replay"]
