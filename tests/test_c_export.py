@@ -316,3 +316,27 @@ def test_onnx_carries_its_meaning(tmp_path):
     assert float(meta["impact_env.command_scale_n"]) == pol.command_scale
     assert json.loads(meta["impact_env.residual_law"])["name"] == pol.residual_policy().law["name"]
     assert meta["impact_env.policy_sha256"] == pol.sha256()
+
+
+def test_export_c_of_a_ppo_zip(tmp_path, capsys):
+    """``impact-env export ppo:agents/models/best/model.zip --scene rig --c DIR --check``: the SB3
+    zip itself (its model.json beside it gives observation, hold and residual) becomes the C
+    file; the double build replays bitwise, and its network is the shipped compiled policy's, the
+    same numbers printed the same way (that file was made from this zip)."""
+    import re
+
+    from impact_env.cli.main import main
+
+    spec = f"ppo:{ROOT / 'agents/models/best/model.zip'}"
+    out = tmp_path / "ppo"
+    assert main(["export", spec, "--scene", "rig", "--c", str(out), "--check"]) == 0
+    text = capsys.readouterr().out
+    assert text.count("0 commands differ") >= 2  # both drops of the double build
+    src = (out / "impact_policy.c").read_text()
+    assert "MLP 64 x 64 x 1" in src and "residual law pd-penetration" in src and spec in src
+
+    def network(c: str) -> list[str]:
+        return re.findall(r"static const impact_real [WB]\d+\[[^;]*;", c, flags=re.S)
+
+    shipped = generate_c(export_policy(AGENT, load_scene("rig")), load_scene("rig")).source
+    assert network(src) and network(src) == network(shipped)
