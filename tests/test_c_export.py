@@ -266,6 +266,65 @@ def test_cortex_m7_cross_build(float32, tmp_path):
     assert size["data"] == 0 and size["bss"] == 0  # no globals: all state is the caller's
 
 
+def _libm_bound(pol) -> float:
+    """The largest |command difference| two libms can cause whose ``tanh`` are each within 2 ulp
+    (glibc's documented bound on x86_64 and on armhf, its libm-test-ulps): at |y| < 1 two such
+    results differ by at most 4 ulp = 4 * 2^-53; a layer passes its inputs' differences on
+    through |W| (tanh is 1-Lipschitz) and adds its own; the squash scales by (high - low) / 2;
+    the residual law (no libm difference: pow agrees bitwise, measured) and the final clip do not
+    grow it.  Doubled for the sums' roundings, which move with their inputs."""
+    delta = 4 * 2.0**-53
+    m = pol.mlp
+    d = np.zeros(pol.layout.size)
+    for ly in m["layers"]:
+        d = np.abs(np.asarray(ly["weight"], dtype=np.float64)) @ d
+        if ly.get("activation", "identity") in ("tanh", "elu"):
+            d = d + delta
+    out = float(d[0])
+    if m["output"] == "squash":
+        out = 0.5 * (float(m["high"]) - float(m["low"])) * (out + delta)
+    return 2.0 * out
+
+
+@pytest.mark.skipif(shutil.which("qemu-arm") is None or shutil.which(PA.ARM_LINUX_CC) is None,
+                    reason="Debian's qemu-user and gcc-arm-linux-gnueabihf are not installed "
+                           "(.ci/run installs them)")
+@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])
+def test_parity_of_an_arm_linux_build_under_qemu_arm(spec, tmp_path):
+    """The real-time example cross-built for 32-bit ARM Linux (arm-linux-gnueabihf-gcc -static,
+    the same CFLAGS) and run by qemu-arm in user mode, --no-sleep, on readings recorded from the
+    virtual rig: another instruction set, another glibc build.  The double build is bitwise the
+    numba target's for the classic laws (IEEE arithmetic, no fused multiply-adds, and ARM's pow
+    gives the same bits); for the network within :func:`_libm_bound` (ARM's tanh may differ in
+    the last place: measured 1 ulp on 8 of 3000 ticks) with the same status bits; the float32
+    build bitwise the x86-64 float32 build's."""
+    scene = load_scene("rig")
+    pol = export_policy(spec, scene)
+    d = tmp_path / "c"
+    write_c(pol, scene, d)
+    rec = PA.record(pol, scene, 2, 3000)
+    rec.readings.astype("<f8").tofile(tmp_path / "r.f64")
+    got = {}
+    for f32 in (False, True):
+        arm = PA.build_rt_example(d, tmp_path / f"arm{int(f32)}", f32, cc=PA.ARM_LINUX_CC, extra=("-static",))
+        file = tmp_path / f"arm{int(f32)}.f64"
+        r = subprocess.run(["qemu-arm", str(arm), str(tmp_path / "r.f64"), str(file), "--no-sleep"],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        got[f32] = np.fromfile(file)
+    if pol.mlp is None:
+        assert _bitwise(got[False], rec.command)
+    else:
+        assert np.abs(got[False] - rec.command).max() <= _libm_bound(pol)
+        assert np.count_nonzero(got[False] != rec.command) <= F32_FLIP_FRACTION * rec.command.size
+    x86 = PA.build_rt_example(d, tmp_path / "x86_f32", True)
+    r = subprocess.run([str(x86), str(tmp_path / "r.f64"), str(tmp_path / "x86.f64"), "--no-sleep"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert _bitwise(got[True], np.fromfile(tmp_path / "x86.f64"))
+    assert np.any(got[True] != rec.command) or spec == "thesis-rig"  # float32 in use (thesis-rig: saturated)
+
+
 def test_generated_code_reads_like_code_and_carries_its_sources():
     scene = load_scene("rig")
     pol = export_policy("pd-penetration:kp=3e5", scene)

@@ -51,15 +51,21 @@ def build_shared(c_dir, out: Path | None = None, float32: bool = False, extra: t
 
 
 RT_DIR = Path(__file__).resolve().parent / "rt"
+# an ARM Linux (32-bit, hard float) cross-compiler, Debian's gcc-arm-linux-gnueabihf: its static
+# build of the real-time example runs under qemu-arm user mode (Debian's qemu-user)
+ARM_LINUX_CC = "arm-linux-gnueabihf-gcc"
 ARM_FLAGS = ("-mcpu=cortex-m7", "-mfpu=fpv5-d16", "-mfloat-abi=hard", "-mthumb", "-Os", "-std=c99", "-Wall",
              "-Wextra", "-Werror", "-ffp-contract=off")
 
 
-def build_rt_example(c_dir, out, float32: bool = False) -> Path:
+def build_rt_example(c_dir, out, float32: bool = False, cc: str | None = None,
+                     extra: tuple[str, ...] = ()) -> Path:
     """The real-time Linux example (``impact_env/deploy/rt``: main.c, the replay driver) linked
-    with ``c_dir``'s impact_policy.c; returns the executable."""
+    with ``c_dir``'s impact_policy.c; returns the executable.  ``cc``: another compiler (e.g.
+    :data:`ARM_LINUX_CC` with ``extra=("-static",)`` for a build that ``qemu-arm`` runs)."""
     c_dir, out = Path(c_dir), Path(out)
-    cmd = [find_cc(), *CFLAGS, *(("-DIMPACT_FLOAT32",) if float32 else ()), f"-I{c_dir}", f"-I{RT_DIR}",
+    cmd = [cc or find_cc(), *CFLAGS, *extra, *(("-DIMPACT_FLOAT32",) if float32 else ()), f"-I{c_dir}",
+           f"-I{RT_DIR}",
            "-o", str(out), str(RT_DIR / "main.c"), str(RT_DIR / "replay_driver.c"), str(c_dir / SOURCE_NAME),
            "-lm"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
