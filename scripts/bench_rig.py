@@ -103,6 +103,7 @@ def host_realtime(addr: str, hold: int, episodes: int) -> dict:
     """``episodes`` episodes of ImpactCatchRig-v0 in real time (module doc, 3)."""
     from impact_env.rig.host import RigEnv
     from impact_env.rig.safety import OVERRUN
+    from impact_env.rig.transport import RigTimeout
 
     env = RigEnv(addr, hold_ticks=hold, residual="pd-penetration", terminate_on_catch=False, timeout_s=0.1,
                  retries=20)
@@ -113,13 +114,18 @@ def host_realtime(addr: str, hold: int, episodes: int) -> dict:
     delay, late_ns, ends = [], [], {}
     try:
         for k in range(episodes):
-            env.reset(seed=1000 + k)
             sent = 0
-            for _ in range(env.max_steps):
-                sent += 1
-                _o, _r, te, tr, info = env.step(np.array([rng.uniform(-0.3, 0.3)], np.float32))
-                if te or tr:
-                    break
+            try:  # a RigTimeout is counted (the figure the table prints), and the next episode runs
+                env.reset(seed=1000 + k)
+                for _ in range(env.max_steps):
+                    sent += 1
+                    _o, _r, te, tr, info = env.step(np.array([rng.uniform(-0.3, 0.3)], np.float32))
+                    if te or tr:
+                        break
+            except RigTimeout:
+                tot["rig_timeouts"] += 1
+                ends["RigTimeout"] = ends.get("RigTimeout", 0) + 1
+                continue
             why = info.get("end_reason", "?")
             ends[why] = ends.get(why, 0) + 1
             log = env.client.fetch_log(env.client.episode)

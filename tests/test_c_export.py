@@ -18,6 +18,7 @@ from impact_env.config import ConfigError
 from impact_env.deploy import parity as PA
 from impact_env.deploy.c_export import generate_c, write_c
 from impact_env.policy.export import export_policy
+from impact_env.rig import safety as SF
 from impact_env.scene import load_scene
 
 pytestmark = pytest.mark.slow
@@ -68,6 +69,101 @@ def test_double_build_is_bitwise_the_numba_target(spec, scene_name, seed, sac_sp
     assert np.any(rec.command != 0.0) or spec == "passive"  # the policy did act: not a vacuous match
 
 
+def _bitwise(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal bit for bit (so -0.0 != 0.0 and NaN payloads count), not only as numbers."""
+    return a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64))
+
+
+def _sequences_agree(pol, scene, cp, episodes, idle) -> list[PA.Recording]:
+    """The C build and the numba target over the same consecutive episodes: every command,
+    force and status word of every tick bit for bit; returns the numba target's runs."""
+    want = PA.numba_sequence(pol, scene, episodes, idle)
+    got = PA.c_sequence(cp, episodes, idle)
+    for k, (w, g) in enumerate(zip(want, got, strict=True)):
+        assert _bitwise(g.command, w.command), (k, PA.compare_runs(w, g))
+        assert _bitwise(g.force, w.force), k
+        assert np.array_equal(g.status, w.status), (k, PA.compare_runs(w, g))
+    return want
+
+
+def _hot(readings: np.ndarray, start: int = 200) -> np.ndarray:
+    """Readings of repeated hard contacts: 2000 N added to the force transducer's reading for 80
+    of every 100 ticks from ``start``.  The sensor-fed laws answer each with a saturated command,
+    so the applied force's RMS reaches the continuous rating within a fraction of the window and
+    the RMS clamp cuts from then on (a physical rig would never see this; the safety layer must
+    still act the same in both builds)."""
+    r = readings.copy()
+    m = np.arange(start, len(r))
+    r[start:, 1] += np.where(m % 100 < 80, 2000.0, 0.0)
+    return r
+
+
+# seeds per scene of the long runs (drops the virtual rig plays back to back, as a target does)
+LONG_SEEDS = {"rig": (0, 4, 9), "rig-randomized": (3, 7, 11)}
+LONG_TICKS = 4000  # per recorded episode: 3 x 4000 + the hot one's 3000 > the 10 000-tick window
+
+
+@pytest.mark.parametrize("scene_name", sorted(LONG_SEEDS))
+@pytest.mark.parametrize("spec", ["pd-penetration", AGENT])
+def test_consecutive_episodes_wrap_the_rms_window_bitwise(spec, scene_name, tmp_path):
+    """Several episodes of one power-on, idle time between them (``impact_idle`` against
+    ``Controller.drain``, ``impact_reset`` against ``Controller.start``), more ticks than the RMS
+    window holds so its ring wraps; the last episode is a hot one whose RMS clamp depends on every
+    square the ring kept from the recorded drops before it (each tick's clamp level is the
+    budget minus the other n - 1 squares)."""
+    scene = load_scene(scene_name)
+    pol = export_policy(spec, scene)
+    cp = _build(pol, scene, tmp_path)
+    recs = [PA.record(pol, scene, s, LONG_TICKS).readings for s in LONG_SEEDS[scene_name]]
+    episodes = [*recs, _hot(recs[0][:3000], start=100)]
+    idle = [1500, 700, 300][:len(episodes) - 1]  # shorter than the window: the heat carries over
+    window = int(round(SF.SafetyConfig().rms_window_s * scene.control_rate))
+    assert sum(len(e) for e in episodes) > window  # the ring wraps on the episodes' own ticks
+    want = _sequences_agree(pol, scene, cp, episodes, idle)
+    assert all(np.any(w.command != 0.0) for w in want[:-1])  # the policy did act in every drop
+    assert np.any(want[-1].status & SF.CLAMP_RMS)  # the wrapped ring's sum decided the last episode's force
+
+
+# the drive command's scale of the safety-branch test: a law's command is clipped to [-1, 1], so at the
+# preset's 200 N (= the peak rating) the peak clamp cannot cut; an amplifier giving 300 N per unit can
+HOT_SCALE_N = 300.0
+
+
+@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT, "sac"])
+def test_safety_branches_bitwise(spec, sac_spec, tmp_path):
+    """Synthetic readings that drive every branch of the safety layer, as consecutive episodes of
+    one power-on: hard contacts at a 300 N command scale (CLAMP_PEAK on every saturated tick, then
+    CLAMP_RMS; twice, with less idle time than the window between, so the second starts hot and
+    the ring wraps while it clamps), a NaN accelerometer reading (the filters carry it: a tanh
+    network then acts NaN, NONFINITE), a NaN potentiometer reading (SENSOR_FAULT, latched), |x2|
+    beyond the 7 mm travel limit for three ticks (TRAVEL, latched), an infinite force reading;
+    the C double build against the numba target, bit for bit."""
+    scene = load_scene("rig", {"effects.command_scale": HOT_SCALE_N})
+    pol = export_policy(sac_spec if spec == "sac" else spec, scene)
+    cp = _build(pol, scene, tmp_path)
+    base = PA.record(export_policy("passive", scene), scene, 0, 6000).readings  # a drop nobody acts on
+    limit = SF.SafetyConfig().travel_limit_m
+    nan_acc, nan_pot, beyond, inf_force = (base[:2000].copy() for _ in range(4))
+    nan_acc[500, 0] = np.nan
+    nan_pot[300, 2] = np.nan
+    beyond[400:403, 2] = 1.15 * limit
+    inf_force[600, 1] = np.inf
+    episodes = [_hot(base), _hot(base), nan_acc, nan_pot, beyond, inf_force]
+    idle = [3000, 100, 100, 100, 100]
+    want = _sequences_agree(pol, scene, cp, episodes, idle)
+    bits = [int(np.bitwise_or.reduce(w.status)) for w in want]
+    assert bits[3] & SF.SENSOR_FAULT and np.all(want[3].status[300:] & SF.SENSOR_FAULT)  # latched
+    assert bits[4] & SF.TRAVEL and np.all(want[4].status[400:] & SF.TRAVEL)
+    assert not np.any(want[4].status[:400] & SF.TRAVEL)  # the latch was cleared by the reset
+    assert np.all(want[3].force[301:] == 0.0) and np.all(want[4].force[401:] == 0.0)
+    if spec == AGENT:  # a tanh network carries the NaN to its action; a ReLU one (the SAC actor)
+        assert bits[2] & SF.NONFINITE  # maps it to 0 (c > 0 ? c : 0 is false for NaN), in both builds
+    elif pol.law is not None:
+        rms = [np.flatnonzero(w.status & SF.CLAMP_RMS) for w in want[:2]]
+        assert bits[0] & SF.CLAMP_PEAK and rms[0].size and rms[1].size
+        assert rms[1][0] < rms[0][0]  # the second hot episode started with the first one's heat
+
+
 @pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])
 def test_float32_build_within_its_bound(spec, tmp_path):
     scene = load_scene("rig-randomized")
@@ -83,26 +179,56 @@ def test_float32_build_within_its_bound(spec, tmp_path):
         assert np.any(du > 0.0) or spec == "thesis-rig"  # float32 is really in use (thesis-rig: saturated)
 
 
-@pytest.mark.parametrize("spec", ["pd-penetration", AGENT])
-def test_closed_loop_with_the_virtual_rig(spec, tmp_path):
-    """The C step in place of the numba tick, the virtual rig's hardware stage as the plant: the
-    double build gives the very same episode (readings, commands); the float32 build's episode
-    ends with body 1's catch energy close to the double's (a chaotic contact can move a bounce:
-    compared through the energy integral's share, not tick by tick)."""
-    from impact_env.rig.driver import VirtualRig
+# the float32 closed loop against the double one, over the whole horizon (see the test's doc)
+ENSEMBLE = 8  # double closed loops with random command errors of the float32 build's size
+ENVELOPE_FACTOR = 2.0
 
+
+def _deviation(a: float, b: float) -> float:
+    """|a - b|, 0 when both are the same infinity (a drop not caught within the horizon)."""
+    return 0.0 if a == b else abs(a - b)
+
+
+@pytest.mark.parametrize("seed", [3, 8])
+@pytest.mark.parametrize("spec", ["pd-penetration", AGENT])
+def test_closed_loop_with_the_virtual_rig(spec, seed, tmp_path):
+    """The C step in place of the numba tick, the virtual rig's hardware stage as the plant, over
+    the scene's whole horizon.  The double build gives the very same episode (readings,
+    commands) as the numba target.  The float32 build gives compare's metrics (energy integral,
+    time to catch, peak force) within a bound derived from its command error: float32 changes
+    each tick's command by at most F32_BOUND of full scale where the two builds decide alike
+    (test_float32_build_within_its_bound), and the contacts amplify such a change (a bounce moves
+    by a tick, the catch-energy ratio crosses 1 % at another time), so the bound is how far the
+    metrics move when the double loop's commands carry random errors of that size: the largest
+    deviation of ENSEMBLE such runs (uniform in +-F32_BOUND, seeded) times ENVELOPE_FACTOR (eight
+    draws understate the family's reach, and float32's errors are correlated along the
+    trajectory, not independent), plus each metric's resolution (one period for the catch time,
+    one F32_BOUND of full scale for the peak force, 1e-4 relative for the integral)."""
     scene = load_scene("rig")
+    ticks = int(round(scene.episode.horizon * scene.control_rate))
     pol = export_policy(spec, scene)
-    rec = PA.record(pol, scene, 3, TICKS)
-    c64 = PA.closed_loop(_build(pol, scene, tmp_path), scene, 3, TICKS)
-    assert np.array_equal(c64.readings, rec.readings) and np.array_equal(c64.command, rec.command)
-    c32 = PA.closed_loop(_build(pol, scene, tmp_path, float32=True), scene, 3, TICKS)
-    drv = VirtualRig(scene)
-    f64 = np.abs(rec.force).sum() / TICKS
-    f32 = np.abs(c32.force).sum() / TICKS
-    assert abs(f32 - f64) <= 0.05 * f64 + 1e-9  # mean |force| within 5 %
-    assert np.array_equal(np.sign(c32.command[:200]), np.sign(rec.command[:200]))  # the same start
-    drv.shutdown()
+    rec = PA.record(pol, scene, seed, ticks)
+    c64 = _build(pol, scene, tmp_path)
+    d64 = PA.closed_loop(c64, scene, seed, ticks)
+    assert np.array_equal(d64.readings, rec.readings) and np.array_equal(d64.command, rec.command)
+    d32 = PA.closed_loop(_build(pol, scene, tmp_path, float32=True), scene, seed, ticks)
+    assert np.any(d32.command != d64.command)  # float32 is in use: not a vacuous comparison
+    m64 = PA.episode_metrics(scene, seed, d64.records)
+    m32 = PA.episode_metrics(scene, seed, d32.records)
+    rng = np.random.default_rng(1000 + seed)
+    keys = {"energy_integral_ms": 1e-4 * m64["energy_integral_ms"],  # metric -> its resolution
+            "time_to_catch_s": 1.0 / scene.control_rate,
+            "peak_force_N": F32_BOUND * scene.effects.command_scale}
+    reach = dict.fromkeys(keys, 0.0)
+    for _ in range(ENSEMBLE):
+        err = rng.uniform(-F32_BOUND, F32_BOUND, ticks)
+        mp = PA.episode_metrics(scene, seed, PA.closed_loop(c64, scene, seed, ticks, err).records)
+        for k in keys:
+            reach[k] = max(reach[k], _deviation(mp[k], m64[k]))
+    for k, floor in keys.items():
+        bound = ENVELOPE_FACTOR * reach[k] + floor
+        assert _deviation(m32[k], m64[k]) <= bound, (k, m64[k], m32[k], bound)
+    assert np.isfinite(m64["energy_integral_ms"]) and m64["peak_force_N"] > 0.0  # a real episode
 
 
 def test_realtime_example_runs_and_replays_bitwise(tmp_path):
@@ -138,6 +264,65 @@ def test_cortex_m7_cross_build(float32, tmp_path):
     n_weights = sum(np.asarray(ly["weight"]).size + len(ly["bias"]) for ly in pol.mlp["layers"])
     assert size["text"] >= n_weights * (4 if float32 else 8)  # the weights are in flash, as constants
     assert size["data"] == 0 and size["bss"] == 0  # no globals: all state is the caller's
+
+
+def _libm_bound(pol) -> float:
+    """The largest |command difference| two libms can cause whose ``tanh`` are each within 2 ulp
+    (glibc's documented bound on x86_64 and on armhf, its libm-test-ulps): at |y| < 1 two such
+    results differ by at most 4 ulp = 4 * 2^-53; a layer passes its inputs' differences on
+    through |W| (tanh is 1-Lipschitz) and adds its own; the squash scales by (high - low) / 2;
+    the residual law (no libm difference: pow agrees bitwise, measured) and the final clip do not
+    grow it.  Doubled for the sums' roundings, which move with their inputs."""
+    delta = 4 * 2.0**-53
+    m = pol.mlp
+    d = np.zeros(pol.layout.size)
+    for ly in m["layers"]:
+        d = np.abs(np.asarray(ly["weight"], dtype=np.float64)) @ d
+        if ly.get("activation", "identity") in ("tanh", "elu"):
+            d = d + delta
+    out = float(d[0])
+    if m["output"] == "squash":
+        out = 0.5 * (float(m["high"]) - float(m["low"])) * (out + delta)
+    return 2.0 * out
+
+
+@pytest.mark.skipif(shutil.which("qemu-arm") is None or shutil.which(PA.ARM_LINUX_CC) is None,
+                    reason="Debian's qemu-user and gcc-arm-linux-gnueabihf are not installed "
+                           "(.ci/run installs them)")
+@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])
+def test_parity_of_an_arm_linux_build_under_qemu_arm(spec, tmp_path):
+    """The real-time example cross-built for 32-bit ARM Linux (arm-linux-gnueabihf-gcc -static,
+    the same CFLAGS) and run by qemu-arm in user mode, --no-sleep, on readings recorded from the
+    virtual rig: another instruction set, another glibc build.  The double build is bitwise the
+    numba target's for the classic laws (IEEE arithmetic, no fused multiply-adds, and ARM's pow
+    gives the same bits); for the network within :func:`_libm_bound` (ARM's tanh may differ in
+    the last place: measured 1 ulp on 8 of 3000 ticks) with the same status bits; the float32
+    build bitwise the x86-64 float32 build's."""
+    scene = load_scene("rig")
+    pol = export_policy(spec, scene)
+    d = tmp_path / "c"
+    write_c(pol, scene, d)
+    rec = PA.record(pol, scene, 2, 3000)
+    rec.readings.astype("<f8").tofile(tmp_path / "r.f64")
+    got = {}
+    for f32 in (False, True):
+        arm = PA.build_rt_example(d, tmp_path / f"arm{int(f32)}", f32, cc=PA.ARM_LINUX_CC, extra=("-static",))
+        file = tmp_path / f"arm{int(f32)}.f64"
+        r = subprocess.run(["qemu-arm", str(arm), str(tmp_path / "r.f64"), str(file), "--no-sleep"],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        got[f32] = np.fromfile(file)
+    if pol.mlp is None:
+        assert _bitwise(got[False], rec.command)
+    else:
+        assert np.abs(got[False] - rec.command).max() <= _libm_bound(pol)
+        assert np.count_nonzero(got[False] != rec.command) <= F32_FLIP_FRACTION * rec.command.size
+    x86 = PA.build_rt_example(d, tmp_path / "x86_f32", True)
+    r = subprocess.run([str(x86), str(tmp_path / "r.f64"), str(tmp_path / "x86.f64"), "--no-sleep"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert _bitwise(got[True], np.fromfile(tmp_path / "x86.f64"))
+    assert np.any(got[True] != rec.command) or spec == "thesis-rig"  # float32 in use (thesis-rig: saturated)
 
 
 def test_generated_code_reads_like_code_and_carries_its_sources():
@@ -190,3 +375,27 @@ def test_onnx_carries_its_meaning(tmp_path):
     assert float(meta["impact_env.command_scale_n"]) == pol.command_scale
     assert json.loads(meta["impact_env.residual_law"])["name"] == pol.residual_policy().law["name"]
     assert meta["impact_env.policy_sha256"] == pol.sha256()
+
+
+def test_export_c_of_a_ppo_zip(tmp_path, capsys):
+    """``impact-env export ppo:agents/models/best/model.zip --scene rig --c DIR --check``: the SB3
+    zip itself (its model.json beside it gives observation, hold and residual) becomes the C
+    file; the double build replays bitwise, and its network is the shipped compiled policy's, the
+    same numbers printed the same way (that file was made from this zip)."""
+    import re
+
+    from impact_env.cli.main import main
+
+    spec = f"ppo:{ROOT / 'agents/models/best/model.zip'}"
+    out = tmp_path / "ppo"
+    assert main(["export", spec, "--scene", "rig", "--c", str(out), "--check"]) == 0
+    text = capsys.readouterr().out
+    assert text.count("0 commands differ") >= 2  # both drops of the double build
+    src = (out / "impact_policy.c").read_text()
+    assert "MLP 64 x 64 x 1" in src and "residual law pd-penetration" in src and spec in src
+
+    def network(c: str) -> list[str]:
+        return re.findall(r"static const impact_real [WB]\d+\[[^;]*;", c, flags=re.S)
+
+    shipped = generate_c(export_policy(AGENT, load_scene("rig")), load_scene("rig")).source
+    assert network(src) and network(src) == network(shipped)

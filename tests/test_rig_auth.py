@@ -125,3 +125,53 @@ def test_a_replayed_datagram_of_another_session_is_refused(keys):
     f.nonce = 1111
     assert f.accept(recorded) is not None
     assert f.accept(recorded) is None and f.last_reason == "duplicate"
+
+
+def test_rig_serve_says_at_start_whom_it_answers(tmp_path):
+    """``rig serve`` without --key prints, before it listens, that it answers loopback peers only;
+    with --key, that every datagram is authenticated (and not the loopback line)."""
+    import os
+    import select
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from rig_helpers import start_target, stop
+
+    def start_lines(*args: str) -> str:
+        proc, _addr = start_target("--scene", "rig", "--lockstep", *args)
+        try:  # stderr's lines were flushed before the listening line on stdout: read them now,
+            text = ""  # while the target runs (raw reads: a buffered readline would hide the rest)
+            fd = proc.stderr.fileno()
+            while not ("loopback" in text or "authenticated" in text) and select.select([fd], [], [], 5.0)[0]:
+                chunk = os.read(fd, 4096).decode()
+                if not chunk:
+                    break
+                text += chunk
+            return text
+        finally:
+            stop(proc)
+
+    plain = start_lines()
+    assert "no --key: answering loopback peers only" in plain and "--key FILE" in plain
+    key = write_key(tmp_path / "serve.key")
+    keyed_text = start_lines("--key", str(key))
+    assert "every datagram is authenticated" in keyed_text and "loopback peers only" not in keyed_text
+
+
+def test_compare_rig_with_the_key_file(keyed, keys, capsys):
+    """``impact-env compare --rig ADDR --key FILE`` runs its episodes on a keyed target (lock-step
+    here); without --key the same command fails at once with the error that names the option."""
+    from impact_env.cli.main import main
+
+    base = ["compare", "--rig", keyed.address, "--policies", "passive,pd-penetration", "--episodes", "1",
+            "--horizon", "0.01", "--seed", "3", "--workers", "1", "--no-progress", "--json"]
+    episodes = keyed.counters["episodes"]
+    assert main([*base, "--key", str(keys[0])]) == 0
+    import json
+
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["rig"]) == {"passive", "pd-penetration"}
+    assert keyed.counters["episodes"] == episodes + 2  # one episode of each policy ran on the keyed target
+    assert main(base) != 0
+    assert "--key FILE" in capsys.readouterr().err

@@ -107,9 +107,17 @@ def _compare_rig(args, specs) -> int:
         key = load_key(args.key, "--key") if args.key else None
     except KeyFileError as exc:
         raise ConfigError(str(exc)) from None
-    rig_scene, rig_runs = rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
-                                      horizon=args.horizon, progress=not args.no_progress and not args.json,
-                                      key=key)
+    from impact_env.rig import protocol as P
+    from impact_env.rig.transport import RigError
+
+    try:
+        progress = not args.no_progress and not args.json
+        rig_scene, rig_runs = rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
+                                          horizon=args.horizon, progress=progress, key=key)
+    except RigError as exc:  # a key on one side only, or another: the refusal names the option, no traceback
+        if exc.code == P.ErrorCode.UNAUTHENTICATED:
+            raise ConfigError(str(exc)) from None
+        raise
     horizon = rig_scene.episode.horizon if args.horizon is None else args.horizon
     sim_runs = None
     if args.scene:

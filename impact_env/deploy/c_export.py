@@ -113,7 +113,11 @@ def generate_c(policy: CompiledPolicy, scene, safety: SF.SafetyConfig | None = N
     fe = FrontEnd(scene, policy.layout, 1)
     rfe = FrontEnd(scene, residual.layout, 1) if residual is not None else None
     cfg = safety or SF.SafetyConfig()
-    sp = SF.safety_params(cfg, policy.command_scale, policy.control_rate, policy.hold_ticks, "onboard")
+    # the drive command's newtons are the rig's (the amplifier's calibration, the scene's
+    # effects.command_scale), as the numba target's Controller has them; a policy made at another
+    # scale keeps its own inside its law (f / its scale), as impact_env.control.policy.act does
+    sp = SF.safety_params(cfg, float(scene.effects.command_scale), policy.control_rate, policy.hold_ticks,
+                          "onboard")
     g = _Gen(policy, residual, scene, fe, rfe, sp, cfg, scene_sha, pol_sha, spec)
     return CArtifact(g.header(), g.source(), scene_sha, pol_sha, policy.layout.size, policy.hold_ticks,
                      int(sp[SF.P_WINDOW]))
@@ -147,6 +151,7 @@ class _Gen:
         self.F, self.H, self.size = lay.frame_size, lay.history, lay.size
         self.nsec = fe.sos.shape[1]
         self.window = int(sp[SF.P_WINDOW])
+        self.scale = float(sp[SF.P_SCALE])  # the scene's: see generate_c
         self.widest = 1
         if pol.mlp is not None:
             _, _, self.widest = MLP.pack_mlp(pol.mlp["layers"])
@@ -183,9 +188,9 @@ class _Gen:
  *   readings[2] potentiometer (x2)        m      down positive, 0 at rest
  *   readings[3] body-1 sensor             m      (none on the rig: pass NaN; unused)
  * Outputs, per tick:
- *   *command   the drive command, dimensionless: 1 = {_r(pol.command_scale)} N upwards (the
+ *   *command   the drive command, dimensionless: 1 = {_r(self.scale)} N upwards (the
  *              amplifier's input; the driver turns it into volts)
- *   *force_n   the same in newtons after the safety layer (= command * {_r(pol.command_scale)})
+ *   *force_n   the same in newtons after the safety layer (= command * {_r(self.scale)})
  *   return     status bits (IMPACT_STATUS_*), as the rig target logs them
  * Timing contract: call impact_step once per tick with the readings sampled at the tick's start
  * and apply *command at once; it acts until the next call (the DAC holds it).  Tick 0 of an
@@ -228,7 +233,7 @@ typedef double impact_real;
 #define IMPACT_HISTORY {self.H}
 #define IMPACT_HOLD_TICKS {self.pol.hold_ticks}
 #define IMPACT_CONTROL_RATE_HZ {_r(self.pol.control_rate)}
-#define IMPACT_COMMAND_SCALE_N {_r(self.pol.command_scale)}
+#define IMPACT_COMMAND_SCALE_N {_r(self.scale)}
 #define IMPACT_RMS_WINDOW_TICKS {self.window}
 
 /* status bits (impact_env.rig.safety): bits 0-15 the safety layer */
@@ -306,8 +311,8 @@ uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READIN
 
 /* every entry of an observation is clipped to this many reference units */
 static const impact_real OBS_LIMIT = {_r(OBS_LIMIT)};
-/* the force that command 1 demands, N upwards */
-static const impact_real COMMAND_SCALE_N = {_r(self.pol.command_scale)};"""
+/* the force that drive command 1 demands, N upwards (the scene's effects.command_scale) */
+static const impact_real COMMAND_SCALE_N = {_r(self.scale)};"""
 
     def _front_end(self) -> str:
         fe = self.fe

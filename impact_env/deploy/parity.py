@@ -51,15 +51,21 @@ def build_shared(c_dir, out: Path | None = None, float32: bool = False, extra: t
 
 
 RT_DIR = Path(__file__).resolve().parent / "rt"
+# an ARM Linux (32-bit, hard float) cross-compiler, Debian's gcc-arm-linux-gnueabihf: its static
+# build of the real-time example runs under qemu-arm user mode (Debian's qemu-user)
+ARM_LINUX_CC = "arm-linux-gnueabihf-gcc"
 ARM_FLAGS = ("-mcpu=cortex-m7", "-mfpu=fpv5-d16", "-mfloat-abi=hard", "-mthumb", "-Os", "-std=c99", "-Wall",
              "-Wextra", "-Werror", "-ffp-contract=off")
 
 
-def build_rt_example(c_dir, out, float32: bool = False) -> Path:
+def build_rt_example(c_dir, out, float32: bool = False, cc: str | None = None,
+                     extra: tuple[str, ...] = ()) -> Path:
     """The real-time Linux example (``impact_env/deploy/rt``: main.c, the replay driver) linked
-    with ``c_dir``'s impact_policy.c; returns the executable."""
+    with ``c_dir``'s impact_policy.c; returns the executable.  ``cc``: another compiler (e.g.
+    :data:`ARM_LINUX_CC` with ``extra=("-static",)`` for a build that ``qemu-arm`` runs)."""
     c_dir, out = Path(c_dir), Path(out)
-    cmd = [find_cc(), *CFLAGS, *(("-DIMPACT_FLOAT32",) if float32 else ()), f"-I{c_dir}", f"-I{RT_DIR}",
+    cmd = [cc or find_cc(), *CFLAGS, *extra, *(("-DIMPACT_FLOAT32",) if float32 else ()), f"-I{c_dir}",
+           f"-I{RT_DIR}",
            "-o", str(out), str(RT_DIR / "main.c"), str(RT_DIR / "replay_driver.c"), str(c_dir / SOURCE_NAME),
            "-lm"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
@@ -152,6 +158,45 @@ class Recording:
     command: np.ndarray
     force: np.ndarray
     status: np.ndarray
+    records: np.ndarray | None = None  # the virtual rig's true records (float64[n, N_REC]), closed loops
+
+
+def _true_record(drv, m: int, u: float) -> np.ndarray:
+    """The virtual rig's true record of tick m (:mod:`impact_env.sim.records`), after ``apply``."""
+    from impact_env.hardware import stage as HS
+    from impact_env.sim import records as R
+
+    r = np.zeros(R.N_REC)
+    info = drv.last_info
+    r[R.REC_T] = (m + 1.0) / drv.scene.control_rate
+    r[R.REC_X1:R.REC_V2 + 1] = drv.truth()
+    r[R.REC_U] = u
+    r[R.REC_F_DEMAND] = info[HS.INFO_F_DEMAND]
+    r[R.REC_F_APPLIED] = info[HS.INFO_F_APPLIED]
+    r[R.REC_SATURATED] = info[HS.INFO_SATURATED]
+    r[R.REC_CONTACT_FORCE] = info[HS.INFO_CONTACT_FORCE]
+    r[R.REC_STATUS] = info[HS.INFO_STATUS]
+    return r
+
+
+def episode_metrics(scene, seed: int, records: np.ndarray) -> dict[str, float]:
+    """compare's metrics (:class:`~impact_env.sim.metrics.EpisodeMetrics`) of a closed loop's
+    true records, the drop's constants drawn from ``seed`` as the virtual rig drew them (as
+    :func:`impact_env.rig.log_metrics.exact_metrics` does for a virtual rig's log)."""
+    from gymnasium.utils import seeding
+
+    from impact_env.hardware.batch import Hardware
+    from impact_env.sim.metrics import EpisodeMetrics
+
+    hw = Hardware(scene, 1)
+    hw.reset([seeding.np_random(int(seed))[0]])
+    m = EpisodeMetrics(1, 1.0 / scene.control_rate)
+    m.start(hw.t_touch, hw.impact_speed, hw.impact_energy, hw.Y[:, 0] - hw.Y[:, 2] > 0.0)
+    m.step(records[None, :, :], hw.P)
+    from impact_env.sim import records as R
+
+    failed = np.array([bool(np.any(records[:, R.REC_STATUS] != 0.0))])
+    return {k: float(v[0]) for k, v in m.finish(failed).items()}
 
 
 def record(policy: CompiledPolicy, scene, seed: int, ticks: int) -> Recording:
@@ -187,8 +232,11 @@ def replay(cp: CPolicy, rec: Recording) -> Recording:
     return Recording(rec.readings, out[0], out[1], out[2].astype(np.int64))
 
 
-def closed_loop(cp: CPolicy, scene, seed: int, ticks: int) -> Recording:
-    """The C step in closed loop with the virtual rig (its hardware stage as the plant)."""
+def closed_loop(cp: CPolicy, scene, seed: int, ticks: int, perturb: np.ndarray | None = None) -> Recording:
+    """The C step in closed loop with the virtual rig (its hardware stage as the plant), with
+    the rig's true records.  ``perturb`` (float64[ticks]): added to each tick's command on its way
+    to the rig (the C state does not see it): a model of a build's command error, for the
+    sensitivity of the metrics to it."""
     from impact_env.rig.driver import VirtualRig
 
     drv = VirtualRig(scene)
@@ -199,12 +247,49 @@ def closed_loop(cp: CPolicy, scene, seed: int, ticks: int) -> Recording:
     cp.reset()
     raw = np.zeros((ticks, 4))
     out = np.zeros((3, ticks))
+    recs = []
     for m in range(ticks):
         raw[m] = drv.read()
         out[:, m] = cp.step(raw[m])
-        drv.apply(out[0, m])
+        u = out[0, m] + (0.0 if perturb is None else float(perturb[m]))
+        drv.apply(u)
+        recs.append(_true_record(drv, m, u))
     drv.shutdown()
-    return Recording(raw, out[0], out[1], out[2].astype(np.int64))
+    return Recording(raw, out[0], out[1], out[2].astype(np.int64), np.array(recs))
+
+
+def numba_sequence(policy: CompiledPolicy, scene, episodes, idle_ticks) -> list[Recording]:
+    """The numba target over consecutive episodes on given readings (``episodes``: float64[n_k, 4]
+    each), as one target process runs them: one :class:`~impact_env.rig.controller.Controller`
+    from power-on, ``idle_ticks[k - 1]`` disarmed ticks before episode k > 0
+    (:meth:`~impact_env.rig.controller.Controller.drain`: the RMS window cools, and keeps the
+    heat the idle time does not cover), then the release (``start``: latches cleared)."""
+    ctl = numba_controller(policy, scene, max(len(r) for r in episodes))
+    out = []
+    for k, raw in enumerate(episodes):
+        if k:
+            ctl.drain(int(idle_ticks[k - 1]))
+        res = np.zeros((3, len(raw)))
+        for m in range(len(raw)):
+            res[:, m] = _numba_tick(ctl, m, np.array(raw[m], dtype=np.float64))
+        out.append(Recording(np.asarray(raw), res[0], res[1], res[2].astype(np.int64)))
+    return out
+
+
+def c_sequence(cp: CPolicy, episodes, idle_ticks) -> list[Recording]:
+    """:func:`numba_sequence` for the C step: ``impact_init`` once (power-on), then per episode
+    ``impact_idle(idle_ticks[k - 1])`` (k > 0), ``impact_reset`` and one ``impact_step`` a tick."""
+    cp.init()
+    out = []
+    for k, raw in enumerate(episodes):
+        if k:
+            cp.idle(int(idle_ticks[k - 1]))
+        cp.reset()
+        res = np.zeros((3, len(raw)))
+        for m in range(len(raw)):
+            res[:, m] = cp.step(raw[m])
+        out.append(Recording(np.asarray(raw), res[0], res[1], res[2].astype(np.int64)))
+    return out
 
 
 @dataclass
@@ -242,5 +327,5 @@ def check(policy: CompiledPolicy, scene, c_dir, seeds=(0, 1), ticks: int = 2000,
         return out
 
 
-__all__ = ["CPolicy", "HEADER_NAME", "ParityReport", "Recording", "build_shared", "check", "closed_loop",
-           "compare_runs", "record", "replay"]
+__all__ = ["CPolicy", "HEADER_NAME", "ParityReport", "Recording", "build_shared", "c_sequence", "check",
+           "closed_loop", "compare_runs", "episode_metrics", "numba_sequence", "record", "replay"]

@@ -254,7 +254,9 @@ class RigEnv(gym.Env):
     ``retries``, ``key`` (the path of the key file the target was started with, ``rig serve
     --key FILE``, or the key's bytes; None: no key, for a target without one on loopback) and
     ``first_command_timeout_s`` (s: the target disarms an episode whose first COMMAND has not
-    arrived by then; the safety layer's own 0.1 s by default).
+    arrived by then; the safety layer's own 0.1 s by default) and ``link_timeout_s`` (s: the
+    target ends an episode LINK_LOST when it hears nothing from the host for that long; None: the
+    target's own, 0.5 s in real time).
     """
 
     metadata = {"render_modes": []}
@@ -263,10 +265,17 @@ class RigEnv(gym.Env):
                  residual: str | None = None, horizon: float | None = None, catch_threshold: float = 0.01,
                  catch_hold: float = 0.01, terminate_on_catch: bool = True, effort_weight: float = 0.0,
                  limit_weight: float = 0.0, action_bounds: str = "clip", timeout_s: float = 0.05,
-                 retries: int = 20, key=None, first_command_timeout_s: float = 0.1):
+                 retries: int = 20, key=None, first_command_timeout_s: float = 0.1,
+                 link_timeout_s: float | None = None):
         if not (isinstance(first_command_timeout_s, (int, float)) and 0.0 < first_command_timeout_s <= 60.0):
             raise ValueError(f"first_command_timeout_s = {first_command_timeout_s!r} s is out of range: "
                              "must be > 0 s and <= 60 s")
+        if link_timeout_s is not None and not (isinstance(link_timeout_s, (int, float))
+                                               and 1e-3 <= link_timeout_s <= 60.0):
+            raise ValueError(f"link_timeout_s = {link_timeout_s!r} s is out of range: must be >= 0.001 s and "
+                             "<= 60 s (or None: the target's own)")
+        # ARM carries it in whole ms; 0 asks for the target's own
+        self._link_ms = 0 if link_timeout_s is None else max(1, int(round(link_timeout_s * 1e3)))
         self.config = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks,
                                  residual=residual, horizon=horizon, catch_threshold=catch_threshold,
                                  catch_hold=catch_hold,
@@ -322,7 +331,8 @@ class RigEnv(gym.Env):
             self._start_drop(ep_seed, self._task_state(), self._rows)
         c = self.client
         c.arm("host", ep_seed, self.max_steps * self.hold, self.config.observation, self.config.history,
-              self.hold, self.residual, first_command_timeout_ticks=self._first_ticks)
+              self.hold, self.residual, first_command_timeout_ticks=self._first_ticks,
+              link_timeout_ms=self._link_ms)
         self._running = True
         self._n = 0
         self._last_obs = None
