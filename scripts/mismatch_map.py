@@ -47,7 +47,7 @@ def main(argv=None) -> int:
             continue
         res = robustness(scene, POLICIES, [(name, values)], args.episodes, args.seed, args.workers, progress=False)
         res.identified = bands
-        plot(res, figs / f"mismatch_{name}.png")
+        plot(res, figs / f"mismatch_{name}.png", NAMES)
         results[name] = {"values": values.tolist(), "nominal": res.nominal[name], "wall_s": res.wall_s,
                          "rows": [{spec: row[spec] for spec in POLICIES} for row in res.summaries]}
         print(f"{name}: {res.wall_s:.0f} s", file=sys.stderr, flush=True)

@@ -11,7 +11,7 @@ sensor delay, the command gain, m1, the noise level, ...); a delay's effect is s
 its nominal 0 s) when the scene has it off.
 
 Output: ``robustness.csv``/``.json`` (one row per grid point and policy: compare's summary) and a
-figure of the energy integral, the catch time, the peak force and the time at the force limit
+figure of the energy integral, the catch time, the time at the force limit and the bounces
 against the parameter, the nominal value marked, and, given an identification
 (``identification.json`` of ``impact-env identify``), the identified value with its 95 % band.
 """
@@ -49,7 +49,7 @@ FROM_IDENTIFIED = {"plant.c": ("c", False), "plant.restitution": ("restitution",
                    "effects.sensors.force.top_mass": ("top_mass", False)}
 SHORT = {"energy_integral_ms": "energy integral (catch energy / impact), ms",
          "time_to_catch_median_s": "catch time (median), s", "peak_force_N": "peak force on body 2 (mean), N",
-         "saturation_time_s": "time at the force limit (mean), s"}
+         "saturation_time_s": "time at the force limit (mean), s", "bounces": "bounces (mean)"}
 METRICS = ("energy_integral_ms", "time_to_catch_median_s", "peak_force_N", "saturation_time_s", "bounces",
            "caught_fraction")
 
@@ -219,7 +219,7 @@ def write_outputs(res: Robustness, out_dir, fmt: str = "png") -> list[Path]:
     return [out / "robustness.csv", out / "robustness.json", fig]
 
 
-def plot(res: Robustness, path) -> Path:
+def plot(res: Robustness, path, labels: dict[str, str] | None = None) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -231,12 +231,13 @@ def plot(res: Robustness, path) -> Path:
     colors = policy_colors(res.specs)
     if len(res.axes) == 1:
         name, xs = res.axes[0]
-        keys = ("energy_integral_ms", "time_to_catch_median_s", "peak_force_N", "saturation_time_s")
+        # (the peak force is the 200 N limit for every policy that catches: bounces say more)
+        keys = ("energy_integral_ms", "time_to_catch_median_s", "saturation_time_s", "bounces")
         fig, axes = plt.subplots(2, 2, figsize=(10, 7))
         for ax, key in zip(axes.ravel(), keys, strict=True):
             for spec in res.specs:
                 ys = [_value(row[spec], key, res.horizon) for row in res.summaries]
-                ax.plot(xs, ys, "o-", color=colors[spec], label=spec, ms=4)
+                ax.plot(xs, ys, "o-", color=colors[spec], label=(labels or {}).get(spec, spec), ms=4)
             if key == "time_to_catch_median_s":
                 ax.axhline(res.horizon, color="0.6", lw=0.8, ls=":")
                 ax.text(xs[0], res.horizon * 1.05, " not caught (median > horizon)", va="center", fontsize=7,
@@ -266,7 +267,7 @@ def plot(res: Robustness, path) -> Path:
         for ax, spec in zip(axes[0], res.specs, strict=True):
             im = ax.pcolormesh(x2, x1, grid[spec], shading="nearest", vmin=0, vmax=vmax, cmap="viridis")
             ax.plot(res.nominal[n2], res.nominal[n1], "w+", ms=10, mew=2)
-            ax.set_title(spec, fontsize=9)
+            ax.set_title((labels or {}).get(spec, spec), fontsize=9)
             ax.set_xlabel(LABELS.get(n2, n2))
             ax.set_ylabel(LABELS.get(n1, n1))
             for n, setter in ((n1, ax.set_yscale), (n2, ax.set_xscale)):

@@ -89,7 +89,9 @@ def to_json(fit: Fit) -> dict:
         "parameters": {p.name: {"value": fit.value(p.name), "rel_sigma": float(math.sqrt(max(fit.cov[j, j], 0.0))),
                                 "identified": bool(fit.identified[j]), "fixed": fit.fixed.get(p.name, "")}
                        for j, p in enumerate(PARAMS)},
-        "correlations": _strong_correlations(fit), "chi2_red": fit.chi2_red, "n_samples": fit.n_samples,
+        "correlations": _strong_correlations(fit),
+        "correlation_matrix": {"names": list(NAMES), "rho": np.round(fit.correlations(), 4).tolist()},
+        "chi2_red": fit.chi2_red, "n_samples": fit.n_samples,
         "residual_rms": fit.residual_rms, "stages": fit.stages, "wall_s": fit.wall_s,
         "base_toml": fit.base_toml,
     }
