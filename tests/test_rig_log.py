@@ -113,6 +113,26 @@ def test_write_read_round_trip(tmp_path):
     assert L.list_episodes(tmp_path / "logs") == [path]
 
 
+def test_format_3_fields_round_trip_and_an_older_file_reads_as_a_drop(tmp_path):
+    import h5py
+
+    phys = load_scene("rig").with_overrides({"plant.c": 2.5e6})
+    meta = _meta(kind="shaker", excitation='{"signal": "sweep"}', physics_toml=phys.to_toml())
+    path = L.write_episode(_filled(), tmp_path, meta)
+    back = L.read_episode(path)
+    assert (back.meta.kind, back.meta.excitation) == ("shaker", '{"signal": "sweep"}')
+    assert back.physics() == phys and back.scene() == load_scene("rig")
+    with h5py.File(path, "a") as f:  # a format-2 file: none of the three attributes
+        for k in ("kind", "excitation", "physics_toml"):
+            del f.attrs[k]
+        f.attrs["format_version"] = 2
+    old = L.read_episode(path)
+    assert (old.meta.kind, old.meta.excitation, old.meta.physics_toml) == ("drop", "", "")
+    assert old.physics() == load_scene("rig")
+    with pytest.raises(ValueError, match="kind"):
+        _meta(kind="sweep")
+
+
 def test_write_refuses_bad_names_and_missing_meta(tmp_path):
     with pytest.raises(ValueError, match="needs meta"):
         L.write_episode(_filled(), tmp_path)

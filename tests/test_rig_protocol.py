@@ -20,59 +20,59 @@ HEAD = dict(session=0x01020304, seq=5, tick=10000, host_ns=1_000_000_007, target
 
 # Header bytes common to every golden message, then per message: type byte, payload length,
 # payload, tag (HMAC-SHA256 under GOLDEN_KEY with the session nonce GOLDEN_NONCE, 16 bytes).
-# Header: magic "IMPR" | major 02 | minor 00 | type | flags 00 | session 04030201 |
+# Header: magic "IMPR" | major 02 | minor 01 | type | flags 00 | session 04030201 |
 # seq 05000000 | tick 1027000000000000 (10000) | host_ns 07ca9a3b00000000 (1000000007) |
 # target_ns 0b94357700000000 (2000000011) | payload length (u16).
-MAGIC_VER = "494d5052" "02" "00"
+MAGIC_VER = "494d5052" "02" "01"
 GOLDEN_KEY = bytes(range(32))
 GOLDEN_NONCE = 0x0123456789ABCDEF
 AFTER_TYPE = "00" "04030201" "05000000" "1027000000000000" "07ca9a3b00000000" "0b94357700000000"
 
 GOLDEN = [
-    (P.Hello(nonce=0xDEADBEEF), "01", "0400", "efbeadde", "8999afd7c2fdeeb3dd3243e253728dcf"),
+    (P.Hello(nonce=0xDEADBEEF), "01", "0400", "efbeadde", "0f71f0b7196e09126eca64634fd83cda"),
     (P.Info(nonce=0xDEADBEEF, control_rate_hz=1e4, state=P.TargetState.IDLE, driver=0, lockstep=True,
             scene_size=2345, scene_sha256=SHA_SCENE, session_nonce=0x1122334455667788, keyed=True),
      "02", "3c00",
      # nonce | rate 1e4 (f64) | state 00 | driver 00 | lockstep 01 | scene_size 2345 | sha256 |
      # session_nonce (u64) | keyed 01
      "efbeadde" "000000000088c340" "00" "00" "01" "29090000" + SHA_SCENE.hex() + "8877665544332211" "01",
-     "bf2b1db0a76a4cf93a2b2c0e9af2fede"),
+     "78a92eb4db822dbff05a6328e4782801"),
     (P.Arm(mode="onboard", observation="sensors", history=2, options=P.ARM_TERMINATE_ON_CATCH, hold_ticks=10,
            seed=42, horizon_ticks=4000, first_command_timeout_ticks=1000, link_timeout_ms=500,
            policy_size=100000, policy_sha256=SHA_POLICY), "03", "3e00",
      # mode 02 | obs 00 | history 02 | options 01 | hold 10 | seed 42 | horizon 4000 | timeout 1000 |
      # link 500 ms | size 100000 | sha256
      "02" "00" "02" "01" "0a00" "2a00000000000000" "a00f0000" "e8030000" "f4010000" "a0860100"
-     + SHA_POLICY.hex(), "8cbb333fde46ab25d8ddac04cf44f4b8"),
+     + SHA_POLICY.hex(), "0520e29a3d09c12e05225c6dd447be48"),
     (P.Armed(episode=3, start_tick=123456, obs_size=10, action_size=1, obs_dtype=4, telemetry_size=2,
              hold_ticks=10, control_rate_hz=1e4, scene_sha256=SHA_SCENE), "04", "3c00",
      "03000000" "40e2010000000000" "0a00" "0100" "04" "02" "0a00" "000000000088c340" + SHA_SCENE.hex(),
-     "41deed6b6586e214e47caeefdc510cda"),
+     "ba4b32a2a18d16acf77e700f0f077694"),
     (P.PolicyChunk(upload_id=0x0807060504030201, total=100000, offset=2048, data=b"\x00\x01\x02\xff"),
      "05", "1600", "0102030405060708" "a0860100" "00080000" "0400" "000102ff",
-     "708aad16243536c8e25165c3f62dcabe"),
+     "8341add355a6b6e673346e2cfbe87a6e"),
     (P.Ack(acked_type=P.MsgType.POLICY_CHUNK, code=0, acked_seq=77, value=2052), "06", "0e00",
-     "05" "00" "4d000000" "0408000000000000", "0f1bbebb04fe2ae07075a3bb80f4837d"),
+     "05" "00" "4d000000" "0408000000000000", "6bd49e63ba3713187892dd03f8fc4627"),
     (P.Command(episode=3, step=7, action=(0.25,)), "07", "1200",
-     "03000000" "07000000" "0100" "000000000000d03f", "89dd9d5e48cca0e1dc3992fe0c6bad7c"),
+     "03000000" "07000000" "0100" "000000000000d03f", "890acbf56285b233ebd1d98223eabbec"),
     (P.Observation(episode=3, step=7, status=0x10002, dtype=4, obs=(1.5, -0.25, 0.0), telemetry=(12.5,)),
      "08", "2500",
      # episode | step | status | dtype 04 | n 3 | m 1 (u16) | 1.5f -0.25f 0.0f | 12.5 (f64)
      "03000000" "07000000" "02000100" "04" "0300" "0100" "0000c03f" "000080be" "00000000" "0000000000002940",
-     "c6fadfee754944373d9879b04ebf7cc1"),
+     "8401dac8778114275bd0498b09a7fdee"),
     (P.EpisodeEnd(episode=3, reason=P.EndReason.HORIZON, status=0x4, n_ticks=4000, n_steps=400,
                   data_size=65536, data_sha256=SHA_POLICY), "09", "3900",
      "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(),
-     "16524a356a24cbf14d52d0ed41be9fcb"),
+     "0c01ca133044cadbcc6b8ed1afb3d9d9"),
     (P.Fetch(resource=P.Resource.EPISODE, item=3, offset=1024, max_len=1024), "0a", "0b00",
-     "02" "03000000" "00040000" "0004", "a7296c41fa2f112f7c9a5b911d178324"),
+     "02" "03000000" "00040000" "0004", "9baa42d3b187e89af19314832f9c13ac"),
     (P.Chunk(resource=P.Resource.EPISODE, item=3, total=65536, offset=1024, data=b"HDF"), "0b", "1200",
-     "02" "03000000" "00000100" "00040000" "0300" "484446", "3b6a5ed0a179c807a22b1b3d8f077b9a"),
-    (P.Disarm(reason=1), "0c", "0100", "01", "8dd21b6df6262f1250f9a47d91dd51e5"),
+     "02" "03000000" "00000100" "00040000" "0300" "484446", "7a38227ebc038f82ed5298e5ad8e0005"),
+    (P.Disarm(reason=1), "0c", "0100", "01", "32515f914d7bcc0e7fae12db2f488dea"),
     (P.Heartbeat(state=P.TargetState.RUNNING, episode=3, step=7, peer_seq=99), "0d", "0d00",
-     "02" "03000000" "07000000" "63000000", "eea0a279f9ec3445712d6a2857656ea5"),
+     "02" "03000000" "07000000" "63000000", "2bc3bdc36be7e9e6eedb6f881c86a7c8"),
     (P.Error(code=P.ErrorCode.BUSY, ref_seq=5, text="busy: session 0x1"), "0e", "1900",
-     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "ad49cf5893eaf6a2b6c2c0e109b12772"),
+     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "1f9cf0cf378b3f4876af81279dd9da83"),
 ]
 
 
@@ -471,3 +471,12 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
     assert counts == {k: outcome_counts.get(k, 0) for k in counts}
     assert all(counts[k] > 0 for k in counts), counts  # every reason was exercised
     print("fuzz:", f.total, "datagrams:", counts, "corrupt detail:", dict(sorted(f.detail.items())))
+
+
+def test_arm_options_carry_the_episode_kind():
+    """Protocol 2.1: ARM's options bits 1-2 are the episode kind, bit 0 stays terminate-on-catch."""
+    for kind in P.EpisodeKind:
+        for term in (0, P.ARM_TERMINATE_ON_CATCH):
+            arm = P.Arm(options=term | (int(kind) << P.ARM_KIND_SHIFT))
+            back = P.decode(P.encode(P.Message(arm, session=1)), b"", 0).body
+            assert back.kind == kind and back.options & P.ARM_TERMINATE_ON_CATCH == term
