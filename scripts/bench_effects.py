@@ -64,12 +64,12 @@ def bare_loop(n, y, mode, f2, period, p, method, dt, rtol, scale, hstate, ev, ev
 
 
 @numba.njit(cache=False)
-def pipeline_loop(n, cfg, plant, fx, noise, out, fe):
-    cursor = noise[1]
+def pipeline_loop(n, hw_p, hw_s, fe_p, fe_s):
+    cursor = hw_s.noise.cursor
     for _ in range(n):
         cursor[0] = 0  # the same noise sample every step (drawing noise is the Python layer's job)
-        hardware_tick(0, 0.0, cfg, plant, fx, noise, out)
-        condition(0, out[0], fe)
+        hardware_tick(0, 0.0, hw_p, hw_s)
+        condition(0, hw_s.out.raw, fe_p, fe_s)
 
 
 STATE = ("Y", "modes", "EV", "EVN", "ST", "H", "raw", "info", "t")
@@ -78,16 +78,16 @@ STATE = ("Y", "modes", "EV", "EVN", "ST", "H", "raw", "info", "t")
 def _pipeline_runner(sim: Simulator, n: int):
     hw = sim.hw
     start = {k: getattr(hw, k).copy() for k in STATE}
-    fe_start = [a.copy() for a in (sim.fe.filt, sim.fe.det_state, sim.fe.cond, sim.fe.detected)]
-    cfg, plant, fx, _noise, out = hw.args()
-    noise = (np.random.default_rng(0).standard_normal((1, 1, 4)), np.zeros(1, dtype=np.int64))
+    fe_start = [a.copy() for a in sim.fe.state]
+    noise = type(hw.state.noise)(np.random.default_rng(0).standard_normal((1, 1, 4)), np.zeros(1, dtype=np.int64))
+    hw_s = hw.state._replace(noise=noise)
 
     def run():
         for k, v in start.items():
             getattr(hw, k)[...] = v
-        for a, v in zip((sim.fe.filt, sim.fe.det_state, sim.fe.cond, sim.fe.detected), fe_start, strict=True):
+        for a, v in zip(sim.fe.state, fe_start, strict=True):
             a[...] = v
-        pipeline_loop(n, cfg, plant, fx, noise, out, sim.fe.fe)
+        pipeline_loop(n, hw.params, hw_s, sim.fe.params, sim.fe.state)
         return hw.Y[0].copy()
     return run
 

@@ -9,15 +9,15 @@ scale and clipped, stacked with the previous frames and actions when the history
 one (:mod:`impact_env.control.observation`).
 
 The simulator and the real-time target call these same kernels, so a deployed policy sees what
-it saw in simulation.  Argument groups (tuples):
-
-* ``fe`` = (flags, sos float64[4, S, 6], filt float64[N, 4, S, 2], det_params float64[5],
-  det_state float64[N, 2], cond float64[N, 4], detected float64[N]);
-* ``ob`` = (channels int64[k], detector bool, privileged bool, scales float64[F], limit,
-  frames float64[N, H, F], past_actions float64[N, H], obs float32[N, size]).
+it saw in simulation.  Their arguments are named tuples, parameters (fixed for an episode) apart
+from state (changed every tick, started by one reset function each):
+:class:`FrontEndParams` / :class:`FrontEndState` (:func:`reset_front_end`) and
+:class:`ObsParams` / :class:`ObsState` (:func:`reset_obs`).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -32,30 +32,86 @@ F_FILTERS = 1
 F_DETECTOR = 2
 
 
+class FrontEndParams(NamedTuple):
+    """The scene's filters and detector (fixed)."""
+
+    flags: np.int64  # F_FILTERS | F_DETECTOR, those the scene has
+    sos: np.ndarray  # float64[4, S, 6]: each channel's second-order sections
+    detector: np.ndarray  # float64[5]: impact_env.effects.detector.detector_params
+
+
+class FrontEndState(NamedTuple):
+    """Per-env filter memory, detector state and what they give."""
+
+    filt: np.ndarray  # float64[N, 4, S, 2]
+    det: np.ndarray  # float64[N, 2]
+    cond: np.ndarray  # float64[N, 4]: the conditioned readings
+    detected: np.ndarray  # float64[N]: the detector's bit (0 or 1)
+
+
+class ObsParams(NamedTuple):
+    """An observation layout (impact_env.control.observation), for the kernels."""
+
+    channels: np.ndarray  # int64[k]: sensor channels, in frame order
+    detector: bool  # the frame holds the detector's bit
+    privileged: bool  # the frame holds x1, v1, x2, v2
+    scales: np.ndarray  # float64[F]
+    limit: float  # |entry| bound
+
+
+class ObsState(NamedTuple):
+    """Per-env observation history and rows."""
+
+    frames: np.ndarray  # float64[N, H, F]: newest first, scaled
+    past_actions: np.ndarray  # float64[N, H]
+    obs: np.ndarray  # float32[N, size]: the observation rows
+
+
 @jit(inline="always")
-def condition(i, raw, fe):
-    """Filters and detector of env i on its raw readings ``raw[i]`` (float64[4])."""
-    flags, sos, filt, det_params, det_state, cond, detected = fe
-    c = cond[i]
+def reset_front_end(s, i):
+    """Env i's filters and detector at an episode start (the readings come from the caller)."""
+    s.filt[i] = 0.0
+    s.det[i] = 0.0
+    s.detected[i] = 0.0
+
+
+@jit(inline="always")
+def reset_obs(s, i):
+    """Env i's observation history at an episode start."""
+    s.frames[i] = 0.0
+    s.past_actions[i] = 0.0
+
+
+@jit(inline="always")
+def condition(i, raw, p, s):
+    """Filters and detector of env i on its raw readings ``raw[i]`` (float64[4]); ``p``:
+    FrontEndParams, ``s``: FrontEndState."""
+    c = s.cond[i]
     r = raw[i]
     for j in range(c.shape[0]):
         c[j] = r[j]
-    if flags & F_FILTERS:
-        filter_step(sos, filt[i], c, c)
+    if p.flags & F_FILTERS:
+        filter_step(p.sos, s.filt[i], c, c)
     d = False
-    if flags & F_DETECTOR:
-        d = detect(c[0], c[1], det_state[i], det_params)
-    detected[i] = 1.0 if d else 0.0
+    if p.flags & F_DETECTOR:
+        d = detect(c[0], c[1], s.det[i], p.detector)
+    s.detected[i] = 1.0 if d else 0.0
 
 
 @jit(inline="always")
-def observe(i, push, action, truth, fe, ob):
+def observe(i, push, action, truth, fe, op, os):
     """Env i's observation row after a policy step: push ``action`` into the past actions (when
-    ``push``), shift the frames, write the new frame from the conditioned readings (and
-    ``truth`` = x1, v1, x2, v2 for privileged layouts), scaled and clipped."""
-    cond = fe[5]
-    detected = fe[6]
-    channels, detector, privileged, scales, limit, frames, past_actions, obs = ob
+    ``push``), shift the frames, write the new frame from the conditioned readings of ``fe``
+    (FrontEndState; and ``truth`` = x1, v1, x2, v2 for privileged layouts), scaled and clipped.
+    ``op``: ObsParams, ``os``: ObsState."""
+    cond = fe.cond
+    detected = fe.detected
+    channels = op.channels
+    scales = op.scales
+    limit = op.limit
+    frames = os.frames
+    past_actions = os.past_actions
+    obs = os.obs
     H = frames.shape[1]
     F = frames.shape[2]
     if push and H > 1:
@@ -69,10 +125,10 @@ def observe(i, push, action, truth, fe, ob):
     for k in range(channels.shape[0]):
         frames[i, 0, j] = cond[i, channels[k]]
         j += 1
-    if detector:
+    if op.detector:
         frames[i, 0, j] = detected[i]
         j += 1
-    if privileged:
+    if op.privileged:
         for k in range(4):
             frames[i, 0, j + k] = truth[k]
     for j in range(F):
@@ -91,55 +147,80 @@ def observe(i, push, action, truth, fe, ob):
 
 
 @jit
-def start_rows(idx, truth, fe, ob):
-    """Episode start for envs ``idx``: clear the front end's state and write the first
-    observation from the readings already in ``cond`` (the caller's start values)."""
-    filt, det_state, detected = fe[2], fe[4], fe[6]
-    frames, past_actions = ob[5], ob[6]
+def start_rows(idx, truth, fe, op, os):
+    """Episode start for envs ``idx``: the observation history of ``os`` cleared and its first
+    row written from the readings already in ``fe.cond`` (the caller's start values)."""
     for m in range(idx.shape[0]):
         i = idx[m]
-        filt[i] = 0.0
-        det_state[i] = 0.0
-        detected[i] = 0.0
-        frames[i] = 0.0
-        past_actions[i] = 0.0
-        observe(i, False, 0.0, truth[i], fe, ob)
+        reset_obs(os, i)
+        observe(i, False, 0.0, truth[i], fe, op, os)
 
 
-def observation_buffers(layout: ObservationLayout, n: int) -> tuple:
-    """The ``ob`` argument group of :func:`observe` for ``layout`` and n envs (frames newest
-    first, scaled; past actions; the float32 observation rows)."""
+@jit
+def start_envs(idx, truth, s, op, os):
+    """Episode start for envs ``idx``: the front end's state reset, then :func:`start_rows`."""
+    for m in range(idx.shape[0]):
+        reset_front_end(s, idx[m])
+    start_rows(idx, truth, s, op, os)
+
+
+def obs_params(layout: ObservationLayout) -> ObsParams:
+    """The kernels' view of ``layout``."""
+    return ObsParams(layout.sensor_channels, bool(layout.detector), bool(layout.privileged), layout.scales,
+                     float(OBS_LIMIT))
+
+
+def obs_state(layout: ObservationLayout, n: int) -> ObsState:
+    """Zeroed observation buffers of ``layout`` for n envs."""
     F, H = layout.frame_size, layout.history
-    return (layout.sensor_channels, bool(layout.detector), bool(layout.privileged), layout.scales,
-            float(OBS_LIMIT), np.zeros((n, H, F)), np.zeros((n, H)),
-            np.zeros((n, layout.size), dtype=np.float32))
+    return ObsState(np.zeros((n, H, F)), np.zeros((n, H)), np.zeros((n, layout.size), dtype=np.float32))
 
 
 class FrontEnd:
     """The front end of N controllers of one scene, for an observation ``layout``: its compiled
-    arguments (:attr:`fe`, :attr:`ob`) and their arrays.  ``cond`` holds the conditioned
-    readings (float64[N, 4]), ``detected`` the detector's bit, ``obs`` the observation rows
-    (float32[N, layout.size])."""
+    arguments (:attr:`params`, :attr:`state`, :attr:`obs_params`, :attr:`obs_state`).
+    ``cond`` holds the conditioned readings (float64[N, 4]), ``detected`` the detector's bit,
+    ``obs`` the observation rows (float32[N, layout.size])."""
 
     def __init__(self, scene: Scene, layout: ObservationLayout, num_envs: int):
         fx = scene.effects
         rate = scene.control_rate
         n = int(num_envs)
         self.layout = layout
-        self.flags = (F_FILTERS if fx.on("filters") else 0) | (F_DETECTOR if fx.on("detector") else 0)
-        self.sos = design_filters(fx.filters, rate) if fx.on("filters") else np.zeros((N_CHANNELS, 1, 6))
-        self.filt = np.zeros((n, N_CHANNELS, self.sos.shape[1], 2))
-        self.det_params = detector_params(fx.detector, rate)
-        self.det_state = np.zeros((n, 2))
-        self.cond = np.zeros((n, N_CHANNELS))
-        self.detected = np.zeros(n)
-        self.ob = observation_buffers(layout, n)
-        self.frames, self.past_actions, self.obs = self.ob[5], self.ob[6], self.ob[7]
-        self.fe = (np.int64(self.flags), self.sos, self.filt, self.det_params, self.det_state, self.cond,
-                   self.detected)
+        flags = (F_FILTERS if fx.on("filters") else 0) | (F_DETECTOR if fx.on("detector") else 0)
+        sos = design_filters(fx.filters, rate) if fx.on("filters") else np.zeros((N_CHANNELS, 1, 6))
+        self.params = FrontEndParams(np.int64(flags), sos, detector_params(fx.detector, rate))
+        self.state = FrontEndState(np.zeros((n, N_CHANNELS, sos.shape[1], 2)), np.zeros((n, 2)),
+                                   np.zeros((n, N_CHANNELS)), np.zeros(n))
+        self.obs_params = obs_params(layout)
+        self.obs_state = obs_state(layout, n)
+
+    @property
+    def flags(self) -> int:
+        return int(self.params.flags)
+
+    @property
+    def sos(self) -> np.ndarray:
+        return self.params.sos
+
+    @property
+    def det_params(self) -> np.ndarray:
+        return self.params.detector
+
+    @property
+    def cond(self) -> np.ndarray:
+        return self.state.cond
+
+    @property
+    def detected(self) -> np.ndarray:
+        return self.state.detected
+
+    @property
+    def obs(self) -> np.ndarray:
+        return self.obs_state.obs
 
     def start(self, idx: np.ndarray, readings: np.ndarray, truth: np.ndarray) -> None:
         """Start envs ``idx`` with the readings ``readings[idx]`` (float64[N, 4]) and the true
         state ``truth`` (float64[N, >=4], for privileged layouts)."""
-        self.cond[idx] = readings[idx]
-        start_rows(np.asarray(idx, dtype=np.int64), truth, self.fe, self.ob)
+        self.state.cond[idx] = readings[idx]
+        start_envs(np.asarray(idx, dtype=np.int64), truth, self.state, self.obs_params, self.obs_state)

@@ -28,6 +28,7 @@ import json
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -51,6 +52,13 @@ PI_LAYERS = PI_SLOTS + len(LW.SLOTS)
 # pf (float64): header, the frame's scales, then the law's constants or the MLP's weights
 PF_CMD, PF_LOW, PF_HIGH = range(3)
 PF_SCALES = 3
+
+
+class PolicyArrays(NamedTuple):
+    """A packed policy, as :func:`act` takes it (:meth:`CompiledPolicy.arrays`)."""
+
+    ints: np.ndarray  # int64: header (PI_*), the law's slots, the MLP's layer table
+    floats: np.ndarray  # float64: header (PF_*), the frame's scales, the law's constants or the weights
 
 
 @jit(inline="always")

@@ -76,6 +76,27 @@ class TaskConfig:
             raise ConfigError(f"terminate_on_catch must be true or false, got {self.terminate_on_catch!r}")
 
 
+def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float,
+                command_scale: float) -> TK.TaskParams:
+    """The kernels' task parameters for ``config`` at the control ``period`` (s), ``hold_ticks``
+    per policy step, a ``horizon`` (s) and ``command_scale`` (N per unit command)."""
+    max_steps = max(1, int(round(horizon / (period * hold_ticks))))  # round: whole periods up to noise
+    hold_steps = max(1, int(np.ceil(config.catch_hold / period - 1e-9)))  # ticks
+    return TK.TaskParams(step_weight=period / REWARD_TIME_UNIT, threshold=float(config.catch_threshold),
+                         hold=float(hold_steps), terminate=1.0 if config.terminate_on_catch else 0.0,
+                         effort=float(config.effort_weight), limit=float(config.limit_weight),
+                         command_scale=float(command_scale), max_steps=float(max_steps))
+
+
+def new_task_state(n: int) -> TK.TaskState:
+    return TK.TaskState(np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool),
+                        np.zeros(n))
+
+
+def new_task_out(n: int) -> TK.TaskOut:
+    return TK.TaskOut(np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), np.zeros((n, TK.N_COL)))
+
+
 def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig,
                     overrides=None) -> CatchTask:
     """The simulator of ``num_envs`` rigs of ``scene`` (with ``overrides``) that ``config`` asks
@@ -104,32 +125,18 @@ class CatchTask:
         self.period = scene.control_period
         self.hold_ticks = sim.hold
         self.horizon = config.horizon if config.horizon is not None else scene.episode.horizon
-        # round, not floor: the horizon is usually a whole number of periods up to float noise
-        self.max_steps = max(1, int(round(self.horizon / (self.period * self.hold_ticks))))
-        self.hold_steps = max(1, int(np.ceil(config.catch_hold / self.period - 1e-9)))  # ticks
         self.command_scale = scene.effects.command_scale
-        tp = np.zeros(TK.N_TASK)
-        tp[TK.T_STEP_WEIGHT] = self.period / REWARD_TIME_UNIT
-        tp[TK.T_THRESHOLD] = config.catch_threshold
-        tp[TK.T_HOLD] = self.hold_steps
-        tp[TK.T_TERMINATE] = 1.0 if config.terminate_on_catch else 0.0
-        tp[TK.T_EFFORT] = config.effort_weight
-        tp[TK.T_LIMIT] = config.limit_weight
-        tp[TK.T_CMD] = self.command_scale
-        tp[TK.T_MAX_STEPS] = self.max_steps
-        self.tp = tp
-        self.steps = np.zeros(n, dtype=np.int64)
-        self.below = np.zeros(n, dtype=np.int64)  # consecutive ticks below the catch threshold
-        self.energy = np.zeros(n)
+        self.params = task_params(config, self.period, self.hold_ticks, self.horizon, self.command_scale)
+        self.max_steps = int(self.params.max_steps)
+        self.hold_steps = int(self.params.hold)
+        self.state = new_task_state(n)
+        self.steps, self.below, self.diverged, self.energy = self.state
         self.impact_speed = sim.hw.impact_speed
-        self.diverged = np.zeros(n, dtype=bool)
-        self.rewards = np.zeros(n)
-        self.terminated = np.zeros(n, dtype=bool)
-        self.truncated = np.zeros(n, dtype=bool)
-        self.rows = np.zeros((n, TK.N_COL))
+        self.out = new_task_out(n)
+        self.rewards, self.terminated, self.truncated, self.rows = self.out
+        self.drop = TK.Drop(sim.Y, sim.P, sim.impact_energy, self.impact_speed)
         self._a1 = np.zeros(1)
         self._all = np.ones(n, dtype=bool)
-        self._state = (tp, self.steps, self.below, self.diverged, self.energy)
         self._task_step = None  # TK.task_step bound to these arrays' types (first step)
 
     @property
@@ -142,8 +149,7 @@ class CatchTask:
         sim = self.sim
         idx = sim.reset(rngs, mask)
         self.rows[idx, TK.COL_TTOUCH] = sim.t_touch[idx]  # kept by the kernels, which skip this column
-        TK.task_reset_rows(idx, sim.records, sim.Y, sim.P, sim.impact_energy, self.impact_speed, *self._state,
-                           self.rows)
+        TK.task_reset_rows(idx, sim.records, self.drop, self.params, self.state, self.rows)
 
     def check_actions(self, actions) -> np.ndarray:
         """float64[N] actions from what the caller gave; NaN or a wrong shape raises ValueError;
@@ -178,8 +184,7 @@ class CatchTask:
         # the types the bound kernel was made for: writable C-contiguous bool[n]
         act = self._all if active is None else np.array(active, dtype=bool).reshape(self.n)
         sim.step(a, None if active is None else act)  # None: every env, without a mask
-        args = (act, sim.records, sim.Y, sim.P, sim.impact_energy, self.impact_speed, *self._state,
-                self.rewards, self.terminated, self.truncated, self.rows)
+        args = (act, sim.records, self.drop, self.params, self.state, self.out)
         if self._task_step is None:
             self._task_step = bound_call(TK.task_step, args)
         else:

@@ -8,6 +8,8 @@ step costs two compiled calls (simulator, task) and no per-env Python.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from impact_env._jit import jit
@@ -15,9 +17,45 @@ from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, V1, X1, X2, C, G
 from impact_env.sim import records as R
 
-# task parameters (float64 vector built by CatchTask)
-T_STEP_WEIGHT, T_THRESHOLD, T_HOLD, T_TERMINATE, T_EFFORT, T_LIMIT, T_CMD, T_MAX_STEPS = range(8)
-N_TASK = 8
+
+class TaskParams(NamedTuple):
+    """The task's settings, as the kernels read them (built by :mod:`impact_env.env.task`)."""
+
+    step_weight: float  # the reward's factor T / t_unit
+    threshold: float  # catch threshold, fraction of the impact energy
+    hold: float  # ticks below the threshold that make a catch
+    terminate: float  # 1: a catch terminates the episode
+    effort: float  # effort weight
+    limit: float  # saturation weight
+    command_scale: float  # N per unit command
+    max_steps: float  # policy steps to the horizon
+
+
+class TaskState(NamedTuple):
+    """Per-env episode state (:func:`reset_task` starts it)."""
+
+    steps: np.ndarray  # int64[N]: policy steps taken
+    below: np.ndarray  # int64[N]: consecutive ticks below the catch threshold
+    diverged: np.ndarray  # bool[N]
+    energy: np.ndarray  # float64[N]: J, the catch energy after the last tick
+
+
+class Drop(NamedTuple):
+    """What the task reads of the simulated drop."""
+
+    Y: np.ndarray  # float64[N, >=4]: the state (x1, v1, x2, v2, ...)
+    P: np.ndarray  # float64[N, N_PARAM]: plant parameters
+    impact_energy: np.ndarray  # float64[N], J
+    impact_speed: np.ndarray  # float64[N], m/s
+
+
+class TaskOut(NamedTuple):
+    """What a task step gives."""
+
+    rewards: np.ndarray  # float64[N]
+    terminated: np.ndarray  # bool[N]
+    truncated: np.ndarray  # bool[N]
+    rows: np.ndarray  # float64[N, N_COL]: the info rows
 
 # columns of the per-env info row
 INFO_KEYS = ("t", "catch_energy", "catch_energy_ratio", "impact_energy", "impact_speed", "contact",
@@ -30,10 +68,13 @@ N_COL = len(INFO_KEYS)
 
 
 @jit
-def task_step(active, records, Y, P, impact_energy, impact_speed, tp, steps, below, diverged, energy,
-              rewards, terminated, truncated, rows):
+def task_step(active, records, d, p, s, out):
     """After the simulator's step: reward, flags and info row of every active env (an inactive
-    env gets reward 0 and no flags, and keeps its row)."""
+    env gets reward 0 and no flags, and keeps its row).  ``d``: Drop, ``p``: TaskParams, ``s``:
+    TaskState, ``out``: TaskOut."""
+    rewards, terminated, truncated = out.rewards, out.terminated, out.truncated
+    steps, below, diverged, energy = s.steps, s.below, s.diverged, s.energy
+    P = d.P
     for i in range(records.shape[0]):
         if not active[i]:
             rewards[i] = 0.0
@@ -41,7 +82,7 @@ def task_step(active, records, Y, P, impact_energy, impact_speed, tp, steps, bel
             truncated[i] = False
             continue
         steps[i] += 1
-        e0 = impact_energy[i]
+        e0 = d.impact_energy[i]
         total = 0.0
         bad = False
         for k in range(records.shape[1]):
@@ -56,33 +97,33 @@ def task_step(active, records, Y, P, impact_energy, impact_speed, tp, steps, bel
                 energy[i] = e
                 ratio = e / e0
                 cost = ratio
-                if tp[T_EFFORT] != 0.0:
-                    u = r[R.REC_F_APPLIED] / tp[T_CMD]
-                    cost += tp[T_EFFORT] * u * u
-                if tp[T_LIMIT] != 0.0:
-                    cost += tp[T_LIMIT] * r[R.REC_SATURATED]
-                below[i] = below[i] + 1 if ratio < tp[T_THRESHOLD] else 0
+                if p.effort != 0.0:
+                    u = r[R.REC_F_APPLIED] / p.command_scale
+                    cost += p.effort * u * u
+                if p.limit != 0.0:
+                    cost += p.limit * r[R.REC_SATURATED]
+                below[i] = below[i] + 1 if ratio < p.threshold else 0
             total += cost
-        term = bad or (tp[T_TERMINATE] != 0.0 and below[i] >= tp[T_HOLD])
-        rewards[i] = -total * tp[T_STEP_WEIGHT]
+        term = bad or (p.terminate != 0.0 and below[i] >= p.hold)
+        rewards[i] = -total * p.step_weight
         terminated[i] = term
-        truncated[i] = (steps[i] >= tp[T_MAX_STEPS]) and not term
+        truncated[i] = (steps[i] >= p.max_steps) and not term
         last = records[i, records.shape[1] - 1]
-        fill_row(i, Y, P, last, impact_energy, impact_speed, energy, diverged, below, tp, rows)
+        fill_row(i, last, d, p, s, out.rows)
 
 
 @jit
-def fill_row(i, Y, P, last, impact_energy, impact_speed, energy, diverged, below, tp, rows):
+def fill_row(i, last, d, p, s, rows):
     """Env i's info row (columns INFO_KEYS, SI units; booleans as 0/1; the state of a
     diverged env reads 0 where it is not finite) from its state and its last tick's record."""
     r = rows[i]
     r[COL_T] = last[R.REC_T]
-    r[COL_E] = energy[i]
-    r[COL_E0] = impact_energy[i]
-    r[COL_RATIO] = energy[i] / impact_energy[i]
-    r[COL_V0] = impact_speed[i]
+    r[COL_E] = s.energy[i]
+    r[COL_E0] = d.impact_energy[i]
+    r[COL_RATIO] = s.energy[i] / d.impact_energy[i]
+    r[COL_V0] = d.impact_speed[i]
     for k in range(4):
-        v = Y[i, k]
+        v = d.Y[i, k]
         r[COL_X1 + k] = v if np.isfinite(v) else 0.0
     r[COL_CONTACT] = 1.0 if r[COL_X1] - r[COL_X2] > 0.0 else 0.0
     r[COL_FC] = last[R.REC_CONTACT_FORCE]
@@ -90,19 +131,25 @@ def fill_row(i, Y, P, last, impact_energy, impact_speed, energy, diverged, below
     r[COL_FA] = last[R.REC_F_APPLIED]
     r[COL_SAT] = last[R.REC_SATURATED]
     r[COL_DET] = last[R.REC_DETECTED]
-    r[COL_DIV] = 1.0 if diverged[i] else 0.0
-    r[COL_CAUGHT] = 1.0 if below[i] >= tp[T_HOLD] else 0.0
+    r[COL_DIV] = 1.0 if s.diverged[i] else 0.0
+    r[COL_CAUGHT] = 1.0 if s.below[i] >= p.hold else 0.0
+
+
+@jit(inline="always")
+def reset_task(s, i, d):
+    """Env i's task state at an episode start (``d``: the drop's start values)."""
+    s.steps[i] = 0
+    s.below[i] = 0
+    s.diverged[i] = False
+    Y, P = d.Y, d.P
+    s.energy[i] = catch_energy_at(Y[i, X1], Y[i, V1], Y[i, X2], P[i, M1], P[i, C], P[i, G])
 
 
 @jit
-def task_reset_rows(idx, records, Y, P, impact_energy, impact_speed, tp, steps, below, diverged, energy,
-                    rows):
-    """Episode start for envs ``idx``: clear the task state and write the first info row
-    (Y and impact_energy are the simulator's reset values, the records are zero)."""
+def task_reset_rows(idx, records, d, p, s, rows):
+    """Episode start for envs ``idx``: reset the task state and write the first info row
+    (d.Y and d.impact_energy are the simulator's reset values, the records are zero)."""
     for m in range(idx.shape[0]):
         i = idx[m]
-        steps[i] = 0
-        below[i] = 0
-        diverged[i] = False
-        energy[i] = catch_energy_at(Y[i, X1], Y[i, V1], Y[i, X2], P[i, M1], P[i, C], P[i, G])
-        fill_row(i, Y, P, records[i, 0], impact_energy, impact_speed, energy, diverged, below, tp, rows)
+        reset_task(s, i, d)
+        fill_row(i, records[i, 0], d, p, s, rows)

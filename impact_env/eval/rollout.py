@@ -40,13 +40,14 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from gymnasium.utils import seeding
 
 from impact_env._jit import jit
 from impact_env.control.observation import OBSERVATIONS, make_layout
-from impact_env.control.policy import CompiledPolicy, act
+from impact_env.control.policy import CompiledPolicy, PolicyArrays, act
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, C, G
 from impact_env.scene import Scene
@@ -110,33 +111,46 @@ def _trace_row(row, Y, records, acc_energy, detected):
         row[i, 9] = last[R.REC_SATURATED]
 
 
+class Failures(NamedTuple):
+    """Per-episode failure marks of the compiled loop."""
+
+    failed: np.ndarray  # bool[N]
+    t: np.ndarray  # float64[N]: s, when
+    code: np.ndarray  # int64[N]: FAIL_ACTION or FAIL_DIVERGED
+
+
 @jit
-def _run_compiled(k0, k1, stride, pi, pf, mem, hold, hw, fe, ob, law, records, acc, consts, settings, failed,
-                  fail_t, fail_code, traces):
-    """Steps k0 + 1 .. k1 of a compiled policy on every env that has not failed."""
-    Y = hw[1][0]
-    P = hw[1][2]
-    obs = ob[7]
+def _run_compiled(k0, k1, stride, policy, memory, p, s, metrics, fails, traces):
+    """Steps k0 + 1 .. k1 of a compiled ``policy`` (PolicyArrays; its ``memory`` rows) on every env
+    of the simulator (SimParams ``p``, SimState ``s``) that has not failed; ``metrics``:
+    (acc, consts, settings) of :class:`~impact_env.sim.metrics.EpisodeMetrics`."""
+    Y = s.hw.plant.y
+    P = p.hw.plant.p
+    obs = s.obs.obs
+    records = s.records
+    acc, consts, settings = metrics.acc, metrics.consts, metrics.settings
+    failed = fails.failed
     period = settings[0]
+    hold = p.hold
     for k in range(k0 + 1, k1 + 1):
         for i in range(obs.shape[0]):
             if failed[i]:
                 continue
-            u = act(pi, pf, obs[i], mem[i])
+            u = act(policy.ints, policy.floats, obs[i], memory[i])
             if not np.isfinite(u):
                 failed[i] = True
-                fail_t[i] = (k - 1) * period
-                fail_code[i] = FAIL_ACTION
+                fails.t[i] = (k - 1) * period
+                fails.code[i] = FAIL_ACTION
                 continue
-            ok = env_step(i, u, hold, hw, fe, ob, law, records)
+            ok = env_step(i, u, p, s)
             for j in range(hold):
                 update(acc[i], records[i, j], consts[i], P[i], settings)
             if not ok:
                 failed[i] = True
-                fail_t[i] = k * period
-                fail_code[i] = FAIL_DIVERGED
+                fails.t[i] = k * period
+                fails.code[i] = FAIL_DIVERGED
         if k % stride == 0:
-            _trace_row(traces[k // stride], Y, records, acc[:, A_ENERGY], fe[6])
+            _trace_row(traces[k // stride], Y, records, acc[:, A_ENERGY], s.fe.detected)
 
 
 def residual_law(policy, scene) -> CompiledPolicy | None:
@@ -204,9 +218,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     trace_t = np.arange(n_steps // stride + 1) * stride * step_s
     traces = np.zeros((len(trace_t), n, len(TRACE_KEYS)))
     _trace_row(traces[0], sim.Y, sim.records, metrics.acc[:, A_ENERGY], sim.detected)
-    failed = np.zeros(n, dtype=bool)
-    fail_t = np.zeros(n)
-    fail_code = np.zeros(n, dtype=np.int64)
+    fails = Failures(np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n, dtype=np.int64))
+    failed, fail_t, fail_code = fails
     failures: list[dict] = []
 
     def fail(rows, t, message):
@@ -229,9 +242,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         while k < n_steps:
             k1 = min(k + chunk, n_steps)
             sim.hw.refill_noise(hold * (k1 - k))  # the whole chunk's noise at once
-            _run_compiled(k, k1, stride, pi, pf, mem, hold, sim._hw_args, sim.fe.fe, sim.fe.ob, sim.law,
-                          sim.records, metrics.acc, metrics.consts, metrics.settings, failed, fail_t,
-                          fail_code, traces)
+            _run_compiled(k, k1, stride, PolicyArrays(pi, pf), mem, sim.params, sim.state, metrics.arrays,
+                          fails, traces)
             if progress is not None:
                 progress(k1 - k)
             k = k1

@@ -3,8 +3,9 @@ scene, and the per-env randomness.
 
 :class:`Hardware` validates, builds the plant's and the effects' per-env arrays (only the stages
 the scene names are switched on), draws every random number from numpy Generators that the
-caller owns, and hands :func:`impact_env.hardware.stage.hardware_tick` its argument groups
-(:meth:`Hardware.args`).  The simulator (:class:`impact_env.sim.simulator.Simulator`) puts the
+caller owns, and hands :func:`impact_env.hardware.stage.hardware_tick` its parameters and state
+(:attr:`Hardware.params`, :attr:`Hardware.state`: named tuples over the arrays below).  The
+simulator (:class:`impact_env.sim.simulator.Simulator`) puts the
 controller's front end after it; a virtual rig uses it alone.
 """
 
@@ -38,7 +39,7 @@ NOISE_BLOCK = 256  # control ticks of noise drawn at once per env (at least; see
 
 class Hardware:
     """N copies of a scene's rig hardware.  ``reset(rngs, mask)`` starts drops; the stage kernel
-    advances them (:meth:`args` gives its argument groups).
+    advances them (:attr:`params` and :attr:`state` are its two arguments).
 
     Arrays over envs (SI): ``Y`` (x1, v1, x2, v2, W_ext, W_diss), ``modes``, ``P`` (plant
     parameters), ``t`` (s since the episode start), ``raw`` (float64[N, 4]: the raw readings),
@@ -125,8 +126,8 @@ class Hardware:
         self._gravity = np.zeros(n)  # each env's gravity on body 1 (a held body 1 has none)
         for i in range(n):
             self._set_env(i, base)
-        self._cfg = (np.int64(self.flags), np.int64(self.method), float(scene.integrator.dt),
-                     float(scene.integrator.rtol), float(self.period))
+        self._cfg = HS.StageConfig(np.int64(self.flags), np.int64(self.method), float(scene.integrator.dt),
+                                   float(scene.integrator.rtol), float(self.period))
 
     # -- arrays from a scene ----------------------------------------------------------------
     def _env_arrays(self, scene: Scene, exact: bool = False) -> dict:
@@ -195,24 +196,15 @@ class Hardware:
         noise comes from it as the episode runs (see :mod:`impact_env.scene.randomize`).
         The raw readings at the start are the true, noise-free values.  Returns the indices."""
         idx = np.arange(self.n) if mask is None else np.nonzero(mask)[0]
+        state = self.state
         for i in idx:
             rng = rngs[i]
             self.rngs[i] = rng
             if self.randomized:  # (a fixed scene's rows were filled once, in __init__)
                 self.drawn[i] = values = self.scene.draw(rng)
                 self._set_env(int(i), self._env_arrays(self.scene.with_draws(values)))
-            self.Y[i] = self.y0[i]
             self.P[i, L.G] = self._gravity[i]  # (after a held episode)
-            self.modes[i] = self.mode0[i]
-            self.EVN[i] = 0
-            self.EV[i] = 0.0
-            self.ST[i] = 0.0  # every effect's state and the delay lines
-            self.H[i] = 0.0  # dopri5's step size
-            self.t[i] = 0.0
-            self.cursor[i] = self.noise_block
-            self.info[i] = 0.0
-            y = self.Y[i]
-            self.raw[i] = (0.0, 0.0, y[L.X2], y[L.X1])
+            HS.reset_env(state, int(i), self.y0[i], self.mode0[i])
         y = self.Y[idx]
         gap = np.maximum(y[:, L.X2] - y[:, L.X1], 0.0)
         self.impact_speed[idx] = np.sqrt(np.maximum(y[:, L.V1] - y[:, L.V2], 0.0) ** 2
@@ -280,17 +272,24 @@ class Hardware:
         # inactive envs were not topped up: check every env again at the next step
         self._refill_in = 0 if active is not None else int(nb - self.cursor.max()) - ticks
 
-    def args(self):
-        """The stage kernel's argument groups ``(cfg, plant, fx, noise, out)``."""
-        return (self._cfg, (self.Y, self.modes, self.P, self.scale, self.H, self.EV, self.EVN, self.t),
-                (self.PR, self.ST, self.param_blocks.offsets, self.state_blocks.offsets),
-                (self.noise, self.cursor), (self.raw, self.info))
+    @property
+    def params(self) -> HS.HardwareParams:
+        """The stage kernel's parameters (views of this batch's arrays)."""
+        fx = HS.EffectParams(self.PR, self.param_blocks.offsets, self.state_blocks.offsets)
+        return HS.HardwareParams(self._cfg, HS.PlantParams(self.P, self.scale), fx)
+
+    @property
+    def state(self) -> HS.HardwareState:
+        """The stage kernel's state (views of this batch's arrays; the noise block is the current
+        one: take it again after :meth:`set_noise_block`)."""
+        return HS.HardwareState(HS.PlantState(self.Y, self.modes, self.H, self.EV, self.EVN, self.t), self.ST,
+                                HS.Noise(self.noise, self.cursor), HS.Readings(self.raw, self.info))
 
     def step(self, commands) -> None:
         """One tick of every env under float64[N] drive commands (what a virtual rig does)."""
         u = np.ascontiguousarray(commands, dtype=np.float64).reshape(self.n)
         self.refill_noise(1)
-        HS.hardware_step(u, *self.args())
+        HS.hardware_step(u, self.params, self.state)
 
     # -- derived readings -----------------------------------------------------------------------
     def catch_energy(self) -> np.ndarray:

@@ -14,11 +14,22 @@ import numba
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.hardware.stage import INFO_STATUS, hardware_tick
+from impact_env.hardware.stage import (
+    INFO_STATUS,
+    EffectParams,
+    HardwareParams,
+    HardwareState,
+    Noise,
+    PlantParams,
+    PlantState,
+    Readings,
+    StageConfig,
+    hardware_tick,
+)
 
 
 @jit(parallel=True)
-def replay_kernel(U, cfg, plant, fx, noise, out, R):
+def replay_kernel(U, p, s, R):
     """R[i, m] (float64[K, n, 4]) = raw readings of env i at tick m under commands U[i] (float64[K, n];
     U[i, n - 1] is not used: its readings would be row n).  Returns int64[K]: the first tick at
     which env i's plant failed (n: never); the rows after it are NaN.  Envs run in parallel
@@ -26,20 +37,34 @@ def replay_kernel(U, cfg, plant, fx, noise, out, R):
     result does not depend on the thread count."""
     K, n = U.shape
     failed = np.full(K, n, dtype=np.int64)
+    # numba's parallel loop takes arrays and scalars, not named tuples: the leaves go in by name
+    # and the tuples are built again inside it
+    c, pp, fx = p.cfg, p.plant, p.effects
+    flags, method, dt, rtol, period = c.flags, c.method, c.dt, c.rtol, c.period
+    P, scale, rows, offsets, state_offsets = pp.p, pp.scale, fx.rows, fx.offsets, fx.state_offsets
+    ps = s.plant
+    y, mode, h, events, n_events, t = ps.y, ps.mode, ps.h, ps.events, ps.n_events, ps.t
+    st, z, cursor, raw, info = s.effects, s.noise.z, s.noise.cursor, s.out.raw, s.out.info
     for i in numba.prange(K):
-        failed[i] = _replay_env(i, U, cfg, plant, fx, noise, out, R)
+        hp = HardwareParams(StageConfig(flags, method, dt, rtol, period), PlantParams(P, scale),
+                            EffectParams(rows, offsets, state_offsets))
+        hs = HardwareState(PlantState(y, mode, h, events, n_events, t), st, Noise(z, cursor),
+                           Readings(raw, info))
+        failed[i] = _replay_env(i, U, hp, hs, R)
     return failed
 
 
 @jit
-def _replay_env(i, U, cfg, plant, fx, noise, out, R):
+def _replay_env(i, U, p, s, R):
+    """Env i of :func:`replay_kernel` (``p``, ``s``: the stage's HardwareParams and HardwareState)."""
     n = U.shape[1]
-    raw, info = out
-    Y = plant[0]
+    raw = s.out.raw
+    info = s.out.info
+    Y = s.plant.y
     for c in range(raw.shape[1]):
         R[i, 0, c] = raw[i, c]
     for m in range(n - 1):
-        hardware_tick(i, U[i, m], cfg, plant, fx, noise, out)
+        hardware_tick(i, U[i, m], p, s)
         ok = info[i, INFO_STATUS] == 0.0
         for k in range(4):
             if not np.isfinite(Y[i, k]):
@@ -69,5 +94,5 @@ def replay(hw, commands: np.ndarray, held: bool = False) -> tuple[np.ndarray, np
     hw.noise_block = max(n, 1)
     hw.cursor[:] = 0
     R = np.empty((K, n, hw.raw.shape[1]))
-    failed = replay_kernel(U, *hw.args(), R)
+    failed = replay_kernel(U, hw.params, hw.state, R)
     return R, failed

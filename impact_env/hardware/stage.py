@@ -12,26 +12,27 @@ contact detector, the observation frame, the policy) is controller code on the r
 :mod:`impact_env.control`.  The simulator runs this stage and the controller's front end one
 after the other; a virtual rig runs this stage alone.
 
-Arguments are grouped by role, as tuples (numba takes them as one argument each):
+Arguments, as gymnax has them: what is fixed for an episode apart from what changes every tick,
+each a :class:`typing.NamedTuple` read by field name (numba compiles them as tuples):
 
-* ``cfg`` = (flags, method code, dt s, rtol, period s): the scene's constants;
-* ``plant`` = (Y float64[N, 6], modes int64[N], P float64[N, 7], scale float64[N, 6],
-  H float64[N, 1], EV float64[N, E, 6], EVN int64[N, 1], t float64[N]): the plant's state,
-  mode, parameters, dopri5's error scale and step size, event log, and time since the episode
-  start (:mod:`impact_env.plant.layout`);
-* ``fx`` = (PR float64[N, Q], ST float64[N, S], po int64[7], so int64[5]): every effect's
-  per-env parameters and state, packed (:mod:`impact_env.hardware.blocks`; block order
+* :class:`HardwareParams` = (``cfg``: :class:`StageConfig`, the scene's constants; ``plant``:
+  :class:`PlantParams`, per-env plant parameters and dopri5's error scale; ``effects``:
+  :class:`EffectParams`, every effect's per-env parameters, packed, with the offsets of the
+  parameter and state blocks, :mod:`impact_env.hardware.blocks`, block order
   :data:`PARAM_BLOCKS`, :data:`STATE_BLOCKS`);
-* ``noise`` = (z float64[N, B, 4], cursor int64[N]): pre-drawn standard normals; with the
-  sensors on, env i reads ``z[i, cursor[i]]`` and advances its cursor;
-* ``out`` = (raw float64[N, 4], info float64[N, N_INFO]): the raw readings (accelerometer
-  m/s^2, force transducer N, potentiometer m, body-1 sensor m) and the info columns below.
+* :class:`HardwareState` = (``plant``: :class:`PlantState`, the plant's state, mode, step size,
+  event log and time; ``effects``: float64[N, S], every effect's state, packed; ``noise``:
+  :class:`Noise`, pre-drawn standard normals and each env's cursor; ``out``:
+  :class:`Readings`, the raw readings and the info columns below).  :func:`reset_env` is the
+  one place that starts it at an episode start.
 
 Nothing is allocated: one-element views of ``info`` serve as the delay line's and the
 integrator's in/out cells, and the sensor stages work in place.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -42,7 +43,7 @@ from impact_env.effects.sensors import read_packed, sense_packed
 from impact_env.effects.shaker import shaker_packed
 from impact_env.plant.dynamics import contact_force
 from impact_env.plant.integrators import advance
-from impact_env.plant.layout import C2, K2, M2, B, C
+from impact_env.plant.layout import C2, K2, M2, X1, X2, B, C
 
 # flag bits (the hardware's effects)
 F_ACT_DELAY = 1
@@ -69,22 +70,106 @@ INFO_STATUS = 6  # the plant kernel's status (0 ok)
 N_INFO = 7
 
 
+class StageConfig(NamedTuple):
+    """The scene's constants of the stage."""
+
+    flags: np.int64  # the F_* bits of the effects that are on
+    method: np.int64  # the integrator (impact_env.hardware.arrays.METHOD_CODES)
+    dt: float  # s, the fixed-step methods' step
+    rtol: float  # dopri5's relative tolerance
+    period: float  # s, the control period
+
+
+class PlantParams(NamedTuple):
+    """Per-env plant parameters (fixed for an episode)."""
+
+    p: np.ndarray  # float64[N, N_PARAM] (impact_env.plant.layout)
+    scale: np.ndarray  # float64[N, 6]: dopri5's error scale
+
+
+class PlantState(NamedTuple):
+    """Per-env plant state (changes every tick)."""
+
+    y: np.ndarray  # float64[N, N_STATE]: x1, v1, x2, v2, W_ext, W_diss
+    mode: np.ndarray  # int64[N]: the contact mode
+    h: np.ndarray  # float64[N, 1]: dopri5's step size
+    events: np.ndarray  # float64[N, E, N_EVENT_COLS]: the event log
+    n_events: np.ndarray  # int64[N, 1]
+    t: np.ndarray  # float64[N]: s since the episode start
+
+
+class EffectParams(NamedTuple):
+    """Every effect's per-env parameters, packed, and the block tables."""
+
+    rows: np.ndarray  # float64[N, Q]: blocks PARAM_BLOCKS
+    offsets: np.ndarray  # int64[len(PARAM_BLOCKS) + 1]
+    state_offsets: np.ndarray  # int64[len(STATE_BLOCKS) + 1]: blocks STATE_BLOCKS of HardwareState.effects
+
+
+class Noise(NamedTuple):
+    """Pre-drawn standard normals: with the sensors on, env i reads ``z[i, cursor[i]]`` and
+    advances its cursor."""
+
+    z: np.ndarray  # float64[N, B, 4]
+    cursor: np.ndarray  # int64[N]
+
+
+class Readings(NamedTuple):
+    """What a tick leaves: the raw readings (accelerometer m/s^2, force transducer N,
+    potentiometer m, body-1 sensor m) and the info columns."""
+
+    raw: np.ndarray  # float64[N, 4]
+    info: np.ndarray  # float64[N, N_INFO]
+
+
+class HardwareParams(NamedTuple):
+    cfg: StageConfig
+    plant: PlantParams
+    effects: EffectParams
+
+
+class HardwareState(NamedTuple):
+    plant: PlantState
+    effects: np.ndarray  # float64[N, S]: every effect's state, packed (EffectParams.state_offsets)
+    noise: Noise
+    out: Readings
+
+
+def reset_env(s: HardwareState, i: int, y0: np.ndarray, mode0: int) -> None:
+    """Start env i's episode: the plant at ``y0`` in ``mode0``, every effect's state and delay
+    line zero, no events, a fresh noise block wanted, the raw readings the true, noise-free
+    values at rest (0 m/s^2, 0 N, x2, x1)."""
+    ps = s.plant
+    ps.y[i] = y0
+    ps.mode[i] = mode0
+    ps.n_events[i] = 0
+    ps.events[i] = 0.0
+    ps.h[i] = 0.0
+    ps.t[i] = 0.0
+    s.effects[i] = 0.0
+    s.noise.cursor[i] = s.noise.z.shape[1]
+    s.out.info[i] = 0.0
+    y = ps.y[i]
+    s.out.raw[i] = (0.0, 0.0, y[X2], y[X1])
+
+
 @jit(inline="always")
-def hardware_tick(i, u, cfg, plant, fx, noise, out):
+def hardware_tick(i, u, p, s):
     """Advance env i by one control period under the drive command u (1 = the scene's
-    command scale newtons upwards, before the drawn amplifier gain)."""
-    flags, method, dt, rtol, period = cfg
-    Y, modes, P, scale, H, EV, EVN, t = plant
-    PR, ST, po, so = fx
-    z, cursor = noise
-    raw, info = out
-    pr = PR[i]
-    st = ST[i]
-    inf = info[i]
+    command scale newtons upwards, before the drawn amplifier gain); ``p``: HardwareParams,
+    ``s``: HardwareState."""
+    cfg = p.cfg
+    flags = cfg.flags
+    ps = s.plant
+    po = p.effects.offsets
+    so = p.effects.state_offsets
+    pr = p.effects.rows[i]
+    st = s.effects[i]
+    inf = s.out.info[i]
     f = u * pr[po[PB_DRIVE]]
     inf[INFO_F_DEMAND] = f
-    y = Y[i]
-    p = P[i]
+    y = ps.y[i]
+    pp = p.plant.p[i]
     if flags & F_ACT_DELAY:
         cell = inf[INFO_F_APPLIED:INFO_F_APPLIED + 1]
         cell[0] = f
@@ -102,20 +187,22 @@ def hardware_tick(i, u, cfg, plant, fx, noise, out):
     inf[INFO_SATURATED] = 1.0 if sat else 0.0
     peak = inf[INFO_PEAK_FORCE:INFO_PEAK_FORCE + 1]
     peak[0] = 0.0
-    status, mode = advance(y, modes[i], f, 0.0, period, p, method, dt, rtol, scale[i], H[i], EV[i], EVN[i],
-                           peak)
-    modes[i] = mode
+    status, mode = advance(y, ps.mode[i], f, 0.0, cfg.period, pp, cfg.method, cfg.dt, cfg.rtol,
+                           p.plant.scale[i], ps.h[i], ps.events[i], ps.n_events[i], peak)
+    ps.mode[i] = mode
     inf[INFO_STATUS] = status
     # the true contact force and body 2's acceleration at the end of the period, by the same
     # expressions as plant.dynamics.deriv (one contact-force evaluation, not two)
-    phi, _fe = contact_force(y[0] - y[2], y[1] - y[3], mode, p[C], p[B])
-    a2 = (phi - f - p[K2] * y[2] - p[C2] * y[3]) * (1.0 / p[M2])
+    phi, _fe = contact_force(y[0] - y[2], y[1] - y[3], mode, pp[C], pp[B])
+    a2 = (phi - f - pp[K2] * y[2] - pp[C2] * y[3]) * (1.0 / pp[M2])
     inf[INFO_CONTACT_FORCE] = phi
     inf[INFO_A2] = a2
-    r = raw[i]
+    r = s.out.raw[i]
     sens = pr[po[PB_SENSORS]:po[PB_SENSORS + 1]]
     read_packed(y[0], y[2], a2, phi, sens, r)
     if flags & F_SENSORS:  # each sensor stage reads channel j before writing it: in place
+        z = s.noise.z
+        cursor = s.noise.cursor
         c = cursor[i]
         if c >= z.shape[1]:
             raise IndexError("noise block used up: the Hardware refills it before each step")
@@ -124,22 +211,22 @@ def hardware_tick(i, u, cfg, plant, fx, noise, out):
     if flags & F_SENS_DELAY:
         delay_packed(pr[po[PB_SENS_DELAY]:po[PB_SENS_DELAY + 1]], st[so[SB_SENS_DELAY]:so[SB_SENS_DELAY + 1]],
                      r, r)
-    t[i] += period
+    ps.t[i] += cfg.period
 
 
 @jit
-def hardware_step(u, cfg, plant, fx, noise, out):
+def hardware_step(u, p, s):
     """One tick of every env i under the drive command u[i] (float64[N])."""
     for i in range(u.shape[0]):
-        hardware_tick(i, u[i], cfg, plant, fx, noise, out)
+        hardware_tick(i, u[i], p, s)
 
 
 @jit(inline="always")
-def state_ok(i, plant, info) -> bool:
+def state_ok(i, s) -> bool:
     """False once env i's plant kernel failed or its state left the finite range."""
-    if info[i, INFO_STATUS] != 0.0:
+    if s.out.info[i, INFO_STATUS] != 0.0:
         return False
-    y = plant[0][i]
+    y = s.plant.y[i]
     for k in range(4):
         if not np.isfinite(y[k]):
             return False

@@ -24,18 +24,38 @@ bitwise.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.control.front_end import FrontEnd, condition, observation_buffers, observe, start_rows
+from impact_env.control.front_end import (
+    FrontEnd,
+    FrontEndParams,
+    FrontEndState,
+    ObsParams,
+    ObsState,
+    condition,
+    observe,
+)
 from impact_env.control.observation import ObservationLayout
-from impact_env.control.policy import CompiledPolicy, act
+from impact_env.control.policy import CompiledPolicy, PolicyArrays, act
+from impact_env.control.residual import (
+    ResidualParams,
+    ResidualState,
+    add_residual,
+    observe_residual,
+    residual_arrays,
+    start_residual,
+)
 from impact_env.effects.sensors import POT
 from impact_env.hardware.stage import (
     INFO_CONTACT_FORCE,
     INFO_F_APPLIED,
     INFO_F_DEMAND,
     INFO_SATURATED,
+    HardwareParams,
+    HardwareState,
     hardware_tick,
     state_ok,
 )
@@ -54,64 +74,100 @@ MODIFIED = SF.FORCE_ZEROED | SF.CLAMP_PEAK | SF.CLAMP_RMS | SF.LATCHING
 NAN4 = np.full(4, np.nan)
 
 
+class ControllerParams(NamedTuple):
+    """What a controller keeps fixed for an episode."""
+
+    onboard: bool  # the policy acts here (else the host's commands)
+    hold: int  # ticks per policy step
+    scale: float  # N per unit command (the scene's command scale)
+    rate: float  # Hz, the control rate
+    fe: FrontEndParams
+    obs: ObsParams  # the policy's observation layout
+    law: ResidualParams
+    policy: PolicyArrays  # the onboard policy (a placeholder in host mode)
+    safety: np.ndarray  # float64[SF.N_PARAMS]: the safety layer's parameters
+
+
+class ControllerState(NamedTuple):
+    """What a controller changes every tick."""
+
+    fe: FrontEndState
+    obs: ObsState
+    law: ResidualState
+    memory: np.ndarray  # float64[1, m]: the onboard policy's memory
+    safety: np.ndarray  # the safety layer's state (impact_env.rig.safety)
+    own: np.ndarray  # float64[N_STATE]: columns ST_*
+    log: LG.LogBuffers
+
+
+class HostCommand(NamedTuple):
+    """The host's command in use at a tick (host mode)."""
+
+    action: float  # the command in [-1, 1]
+    step: int  # the policy step it is for (-1: none yet)
+    id: int  # its serial number
+
+
 @jit
-def observe_tick(m, raw, hold, fe, ob, law, truth, st):
+def observe_tick(m, raw, truth, p, s):
     """Step 1 of tick m (module doc); ``truth``: x1, v1, x2, v2 for privileged entries (NaN on
     a physical rig).  Returns True at a step boundary."""
     r = raw.reshape((1, raw.shape[0]))
+    hold = p.hold
     if m > 0:
-        condition(0, r, fe)
-        if law[0]:
-            observe(0, False, 0.0, truth, fe, law[4])
+        condition(0, r, p.fe, s.fe)
+        if p.law.on:
+            observe_residual(0, truth, s.fe, p.law, s.law)
         if m % hold == 0:
-            observe(0, True, st[ST_ACTION], truth, fe, ob)
+            observe(0, True, s.own[ST_ACTION], truth, s.fe, p.obs, s.obs)
     return m % hold == 0
 
 
 @jit
-def act_tick(m, onboard, host_action, cmd_step, cmd_id, ticks_armed, hold, fe, ob, law, pol, safety, scale,
-             raw, st, rows, obs_log, count):
+def act_tick(m, ticks_armed, cmd, p, s, raw):
     """Step 2 of tick m: returns (command for the driver, force demanded after safety N, status
     bits, log row index or -1 when the log is full).
 
-    Host mode: ``host_action`` is the command the target chose for this tick (the newest
+    Host mode: ``cmd`` (HostCommand) is the command the target chose for this tick (the newest
     accepted one for the current step, :class:`impact_env.rig.episode.Episode`), for policy step
-    ``cmd_step`` (-1: none yet: 0 N, NO_COMMAND), ``cmd_id`` its serial number (the tick it
-    first acts at is kept in ``st[ST_CMD_FIRST]``, the id in ``st[ST_CMD_ID]``: so the caller
+    ``cmd.step`` (-1: none yet: 0 N, NO_COMMAND), ``cmd.id`` its serial number (the tick it
+    first acts at is kept in ``own[ST_CMD_FIRST]``, the id in ``own[ST_CMD_ID]``: so the caller
     sees whether it acted).  It acts from this tick on, whatever tick of its step that is; the
-    watchdog's age counts from its step's first tick (``m - cmd_step H``), so a command is held
+    watchdog's age counts from its step's first tick (``m - cmd.step H``), so a command is held
     for the rest of its step, repeated through the next one (REPEATED) and zeroed after."""
-    if onboard:
+    st = s.own
+    hold = p.hold
+    if p.onboard:
         if m % hold == 0:
-            st[ST_ACTION] = act(pol[0], pol[1], ob[7][0], pol[2][0])
+            st[ST_ACTION] = act(p.policy.ints, p.policy.floats, s.obs.obs[0], s.memory[0])
         age = 0
         log_age = 0
         log_step = m // hold
-    elif cmd_step < 0:
+    elif cmd.step < 0:
         st[ST_ACTION] = 0.0
         age = -1
         log_age = -1
         log_step = -1
     else:
-        if st[ST_CMD_ID] != cmd_id:
-            st[ST_CMD_ID] = cmd_id
+        if st[ST_CMD_ID] != cmd.id:
+            st[ST_CMD_ID] = cmd.id
             st[ST_CMD_FIRST] = m
-        st[ST_ACTION] = host_action
-        age = m - cmd_step * hold
+        st[ST_ACTION] = cmd.action
+        age = m - cmd.step * hold
         log_age = m - int(st[ST_CMD_FIRST])
-        log_step = cmd_step
+        log_step = cmd.step
     u = st[ST_ACTION]
-    if law[0]:
-        u = u + act(law[1], law[2], law[4][7][0], law[3][0])
-        u = -1.0 if u < -1.0 else (1.0 if u > 1.0 else u)
-    f, status = safety_step(u, age, ticks_armed, raw[POT], safety[0], safety[1])
-    cmd = f / scale if status & MODIFIED else u
-    st[ST_COMMAND] = cmd
-    i = LG.claim_row(rows, count)
+    if p.law.on:
+        u = add_residual(u, 0, p.law, s.law)
+    f, status = safety_step(u, age, ticks_armed, raw[POT], p.safety, s.safety)
+    out = f / p.scale if status & MODIFIED else u
+    st[ST_COMMAND] = out
+    rows = s.log.rows
+    i = LG.claim_row(rows, s.log.count)
     if i >= 0:
         row = rows[i]
         row[LG.TICK] = m
-        row[LG.T_S] = m / safety[2]
+        row[LG.T_S] = m / p.rate
         row[LG.ACCEL] = raw[0]
         row[LG.FORCE] = raw[1]
         row[LG.POT] = raw[2]
@@ -120,13 +176,13 @@ def act_tick(m, onboard, host_action, cmd_step, cmd_id, ticks_armed, hold, fe, o
         row[LG.COMMAND_AGE] = log_age
         row[LG.STATUS] = status
         row[LG.STEP] = m // hold
-        row[LG.DETECTED] = fe[6][0]
+        row[LG.DETECTED] = s.fe.detected[0]
         row[LG.COMMAND_STEP] = log_step
         row[LG.SKIPPED] = 0
-        obs = ob[7][0]
+        obs = s.obs.obs[0]
         for j in range(obs.shape[0]):
-            obs_log[i, j] = obs[j]
-    return cmd, f, status, i
+            s.log.obs[i, j] = obs[j]
+    return out, f, status, i
 
 
 @jit
@@ -151,7 +207,8 @@ class Controller:
     """One target's controller for one episode at a time: the front end of ``layout`` on the
     driver's scene, an onboard ``policy`` (or the host's commands), an optional ``residual`` law,
     the safety layer and the tick log.  :meth:`start` at the release, then per tick
-    :meth:`observe` and :meth:`act`."""
+    :meth:`observe` and :meth:`act`.  :attr:`params` and :attr:`state` are the compiled tick's
+    arguments."""
 
     def __init__(self, scene, layout: ObservationLayout, hold_ticks: int, horizon_ticks: int, mode: str,
                  policy: CompiledPolicy | None = None, residual: CompiledPolicy | None = None,
@@ -173,21 +230,23 @@ class Controller:
             if policy is None:
                 raise ValueError("onboard mode needs a policy")
             pi, pf, m = policy.arrays()
-            self.pol = (pi, pf, np.zeros((1, m)))
+            pol, memory = PolicyArrays(pi, pf), np.zeros((1, m))
         else:
-            self.pol = (np.zeros(1, np.int64), np.zeros(1), np.zeros((1, 1)))
+            pol, memory = PolicyArrays(np.zeros(1, np.int64), np.zeros(1)), np.zeros((1, 1))
         self.residual = residual
-        if residual is not None:
-            pi, pf, m = residual.arrays()
-            self.law = (True, pi, pf, np.zeros((1, m)), observation_buffers(residual.layout, 1))
-        else:
-            self.law = (False, np.zeros(1, np.int64), np.zeros(1), np.zeros((1, 1)),
-                        observation_buffers(layout, 1))
+        law_p, law_s = residual_arrays(residual, layout, 1)
         self.safety_cfg = safety or SafetyConfig()
-        params = safety_params(self.safety_cfg, self.scale, self.rate, self.hold, mode)
-        self.safety = (params, SF.make_safety_state(params), self.rate)
-        self.st = np.zeros(N_STATE)
+        sp = safety_params(self.safety_cfg, self.scale, self.rate, self.hold, mode)
         self.log = LG.TickLog(int(horizon_ticks) + 1, layout.size, extra=extra_columns)
+        self.params = ControllerParams(mode == "onboard", self.hold, self.scale, self.rate, self.fe.params,
+                                       self.fe.obs_params, law_p, pol, sp)
+        self.state = ControllerState(self.fe.state, self.fe.obs_state, law_s, memory,
+                                     SF.make_safety_state(sp), np.zeros(N_STATE), self.log.buffers)
+
+    @property
+    def st(self) -> np.ndarray:
+        """The controller's own state (columns ST_*)."""
+        return self.state.own
 
     def start(self, raw: np.ndarray, truth: np.ndarray | None) -> None:
         """The release: the front end (and a residual law's frame) start from these readings,
@@ -195,68 +254,150 @@ class Controller:
         (its RMS window, the coil's heat, is kept)."""
         t = NAN4 if truth is None else np.asarray(truth, dtype=np.float64).reshape(1, 4)
         t = t.reshape(1, 4)
-        self.fe.start(np.zeros(1, np.int64), np.asarray(raw, dtype=np.float64).reshape(1, -1), t)
-        if self.law[0]:
-            self.law[3][:] = 0.0
-            start_rows(np.zeros(1, np.int64), t, self.fe.fe, self.law[4])
-        self.pol[2][:] = 0.0
-        self.st[:] = 0.0
-        self.st[ST_CMD_ID] = -1.0
-        SF.new_episode(self.safety[1])
+        idx = np.zeros(1, np.int64)
+        self.fe.start(idx, np.asarray(raw, dtype=np.float64).reshape(1, -1), t)
+        s = self.state
+        if self.params.law.on:
+            start_residual(idx, t, s.fe, self.params.law, s.law)
+        s.memory[:] = 0.0
+        s.own[:] = 0.0
+        s.own[ST_CMD_ID] = -1.0
+        SF.new_episode(s.safety)
         self.log.reset()
 
     def observe(self, m: int, raw: np.ndarray, truth: np.ndarray | None) -> bool:
         t = NAN4 if truth is None else truth
-        return bool(observe_tick(m, raw, self.hold, self.fe.fe, self.fe.ob, self.law, t, self.st))
+        return bool(observe_tick(m, raw, t, self.params, self.state))
 
     def act(self, m: int, host_action: float, cmd_step: int, cmd_id: int, ticks_armed: int, raw: np.ndarray):
-        log = self.log
-        return act_tick(m, self.mode == "onboard", float(host_action), int(cmd_step), int(cmd_id),
-                        int(ticks_armed), self.hold,
-                        self.fe.fe, self.fe.ob, self.law, self.pol, self.safety, self.scale, raw, self.st,
-                        log.rows, log.obs, log.count)
+        return act_tick(m, int(ticks_armed), HostCommand(float(host_action), int(cmd_step), int(cmd_id)),
+                        self.params, self.state, raw)
 
     @property
     def obs(self) -> np.ndarray:
         """The observation row of the last step (float32[size])."""
         return self.fe.obs[0]
 
+    def counters(self) -> dict[str, int]:
+        """The safety layer's per-episode counters (plain ints)."""
+        return {k: int(self.state.safety[i]) for k, i in SF.COUNTERS.items()}
+
     def drain(self, ticks: int) -> None:
         """Idle time between episodes: the RMS window cools by ``ticks`` zero ticks."""
-        SF.drain_window(self.safety[1], self.safety[0], int(ticks))
+        SF.drain_window(self.state.safety, self.params.safety, int(ticks))
 
 
 # -- the virtual rig's compiled tick loop ---------------------------------------------------------
 END_NONE, END_FIRST_COMMAND, END_SAFETY, END_FAULT, END_STOP = range(5)
-# the truth columns a virtual rig logs (their indices in ``tc``, :data:`impact_env.rig.target.TRUTH_COLUMNS`)
-(TC_COMMAND, TC_X1, TC_V1, TC_X2, TC_V2, TC_FD, TC_FA, TC_SAT, TC_FC, TC_STATUS, TC_E0, TC_V0,
- TC_TT) = range(13)
+# the tick accounts (int64[3], kept across calls): ticks skipped not yet reported on a row, the
+# episode's skipped ticks, rows flagged OVERRUN
+ACCT_UNREPORTED, ACCT_SKIPPED, ACCT_OVERRUNS = range(3)
+N_ACCT = 3
+
+
+class TruthColumns(NamedTuple):
+    """Where a virtual rig's log row keeps each true value (column indices; names and units in
+    :data:`TRUTH_LOG`)."""
+
+    command: int
+    x1: int
+    v1: int
+    x2: int
+    v2: int
+    force_demand: int
+    force_applied: int
+    saturated: int
+    contact_force: int
+    status: int
+    impact_energy: int
+    impact_speed: int
+    t_touch: int
+
+
+# each field of TruthColumns: (its log column, unit)
+TRUTH_LOG = {"command": ("command", ""), "x1": ("true_x1_m", "m"), "v1": ("true_v1_mps", "m/s"),
+             "x2": ("true_x2_m", "m"), "v2": ("true_v2_mps", "m/s"),
+             "force_demand": ("hw_force_demand_N", "N"), "force_applied": ("hw_force_applied_N", "N"),
+             "saturated": ("hw_saturated", ""),
+             "contact_force": ("hw_contact_force_N", "N"), "status": ("hw_status", ""),
+             "impact_energy": ("impact_energy_J", "J"), "impact_speed": ("impact_speed_mps", "m/s"),
+             "t_touch": ("t_touch_s", "s")}
+assert tuple(TRUTH_LOG) == TruthColumns._fields
+# a virtual rig's extra log columns: the truth the compiled tick writes, then the time Python adds
+TRUTH_COLUMNS = tuple(col for col, _ in TRUTH_LOG.values()) + ("true_t_s",)
+TRUTH_UNITS = {col: unit for col, unit in TRUTH_LOG.values() if unit} | {"true_t_s": "s"}
+
+
+def truth_columns(log: LG.TickLog) -> TruthColumns:
+    """The indices of the truth columns in ``log``."""
+    return TruthColumns(*(log.col(TRUTH_LOG[f][0]) for f in TruthColumns._fields))
+
+
+class DropConstants(NamedTuple):
+    """The drop's constants a virtual rig logs on every row."""
+
+    impact_energy: float  # J
+    impact_speed: float  # m/s
+    t_touch: float  # s
+
+
+class VirtualRig(NamedTuple):
+    """The virtual rig the compiled loop drives: its hardware and what it logs of the truth."""
+
+    hw: HardwareParams
+    state: HardwareState
+    truth: TruthColumns
+    drop: DropConstants
+    records: np.ndarray  # float64[horizon + 1, N_REC]: the true record of every tick that passed
+
+
+class Pace(NamedTuple):
+    realtime: bool  # pace the ticks in real time (else lock-step: as fast as they run)
+    t0: float  # cycles: the deadline of tick 0
+    cycles_per_tick: float
+    ns_per_cycle: float
+
+
+class Pacing(NamedTuple):
+    pace: Pace
+    lateness: np.ndarray  # float64[horizon + 1]: ns each tick started late
+    stop: np.ndarray  # int64[1]: set by another thread, ends the loop before the next tick
+    acct: np.ndarray  # int64[N_ACCT]: columns ACCT_*
 
 
 @jit(nogil=True)
-def run_ticks(m0, m1, hold, onboard, host_action, cmd_step, cmd_id, fe, ob, law, pol, safety, scale, st, rows,
-              obs_log, count, hw, tc, tvals, pace, lateness, stop, acct, trec):
+def run_ticks(m0, m1, cmd, p, s, rig, pacing):
     """Ticks m0 .. m1 - 1 of a virtual rig, each: (real time: spin to its deadline) act -> safety
     -> the hardware stage -> the log row with the truth -> the front end on the new readings.
-    The front end has seen tick m0's readings already.  ``pace`` = (real time, deadline of tick 0
-    in cycles, cycles per tick, ns per cycle).  A tick that starts one period or more late lets
+    The front end has seen tick m0's readings already.  ``cmd``: HostCommand; ``p``, ``s``: the
+    controller's ControllerParams and ControllerState; ``rig``: VirtualRig; ``pacing``: Pacing.
+    A tick that starts one period or more late lets
     the ticks that cannot run on time pass (:func:`skip_allowed`: in host mode never a step's first
     tick): the DAC holds the last command sent (the hardware stage runs them with it), the controller
     and the safety layer do not run and they get no log row; the front end then conditions the
-    readings after them, and the next row carries OVERRUN and their number in ``skipped_ticks``.
-    ``acct`` (int64[3], kept across calls): ticks skipped not yet reported on a row, the
-    episode's skipped ticks, rows flagged OVERRUN.  ``trec`` (float64[horizon + 1, N_REC]): the
+    readings after them, and the next row carries OVERRUN and their number in ``skipped_ticks``
+    (the accounts ``pacing.acct``, kept across calls).  ``rig.records``: the
     virtual rig's true record of every tick that passed, run or skipped
-    (:mod:`impact_env.sim.records`).  ``stop[0]`` set (by another thread: the GIL is released
-    here) ends the loop before the next tick.  Returns (the next tick, OR of the status bits, an
-    end code: END_NONE, or why the episode must end)."""
-    cfg, plant, fx, noise, out = hw
-    raw_all = out[0]
-    info = out[1]
-    Y = plant[0]
-    realtime = pace[0] != 0.0
-    t0c, cpt, nspc = pace[1], pace[2], pace[3]
-    rate = safety[2]
+    (:mod:`impact_env.sim.records`).  ``pacing.stop[0]`` set (by another thread: the GIL is
+    released here) ends the loop before the next tick.  Returns (the next tick, OR of the status
+    bits, an end code: END_NONE, or why the episode must end)."""
+    hw_p, hw_s = rig.hw, rig.state
+    raw_all = hw_s.out.raw
+    info = hw_s.out.info
+    Y = hw_s.plant.y
+    trec = rig.records
+    tc = rig.truth
+    drop = rig.drop
+    pace = pacing.pace
+    acct = pacing.acct
+    stop = pacing.stop
+    realtime = pace.realtime
+    t0c, cpt, nspc = pace.t0, pace.cycles_per_tick, pace.ns_per_cycle
+    rate = p.rate
+    hold = p.hold
+    st = s.own
+    rows = s.log.rows
+    detected = s.fe.detected
     status_or = 0
     m = m0
     while m < m1:
@@ -269,66 +410,65 @@ def run_ticks(m0, m1, hold, onboard, host_action, cmd_step, cmd_id, fe, ob, law,
             while now < dl:
                 now = float(cycles())
             late = now - dl
-            k = skip_allowed(m, int(late // cpt), hold, m1, onboard) if late >= cpt else 0
+            k = skip_allowed(m, int(late // cpt), hold, m1, p.onboard) if late >= cpt else 0
             if k > 0:
                 for _ in range(k):
-                    hardware_tick(0, st[ST_COMMAND], cfg, plant, fx, noise, out)
-                    _true_record(trec, m, Y, info, st[ST_COMMAND], fe[6][0], state_ok(0, plant, info), rate)
+                    hardware_tick(0, st[ST_COMMAND], hw_p, hw_s)
+                    _true_record(trec, m, Y, info, st[ST_COMMAND], detected[0], state_ok(0, hw_s), rate)
                     m += 1
-                acct[0] += k
-                acct[1] += k
-                observe_tick(m, raw_all[0], hold, fe, ob, law, Y[0, :4], st)
+                acct[ACCT_UNREPORTED] += k
+                acct[ACCT_SKIPPED] += k
+                observe_tick(m, raw_all[0], Y[0, :4], p, s)
                 if m >= m1:
                     break
                 late = now - (t0c + m * cpt)
-            lateness[m] = late * nspc
+            pacing.lateness[m] = late * nspc
         w0 = cycles()
         raw = raw_all[0]
-        cmd, f, status, row = act_tick(m, onboard, host_action, cmd_step, cmd_id, m, hold, fe, ob, law, pol,
-                                       safety, scale, raw, st, rows, obs_log, count)
+        out, f, status, row = act_tick(m, m, cmd, p, s, raw)
         if realtime and late >= cpt:
             status |= SF.OVERRUN
-        if acct[0] > 0:
+        if acct[ACCT_UNREPORTED] > 0:
             status |= SF.OVERRUN
-        hardware_tick(0, cmd, cfg, plant, fx, noise, out)
-        ok = state_ok(0, plant, info)
+        hardware_tick(0, out, hw_p, hw_s)
+        ok = state_ok(0, hw_s)
         status_or |= status
         if row >= 0:
             r = rows[row]
             r[LG.FORCE_APPLIED] = info[0, INFO_F_APPLIED]
             r[LG.STATUS] = status
             r[LG.LATENESS_NS] = late * nspc
-            r[LG.SKIPPED] = acct[0]
-            r[tc[TC_COMMAND]] = cmd
-            r[tc[TC_X1]] = Y[0, 0]
-            r[tc[TC_V1]] = Y[0, 1]
-            r[tc[TC_X2]] = Y[0, 2]
-            r[tc[TC_V2]] = Y[0, 3]
-            r[tc[TC_FD]] = info[0, INFO_F_DEMAND]
-            r[tc[TC_FA]] = info[0, INFO_F_APPLIED]
-            r[tc[TC_SAT]] = info[0, INFO_SATURATED]
-            r[tc[TC_FC]] = info[0, INFO_CONTACT_FORCE]
-            r[tc[TC_STATUS]] = 0.0 if ok else 1.0
-            r[tc[TC_E0]] = tvals[0]
-            r[tc[TC_V0]] = tvals[1]
-            r[tc[TC_TT]] = tvals[2]
+            r[LG.SKIPPED] = acct[ACCT_UNREPORTED]
+            r[tc.command] = out
+            r[tc.x1] = Y[0, 0]
+            r[tc.v1] = Y[0, 1]
+            r[tc.x2] = Y[0, 2]
+            r[tc.v2] = Y[0, 3]
+            r[tc.force_demand] = info[0, INFO_F_DEMAND]
+            r[tc.force_applied] = info[0, INFO_F_APPLIED]
+            r[tc.saturated] = info[0, INFO_SATURATED]
+            r[tc.contact_force] = info[0, INFO_CONTACT_FORCE]
+            r[tc.status] = 0.0 if ok else 1.0
+            r[tc.impact_energy] = drop.impact_energy
+            r[tc.impact_speed] = drop.impact_speed
+            r[tc.t_touch] = drop.t_touch
         if status & SF.OVERRUN:
-            acct[2] += 1
-        acct[0] = 0
+            acct[ACCT_OVERRUNS] += 1
+        acct[ACCT_UNREPORTED] = 0
         mt = m
         m += 1
         if status & SF.FIRST_COMMAND_TIMEOUT:
-            _true_record(trec, mt, Y, info, cmd, fe[6][0], ok, rate)
+            _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
             return m, status_or, END_FIRST_COMMAND
         if status & SF.LATCHING:
-            _true_record(trec, mt, Y, info, cmd, fe[6][0], ok, rate)
+            _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
             return m, status_or, END_SAFETY
         if not ok:
-            _true_record(trec, mt, Y, info, cmd, fe[6][0], ok, rate)
+            _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
             return m, status_or, END_FAULT
-        observe_tick(m, raw_all[0], hold, fe, ob, law, Y[0, :4], st)
+        observe_tick(m, raw_all[0], Y[0, :4], p, s)
         # a tick's detector bit is the one of the readings it produced
-        _true_record(trec, mt, Y, info, cmd, fe[6][0], ok, rate)
+        _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
         if row >= 0:
             rows[row, LG.COMPUTE_NS] = (cycles() - w0) * nspc
     return m, status_or, END_NONE

@@ -159,7 +159,7 @@ class VirtualRig(RigDriver):
         self._u[0] = command
         for _ in range(int(ticks)):
             self.hw.refill_noise(1)
-            HS.hardware_step(self._u, *self.hw.args())
+            HS.hardware_step(self._u, self.hw.params, self.hw.state)
         if not self.hw.diverged()[0]:
             return float(self.hw.info[0, HS.INFO_F_APPLIED])
         self._fault = "the virtual rig's simulation diverged"

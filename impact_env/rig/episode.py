@@ -34,12 +34,6 @@ from impact_env.rig.clock import TickClock
 from impact_env.rig.cycles import ns_per_cycle
 from impact_env.sim import records as R
 
-TRUTH_COLUMNS = ("command", "true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps", "hw_force_demand_N",
-                 "hw_force_applied_N", "hw_saturated", "hw_contact_force_N", "hw_status", "impact_energy_J",
-                 "impact_speed_mps", "t_touch_s", "true_t_s")
-TRUTH_UNITS = {"true_x1_m": "m", "true_v1_mps": "m/s", "true_x2_m": "m", "true_v2_mps": "m/s",
-               "hw_force_demand_N": "N", "hw_force_applied_N": "N", "hw_contact_force_N": "N",
-               "impact_energy_J": "J", "impact_speed_mps": "m/s", "t_touch_s": "s", "true_t_s": "s"}
 _END = {CT.END_FIRST_COMMAND: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END_SAFETY: P.EndReason.SAFETY,
         CT.END_FAULT: P.EndReason.FAULT, CT.END_STOP: P.EndReason.DISARMED}
 _NS_PER_CYCLE: list[float] = []
@@ -69,7 +63,7 @@ class Episode:
         self.n_cmd = 0
         self.cmd_counts = {"commands_accepted": 0, "commands_acted": 0, "commands_superseded": 0,
                            "commands_expired": 0, "commands_unused_at_end": 0}
-        self.acct = np.zeros(3, dtype=np.int64)  # see controller.run_ticks
+        self.acct = np.zeros(CT.N_ACCT, dtype=np.int64)  # see controller.run_ticks
         self.last_heard = time.perf_counter()
         self.status_or = 0
         self.m = 0
@@ -86,12 +80,12 @@ class Episode:
     def overruns(self) -> int:
         """Rows flagged OVERRUN this episode (a tick that started a period or more late, or
         after skipped ticks)."""
-        return int(self.acct[2])
+        return int(self.acct[CT.ACCT_OVERRUNS])
 
     @property
     def skipped_ticks(self) -> int:
         """Ticks of this episode that did not run (overruns), each reported on the next row."""
-        return int(self.acct[1])
+        return int(self.acct[CT.ACCT_SKIPPED])
 
     # -- messages ----------------------------------------------------------------------------------------
     def take(self, msg: P.Message) -> str | None:
@@ -226,15 +220,15 @@ class Episode:
     def final_row(self, raw: np.ndarray) -> None:
         """The row of tick ``horizon``: its readings and observation, no command (and the ticks
         skipped just before it, if any, flagged on it)."""
-        skipped = int(self.acct[0])
+        skipped = int(self.acct[CT.ACCT_UNREPORTED])
         self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
                             accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
                             action=math.nan, step=self.m // self.hold,
                             contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1, command_step=-1,
                             skipped_ticks=skipped, status=SF.OVERRUN if skipped else 0)
         if skipped:
-            self.acct[0] = 0
-            self.acct[2] += 1
+            self.acct[CT.ACCT_UNREPORTED] = 0
+            self.acct[CT.ACCT_OVERRUNS] += 1
 
     # -- the virtual rig's compiled loop ---------------------------------------------------------------
     def run_compiled(self) -> P.EndReason:
@@ -243,23 +237,21 @@ class Episode:
         if not _NS_PER_CYCLE:
             _NS_PER_CYCLE.append(ns_per_cycle())
         nspc = _NS_PER_CYCLE[0]
-        c = self.cols
-        tc = np.array([c[name] for name in TRUTH_COLUMNS[:13]], dtype=np.int64)
-        tvals = np.array([hw.impact_energy[0], hw.impact_speed[0], hw.t_touch[0]])
-        t_col = c["true_t_s"]
+        t_col = self.cols["true_t_s"]
         cpt = 1e9 / self.t.rate / nspc
         hw.set_noise_block(max(self.horizon + 1, hw.noise_block))
         hw.refill_noise(self.horizon)  # the whole episode's noise now: no draws between chunks
-        hw_args = hw.args()
-        lat = self.lateness
+        rig = CT.VirtualRig(hw.params, hw.state, CT.truth_columns(ctl.log),
+                            CT.DropConstants(float(hw.impact_energy[0]), float(hw.impact_speed[0]),
+                                             float(hw.t_touch[0])), self.trec)
         ctl.start(drv.read().copy(), drv.truth())
         # tick 0 due in a period
-        pace = np.array([0.0 if self.lockstep else 1.0, float(_now()) + cpt, cpt, nspc])
         stop = np.zeros(1, dtype=np.int64)
+        pacing = CT.Pacing(CT.Pace(not self.lockstep, float(_now()) + cpt, cpt, nspc), self.lateness, stop,
+                           self.acct)
         ticks = lambda m0, m1: CT.run_ticks(  # noqa: E731
-            m0, m1, self.hold, not self.host, self.cmd_value, self.cmd_step, self.cmd_id, ctl.fe.fe,
-            ctl.fe.ob, ctl.law, ctl.pol, ctl.safety, ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs,
-            ctl.log.count, hw_args, tc, tvals, pace, lat, stop, self.acct, self.trec)
+            m0, m1, CT.HostCommand(float(self.cmd_value), int(self.cmd_step), int(self.cmd_id)), ctl.params,
+            ctl.state, rig, pacing)
         if not self.host:  # onboard: the whole episode in one compiled call; a thread hears the host
             why = self._listen_while(lambda: ticks(0, self.horizon), stop)
             self._after(t_col)
@@ -354,9 +346,9 @@ class Episode:
             if self.t._stop.is_set():
                 return P.EndReason.DISARMED
             u, _f, status, row = ctl.act(self.m, self.cmd_value, self.cmd_step, self.cmd_id, self.m, raw)
-            if late_flag or self.acct[0] > 0:
+            if late_flag or self.acct[CT.ACCT_UNREPORTED] > 0:
                 status |= SF.OVERRUN
-                self.acct[2] += 1
+                self.acct[CT.ACCT_OVERRUNS] += 1
             f_applied = drv.apply(u)
             self.status_or |= status
             if row >= 0:
@@ -364,12 +356,12 @@ class Episode:
                 r[LG.FORCE_APPLIED] = f_applied
                 r[LG.STATUS] = status
                 r[LG.LATENESS_NS] = self.lateness[self.m]
-                r[LG.SKIPPED] = self.acct[0]
+                r[LG.SKIPPED] = self.acct[CT.ACCT_UNREPORTED]
                 r[c["command"]] = u
                 if virtual:
                     self._truth_row(r)
                 r[LG.COMPUTE_NS] = time.perf_counter_ns() - t_work
-            self.acct[0] = 0
+            self.acct[CT.ACCT_UNREPORTED] = 0
             if drv.error():
                 return P.EndReason.FAULT
             if status & SF.FIRST_COMMAND_TIMEOUT:
@@ -385,8 +377,8 @@ class Episode:
                 if k:  # the ticks that cannot run on time pass with the command held (the DAC holds it)
                     drv.apply(u, k)
                     self.m += k
-                    self.acct[0] += k
-                    self.acct[1] += k
+                    self.acct[CT.ACCT_UNREPORTED] += k
+                    self.acct[CT.ACCT_SKIPPED] += k
                 # a step's first tick is never skipped: it runs late, and the clock follows
                 clock.next_index = self.m + 1
                 late_ns = tick.start_ns - clock.deadline(self.m)

@@ -43,7 +43,7 @@ from gymnasium import spaces
 from impact_env.control.observation import OBS_LIMIT, make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.env import task_kernel as TK
-from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig
+from impact_env.env.task import TaskConfig, new_task_out, new_task_state, task_params
 from impact_env.hardware.batch import Hardware
 from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
@@ -298,29 +298,16 @@ class RigEnv(gym.Env):
         self.hold = int(hold_ticks)
         self._first_ticks = int(math.ceil(first_command_timeout_s * scene.control_rate - 1e-9))
         h = self.config.horizon if horizon is not None else scene.episode.horizon
-        self.max_steps = max(1, int(round(h / (period * self.hold))))
-        self.tp = np.zeros(TK.N_TASK)
-        self.tp[TK.T_STEP_WEIGHT] = period / REWARD_TIME_UNIT
-        self.tp[TK.T_THRESHOLD] = catch_threshold
-        self.tp[TK.T_HOLD] = max(1, int(np.ceil(catch_hold / period - 1e-9)))
-        self.tp[TK.T_TERMINATE] = 1.0 if terminate_on_catch else 0.0
-        self.tp[TK.T_EFFORT] = effort_weight
-        self.tp[TK.T_LIMIT] = limit_weight
-        self.tp[TK.T_CMD] = scene.effects.command_scale
-        self.tp[TK.T_MAX_STEPS] = self.max_steps
+        self.tp = task_params(self.config, period, self.hold, h, scene.effects.command_scale)
+        self.max_steps = int(self.tp.max_steps)
         self._hw = Hardware(scene, 1) if self.client.virtual else None
-        self._a = {k: np.zeros(1, dt)
-                   for k, dt in (("steps", np.int64), ("below", np.int64), ("energy", float))}
-        self._div = np.zeros(1, dtype=bool)
-        self._rows = np.zeros((1, TK.N_COL))
-        self._rew, self._te, self._tr = np.zeros(1), np.zeros(1, bool), np.zeros(1, bool)
+        self._state = new_task_state(1)
+        self._out = new_task_out(1)
+        self._rows = self._out.rows
         self._n = 0
         self._running = False
         if self._hw is not None:
             self._warm_up()
-
-    def _task_state(self):
-        return (self.tp, self._a["steps"], self._a["below"], self._div, self._a["energy"])
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -328,7 +315,7 @@ class RigEnv(gym.Env):
         if self._running:
             self.client.disarm()
         if self._hw is not None:  # before ARM: nothing of the host's may stall a running episode
-            self._start_drop(ep_seed, self._task_state(), self._rows)
+            self._start_drop(ep_seed, self._state, self._rows)
         c = self.client
         c.arm("host", ep_seed, self.max_steps * self.hold, self.config.observation, self.config.history,
               self.hold, self.residual, first_command_timeout_ticks=self._first_ticks,
@@ -342,26 +329,28 @@ class RigEnv(gym.Env):
                                f"{P.EndReason(obs.reason).name}")
         return np.asarray(obs.obs, dtype=np.float32), self._info(obs)
 
-    def _start_drop(self, ep_seed: int, state: tuple, rows: np.ndarray) -> None:
+    def _start_drop(self, ep_seed: int, state: TK.TaskState, rows: np.ndarray) -> None:
         """The drop's constants, as the virtual rig draws them from the seed, and the task's rows."""
         from gymnasium.utils import seeding
 
-        self._hw.reset([seeding.np_random(ep_seed)[0]])
-        rows[0, TK.COL_TTOUCH] = self._hw.t_touch[0]
-        TK.task_reset_rows(np.zeros(1, np.int64), np.zeros((1, 1, R.N_REC)), self._hw.Y, self._hw.P,
-                           self._hw.impact_energy, self._hw.impact_speed, *state, rows)
+        hw = self._hw
+        hw.reset([seeding.np_random(ep_seed)[0]])
+        rows[0, TK.COL_TTOUCH] = hw.t_touch[0]
+        TK.task_reset_rows(np.zeros(1, np.int64), np.zeros((1, 1, R.N_REC)),
+                           TK.Drop(hw.Y, hw.P, hw.impact_energy, hw.impact_speed), self.tp, state, rows)
 
-    def _task_step(self, recs: np.ndarray, state: tuple, out: tuple) -> None:
-        TK.task_step(np.ones(1, bool), recs, recs[:, -1, R.REC_X1:R.REC_V2 + 1].copy(), self._hw.P,
-                     self._hw.impact_energy, self._hw.impact_speed, *state, *out)
+    def _task_step(self, recs: np.ndarray, state: TK.TaskState, out: TK.TaskOut) -> None:
+        hw = self._hw
+        drop = TK.Drop(recs[:, -1, R.REC_X1:R.REC_V2 + 1].copy(), hw.P, hw.impact_energy, hw.impact_speed)
+        TK.task_step(np.ones(1, bool), recs, drop, self.tp, state, out)
 
     def _warm_up(self) -> None:
         """Compile (or load) the reward kernels now, on copies, so that no episode waits for them:
         a host that stalls mid-episode loses ticks of control to the watchdog."""
-        state = tuple(a.copy() for a in self._task_state())
-        rows, out = self._rows.copy(), (self._rew.copy(), self._te.copy(), self._tr.copy())
-        self._start_drop(0, state, rows)
-        self._task_step(np.zeros((1, self.hold, R.N_REC)), state, (*out, rows))
+        state = TK.TaskState(*(a.copy() for a in self._state))
+        out = TK.TaskOut(*(a.copy() for a in self._out))
+        self._start_drop(0, state, out.rows)
+        self._task_step(np.zeros((1, self.hold, R.N_REC)), state, out)
 
     def _wait_obs(self, step: int, resend) -> P.Observation | P.EpisodeEnd:
         c = self.client
@@ -403,8 +392,9 @@ class RigEnv(gym.Env):
         tel = obs.telemetry
         if self._hw is not None and len(tel) > N_TEL:
             recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, R.N_REC)
-            self._task_step(recs, self._task_state(), (self._rew, self._te, self._tr, self._rows))
-            reward, term, trunc = float(self._rew[0]), bool(self._te[0]), bool(self._tr[0])
+            self._task_step(recs, self._state, self._out)
+            reward, term, trunc = float(self._out.rewards[0]), bool(self._out.terminated[0]), \
+                bool(self._out.truncated[0])
             extra["reward_available"] = True
         else:  # a physical rig, or a step whose true records are incomplete (ticks the target skipped)
             reward, term, trunc = 0.0, False, False

@@ -59,6 +59,7 @@ import platform
 import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -107,6 +108,14 @@ def versions() -> dict[str, str]:
     return out
 
 
+class LogBuffers(NamedTuple):
+    """A TickLog's arrays, as the compiled tick takes them."""
+
+    rows: np.ndarray  # float64[capacity, columns]
+    obs: np.ndarray  # float64[capacity, obs size]
+    count: np.ndarray  # int64[1]: rows filled
+
+
 @jit(inline="always")
 def claim_row(rows, count):
     """Index of the next free row of a TickLog (and counts it), or -1 when the log is full."""
@@ -142,6 +151,10 @@ class TickLog:
         self.rows = np.zeros((int(capacity), len(names)))
         self.obs = np.zeros((int(capacity), int(obs_size)))
         self.count = np.zeros(1, dtype=np.int64)
+
+    @property
+    def buffers(self) -> LogBuffers:
+        return LogBuffers(self.rows, self.obs, self.count)
 
     @property
     def capacity(self) -> int:

@@ -51,9 +51,9 @@ from impact_env.rig import excitation as EX
 from impact_env.rig import log as LG
 from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
-from impact_env.rig.controller import Controller
+from impact_env.rig.controller import TRUTH_COLUMNS, TRUTH_UNITS, Controller
 from impact_env.rig.driver import RigDriver, VirtualRig
-from impact_env.rig.episode import TRUTH_COLUMNS, TRUTH_UNITS, Episode
+from impact_env.rig.episode import Episode
 from impact_env.rig.safety import SafetyConfig
 from impact_env.rig.transport import Endpoint, Link, UploadAssembler, chunk_reply
 
@@ -136,21 +136,20 @@ class Target:
         ctl.drain(1)
         ctl.log.record(tick=0)
         if isinstance(self.driver, VirtualRig):  # its compiled loop, on a throwaway drop
-            from impact_env.rig.controller import run_ticks
+            from impact_env.rig import controller as CT
             from impact_env.rig.episode import _NS_PER_CYCLE, ns_per_cycle
+            from impact_env.sim.records import N_REC
 
             _NS_PER_CYCLE[:] = [ns_per_cycle()]
             hw = self.driver.hw
             hw.refill_noise(1)
-            tc = np.array([ctl.log.col(k) for k in TRUTH_COLUMNS[:13]], dtype=np.int64)
-            from impact_env.sim.records import N_REC
-
+            rig = CT.VirtualRig(hw.params, hw.state, CT.truth_columns(ctl.log),
+                                CT.DropConstants(0.0, 0.0, 0.0), np.zeros((4, N_REC)))
+            pacing = CT.Pacing(CT.Pace(False, 0.0, 1.0, 1.0), np.zeros(4), np.zeros(1, dtype=np.int64),
+                               np.zeros(CT.N_ACCT, dtype=np.int64))
             for onboard in (True, False):
-                run_ticks(1, 2, 1, onboard, 0.0, 0, 1, ctl.fe.fe, ctl.fe.ob, ctl.law, ctl.pol, ctl.safety,
-                          ctl.scale, ctl.st, ctl.log.rows, ctl.log.obs, ctl.log.count, hw.args(), tc,
-                          np.zeros(3),
-                          np.array([0.0, 0, 1, 1]), np.zeros(4), np.zeros(1, dtype=np.int64),
-                          np.zeros(3, dtype=np.int64), np.zeros((4, N_REC)))
+                CT.run_ticks(1, 2, CT.HostCommand(0.0, 0, 1), ctl.params._replace(onboard=onboard), ctl.state,
+                             rig, pacing)
 
     @property
     def address(self) -> str:
@@ -323,7 +322,7 @@ class Target:
                              observation=observation)
             if a.mode == "host" and a.first_command_timeout_ticks > 0:
                 # the host's own allowance for its first command (the force is 0 N until then)
-                ctl.safety[0][SF.P_FIRST] = a.first_command_timeout_ticks
+                ctl.params.safety[SF.P_FIRST] = a.first_command_timeout_ticks
         except _Refused as exc:
             self._error(msg, exc.code, str(exc))
             return
@@ -407,7 +406,7 @@ class Target:
         counts = {k: v - ep.datagrams0.get(k, 0) for k, v in now.items()}
         counters = {**{f"dropped_{k}": v for k, v in counts.items() if k not in ("accepted", "received")},
                     "datagrams_accepted": counts["accepted"], "datagrams_received": counts["received"],
-                    **{k: int(ctl.safety[1][i]) for k, i in SF.COUNTERS.items()}, "overruns": ep.overruns,
+                    **ctl.counters(), "overruns": ep.overruns,
                     "skipped_ticks": ep.skipped_ticks,
                     **(ep.command_counters() if ep.host else {})}
         if ep.host:

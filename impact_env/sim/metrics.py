@@ -32,6 +32,7 @@ Definitions (time ``t = k T`` of tick k, T the control period; ``t_touch`` the f
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -112,6 +113,14 @@ def update_batch(active, records, consts, P, settings, acc):
                 update(acc[i], records[i, k], consts[i], P[i], settings)
 
 
+class MetricArrays(NamedTuple):
+    """The accumulators' arrays, as the compiled loops take them."""
+
+    acc: np.ndarray  # float64[N, N_ACC]
+    consts: np.ndarray  # float64[N, 3]: columns K_*
+    settings: np.ndarray  # float64[6]: S_*
+
+
 class EpisodeMetrics:
     """Accumulators of N episodes (see the module doc for the metrics).  ``start(t_touch, v0, e0,
     contact0)`` at the episode start, then :func:`update` per tick (or :meth:`step` per simulator
@@ -139,6 +148,10 @@ class EpisodeMetrics:
     def step(self, records, P, active=None) -> None:
         active = self._all if active is None else active
         update_batch(active, records, self.consts, P, self.settings, self.acc)
+
+    @property
+    def arrays(self) -> MetricArrays:
+        return MetricArrays(self.acc, self.consts, self.settings)
 
     @property
     def ratio(self) -> np.ndarray:

@@ -15,13 +15,14 @@ from __future__ import annotations
 import numpy as np
 
 from impact_env._jit import bound_call
-from impact_env.control.front_end import FrontEnd, observation_buffers, start_rows
+from impact_env.control.front_end import FrontEnd
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.control.policy import CompiledPolicy
+from impact_env.control.residual import residual_arrays, start_residual
 from impact_env.hardware.batch import NOISE_BLOCK, Hardware
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.records import N_REC
-from impact_env.sim.step import sim_step
+from impact_env.sim.step import SimParams, SimState, sim_step
 
 
 def check_hold_ticks(hold_ticks) -> int:
@@ -61,7 +62,6 @@ class Simulator:
         self.fe = FrontEnd(scene, self.layout, self.n)
         self.records = np.zeros((self.n, self.hold, N_REC))
         self._all = np.ones(self.n, dtype=bool)
-        self._hw_args = hw.args()
         self._step = None  # sim_step bound to this simulator's argument types (first step)
         self.residual = residual
         if residual is not None:
@@ -69,12 +69,11 @@ class Simulator:
                 raise ValueError(f"residual: {residual.name!r} must be a classic law (history 1), evaluated "
                                  "every tick; a network cannot be the base of a residual policy")
             residual.check_scene(scene)
-            pi, pf, m = residual.arrays()
-            self.law = (True, pi, pf, np.zeros((self.n, m)), observation_buffers(residual.layout, self.n))
-        else:
-            # no law: arrays of the same types, so that one compiled step serves both cases
-            self.law = (False, np.zeros(1, np.int64), np.zeros(1), np.zeros((self.n, 1)),
-                        observation_buffers(self.layout, 1))
+        law_p, law_s = residual_arrays(residual, self.layout, self.n)
+        fe = self.fe
+        #: the compiled step's parameters and state (named tuples over the arrays of hw and fe)
+        self.params = SimParams(self.hold, hw.params, fe.params, fe.obs_params, law_p)
+        self.state = SimState(hw.state, fe.state, fe.obs_state, law_s, self.records)
 
     # -- episodes ------------------------------------------------------------------------------
     def reset(self, rngs, mask=None) -> np.ndarray:
@@ -82,8 +81,8 @@ class Simulator:
         idx = self.hw.reset(rngs, mask)
         self.fe.start(idx, self.hw.raw, self.hw.Y)
         if self.residual is not None:  # the law's memory and first frame, from the same readings
-            self.law[3][idx] = 0.0
-            start_rows(np.asarray(idx, dtype=np.int64), self.hw.Y, self.fe.fe, self.law[4])
+            start_residual(np.asarray(idx, dtype=np.int64), self.hw.Y, self.fe.state, self.params.law,
+                           self.state.law)
         self.records[idx] = 0.0
         return idx
 
@@ -97,7 +96,7 @@ class Simulator:
         a = actions if own else np.array(actions, dtype=np.float64).reshape(n)
         act = self._all if active is None else np.array(active, dtype=bool).reshape(n)
         self.hw.refill_noise(self.hold, None if active is None else act)
-        args = (a, act, self.hold, self._hw_args, self.fe.fe, self.fe.ob, self.law, self.records)
+        args = (a, act, self.params, self.state)
         if self._step is None:  # its argument types are fixed from here on: float64[::1], bool[::1]
             self._step = bound_call(sim_step, args)
         else:

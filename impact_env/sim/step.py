@@ -4,56 +4,75 @@ failed, the observation.  One call per step for the whole batch.
 
 The order inside a tick is the rig's: the command for the tick is the policy's held action,
 plus, with a residual law, that law's command from the readings of the tick before (its own
-observation frame, rebuilt every tick), clipped to [-1, 1]; the hardware
-(:func:`impact_env.hardware.stage.hardware_tick`) produces the raw readings; the controller's
-front end (:func:`impact_env.control.front_end.condition`) filters them and runs the detector.
-At the end of the step the front end writes the policy's observation
+observation frame, rebuilt every tick), clipped to [-1, 1] (:mod:`impact_env.control.residual`);
+the hardware (:func:`impact_env.hardware.stage.hardware_tick`) produces the raw readings; the
+controller's front end (:func:`impact_env.control.front_end.condition`) filters them and runs the
+detector.  At the end of the step the front end writes the policy's observation
 (:func:`~impact_env.control.front_end.observe`).  Every tick leaves a record
 (:mod:`impact_env.sim.records`).
 
-``law`` = (on, pi, pf, mem float64[N, m], ob): the residual law's packed policy
-(:func:`impact_env.control.policy.act`), memory and observation buffers; ``on`` false: none.
+Arguments: :class:`SimParams` and :class:`SimState`, each the named groups of the stages above.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+import numpy as np
+
 from impact_env._jit import jit
-from impact_env.control.front_end import condition, observe
-from impact_env.control.policy import act
+from impact_env.control.front_end import FrontEndParams, FrontEndState, ObsParams, ObsState, condition, observe
+from impact_env.control.residual import ResidualParams, ResidualState, add_residual, observe_residual
 from impact_env.hardware.stage import (
     INFO_CONTACT_FORCE,
     INFO_F_APPLIED,
     INFO_F_DEMAND,
     INFO_SATURATED,
+    HardwareParams,
+    HardwareState,
     hardware_tick,
     state_ok,
 )
 from impact_env.sim import records as R
 
 
+class SimParams(NamedTuple):
+    hold: int  # control periods per policy step
+    hw: HardwareParams
+    fe: FrontEndParams
+    obs: ObsParams  # the policy's observation layout
+    law: ResidualParams
+
+
+class SimState(NamedTuple):
+    hw: HardwareState
+    fe: FrontEndState
+    obs: ObsState  # the policy's observation buffers
+    law: ResidualState
+    records: np.ndarray  # float64[N, hold, N_REC]: the last step's per-tick records
+
+
 @jit(inline="always")
-def env_step(i, a, hold, hw, fe, ob, law, records):
-    """Env i: ``hold`` ticks under the action ``a`` (and the residual law), then its
+def env_step(i, a, p, s):
+    """Env i: ``p.hold`` ticks under the action ``a`` (and the residual law), then its
     observation.  Returns False if the plant failed (its observation is then left as it was)."""
-    cfg, plant, fx, noise, out = hw
-    Y = plant[0]
-    t = plant[7]
-    info = out[1]
-    detected = fe[6]
-    law_on, law_pi, law_pf, law_mem, law_ob = law
+    Y = s.hw.plant.y
+    t = s.hw.plant.t
+    info = s.hw.out.info
+    detected = s.fe.detected
+    law_on = p.law.on
     ok = True
     u = a
-    for k in range(hold):
+    for k in range(p.hold):
         if ok:
             if law_on:
-                u = a + act(law_pi, law_pf, law_ob[7][i], law_mem[i])
-                u = -1.0 if u < -1.0 else (1.0 if u > 1.0 else u)
-            hardware_tick(i, u, cfg, plant, fx, noise, out)
-            condition(i, out[0], fe)
-            ok = state_ok(i, plant, info)
+                u = add_residual(a, i, p.law, s.law)
+            hardware_tick(i, u, p.hw, s.hw)
+            condition(i, s.hw.out.raw, p.fe, s.fe)
+            ok = state_ok(i, s.hw)
             if ok and law_on:
-                observe(i, False, 0.0, Y[i], fe, law_ob)
-        r = records[i, k]
+                observe_residual(i, Y[i], s.fe, p.law, s.law)
+        r = s.records[i, k]
         r[R.REC_T] = t[i]
         for j in range(4):
             r[R.REC_X1 + j] = Y[i, j]
@@ -65,13 +84,13 @@ def env_step(i, a, hold, hw, fe, ob, law, records):
         r[R.REC_DETECTED] = detected[i]
         r[R.REC_STATUS] = 0.0 if ok else 1.0
     if ok:
-        observe(i, True, a, Y[i], fe, ob)
+        observe(i, True, a, Y[i], s.fe, p.obs, s.obs)
     return ok
 
 
 @jit
-def sim_step(actions, active, hold, hw, fe, ob, law, records):
+def sim_step(actions, active, p, s):
     """:func:`env_step` for every env i with ``active[i]`` under ``actions[i]``."""
     for i in range(actions.shape[0]):
         if active[i]:
-            env_step(i, actions[i], hold, hw, fe, ob, law, records)
+            env_step(i, actions[i], p, s)
