@@ -279,10 +279,11 @@ def read_conf(path: str | Path, env_id: str = ENV_ID) -> dict:
 
 
 def _env_signature() -> set[str]:
+    from impact_env.env.task import TASK_OPTIONS
     from impact_env.env.vector import ImpactCatchVectorEnv
 
     params = set(inspect.signature(ImpactCatchVectorEnv.__init__).parameters)
-    return params - {"self", "num_envs", "autoreset_mode", "render_mode"}
+    return (params - {"self", "num_envs", "autoreset_mode", "render_mode", "task"}) | set(TASK_OPTIONS)
 
 
 def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = None,

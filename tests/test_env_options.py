@@ -76,3 +76,24 @@ def test_residual_is_validated():
         ImpactCatchEnv(RIG, residual="")
     with pytest.raises(ValueError, match="unknown policy"):
         ImpactCatchEnv(RIG, residual="pd-penetrashun")
+
+
+def test_every_env_takes_the_task_options_from_one_definition():
+    """ImpactCatch-v0, the vector env and ImpactCatchRig-v0 take the task's options as
+    TaskConfig's fields, listed nowhere else: a new option is one edit (TaskConfig) plus its test.
+    An unknown option is refused naming the valid ones."""
+    import inspect
+
+    from impact_env.env.task import TASK_OPTIONS, TaskConfig
+    from impact_env.env.vector import ImpactCatchVectorEnv
+    from impact_env.rig.host import RigEnv
+
+    assert TASK_OPTIONS == tuple(inspect.signature(TaskConfig).parameters)
+    for cls in (ImpactCatchEnv, ImpactCatchVectorEnv, RigEnv):
+        params = inspect.signature(cls.__init__).parameters
+        assert not set(params) & set(TASK_OPTIONS), cls
+        assert params["task"].kind is inspect.Parameter.VAR_KEYWORD, cls
+    with pytest.raises(TypeError, match="'catch_treshold'.*catch_threshold"):
+        ImpactCatchEnv(RIG, catch_treshold=0.1)
+    with pytest.raises(TypeError, match="'catch_treshold'"):
+        RigEnv("udp://127.0.0.1:9", catch_treshold=0.1)  # refused before any datagram is sent

@@ -78,6 +78,9 @@ class ImpactCatchEnv(gym.Env):
     history=1, hold_ticks=1, residual=None, horizon=None, catch_threshold=0.01, catch_hold=0.01,
     terminate_on_catch=True, effort_weight=0.0, limit_weight=0.0, action_bounds="clip",
     render_mode=None)``.
+    The keywords other than ``scene``, ``overrides`` and ``render_mode`` are the task's options,
+    the fields of :class:`~impact_env.env.task.TaskConfig` (one definition, shared with the
+    vector env and ``ImpactCatchRig-v0``).
     ``scene``: a preset name, a :class:`~impact_env.scene.Scene`, a dict or a TOML path;
     ``overrides``: dotted keys (``{"plant.m1": 0.05}``).  ``hold_ticks``: control periods per
     policy step (the action is held, rewards summed, the observation is the last period's; an
@@ -98,17 +101,8 @@ class ImpactCatchEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 30}
 
     def __init__(self, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
-                 observation: str = "sensors", history: int = 1, hold_ticks: int = 1,
-                 residual: str | None = None,
-                 horizon: float | None = None,
-                 catch_threshold: float = 0.01, catch_hold: float = 0.01, terminate_on_catch: bool = True,
-                 effort_weight: float = 0.0, limit_weight: float = 0.0, action_bounds: str = "clip",
-                 render_mode: str | None = None):
-        cfg = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks, residual=residual,
-                         horizon=horizon,
-                         catch_threshold=catch_threshold, catch_hold=catch_hold,
-                         terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
-                         limit_weight=limit_weight, action_bounds=action_bounds)
+                 render_mode: str | None = None, **task: Any):
+        cfg = TaskConfig.from_options(task)  # the task's options: impact_env.env.task.TaskConfig
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r}; expected one of "
                              f"{self.metadata['render_modes']} or None")

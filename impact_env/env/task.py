@@ -25,7 +25,7 @@ last finite one and the reward is ``-1 * T / t_unit``); ``truncated`` at the hor
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -74,6 +74,64 @@ class TaskConfig:
                               "'pd-penetration' or 'compiled:FILE', or None")
         if not isinstance(self.terminate_on_catch, bool):
             raise ConfigError(f"terminate_on_catch must be true or false, got {self.terminate_on_catch!r}")
+
+    @classmethod
+    def from_options(cls, options: dict) -> TaskConfig:
+        """The config of the keyword options an env was given (TypeError naming an unknown one)."""
+        unknown = sorted(set(options) - set(TASK_OPTIONS))
+        if unknown:
+            raise TypeError(f"unknown task option(s) {', '.join(map(repr, unknown))}; the catch task takes "
+                            f"{', '.join(TASK_OPTIONS)}")
+        return cls(**options)
+
+    def horizon_on(self, scene: Scene) -> float:
+        """The episode's horizon (s): this config's, or the scene's ``episode.horizon``."""
+        return self.horizon if self.horizon is not None else scene.episode.horizon
+
+    def params(self, scene: Scene) -> TK.TaskParams:
+        """The kernels' task parameters of this config on ``scene``."""
+        return task_params(self, scene.control_period, self.hold_ticks, self.horizon_on(scene),
+                           scene.effects.command_scale)
+
+
+#: the catch task's options, the keyword arguments every env of it takes (ImpactCatch-v0, the vector
+#: env, ImpactCatchRig-v0): TaskConfig's fields
+TASK_OPTIONS = tuple(f.name for f in fields(TaskConfig))
+
+
+def check_actions(actions, n: int, action_bounds: str, command_scale: float,
+                  scratch: np.ndarray | None = None) -> np.ndarray:
+    """float64[n] actions from what the caller gave; NaN or a wrong shape raises ValueError;
+    values outside [-1, 1] are clipped (``action_bounds = "clip"``) or raise.  ``scratch``
+    (float64[1]) holds a single env's action without numpy reductions."""
+    if n == 1 and scratch is not None and type(actions) is np.ndarray and actions.shape == (1,):
+        x = float(actions[0])  # the common single-env case, without numpy reductions
+        if -1.0 <= x <= 1.0:
+            scratch[0] = x
+            return scratch
+    a = np.asarray(actions, dtype=np.float64)
+    if a.size != n or (a.ndim > 1 and a.shape[-1] != 1) or a.ndim > 2:
+        raise ValueError(f"action has shape {np.shape(actions)}; expected ({n}, 1) "
+                         f"(or (1,) for a single env): one shaker command in [-1, 1] per env")
+    a = a.reshape(n)
+    lo, hi = a.min(), a.max()
+    if not (-1.0 <= lo and hi <= 1.0):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"action contains NaN or inf: {a[~np.isfinite(a)][:4]}; expected values in "
+                             f"[-1, 1] (1 = {command_scale:g} N upwards)")
+        if action_bounds == "raise":
+            raise ValueError(f"action {a[np.abs(a) > 1][:4]} outside [-1, 1] "
+                             f"(1 = {command_scale:g} N upwards; action_bounds = 'raise')")
+        a = np.clip(a, -1.0, 1.0)
+    return a
+
+
+def info_from_row(row: np.ndarray) -> dict:
+    """One env's info as Python scalars (and ``state`` as float64[4]) from its info row."""
+    vals = row.tolist()
+    out = {key: (vals[j] > 0.5 if flag else vals[j]) for key, j, flag in _INFO_SCALARS}
+    out["state"] = np.array(vals[TK.COL_X1:TK.COL_V2 + 1])
+    return out
 
 
 def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float,
@@ -124,9 +182,9 @@ class CatchTask:
         self.n = n = sim.n
         self.period = scene.control_period
         self.hold_ticks = sim.hold
-        self.horizon = config.horizon if config.horizon is not None else scene.episode.horizon
+        self.horizon = config.horizon_on(scene)
         self.command_scale = scene.effects.command_scale
-        self.params = task_params(config, self.period, self.hold_ticks, self.horizon, self.command_scale)
+        self.params = config.params(scene)
         self.max_steps = int(self.params.max_steps)
         self.hold_steps = int(self.params.hold)
         self.state = new_task_state(n)
@@ -152,28 +210,8 @@ class CatchTask:
         TK.task_reset_rows(idx, sim.records, self.drop, self.params, self.state, self.rows)
 
     def check_actions(self, actions) -> np.ndarray:
-        """float64[N] actions from what the caller gave; NaN or a wrong shape raises ValueError;
-        values outside [-1, 1] are clipped (``action_bounds = "clip"``) or raise."""
-        if self.n == 1 and type(actions) is np.ndarray and actions.shape == (1,):
-            x = float(actions[0])  # the common single-env case, without numpy reductions
-            if -1.0 <= x <= 1.0:
-                self._a1[0] = x
-                return self._a1
-        a = np.asarray(actions, dtype=np.float64)
-        if a.size != self.n or (a.ndim > 1 and a.shape[-1] != 1) or a.ndim > 2:
-            raise ValueError(f"action has shape {np.shape(actions)}; expected ({self.n}, 1) "
-                             f"(or (1,) for a single env): one shaker command in [-1, 1] per env")
-        a = a.reshape(self.n)
-        lo, hi = a.min(), a.max()
-        if not (-1.0 <= lo and hi <= 1.0):
-            if not np.all(np.isfinite(a)):
-                raise ValueError(f"action contains NaN or inf: {a[~np.isfinite(a)][:4]}; expected values in "
-                                 f"[-1, 1] (1 = {self.command_scale:g} N upwards)")
-            if self.config.action_bounds == "raise":
-                raise ValueError(f"action {a[np.abs(a) > 1][:4]} outside [-1, 1] "
-                                 f"(1 = {self.command_scale:g} N upwards; action_bounds = 'raise')")
-            a = np.clip(a, -1.0, 1.0)
-        return a
+        """:func:`check_actions` for this batch and config."""
+        return check_actions(actions, self.n, self.config.action_bounds, self.command_scale, self._a1)
 
     def step(self, a: np.ndarray, active=None):
         """One policy step for every env (or those where ``active`` is true; the others are left
@@ -206,7 +244,4 @@ class CatchTask:
 
     def info_dict(self, i: int) -> dict:
         """Env i's info as Python scalars (and ``state`` as float64[4])."""
-        vals = self.rows[i].tolist()
-        out = {key: (vals[j] > 0.5 if flag else vals[j]) for key, j, flag in _INFO_SCALARS}
-        out["state"] = np.array(vals[TK.COL_X1:TK.COL_V2 + 1])
-        return out
+        return info_from_row(self.rows[i])

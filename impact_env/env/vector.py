@@ -33,27 +33,19 @@ from impact_env.scene import Scene
 
 class ImpactCatchVectorEnv(VectorEnv):
     """N copies of ``ImpactCatch-v0`` stepped in one call; arguments as the single env's
-    (:class:`~impact_env.env.catch_env.ImpactCatchEnv`) plus ``num_envs`` and ``autoreset_mode``."""
+    (:class:`~impact_env.env.catch_env.ImpactCatchEnv`: the task's options are
+    :class:`~impact_env.env.task.TaskConfig`'s fields) plus ``num_envs`` and ``autoreset_mode``."""
 
     def __init__(self, num_envs: int = 1, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 observation: str = "sensors", history: int = 1, hold_ticks: int = 1,
-                 residual: str | None = None,
-                 horizon: float | None = None,
-                 catch_threshold: float = 0.01, catch_hold: float = 0.01, terminate_on_catch: bool = True,
-                 effort_weight: float = 0.0, limit_weight: float = 0.0, action_bounds: str = "clip",
-                 render_mode: str | None = None):
+                 render_mode: str | None = None, **task: Any):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
         mode = AutoresetMode(autoreset_mode) if isinstance(autoreset_mode, str) else autoreset_mode
         if not isinstance(mode, AutoresetMode):
             raise ValueError(f"autoreset_mode = {autoreset_mode!r}; expected one of "
                              f"{[m.value for m in AutoresetMode]}")
-        cfg = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks, residual=residual,
-                         horizon=horizon,
-                         catch_threshold=catch_threshold, catch_hold=catch_hold,
-                         terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
-                         limit_weight=limit_weight, action_bounds=action_bounds)
+        cfg = TaskConfig.from_options(task)
         self.task = make_catch_task(scene, int(num_envs), cfg, overrides)
         self.scene = self.task.scene
         self.layout = self.task.layout

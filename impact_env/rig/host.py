@@ -43,7 +43,7 @@ from gymnasium import spaces
 from impact_env.control.observation import OBS_LIMIT, make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.env import task_kernel as TK
-from impact_env.env.task import TaskConfig, new_task_out, new_task_state, task_params
+from impact_env.env.task import TaskConfig, check_actions, info_from_row, new_task_out, new_task_state
 from impact_env.hardware.batch import Hardware
 from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
@@ -261,12 +261,8 @@ class RigEnv(gym.Env):
 
     metadata = {"render_modes": []}
 
-    def __init__(self, address: str, *, observation: str = "sensors", history: int = 1, hold_ticks: int = 1,
-                 residual: str | None = None, horizon: float | None = None, catch_threshold: float = 0.01,
-                 catch_hold: float = 0.01, terminate_on_catch: bool = True, effort_weight: float = 0.0,
-                 limit_weight: float = 0.0, action_bounds: str = "clip", timeout_s: float = 0.05,
-                 retries: int = 20, key=None, first_command_timeout_s: float = 0.1,
-                 link_timeout_s: float | None = None):
+    def __init__(self, address: str, *, timeout_s: float = 0.05, retries: int = 20, key=None,
+                 first_command_timeout_s: float = 0.1, link_timeout_s: float | None = None, **task: Any):
         if not (isinstance(first_command_timeout_s, (int, float)) and 0.0 < first_command_timeout_s <= 60.0):
             raise ValueError(f"first_command_timeout_s = {first_command_timeout_s!r} s is out of range: "
                              "must be > 0 s and <= 60 s")
@@ -276,30 +272,25 @@ class RigEnv(gym.Env):
                              "<= 60 s (or None: the target's own)")
         # ARM carries it in whole ms; 0 asks for the target's own
         self._link_ms = 0 if link_timeout_s is None else max(1, int(round(link_timeout_s * 1e3)))
-        self.config = TaskConfig(observation=observation, history=history, hold_ticks=hold_ticks,
-                                 residual=residual, horizon=horizon, catch_threshold=catch_threshold,
-                                 catch_hold=catch_hold,
-                                 terminate_on_catch=terminate_on_catch, effort_weight=effort_weight,
-                                 limit_weight=limit_weight, action_bounds=action_bounds)
+        self.config = config = TaskConfig.from_options(task)
         self.client = RigClient(address, timeout_s, retries, key=key)
         self.scene = scene = self.client.scene
-        self.layout = make_layout(scene, observation, history)
+        self.layout = make_layout(scene, config.observation, config.history)
         if self.layout.privileged:
             self.client.close()
             raise ValueError("observation must be 'sensors' on a rig: it measures no body-1 state")
         self.residual = None
-        if residual is not None:
+        if config.residual is not None:
             from impact_env.policy.export import export_policy
 
-            self.residual = export_policy(residual, scene)
+            self.residual = export_policy(config.residual, scene)
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, (self.layout.size,), np.float32)
-        period = scene.control_period
-        self.hold = int(hold_ticks)
+        self.hold = config.hold_ticks
         self._first_ticks = int(math.ceil(first_command_timeout_s * scene.control_rate - 1e-9))
-        h = self.config.horizon if horizon is not None else scene.episode.horizon
-        self.tp = task_params(self.config, period, self.hold, h, scene.effects.command_scale)
+        self.tp = config.params(scene)
         self.max_steps = int(self.tp.max_steps)
+        self._a1 = np.zeros(1)
         self._hw = Hardware(scene, 1) if self.client.virtual else None
         self._state = new_task_state(1)
         self._out = new_task_out(1)
@@ -371,14 +362,8 @@ class RigEnv(gym.Env):
     def step(self, action):
         if not self._running:
             raise RuntimeError("call reset() before step() (the episode has ended)")
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (1,) or not np.isfinite(a[0]):
-            raise ValueError(f"action {action!r}: expected one finite shaker command in [-1, 1]")
-        if not -1.0 <= a[0] <= 1.0:
-            if self.config.action_bounds == "raise":
-                raise ValueError(f"action {a[0]!r} outside [-1, 1] (action_bounds = 'raise')")
-            a = np.clip(a, -1.0, 1.0)
-        u = float(a[0])
+        u = float(check_actions(action, 1, self.config.action_bounds, self.scene.effects.command_scale,
+                                self._a1)[0])
         self.client.command(self._n, u)
         self._n += 1
         got = self._wait_obs(self._n, resend=u)
@@ -441,14 +426,7 @@ class RigEnv(gym.Env):
                                "force_applied": tel[1] if len(tel) > 1 else 0.0,
                                "command_age_ticks": tel[2] if len(tel) > 2 else -1.0}
         if self._hw is not None:
-            vals = self._rows[0].tolist()
-            info = dict(zip(TK.INFO_KEYS, vals, strict=True))
-            for k in TK.BOOL_KEYS:
-                info[k] = info[k] > 0.5
-            info["state"] = np.array(vals[TK.COL_X1:TK.COL_V2 + 1])
-            for k in ("x1", "v1", "x2", "v2"):
-                del info[k]
-            out.update(info)
+            out.update(info_from_row(self._rows[0]))
         return out
 
     def close(self):
