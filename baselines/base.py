@@ -9,10 +9,12 @@ force that action +1 demands) and its gains, and is then used exactly like a tra
   (:mod:`impact_env.control.observation`): each entry divided by its reference scale.  The policy
   reads the first frame (the current sample); with ``history > 1`` the older frames and the
   past actions that follow are ignored.
-* ``action``: float32[1] or float32[N, 1], the force demand divided by
+* ``action``: float64[1] or float64[N, 1], the force demand divided by
   ``scene.effects.command_scale`` (N per unit action) and **clipped to [-1, 1]**, the env's
-  action space.  A law that asks for more than ``command_scale`` newtons gets the limit, as the
-  env would give it anyway; :meth:`Policy.force` returns the unclipped demand in N.
+  action space (float64, as the compiled law gives it: the env takes float64 actions as they
+  are, so a baseline and its compiled policy run bitwise the same episodes).  A law that asks
+  for more than ``command_scale`` newtons gets the limit, as the env would give it anyway;
+  :meth:`Policy.force` returns the unclipped demand in N.
 * ``state``: the policy's memory (float64[N, k]; ``None`` for memoryless laws).  Pass the state
   returned by the previous call back in, or pass ``None`` and the policy keeps its memory
   internally (one row per env of the batch).  Rows where ``episode_start`` is true are reset.
@@ -22,6 +24,11 @@ Each class says which observation it needs in the class attribute ``observation`
 (``"sensors"`` or ``"privileged"``), its CLI name in ``name``, and its gains in ``PARAMS``
 (default, unit, meaning), which :func:`baselines.make_policy` parses from ``name:k=v,...``.
 Gains may be numbers or arrays over the batch (one gain set per env, used by the gain sweep).
+
+The law itself is written once, as the compiled kernel of :mod:`impact_env.control.laws`: a
+baseline names it (``name``), gives its constants (:meth:`Policy.law_constants`) and the default
+:meth:`Policy.force` runs it on the batch.  A policy that is not one of those laws overrides
+:meth:`Policy.force`.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from impact_env.config import ConfigError
+from impact_env.control import laws as LW
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.scene import Scene, load_scene
 
@@ -97,11 +105,20 @@ class Policy:
         self.command_scale = float(self.scene.effects.command_scale)
         self._memory: np.ndarray | None = None
 
-    # -- to implement ---------------------------------------------------------------------
+    # -- the law ---------------------------------------------------------------------------
     def force(self, values: np.ndarray, memory: np.ndarray | None) -> np.ndarray:
         """Shaker force demand (N, upwards) per env from the current frame in SI units
-        (``values[N, frame_size]``, named by ``self.layout.names``); may update ``memory``."""
-        raise NotImplementedError
+        (``values[N, frame_size]``, named by ``self.layout.names``); may update ``memory``.
+        Default: the compiled law ``name`` (:func:`impact_env.control.laws.law_forces`) with
+        :meth:`law_constants`, one set per env."""
+        if self.name not in LW.KIND:
+            raise NotImplementedError(f"{type(self).__name__} is not a compiled law: override force()")
+        n = values.shape[0]
+        K = LW.constants_rows(self.name, self.law_constants(), n)
+        mem = memory if memory is not None and memory.shape[1] >= LW.MEMORY else np.zeros((n, LW.MEMORY))
+        slots = LW.law_slots(self.name, self.layout.names)
+        return LW.law_forces(LW.KIND[self.name], slots, K, np.ascontiguousarray(values, dtype=np.float64),
+                             np.ascontiguousarray(mem), np.empty(n))
 
     def reset_memory(self, memory: np.ndarray, rows: np.ndarray) -> None:
         """Set the memory of ``rows`` (bool[N]) to the start-of-episode value (default 0)."""
@@ -110,11 +127,11 @@ class Policy:
     # -- the SB3 interface ------------------------------------------------------------------
     def predict(self, obs, state=None, episode_start=None, deterministic: bool = True):
         u, memory = self.command(obs, state, episode_start)
-        action = u.astype(np.float32).reshape(-1, 1)
+        action = u.reshape(-1, 1)
         return (action[0] if np.ndim(obs) == 1 else action), memory
 
     def command(self, obs, state=None, episode_start=None) -> tuple[np.ndarray, np.ndarray | None]:
-        """(float64[N] commands in [-1, 1], memory): :meth:`predict` before its float32 cast."""
+        """(float64[N] commands in [-1, 1], memory): :meth:`predict`'s actions, as one array."""
         x = np.asarray(obs, dtype=np.float64)
         if x.ndim == 1:
             x = x[None, :]

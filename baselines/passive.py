@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from baselines.base import Policy
 
 
@@ -12,6 +10,3 @@ class Passive(Policy):
 
     name = "passive"
     observation = "sensors"
-
-    def force(self, values, memory):
-        return np.zeros(values.shape[0])

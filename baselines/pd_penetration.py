@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines.base import Param, Policy
-from baselines.estimate import MEMORY, ContactEstimate
+from baselines.estimate import MEMORY
 
 
 class PDPenetration(Policy):
@@ -57,9 +57,3 @@ class PDPenetration(Policy):
         return {"m2": self.m2, "c": self.scene.plant.c, "kp": P["kp"], "kd": P["kd"], "dref": P["dref"],
                 "top_mass": P["top_mass"], "rate": self.scene.control_rate,
                 "threshold": self.scene.effects.detector.threshold_n}
-
-    def force(self, values, memory):
-        P = self.params
-        est = ContactEstimate(self, values, memory, P["top_mass"])
-        f = -self.m2 * (P["kp"] * (est.d - P["dref"]) + P["kd"] * est.d_rate)
-        return np.where(est.detected, f, 0.0)

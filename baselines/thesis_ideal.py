@@ -54,19 +54,9 @@ class ThesisIdeal(Policy):
         return {"m1": self.m1, "m2": self.m2, "c": self.c, "g": self.g, "h01": P["h01"], "h11": P["h11"],
                 "h02": P["h02"], "h12": P["h12"], "dref": P["dref"], "sign": self._sign}
 
-    def force(self, values, memory):
-        x1, v1, x2, v2 = (values[:, j] for j in range(4))
-        return self.force_from_state(x1, v1, x2, v2)
-
     def force_from_state(self, x1, v1, x2, v2):
         """The law on the true state (arrays or floats, SI, thesis frame) -> f2 in N (unclipped)."""
-        P = self.params
-        y1 = np.asarray(x1 - x2, dtype=np.float64)
-        dy1 = v1 - v2
-        e, de = y1 - P["dref"], dy1
-        pen = np.maximum(y1, 0.0)
-        phi = self.c * pen * np.sqrt(pen)
-        m1, m2 = self.m1, self.m2
-        in_contact = m2 * (phi * (m1 + m2) / (m1 * m2) - self.g - P["h11"] * de - P["h01"] * e)
-        free = m2 * (-self.g - self._sign * (P["h11"] * de + P["h01"] * e))
-        return np.where(y1 > 0.0, in_contact, free) - P["h12"] * v2 - P["h02"] * x2
+        cols = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (x1, v1, x2, v2)))
+        shape = cols[0].shape
+        values = np.stack([c.reshape(-1) for c in cols], axis=1)  # the privileged frame: x1, v1, x2, v2
+        return self.force(values, None).reshape(shape)

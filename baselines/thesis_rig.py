@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from baselines.base import Param, Policy
-from baselines.estimate import MEMORY, ContactEstimate
+from baselines.estimate import MEMORY
 
 
 class ThesisRig(Policy):
@@ -55,11 +55,3 @@ class ThesisRig(Policy):
                 "h11": P["h11"], "h02": P["h02"], "h12": P["h12"], "dref": P["dref"],
                 "top_mass": P["top_mass"], "rate": self.scene.control_rate,
                 "threshold": self.scene.effects.detector.threshold_n}
-
-    def force(self, values, memory):
-        P = self.params
-        est = ContactEstimate(self, values, memory, P["top_mass"])
-        m1, m2 = self.m1, self.m2
-        f = m2 * (est.phi * (m1 + m2) / (m1 * m2) - self.g - P["h11"] * est.d_rate
-                  - P["h01"] * (est.d - P["dref"])) - P["h12"] * est.v2 - P["h02"] * est.x2
-        return np.where(est.detected, f, 0.0)

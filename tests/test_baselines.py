@@ -52,7 +52,7 @@ def test_model_spec_errors():
 
 @pytest.mark.parametrize("name", sorted(POLICIES))
 def test_predict_shapes_dtype_and_action_limits(name):
-    """Every baseline passes through the env's action limits: float32 actions in [-1, 1], single
+    """Every baseline passes through the env's action limits: float64 actions in [-1, 1], single
     and batched, for wild observations too."""
     scene = IDEAL if name == "thesis-ideal" else RIG
     pol = make_policy(name, scene)
@@ -63,10 +63,10 @@ def test_predict_shapes_dtype_and_action_limits(name):
         obs[:, lay.index("contact_detected")] = rng.integers(0, 2, 64)
     for _ in range(3):
         a, state = pol.predict(obs.astype(np.float32), episode_start=np.zeros(64, bool))
-        assert a.shape == (64, 1) and a.dtype == np.float32
+        assert a.shape == (64, 1) and a.dtype == np.float64
         assert np.all(np.isfinite(a)) and np.all(np.abs(a) <= 1.0)
     a1, _ = pol.predict(obs[0].astype(np.float32))
-    assert a1.shape == (1,) and a1.dtype == np.float32 and abs(a1[0]) <= 1.0
+    assert a1.shape == (1,) and a1.dtype == np.float64 and abs(a1[0]) <= 1.0
     assert pol.observation in ("sensors", "privileged")
 
 

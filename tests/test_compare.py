@@ -173,3 +173,18 @@ def test_a_saved_sb3_model_joins_the_table(tmp_path):
     assert s["failed_episodes"] == 0 and s["peak_demand_N"] <= 200.0 + 1e-9
     (tmp_path / "agent.json").write_text(json.dumps({"observation": "sensors", "history": 1}))
     assert registry.make_policy(str(path), RIG).observation == "sensors"
+
+
+@pytest.mark.parametrize("law", ["pd-penetration", "thesis-rig", "passive"])
+def test_a_baseline_and_its_compiled_policy_print_the_same_table(law, tmp_path):
+    """Each classic law exists once, as the compiled kernel: the baseline (Python, its predict
+    once per step) and its exported policy file (the compiled loop) run bitwise the same
+    episodes, so `compare --policies pd-penetration` prints what `compiled:pd.policy.json` does."""
+    path = registry.make_policy(law, RIG).compiled().save(tmp_path / "law.policy.json")
+    spec = f"compiled:{path}"
+    runs = compare(RIG, [law, spec], episodes=3, seed=2, horizon=0.05, workers=1, progress=False)
+    for key, v in runs[law].metrics.items():
+        np.testing.assert_array_equal(v, runs[spec].metrics[key], err_msg=key)
+    rows = format_table(runs, 0.05).splitlines()
+    row = {r.split()[0]: r.split(None, 1)[1] for r in rows if r.split() and r.split()[0] in (law, spec)}
+    assert row[law] == row[spec]

@@ -2,7 +2,7 @@
 replaces.
 
 * Classic laws: the compiled law against the baseline's float64 command (``Policy.command``,
-  :meth:`predict` before its float32 cast), over 10^4 observations of real episodes, memory and
+  the float64 actions of :meth:`predict`), over 10^4 observations of real episodes, memory and
   all: within 1e-12 (the same operations in the same order; the bound leaves room for a libm
   ``pow`` that rounds differently in numba and numpy).
 * Networks: the compiled MLP against ``model.predict(obs, deterministic=True)`` over 10^4

@@ -1,6 +1,6 @@
-"""The classic laws, compiled: the same arithmetic as the Python baselines (``baselines/``), for
-one env, with no Python per call, so that the real-time target and the simulator's compiled
-loops can run them.
+"""The classic laws, compiled: each law exists once, here; the Python baselines (``baselines/``)
+call these kernels (:func:`law_forces`), the real-time target and the simulator's compiled loops
+run them (:func:`law_force`), with no Python per call.
 
 A law is given by its name, its gains and the scene's constants it needs (masses, pad
 stiffness, the force transducer's top mass m2', the control rate, the detector's threshold);
@@ -36,13 +36,16 @@ from impact_env._jit import jit
 from impact_env.config import ConfigError
 
 LAWS = ("passive", "thesis-ideal", "thesis-rig", "pd-penetration")
-KIND = {name: k for k, name in enumerate(LAWS)}  # kind codes; the MLP is len(LAWS)
-CONSTANTS = {
-    "passive": (),
-    "thesis-ideal": ("m1", "m2", "c", "g", "h01", "h11", "h02", "h12", "dref", "sign"),
-    "thesis-rig": ("m1", "m2", "c", "g", "h01", "h11", "h02", "h12", "dref", "top_mass", "rate", "threshold"),
-    "pd-penetration": ("m2", "c", "kp", "kd", "dref", "top_mass", "rate", "threshold"),
-}
+PASSIVE, THESIS_IDEAL, THESIS_RIG, PD_PENETRATION = range(len(LAWS))  # kind codes; the MLP is len(LAWS)
+KIND = {name: k for k, name in enumerate(LAWS)}
+# each law's constants vector: the names in order, and next to them the positions its kernel reads
+IDEAL = ("m1", "m2", "c", "g", "h01", "h11", "h02", "h12", "dref", "sign")
+I_M1, I_M2, I_C, I_G, I_H01, I_H11, I_H02, I_H12, I_DREF, I_SIGN = range(len(IDEAL))
+RIG = ("m1", "m2", "c", "g", "h01", "h11", "h02", "h12", "dref", "top_mass", "rate", "threshold")
+R_M1, R_M2, R_C, R_G, R_H01, R_H11, R_H02, R_H12, R_DREF, R_TOP, R_RATE, R_THRESHOLD = range(len(RIG))
+PD = ("m2", "c", "kp", "kd", "dref", "top_mass", "rate", "threshold")
+P_M2, P_C, P_KP, P_KD, P_DREF, P_TOP, P_RATE, P_THRESHOLD = range(len(PD))
+CONSTANTS = {"passive": (), "thesis-ideal": IDEAL, "thesis-rig": RIG, "pd-penetration": PD}
 # observation entries a law reads (an absent "contact_detected" means: apply eq 4.4 here)
 READS = {
     "passive": (),
@@ -57,17 +60,35 @@ SLOTS = ("accelerometer", "force", "potentiometer", "contact_detected", "x1", "v
 S_ACC, S_FORCE, S_POT, S_DET, S_X1, S_V1, S_X2, S_V2 = range(len(SLOTS))
 
 
-def pack_law(name: str, constants: dict[str, float],
-             names: tuple[str, ...]) -> tuple[int, np.ndarray, np.ndarray]:
-    """(kind code, int64 slots, float64 constants) of law ``name`` for an observation frame whose
-    entries are ``names``; ConfigError naming what is missing or not finite."""
+def law_slots(name: str, names: tuple[str, ...]) -> np.ndarray:
+    """int64 slots (:data:`SLOTS`) of law ``name`` in an observation frame whose entries are
+    ``names``; ConfigError naming what is missing."""
     if name not in KIND:
         raise ConfigError(f"compiled law {name!r} is not one of {', '.join(LAWS)}")
     missing = [r for r in READS[name] if r not in names]
     if missing:
         raise ConfigError(f"law {name!r} reads {', '.join(missing)}, which the observation "
                           f"({', '.join(names)}) does not hold")
-    slots = np.array([names.index(s) if s in names else -1 for s in SLOTS], dtype=np.int64)
+    return np.array([names.index(s) if s in names else -1 for s in SLOTS], dtype=np.int64)
+
+
+def constants_rows(name: str, constants: dict, n: int) -> np.ndarray:
+    """float64[n, k]: law ``name``'s constants vector for each of n envs (a constant may be a
+    number or an array over the envs, as the baselines' gains are)."""
+    keys = CONSTANTS[name]
+    out = np.empty((n, len(keys)))
+    for j, key in enumerate(keys):
+        if key not in constants:
+            raise ConfigError(f"law {name!r} needs the constant {key!r}")
+        out[:, j] = np.broadcast_to(np.asarray(constants[key], dtype=np.float64), (n,))
+    return out
+
+
+def pack_law(name: str, constants: dict[str, float],
+             names: tuple[str, ...]) -> tuple[int, np.ndarray, np.ndarray]:
+    """(kind code, int64 slots, float64 constants) of law ``name`` for an observation frame whose
+    entries are ``names``; ConfigError naming what is missing or not finite."""
+    slots = law_slots(name, names)
     vals = []
     for key in CONSTANTS[name]:
         if key not in constants:
@@ -103,9 +124,9 @@ def _estimate(v, slots, top, c, rate, threshold, mem):
 def law_force(kind, slots, k, v, mem):
     """The force demand (N, upwards) of law ``kind`` with constants ``k`` on the frame values
     ``v`` (float64, SI units); ``mem`` is its memory row."""
-    if kind == 1:  # thesis-ideal
-        m1, m2, c, g = k[0], k[1], k[2], k[3]
-        h01, h11, h02, h12, dref, sign = k[4], k[5], k[6], k[7], k[8], k[9]
+    if kind == THESIS_IDEAL:
+        m1, m2, c, g = k[I_M1], k[I_M2], k[I_C], k[I_G]
+        h01, h11, h02, h12, dref, sign = k[I_H01], k[I_H11], k[I_H02], k[I_H12], k[I_DREF], k[I_SIGN]
         x1 = v[slots[S_X1]]
         v1 = v[slots[S_V1]]
         x2 = v[slots[S_X2]]
@@ -119,17 +140,27 @@ def law_force(kind, slots, k, v, mem):
         else:
             f = m2 * (-g - sign * (h11 * de + h01 * e))
         return f - h12 * v2 - h02 * x2
-    if kind == 2:  # thesis-rig
-        m1, m2, c, g = k[0], k[1], k[2], k[3]
-        h01, h11, h02, h12, dref = k[4], k[5], k[6], k[7], k[8]
-        phi, d, d_rate, x2, v2, detected = _estimate(v, slots, k[9], c, k[10], k[11], mem)
+    if kind == THESIS_RIG:
+        m1, m2, c, g = k[R_M1], k[R_M2], k[R_C], k[R_G]
+        h01, h11, h02, h12, dref = k[R_H01], k[R_H11], k[R_H02], k[R_H12], k[R_DREF]
+        phi, d, d_rate, x2, v2, detected = _estimate(v, slots, k[R_TOP], c, k[R_RATE], k[R_THRESHOLD], mem)
         if not detected:
             return 0.0
         return m2 * (phi * (m1 + m2) / (m1 * m2) - g - h11 * d_rate - h01 * (d - dref)) - h12 * v2 - h02 * x2
-    if kind == 3:  # pd-penetration
-        m2, c, kp, kd, dref = k[0], k[1], k[2], k[3], k[4]
-        phi, d, d_rate, x2, v2, detected = _estimate(v, slots, k[5], c, k[6], k[7], mem)
+    if kind == PD_PENETRATION:
+        m2, c, kp, kd, dref = k[P_M2], k[P_C], k[P_KP], k[P_KD], k[P_DREF]
+        phi, d, d_rate, x2, v2, detected = _estimate(v, slots, k[P_TOP], c, k[P_RATE], k[P_THRESHOLD], mem)
         if not detected:
             return 0.0
         return -m2 * (kp * (d - dref) + kd * d_rate)
     return 0.0  # passive
+
+
+@jit
+def law_forces(kind, slots, K, V, mem, out):
+    """:func:`law_force` for every row i (constants ``K[i]``, frame values ``V[i]`` in SI units,
+    memory ``mem[i]`` of at least :data:`MEMORY` floats) into ``out[i]``: the baselines'
+    (``baselines/``) Python face of the same kernel."""
+    for i in range(V.shape[0]):
+        out[i] = law_force(kind, slots, K[i], V[i], mem[i])
+    return out
