@@ -19,9 +19,10 @@ import pytest
 import impact_env  # noqa: F401  (registers ImpactCatch-v0)
 from impact_env.config import ConfigError
 from impact_env.scene import Scene, load_scene
+from impact_env.scene.effects import EFFECTS
 
 STEPS = 40  # 4 ms at 10 kHz: the touch comes after 1 ms
-ALL_EFFECTS = ["actuator_delay", "shaker", "saturation", "sensors", "filters", "sensor_delay", "detector"]
+ALL_EFFECTS = list(EFFECTS)
 BASE = {"effects.active": ALL_EFFECTS, "effects.sensors.body1_displacement.enabled": True,
         "effects.filters.body1_displacement.kind": "bandpass"}
 

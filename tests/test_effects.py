@@ -327,3 +327,25 @@ def test_unrepresentable_delay_message_says_why():
 def test_nyquist_message_names_rate():
     with pytest.raises(ConfigError, match="Nyquist"):
         F.AccelerometerFilter().check_rate(1500.0)  # 1000 Hz edge >= 750 Hz
+
+
+def test_every_list_of_effects_is_derived_from_the_registry():
+    """Each effect declares itself once (impact_env.effects.registry); the scene's names, the
+    hardware stage's flags and blocks, the front end's flags and the oracle's readings-only list
+    are read from it."""
+    from impact_env.control import front_end as FE
+    from impact_env.effects import registry as REG
+    from impact_env.eval.oracle import SENSOR_SIDE
+    from impact_env.hardware import stage as HS
+    from impact_env.scene.effects import EFFECTS
+
+    assert EFFECTS == REG.NAMES and len(set(EFFECTS)) == len(EFFECTS)
+    hw = REG.side(REG.HARDWARE)
+    assert HS.PARAM_BLOCKS == ("drive",) + tuple(e.name for e in hw if e.params)
+    assert HS.STATE_BLOCKS == tuple(e.name for e in hw if e.state)
+    assert (HS.F_ACT_DELAY | HS.F_SHAKER | HS.F_SATURATION | HS.F_SENSORS | HS.F_SENS_DELAY
+            == REG.flags(REG.HARDWARE, EFFECTS))
+    assert FE.F_FILTERS | FE.F_DETECTOR == REG.flags(REG.CONTROLLER, EFFECTS)
+    assert SENSOR_SIDE == REG.READINGS_ONLY
+    for e in REG.REGISTRY:
+        assert callable(e.step) and e.side in (REG.HARDWARE, REG.CONTROLLER)

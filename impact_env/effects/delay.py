@@ -129,3 +129,11 @@ def delay_packed(p, st, x, out):
     k = int(p[0])
     n = x.shape[0]
     return delay_step(st[1:1 + k * n].reshape((k, n)), st[0:1], x, out)
+
+
+from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+
+ACTUATOR_DELAY = Effect("actuator_delay", HARDWARE, "delay", flag=1, readings_only=False, params=True,
+                        state=True, step=delay_packed)
+SENSOR_DELAY = Effect("sensor_delay", HARDWARE, "delay", flag=16, readings_only=True, params=True, state=True,
+                      step=delay_packed)

@@ -71,12 +71,6 @@ def make_detector_state(s0: float = 0.0) -> np.ndarray:
     return np.array([s0, 0.0])
 
 
-def reset_detector_state(state: np.ndarray, s0: float = 0.0) -> np.ndarray:
-    state[PREV_S] = s0
-    state[LATCH] = 0.0
-    return state
-
-
 @jit(inline="always")
 def detect(a2_meas, f_meas, state, params):
     """One sample: returns True while contact is detected; updates ``state``.
@@ -186,3 +180,9 @@ def score_detection(true_contact, detected, rate: float) -> DetectionScore:
 def block_sizes() -> tuple[int, int]:
     """(parameter, state) sizes of the packed detector block."""
     return 5, N_STATE
+
+
+from impact_env.effects.effect import CONTROLLER, Effect  # noqa: E402
+
+EFFECT = Effect("detector", CONTROLLER, "detector", flag=2, readings_only=True, params=True, state=True,
+                step=detect)

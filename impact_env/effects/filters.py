@@ -219,3 +219,9 @@ def filter_block(sos, zi, x, out):
     for k in range(x.shape[0]):
         filter_step(sos, zi, x[k], out[k])
     return out
+
+
+from impact_env.effects.effect import CONTROLLER, Effect  # noqa: E402
+
+EFFECT = Effect("filters", CONTROLLER, "filters", flag=1, readings_only=True, params=True, state=True,
+                step=filter_step)

@@ -85,11 +85,6 @@ def make_saturation_state() -> np.ndarray:
     return np.zeros(N_STATE)
 
 
-def reset_saturation_state(state: np.ndarray) -> np.ndarray:
-    state[:] = 0.0
-    return state
-
-
 @jit(inline="always")
 def saturate(f_cmd, state, params):
     """Apply the limits to the command ``f_cmd`` (N); update ``state``.
@@ -138,3 +133,9 @@ def saturate_block(f_cmd, state, params, out, flags):
 def block_sizes() -> tuple[int, int]:
     """(parameter, state) sizes of the packed saturation block."""
     return 4, N_STATE
+
+
+from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+
+EFFECT = Effect("saturation", HARDWARE, "saturation", flag=4, readings_only=False, params=True, state=True,
+                step=saturate)

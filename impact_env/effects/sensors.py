@@ -286,3 +286,9 @@ def read_packed(x1, x2, a2, phi, p, out):
 def sense_packed(truth, z, p, out):
     """:func:`sense` on a packed block (``truth`` and ``out`` may be the same array)."""
     return sense(truth, z, p[1:].reshape((N_CHANNELS, N_PARAM)), out)
+
+
+from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+
+EFFECT = Effect("sensors", HARDWARE, "sensors", flag=8, readings_only=True, params=True, state=False,
+                step=sense_packed)

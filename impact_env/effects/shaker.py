@@ -303,3 +303,9 @@ def shaker_packed(p, st, u, v2, back_emf):
         for j in range(ns):
             x[j] += p[o + 2 * ns + j] * v2
     return f
+
+
+from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+
+EFFECT = Effect("shaker", HARDWARE, "shaker", flag=2, readings_only=False, params=True, state=True,
+                step=shaker_packed)

@@ -99,10 +99,11 @@ import numpy as np
 from gymnasium.utils import seeding
 
 from impact_env.config import ConfigError, check_range
+from impact_env.effects.registry import READINGS_ONLY
 from impact_env.hardware.stage import INFO_F_APPLIED
 from impact_env.scene import Scene, load_scene
 
-SENSOR_SIDE = ("sensors", "filters", "sensor_delay", "detector")  # effects that only compute readings
+SENSOR_SIDE = READINGS_ONLY  # effects that only compute readings (impact_env.effects.registry)
 WARM_POLICIES = ("pd-penetration", "thesis-rig", "passive")  # the classic laws the oracle rolls out itself
 LEAD_S = 1.0e-3  # s: the basis starts this long before the first touch (the rig's pre-contact time)
 CMA_STREAM = 0x0AC1E  # second word of the CMA-ES generator's seed: a stream apart from the drop's own

@@ -16,6 +16,7 @@ import typing
 import numpy as np
 
 from impact_env.effects import delay as DL
+from impact_env.effects import registry
 from impact_env.effects import saturation as SA
 from impact_env.effects import sensors as SE
 from impact_env.effects import shaker as SH
@@ -69,12 +70,7 @@ class Hardware:
         self.period = scene.control_period
         self.rate = rate = 1.0 / self.period
         self.method = METHOD_CODES[scene.integrator.method]
-        self.flags = 0
-        for name, bit in (("actuator_delay", HS.F_ACT_DELAY), ("shaker", HS.F_SHAKER),
-                          ("saturation", HS.F_SATURATION), ("sensors", HS.F_SENSORS),
-                          ("sensor_delay", HS.F_SENS_DELAY)):
-            if fx.on(name):
-                self.flags |= bit
+        self.flags = registry.flags(registry.HARDWARE, fx.active)
         if fx.on("shaker") and fx.shaker.back_emf:
             self.flags |= HS.F_BACK_EMF
         rz = scene.randomize
@@ -98,8 +94,11 @@ class Hardware:
         sh_p, sh_s = SH.block_sizes(order)
         sa_p, sa_s = SA.block_sizes()
         se_p, _ = SE.block_sizes()
-        self.param_blocks = Blocks(HS.PARAM_BLOCKS, (1, d_p, sh_p, sa_p, se_p, s_p))
-        self.state_blocks = Blocks(HS.STATE_BLOCKS, (d_s, sh_s, sa_s, s_s))
+        params = {"drive": 1, "actuator_delay": d_p, "shaker": sh_p, "saturation": sa_p, "sensors": se_p,
+                  "sensor_delay": s_p}
+        state = {"actuator_delay": d_s, "shaker": sh_s, "saturation": sa_s, "sensor_delay": s_s}
+        self.param_blocks = Blocks(HS.PARAM_BLOCKS, tuple(params[b] for b in HS.PARAM_BLOCKS))
+        self.state_blocks = Blocks(HS.STATE_BLOCKS, tuple(state[b] for b in HS.STATE_BLOCKS))
         self.PR = np.zeros((n, self.param_blocks.size))
         self.ST = np.zeros((n, self.state_blocks.size))
         self.Y = np.zeros((n, L.N_STATE))

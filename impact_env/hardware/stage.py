@@ -37,7 +37,11 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.effects.delay import delay_packed
+from impact_env.effects import registry
+from impact_env.effects.delay import ACTUATOR_DELAY, SENSOR_DELAY, delay_packed
+from impact_env.effects import saturation as _SA
+from impact_env.effects import sensors as _SE
+from impact_env.effects import shaker as _SH
 from impact_env.effects.saturation import saturate
 from impact_env.effects.sensors import read_packed, sense_packed
 from impact_env.effects.shaker import shaker_packed
@@ -45,19 +49,29 @@ from impact_env.plant.dynamics import contact_force
 from impact_env.plant.integrators import advance
 from impact_env.plant.layout import C2, K2, M2, X1, X2, B, C
 
-# flag bits (the hardware's effects)
-F_ACT_DELAY = 1
-F_SHAKER = 2
-F_SATURATION = 4
-F_SENSORS = 8
-F_SENS_DELAY = 16
+# flag bits (the hardware's effects, as each declares itself: impact_env.effects.registry)
+F_ACT_DELAY = ACTUATOR_DELAY.flag
+F_SHAKER = _SH.EFFECT.flag
+F_SATURATION = _SA.EFFECT.flag
+F_SENSORS = _SE.EFFECT.flag
+F_SENS_DELAY = SENSOR_DELAY.flag
 F_BACK_EMF = 32  # the shaker's back-EMF input (effects.shaker.back_emf), with F_SHAKER
+assert not F_BACK_EMF & registry.flags(registry.HARDWARE, registry.NAMES)
 
-# packed blocks, in signal order (sizes from the effect modules)
-PARAM_BLOCKS = ("drive", "actuator_delay", "shaker", "saturation", "sensors", "sensor_delay")
-STATE_BLOCKS = ("actuator_delay", "shaker", "saturation", "sensor_delay")
-PB_DRIVE, PB_ACT_DELAY, PB_SHAKER, PB_SATURATION, PB_SENSORS, PB_SENS_DELAY = range(len(PARAM_BLOCKS))
-SB_ACT_DELAY, SB_SHAKER, SB_SATURATION, SB_SENS_DELAY = range(len(STATE_BLOCKS))
+# packed blocks, in signal order (the registry's hardware effects that have them; sizes from the
+# effect modules); a block is found by its name
+PARAM_BLOCKS = ("drive",) + tuple(e.name for e in registry.side(registry.HARDWARE) if e.params)
+STATE_BLOCKS = tuple(e.name for e in registry.side(registry.HARDWARE) if e.state)
+PB_DRIVE = PARAM_BLOCKS.index("drive")
+PB_ACT_DELAY = PARAM_BLOCKS.index(ACTUATOR_DELAY.name)
+PB_SHAKER = PARAM_BLOCKS.index(_SH.EFFECT.name)
+PB_SATURATION = PARAM_BLOCKS.index(_SA.EFFECT.name)
+PB_SENSORS = PARAM_BLOCKS.index(_SE.EFFECT.name)
+PB_SENS_DELAY = PARAM_BLOCKS.index(SENSOR_DELAY.name)
+SB_ACT_DELAY = STATE_BLOCKS.index(ACTUATOR_DELAY.name)
+SB_SHAKER = STATE_BLOCKS.index(_SH.EFFECT.name)
+SB_SATURATION = STATE_BLOCKS.index(_SA.EFFECT.name)
+SB_SENS_DELAY = STATE_BLOCKS.index(SENSOR_DELAY.name)
 
 # columns of the per-env info array
 INFO_F_DEMAND = 0  # N, demanded force (command * command scale)

@@ -6,13 +6,14 @@ from dataclasses import dataclass, field
 
 from impact_env.config import ConfigError, check_choice, check_range
 from impact_env.effects.delay import DelayConfig
+from impact_env.effects import registry
 from impact_env.effects.detector import DetectorConfig
 from impact_env.effects.filters import FiltersConfig
 from impact_env.effects.saturation import SaturationConfig
 from impact_env.effects.sensors import SensorsConfig
 from impact_env.effects.shaker import ShakerConfig
 
-EFFECTS = ("actuator_delay", "shaker", "saturation", "sensors", "filters", "sensor_delay", "detector")
+EFFECTS = registry.NAMES  # every effect's name (impact_env.effects.registry)
 
 
 @dataclass(frozen=True)
