@@ -13,7 +13,7 @@ entry ``ImpactCatch-v0``; format in :mod:`agents.run_config`), which ``python -m
 reads as it is; the options above override single values.  Every value is checked before
 anything is created: a bad one exits with status 2 and a message naming it.
 
-The vector env is the native one (:func:`impact_env.env.sb3.make_sb3_vec_env`, all ``--envs``
+The vector env is the native one (:func:`impact_env.env.sb3_vecenv.make_sb3_vec_env`, all ``--envs``
 rigs stepped in one compiled call, the env's own ``hold_ticks`` and ``residual`` included) in
 SB3's ``VecMonitor``.  It is **not** normalised: the env divides every
 observation by a reference scale, and leaving ``VecNormalize`` out makes ``model.zip`` the whole
@@ -149,7 +149,7 @@ class Tooling:
 def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
     """The bare native SB3 vector env of ``cfg`` (no monitor); ``evaluation``: the test's objective,
     without reward penalties and with every episode the whole horizon."""
-    from impact_env.env.sb3 import make_sb3_vec_env
+    from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
     kwargs = dict(cfg.env_kwargs)
     if evaluation:

@@ -11,6 +11,7 @@ import dataclasses
 import difflib
 import functools
 import math
+import numbers
 import types
 import typing
 from typing import Any
@@ -33,6 +34,19 @@ def doc_field(default, unit: str, doc: str):
 
 class ConfigError(ValueError):
     """A configuration value or key is invalid; the message names the field."""
+
+
+MAX_HOLD_TICKS = 10_000
+
+
+def check_hold_ticks(hold_ticks) -> int:
+    """``hold_ticks`` (control periods per policy step) as an int, or ConfigError naming it and its
+    range [1, MAX_HOLD_TICKS]: the one check of it (simulator, task, compiled policy, target)."""
+    whole = isinstance(hold_ticks, numbers.Integral) and not isinstance(hold_ticks, bool)
+    if not whole or not 1 <= hold_ticks <= MAX_HOLD_TICKS:
+        raise ConfigError(f"hold_ticks = {hold_ticks!r} is out of range: an integer number of control "
+                          f"periods in [1, {MAX_HOLD_TICKS}] per policy step")
+    return int(hold_ticks)
 
 
 def check_range(name: str, value: float, unit: str, lo: float | None = None, hi: float | None = None,

@@ -84,7 +84,7 @@ def vector_table(sizes, n_steps: int, repeats: int) -> None:
 def ppo_share(total_steps: int) -> None:
     from stable_baselines3 import PPO
 
-    from impact_env.env.sb3 import make_sb3_vec_env
+    from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
     env = make_sb3_vec_env("rig", num_envs=16)
     spent = [0.0]

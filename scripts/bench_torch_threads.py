@@ -23,7 +23,7 @@ import sys, time, torch
 threads, steps, repeats = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
 torch.set_num_threads(threads)
 from stable_baselines3 import PPO
-from impact_env.env.sb3 import make_sb3_vec_env
+from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
 def run(n):
     env = make_sb3_vec_env("rig", num_envs=1)

@@ -5,7 +5,7 @@ process (absolute figures depend on what else shares the cores).
 
 Rows (random actions, ``rig``, 16 envs, control periods per second of wall time):
 
-* ``native``: :func:`impact_env.env.sb3.make_sb3_vec_env`, what ``agents.train`` steps (reference);
+* ``native``: :func:`impact_env.env.sb3_vecenv.make_sb3_vec_env`, what ``agents.train`` steps (reference);
 * ``dummy``: SB3's ``DummyVecEnv`` of ``gymnasium.make("ImpactCatch-v0")``, what ``rl_zoo3.train``
   steps;
 * ``hold4``, ``hold4+residual``: the native adapter with the env's own ``hold_ticks=4`` (and
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     import impact_env  # noqa: F401
-    from impact_env.env.sb3 import make_sb3_vec_env
+    from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--envs", type=int, default=16)

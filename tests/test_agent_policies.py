@@ -7,7 +7,7 @@ import torch
 from stable_baselines3 import PPO
 
 from agents.policies import AsymmetricActorCriticPolicy, actor_indices
-from impact_env.env.sb3 import make_sb3_vec_env
+from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
 
 def test_actor_indices_pick_the_sensor_entries_of_every_frame_and_the_past_commands():

@@ -38,7 +38,7 @@ def sac_spec(tmp_path_factory):
     """An untrained SAC actor of the shape agents.train makes (tanh-squashed, ReLU)."""
     import stable_baselines3 as sb3
 
-    from impact_env.env.sb3 import make_sb3_vec_env
+    from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
     venv = make_sb3_vec_env("rig", num_envs=1, history=2)
     model = sb3.SAC("MlpPolicy", venv, policy_kwargs={"net_arch": [16, 16]}, seed=1, device="cpu")

@@ -157,7 +157,7 @@ def test_a_saved_sb3_model_joins_the_table(tmp_path):
     through compare like a baseline; its observation is named in the spec, or in PATH.json."""
     from stable_baselines3 import PPO
 
-    from impact_env.env.sb3 import make_sb3_vec_env
+    from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
     env = make_sb3_vec_env("rig", num_envs=1)
     path = tmp_path / "agent.zip"

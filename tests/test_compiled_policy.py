@@ -105,7 +105,7 @@ def test_compiled_networks_of_other_algorithms(algo, tmp_path):
     untrained networks of the shape agents.train makes, saved, loaded and exported."""
     import stable_baselines3 as sb3
 
-    from impact_env.env.sb3 import make_sb3_vec_env
+    from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
     venv = make_sb3_vec_env("rig", num_envs=1, history=2)
     if algo == "sac":

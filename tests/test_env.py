@@ -244,7 +244,7 @@ def test_ppo_and_sac_train_on_the_sb3_adapter():
     from stable_baselines3 import PPO, SAC
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from impact_env.env.sb3 import SB3VecEnv, make_sb3_vec_env
+    from impact_env.env.sb3_vecenv import SB3VecEnv, make_sb3_vec_env
 
     env = make_sb3_vec_env("rig", num_envs=4, horizon=0.003)
     assert isinstance(env, VecMonitor) and isinstance(env.venv, SB3VecEnv)  # episode stats for SB3's logger

@@ -1,4 +1,4 @@
-"""Body 1's energy from flight times (impact_env.rig.energy), validated against the simulator's
+"""Body 1's energy from flight times (impact_env.rig.flight_energy), validated against the simulator's
 exact contact events and true catch energy."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from impact_env.hardware import stage as K
-from impact_env.rig import energy as EN
+from impact_env.rig import flight_energy as EN
 from impact_env.rig import log as L
 from impact_env.rig.safety import CLAMP_RMS
 from impact_env.scene import load_scene

@@ -105,7 +105,7 @@ def test_a_model_without_its_settings_is_refused_once_naming_the_file_and_keys(t
     from stable_baselines3 import PPO
 
     from impact_env.cli.main import main
-    from impact_env.env.sb3 import make_sb3_vec_env
+    from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
     path = tmp_path / "best_model.zip"
     PPO("MlpPolicy", make_sb3_vec_env("rig", num_envs=1), n_steps=64, batch_size=32,

@@ -171,7 +171,7 @@ def cmd_log(args) -> int:
     import numpy as np
 
     from impact_env.config import ConfigError
-    from impact_env.rig.energy import summarize
+    from impact_env.rig.flight_energy import summarize
     from impact_env.rig.log import read_episode
     from impact_env.rig.log_metrics import exact_metrics, has_truth
     from impact_env.rig.safety import describe_status

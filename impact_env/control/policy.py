@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.config import ConfigError
+from impact_env.config import ConfigError, check_hold_ticks
 from impact_env.control import laws as LW
 from impact_env.control import mlp as MLP
 from impact_env.control.observation import OBSERVATIONS, ObservationLayout, References, make_layout
@@ -151,6 +151,7 @@ class CompiledPolicy:
                               f"{', '.join(OBSERVATIONS)}")
         if not (self.command_scale > 0 and np.isfinite(self.command_scale)):
             raise ConfigError(f"command_scale_N = {self.command_scale!r} N must be finite and > 0")
+        check_hold_ticks(self.hold_ticks)
         self._packed = None
         self._state = None
         self.arrays()  # validates the law or the network now, not at the first act

@@ -30,11 +30,11 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from impact_env._jit import bound_call
-from impact_env.config import ConfigError, check_choice, check_range
+from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.env import task_kernel as TK
 from impact_env.scene import Scene, load_scene
-from impact_env.sim.simulator import Simulator, check_hold_ticks
+from impact_env.sim.simulator import Simulator
 
 # info_dict's scalar entries in INFO_KEYS order: (key, column, is a flag); the state goes as one array
 _INFO_SCALARS = tuple((key, j, key in TK.BOOL_KEYS) for j, key in enumerate(TK.INFO_KEYS)

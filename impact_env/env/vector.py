@@ -11,7 +11,7 @@ Autoreset (``metadata["autoreset_mode"]``, chosen with ``autoreset_mode=``):
   and returns its first observation with reward 0 and both flags false.
 * ``SAME_STEP``: an env that ends is reset within the same step; the returned observation is the
   new episode's first, and the last one is in ``info["final_obs"]`` (with ``info["final_info"]``).
-  The SB3 adapter (:mod:`impact_env.env.sb3`) uses this mode.
+  The SB3 adapter (:mod:`impact_env.env.sb3_vecenv`) uses this mode.
 * ``DISABLED``: nothing is reset; call ``reset(options={"reset_mask": mask})``.  Stepping an env
   that ended goes on simulating it (used by ``impact-env compare`` with fixed-length episodes).
 """

@@ -70,9 +70,9 @@ def split_policies(text: str) -> list[str]:
     return specs
 
 
-# -- one task: a chunk of one policy's episodes ---------------------------------------------------
+# -- one job: a chunk of one policy's episodes (a process pool's unit of work) ----------------
 @dataclass
-class Task:
+class RolloutJob:
     spec: str
     scene: Scene
     episodes: list[int]
@@ -105,7 +105,7 @@ class PolicyRun:
     stats: dict = field(default_factory=dict)  # a prepared policy's per-episode figures (the oracle's)
 
 
-def _run_task(task: Task):
+def _run_task(task: RolloutJob):
     import numpy as np
 
     from impact_env.eval.parallel import report
@@ -161,7 +161,7 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     others = [s for s in specs if s not in oracles]
     # chunks of episodes so that every worker has work; results do not depend on the chunking
     per_policy = max(1, math.ceil(workers / max(len(others), 1))) if workers > 1 else 1
-    tasks = [Task(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles))
+    tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles))
              for spec in others for chunk in _chunks(episodes, per_policy)]
     if workers > 1:
         _warm_up(scene, horizon)
@@ -175,7 +175,7 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
         runs[spec] = _merge(spec, [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec], scene)
     if oracles:  # after the others, with their commands as warm starts, over every worker
         warm = {spec: run.commands for spec, run in runs.items() if run.commands is not None}
-        tasks = [Task(spec, scene, chunk, seed, horizon, trace_rate,
+        tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate,
                       warm_starts={k: u[:, chunk[0]:chunk[-1] + 1] for k, u in warm.items()})
                  for spec in oracles for chunk in _chunks(episodes, workers)]
         outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),

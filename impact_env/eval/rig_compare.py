@@ -133,7 +133,7 @@ def _run(spec: str, logs: list, failures: list, wall: float) -> PolicyRun:
         if has_truth(log):
             m = exact_metrics(log)
         else:
-            from impact_env.rig.energy import summarize as estimate
+            from impact_env.rig.flight_energy import summarize as estimate
 
             m = estimate(log)
         for k in EPISODE_METRICS:

@@ -120,7 +120,15 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
     import itertools
     import time
 
-    from impact_env.eval.compare import Task, _chunks, _merge, _run_task, _validate_specs, _warm_up, summarize
+    from impact_env.eval.compare import (
+        RolloutJob,
+        _chunks,
+        _merge,
+        _run_task,
+        _validate_specs,
+        _warm_up,
+        summarize,
+    )
     from impact_env.eval.parallel import default_workers, run_tasks
     from impact_env.scene import load_scene
 
@@ -142,7 +150,8 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
     horizon = scene.episode.horizon
     workers = default_workers() if workers is None else max(1, int(workers))
     chunks = _chunks(episodes, max(1, math.ceil(workers / max(len(points) * len(specs), 1))))
-    tasks = [(i, Task(spec, s, chunk, seed, horizon, 0.0)) for i, s in enumerate(scenes) for spec in specs
+    tasks = [(i, RolloutJob(spec, s, chunk, seed, horizon, 0.0))
+             for i, s in enumerate(scenes) for spec in specs
              for chunk in chunks]
     if workers > 1:
         _warm_up(scene, horizon)

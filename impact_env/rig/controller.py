@@ -62,7 +62,7 @@ from impact_env.hardware.stage import (
 from impact_env.rig import log as LG
 from impact_env.rig import safety as SF
 from impact_env.rig.cycles import cycles
-from impact_env.rig.safety import SafetyConfig, safety_params, safety_step
+from impact_env.rig.safety import SafetyConfig, safety_step
 from impact_env.sim import records as R
 
 # the controller's own state (float64[N_STATE]): the action and the command sent of the last
@@ -236,12 +236,14 @@ class Controller:
         self.residual = residual
         law_p, law_s = residual_arrays(residual, layout, 1)
         self.safety_cfg = safety or SafetyConfig()
-        sp = safety_params(self.safety_cfg, self.scale, self.rate, self.hold, mode)
+        #: the safety layer, whose arrays the compiled tick updates (params, state)
+        self.safety = SF.SafetyLayer(self.safety_cfg, self.scale, self.rate, self.hold, mode)
+        sp = self.safety.params
         self.log = LG.TickLog(int(horizon_ticks) + 1, layout.size, extra=extra_columns)
         self.params = ControllerParams(mode == "onboard", self.hold, self.scale, self.rate, self.fe.params,
                                        self.fe.obs_params, law_p, pol, sp)
-        self.state = ControllerState(self.fe.state, self.fe.obs_state, law_s, memory,
-                                     SF.make_safety_state(sp), np.zeros(N_STATE), self.log.buffers)
+        self.state = ControllerState(self.fe.state, self.fe.obs_state, law_s, memory, self.safety.state,
+                                     np.zeros(N_STATE), self.log.buffers)
 
     @property
     def st(self) -> np.ndarray:
@@ -262,7 +264,7 @@ class Controller:
         s.memory[:] = 0.0
         s.own[:] = 0.0
         s.own[ST_CMD_ID] = -1.0
-        SF.new_episode(s.safety)
+        self.safety.new_episode()
         self.log.reset()
 
     def observe(self, m: int, raw: np.ndarray, truth: np.ndarray | None) -> bool:
@@ -280,11 +282,11 @@ class Controller:
 
     def counters(self) -> dict[str, int]:
         """The safety layer's per-episode counters (plain ints)."""
-        return {k: int(self.state.safety[i]) for k, i in SF.COUNTERS.items()}
+        return self.safety.counters()
 
     def drain(self, ticks: int) -> None:
         """Idle time between episodes: the RMS window cools by ``ticks`` zero ticks."""
-        SF.drain_window(self.state.safety, self.params.safety, int(ticks))
+        self.safety.drain(int(ticks))
 
 
 # -- the virtual rig's compiled tick loop ---------------------------------------------------------

@@ -31,19 +31,30 @@ def cycles():
 
 
 @jit
-def _cycles_now():
+def cycles_now():
+    """The counter now, from Python."""
     return cycles()
 
 
 def ns_per_cycle(span_s: float = 0.02, repeats: int = 5) -> float:
     """Nanoseconds per counter cycle, the median of ``repeats`` spans of ``span_s`` against
     ``time.perf_counter_ns`` (the counter of a modern x86-64 runs at a constant rate)."""
-    _cycles_now()
+    cycles_now()
     out = []
     for _ in range(repeats):
-        c0, t0 = _cycles_now(), time.perf_counter_ns()
+        c0, t0 = cycles_now(), time.perf_counter_ns()
         while time.perf_counter_ns() - t0 < span_s * 1e9:
             pass
-        c1, t1 = _cycles_now(), time.perf_counter_ns()
+        c1, t1 = cycles_now(), time.perf_counter_ns()
         out.append((t1 - t0) / float(c1 - c0))
     return float(np.median(out))
+
+
+_NS_PER_CYCLE: list[float] = []
+
+
+def cached_ns_per_cycle(refresh: bool = False) -> float:
+    """:func:`ns_per_cycle`, measured once per process (again with ``refresh``)."""
+    if refresh or not _NS_PER_CYCLE:
+        _NS_PER_CYCLE[:] = [ns_per_cycle()]
+    return _NS_PER_CYCLE[0]

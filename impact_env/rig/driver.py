@@ -25,11 +25,8 @@ from gymnasium.utils import seeding
 from impact_env.effects.sensors import N_CHANNELS
 from impact_env.hardware import stage as HS
 from impact_env.hardware.batch import Hardware
+from impact_env.rig.errors import RigError
 from impact_env.scene import Scene, load_scene
-
-
-class RigError(RuntimeError):
-    """The driver found a fault (its ``error()``); the target ends the episode and zeroes the force."""
 
 
 class RigDriver(abc.ABC):

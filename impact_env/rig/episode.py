@@ -31,12 +31,11 @@ from impact_env.rig import log as LG
 from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
 from impact_env.rig.clock import TickClock
-from impact_env.rig.cycles import ns_per_cycle
+from impact_env.rig.cycles import cached_ns_per_cycle, cycles_now
 from impact_env.sim import records as R
 
 _END = {CT.END_FIRST_COMMAND: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END_SAFETY: P.EndReason.SAFETY,
         CT.END_FAULT: P.EndReason.FAULT, CT.END_STOP: P.EndReason.DISARMED}
-_NS_PER_CYCLE: list[float] = []
 
 
 class Episode:
@@ -101,22 +100,22 @@ class Episode:
             else:
                 self.cmd_counts["commands_superseded"] += 1
         elif t == P.MsgType.DISARM:
-            tg._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, self.ep), msg)
+            tg.reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, self.ep), msg)
             if msg.body.reason == 1:  # the host is closing: its session ends with the episode
-                tg._close_session = True
+                tg.close_session_after_episode()
             return "DISARMED"
         elif t == P.MsgType.ARM:
             if msg.body == self.a:  # the same request again (its ARMED was lost): answer it again
-                tg._reply(self.armed, msg)
+                tg.reply(self.armed, msg)
                 return None
-            tg._pending = msg  # a new episode: this one ends, that one starts
+            tg.queue_arm(msg)  # a new episode: this one ends, that one starts
             return "DISARMED"
         elif t == P.MsgType.FETCH:
-            tg._serve_fetch(msg)
+            tg.serve_fetch(msg)
         elif t == P.MsgType.HEARTBEAT:
-            tg._reply(P.Heartbeat(int(tg.state), self.ep, self.m // self.hold, msg.seq), msg)
+            tg.reply(P.Heartbeat(int(tg.state), self.ep, self.m // self.hold, msg.seq), msg)
         elif t == P.MsgType.HELLO and msg.session == tg.link.session:
-            tg._reply(tg._info(msg.body.nonce), msg)
+            tg.reply(tg.info(msg.body.nonce), msg)
         return None
 
     def drain(self, budget_s: float = 0.0) -> str | None:
@@ -146,7 +145,7 @@ class Episode:
                 why = self.take(msg) if msg is not None else None
                 if why:
                     break
-                if self.t._stop.is_set():
+                if self.t.stopping:
                     return "DISARMED"
                 now = time.perf_counter()
                 if now - self.last_heard > self.link_timeout_s:
@@ -234,9 +233,7 @@ class Episode:
     def run_compiled(self) -> P.EndReason:
         drv, ctl = self.t.driver, self.ctl
         hw = drv.hw
-        if not _NS_PER_CYCLE:
-            _NS_PER_CYCLE.append(ns_per_cycle())
-        nspc = _NS_PER_CYCLE[0]
+        nspc = cached_ns_per_cycle()
         t_col = self.cols["true_t_s"]
         cpt = 1e9 / self.t.rate / nspc
         hw.set_noise_block(max(self.horizon + 1, hw.noise_block))
@@ -271,7 +268,7 @@ class Episode:
             why = self.command_for_tick(boundary)
             if why:
                 return P.EndReason[why]
-            if self.t._stop.is_set():
+            if self.t.stopping:
                 return P.EndReason.DISARMED
             m1 = self.m + (self.hold if self.lockstep else 1)
             n0 = ctl.log.n
@@ -292,7 +289,7 @@ class Episode:
         def listen():
             while not done.is_set():
                 why = self.drain(0.02)
-                if why or self.t._stop.is_set():
+                if why or self.t.stopping:
                     heard.append(why or "DISARMED")
                     stop[0] = 1
                     return
@@ -343,7 +340,7 @@ class Episode:
                 self.drain(0.0) if self.lockstep and self.m % self.t.cfg.poll_every == 0 else None)
             if why:
                 return P.EndReason[why]
-            if self.t._stop.is_set():
+            if self.t.stopping:
                 return P.EndReason.DISARMED
             u, _f, status, row = ctl.act(self.m, self.cmd_value, self.cmd_step, self.cmd_id, self.m, raw)
             if late_flag or self.acct[CT.ACCT_UNREPORTED] > 0:
@@ -412,9 +409,7 @@ class Episode:
 
 
 def _now() -> int:
-    from impact_env.rig.cycles import _cycles_now
-
-    return int(_cycles_now())
+    return int(cycles_now())
 
 
 def _tick_times(ticks: np.ndarray, rate: float) -> np.ndarray:

@@ -25,7 +25,7 @@ Timing contract (host mode; H = ``hold_ticks``, T the control period):
   ticks, they are computed here by the env's own kernel (:mod:`impact_env.env.task_kernel`), so
   they equal ``ImpactCatch-v0``'s; a physical rig measures no body-1 state: the reward is 0.0,
   ``info["reward_available"]`` is False, and episodes end at the horizon (the episode's
-  metrics come from its log: :func:`impact_env.rig.energy`).
+  metrics come from its log: :func:`impact_env.rig.flight_energy`).
 """
 
 from __future__ import annotations

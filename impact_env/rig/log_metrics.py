@@ -1,7 +1,7 @@
 """compare's metrics of a logged rig episode: exact from a virtual rig's true columns (the same
 :class:`~impact_env.sim.metrics.EpisodeMetrics` kernel as ``impact-env compare``, so a lock-step
 virtual rig gives the simulator's numbers), estimated from body 2's sensors otherwise
-(:func:`impact_env.rig.energy.summarize`, thesis eq 4.5)."""
+(:func:`impact_env.rig.flight_energy.summarize`, thesis eq 4.5)."""
 
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ def plot_log(log, path, estimate: dict | None = None) -> Path:
     import matplotlib.pyplot as plt
 
     from impact_env.figstyle import save_figure
-    from impact_env.rig.energy import Plant, contact_from_log, estimate_energy
+    from impact_env.rig.flight_energy import Plant, contact_from_log, estimate_energy
 
     t_ms = log["t_s"] * 1e3
     # as compare's force plot: a force that is zero throughout (a passive policy) is named in the

@@ -77,7 +77,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.config import ConfigError, check_range, doc_field
+from impact_env.config import ConfigError, check_hold_ticks, check_range, doc_field
 
 NO_COMMAND = 1 << 0
 REPEATED = 1 << 1
@@ -144,9 +144,7 @@ def safety_params(cfg: SafetyConfig, command_scale: float, rate: float, hold_tic
     "host" (watchdog on) or "onboard"."""
     check_range("effects.command_scale", command_scale, "N", 0.0, None, lo_open=True)
     check_range("control.rate", rate, "Hz", 0.0, 1e8, lo_open=True)
-    if isinstance(hold_ticks, bool) or not isinstance(hold_ticks, (int, np.integer)) or not \
-            1 <= hold_ticks <= 65535:
-        raise ConfigError(f"hold_ticks = {hold_ticks!r} must be an integer number of ticks in [1, 65535]")
+    check_hold_ticks(hold_ticks)
     if mode not in ("host", "onboard"):
         raise ConfigError(f"mode = {mode!r} must be 'host' or 'onboard'")
     n = max(1, int(round(cfg.rms_window_s * rate)))
@@ -277,10 +275,11 @@ def describe_status(bits: int) -> list[str]:
 
 
 class SafetyLayer:
-    """Python face of the kernel: the config turned into ``params`` and ``state`` for one rig.
+    """The safety layer of one rig: the config turned into ``params`` and ``state``.
 
-    The target's compiled loop calls :func:`safety_step` with ``layer.params`` and
-    ``layer.state`` directly; :meth:`step` does the same from Python (tests, slow loops).
+    The target's controller (:class:`impact_env.rig.controller.Controller`) holds one; its
+    compiled tick calls :func:`safety_step` with ``layer.params`` and ``layer.state`` directly;
+    :meth:`step` does the same from Python.
     """
 
     def __init__(self, cfg: SafetyConfig | None = None, command_scale: float = 200.0, rate: float = 1.0e4,

@@ -137,10 +137,10 @@ class Target:
         ctl.log.record(tick=0)
         if isinstance(self.driver, VirtualRig):  # its compiled loop, on a throwaway drop
             from impact_env.rig import controller as CT
-            from impact_env.rig.episode import _NS_PER_CYCLE, ns_per_cycle
+            from impact_env.rig.cycles import cached_ns_per_cycle
             from impact_env.sim.records import N_REC
 
-            _NS_PER_CYCLE[:] = [ns_per_cycle()]
+            cached_ns_per_cycle(refresh=True)
             hw = self.driver.hw
             hw.refill_noise(1)
             rig = CT.VirtualRig(hw.params, hw.state, CT.truth_columns(ctl.log),
@@ -242,25 +242,39 @@ class Target:
         msg = P.Message(body, session=session, seq=0, target_ns=time.perf_counter_ns() & P.U64)
         self.endpoint.send(P.encode(msg, key, 0), addr)
 
-    def _reply(self, body: P.Body, to: P.Message) -> None:
+    # -- what a running episode may ask of its target ----------------------------------------------
+    @property
+    def stopping(self) -> bool:
+        """The target is shutting down: the episode ends before its next tick."""
+        return self._stop.is_set()
+
+    def queue_arm(self, msg: P.Message) -> None:
+        """An ARM that ended the running episode: it starts the next one."""
+        self._pending = msg
+
+    def close_session_after_episode(self) -> None:
+        """The host is closing: its session ends with the episode."""
+        self._close_session = True
+
+    def reply(self, body: P.Body, to: P.Message) -> None:
         self.link.send(body, reply_to=to, addr=self.link.last_sender)
 
     def _error(self, to: P.Message, code: int, text: str) -> None:
-        self._reply(P.Error.shorten(code, to.seq, text), to)
+        self.reply(P.Error.shorten(code, to.seq, text), to)
 
     def _handle_idle(self, msg: P.Message) -> None:
         t = msg.type
         if t == P.MsgType.HELLO:
             self.open_session(msg)
-            self._reply(self._info(msg.body.nonce), msg)
+            self.reply(self.info(msg.body.nonce), msg)
         elif t == P.MsgType.FETCH:
-            self._serve_fetch(msg)
+            self.serve_fetch(msg)
         elif t == P.MsgType.POLICY_CHUNK:
-            self._reply(self.upload.add(msg.body, msg.seq), msg)
+            self.reply(self.upload.add(msg.body, msg.seq), msg)
         elif t == P.MsgType.ARM:
             self._arm(msg)
         elif t == P.MsgType.DISARM:
-            self._reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, 0), msg)
+            self.reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, 0), msg)
             if msg.body.reason == 1:  # the host is closing: its session ends
                 self._close_session = True
         elif t == P.MsgType.COMMAND:
@@ -269,14 +283,14 @@ class Target:
                 # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
                 self.link.send(self._last_obs, addr=self.link.last_sender)
         elif t == P.MsgType.HEARTBEAT:
-            self._reply(P.Heartbeat(int(self.state), self.episode, 0, msg.seq), msg)
+            self.reply(P.Heartbeat(int(self.state), self.episode, 0, msg.seq), msg)
 
-    def _serve_fetch(self, msg: P.Message) -> None:
+    def serve_fetch(self, msg: P.Message) -> None:
         b = msg.body
         if b.resource == P.Resource.SCENE:
-            self._reply(chunk_reply(self.scene_toml, b, msg.seq), msg)
+            self.reply(chunk_reply(self.scene_toml, b, msg.seq), msg)
         elif b.resource == P.Resource.EPISODE and b.item in self.episodes:
-            self._reply(chunk_reply(self.episodes[b.item], b, msg.seq), msg)
+            self.reply(chunk_reply(self.episodes[b.item], b, msg.seq), msg)
         elif (b.resource == P.Resource.EPISODE and b.item == self.episode
                 and self.state == P.TargetState.RUNNING):
             self._error(msg, P.ErrorCode.BUSY, f"episode {b.item} is still running")
@@ -372,7 +386,7 @@ class Target:
             ctl.drain(int(self.cfg.rearm_idle_s * self.rate))
         self.state = P.TargetState.RUNNING
         armed = P.Armed(self.episode, 0, ctl.layout.size, 1, 4, N_TELEMETRY, hold, self.rate, self.scene_sha)
-        self._reply(armed, arm_msg)
+        self.reply(armed, arm_msg)
         if kind in (P.EpisodeKind.SHAKER, P.EpisodeKind.QUIET):
             drv.hold()
         else:
@@ -438,7 +452,7 @@ class Target:
                                      ep.m // ctl.hold, len(data), hashlib.sha256(data).digest())
         self.link.send(self.last_end, addr=self.link.last_sender)
 
-    def _info(self, nonce: int) -> P.Info:
+    def info(self, nonce: int) -> P.Info:
         return P.Info(nonce, self.rate, int(self.state), 0 if self.driver.virtual else 1, self.cfg.lockstep,
                       len(self.scene_toml), self.scene_sha, self.link.filter.nonce, self.keyed)
 

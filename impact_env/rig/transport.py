@@ -32,6 +32,7 @@ import time
 from collections.abc import Callable
 
 from impact_env.rig import protocol as P
+from impact_env.rig.errors import RigError
 
 Address = tuple[str, int]
 
@@ -45,18 +46,6 @@ class RigTimeout(TimeoutError):
         super().__init__(f"no {what} from {address} within {waited_s:.3g} s{tries_s}: is the target "
                          "running and reachable (impact-env rig serve), and the address right?")
         self.what, self.waited_s, self.address, self.tries = what, waited_s, address, tries
-
-
-class RigError(RuntimeError):
-    """The peer answered a request with an ERROR message (``code``: a ``protocol.ErrorCode``)."""
-
-    def __init__(self, what: str, code: int, text: str):
-        try:
-            name = P.ErrorCode(code).name
-        except ValueError:
-            name = f"code {code}"
-        super().__init__(f"the target refused {what}: {name}: {text}")
-        self.code, self.text = code, text
 
 
 class EndpointClosed(OSError):

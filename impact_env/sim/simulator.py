@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from impact_env._jit import bound_call
+from impact_env.config import check_hold_ticks
 from impact_env.control.front_end import FrontEnd
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.control.policy import CompiledPolicy
@@ -23,15 +24,6 @@ from impact_env.hardware.batch import NOISE_BLOCK, Hardware
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.records import N_REC
 from impact_env.sim.step import SimParams, SimState, sim_step
-
-
-def check_hold_ticks(hold_ticks) -> int:
-    """``hold_ticks`` as an int, or ValueError naming it and its range."""
-    whole = isinstance(hold_ticks, (int, np.integer)) and not isinstance(hold_ticks, bool)
-    if not whole or not 1 <= hold_ticks <= 10_000:
-        raise ValueError(f"hold_ticks = {hold_ticks!r} is out of range: an integer number of control periods "
-                         "in [1, 10000] per policy step")
-    return int(hold_ticks)
 
 
 class Simulator:

@@ -13,7 +13,7 @@ Seeding follows SB3: ``env.seed(s)`` (what ``model.set_random_seed`` calls) make
 
     >>> import torch
     >>> from stable_baselines3 import PPO
-    >>> from impact_env.env.sb3 import make_sb3_vec_env
+    >>> from impact_env.env.sb3_vecenv import make_sb3_vec_env
     >>> torch.set_num_threads(1)  # small networks: more threads only cost (bench_torch_threads.py)
     >>> env = make_sb3_vec_env("rig", num_envs=64)  # an SB3 VecEnv in a VecMonitor
     >>> model = PPO("MlpPolicy", env)  # doctest: +SKIP
@@ -29,7 +29,7 @@ from gymnasium.vector import AutoresetMode
 try:
     from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 except ImportError as exc:  # the optional extra: say how to get it
-    raise ImportError("impact_env.env.sb3 adapts the vector env to stable-baselines3, which is not "
+    raise ImportError("impact_env.env.sb3_vecenv adapts the vector env to stable-baselines3, which is not "
                       "installed: pip install 'impact-env[sb3]' (stable-baselines3 and torch)") from exc
 
 from impact_env.env.vector import ImpactCatchVectorEnv
