@@ -46,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 
 from impact_env.control.front_end import condition  # noqa: E402
 from impact_env.hardware.stage import hardware_tick  # noqa: E402
-from impact_env.plant.integrators import advance  # noqa: E402
+from impact_env.plant.integrators import PlantCarry, PlantConsts, advance  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
 from impact_env.sim.simulator import Simulator  # noqa: E402
 from impact_env.sim.step import sim_step  # noqa: E402
@@ -59,7 +59,8 @@ def bare_loop(n, y, mode, f2, period, p, method, dt, rtol, scale, hstate, ev, ev
     peak = np.zeros(1)
     for _ in range(n):
         peak[0] = 0.0
-        status, mode = advance(y, mode, f2, 0.0, period, p, method, dt, rtol, scale, hstate, ev, evn, peak)
+        status, mode = advance(mode, f2, 0.0, period, PlantConsts(p, scale, method, dt, rtol),
+                               PlantCarry(y, hstate, ev, evn, peak))
     return mode
 
 
@@ -79,7 +80,8 @@ def _pipeline_runner(sim: Simulator, n: int):
     hw = sim.hw
     start = {k: getattr(hw, k).copy() for k in STATE}
     fe_start = [a.copy() for a in sim.fe.state]
-    noise = type(hw.state.noise)(np.random.default_rng(0).standard_normal((1, 1, 4)), np.zeros(1, dtype=np.int64))
+    z = np.random.default_rng(0).standard_normal((1, 1, 4))
+    noise = type(hw.state.noise)(z, np.zeros(1, dtype=np.int64))
     hw_s = hw.state._replace(noise=noise)
 
     def run():

@@ -39,7 +39,7 @@ import impact_env  # noqa: E402
 from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params  # noqa: E402
 from impact_env.plant import layout as L  # noqa: E402
 from impact_env.plant.hertz import contact_time  # noqa: E402
-from impact_env.plant.integrators import advance  # noqa: E402
+from impact_env.plant.integrators import PlantCarry, PlantConsts, advance  # noqa: E402
 
 FIXED = [("euler", True), ("euler", False), ("symplectic-euler", True), ("symplectic-euler", False),
          ("rk4", True), ("rk4", False)]
@@ -74,8 +74,8 @@ def throughput(t_sim: float, dt: float, repeats: int) -> list[dict]:
             y = y0.copy()
             evn[0] = 0
             mode = L.FREE if events else L.AUTO
-            status, _ = advance(y, mode, 0.0, 0.0, n_steps * dt, p, code, dt, 1e-9, scale, hstate,
-                                ev, evn, peak)
+            status, _ = advance(mode, 0.0, 0.0, n_steps * dt, PlantConsts(p, scale, code, dt, 1e-9),
+                                PlantCarry(y, hstate, ev, evn, peak))
             assert status == L.OK, status
             return int(evn[0])
 

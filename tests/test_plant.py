@@ -24,7 +24,7 @@ import impact_env
 from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params
 from impact_env.plant import hertz
 from impact_env.plant import layout as L
-from impact_env.plant.integrators import advance
+from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import budget  # noqa: E402
@@ -139,8 +139,8 @@ def test_advance_matches_naive_stepper(method):
     ev = np.zeros((16, L.N_EVENT_COLS))
     evn = np.zeros(1, dtype=np.int64)
     peak = np.zeros(1)
-    status, mode = advance(y, L.AUTO, f2, 0.0, n * dt, parr, METHOD_CODES[method], dt, 1e-9,
-                           np.ones(6), np.zeros(1), ev, evn, peak)
+    consts = PlantConsts(parr, np.ones(6), METHOD_CODES[method], dt, 1e-9)
+    status, mode = advance(L.AUTO, f2, 0.0, n * dt, consts, PlantCarry(y, np.zeros(1), ev, evn, peak))
     assert status == L.OK and mode == L.AUTO
     ref = naive.run_fixed(y0, p, dt, n, method, f2=f2)
     scale = np.abs(ref).max(axis=0)
@@ -170,8 +170,8 @@ def test_free_flight_is_exact(method):
     ev = np.zeros((4, L.N_EVENT_COLS))
     evn = np.zeros(1, dtype=np.int64)
     t = n * dt
-    status, mode = advance(y, L.FREE, f2, 0.0, t, p, METHOD_CODES[method], dt, 1e-10,
-                           np.array([1e-3, 1.0, 1e-3, 1.0, 1e-3, 1e-3]), np.zeros(1), ev, evn, np.zeros(1))
+    consts = PlantConsts(p, np.array([1e-3, 1.0, 1e-3, 1.0, 1e-3, 1e-3]), METHOD_CODES[method], dt, 1e-10)
+    status, mode = advance(L.FREE, f2, 0.0, t, consts, PlantCarry(y, np.zeros(1), ev, evn, np.zeros(1)))
     assert status == L.OK and mode == L.FREE and evn[0] == 0
     a2 = -f2 / 1.0
     exact = np.array([-0.5 + 0.1 * t + 0.5 * G * t * t, 0.1 + G * t, 0.5 * a2 * t * t, a2 * t,
@@ -390,9 +390,10 @@ def test_kernel_reports_nan_state_as_divergence():
     p[[L.M1, L.M2, L.C, L.G]] = [0.1, 1.0, 2e6, G]
     for method in ("euler", "rk4", "dopri5"):
         y = np.array([-1e-3, float("nan"), 0.0, 0.0, 0.0, 0.0])
-        status, _ = advance(y, L.FREE, 0.0, 0.0, 1e-4, p, METHOD_CODES[method], 1e-6, 1e-9,
-                            np.ones(6), np.zeros(1), np.zeros((4, 6)), np.zeros(1, dtype=np.int64),
-                            np.zeros(1))
+        consts = PlantConsts(p, np.ones(6), METHOD_CODES[method], 1e-6, 1e-9)
+        status, _ = advance(L.FREE, 0.0, 0.0, 1e-4, consts,
+                            PlantCarry(y, np.zeros(1), np.zeros((4, 6)), np.zeros(1, dtype=np.int64),
+                                       np.zeros(1)))
         # fixed-step: DIVERGED; dopri5 rejects the NaN error estimate until its step
         # underflows and reports STEP_UNDERFLOW (simulate raises SimulationDiverged for both)
         assert status in ((L.DIVERGED, L.STEP_UNDERFLOW) if method == "dopri5" else (L.DIVERGED,))

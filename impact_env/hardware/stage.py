@@ -38,15 +38,15 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.effects import registry
-from impact_env.effects.delay import ACTUATOR_DELAY, SENSOR_DELAY, delay_packed
 from impact_env.effects import saturation as _SA
 from impact_env.effects import sensors as _SE
 from impact_env.effects import shaker as _SH
+from impact_env.effects.delay import ACTUATOR_DELAY, SENSOR_DELAY, delay_packed
 from impact_env.effects.saturation import saturate
 from impact_env.effects.sensors import read_packed, sense_packed
 from impact_env.effects.shaker import shaker_packed
 from impact_env.plant.dynamics import contact_force
-from impact_env.plant.integrators import advance
+from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
 from impact_env.plant.layout import C2, K2, M2, X1, X2, B, C
 
 # flag bits (the hardware's effects, as each declares itself: impact_env.effects.registry)
@@ -201,8 +201,9 @@ def hardware_tick(i, u, p, s):
     inf[INFO_SATURATED] = 1.0 if sat else 0.0
     peak = inf[INFO_PEAK_FORCE:INFO_PEAK_FORCE + 1]
     peak[0] = 0.0
-    status, mode = advance(y, ps.mode[i], f, 0.0, cfg.period, pp, cfg.method, cfg.dt, cfg.rtol,
-                           p.plant.scale[i], ps.h[i], ps.events[i], ps.n_events[i], peak)
+    status, mode = advance(ps.mode[i], f, 0.0, cfg.period,
+                           PlantConsts(pp, p.plant.scale[i], cfg.method, cfg.dt, cfg.rtol),
+                           PlantCarry(y, ps.h[i], ps.events[i], ps.n_events[i], peak))
     ps.mode[i] = mode
     inf[INFO_STATUS] = status
     # the true contact force and body 2's acceleration at the end of the period, by the same

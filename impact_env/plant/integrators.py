@@ -17,6 +17,7 @@ All kernels take plain float64 arrays and floats and keep no global state.
 from __future__ import annotations
 
 from math import sqrt
+from typing import NamedTuple
 
 import numpy as np
 
@@ -48,6 +49,40 @@ from impact_env.plant.layout import (
     C,
     G,
 )
+
+
+class PlantConsts(NamedTuple):
+    """What the integrator keeps fixed over a span (one env)."""
+
+    p: np.ndarray  # float64[N_PARAM]: the plant's parameters (impact_env.plant.layout)
+    scale: np.ndarray  # float64[6]: dopri5's per-component scale (absolute tolerance rtol * scale)
+    method: int  # EULER, SYMPLECTIC_EULER, RK4 or DOPRI5
+    dt: float  # s: the fixed-step methods' step (a span is a whole number of them)
+    rtol: float  # dopri5's relative tolerance
+
+
+class PlantCarry(NamedTuple):
+    """What the integrator updates in place (one env)."""
+
+    y: np.ndarray  # float64[6]: x1, v1, x2, v2, W_ext, W_diss
+    h: np.ndarray  # float64[1]: dopri5's step size, carried between calls (the fixed-step
+    #                methods' time left in the graded zone after a touch)
+    events: np.ndarray  # float64[E, N_EVENT_COLS]: the event log
+    n_events: np.ndarray  # int64[1]: its fill count (events past its size are counted)
+    peak: np.ndarray  # float64[1]: raised to the largest contact force at step ends and events;
+    #                   or float64[2], whose peak[1] is raised to the largest penetration (m)
+
+
+class Records(NamedTuple):
+    """Where a recording run writes: the state, mode and peak contact force at ``n`` equally
+    spaced times, into rows ``k0 .. k0 + n - 1`` (n = 0: no records)."""
+
+    y: np.ndarray  # float64[rows, 6]
+    mode: np.ndarray  # int64[rows]
+    peak: np.ndarray  # float64[rows]
+    k0: int
+    n: int
+
 
 EVENT_TOL = 1e-13  # event bracket width, relative to the step being split
 MAX_EVENT_ITER = 200
@@ -284,7 +319,7 @@ def _penetration_peak(pkd, d0, s0, d1, s1, h):
 
 
 @jit(inline="always")
-def _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak):
+def _advance_fixed(mode, f2, t0, span, c, s):
     """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
     at a contact switch and in the graded zone after a touch.
 
@@ -295,6 +330,8 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak):
     touch; a mesh graded towards the singular point), crossing grid points as needed: the grid
     itself is kept.  ``hstate[0]`` carries the time left in the zone from one call to the next.
     """
+    y, hstate, ev, evn, peak = s.y, s.h, s.events, s.n_events, s.peak
+    p, method, dt = c.p, c.method, c.dt
     im1 = 1.0 / p[M1]  # inverse masses (1/kg)
     im2 = 1.0 / p[M2]
     c = p[C]
@@ -415,41 +452,38 @@ def _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak):
 
 
 @jit
-def advance(y, mode, f2, t0, span, p, method, dt, rtol, scale, hstate, ev, evn, peak):
-    """Integrate y (float64[6], in place) over ``span`` seconds from time t0 under the constant
+def advance(mode, f2, t0, span, c, s):
+    """Integrate ``s.y`` (in place) over ``span`` seconds from time t0 under the constant
     shaker force f2 (N).
 
     mode: ``AUTO`` (no event location) or the current ``FREE``/``CONTACT`` mode.
-    dt: step for the fixed-step methods (span must be a whole number of steps).
-    rtol, scale: DOPRI5's relative tolerance and the per-component scale (float64[6]) that
-    sets its absolute tolerance ``rtol * scale``.
-    hstate: float64[1], DOPRI5's step size carried between calls.
-    ev, evn: event buffer (n, 6) and its fill count (int64[1]); events past its size are counted.
-    peak: float64[1], raised to the largest contact force seen at step ends and events; or
-    float64[2], whose peak[1] is also raised to the largest penetration (m), tracked at every
-    step (:func:`_penetration_peak`).
+    c: :class:`PlantConsts` (parameters, method, step, tolerance); s: :class:`PlantCarry` (the
+    state, step size, event log and peaks, updated in place; ``s.peak[1]``, if present, is
+    raised to the largest penetration at every step, :func:`_penetration_peak`).
     Returns ``(status, mode)``.
     """
-    if method != DOPRI5:
-        return _advance_fixed(y, mode, f2, t0, span, p, method, dt, hstate, ev, evn, peak)
-    status, mode, _n = dopri_run(y, mode, f2, t0, span, p, rtol, scale, hstate, ev, evn, peak, 0,
-                                 np.empty((0, 6)), np.empty(0, dtype=np.int64), np.empty(0), 0)
+    if c.method != DOPRI5:
+        return _advance_fixed(mode, f2, t0, span, c, s)
+    status, mode, _n = dopri_run(mode, f2, t0, span, c, s,
+                                 Records(np.empty((0, 6)), np.empty(0, dtype=np.int64), np.empty(0), 0, 0))
     return status, mode
 
 
 @jit
-def dopri_run(y, mode, f2, t0, span, p, rtol, scale, hstate, ev, evn, peak, n_rec, out_y, out_mode,
-              out_peak, k0):
+def dopri_run(mode, f2, t0, span, c, s, rec):
     """Adaptive Dormand-Prince 5(4) over ``span`` seconds from t0 under the constant force f2,
-    optionally recording: with ``n_rec > 0`` the state at ``t0 + r span / n_rec`` (r = 1 ..
-    n_rec) goes to ``out_y[k0 + r - 1]`` (with the mode and the peak contact force since the
-    previous record), taken from the continuous extension of the step that contains it.  The
-    steps are then those of an unrecorded run: the records do not cut them, so the recorded
-    states do not depend on the record rate (only the span's end and the contact events end a
-    step early).  ``n_rec = 0``: no records (:func:`advance`).
+    optionally recording (:class:`Records` ``rec``): with ``rec.n > 0`` the state at
+    ``t0 + r span / rec.n`` (r = 1 .. rec.n) goes to ``rec.y[rec.k0 + r - 1]`` (with the mode and
+    the peak contact force since the previous record), taken from the continuous extension of the
+    step that contains it.  The steps are then those of an unrecorded run: the records do not cut
+    them, so the recorded states do not depend on the record rate (only the span's end and the
+    contact events end a step early).  ``rec.n = 0``: no records (:func:`advance`).
 
     Returns ``(status, mode, records written)``.
     """
+    y, hstate, ev, evn, peak = s.y, s.h, s.events, s.n_events, s.peak
+    p, rtol, scale = c.p, c.rtol, c.scale
+    out_y, out_mode, out_peak, k0, n_rec = rec.y, rec.mode, rec.peak, rec.k0, rec.n
     im1 = 1.0 / p[M1]  # inverse masses (1/kg)
     im2 = 1.0 / p[M2]
     c = p[C]

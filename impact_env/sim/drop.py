@@ -23,6 +23,7 @@ from impact_env.hardware.arrays import (
     plant_params,
 )
 from impact_env.plant import layout as L
+from impact_env.plant.integrators import PlantCarry, PlantConsts, Records
 from impact_env.plant.run import run_periods
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.trajectory import Trajectory, build_trajectory
@@ -105,17 +106,19 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     f2_rec = np.zeros(n + 1)
     out_y[0] = y
     out_mode[0] = mode
+    consts = PlantConsts(p, scale, method, integ.dt, integ.rtol)
+    carry = PlantCarry(y, hstate, ev, evn, peak)
     t0 = time.perf_counter()
     status = L.OK
     done = n
     if controller is None:
-        status, mode, done = run_periods(y, mode, 0.0, 0.0, rec_period, n, p, method, integ.dt,
-                                         integ.rtol, scale, hstate, ev, evn, out_y, out_mode, out_peak, 1,
-                                         peak)
+        status, mode, done = run_periods(mode, 0.0, 0.0, rec_period, consts, carry,
+                                         Records(out_y, out_mode, out_peak, 1, n))
     else:
         scr_y = np.empty((1, L.N_STATE))
         scr_mode = np.empty(1, dtype=np.int64)
         scr_peak = np.zeros(1)
+        scr = Records(scr_y, scr_mode, scr_peak, 0, 1)
         k_ctrl = 0
         for k in range(1, n + 1):
             peak_k = 0.0
@@ -124,9 +127,7 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
                 f2 = float(controller(t, y[:4].copy()))
                 if not math.isfinite(f2):
                     raise ValueError(f"controller returned a non-finite force {f2!r} N at t = {t:g} s")
-                status, mode, _done = run_periods(y, mode, f2, t, ctrl_period, 1, p, method, integ.dt,
-                                                  integ.rtol, scale, hstate, ev, evn, scr_y, scr_mode,
-                                                  scr_peak, 0, peak)
+                status, mode, _done = run_periods(mode, f2, t, ctrl_period, consts, carry, scr)
                 peak_k = max(peak_k, scr_peak[0])
                 k_ctrl += 1
                 if status != L.OK:
