@@ -28,7 +28,8 @@ def add_parser(sub) -> None:
                                            "identification-drop episodes (impact-env rig identify)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="the calibrated scene file to write")
     p.add_argument("--report", metavar="DIR", default=None,
-                   help="write report.md, identification.json and figures here (default: beside --out)")
+                   help="write report.md, identification.json and figures here (default: the folder "
+                        "FILE-report beside --out)")
     p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     add_identify_arguments(p)
     p.set_defaults(func=cmd_identify)
@@ -107,7 +108,8 @@ def run_identification(args, paths, out: Path, report_dir: Path) -> int:
 def cmd_identify(args) -> int:
     out = Path(args.out)
     _check_out(out, args.force)
-    return run_identification(args, args.logs, out, Path(args.report) if args.report else out.parent)
+    report = Path(args.report) if args.report else out.with_name(out.stem + "-report")
+    return run_identification(args, args.logs, out, report)
 
 
 def cmd_rig_identify(args) -> int:
@@ -117,6 +119,8 @@ def cmd_rig_identify(args) -> int:
     from impact_env.rig.host import RigClient
 
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {str(out)!r} is a file; give a folder (logs, the scene file and the report go in it)")
     if out.exists() and any(out.iterdir()) and not args.force:
         raise ConfigError(f"--out {str(out)!r} exists and is not empty; give --force to add to it")
     if args.drops is not None and not 2 <= args.drops <= 100:

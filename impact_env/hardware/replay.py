@@ -65,8 +65,10 @@ def replay(hw, commands: np.ndarray, held: bool = False) -> tuple[np.ndarray, np
     hw.reset([None] * K)
     if held:
         hw.hold_body1(np.arange(K))
-    hw.noise = np.zeros((K, max(n, 1), hw.noise.shape[2]))
-    hw.noise_block = max(n, 1)
+    shape = (K, max(n, 1), hw.noise.shape[2])
+    if hw.noise.shape != shape or hw.noise_block != shape[1]:  # (zeros stay zeros: the kernel reads them only)
+        hw.noise = np.zeros(shape)
+        hw.noise_block = shape[1]
     hw.cursor[:] = 0
     R = np.empty((K, n, hw.raw.shape[1]))
     failed = replay_kernel(U, *hw.args(), R)
