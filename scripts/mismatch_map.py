@@ -45,7 +45,8 @@ def main(argv=None) -> int:
         name, values = parse_vary(grid, scene.control_rate)
         if args.only and name not in args.only:
             continue
-        res = robustness(scene, POLICIES, [(name, values)], args.episodes, args.seed, args.workers, progress=False)
+        res = robustness(scene, POLICIES, [(name, values)], args.episodes, args.seed, args.workers,
+                         progress=False)
         res.identified = bands
         plot(res, figs / f"mismatch_{name}.png", NAMES)
         results[name] = {"values": values.tolist(), "nominal": res.nominal[name], "wall_s": res.wall_s,
@@ -78,17 +79,20 @@ def render(results: dict, args) -> str:
     cmd = "python scripts/mismatch_map.py --episodes {} {}".format(
         args.episodes, f"--identified {args.identified}" if args.identified else "").strip()
     out = [f"Written by `{cmd}` ({args.episodes} drops of `rig` per point and policy, seeds "
-           f"{args.seed}-{args.seed + args.episodes - 1}; energy integral in ms, median catch time in s "
-           "(>0.4: half the drops or more not caught), mean time at the 200 N limit in ms, mean bounces).", ""]
+           f"{args.seed}-{args.seed + args.episodes - 1}; energy integral in ms, median catch time "
+           "in s (>0.4: half the drops or more not caught), mean time at the 200 N limit in ms, "
+           "mean bounces).", ""]
     for name, r in results.items():
         out += [f"**{name}** (nominal {r['nominal']:g}; figure `docs/figures/mismatch_{name}.png`)", "",
-                "| " + name + " | " + " | ".join(f"{NAMES[p]}: int E / catch / sat / bounces" for p in POLICIES) + " |",
+                "| " + name + " | "
+                + " | ".join(f"{NAMES[p]}: int E / catch / sat / bounces" for p in POLICIES) + " |",
                 "|---|" + "---|" * len(POLICIES)]
         for v, row in zip(r["values"], r["rows"], strict=True):
             cells = []
             for p in POLICIES:
                 s = row[p]
-                cells.append(f"{_f(s.get('energy_integral_ms'))} / {_f(s.get('time_to_catch_median_s'), 'catch')} / "
+                cells.append(f"{_f(s.get('energy_integral_ms'))} / "
+                             f"{_f(s.get('time_to_catch_median_s'), 'catch')} / "
                              f"{_f(s.get('saturation_time_s'), 1e3, 1)} / {_f(s.get('bounces'), 1.0, 1)}")
             out.append(f"| {v:.4g} | " + " | ".join(cells) + " |")
         out.append("")

@@ -33,8 +33,9 @@ FIELDS = tuple(f for f in RandomizeConfig.__dataclass_fields__)
 NEEDS = {"sensor_delay_s": "sensor_delay", "actuator_delay_s": "actuator_delay"}
 LABELS = {"c": "pad stiffness c, N/m^1.5", "restitution": "pad restitution", "m1": "body 1's mass m1, kg",
           "m2": "body 2's mass m2, kg", "drop_height": "drop height, m", "impact_speed": "impact speed, m/s",
-          "suspension_stiffness": "suspension stiffness, N/m", "suspension_damping": "suspension damping, N s/m",
-          "noise_scale": "sensor noise / nominal", "command_gain": "command gain (force per command / nominal)",
+          "suspension_stiffness": "suspension stiffness, N/m",
+          "suspension_damping": "suspension damping, N s/m", "noise_scale": "sensor noise / nominal",
+          "command_gain": "command gain (force per command / nominal)",
           "shaker_lowpass_hz": "shaker band edge, Hz", "shaker_coil_inductance": "coil inductance, H",
           "sensor_delay_s": "sensor delay, s", "actuator_delay_s": "actuator delay, s",
           "top_mass": "transducer's top mass m2', kg"}
@@ -206,7 +207,8 @@ def write_outputs(res: Robustness, out_dir, fmt: str = "png") -> list[Path]:
             for spec in res.specs:
                 s = row[spec]
                 w.writerow([*(p[n] for n in names), spec,
-                            *("" if s.get(k) is None or not math.isfinite(float(s[k])) else s[k] for k in METRICS)])
+                            *("" if s.get(k) is None or not math.isfinite(float(s[k])) else s[k]
+                              for k in METRICS)])
     js = {"scene": res.scene_name, "axes": {n: v.tolist() for n, v in res.axes}, "nominal": res.nominal,
           "episodes": res.episodes, "seed": res.seed, "horizon_s": res.horizon, "wall_s": res.wall_s,
           "identified": res.identified,
@@ -288,7 +290,8 @@ def format_table(res: Robustness) -> str:
             t = s.get("time_to_catch_median_s")
             catch = ">H" if t is None or not math.isfinite(float(t)) else f"{float(t):.3f}"
             cells = [*(f"{p[n]:.4g}" for n in names), spec[-14:], f"{_value(s, 'energy_integral_ms', 0):.2f}",
-                     catch, f"{100 * _value(s, 'caught_fraction', 0):.0f}%", f"{_value(s, 'peak_force_N', 0):.1f}",
+                     catch, f"{100 * _value(s, 'caught_fraction', 0):.0f}%",
+                     f"{_value(s, 'peak_force_N', 0):.1f}",
                      f"{1e3 * _value(s, 'saturation_time_s', 0):.2f}", f"{_value(s, 'bounces', 0):.1f}"]
             lines.append("  ".join(f"{c:>14s}" for c in cells))
     return "\n".join(lines)

@@ -120,7 +120,8 @@ class Model:
         b, p = self.base, self.base.plant
         return {"drive_per_m2": b.effects.command_scale / p.m2, "k2_per_m2": p.suspension_stiffness / p.m2,
                 "c2_per_m2": p.suspension_damping / p.m2, "highpass_hz": b.effects.shaker.highpass_hz,
-                "lowpass_hz": b.effects.shaker.lowpass_hz, "coil_inductance": b.effects.shaker.coil_inductance,
+                "lowpass_hz": b.effects.shaker.lowpass_hz,
+                "coil_inductance": b.effects.shaker.coil_inductance,
                 "top_mass": b.effects.sensors.force.top_mass, "m2": p.m2, "m1": p.m1, "c": p.c,
                 "restitution": p.restitution}[name]
 
