@@ -29,7 +29,6 @@ import numpy as np
 from impact_env.ident import report
 from impact_env.ident.experiments import load
 from impact_env.ident.fit import Problem, identify
-from impact_env.ident.model import FIELDS
 from impact_env.ident.plan import default_plan, run_plan
 from impact_env.ident.virtual import perturbed_physics
 from impact_env.rig.driver import VirtualRig

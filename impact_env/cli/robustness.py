@@ -33,7 +33,13 @@ def add_parser(sub, scene_args) -> None:
 def cmd_robustness(args) -> int:
     from impact_env.config import ConfigError
     from impact_env.eval.compare import split_policies
-    from impact_env.eval.robustness import format_table, identified_bands, parse_vary, robustness, write_outputs
+    from impact_env.eval.robustness import (
+        format_table,
+        identified_bands,
+        parse_vary,
+        robustness,
+        write_outputs,
+    )
 
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed} must be >= 0")

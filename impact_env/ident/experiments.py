@@ -17,11 +17,11 @@ a set of logs and refuses, before any fitting, naming the file and the cause:
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 from impact_env.config import ConfigError
 from impact_env.effects.sensors import CHANNELS

@@ -227,8 +227,10 @@ def _contacts(phi: np.ndarray, threshold: float) -> list[tuple[int, int]]:
     """(first, last + 1) tick ranges where the contact force exceeds ``threshold``."""
     on = phi > threshold
     edges = np.flatnonzero(np.diff(on.astype(np.int8)))
-    out, start = [], (0 if on[0] else None)
-    for i in edges:
+    out: list[tuple[int, int]] = []
+    start: int | None = 0 if on[0] else None
+    for e in edges:
+        i = int(e)
         if on[i + 1]:
             start = i + 1
         elif start is not None:

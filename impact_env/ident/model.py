@@ -18,6 +18,7 @@ episodes, no noise and an ideal converter (the fit compares with the mean; the A
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -77,7 +78,7 @@ FIELD_MAP = np.array([[1.0 if name in FIELDS[f] else 0.0 for name in NAMES] for 
 
 
 def get_field(scene: Scene, dotted: str) -> float:
-    obj = scene
+    obj: Any = scene
     for part in dotted.split("."):
         obj = getattr(obj, part)
     return float(obj)
