@@ -1,0 +1,156 @@
+"""``compare`` on a Dask cluster against the local process pool, on this machine (docs/cluster.md).
+
+    python scripts/bench_cluster.py [--rounds 3] [--episodes 100] [--oracle-drops 8] \\
+        [--out docs/cluster_bench.json]
+
+Starts a real cluster on loopback (tests/local_cluster.py: ``python -m dask scheduler`` and
+``python -m dask worker --nworkers 2 --nthreads 1``, a worker process per core), connects once,
+loads the kernels everywhere, then times two workloads in one process, alternating the ways of
+running them round by round (so a slow spell of the machine falls on all of them):
+
+* ``classic``: ``compare --scene rig --policies passive,thesis-rig,pd-penetration --episodes E``;
+* ``oracle``: ``compare --scene rig --policies pd-penetration,oracle:generations=20 --episodes D``;
+
+each run serially (``--workers 1``), on the local pool (``--workers 2``) and on the cluster
+(``--cluster``, 2 worker processes).  Reported: the median wall time of each and the ratios
+(speed-up of the cluster over the local pool, of the pool over one process), with the cluster's
+overheads (start, connection, a task's round trip, the first load of the kernels in a fresh
+worker) and the sizes of what travels (a task, a result per drop).  Every cluster run's metrics are
+checked bitwise against the local pool's (and the serial run's).  The machine's load average
+before and after is recorded: on a shared machine, other jobs on the same cores skew every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import pickle
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+
+def _cpu() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--episodes", type=int, default=100,
+                    help="episodes of the classic workload (default 100)")
+    ap.add_argument("--oracle-drops", type=int, default=8, help="drops of the oracle workload (default 8)")
+    ap.add_argument("--out", default=None, help="write the figures as JSON here")
+    args = ap.parse_args()
+
+    import distributed
+    import numba
+    import numpy as np
+    from local_cluster import local_cluster
+
+    from impact_env.eval.compare import Task, _run_task, compare
+    from impact_env.eval.parallel import Cluster, run_tasks
+    from impact_env.scene import load_scene
+
+    scene = load_scene("rig")
+    workloads = {
+        "classic": (["passive", "thesis-rig", "pd-penetration"], args.episodes),
+        "oracle": (["pd-penetration", "oracle:generations=20"], args.oracle_drops),
+    }
+    # the kernels compiled (or loaded) in this process before anything is timed
+    compare(scene, ["passive", "oracle:generations=2,popsize=4"], episodes=1, horizon=0.01, workers=1,
+            progress=False)
+
+    load_before = os.getloadavg()
+    t0 = time.perf_counter()
+    with local_cluster(workers=2, threads=1) as address:
+        start_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        cluster = Cluster(address)
+        connect_s = time.perf_counter() - t0
+        try:
+            # a fresh worker's first task loads numba's cached kernels (and the imports)
+            t0 = time.perf_counter()
+            compare(scene, ["passive", "oracle:generations=2,popsize=4"], episodes=2, horizon=0.01,
+                    progress=False, cluster=cluster)
+            first_load_s = time.perf_counter() - t0
+            # a task's round trip: 200 trivial tasks over the 2 workers
+            t0 = time.perf_counter()
+            run_tasks(math.sqrt, [float(i) for i in range(200)], 2, total=200, desc="", progress=False,
+                      cluster=cluster)
+            round_trip_ms = 1e3 * (time.perf_counter() - t0) / 200 * 2  # per task, per worker
+            # what travels: a task of 50 drops and its result
+            task = Task("pd-penetration", scene, list(range(50)), 0, scene.episode.horizon, 1.0e4,
+                        record=True)
+            task_bytes = len(pickle.dumps(task))
+            result_bytes = len(pickle.dumps(_run_task(task))) / 50
+            task.record = False
+            result_plain_bytes = len(pickle.dumps(_run_task(task))) / 50
+
+            modes = {"serial": {"workers": 1}, "pool": {"workers": 2}, "cluster": {"cluster": cluster}}
+            walls: dict = {w: {m: [] for m in modes} for w in workloads}
+            for r in range(args.rounds):
+                for name, (specs, episodes) in workloads.items():
+                    order = list(modes) if r % 2 == 0 else list(reversed(modes))
+                    results = {}
+                    for mode in order:
+                        t0 = time.perf_counter()
+                        results[mode] = compare(scene, specs, episodes=episodes, seed=1000, progress=False,
+                                                **modes[mode])
+                        walls[name][mode].append(time.perf_counter() - t0)
+                        print(f"round {r + 1} {name:8s} {mode:8s} {walls[name][mode][-1]:7.2f} s", flush=True)
+                    for spec in specs:  # the cluster's results are the pool's, bitwise
+                        for key, v in results["pool"][spec].metrics.items():
+                            np.testing.assert_array_equal(v, results["cluster"][spec].metrics[key],
+                                                          err_msg=f"{name} {spec} {key}")
+                            np.testing.assert_array_equal(v, results["serial"][spec].metrics[key],
+                                                          err_msg=f"{name} {spec} {key}")
+        finally:
+            cluster.close()
+
+    out = {"script": "scripts/bench_cluster.py", "command": " ".join(["python", *sys.argv]),
+           "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "cpu": _cpu(),
+           "cores": len(os.sched_getaffinity(0)), "python": platform.python_version(),
+           # the machine's load (1, 5, 15 min) before and after: other jobs on these cores skew every figure
+           "loadavg_before": [round(x, 2) for x in load_before],
+           "loadavg_after": [round(x, 2) for x in os.getloadavg()],
+           "dask": distributed.__version__, "numba": numba.__version__,
+           "cluster": "1 scheduler + 2 worker processes x 1 thread, loopback (tests/local_cluster.py)",
+           "overheads": {"cluster_start_s": round(start_s, 2), "connect_s": round(connect_s, 3),
+                         "first_call_fresh_workers_s": round(first_load_s, 2),
+                         "task_round_trip_ms": round(round_trip_ms, 2)},
+           "sizes": {"task_bytes": task_bytes, "result_bytes_per_drop": round(result_bytes),
+                     "result_bytes_per_drop_without_commands": round(result_plain_bytes)},
+           "workloads": {}}
+    for name, (specs, episodes) in workloads.items():
+        med = {m: statistics.median(v) for m, v in walls[name].items()}
+        out["workloads"][name] = {
+            "policies": specs, "episodes": episodes, "rounds": args.rounds,
+            "wall_s": {m: [round(x, 3) for x in v] for m, v in walls[name].items()},
+            "median_s": {m: round(v, 3) for m, v in med.items()},
+            "cluster_speedup_over_pool": round(med["pool"] / med["cluster"], 3),
+            "pool_speedup_over_serial": round(med["serial"] / med["pool"], 3),
+            "cluster_speedup_over_serial": round(med["serial"] / med["cluster"], 3)}
+    text = json.dumps(out, indent=1)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
