@@ -55,6 +55,8 @@ def main() -> int:
                     help="episodes of the classic workload (default 100)")
     ap.add_argument("--oracle-drops", type=int, default=8, help="drops of the oracle workload (default 8)")
     ap.add_argument("--out", default=None, help="write the figures as JSON here")
+    ap.add_argument("--doc", default=None,
+                    help="rewrite the table between <!-- bench:start --> and <!-- bench:end --> of this file")
     args = ap.parse_args()
 
     import distributed
@@ -122,7 +124,8 @@ def main() -> int:
         finally:
             cluster.close()
 
-    out = {"script": "scripts/bench_cluster.py", "command": " ".join(["python", *sys.argv]),
+    out = {"script": "scripts/bench_cluster.py", "json": args.out,
+           "command": " ".join(["python", "scripts/bench_cluster.py", *sys.argv[1:]]),
            "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "cpu": _cpu(),
            "cores": len(os.sched_getaffinity(0)), "python": platform.python_version(),
            # the machine's load (1, 5, 15 min) before and after: other jobs on these cores skew every figure
@@ -149,7 +152,40 @@ def main() -> int:
     print(text)
     if args.out:
         Path(args.out).write_text(text + "\n")
+    if args.doc:
+        doc = Path(args.doc)
+        page = doc.read_text()
+        i, j = page.index("<!-- bench:start -->"), page.index("<!-- bench:end -->")
+        doc.write_text(page[:i] + "<!-- bench:start -->\n" + render(out) + page[j:])
     return 0
+
+
+def render(out: dict) -> str:
+    """docs/cluster.md's table of one run."""
+    o, sz = out["overheads"], out["sizes"]
+    rounds = next(iter(out["workloads"].values()))["rounds"]
+    lines = [f"Written by `{out['command']}` ({out['date_utc']} UTC, {out['cpu']}, {out['cores']} cores, "
+             f"Dask {out['dask']}, numba {out['numba']}; load average {out['loadavg_before'][0]:g} before "
+             f"and {out['loadavg_after'][0]:g} after, from other jobs on the same cores; the figures are in "
+             f"`{out.get('json') or 'the JSON the script writes'}`).  Wall time of the whole `compare` "
+             f"call, median of {rounds} alternating rounds; the cluster is 1 scheduler and 2 worker "
+             "processes of 1 thread on loopback, already started and connected.",
+             "", "| workload | one process (`--workers 1`) | local pool (`--workers 2`) | "
+             "cluster (`--cluster`) | cluster / pool speed-up | pool / one process |", "|---|---|---|---|---|---|"]
+    for name, w in out["workloads"].items():
+        m = w["median_s"]
+        what = f"`{','.join(w['policies'])}`, {w['episodes']} drops"
+        lines.append(f"| {name}: {what} | {m['serial']:.2f} s | {m['pool']:.2f} s | {m['cluster']:.2f} s | "
+                     f"{w['cluster_speedup_over_pool']:.2f} | {w['pool_speedup_over_serial']:.2f} |")
+    lines += ["", f"Overheads: starting the cluster {o['cluster_start_s']:.1f} s; connecting "
+              f"{1e3 * o['connect_s']:.0f} ms; the first `compare` on fresh workers (imports and loading "
+              f"the cached kernels in each worker process) {o['first_call_fresh_workers_s']:.1f} s; a "
+              f"trivial task's round trip {o['task_round_trip_ms']:.1f} ms of a worker's time.  Sizes: a "
+              f"task (the rig scene and 50 drops) {sz['task_bytes'] / 1e3:.1f} kB pickled; a result "
+              f"{sz['result_bytes_per_drop_without_commands'] / 1e3:.1f} kB per drop and policy, "
+              f"{sz['result_bytes_per_drop'] / 1e3:.1f} kB with the commands kept for the oracle's warm "
+              "starts.", ""]
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":
