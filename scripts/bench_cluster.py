@@ -171,7 +171,8 @@ def render(out: dict) -> str:
              f"call, median of {rounds} alternating rounds; the cluster is 1 scheduler and 2 worker "
              "processes of 1 thread on loopback, already started and connected.",
              "", "| workload | one process (`--workers 1`) | local pool (`--workers 2`) | "
-             "cluster (`--cluster`) | cluster / pool speed-up | pool / one process |", "|---|---|---|---|---|---|"]
+             "cluster (`--cluster`) | cluster / pool speed-up | pool / one process |",
+             "|---|---|---|---|---|---|"]
     for name, w in out["workloads"].items():
         m = w["median_s"]
         what = f"`{','.join(w['policies'])}`, {w['episodes']} drops"
