@@ -192,6 +192,19 @@ def test_tasks_come_back_in_task_order_and_errors_propagate(cluster):
         run_tasks(math.sqrt, [4.0, -1.0, 9.0], 2, total=3, desc="t", progress=False, cluster=cluster)
 
 
+def test_the_progress_bar_reaches_its_total_as_tasks_finish(cluster, monkeypatch):
+    seen: list[int] = []
+
+    class Recorded(parallel.Progress):
+        def update(self, n: int) -> None:
+            seen.append(n)
+            super().update(n)
+
+    monkeypatch.setattr(parallel, "Progress", Recorded)
+    run_tasks(math.sqrt, [1.0] * 7, 2, total=100, desc="t", progress=False, cluster=cluster)
+    assert len(seen) == 7 and sum(seen) == 100 and min(seen) >= 14
+
+
 @pytest.mark.slow
 def test_compare_with_the_oracle_on_the_cluster_is_bitwise_the_local_run(cluster):
     local = compare(RIG, SPECS, episodes=3, seed=7, horizon=SHORT, workers=2, progress=False)
