@@ -79,7 +79,7 @@ def main() -> int:
 
     load_before = os.getloadavg()
     t0 = time.perf_counter()
-    with local_cluster(workers=2, threads=1) as address:
+    with local_cluster(workers=2, threads=1, lifetime_s=3 * 3600.0) as address:
         start_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         cluster = Cluster(address)

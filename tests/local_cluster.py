@@ -35,7 +35,7 @@ def _stop(proc: subprocess.Popen, timeout: float = 15.0) -> None:
 
 
 @contextlib.contextmanager
-def local_cluster(workers: int = 2, threads: int = 1, lifetime_s: float = 1800.0) -> Iterator[str]:
+def local_cluster(workers: int = 2, threads: int = 1, lifetime_s: float = 600.0) -> Iterator[str]:
     """Yield the scheduler's address (``tcp://127.0.0.1:PORT``) with ``workers`` worker processes
     of ``threads`` threads each joined.  Everything is stopped on exit, or after ``lifetime_s`` s
     by a watchdog (so a hung test cannot leave the cluster running)."""

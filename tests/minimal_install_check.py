@@ -2,7 +2,8 @@
 ``pip install -e .`` alone): importing impact_env, making and checking the env, a classic-law
 comparison, a drop and an export work without torch and stable-baselines3, and a saved model
 is refused with the install hint, and so is training (``python -m agents.train``: stable-baselines3,
-torch and PyYAML are the extra 'sb3') and ``--cluster`` (Dask: the extra 'cluster').  Not a pytest module: the dev venv has every extra."""
+torch and PyYAML are the extra 'sb3') and ``--cluster`` (Dask: the extra 'cluster').  Not a pytest
+module: the dev venv has every extra."""
 
 from __future__ import annotations
 
