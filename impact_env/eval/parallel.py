@@ -207,9 +207,10 @@ class Cluster:
         return max(1, sum(self.client.nthreads().values()))
 
     def on_every_worker(self, fn: Callable[..., Any], *args: Any) -> None:
-        """``fn(*args)`` once in every worker process (a task pinned to each), e.g. to load the
-        compiled kernels before the timed tasks."""
-        futures = [self.client.submit(_unbox, _Box(fn, args), workers=[w], allow_other_workers=False,
+        """``fn(*args)`` once in every worker process (a task asked of each), e.g. to load the
+        compiled kernels before the timed tasks.  ``allow_other_workers``: a worker that leaves
+        meanwhile does not leave its call waiting forever (it runs elsewhere, harmlessly)."""
+        futures = [self.client.submit(_unbox, _Box(fn, args), workers=[w], allow_other_workers=True,
                                       pure=False) for w in self.client.nthreads()]
         self.client.gather(futures)
 
