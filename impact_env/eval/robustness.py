@@ -116,13 +116,16 @@ class Robustness:
 
 
 def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], episodes: int = 50, seed: int = 0,
-               workers: int | None = None, progress: bool = True) -> Robustness:
-    """Every policy of ``specs`` at every grid point of ``axes`` (one or two), on the same drops."""
-    import itertools
-    import time
+               workers: int | None = None, progress: bool = True, cluster=None) -> Robustness:
+    """Every policy of ``specs`` at every grid point of ``axes`` (one or two), on the same drops.
 
-    from impact_env.eval.compare import Task, _chunks, _merge, _run_task, _validate_specs, _warm_up, summarize
-    from impact_env.eval.parallel import default_workers, run_tasks
+    ``cluster``: a Dask scheduler's ``tcp://HOST:PORT`` (or a connected
+    :class:`~impact_env.eval.parallel.Cluster`): the tasks (points x policies x chunks of drops)
+    run on its workers, with the same results; ``workers`` then defaults to its worker threads."""
+    import itertools
+
+    from impact_env.eval.compare import _validate_specs, check_cluster_specs
+    from impact_env.eval.parallel import connect, default_workers
     from impact_env.scene import load_scene
 
     scene = load_scene(scene)
@@ -140,18 +143,35 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
     _validate_specs(specs, scene)
     for s in scenes:
         _validate_specs(specs, s)
+    if cluster is not None:
+        check_cluster_specs(specs)
+    cl, owned = connect(cluster)  # checked (address, scheduler, workers) before anything runs
+    try:
+        if workers is None:
+            workers = cl.workers if cl is not None else default_workers()
+        return _robustness(scene, scenes, points, specs, axes, episodes, seed, max(1, int(workers)), progress,
+                           cl)
+    finally:
+        if owned and cl is not None:
+            cl.close()
+
+
+def _robustness(scene, scenes, points, specs, axes, episodes, seed, workers, progress, cl) -> Robustness:
+    import time
+
+    from impact_env.eval.compare import Task, _chunks, _merge, _run_task, _warm_up, summarize
+    from impact_env.eval.parallel import prepare, run_tasks
+
     horizon = scene.episode.horizon
-    workers = default_workers() if workers is None else max(1, int(workers))
     chunks = _chunks(episodes, max(1, math.ceil(workers / max(len(points) * len(specs), 1))))
     tasks = [(i, Task(spec, s, chunk, seed, horizon, 0.0)) for i, s in enumerate(scenes) for spec in specs
              for chunk in chunks]
-    if workers > 1:
-        _warm_up(scene, horizon)
+    prepare(_warm_up, scene, horizon, workers=workers, cluster=cl)
     n_steps = int(round(horizon / scene.control_period))
     t0 = time.perf_counter()
     outs = run_tasks(_run_task, [t for _i, t in tasks], workers, total=n_steps * len(tasks),
                      desc=f"robustness ({len(points)} points x {len(specs)} policies x {episodes} drops)",
-                     progress=progress)
+                     progress=progress, cluster=cl)
     summaries = []
     for i, s in enumerate(scenes):
         row = {}
