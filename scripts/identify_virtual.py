@@ -29,7 +29,6 @@ import numpy as np
 from impact_env.ident import report
 from impact_env.ident.experiments import load
 from impact_env.ident.fit import Problem, identify
-from impact_env.ident.model import FIELDS
 from impact_env.ident.plan import default_plan, run_plan
 from impact_env.ident.virtual import perturbed_physics
 from impact_env.rig.driver import VirtualRig
@@ -80,7 +79,8 @@ def one_rig(seed: int, delays: tuple[int, int], out: Path, quick: bool, gap: boo
         (d / "identification.json").write_text(json.dumps(report.to_json(fit), indent=1) + "\n")
         ticks = sum(e.n for e in exps if e.kind != "quiet")
         res = {"seed": seed, "delays": delays, "truth": truth, "fields": report.field_table(fit),
-               "sensors": {k: vars(v) for k, v in fit.sensors.items()}, "k_act": fit.k_act, "k_sens": fit.k_sens,
+               "sensors": {k: vars(v) for k, v in fit.sensors.items()},
+               "k_act": fit.k_act, "k_sens": fit.k_sens,
                "chi2_red": fit.chi2_red, "plan_s": t_plan, "fit_s": fit.wall_s, "sim_s": sim["t"],
                "candidate_replays": sim["n"], "replayed_ticks": ticks, "logs": len(files)}
         if gap:
@@ -98,7 +98,8 @@ def gap_table(address: str, identified: Path, episodes: int) -> dict:
     _scene, on_rig = rig_compare(address, list(POLICIES), episodes=episodes, seed=1000, progress=False)
     before = compare("rig", list(POLICIES), episodes=episodes, seed=1000, progress=False)
     after = compare(load_scene(identified), list(POLICIES), episodes=episodes, seed=1000, progress=False)
-    return {p: {"rig": on_rig[p].summary["energy_integral_ms"], "before": before[p].summary["energy_integral_ms"],
+    return {p: {"rig": on_rig[p].summary["energy_integral_ms"],
+                "before": before[p].summary["energy_integral_ms"],
                 "after": after[p].summary["energy_integral_ms"]} for p in POLICIES}
 
 
@@ -109,7 +110,8 @@ def markdown(res: dict) -> str:
            f"{res['k_sens']} ticks; plan {res['plan_s']:.1f} s ({res['logs']} episodes, lock-step), fit "
            f"{res['fit_s']:.0f} s, of which {res['sim_s']:.0f} s replaying the hardware stage "
            f"({res['candidate_replays']} candidate replays of {res['replayed_ticks']} ticks).", "",
-           "| field | base (`rig`) | true | identified +- 1 sigma | z | status |", "|---|---|---|---|---|---|"]
+           "| field | base (`rig`) | true | identified +- 1 sigma | z | status |",
+           "|---|---|---|---|---|---|"]
     for r in res["fields"]:
         t = truth.get(r["field"])
         z = math.log(r["value"] / t) / r["rel_sigma"] if t and r["rel_sigma"] > 0 else float("nan")
@@ -123,9 +125,10 @@ def markdown(res: dict) -> str:
             out.append(f"| `effects.sensors.{ch}.{key}` | - | {t:.4g} | {s[key]:.4g} +- {se:.2g} | "
                        f"{(s[key] - t) / se:+.1f} | identified |")
     if "gap" in res:
-        out += ["", "Energy integral (ms, mean over the same drops): on the virtual rig (`compare --rig`), in "
-                "simulation on `rig` (before) and on the identified scene (after):", "",
-                "| policy | rig | sim before | gap before | sim after | gap after |", "|---|---|---|---|---|---|"]
+        out += ["", "Energy integral (ms, mean over the same drops): on the virtual rig (`compare --rig`), "
+                "in simulation on `rig` (before) and on the identified scene (after):", "",
+                "| policy | rig | sim before | gap before | sim after | gap after |",
+                "|---|---|---|---|---|---|"]
         for p, g in res["gap"].items():
             out.append(f"| {p} | {g['rig']:.2f} | {g['before']:.2f} | {g['before'] - g['rig']:+.2f} | "
                        f"{g['after']:.2f} | {g['after'] - g['rig']:+.2f} |")

@@ -4,6 +4,10 @@ same drops of ``rig`` while one hardware parameter at a time departs from the sc
 
     python scripts/mismatch_map.py --episodes 50 --identified docs/identification/seed21/identification.json
 
+``--cluster tcp://HOST:PORT`` runs the points on a Dask cluster's workers, with the same results
+(docs/cluster.md; the shipped agent's file is then named by its absolute path, which every worker
+must see).
+
 Writes ``docs/figures/mismatch_<field>.png``, ``docs/mismatch.json`` and the tables of
 ``docs/mismatch.md`` between its markers.
 """
@@ -16,6 +20,7 @@ import math
 import sys
 from pathlib import Path
 
+from impact_env.eval.parallel import Cluster
 from impact_env.eval.robustness import identified_bands, parse_vary, plot, robustness
 from impact_env.scene import load_scene
 
@@ -35,7 +40,13 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--identified", default=None, help="an identification.json to mark")
     ap.add_argument("--only", nargs="*", default=None, help="fields to run (default all)")
+    ap.add_argument("--cluster", default=None, metavar="tcp://HOST:PORT",
+                    help="run on this Dask scheduler's workers (docs/cluster.md)")
     args = ap.parse_args(argv)
+    cluster = Cluster(args.cluster) if args.cluster else None  # one connection for every grid
+    # on a cluster the agent's file by its absolute path (the workers' directory is not this one)
+    specs = [f"compiled:{ROOT / POLICIES[0].partition(':')[2]}" if cluster else POLICIES[0], *POLICIES[1:]]
+    names = {spec: NAMES[p] for spec, p in zip(specs, POLICIES, strict=True)}
     scene = load_scene("rig")
     bands = identified_bands(args.identified, scene) if args.identified else {}
     figs = ROOT / "docs" / "figures"
@@ -45,11 +56,13 @@ def main(argv=None) -> int:
         name, values = parse_vary(grid, scene.control_rate)
         if args.only and name not in args.only:
             continue
-        res = robustness(scene, POLICIES, [(name, values)], args.episodes, args.seed, args.workers, progress=False)
+        res = robustness(scene, specs, [(name, values)], args.episodes, args.seed, args.workers,
+                         progress=False, cluster=cluster)
         res.identified = bands
-        plot(res, figs / f"mismatch_{name}.png", NAMES)
+        plot(res, figs / f"mismatch_{name}.png", names)
         results[name] = {"values": values.tolist(), "nominal": res.nominal[name], "wall_s": res.wall_s,
-                         "rows": [{spec: row[spec] for spec in POLICIES} for row in res.summaries]}
+                         "rows": [{p: row[spec] for spec, p in zip(specs, POLICIES, strict=True)}
+                                  for row in res.summaries]}
         print(f"{name}: {res.wall_s:.0f} s", file=sys.stderr, flush=True)
     out = ROOT / "docs" / "mismatch.json"
     old = json.loads(out.read_text()) if out.exists() and args.only else {}
@@ -61,6 +74,8 @@ def main(argv=None) -> int:
     a, b = text.index("<!-- mismatch:start -->"), text.index("<!-- mismatch:end -->")
     doc.write_text(text[:a] + "<!-- mismatch:start -->\n" + tables + text[b:])
     print(tables)
+    if cluster is not None:
+        cluster.close()
     return 0
 
 
@@ -78,17 +93,20 @@ def render(results: dict, args) -> str:
     cmd = "python scripts/mismatch_map.py --episodes {} {}".format(
         args.episodes, f"--identified {args.identified}" if args.identified else "").strip()
     out = [f"Written by `{cmd}` ({args.episodes} drops of `rig` per point and policy, seeds "
-           f"{args.seed}-{args.seed + args.episodes - 1}; energy integral in ms, median catch time in s "
-           "(>0.4: half the drops or more not caught), mean time at the 200 N limit in ms, mean bounces).", ""]
+           f"{args.seed}-{args.seed + args.episodes - 1}; energy integral in ms, median catch time "
+           "in s (>0.4: half the drops or more not caught), mean time at the 200 N limit in ms, "
+           "mean bounces).", ""]
     for name, r in results.items():
         out += [f"**{name}** (nominal {r['nominal']:g}; figure `docs/figures/mismatch_{name}.png`)", "",
-                "| " + name + " | " + " | ".join(f"{NAMES[p]}: int E / catch / sat / bounces" for p in POLICIES) + " |",
+                "| " + name + " | "
+                + " | ".join(f"{NAMES[p]}: int E / catch / sat / bounces" for p in POLICIES) + " |",
                 "|---|" + "---|" * len(POLICIES)]
         for v, row in zip(r["values"], r["rows"], strict=True):
             cells = []
             for p in POLICIES:
                 s = row[p]
-                cells.append(f"{_f(s.get('energy_integral_ms'))} / {_f(s.get('time_to_catch_median_s'), 'catch')} / "
+                cells.append(f"{_f(s.get('energy_integral_ms'))} / "
+                             f"{_f(s.get('time_to_catch_median_s'), 'catch')} / "
                              f"{_f(s.get('saturation_time_s'), 1e3, 1)} / {_f(s.get('bounces'), 1.0, 1)}")
             out.append(f"| {v:.4g} | " + " | ".join(cells) + " |")
         out.append("")

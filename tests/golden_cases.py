@@ -161,7 +161,7 @@ def drop_case(name: str) -> dict[str, np.ndarray]:
     import impact_env
 
     scene, ov, t_end, rate, seed = DROP_CASES[name]
-    tr = impact_env.simulate(scene, t_end=t_end, record_rate=rate, overrides=ov, rng=seed)
+    tr = impact_env.simulate(scene, t_end=t_end, record_rate=rate, overrides=ov, rng=seed, plant_only=True)
     out = {k: np.asarray(getattr(tr, k)) for k in TRAJECTORY_KEYS}
     m = tr.metrics()
     m.pop("wall_time_s", None)

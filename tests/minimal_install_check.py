@@ -2,7 +2,8 @@
 ``pip install -e .`` alone): importing impact_env, making and checking the env, a classic-law
 comparison, a drop and an export work without torch and stable-baselines3, and a saved model
 is refused with the install hint, and so is training (``python -m agents.train``: stable-baselines3,
-torch and PyYAML are the extra 'sb3').  Not a pytest module: the dev venv has every extra."""
+torch and PyYAML are the extra 'sb3') and ``--cluster`` (Dask: the extra 'cluster').  Not a pytest
+module: the dev venv has every extra."""
 
 from __future__ import annotations
 
@@ -39,8 +40,14 @@ def main() -> int:
     assert out.returncode == 2 and "impact-env[sb3]" in out.stderr and "Traceback" not in out.stderr, \
         out.stderr[-2000:]
     assert not Path("runs/never").exists()
+    # a cluster needs the extra 'cluster' (Dask distributed), imported only when --cluster is given
+    assert importlib.util.find_spec("distributed") is None, "distributed is installed: not a core-only venv"
+    out = subprocess.run([*run, "compare", "--scene", "rig", "--policies", "passive", "--episodes", "1",
+                          "--cluster", "tcp://127.0.0.1:8786"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 2 and "impact-env[cluster]" in out.stderr and "--cluster" in out.stderr \
+        and "Traceback" not in out.stderr, out.stderr[-2000:]
     print("minimal install check OK: the env checker, a classic-law compare and a drop ran without torch "
-          "and stable-baselines3; a saved model and training refused with the install hint")
+          "and stable-baselines3; a saved model, training and --cluster refused with the install hint")
     return 0
 
 

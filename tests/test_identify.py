@@ -72,8 +72,9 @@ def test_excitations_are_what_they_say():
     assert set(np.unique(pr)) == {-20.0, 20.0}
     bits = pr[::3][:32767]  # one period of the 15-bit sequence: 2^14 ones, 2^14 - 1 minus ones
     assert np.count_nonzero(bits > 0) == 16384
-    assert np.array_equal(Excitation.from_json(Excitation("sweep", 4.0, 5.0, 200.0).to_json()).samples(rate, 99),
-                          Excitation("sweep", 4.0, 5.0, 200.0).samples(rate, 99))
+    assert np.array_equal(
+        Excitation.from_json(Excitation("sweep", 4.0, 5.0, 200.0).to_json()).samples(rate, 99),
+        Excitation("sweep", 4.0, 5.0, 200.0).samples(rate, 99))
 
 
 @pytest.mark.parametrize("make, match", [
@@ -97,7 +98,8 @@ def test_replay_with_shifted_delays_is_the_delay_effects_bitwise():
     exactly what the delay lines do (zeros until they fill, the release's readings undelayed)."""
     quiet = {f"effects.sensors.{c}.noise_std": 0.0 for c in ("accelerometer", "force", "potentiometer")}
     base = load_scene("rig").with_overrides({**quiet, "randomize.m1": [], "randomize.drop_height": []})
-    delayed = base.with_overrides({"effects.active": list(base.effects.active) + ["actuator_delay", "sensor_delay"],
+    delayed = base.with_overrides({"effects.active": list(base.effects.active)
+                                                     + ["actuator_delay", "sensor_delay"],
                                    "effects.delay.actuator_s": 2e-4, "effects.delay.sensor_s": 3e-4})
     u = Excitation("multisine", 30.0, 50.0, 3000.0).commands(1e4, 800, 200.0)
     for held in (True, False):
@@ -117,10 +119,12 @@ def test_the_targets_identification_episodes(tmp_path):
         assert log.meta.kind == "shaker" and json.loads(log.meta.excitation)["signal"] == "sweep"
         # the commands played are the excitation's, tick by tick; body 1 never moved
         assert np.array_equal(log["command"][:-1], ex.commands(1e4, 2000, 200.0))
-        assert np.ptp(log["true_x1_m"][:-1]) == 0.0 and np.max(np.abs(log["true_x2_m"])) > 1e-5  # (the last row: no tick)
+        # (the last row: no tick)
+        assert np.ptp(log["true_x1_m"][:-1]) == 0.0 and np.max(np.abs(log["true_x2_m"])) > 1e-5
         client.arm("onboard", 5, 1000, kind=P.EpisodeKind.QUIET)
         log = client.fetch_log(client.wait_end(30).episode)
-        assert log.meta.kind == "quiet" and np.all(log["command"] == 0.0) and np.ptp(log["true_x2_m"][:-1]) == 0.0
+        assert (log.meta.kind == "quiet" and np.all(log["command"] == 0.0)
+                and np.ptp(log["true_x2_m"][:-1]) == 0.0)
         # refused, naming why: a shaker episode in host mode, a quiet one with a signal, a peak over the limit
         for kw, match in ((dict(mode="host", kind=P.EpisodeKind.SHAKER, excitation=ex), "onboard"),
                           (dict(kind=P.EpisodeKind.QUIET, excitation=ex), "quiet"),
@@ -178,7 +182,8 @@ def test_identification_recovers_a_rig_nobody_tuned_for(tmp_path, seed, delays):
     drawn = sc.with_draws(sc.randomize.values_at(0.5, sc.control_rate))
     assert drawn.plant.m2 == pytest.approx(rows["plant.m2"]["value"], rel=1e-15)
     assert drawn.effects.command_scale == pytest.approx(rows["effects.command_scale"]["value"], rel=1e-12)
-    assert (tmp_path / "report.md").read_text().count("|") > 50 and (tmp_path / "fit_shaker.png").stat().st_size
+    assert ((tmp_path / "report.md").read_text().count("|") > 50
+            and (tmp_path / "fit_shaker.png").stat().st_size)
 
 
 # -- refusals ------------------------------------------------------------------------------------------------
@@ -187,7 +192,8 @@ def short_logs(tmp_path_factory):
     """A tiny plan's logs (quiet, shaker, two identification drops), a plain drop, and a quiet
     episode of a rig whose accelerometer has another range."""
     d = tmp_path_factory.mktemp("ident-logs")
-    plan = [PlanEpisode("quiet", 0.02, ""), PlanEpisode("shaker", 0.02, "", Excitation("sweep", 10.0, 100.0, 1000.0)),
+    plan = [PlanEpisode("quiet", 0.02, ""),
+            PlanEpisode("shaker", 0.02, "", Excitation("sweep", 10.0, 100.0, 1000.0)),
             PlanEpisode("ident_drop", 0.02, ""), PlanEpisode("ident_drop", 0.02, "")]
     target, th = _serve()
     client = RigClient(target.address)
@@ -195,7 +201,8 @@ def short_logs(tmp_path_factory):
         files = run_plan(client, d / "plan", plan, progress=False)
         from impact_env.control.policy import CompiledPolicy
 
-        client.arm("onboard", 9, 100, policy=CompiledPolicy.from_law("passive", {}, {}, client.scene, "sensors"))
+        client.arm("onboard", 9, 100,
+                   policy=CompiledPolicy.from_law("passive", {}, {}, client.scene, "sensors"))
         drop = write_episode(client.fetch_log(client.wait_end(30).episode), d, name="plain_drop.h5")
     finally:
         client.close()

@@ -41,6 +41,12 @@ def test_licence_matches_pyproject_and_the_heavy_deps_are_optional():
              if re.search(r"^\s*(import yaml|from yaml)", f.read_text(), re.M)]
     assert users == [], f"impact_env imports yaml (a core module would need PyYAML back in the core): {users}"
     assert "sb3" in " ".join(meta["optional-dependencies"]["dev"])
+    # Dask: only --cluster needs it (impact_env.eval.parallel imports it when asked), so it is an extra
+    assert "dask" not in core and any("distributed" in d for d in meta["optional-dependencies"]["cluster"])
+    assert "cluster" in " ".join(meta["optional-dependencies"]["dev"])
+    users = [str(f.relative_to(ROOT)) for f in (ROOT / "impact_env").rglob("*.py")
+             if re.search(r"^(import|from) (dask|distributed)", f.read_text(), re.M)]
+    assert users == [], f"a module imports Dask at its top (the core would need it): {users}"
 
 
 def test_gymnasium_make_with_the_module_prefix_in_a_fresh_interpreter():

@@ -384,6 +384,18 @@ def test_bad_run_arguments():
         impact_env.simulate("ideal", controller=lambda t, y: float("nan"), t_end=1e-3)
 
 
+def test_simulate_refuses_a_scene_with_effects_naming_what_runs_them():
+    """simulate() integrates the bare plant: a scene with effects is refused (before any
+    simulation) unless the caller says plant_only; the plant alone is then what it integrates."""
+    with pytest.raises(ValueError, match=r"'rig' has effects.*Simulator.*plant_only=True"):
+        impact_env.simulate("rig", t_end=1e-3)
+    scene = impact_env.load_scene("rig")
+    bare = scene.with_overrides({"effects.active": []})
+    a = impact_env.simulate(scene, t_end=1e-3, plant_only=True)
+    b = impact_env.simulate(bare, t_end=1e-3)
+    np.testing.assert_array_equal(np.c_[a.x1, a.v1, a.x2, a.v2], np.c_[b.x1, b.v1, b.x2, b.v2])
+
+
 def test_kernel_reports_nan_state_as_divergence():
     """A NaN in the state handed to the kernel is reported, not propagated silently."""
     p = np.zeros(L.N_PARAM)

@@ -249,3 +249,27 @@ def test_the_hosts_first_command_allowance_is_the_targets():
         th.join(10)
     with pytest.raises(ValueError, match="first_command_timeout_s"):
         RigEnv("udp://127.0.0.1:9", first_command_timeout_s=0.0)
+
+
+def test_a_host_whose_commands_all_come_late_is_alive_not_lost():
+    """A host that keeps sending, but only commands for steps already over (a host that fell
+    behind): they are counted late and never applied, and the host is not LINK_LOST (before,
+    late datagrams did not count as heard: a 5 s soak host behind a loaded CPU was cut off)."""
+    from impact_env.rig.host import RigClient
+
+    target, th = _serve()
+    c = RigClient(target.address)
+    try:
+        c.arm("host", 1, 4000, hold_ticks=4, link_timeout_ms=200)  # 0.4 s episode, 0.2 s link timeout
+        t0 = time.monotonic()
+        while target.last_end is None and time.monotonic() - t0 < 10.0:
+            c.command(0, 0.1)  # step 0's command, over and over: late from 0.4 ms on
+            time.sleep(0.02)
+        assert target.last_end is not None and target.last_end.reason == 1  # HORIZON, not LINK_LOST (6)
+        log = c.fetch_log(target.last_end.episode)
+        assert log.meta.counters["commands_late"] > 10  # the fault happened: they came, all late
+        assert log.meta.counters["commands_acted"] <= 1
+    finally:
+        c.close()
+        target.stop()
+        th.join(10)

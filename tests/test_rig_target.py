@@ -270,18 +270,23 @@ def test_host_killed_midway_force_is_zero_within_two_policy_periods(tmp_path):
 def test_sigterm_mid_episode_leaves_the_shaker_at_zero(tmp_path):
     """SIGTERM while an onboard episode runs in real time: the target stops, idles the driver and
     exits 0 ('shaker at 0 N'); the episode's log ends by DISARMED."""
-    from impact_env.policy.export import export_policy
-    from impact_env.scene import load_scene
+    from impact_env.rig import protocol as P
+    from impact_env.rig.excitation import Excitation
 
     proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path))
     c = RigClient(addr)
-    c.arm("onboard", 3, 100_000, policy=export_policy("pd-penetration", load_scene("rig")))
+    # the shaker driven (body 1 held) by a sweep far above the suspension's resonance: a force
+    # on the shaker when the signal comes, and one that no overrun can turn into a travel trip
+    # (a held 20 N moves body 2 by 2 mm; a catching law's 200 N held over skipped ticks can trip
+    # the 7 mm limit on a loaded machine, ending the episode before the signal)
+    c.arm("onboard", 3, 100_000, kind=P.EpisodeKind.SHAKER, excitation=Excitation("sweep", 20.0, 200.0, 2000.0))
     time.sleep(0.3)
     assert stop(proc, signal.SIGTERM) == 0
     c.close()
     assert "shaker at 0 N" in proc.stdout.read()
     log = read_episode(next(tmp_path.glob("episode_*.h5")))
     assert log.meta.end_reason == "DISARMED" and 100 < log.n_ticks < 100_000
+    assert np.any(np.abs(log["force_demand_N"]) > 1.0)  # the shaker was driven when the signal came
 
 
 def test_rig_log_command_summarises_a_virtual_log(lockstep, tmp_path):

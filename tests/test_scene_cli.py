@@ -145,7 +145,7 @@ def test_cli_helpers_for_new_commands():
 
 def test_rig_uncontrolled_decay_matches_thesis():
     """Thesis sec 4.4: without control the energy dies out in about 0.30-0.35 s."""
-    m = simulate("rig").metrics()
+    m = simulate("rig", plant_only=True).metrics()
     assert 0.30 <= m["time_to_1pct_energy_s"] <= 0.35
 
 

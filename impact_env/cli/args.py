@@ -103,3 +103,27 @@ def output_file(path: str | Path, option: str) -> Path:
     if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
         raise ConfigError(f"{option} {str(p)!r}: not writable")
     return p
+
+
+def add_workers_arguments(p: argparse.ArgumentParser) -> None:
+    """``--workers N`` and ``--cluster tcp://HOST:PORT``, the same on every command that runs
+    independent tasks (compare, sweep, robustness; :mod:`impact_env.eval.parallel`)."""
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes (default: the available cores); with --cluster, how many parts the work "
+                        "is cut into (default: the cluster's worker threads)")
+    p.add_argument("--cluster", metavar="tcp://HOST:PORT", default=None,
+                   help="run the tasks on the workers of this Dask scheduler instead of local processes, "
+                        "with the same results (needs pip install 'impact-env[cluster]'; docs/cluster.md)")
+
+
+def cluster_from_args(args) -> str | None:
+    """``--cluster``'s address, checked before anything runs (ConfigError naming the option); the
+    connection itself is made, and checked, by the command before its first task."""
+    from impact_env.eval.parallel import parse_cluster
+
+    value = getattr(args, "cluster", None)
+    if value is None:
+        return None
+    if getattr(args, "workers", None) is not None and args.workers < 1:
+        raise ConfigError(f"--workers {args.workers} must be >= 1")
+    return parse_cluster(value, "--cluster")

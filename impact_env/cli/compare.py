@@ -6,7 +6,13 @@ import json
 import sys
 from pathlib import Path
 
-from impact_env.cli.args import add_format_argument, output_dir, scene_from_args
+from impact_env.cli.args import (
+    add_format_argument,
+    add_workers_arguments,
+    cluster_from_args,
+    output_dir,
+    scene_from_args,
+)
 from impact_env.eval.compare import compare, format_table, split_policies, summary_json, write_outputs
 
 
@@ -22,7 +28,7 @@ def add_parser(sub, scene_args) -> None:
     p.add_argument("--episodes", type=int, default=100, help="episodes per policy (default 100)")
     p.add_argument("--seed", type=int, default=0, help="episode j is seeded seed + j (default 0)")
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: episode.horizon)")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
+    add_workers_arguments(p)
     p.add_argument("--out", metavar="DIR", help="write summary.csv/json, episodes.csv and plots here")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
     add_format_argument(p, what="with --out, the plots'")
@@ -52,11 +58,15 @@ def cmd_compare(args) -> int:
         raise ConfigError("--key FILE is the rig's session key: it goes with --rig udp://HOST:PORT")
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed} must be an integer >= 0 (episode j is seeded seed + j)")
+    cluster = cluster_from_args(args)
     if args.rig:
+        if cluster is not None:
+            raise ConfigError("--cluster runs simulations; it does not go with --rig (the rig runs its own "
+                              "episodes)")
         return _compare_rig(args, specs)
     scene = scene_from_args(args, scene=args.scene or "rig")
     runs = compare(scene, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
-                   workers=args.workers, progress=not args.no_progress and not args.json)
+                   workers=args.workers, progress=not args.no_progress and not args.json, cluster=cluster)
     horizon = scene.episode.horizon if args.horizon is None else args.horizon
     if args.json:
         print(json.dumps(summary_json(runs)))

@@ -34,8 +34,12 @@ def cmd_drop(args) -> int:
 
         drawn = scene.draw(np.random.default_rng(args.seed))
         scene = scene.with_draws(drawn)
+    if scene.effects.active:
+        # the drop command shows the plant's physics; the effects need a policy and run in compare
+        print(f"impact-env drop: scene {scene.name!r}: the bare plant, without its effects "
+              f"{list(scene.effects.active)} (impact-env compare runs them)", file=sys.stderr)
     try:
-        traj = simulate(scene, t_end=args.t_end, record_rate=record_rate)
+        traj = simulate(scene, t_end=args.t_end, record_rate=record_rate, plant_only=True)
     except SimulationDiverged as exc:
         print(f"impact-env drop: {exc}", file=sys.stderr)
         return 3

@@ -14,8 +14,8 @@ def add_identify_arguments(p) -> None:
                         "with, i.e. the target's)")
     p.add_argument("--ranges", type=float, default=None, metavar="K",
                    help="write [randomize] ranges of +-K standard uncertainties around each identified value "
-                        "(for training on the identified rig with its uncertainty); default: one-point ranges "
-                        "for the fields the controller reads, fixed values for the others")
+                        "(for training on the identified rig with its uncertainty); default: one-point "
+                        "ranges for the fields the controller reads, fixed values for the others")
     from impact_env.cli.args import add_format_argument
 
     add_format_argument(p, what="the report's figures'")
@@ -28,7 +28,8 @@ def add_parser(sub) -> None:
                                            "identification-drop episodes (impact-env rig identify)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="the calibrated scene file to write")
     p.add_argument("--report", metavar="DIR", default=None,
-                   help="write report.md, identification.json and figures here (default: beside --out)")
+                   help="write report.md, identification.json and figures here (default: the folder "
+                        "FILE-report beside --out)")
     p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     add_identify_arguments(p)
     p.set_defaults(func=cmd_identify)
@@ -55,14 +56,14 @@ def _base(args, exps):
     scene = load_scene(args.base)
     first = exps[0]
     if abs(scene.control_rate - first.rate) > 1e-9 * first.rate:
-        raise ExperimentError(f"--base {args.base!r} runs at control.rate = {scene.control_rate:g} Hz; the logs were "
-                              f"recorded at {first.rate:g} Hz")
+        raise ExperimentError(f"--base {args.base!r} runs at control.rate = {scene.control_rate:g} Hz; "
+                              f"the logs were recorded at {first.rate:g} Hz")
     for name in ("accelerometer", "force", "potentiometer", "body1_displacement"):
         a, b = getattr(scene.effects.sensors, name), getattr(first.scene.effects.sensors, name)
         if (a.enabled, a.gain, a.adc_bits, a.adc_range) != (b.enabled, b.gain, b.adc_bits, b.adc_range):
             raise ExperimentError(f"--base {args.base!r} describes other sensors than the logs' "
-                                  f"(effects.sensors.{name}: enabled, gain or ADC differ): calibrate the scene "
-                                  f"the logs were recorded with")
+                                  f"(effects.sensors.{name}: enabled, gain or ADC differ): calibrate "
+                                  f"the scene the logs were recorded with")
     if not isinstance(args.base, str):
         raise ConfigError("--base must name a preset or a scene file")
     return scene, (args.base if args.base in PRESETS else str(Path(args.base).resolve()))
@@ -107,7 +108,8 @@ def run_identification(args, paths, out: Path, report_dir: Path) -> int:
 def cmd_identify(args) -> int:
     out = Path(args.out)
     _check_out(out, args.force)
-    return run_identification(args, args.logs, out, Path(args.report) if args.report else out.parent)
+    report = Path(args.report) if args.report else out.with_name(out.stem + "-report")
+    return run_identification(args, args.logs, out, report)
 
 
 def cmd_rig_identify(args) -> int:
@@ -117,6 +119,9 @@ def cmd_rig_identify(args) -> int:
     from impact_env.rig.host import RigClient
 
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {str(out)!r} is a file; give a folder "
+                          "(logs, the scene file and the report go in it)")
     if out.exists() and any(out.iterdir()) and not args.force:
         raise ConfigError(f"--out {str(out)!r} exists and is not empty; give --force to add to it")
     if args.drops is not None and not 2 <= args.drops <= 100:

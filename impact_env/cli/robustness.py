@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from impact_env.cli.args import add_format_argument, output_dir, scene_from_args
+from impact_env.cli.args import (
+    add_format_argument,
+    add_workers_arguments,
+    cluster_from_args,
+    output_dir,
+    scene_from_args,
+)
 
 
 def add_parser(sub, scene_args) -> None:
@@ -22,7 +28,7 @@ def add_parser(sub, scene_args) -> None:
                    help="mark the identified values and their 95 %% bands (impact-env identify's output)")
     p.add_argument("--episodes", type=int, default=50, help="drops per grid point and policy (default 50)")
     p.add_argument("--seed", type=int, default=0, help="drop j is seeded seed + j (default 0)")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
+    add_workers_arguments(p)
     p.add_argument("--out", metavar="DIR", default="robustness",
                    help="where robustness.csv/.json and the figure go (default ./robustness)")
     add_format_argument(p, what="the figure's")
@@ -33,16 +39,23 @@ def add_parser(sub, scene_args) -> None:
 def cmd_robustness(args) -> int:
     from impact_env.config import ConfigError
     from impact_env.eval.compare import split_policies
-    from impact_env.eval.robustness import format_table, identified_bands, parse_vary, robustness, write_outputs
+    from impact_env.eval.robustness import (
+        format_table,
+        identified_bands,
+        parse_vary,
+        robustness,
+        write_outputs,
+    )
 
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed} must be >= 0")
+    cluster = cluster_from_args(args)
     scene = scene_from_args(args)
     out = output_dir(args.out, "--out")
     axes = [parse_vary(v, scene.control_rate) for v in args.vary]
     bands = identified_bands(args.identified, scene) if args.identified else {}
     res = robustness(scene, split_policies(args.policies), axes, args.episodes, args.seed, args.workers,
-                     progress=not args.no_progress)
+                     progress=not args.no_progress, cluster=cluster)
     res.identified = bands
     files = write_outputs(res, out, args.format)
     print(format_table(res))

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import json
 
-from impact_env.cli.args import add_format_argument, output_dir, scene_from_args
+from impact_env.cli.args import (
+    add_format_argument,
+    add_workers_arguments,
+    cluster_from_args,
+    output_dir,
+    scene_from_args,
+)
 from impact_env.eval.sweep import DEFAULT_AXES, parse_grid, plot, sweep, write_csv
 
 
@@ -28,7 +34,7 @@ def add_parser(sub, scene_args) -> None:
                         "limit; scene: the scene's force limits act")
     p.add_argument("--objective", default="exit_speed_ratio", help="metric the best pair minimises")
     p.add_argument("--seed", type=int, default=0, help="seed of the drop (the same for every pair)")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: the available cores)")
+    add_workers_arguments(p)
     p.add_argument("--out", metavar="DIR", default=".",
                    help="where sweep.csv and sweep.FORMAT go (default .)")
     add_format_argument(p, what="the plot's")
@@ -61,6 +67,7 @@ def axes_from_args(args) -> tuple:
 def cmd_sweep(args) -> int:
     from impact_env.policy.registry import parse_spec
 
+    cluster = cluster_from_args(args)
     scene = scene_from_args(args)
     out = output_dir(args.out)  # checked before anything runs
     axes = axes_from_args(args)
@@ -70,7 +77,8 @@ def cmd_sweep(args) -> int:
 
         raise ConfigError(f"--seed {args.seed} must be an integer >= 0")
     res = sweep(scene, args.policy, axes, fixed, seed=args.seed, t_end=args.t_end, limit=args.limit,
-                objective=args.objective, workers=args.workers, progress=not (args.no_progress or args.json))
+                objective=args.objective, workers=args.workers, progress=not (args.no_progress or args.json),
+                cluster=cluster)
     csv_path = write_csv(res, out / "sweep.csv")
     png_path = plot(res, out / f"sweep.{args.format}", args.log)
     if args.json:

@@ -5,6 +5,8 @@ vector env reset with ``seed``), so drops and sensor noise are identical across 
 across runs.  Episodes of a policy run batched (:func:`impact_env.eval.rollout.rollout`); policies
 (and chunks of episodes, when there are more cores than policies) run in parallel processes.
 Results are merged in episode order, so the table does not depend on the number of workers.
+With ``cluster`` (``--cluster tcp://SCHEDULER:PORT``) the same tasks run on a Dask cluster's
+workers instead (:mod:`impact_env.eval.parallel`), with the same results.
 
 Policies are named policies (``passive``, ``thesis-rig:h01=2.3e6,h11=18``: the classic laws of
 :mod:`baselines`, found through :mod:`impact_env.policy.registry`) or saved stable-baselines3
@@ -41,6 +43,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from impact_env.eval.parallel import Cluster
     from impact_env.scene import Scene
 
 SUMMARY_KEYS = ("time_to_catch_median_s", "time_to_catch_q25_s", "time_to_catch_q75_s", "time_to_catch_iqr_s",
@@ -137,10 +140,14 @@ def _run_task(task: RolloutJob):
 # -- the comparison --------------------------------------------------------------------------------
 def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon: float | None = None,
             workers: int | None = None, progress: bool = True,
-            trace_rate: float = 1.0e4) -> dict[str, PolicyRun]:
+            trace_rate: float = 1.0e4, cluster: str | Cluster | None = None) -> dict[str, PolicyRun]:
     """Run every policy spec on ``episodes`` seeded drops of ``scene``; returns spec -> PolicyRun
-    (with ``summary`` filled in).  Policies are validated before anything runs."""
-    from impact_env.eval.parallel import default_workers, run_tasks
+    (with ``summary`` filled in).  Policies are validated before anything runs.
+
+    ``cluster``: a Dask scheduler's ``tcp://HOST:PORT`` (or a connected
+    :class:`~impact_env.eval.parallel.Cluster`) runs the tasks on its workers instead of local
+    processes, with the same results; ``workers`` then defaults to the cluster's worker threads."""
+    from impact_env.eval.parallel import connect, default_workers
     from impact_env.scene import load_scene
 
     scene = load_scene(scene)
@@ -156,20 +163,34 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     if len(set(specs)) != len(specs):
         raise ValueError(f"policy listed twice: {specs}")
     _validate_specs(specs, scene)
-    workers = default_workers() if workers is None else max(1, int(workers))
+    if cluster is not None:
+        check_cluster_specs(specs)
+    cl, owned = connect(cluster)  # checked (address, scheduler, workers) before anything runs
+    try:
+        if workers is None:
+            workers = cl.workers if cl is not None else default_workers()
+        return _compare(scene, specs, episodes, seed, horizon, max(1, int(workers)), progress, trace_rate, cl)
+    finally:
+        if owned and cl is not None:
+            cl.close()
+
+
+def _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rate,
+             cl) -> dict[str, PolicyRun]:
+    from impact_env.eval.parallel import prepare, run_tasks
+
     oracles = [s for s in specs if _is_oracle(s)]
     others = [s for s in specs if s not in oracles]
     # chunks of episodes so that every worker has work; results do not depend on the chunking
     per_policy = max(1, math.ceil(workers / max(len(others), 1))) if workers > 1 else 1
     tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles))
              for spec in others for chunk in _chunks(episodes, per_policy)]
-    if workers > 1:
-        _warm_up(scene, horizon)
+    prepare(_warm_up, scene, horizon, workers=workers, cluster=cl)
     n_steps = int(round(horizon / scene.control_period))
     t0 = time.perf_counter()
     outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),
                      desc=f"compare ({len(others)} policies x {episodes} episodes)",
-                     progress=progress) if tasks else []
+                     progress=progress, cluster=cl) if tasks else []
     runs = {}
     for spec in others:
         runs[spec] = _merge(spec, [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec], scene)
@@ -179,7 +200,7 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
                       warm_starts={k: u[:, chunk[0]:chunk[-1] + 1] for k, u in warm.items()})
                  for spec in oracles for chunk in _chunks(episodes, workers)]
         outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),
-                         desc=f"compare: oracle optimising {episodes} drops", progress=progress)
+                         desc=f"compare: oracle optimising {episodes} drops", progress=progress, cluster=cl)
         for spec in oracles:
             runs[spec] = _merge(spec, [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec], scene)
     wall = time.perf_counter() - t0
@@ -224,6 +245,34 @@ def add_oracle_gaps(runs: dict[str, PolicyRun], oracle: str) -> None:
         if st:
             run.summary["oracle_improvement_ms"] = float(np.nanmedian(st["improvement_ms"]))
             run.summary["oracle_seconds_per_drop"] = float(np.nanmean(st["cpu_seconds"]))
+
+
+def check_cluster_specs(specs, option: str = "--cluster") -> None:
+    """What a cluster's workers cannot find: a policy registered in this process only
+    (:func:`~impact_env.policy.registry.register_policy`; workers find policies through installed
+    entry points) and a model or compiled file given by a relative path (workers run elsewhere:
+    give absolute paths on a disk every worker sees).  ConfigError naming ``option``."""
+    from pathlib import PurePath
+
+    from impact_env.config import ConfigError
+    from impact_env.policy.registry import REGISTERED, _entry_points, is_model_spec, parse_spec
+
+    for spec in specs:
+        if spec.startswith("compiled:") or is_model_spec(spec):
+            compiled = spec.startswith("compiled:")
+            head = spec.partition(":")[2] if compiled else spec.partition(".zip")[0] + ".zip"
+            _algo, colon, rest = head.partition(":")
+            path = rest if colon and not compiled else head  # ALGO:PATH.zip
+            if not PurePath(path).is_absolute():
+                raise ConfigError(f"{option}: policy {spec!r} names the file {path!r} by a relative path; "
+                                  "the cluster's workers do not share this directory: give an absolute path "
+                                  "on a disk every worker sees")
+        else:
+            name = parse_spec(spec)[0]
+            if name in REGISTERED and name not in _entry_points():
+                raise ConfigError(f"{option}: policy {name!r} is registered in this process only "
+                                  "(register_policy); the cluster's workers find policies through installed "
+                                  "entry points ([project.entry-points.\"impact_env.policies\"])")
 
 
 def _validate_specs(specs, scene) -> None:

@@ -33,8 +33,9 @@ FIELDS = tuple(f for f in RandomizeConfig.__dataclass_fields__)
 NEEDS = {"sensor_delay_s": "sensor_delay", "actuator_delay_s": "actuator_delay"}
 LABELS = {"c": "pad stiffness c, N/m^1.5", "restitution": "pad restitution", "m1": "body 1's mass m1, kg",
           "m2": "body 2's mass m2, kg", "drop_height": "drop height, m", "impact_speed": "impact speed, m/s",
-          "suspension_stiffness": "suspension stiffness, N/m", "suspension_damping": "suspension damping, N s/m",
-          "noise_scale": "sensor noise / nominal", "command_gain": "command gain (force per command / nominal)",
+          "suspension_stiffness": "suspension stiffness, N/m",
+          "suspension_damping": "suspension damping, N s/m", "noise_scale": "sensor noise / nominal",
+          "command_gain": "command gain (force per command / nominal)",
           "shaker_lowpass_hz": "shaker band edge, Hz", "shaker_coil_inductance": "coil inductance, H",
           "sensor_delay_s": "sensor delay, s", "actuator_delay_s": "actuator delay, s",
           "top_mass": "transducer's top mass m2', kg"}
@@ -115,21 +116,16 @@ class Robustness:
 
 
 def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], episodes: int = 50, seed: int = 0,
-               workers: int | None = None, progress: bool = True) -> Robustness:
-    """Every policy of ``specs`` at every grid point of ``axes`` (one or two), on the same drops."""
-    import itertools
-    import time
+               workers: int | None = None, progress: bool = True, cluster=None) -> Robustness:
+    """Every policy of ``specs`` at every grid point of ``axes`` (one or two), on the same drops.
 
-    from impact_env.eval.compare import (
-        RolloutJob,
-        _chunks,
-        _merge,
-        _run_task,
-        _validate_specs,
-        _warm_up,
-        summarize,
-    )
-    from impact_env.eval.parallel import default_workers, run_tasks
+    ``cluster``: a Dask scheduler's ``tcp://HOST:PORT`` (or a connected
+    :class:`~impact_env.eval.parallel.Cluster`): the tasks (points x policies x chunks of drops)
+    run on its workers, with the same results; ``workers`` then defaults to its worker threads."""
+    import itertools
+
+    from impact_env.eval.compare import _validate_specs, check_cluster_specs
+    from impact_env.eval.parallel import connect, default_workers
     from impact_env.scene import load_scene
 
     scene = load_scene(scene)
@@ -147,19 +143,36 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
     _validate_specs(specs, scene)
     for s in scenes:
         _validate_specs(specs, s)
+    if cluster is not None:
+        check_cluster_specs(specs)
+    cl, owned = connect(cluster)  # checked (address, scheduler, workers) before anything runs
+    try:
+        if workers is None:
+            workers = cl.workers if cl is not None else default_workers()
+        return _robustness(scene, scenes, points, specs, axes, episodes, seed, max(1, int(workers)), progress,
+                           cl)
+    finally:
+        if owned and cl is not None:
+            cl.close()
+
+
+def _robustness(scene, scenes, points, specs, axes, episodes, seed, workers, progress, cl) -> Robustness:
+    import time
+
+    from impact_env.eval.compare import RolloutJob, _chunks, _merge, _run_task, _warm_up, summarize
+    from impact_env.eval.parallel import prepare, run_tasks
+
     horizon = scene.episode.horizon
-    workers = default_workers() if workers is None else max(1, int(workers))
     chunks = _chunks(episodes, max(1, math.ceil(workers / max(len(points) * len(specs), 1))))
     tasks = [(i, RolloutJob(spec, s, chunk, seed, horizon, 0.0))
              for i, s in enumerate(scenes) for spec in specs
              for chunk in chunks]
-    if workers > 1:
-        _warm_up(scene, horizon)
+    prepare(_warm_up, scene, horizon, workers=workers, cluster=cl)
     n_steps = int(round(horizon / scene.control_period))
     t0 = time.perf_counter()
     outs = run_tasks(_run_task, [t for _i, t in tasks], workers, total=n_steps * len(tasks),
                      desc=f"robustness ({len(points)} points x {len(specs)} policies x {episodes} drops)",
-                     progress=progress)
+                     progress=progress, cluster=cl)
     summaries = []
     for i, s in enumerate(scenes):
         row = {}
@@ -215,7 +228,8 @@ def write_outputs(res: Robustness, out_dir, fmt: str = "png") -> list[Path]:
             for spec in res.specs:
                 s = row[spec]
                 w.writerow([*(p[n] for n in names), spec,
-                            *("" if s.get(k) is None or not math.isfinite(float(s[k])) else s[k] for k in METRICS)])
+                            *("" if s.get(k) is None or not math.isfinite(float(s[k])) else s[k]
+                              for k in METRICS)])
     js = {"scene": res.scene_name, "axes": {n: v.tolist() for n, v in res.axes}, "nominal": res.nominal,
           "episodes": res.episodes, "seed": res.seed, "horizon_s": res.horizon, "wall_s": res.wall_s,
           "identified": res.identified,
@@ -297,7 +311,8 @@ def format_table(res: Robustness) -> str:
             t = s.get("time_to_catch_median_s")
             catch = ">H" if t is None or not math.isfinite(float(t)) else f"{float(t):.3f}"
             cells = [*(f"{p[n]:.4g}" for n in names), spec[-14:], f"{_value(s, 'energy_integral_ms', 0):.2f}",
-                     catch, f"{100 * _value(s, 'caught_fraction', 0):.0f}%", f"{_value(s, 'peak_force_N', 0):.1f}",
+                     catch, f"{100 * _value(s, 'caught_fraction', 0):.0f}%",
+                     f"{_value(s, 'peak_force_N', 0):.1f}",
                      f"{1e3 * _value(s, 'saturation_time_s', 0):.2f}", f"{_value(s, 'bounces', 0):.1f}"]
             lines.append("  ".join(f"{c:>14s}" for c in cells))
     return "\n".join(lines)

@@ -128,9 +128,14 @@ def sweep_scene(scene, limit: str):
 
 def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = None, seed: int = 0,
           t_end: float = 0.02, limit: str = "none", objective: str = "exit_speed_ratio",
-          workers: int | None = None, progress: bool = True) -> SweepResult:
-    """Run ``policy`` for every pair of ``axes = ((name_x, values), (name_y, values))``."""
-    from impact_env.eval.parallel import default_workers, run_tasks
+          workers: int | None = None, progress: bool = True, cluster=None) -> SweepResult:
+    """Run ``policy`` for every pair of ``axes = ((name_x, values), (name_y, values))``.
+
+    ``cluster``: a Dask scheduler's ``tcp://HOST:PORT`` (or a connected
+    :class:`~impact_env.eval.parallel.Cluster`): the chunks run on its workers, with the same
+    results; ``workers`` (the number of chunks) then defaults to the cluster's worker threads."""
+    from impact_env.eval.compare import check_cluster_specs
+    from impact_env.eval.parallel import connect, default_workers
     from impact_env.eval.rollout import EPISODE_METRICS
     from impact_env.scene import load_scene
 
@@ -147,21 +152,36 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
     run_scene, force_limit = sweep_scene(scene, limit)
     # validate names and values once, before anything runs
     cls(run_scene, **fixed, **{xn: np.asarray(xv, float), yn: np.asarray(yv, float)})
+    if cluster is not None:
+        check_cluster_specs([policy])
+    cl, owned = connect(cluster)  # checked (address, scheduler, workers) before anything runs
+    try:
+        if workers is None:
+            workers = cl.workers if cl is not None else default_workers()
+        return _sweep(run_scene, policy, xn, xv, yn, yv, fixed, seed, t_end, limit, objective, force_limit,
+                      max(1, int(workers)), progress, cl)
+    finally:
+        if owned and cl is not None:
+            cl.close()
+
+
+def _sweep(run_scene, policy, xn, xv, yn, yv, fixed, seed, t_end, limit, objective, force_limit, workers,
+           progress, cl) -> SweepResult:
+    from impact_env.eval.compare import _warm_up
+    from impact_env.eval.parallel import prepare, run_tasks
+    from impact_env.eval.rollout import EPISODE_METRICS
+
     X, Y = np.meshgrid(np.asarray(xv, float), np.asarray(yv, float), indexing="ij")
     xs, ys = X.ravel(), Y.ravel()
-    workers = default_workers() if workers is None else max(1, int(workers))
     k = min(workers, len(xs))
     bounds = np.linspace(0, len(xs), k + 1).round().astype(int)
     chunks = [_Chunk(policy, run_scene, xn, yn, xs[a:b], ys[a:b], fixed, seed, t_end)
               for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-    if workers > 1:
-        from impact_env.eval.compare import _warm_up
-
-        _warm_up(run_scene, t_end)
+    prepare(_warm_up, run_scene, t_end, workers=workers, cluster=cl)
     n_steps = int(round(t_end / run_scene.control_period))
     t0 = time.perf_counter()
     outs = run_tasks(_run_chunk, chunks, workers, total=n_steps * len(chunks),
-                     desc=f"sweep ({len(xs)} gain pairs)", progress=progress)
+                     desc=f"sweep ({len(xs)} gain pairs)", progress=progress, cluster=cl)
     wall = time.perf_counter() - t0
     metrics = {key: np.concatenate([o[0][key] for o in outs]).reshape(X.shape) for key in EPISODE_METRICS}
     failures = []

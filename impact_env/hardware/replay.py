@@ -85,13 +85,17 @@ def replay(hw, commands: np.ndarray, held: bool = False) -> tuple[np.ndarray, np
     all); returns (readings float64[K, n, 4], first failed tick int64[K]).  Noise-free: the
     sensors' noise draws are zeros (give the candidate scenes noise_std = 0 anyway)."""
     K = hw.n
-    U = np.ascontiguousarray(np.broadcast_to(np.asarray(commands, dtype=np.float64), (K, np.shape(commands)[-1])))
+    U = np.ascontiguousarray(np.broadcast_to(np.asarray(commands, dtype=np.float64),
+                                             (K, np.shape(commands)[-1])))
     n = U.shape[1]
     hw.reset([None] * K)
     if held:
         hw.hold_body1(np.arange(K))
-    hw.noise = np.zeros((K, max(n, 1), hw.noise.shape[2]))
-    hw.noise_block = max(n, 1)
+    shape = (K, max(n, 1), hw.noise.shape[2])
+    # (zeros stay zeros: the kernel reads them only)
+    if hw.noise.shape != shape or hw.noise_block != shape[1]:
+        hw.noise = np.zeros(shape)
+        hw.noise_block = shape[1]
     hw.cursor[:] = 0
     R = np.empty((K, n, hw.raw.shape[1]))
     failed = replay_kernel(U, hw.params, hw.state, R)

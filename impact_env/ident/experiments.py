@@ -17,11 +17,11 @@ a set of logs and refuses, before any fitting, naming the file and the cause:
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 from impact_env.config import ConfigError
 from impact_env.effects.sensors import CHANNELS
@@ -75,9 +75,9 @@ def from_log(log, path: str | None = None) -> Experiment:
     where = str(path or log.path or "a log")
     meta = log.meta
     if meta.kind not in KINDS:
-        raise ExperimentError(f"{where}: the wrong episode kind for identification: {meta.kind!r} (a benchmark "
-                              "drop draws its body and height per episode; identification takes "
-                              f"{', '.join(KINDS)} episodes, as impact-env rig identify runs them)")
+        raise ExperimentError(f"{where}: the wrong episode kind for identification: {meta.kind!r} "
+                              "(a benchmark drop draws its body and height per episode; identification "
+                              f"takes {', '.join(KINDS)} episodes, as impact-env rig identify runs them)")
     if meta.end_reason not in USABLE_ENDS:
         raise ExperimentError(f"{where}: the episode ended {meta.end_reason}, not at its horizon: its ticks "
                               "after the end are missing and it may hold a fault")
@@ -118,7 +118,8 @@ def from_log(log, path: str | None = None) -> Experiment:
                                   f"{len(col)}: a broken sensor or cable; fix it or leave the episode out")
         if ch.adc_bits:
             q = ch.quantum
-            at_limit = (readings[:, c] <= -ch.adc_range + 0.5 * q) | (readings[:, c] >= ch.adc_range - 1.5 * q)
+            at_limit = ((readings[:, c] <= -ch.adc_range + 0.5 * q)
+                        | (readings[:, c] >= ch.adc_range - 1.5 * q))
             usable &= ~at_limit
     return Experiment(where, meta.kind, scene, meta.scene_toml, commands, readings, usable, meta.excitation,
                       int(meta.seed), getattr(meta, "physics_toml", ""))
@@ -147,7 +148,8 @@ def load(paths, minimum: dict | None = None) -> list[Experiment]:
         except ExperimentError:
             raise
         except Exception as exc:  # noqa: BLE001 (h5py raises many kinds for a damaged file)
-            raise ExperimentError(f"{f}: not a readable rig episode log ({type(exc).__name__}: {exc})") from None
+            raise ExperimentError(f"{f}: not a readable rig episode log "
+                                  f"({type(exc).__name__}: {exc})") from None
         out.append(from_log(log, str(f)))
     _same_sensors(out)
     need = MINIMUM if minimum is None else minimum
@@ -167,7 +169,8 @@ def _same_sensors(exps: list[Experiment]) -> None:
         if abs(e.rate - first.rate) > 1e-9 * first.rate:
             raise ExperimentError(f"{e.path} was recorded at control.rate = {e.rate:g} Hz, {first.path} at "
                                   f"{first.rate:g} Hz: logs of one rig setting only")
-        if e.scene.effects.sensors != ref or e.scene.effects.command_scale != first.scene.effects.command_scale:
+        if (e.scene.effects.sensors != ref
+                or e.scene.effects.command_scale != first.scene.effects.command_scale):
             diff = [f"effects.sensors.{name}" for name in CHANNELS
                     if getattr(e.scene.effects.sensors, name) != getattr(ref, name)]
             if e.scene.effects.command_scale != first.scene.effects.command_scale:

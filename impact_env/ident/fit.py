@@ -227,8 +227,10 @@ def _contacts(phi: np.ndarray, threshold: float) -> list[tuple[int, int]]:
     """(first, last + 1) tick ranges where the contact force exceeds ``threshold``."""
     on = phi > threshold
     edges = np.flatnonzero(np.diff(on.astype(np.int8)))
-    out, start = [], (0 if on[0] else None)
-    for i in edges:
+    out: list[tuple[int, int]] = []
+    start: int | None = 0 if on[0] else None
+    for e in edges:
+        i = int(e)
         if on[i + 1]:
             start = i + 1
         elif start is not None:
@@ -254,7 +256,8 @@ def mask_onsets(e: Experiment, sensors: dict[str, SensorEstimate], top_mass: flo
     return len(con)
 
 
-def drop_guess(model: Model, x: np.ndarray, drops: list[Experiment], sensors: dict[str, SensorEstimate]) -> dict:
+def drop_guess(model: Model, x: np.ndarray, drops: list[Experiment],
+               sensors: dict[str, SensorEstimate]) -> dict:
     """First guesses of m1, c and the restitution from the drops' timing and impulse (thesis
     eq 4.5 and Hertz's contact time), and of the sensor delay from the first contact's onset."""
     sc = model.scene(x)
@@ -332,7 +335,8 @@ def identify(exps: list[Experiment], base=None, progress=None) -> Fit:
     guess = drop_guess(model, x, drops, sensors)
     lo, hi = bounds(model)
     if "m2" in guess and guess["m2"] > 0:  # the ratios stay: drive, k2 and c2 move with m2
-        x[INDEX["m2"]] = float(np.clip(math.log(guess["m2"] / model.theta0[INDEX["m2"]]), 0.9 * lo[0], 0.9 * hi[0]))
+        x[INDEX["m2"]] = float(np.clip(math.log(guess["m2"] / model.theta0[INDEX["m2"]]),
+                                       0.9 * lo[0], 0.9 * hi[0]))
     for name in ("m1", "c", "restitution"):
         j = INDEX[name]
         if name in guess and guess[name] > 0:
@@ -342,7 +346,8 @@ def identify(exps: list[Experiment], base=None, progress=None) -> Fit:
     # the sensor delay is part of the total the shaker stage found: 0 .. k_tot
     ks0 = int(max(0, min(round(guess.get("k_sens", 0.0)), k_tot)))
     x, k_sens, delay_cost["drop"] = _best_delay(
-        lambda k: Problem(model, drops, sigma, STAGE["drop"], x, k_act=k_tot - k, k_sens=k), x, ks0, k_max=k_tot)
+        lambda k: Problem(model, drops, sigma, STAGE["drop"], x, k_act=k_tot - k, k_sens=k), x, ks0,
+        k_max=k_tot)
     k_act = max(k_tot - k_sens, 0)
     stages.append({"stage": "drop", "guess": guess, "delay_ticks": k_sens,
                    "cost": delay_cost["drop"][k_sens]})
@@ -410,4 +415,5 @@ def _residual_rms(model: Model, exps: list[Experiment], x: np.ndarray, k_act: in
         for c, name in enumerate(SENSOR_CHANNELS):
             d = e.readings[e.usable, c] - R[e.usable, c]
             out.setdefault(e.kind, {}).setdefault(name, []).append(d[np.isfinite(d)])
-    return {k: {c: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for c, v in d.items()} for k, d in out.items()}
+    return {k: {c: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for c, v in d.items()}
+            for k, d in out.items()}

@@ -18,6 +18,7 @@ episodes, no noise and an ideal converter (the fit compares with the mean; the A
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -77,7 +78,7 @@ FIELD_MAP = np.array([[1.0 if name in FIELDS[f] else 0.0 for name in NAMES] for 
 
 
 def get_field(scene: Scene, dotted: str) -> float:
-    obj = scene
+    obj: Any = scene
     for part in dotted.split("."):
         obj = getattr(obj, part)
     return float(obj)
@@ -120,7 +121,8 @@ class Model:
         b, p = self.base, self.base.plant
         return {"drive_per_m2": b.effects.command_scale / p.m2, "k2_per_m2": p.suspension_stiffness / p.m2,
                 "c2_per_m2": p.suspension_damping / p.m2, "highpass_hz": b.effects.shaker.highpass_hz,
-                "lowpass_hz": b.effects.shaker.lowpass_hz, "coil_inductance": b.effects.shaker.coil_inductance,
+                "lowpass_hz": b.effects.shaker.lowpass_hz,
+                "coil_inductance": b.effects.shaker.coil_inductance,
                 "top_mass": b.effects.sensors.force.top_mass, "m2": p.m2, "m1": p.m1, "c": p.c,
                 "restitution": p.restitution}[name]
 

@@ -55,7 +55,8 @@ def default_plan(quick: bool = False, drops: int | None = None) -> list[PlanEpis
         sweeps.append(PlanEpisode("shaker", 1.0, "the whole band at once (a linearity check)",
                                   Excitation("multisine", 30.0, 10.0, 3000.0, 0.01)))
     n_drops = drops if drops is not None else (3 if quick else 5)
-    drop = PlanEpisode("ident_drop", 0.3 if quick else 0.4, "the pad, m1 and m2: contact force and bounce timing")
+    drop = PlanEpisode("ident_drop", 0.3 if quick else 0.4,
+                       "the pad, m1 and m2: contact force and bounce timing")
     return [quiet, *sweeps, *([drop] * n_drops), quiet]
 
 

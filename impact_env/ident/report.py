@@ -42,10 +42,11 @@ WRITE = {
     "plant.restitution": ("fixed", "restitution", False),
     "plant.m1": ("report", None, False),
 }
-UNITS = {"effects.command_scale": "N", "plant.suspension_stiffness": "N/m", "plant.suspension_damping": "N s/m",
-         "effects.shaker.highpass_hz": "Hz", "effects.shaker.lowpass_hz": "Hz", "effects.shaker.coil_inductance": "H",
-         "effects.sensors.force.top_mass": "kg", "plant.m2": "kg", "plant.c": "N/m^1.5", "plant.restitution": "",
-         "plant.m1": "kg"}
+UNITS = {"effects.command_scale": "N", "plant.suspension_stiffness": "N/m",
+         "plant.suspension_damping": "N s/m", "effects.shaker.highpass_hz": "Hz",
+         "effects.shaker.lowpass_hz": "Hz", "effects.shaker.coil_inductance": "H",
+         "effects.sensors.force.top_mass": "kg", "plant.m2": "kg", "plant.c": "N/m^1.5",
+         "plant.restitution": "", "plant.m1": "kg"}
 
 
 def field_table(fit: Fit) -> list[dict]:
@@ -86,7 +87,8 @@ def to_json(fit: Fit) -> dict:
         "logs": fit.logs, "fields": rows,
         "sensors": {k: vars(v) for k, v in fit.sensors.items()},
         "delays_ticks": {"actuator": fit.k_act, "sensor": fit.k_sens}, "delay_cost": fit.delay_cost,
-        "parameters": {p.name: {"value": fit.value(p.name), "rel_sigma": float(math.sqrt(max(fit.cov[j, j], 0.0))),
+        "parameters": {p.name: {"value": fit.value(p.name),
+                                "rel_sigma": float(math.sqrt(max(fit.cov[j, j], 0.0))),
                                 "identified": bool(fit.identified[j]), "fixed": fit.fixed.get(p.name, "")}
                        for j, p in enumerate(PARAMS)},
         "correlations": _strong_correlations(fit),
@@ -156,12 +158,14 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
                 rc += f"; +-{ranges_k:g} sigma"
             rand[rz] = (f"[{_num(lo)}, {_num(hi)}]", rc)
     for ch, est in fit.sensors.items():
-        put(f"effects.sensors.{ch}.offset", _num(est.offset), f"+- {est.offset_se:.2g} (quiet episodes, n = {est.n})")
+        put(f"effects.sensors.{ch}.offset", _num(est.offset),
+            f"+- {est.offset_se:.2g} (quiet episodes, n = {est.n})")
         put(f"effects.sensors.{ch}.noise_std", _num(est.noise_std), f"+- {est.noise_se:.2g} (quiet episodes)")
     rate = fit.model.base.control_rate if fit.model is not None else 1.0
     active = list(fit.model.base.effects.active) if fit.model is not None else []
     base_active = list(active)
-    for k, eff, key in ((fit.k_act, "actuator_delay", "actuator_s"), (fit.k_sens, "sensor_delay", "sensor_s")):
+    for k, eff, key in ((fit.k_act, "actuator_delay", "actuator_s"),
+                        (fit.k_sens, "sensor_delay", "sensor_s")):
         if k > 0:
             put(f"effects.delay.{key}", _num(k / rate), f"{k} ticks (the whole-tick delay that fits best)")
             if eff not in active:
@@ -177,7 +181,8 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
         *[f"# {n}" for n in notes],
         f"base = {json.dumps(base_ref)}",
         f"name = {json.dumps(name or base_name + '-identified')}",
-        f"description = {json.dumps('calibrated by impact-env identify from ' + str(len(fit.logs)) + ' logs')}",
+        "description = "
+        f"{json.dumps('calibrated by impact-env identify from ' + str(len(fit.logs)) + ' logs')}",
     ]
     if active != base_active:
         lines += ["", "[effects]", f"active = {json.dumps(active)}  # the identified delays switched on"]
@@ -206,7 +211,8 @@ def markdown(fit: Fit, scene_file: str | None = None) -> str:
         out.append(f"| `{r['field']}` | {r['base']:.6g}{u} | {r['value']:.6g}{u} | {sig} | {r['status']} |")
     out += ["", "| sensor | offset | noise std | samples |", "|---|---|---|---|"]
     for k, e in fit.sensors.items():
-        out.append(f"| {k} | {e.offset:.4g} +- {e.offset_se:.2g} | {e.noise_std:.4g} +- {e.noise_se:.2g} | {e.n} |")
+        out.append(f"| {k} | {e.offset:.4g} +- {e.offset_se:.2g} | "
+                   f"{e.noise_std:.4g} +- {e.noise_se:.2g} | {e.n} |")
     out += ["", f"Delays: actuator {fit.k_act} ticks, sensor {fit.k_sens} ticks (cost at the delays tried: "
             + "; ".join(f"{st}: " + ", ".join(f"{k}: {c:.4g}" for k, c in sorted(d.items()))
                         for st, d in fit.delay_cost.items()) + ")", "",

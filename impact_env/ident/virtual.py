@@ -11,6 +11,7 @@ drop height).  The identification is tested and demonstrated on such rigs
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,7 @@ OFFSET_STD = {"accelerometer": 0.3, "force": 0.2, "potentiometer": 2e-5}
 
 
 def _get(scene: Scene, dotted: str) -> float:
-    obj = scene
+    obj: Any = scene
     for part in dotted.split("."):
         obj = getattr(obj, part)
     return float(obj)

@@ -139,7 +139,7 @@ class VirtualRig(RigDriver):
     def nominal_drop(self) -> None:
         """The physics' nominal drop (its fixed m1 and drop; any other range is still drawn)."""
         if self._hw_nominal is None:
-            rz = {k: [] for k in ("m1", "drop_height", "impact_speed")}
+            rz: dict[str, list] = {k: [] for k in ("m1", "drop_height", "impact_speed")}
             self._hw_nominal = Hardware(self.physics.with_overrides({f"randomize.{k}": v for k, v in rz.items()}),
                                         1)
         self.hw = self._hw_nominal

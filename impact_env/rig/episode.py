@@ -64,6 +64,7 @@ class Episode:
                            "commands_expired": 0, "commands_unused_at_end": 0}
         self.acct = np.zeros(CT.N_ACCT, dtype=np.int64)  # see controller.run_ticks
         self.last_heard = time.perf_counter()
+        self._authentic = target.link.filter.authentic
         self.status_or = 0
         self.m = 0
         self.obs_msg: P.Observation | None = None
@@ -148,17 +149,26 @@ class Episode:
                 if self.t.stopping:
                     return "DISARMED"
                 now = time.perf_counter()
-                if now - self.last_heard > self.link_timeout_s:
+                if self.link_lost(now):
                     return "LINK_LOST"
                 if now - sent >= self.t.cfg.resend_s and self.obs_msg is not None:
                     self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
                     sent = now
         else:
             why = self.drain(0.0)
-            if not why and time.perf_counter() - self.last_heard > self.link_timeout_s:
+            if not why and self.link_lost(time.perf_counter()):
                 why = "LINK_LOST"
         self.select_command(step)
         return why
+
+    def link_lost(self, now: float) -> bool:
+        """Nothing authentic from the host for the link timeout: not even a late command (those
+        are dropped by the filter, but a host that sends them is alive)."""
+        heard = self.t.link.filter.authentic
+        if heard != self._authentic:
+            self._authentic = heard
+            self.last_heard = now
+        return now - self.last_heard > self.link_timeout_s
 
     def select_command(self, step: int) -> None:
         """The newest accepted command for ``step`` (or an earlier, still live one) becomes the

@@ -105,17 +105,18 @@ class Excitation:
         f = self.samples(rate, n)
         peak = float(np.max(np.abs(f))) if n else 0.0
         if peak > command_scale * (1 + 1e-12):
-            raise ConfigError(f"excitation.amplitude_N = {self.amplitude_N:g} N asks for a peak of {peak:.4g} N, "
-                              f"more than the scene's effects.command_scale = {command_scale:g} N (command 1)")
+            raise ConfigError(f"excitation.amplitude_N = {self.amplitude_N:g} N asks for a peak of "
+                              f"{peak:.4g} N, more than the scene's effects.command_scale = "
+                              f"{command_scale:g} N (command 1)")
         if peak_n is not None and peak > peak_n:
             raise ConfigError(f"excitation.amplitude_N = {self.amplitude_N:g} N: peak {peak:.4g} N above the "
                               f"safety layer's peak_n = {peak_n:g} N")
         if continuous_n is not None and continuous_n > 0:
             rms = float(np.sqrt(np.mean(f * f)))
             if rms > continuous_n / math.sqrt(2):
-                raise ConfigError(f"excitation.amplitude_N = {self.amplitude_N:g} N: RMS {rms:.4g} N above the "
-                                  f"safety layer's continuous rating {continuous_n / math.sqrt(2):.4g} N RMS "
-                                  f"(continuous_n = {continuous_n:g} N peak)")
+                raise ConfigError(f"excitation.amplitude_N = {self.amplitude_N:g} N: RMS {rms:.4g} N above "
+                                  f"the safety layer's continuous rating {continuous_n / math.sqrt(2):.4g} "
+                                  f"N RMS (continuous_n = {continuous_n:g} N peak)")
         return f / command_scale
 
     # -- the file --------------------------------------------------------------------------------
@@ -151,7 +152,8 @@ class Excitation:
     def describe(self) -> str:
         if self.signal == "zero":
             return "0 N (quiet)"
-        band = f"up to {self.f_hi_Hz:g} Hz" if self.signal == "prbs" else f"{self.f_lo_Hz:g}-{self.f_hi_Hz:g} Hz"
+        band = (f"up to {self.f_hi_Hz:g} Hz" if self.signal == "prbs"
+                else f"{self.f_lo_Hz:g}-{self.f_hi_Hz:g} Hz")
         return f"{self.signal} {band}, {self.amplitude_N:g} N peak"
 
 

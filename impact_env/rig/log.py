@@ -59,7 +59,7 @@ import platform
 import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -369,7 +369,7 @@ def read_episode(path: str | os.PathLike) -> EpisodeLog:
         ver = int(f.attrs["format_version"])
         if ver > FORMAT_VERSION:
             raise ValueError(f"{path} has format version {ver}; this reader knows up to {FORMAT_VERSION}")
-        kw = {}
+        kw: dict[str, Any] = {}
         for fd in fields(EpisodeMeta):
             if fd.name in ("counters", "versions", "obs_names"):
                 continue

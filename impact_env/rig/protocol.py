@@ -199,7 +199,7 @@ class EndReason(enum.IntEnum):
     DISARMED = 3  # the host sent DISARM
     FIRST_COMMAND_TIMEOUT = 4  # host mode: no first command within first_command_timeout_ticks
     SAFETY = 5  # a latched safety trip (travel limit, sensor fault)
-    LINK_LOST = 6  # nothing heard from the host within link_timeout_ms
+    LINK_LOST = 6  # nothing authentic heard from the host within link_timeout_ms (late commands count)
     FAULT = 7  # the driver reported an error
 
 
@@ -852,6 +852,10 @@ class DatagramFilter:
     last_stranger: Message | None = None
     last_unauth: bool = False  # the last datagram dropped was a HELLO whose tag did not check
     auth_refusal: str = ""
+    # datagrams of the open session that authenticated from its peer, whatever their fate after
+    # (accepted, or dropped as duplicate, out of order or late): a late COMMAND is still a host
+    # that is alive, which is what a link timeout asks
+    authentic: int = 0
 
     def __post_init__(self):
         if self.role not in ("host", "target"):
@@ -913,6 +917,7 @@ class DatagramFilter:
             self._drop("wrong_session", f"{t.name} of session {msg.session:#x}, open: "
                        f"{'none' if self.session is None else f'{self.session:#x}'}")
             return None
+        self.authentic += 1
         if not self._fresh(msg):
             return None
         if (t == MsgType.COMMAND and episode is not None and step is not None

@@ -45,7 +45,7 @@ Controller = Callable[[float, np.ndarray], float]
 
 def simulate(scene: Scene | str, controller: Controller | None = None, t_end: float | None = None,
              record_rate: float | None = None, max_events: int = 100_000, overrides=None,
-             rng: np.random.Generator | int | None = None) -> Trajectory:
+             rng: np.random.Generator | int | None = None, plant_only: bool = False) -> Trajectory:
     """Simulate one drop.
 
     scene: a Scene or preset name (``overrides``: dotted keys applied on top).
@@ -57,8 +57,20 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     t_end: simulated time (s); default ``scene.episode.horizon``.
     record_rate: samples per second in the Trajectory (default: the control rate); must divide it
         (or, without a controller, any rate whose period is a whole number of integration steps).
+    plant_only: this function integrates the bare plant (the two bodies, the contact and the
+        suspension, driven by ``controller``'s force); a scene whose ``effects.active`` is not
+        empty is refused unless this is True, so that nobody mistakes the bare plant for the scene.
+        Its effects (shaker, limit, sensors, filters, detector, delays) run in
+        :class:`impact_env.sim.Simulator`: ``ImpactCatch-v0`` and ``impact_env.eval.rollout``
+        (``impact-env compare``).
     """
     scene = load_scene(scene, overrides)
+    if scene.effects.active and not plant_only:
+        raise ValueError(
+            f"scene {scene.name!r} has effects {list(scene.effects.active)}, which simulate() does "
+            f"not run (it integrates the bare plant): run them with impact_env.sim.Simulator "
+            f"(ImpactCatch-v0, impact_env.eval.rollout, impact-env compare), or pass "
+            f"plant_only=True to integrate the plant alone")
     if rng is not None and scene.randomized:
         scene = scene.sample(rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng))
     t_end = scene.episode.horizon if t_end is None else float(t_end)
