@@ -208,12 +208,12 @@ def test_randomised_simulator_steps_like_the_drawn_scene():
 
 def test_simulate_draws_with_rng_like_the_simulator():
     sc = load_scene("rig-randomized", {"randomize.restitution": []})
-    tr = simulate(sc, t_end=1e-3, rng=4)
+    tr = simulate(sc, t_end=1e-3, rng=4, plant_only=True)
     sim = Simulator(sc, 1)
     sim.reset([np.random.default_rng(4)])
     assert tr.scene == sc.with_draws(sim.drawn[0])
     assert np.array_equal(tr.params, sim.P[0])
-    assert simulate(sc, t_end=1e-3).scene == sc  # no rng: the nominal values
+    assert simulate(sc, t_end=1e-3, plant_only=True).scene == sc  # no rng: the nominal values
 
 
 def test_per_env_delays_shift_by_their_own_length():

@@ -31,7 +31,7 @@ def test_max_penetration_and_peak_force_are_tracked_not_sampled(c, method):
     integrators) within gravity's neglected work."""
     ov = {"plant.c": c, "plant.restitution": 1.0, "integrator.method": method}
     scene = load_scene("rig", overrides=ov)
-    tr = simulate(scene, t_end=0.01)
+    tr = simulate(scene, t_end=0.01, plant_only=True)
     p = scene.plant
     d_ref = hertz.max_penetration(p.effective_mass, p.c, scene.impact_speed)
     f_ref = hertz.peak_force(p.effective_mass, p.c, scene.impact_speed)
@@ -50,11 +50,11 @@ def test_dopri_tolerance_warning_matches_its_measured_error():
     constant the warning quotes; at rtol 1e-6 the run now says so, at the default it does not."""
     scene = load_scene("rig")
     d_max = ST.contact_scales(ST.Drop.of(scene))["d_max"]
-    ref = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-12})
-    tr = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-7})
+    ref = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-12}, plant_only=True)
+    tr = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-7}, plant_only=True)
     err = np.max(np.abs((tr.x1 - tr.x2) - (ref.x1 - ref.x2))) / d_max
     assert ST.DOPRI_ERROR_PER_RTOL * 1e-7 / 3 <= err <= 3 * ST.DOPRI_ERROR_PER_RTOL * 1e-7, err
-    loose = simulate(scene, t_end=0.01, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-6})
+    loose = simulate(scene, t_end=0.01, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-6}, plant_only=True)
     assert any("integrator.rtol" in w for w in loose.warnings())
     assert not any("integrator.rtol" in w for w in ref.warnings())
 
@@ -63,12 +63,12 @@ def test_no_event_location_on_a_damped_pad_is_reported():
     """RK4 without event location at 35 steps per contact was silent: contact time 9 % off,
     restitution 5e-3 off against the located reference, energy ledger 4e-5 (under its bound)."""
     scene = load_scene("rig")
-    ref = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-12})
+    ref = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-12}, plant_only=True)
     tr = simulate(scene, t_end=0.05, overrides={"integrator.event_location": False, "integrator.dt": 1e-4,
-                                                "integrator.min_steps_per_contact": 0})
+                                                "integrator.min_steps_per_contact": 0}, plant_only=True)
     assert abs(tr.first_contact_duration() / ref.first_contact_duration() - 1.0) > 0.05  # the fault is real
     assert any("integrator.event_location = false" in w for w in tr.warnings())
-    assert not simulate(scene, t_end=0.01).warnings()  # the default is silent
+    assert not simulate(scene, t_end=0.01, plant_only=True).warnings()  # the default is silent
 
 
 def test_catch_time_figure_tells_the_tables_story(tmp_path):

@@ -28,7 +28,7 @@ from impact_env.effects.detector import EFFECT as DETECTOR
 from impact_env.effects.detector import detect, detector_params
 from impact_env.effects.filters import EFFECT as FILTERS
 from impact_env.effects.filters import design_filters, filter_step
-from impact_env.effects.sensors import N_CHANNELS
+from impact_env.effects.sensors import ACCEL, FORCE, N_CHANNELS
 from impact_env.scene import Scene
 
 # flag bits (the controller's effects, as each declares itself: impact_env.effects.registry)
@@ -98,7 +98,7 @@ def condition(i, raw, p, s):
         filter_step(p.sos, s.filt[i], c, c)
     d = False
     if p.flags & F_DETECTOR:
-        d = detect(c[0], c[1], s.det[i], p.detector)
+        d = detect(c[ACCEL], c[FORCE], s.det[i], p.detector)
     s.detected[i] = 1.0 if d else 0.0
 
 

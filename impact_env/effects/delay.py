@@ -118,6 +118,9 @@ def block_sizes(k_max: int, n_channels: int) -> tuple[int, int]:
     return 1, 1 + k_max * n_channels
 
 
+P_K = 0  # the packed block: [k]
+
+
 def pack_params(k: int) -> np.ndarray:
     return np.array([float(k)])
 
@@ -126,7 +129,7 @@ def pack_params(k: int) -> np.ndarray:
 def delay_packed(p, st, x, out):
     """:func:`delay_step` on a packed block: ``p`` = [k], ``st`` = [head, buffer]; x, out
     float64[n_ch] (they may be the same array)."""
-    k = int(p[0])
+    k = int(p[P_K])
     n = x.shape[0]
     return delay_step(st[1:1 + k * n].reshape((k, n)), st[0:1], x, out)
 

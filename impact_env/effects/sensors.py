@@ -272,6 +272,9 @@ def block_sizes() -> tuple[int, int]:
     return 1 + N_CHANNELS * N_PARAM, 0
 
 
+P_TOP_MASS = 0  # the packed block: [top mass (kg), sensor_params ravelled]
+
+
 def pack_params(cfg: SensorsConfig, top_mass: float) -> np.ndarray:
     return np.concatenate([[float(top_mass)], sensor_params(cfg).ravel()])
 
@@ -279,7 +282,7 @@ def pack_params(cfg: SensorsConfig, top_mass: float) -> np.ndarray:
 @jit(inline="always")
 def read_packed(x1, x2, a2, phi, p, out):
     """The true channel values (:func:`true_readings`) with the packed block's top mass."""
-    return true_readings(x1, x2, a2, phi, p[0], out)
+    return true_readings(x1, x2, a2, phi, p[P_TOP_MASS], out)
 
 
 @jit(inline="always")

@@ -284,6 +284,9 @@ def block_sizes(order: int) -> tuple[int, int]:
     return 1 + order * order + 3 * order, 2 * order
 
 
+P_D = 0  # the packed block: [D, A (ns x ns), B, C, E]
+
+
 def pack_params(A, B, C, D, E) -> np.ndarray:
     """The parameter block of the discretised model (A, B, C, D, E), as :func:`discrete_emf_model`
     returns it."""
@@ -297,8 +300,8 @@ def shaker_packed(p, st, u, v2, back_emf):
     body 2's velocity v2 (m/s, down positive, held over the period) enters through E."""
     ns = st.shape[0] // 2
     x = st[:ns]
-    o = 1 + ns * ns
-    f = shaker_step_into(p[1:o].reshape((ns, ns)), p[o:o + ns], p[o + ns:o + 2 * ns], p[0], x, u, st[ns:])
+    o = P_D + 1 + ns * ns
+    f = shaker_step_into(p[1:o].reshape((ns, ns)), p[o:o + ns], p[o + ns:o + 2 * ns], p[P_D], x, u, st[ns:])
     if back_emf:
         for j in range(ns):
             x[j] += p[o + 2 * ns + j] * v2
