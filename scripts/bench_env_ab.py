@@ -89,9 +89,12 @@ def main() -> int:
     args = ap.parse_args()
     sides = {"this": ROOT, "other": args.other.resolve()}
     rows = {k: [] for k in sides}
-    for _ in range(args.rounds):
-        for k, d in sides.items():
-            rows[k].append(probe(d))
+    order = list(sides)
+    for r in range(args.rounds):
+        # which side runs first alternates: run for run, the first of a pair came out a few per
+        # cent slower here whichever checkout it was (both orders of two checkouts, 7 rounds each)
+        for k in order if r % 2 == 0 else order[::-1]:
+            rows[k].append(probe(sides[k]))
     print("| checkout | rig step us (min) | step / MountainCarContinuous (median) | "
           "vector N=1024 env-steps/s (max) | vector / CartPoleVectorEnv (median) |")
     print("|---|---|---|---|---|")

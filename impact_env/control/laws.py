@@ -80,7 +80,11 @@ def constants_rows(name: str, constants: dict, n: int) -> np.ndarray:
     for j, key in enumerate(keys):
         if key not in constants:
             raise ConfigError(f"law {name!r} needs the constant {key!r}")
-        out[:, j] = np.broadcast_to(np.asarray(constants[key], dtype=np.float64), (n,))
+        v = constants[key]
+        if isinstance(v, (float, int)):  # the usual case: predict() is called per step
+            out[:, j] = v
+        else:
+            out[:, j] = np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))
     return out
 
 

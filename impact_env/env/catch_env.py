@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from impact_env.control.observation import OBS_LIMIT
-from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, make_catch_task
+from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, info_from_row, make_catch_task
 from impact_env.scene import Scene
 
 
@@ -128,10 +128,11 @@ class ImpactCatchEnv(gym.Env):
         task = self.task
         a = task.check_actions(action)
         rewards, terminated, truncated = task.step(a)
-        return task.obs[0].copy(), float(rewards[0]), bool(terminated[0]), bool(truncated[0]), self._info()
+        return (task.obs[0].copy(), float(rewards[0]), bool(terminated[0]), bool(truncated[0]),
+                info_from_row(task.rows[0]))
 
     def _info(self) -> dict[str, Any]:
-        return self.task.info_dict(0)
+        return info_from_row(self.task.rows[0])
 
     def render(self):
         if self.render_mode is None:

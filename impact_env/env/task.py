@@ -211,6 +211,11 @@ class CatchTask:
 
     def check_actions(self, actions) -> np.ndarray:
         """:func:`check_actions` for this batch and config."""
+        if self.n == 1 and type(actions) is np.ndarray and actions.shape == (1,):
+            x = float(actions[0])  # the common single-env case, one Python call fewer
+            if -1.0 <= x <= 1.0:
+                self._a1[0] = x
+                return self._a1
         return check_actions(actions, self.n, self.config.action_bounds, self.command_scale, self._a1)
 
     def step(self, a: np.ndarray, active=None):
