@@ -25,4 +25,5 @@ class Effect:
 
     def __post_init__(self):
         if self.side not in (HARDWARE, CONTROLLER):
-            raise ValueError(f"effect {self.name!r}: side {self.side!r} is not {HARDWARE!r} or {CONTROLLER!r}")
+            raise ValueError(f"effect {self.name!r}: side {self.side!r} is not {HARDWARE!r} or "
+                             f"{CONTROLLER!r}")

@@ -163,7 +163,7 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     out = f / p.scale if status & MODIFIED else u
     st[ST_COMMAND] = out
     rows = s.log.rows
-    i = LG.claim_row(rows, s.log.count)
+    i = LG.claim_row(rows, s.log.filled)
     if i >= 0:
         row = rows[i]
         row[LG.TICK] = m

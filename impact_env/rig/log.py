@@ -113,7 +113,7 @@ class LogBuffers(NamedTuple):
 
     rows: np.ndarray  # float64[capacity, columns]
     obs: np.ndarray  # float64[capacity, obs size]
-    count: np.ndarray  # int64[1]: rows filled
+    filled: np.ndarray  # int64[1]: rows filled (not `count`, which is tuple.count)
 
 
 @jit(inline="always")

@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from impact_env.config import ConfigError, check_choice, check_range
-from impact_env.effects.delay import DelayConfig
 from impact_env.effects import registry
+from impact_env.effects.delay import DelayConfig
 from impact_env.effects.detector import DetectorConfig
 from impact_env.effects.filters import FiltersConfig
 from impact_env.effects.saturation import SaturationConfig
