@@ -79,8 +79,8 @@ def run_blocks(kernel: Callable, blocks: list[tuple[int, int]], args: tuple) -> 
     except BaseException as exc:  # noqa: BLE001 - re-raised below, after the other blocks end
         error = exc
     for f in futures:
-        exc = f.exception()
-        if error is None and exc is not None:
-            error = exc
+        failed = f.exception()
+        if error is None and failed is not None:
+            error = failed
     if error is not None:
         raise error

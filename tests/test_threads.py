@@ -114,7 +114,7 @@ def test_vector_env_steps_do_not_depend_on_the_thread_count(small_blocks, scene,
         got = _vector_run(threads, scene, mode, task)
         assert len(got) == len(ref)
         for j, (a, b) in enumerate(zip(ref, got, strict=True)):
-            assert np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True), f"threads {threads}, item {j}"
+            assert np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True), f"threads {threads}, #{j}"
 
 
 # -- bitwise: rollouts and compare ------------------------------------------------------------------
@@ -133,7 +133,8 @@ def test_a_rollout_does_not_depend_on_the_thread_count(small_blocks, spec):
     """passive and pd-penetration: the Python loop (threads in the simulator's step); the
     compiled policy: the compiled loop (threads over blocks of episodes, whole chunks)."""
     def run(threads):
-        policy = export_policy(spec.split()[-1], RIG) if spec.startswith("compiled") else make_policy(spec, RIG)
+        name = spec.split()[-1]
+        policy = export_policy(name, RIG) if spec.startswith("compiled") else make_policy(name, RIG)
         return rollout(RIG, policy, [3, 4, 5, 6, 7], horizon=0.012, threads=threads, record_commands=False)
 
     ref = run(1)

@@ -263,8 +263,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         while k < n_steps:
             k1 = min(k + chunk, n_steps)
             sim.hw.refill_noise(hold * (k1 - k))  # the whole chunk's noise at once
-            run_blocks(_run_compiled, blocks, (k, k1, stride, PolicyArrays(pi, pf), mem, sim.params, sim.state,
-                                               metrics.arrays, fails, traces))
+            run_blocks(_run_compiled, blocks, (k, k1, stride, PolicyArrays(pi, pf), mem, sim.params,
+                                               sim.state, metrics.arrays, fails, traces))
             if progress is not None:
                 progress(k1 - k)
             k = k1

@@ -22,7 +22,14 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.control.front_end import FrontEndParams, FrontEndState, ObsParams, ObsState, condition, observe
+from impact_env.control.front_end import (
+    FrontEndParams,
+    FrontEndState,
+    ObsParams,
+    ObsState,
+    condition,
+    observe,
+)
 from impact_env.control.residual import ResidualParams, ResidualState, add_residual, observe_residual
 from impact_env.hardware.stage import (
     INFO_CONTACT_FORCE,
