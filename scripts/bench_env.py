@@ -200,7 +200,8 @@ def threads_table(quick: bool) -> None:
     n_steps = 400 if quick else 1000
     horizon = n_steps * scene.control_period
     for spec in ("passive", "pd-penetration", "compiled pd-penetration"):
-        for n in (256, 1024):
+        # (the compiled loop at N = 8 too: two blocks of MIN_BLOCK_EPISODES = 4, its threshold)
+        for n in (8, 256, 1024) if spec.startswith("compiled") else (256, 1024):
             measured = {}
 
             def roll(th, spec=spec, n=n, measured=measured):

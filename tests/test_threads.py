@@ -6,6 +6,9 @@ The blocks' minimum size (the measured threshold below which a batch runs serial
 
 from __future__ import annotations
 
+import os
+import threading
+
 import numpy as np
 import pytest
 
@@ -81,6 +84,32 @@ def test_run_blocks_runs_every_block_and_raises_after_all_ended():
     with pytest.raises(RuntimeError, match="block 3"):  # the first failing block, in block order
         run_blocks(kernel, env_blocks(10, 3, 1), (out, True))
     assert (out >= 0).all()  # every block ran to its end
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
+def test_a_forked_child_gets_its_own_threads():
+    """compare's process pool forks: a child must not wait on its parent's pool threads (which
+    it does not have)."""
+    out = np.zeros(4)
+
+    def kernel(i0, i1, arr):
+        arr[i0:i1] = 1.0
+
+    run_blocks(kernel, env_blocks(4, 2, 1), (out,))  # the parent's pool exists now
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 only if its blocks ran
+        code = 1
+        try:
+            arr = np.zeros(4)
+            done = threading.Event()
+            t = threading.Thread(target=lambda: (run_blocks(kernel, env_blocks(4, 2, 1), (arr,)), done.set()),
+                                 daemon=True)
+            t.start()
+            code = 0 if done.wait(20.0) and arr.all() else 1
+        finally:
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
 
 
 # -- bitwise: vector env ----------------------------------------------------------------------------
