@@ -63,7 +63,8 @@ TRACE_KEYS = ("x1", "v1", "x2", "v2", "force_demand", "force_applied", "contact_
               "detected", "saturated")
 CHUNK = 200  # policy steps per progress report (and at most per compiled call)
 #: envs per block at least when the compiled loop runs in threads: a block runs a whole chunk
-#: (up to CHUNK steps) per hand-off, so a few envs pay (measured: scripts/bench_env.py "threads")
+#: (up to CHUNK steps, about 2.4 ms of work for 4 rig envs) per hand-off (50-90 us of a thread's
+#: wake-up on a 2-core machine), so a few envs pay; scripts/bench_env.py ("threads") times N = 8
 MIN_BLOCK_EPISODES = 4
 FAIL_ACTION, FAIL_DIVERGED = 1, 2
 
