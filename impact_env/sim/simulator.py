@@ -27,8 +27,9 @@ from impact_env.sim.records import N_REC
 from impact_env.sim.step import SimParams, SimState, sim_step
 
 #: envs per block at least when a step runs in threads (measured: scripts/bench_env.py, section
-#: "threads": on a free second core, 2 blocks of 32 rig envs broke even, of 64 gained 1.11x); a
-#: smaller block costs more to hand to a thread (50-90 us) than it saves
+#: "threads", rig on 2 cores: 2 blocks of 32 envs 0.99x and 1.27x in two runs with a free second
+#: core, of 64 envs 1.11x and 1.53x, and 0.82x and 0.90x with the second core busy); a smaller
+#: block costs more to hand to a thread (50-90 us) than it saves
 MIN_BLOCK_ENVS = 64
 
 
