@@ -6,10 +6,17 @@
 2. The native vector env on ``rig`` at N = 1, 64, 1024, 4096: env-steps per second against
    Gymnasium's ``CartPoleVectorEnv`` at the same N.  Goal: ratio >= 1.0 at N = 1024.
 3. The env's share of a PPO training run's wall time (SB3 adapter, 16 envs).  Goal: < 5 %.
+4. Threads (``threads=`` of the Simulator, the vector env, rollout and compare): the speed-up of
+   2 threads over 1, measured in alternating rounds on the same objects: the simulator's step on
+   ``rig`` at N = 16 .. 1024 (where a block of envs starts to pay: the threshold
+   ``MIN_BLOCK_ENVS``), the vector env at N = 1024, and a rollout as ``compare`` runs it (``rig``,
+   ``passive`` and ``pd-penetration`` through the Python loop, the compiled ``pd-penetration``
+   through the compiled loop) at N = 256 and 1024.  The load average is printed beside it: on a
+   shared machine other jobs take the second core.
 
 Times are the minimum over repeats after a warm-up (numba compiled and cached first).
 
-    python scripts/bench_env.py [--quick]
+    python scripts/bench_env.py [--quick] [--only threads]
 """
 
 from __future__ import annotations
@@ -107,16 +114,137 @@ def ppo_share(total_steps: int) -> None:
     print(f"PPO wall {wall:.2f} s, env step_wait {spent[0]:.2f} s: env share {100 * spent[0] / wall:.1f} %")
 
 
+def _loadavg() -> str:
+    try:
+        with open("/proc/loadavg") as f:
+            return " ".join(f.read().split()[:3])
+    except OSError:
+        return "n/a"
+
+
+def _ratio(run, rounds: int) -> tuple[float, float, float, float]:
+    """Alternating rounds of ``run(threads)`` for threads 1 and 2; returns (min s with 1, min s
+    with 2, ratio of the two minima, cores busy with 2: the process's CPU time over the wall time
+    of that round, which says whether the second thread found a free core)."""
+    best = {1: np.inf, 2: np.inf}
+    busy = 0.0
+    for _ in range(rounds):
+        for th in (1, 2):
+            t0, c0 = time.perf_counter(), time.process_time()
+            run(th)
+            wall = time.perf_counter() - t0
+            if wall < best[th]:
+                best[th] = wall
+                if th == 2:
+                    busy = (time.process_time() - c0) / wall
+    return best[1], best[2], best[1] / best[2], busy
+
+
+def threads_table(quick: bool) -> None:
+    import os
+
+    from impact_env.env.vector import ImpactCatchVectorEnv
+    from impact_env.eval.rollout import rollout
+    from impact_env.policy.export import export_policy
+    from impact_env.policy.registry import make_policy
+    from impact_env.sim import simulator as S
+
+    rounds = 3 if quick else 7
+    print(f"\n## Threads: 2 against 1 (os.cpu_count() = {os.cpu_count()}; load average before: "
+          f"{_loadavg()})\n")
+    print("Simulator.step on rig, every block split (threshold off), per step:\n")
+    print("| N | 1 thread us | 2 threads us | speed-up | cores busy with 2 |")
+    print("|---|---|---|---|---|")
+    keep = S.MIN_BLOCK_ENVS
+    S.MIN_BLOCK_ENVS = 1
+    try:
+        for n in (16, 32, 64, 128, 256, 1024):
+            sim = S.Simulator("rig", n)
+            sim.reset([np.random.default_rng(i) for i in range(n)])
+            z = np.zeros(n)
+            sim.step(z)
+            reps = max(10, (2000 if quick else 10000) // n)
+
+            def run(th, sim=sim, z=z, reps=reps):
+                sim.threads = th
+                for _ in range(reps):
+                    sim.step(z)
+
+            t1, t2, r, busy = _ratio(run, rounds)
+            print(f"| {n} | {1e6 * t1 / reps:.1f} | {1e6 * t2 / reps:.1f} | {r:.2f} | {busy:.2f} |")
+    finally:
+        S.MIN_BLOCK_ENVS = keep
+    print(f"\n(threshold in use: MIN_BLOCK_ENVS = {S.MIN_BLOCK_ENVS} envs per block)\n")
+
+    n = 1024
+    env = ImpactCatchVectorEnv(n, "rig")
+    acts = np.zeros((n, 1), np.float32)
+    env.reset(seed=0)
+    env.step(acts)
+    n_steps = 20 if quick else 60
+
+    def vec(th):
+        env.task.sim.threads = th
+        for _ in range(n_steps):
+            env.step(acts)
+
+    t1, t2, r, busy = _ratio(vec, rounds)
+    print("| workload | 1 thread | 2 threads | speed-up | cores busy with 2 |")
+    print("|---|---|---|---|---|")
+    print(f"| vector env rig N = {n}, env.step (infos on) | {n * n_steps / t1:.3g} env-steps/s | "
+          f"{n * n_steps / t2:.3g} env-steps/s | {r:.2f} | {busy:.2f} |")
+    # a rollout's control period as compare runs it: the wall time between the rollout's first
+    # progress report (after CHUNK steps) and its last, per step: the reset of a randomised scene
+    # (every env draws and validates its scene in Python, about 2 ms per env) is left out
+    scene = impact_env.load_scene("rig")
+    n_steps = 400 if quick else 1000
+    horizon = n_steps * scene.control_period
+    for spec in ("passive", "pd-penetration", "compiled pd-penetration"):
+        # (the compiled loop at N = 8 too: two blocks of MIN_BLOCK_EPISODES = 4, its threshold)
+        for n in (8, 256, 1024) if spec.startswith("compiled") else (256, 1024):
+            measured = {}
+
+            def roll(th, spec=spec, n=n, measured=measured):
+                name = spec.split()[-1]
+                pol = export_policy(name, scene) if spec.startswith("compiled") else make_policy(name, scene)
+                marks: list[tuple[float, int]] = []
+                done = [0]
+
+                def progress(k):
+                    done[0] += k
+                    marks.append((time.perf_counter(), done[0]))
+
+                rollout(scene, pol, range(n), horizon=horizon, trace_rate=1e4, threads=th, progress=progress)
+                (t_a, k_a), (t_b, k_b) = marks[0], marks[-1]
+                measured[th] = (t_b - t_a) / (k_b - k_a)
+
+            per: dict[int, list[float]] = {1: [], 2: []}
+            for _ in range(max(2, rounds // 2)):
+                for th in (1, 2):
+                    roll(th)
+                    per[th].append(measured[th])
+            t1, t2 = min(per[1]), min(per[2])
+            loop = "compiled loop" if spec.startswith("compiled") else "Python loop"
+            print(f"| rollout ({loop}) {spec.split()[-1]}, rig, N = {n}: one control period (all envs) | "
+                  f"{1e6 * t1:.0f} us | {1e6 * t2:.0f} us | {t1 / t2:.2f} | (not measured) |")
+    print(f"\nload average after: {_loadavg()}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and repeats (a smoke run)")
+    ap.add_argument("--only", choices=("threads",), help="run only this section")
     args = ap.parse_args()
     impact_env.load_scene("rig")
+    if args.only == "threads":
+        threads_table(args.quick)
+        return
     n_steps, repeats = (500, 2) if args.quick else (3000, 5)
     single_env_table(n_steps, repeats)
     vector_table((1, 64, 1024) if args.quick else (1, 64, 1024, 4096), 20 if args.quick else 100,
                  2 if args.quick else 3)
     ppo_share(8192 if args.quick else 32768)
+    threads_table(args.quick)
 
 
 if __name__ == "__main__":

@@ -29,6 +29,10 @@ def add_parser(sub, scene_args) -> None:
     p.add_argument("--seed", type=int, default=0, help="episode j is seeded seed + j (default 0)")
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: episode.horizon)")
     add_workers_arguments(p)
+    p.add_argument("--threads", type=int, default=None,
+                   help="threads per worker process: each runs its episodes in this many threads at once "
+                        "(default 1; the same results, bitwise).  The workers already fill the cores: "
+                        "use it with --workers 1 (or fewer workers than cores)")
     p.add_argument("--out", metavar="DIR", help="write summary.csv/json, episodes.csv and plots here")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
     add_format_argument(p, what="with --out, the plots'")
@@ -58,6 +62,8 @@ def cmd_compare(args) -> int:
         raise ConfigError("--key FILE is the rig's session key: it goes with --rig udp://HOST:PORT")
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed} must be an integer >= 0 (episode j is seeded seed + j)")
+    if args.threads is not None and args.threads < 1:
+        raise ConfigError(f"--threads {args.threads} must be an integer >= 1")
     cluster = cluster_from_args(args)
     if args.rig:
         if cluster is not None:
@@ -66,7 +72,8 @@ def cmd_compare(args) -> int:
         return _compare_rig(args, specs)
     scene = scene_from_args(args, scene=args.scene or "rig")
     runs = compare(scene, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
-                   workers=args.workers, progress=not args.no_progress and not args.json, cluster=cluster)
+                   workers=args.workers, progress=not args.no_progress and not args.json, cluster=cluster,
+                   threads=args.threads)
     horizon = scene.episode.horizon if args.horizon is None else args.horizon
     if args.json:
         print(json.dumps(summary_json(runs)))
@@ -141,7 +148,7 @@ def _compare_rig(args, specs) -> int:
                     path = export_policy(spec, scene).save(Path(tmp) / f"p{k}.policy.json")
                     sim_specs[spec] = f"compiled:{path}"
             runs = compare(scene, list(sim_specs.values()), episodes=args.episodes, seed=args.seed,
-                           horizon=args.horizon, workers=args.workers,
+                           horizon=args.horizon, workers=args.workers, threads=args.threads,
                            progress=not args.no_progress and not args.json)
         sim_runs = {spec: runs[s] for spec, s in sim_specs.items()}
         for spec, run in sim_runs.items():

@@ -156,9 +156,10 @@ def new_task_out(n: int) -> TK.TaskOut:
 
 
 def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig,
-                    overrides=None) -> CatchTask:
+                    overrides=None, threads: int | None = None) -> CatchTask:
     """The simulator of ``num_envs`` rigs of ``scene`` (with ``overrides``) that ``config`` asks
-    for (observation layout, hold_ticks), and the catch task on it."""
+    for (observation layout, hold_ticks), stepping in ``threads`` threads (Simulator), and the
+    catch task on it."""
     scene = load_scene(scene, overrides)
     layout = make_layout(scene, config.observation, config.history)
     residual = None
@@ -166,7 +167,7 @@ def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig
         from impact_env.policy.export import export_policy
 
         residual = export_policy(config.residual, scene)
-    return CatchTask(Simulator(scene, num_envs, layout, config.hold_ticks, residual), config)
+    return CatchTask(Simulator(scene, num_envs, layout, config.hold_ticks, residual, threads=threads), config)
 
 
 class CatchTask:

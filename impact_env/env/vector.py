@@ -26,6 +26,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from impact_env._threads import check_threads
 from impact_env.control.observation import OBS_LIMIT
 from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, make_catch_task
 from impact_env.scene import Scene
@@ -34,19 +35,23 @@ from impact_env.scene import Scene
 class ImpactCatchVectorEnv(VectorEnv):
     """N copies of ``ImpactCatch-v0`` stepped in one call; arguments as the single env's
     (:class:`~impact_env.env.catch_env.ImpactCatchEnv`: the task's options are
-    :class:`~impact_env.env.task.TaskConfig`'s fields) plus ``num_envs`` and ``autoreset_mode``."""
+    :class:`~impact_env.env.task.TaskConfig`'s fields) plus ``num_envs``, ``autoreset_mode`` and
+    ``threads``: the simulator steps its envs in this many threads at once, in blocks of at
+    least :data:`~impact_env.sim.simulator.MIN_BLOCK_ENVS` envs (None or 1: serially); the
+    results do not depend on it, bitwise (docs/env.md, "Threads")."""
 
     def __init__(self, num_envs: int = 1, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, **task: Any):
+                 render_mode: str | None = None, threads: int | None = None, **task: Any):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
+        threads = check_threads(threads)
         mode = AutoresetMode(autoreset_mode) if isinstance(autoreset_mode, str) else autoreset_mode
         if not isinstance(mode, AutoresetMode):
             raise ValueError(f"autoreset_mode = {autoreset_mode!r}; expected one of "
                              f"{[m.value for m in AutoresetMode]}")
         cfg = TaskConfig.from_options(task)
-        self.task = make_catch_task(scene, int(num_envs), cfg, overrides)
+        self.task = make_catch_task(scene, int(num_envs), cfg, overrides, threads=threads)
         self.scene = self.task.scene
         self.layout = self.task.layout
         self.num_envs = int(num_envs)

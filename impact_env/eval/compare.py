@@ -84,6 +84,7 @@ class RolloutJob:
     trace_rate: float
     record: bool = False  # keep the commands (an oracle is in the comparison)
     warm_starts: dict | None = None  # other policies' commands on these episodes (for an oracle)
+    threads: int = 1  # the rollout's threads (rollout(threads=...)), in the worker that runs it
 
 
 @dataclass
@@ -125,7 +126,7 @@ def _run_task(task: RolloutJob):
         return {"error": f"{type(exc).__name__}: {exc}", "episodes": task.episodes, "seeds": seeds}
     r = rollout(task.scene, policy, seeds, horizon=task.horizon, episodes=task.episodes,
                 trace_rate=task.trace_rate, name=task.spec, progress=report,
-                warm_starts=task.warm_starts, record_commands=task.record)
+                warm_starts=task.warm_starts, record_commands=task.record, threads=task.threads)
     stride = max(1, int(round(task.trace_rate / ENERGY_CURVE_RATE)))
     ratio = r.traces["catch_energy"][::stride] / r.impact_energy[None, :]
     keep0 = 0 in task.episodes
@@ -140,16 +141,24 @@ def _run_task(task: RolloutJob):
 # -- the comparison --------------------------------------------------------------------------------
 def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon: float | None = None,
             workers: int | None = None, progress: bool = True,
-            trace_rate: float = 1.0e4, cluster: str | Cluster | None = None) -> dict[str, PolicyRun]:
+            trace_rate: float = 1.0e4, cluster: str | Cluster | None = None,
+            threads: int | None = None) -> dict[str, PolicyRun]:
     """Run every policy spec on ``episodes`` seeded drops of ``scene``; returns spec -> PolicyRun
     (with ``summary`` filled in).  Policies are validated before anything runs.
 
     ``cluster``: a Dask scheduler's ``tcp://HOST:PORT`` (or a connected
     :class:`~impact_env.eval.parallel.Cluster`) runs the tasks on its workers instead of local
-    processes, with the same results; ``workers`` then defaults to the cluster's worker threads."""
+    processes, with the same results; ``workers`` then defaults to the cluster's worker threads.
+
+    ``threads``: each task's rollout runs its episodes in this many threads
+    (:func:`~impact_env.eval.rollout.rollout`; None: 1); the results do not depend on it,
+    bitwise.  The workers already fill the cores, so it pays with ``workers=1`` (one process,
+    its episodes over the cores, no fork) or fewer workers than cores."""
+    from impact_env._threads import check_threads
     from impact_env.eval.parallel import connect, default_workers
     from impact_env.scene import load_scene
 
+    threads = check_threads(threads)
     scene = load_scene(scene)
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes = {episodes!r} must be an integer >= 1")
@@ -169,21 +178,22 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     try:
         if workers is None:
             workers = cl.workers if cl is not None else default_workers()
-        return _compare(scene, specs, episodes, seed, horizon, max(1, int(workers)), progress, trace_rate, cl)
+        return _compare(scene, specs, episodes, seed, horizon, max(1, int(workers)), progress, trace_rate, cl,
+                        threads)
     finally:
         if owned and cl is not None:
             cl.close()
 
 
 def _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rate,
-             cl) -> dict[str, PolicyRun]:
+             cl, threads=1) -> dict[str, PolicyRun]:
     from impact_env.eval.parallel import prepare, run_tasks
 
     oracles = [s for s in specs if _is_oracle(s)]
     others = [s for s in specs if s not in oracles]
     # chunks of episodes so that every worker has work; results do not depend on the chunking
     per_policy = max(1, math.ceil(workers / max(len(others), 1))) if workers > 1 else 1
-    tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles))
+    tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles), threads=threads)
              for spec in others for chunk in _chunks(episodes, per_policy)]
     prepare(_warm_up, scene, horizon, workers=workers, cluster=cl)
     n_steps = int(round(horizon / scene.control_period))
@@ -197,7 +207,8 @@ def _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rat
     if oracles:  # after the others, with their commands as warm starts, over every worker
         warm = {spec: run.commands for spec, run in runs.items() if run.commands is not None}
         tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate,
-                      warm_starts={k: u[:, chunk[0]:chunk[-1] + 1] for k, u in warm.items()})
+                      warm_starts={k: u[:, chunk[0]:chunk[-1] + 1] for k, u in warm.items()},
+                      threads=threads)
                  for spec in oracles for chunk in _chunks(episodes, workers)]
         outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),
                          desc=f"compare: oracle optimising {episodes} drops", progress=progress, cluster=cl)

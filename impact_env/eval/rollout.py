@@ -46,6 +46,7 @@ import numpy as np
 from gymnasium.utils import seeding
 
 from impact_env._jit import jit
+from impact_env._threads import check_threads, env_blocks, run_blocks
 from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.control.policy import CompiledPolicy, PolicyArrays, act
 from impact_env.plant.energy import catch_energy_at
@@ -61,6 +62,10 @@ __all__ = ["EPISODE_METRICS", "TRACE_KEYS", "RolloutResult", "rollout"]
 TRACE_KEYS = ("x1", "v1", "x2", "v2", "force_demand", "force_applied", "contact_force", "catch_energy",
               "detected", "saturated")
 CHUNK = 200  # policy steps per progress report (and at most per compiled call)
+#: envs per block at least when the compiled loop runs in threads: a block runs a whole chunk
+#: (up to CHUNK steps, about 2.4 ms of work for 4 rig envs) per hand-off (50-90 us of a thread's
+#: wake-up on a 2-core machine), so a few envs pay; scripts/bench_env.py ("threads") times N = 8
+MIN_BLOCK_EPISODES = 4
 FAIL_ACTION, FAIL_DIVERGED = 1, 2
 
 
@@ -95,20 +100,26 @@ def _energies(Y, P, out):
 
 
 @jit(inline="always")
+def _trace_env(row, i, Y, records, acc_energy, detected):
+    """Env i's trace sample (columns TRACE_KEYS) in ``row[i]``: the state as ``ImpactCatch-v0``'s
+    info gives it (non-finite entries read 0) and the last tick's record."""
+    for j in range(4):
+        v = Y[i, j]
+        row[i, j] = v if np.isfinite(v) else 0.0
+    last = records[i, records.shape[1] - 1]
+    row[i, 4] = last[R.REC_F_DEMAND]
+    row[i, 5] = last[R.REC_F_APPLIED]
+    row[i, 6] = last[R.REC_CONTACT_FORCE]
+    row[i, 7] = acc_energy[i]
+    row[i, 8] = detected[i]
+    row[i, 9] = last[R.REC_SATURATED]
+
+
+@jit
 def _trace_row(row, Y, records, acc_energy, detected):
-    """One trace sample (columns TRACE_KEYS) of every env: the state as ``ImpactCatch-v0``'s info
-    gives it (non-finite entries read 0) and the last tick's record."""
+    """One trace sample of every env (:func:`_trace_env`)."""
     for i in range(Y.shape[0]):
-        for j in range(4):
-            v = Y[i, j]
-            row[i, j] = v if np.isfinite(v) else 0.0
-        last = records[i, records.shape[1] - 1]
-        row[i, 4] = last[R.REC_F_DEMAND]
-        row[i, 5] = last[R.REC_F_APPLIED]
-        row[i, 6] = last[R.REC_CONTACT_FORCE]
-        row[i, 7] = acc_energy[i]
-        row[i, 8] = detected[i]
-        row[i, 9] = last[R.REC_SATURATED]
+        _trace_env(row, i, Y, records, acc_energy, detected)
 
 
 class Failures(NamedTuple):
@@ -119,38 +130,43 @@ class Failures(NamedTuple):
     code: np.ndarray  # int64[N]: FAIL_ACTION or FAIL_DIVERGED
 
 
-@jit
-def _run_compiled(k0, k1, stride, policy, memory, p, s, metrics, fails, traces):
+@jit(nogil=True)
+def _run_compiled(i0, i1, k0, k1, stride, policy, memory, p, s, metrics, fails, traces):
     """Steps k0 + 1 .. k1 of a compiled ``policy`` (PolicyArrays; its ``memory`` rows) on every env
-    of the simulator (SimParams ``p``, SimState ``s``) that has not failed; ``metrics``:
-    (acc, consts, settings) of :class:`~impact_env.sim.metrics.EpisodeMetrics`."""
+    ``i0 .. i1 - 1`` of the simulator (SimParams ``p``, SimState ``s``) that has not failed;
+    ``metrics``: (acc, consts, settings) of :class:`~impact_env.sim.metrics.EpisodeMetrics`.
+
+    Env by env, each for all its steps: env i reads and writes only its own rows (its policy
+    memory, state, records, metrics, failure marks and trace column), so the order of envs, and
+    blocks of envs run in threads at once (the GIL is released), give the same numbers."""
     Y = s.hw.plant.y
     P = p.hw.plant.p
     obs = s.obs.obs
     records = s.records
     acc, consts, settings = metrics.acc, metrics.consts, metrics.settings
+    energy = acc[:, A_ENERGY]
+    detected = s.fe.detected
     failed = fails.failed
     period = settings[0]
     hold = p.hold
-    for k in range(k0 + 1, k1 + 1):
-        for i in range(obs.shape[0]):
-            if failed[i]:
-                continue
-            u = act(policy.ints, policy.floats, obs[i], memory[i])
-            if not np.isfinite(u):
-                failed[i] = True
-                fails.t[i] = (k - 1) * period
-                fails.code[i] = FAIL_ACTION
-                continue
-            ok = env_step(i, u, p, s)
-            for j in range(hold):
-                update(acc[i], records[i, j], consts[i], P[i], settings)
-            if not ok:
-                failed[i] = True
-                fails.t[i] = k * period
-                fails.code[i] = FAIL_DIVERGED
-        if k % stride == 0:
-            _trace_row(traces[k // stride], Y, records, acc[:, A_ENERGY], s.fe.detected)
+    for i in range(i0, i1):
+        for k in range(k0 + 1, k1 + 1):
+            if not failed[i]:
+                u = act(policy.ints, policy.floats, obs[i], memory[i])
+                if not np.isfinite(u):
+                    failed[i] = True
+                    fails.t[i] = (k - 1) * period
+                    fails.code[i] = FAIL_ACTION
+                else:
+                    ok = env_step(i, u, p, s)
+                    for j in range(hold):
+                        update(acc[i], records[i, j], consts[i], P[i], settings)
+                    if not ok:
+                        failed[i] = True
+                        fails.t[i] = k * period
+                        fails.code[i] = FAIL_DIVERGED
+            if k % stride == 0:  # (a failed env's sample too: its last state, as before)
+                _trace_env(traces[k // stride], i, Y, records, energy, detected)
 
 
 def residual_law(policy, scene) -> CompiledPolicy | None:
@@ -170,7 +186,7 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             trace_rate: float = 1.0e4, catch_fraction: float = 0.01, min_flight_s: float = 1.0e-3,
             name: str = "", progress: Callable[[int], None] | None = None,
             compiled: bool | None = None, warm_starts: dict[str, np.ndarray] | None = None,
-            record_commands: bool = False) -> RolloutResult:
+            record_commands: bool = False, threads: int | None = None) -> RolloutResult:
     """Run ``policy`` (SB3 ``predict`` with attributes ``observation`` and optionally ``history``,
     ``hold_ticks`` and ``residual``, or a CompiledPolicy) on one episode per entry of ``seeds`` (ints) for
     ``horizon`` s (default ``scene.episode.horizon``).  ``episodes`` labels them in failure
@@ -178,7 +194,12 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     steps); ``progress(k)`` is called with the number of policy steps done since its last call.
     ``compiled``: run a CompiledPolicy in the compiled loop (default) or, False, through its
     ``predict`` from Python (the two give the same numbers: tested).  ``warm_starts``,
-    ``record_commands``: see "Open-loop policies" in the module doc."""
+    ``record_commands``: see "Open-loop policies" in the module doc.  ``threads``: the episodes
+    run in this many threads at once (in the compiled loop, blocks of at least
+    :data:`MIN_BLOCK_EPISODES` episodes, a chunk of steps per hand-off; in the Python loop, the
+    simulator's step, :class:`~impact_env.sim.simulator.Simulator`); None or 1: serially.  The
+    results do not depend on it, bitwise."""
+    threads = check_threads(threads)
     seeds = np.asarray(list(seeds), dtype=np.int64)
     n = len(seeds)
     if n < 1:
@@ -209,7 +230,7 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
 
     t_wall = time.perf_counter()
     layout = make_layout(scene, observation, int(getattr(policy, "history", 1)))
-    sim = Simulator(scene, n, layout, hold, residual_law(policy, scene))
+    sim = Simulator(scene, n, layout, hold, residual_law(policy, scene), threads=threads)
     sim.reset([seeding.np_random(int(s))[0] for s in seeds])
     Y0 = sim.Y
     metrics = EpisodeMetrics(n, period, catch_fraction, min_flight_s)
@@ -238,12 +259,13 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         pi, pf, m = policy.arrays()
         mem = policy.new_memory(n)
         chunk = max(1, min(CHUNK, sim.hw.noise_block // hold))  # a chunk's noise fits one block
+        blocks = env_blocks(n, threads, MIN_BLOCK_EPISODES)
         k = 0
         while k < n_steps:
             k1 = min(k + chunk, n_steps)
             sim.hw.refill_noise(hold * (k1 - k))  # the whole chunk's noise at once
-            _run_compiled(k, k1, stride, PolicyArrays(pi, pf), mem, sim.params, sim.state, metrics.arrays,
-                          fails, traces)
+            run_blocks(_run_compiled, blocks, (k, k1, stride, PolicyArrays(pi, pf), mem, sim.params,
+                                               sim.state, metrics.arrays, fails, traces))
             if progress is not None:
                 progress(k1 - k)
             k = k1

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from impact_env._jit import bound_call
+from impact_env._threads import check_threads, env_blocks, run_blocks
 from impact_env.config import check_hold_ticks
 from impact_env.control.front_end import FrontEnd
 from impact_env.control.observation import ObservationLayout, make_layout
@@ -24,6 +25,12 @@ from impact_env.hardware.batch import NOISE_BLOCK, Hardware
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.records import N_REC
 from impact_env.sim.step import SimParams, SimState, sim_step
+
+#: envs per block at least when a step runs in threads (measured: scripts/bench_env.py, section
+#: "threads", rig on 2 cores: 2 blocks of 32 envs 0.99x and 1.27x in two runs with a free second
+#: core, of 64 envs 1.11x and 1.53x, and 0.82x and 0.90x with the second core busy); a smaller
+#: block costs more to hand to a thread (50-90 us) than it saves
+MIN_BLOCK_ENVS = 64
 
 
 class Simulator:
@@ -39,12 +46,19 @@ class Simulator:
 
     ``residual``: a compiled classic law evaluated every tick on its own observation frame; the
     command of a tick is ``clip(action + law, -1, 1)`` (:mod:`impact_env.sim.step`).
+
+    ``threads``: a step runs its envs in this many threads at once, in blocks of at least
+    :data:`MIN_BLOCK_ENVS` envs (a smaller batch runs serially); None or 1: serially, in the
+    calling thread.  The results do not depend on it, bitwise (:mod:`impact_env._threads`).
+    It may be changed between steps (:attr:`threads`).
     """
 
     def __init__(self, scene: Scene | str, num_envs: int = 1, layout: ObservationLayout | None = None,
-                 hold_ticks: int = 1, residual: CompiledPolicy | None = None, events_per_env: int = 64):
+                 hold_ticks: int = 1, residual: CompiledPolicy | None = None, events_per_env: int = 64,
+                 threads: int | None = None):
         scene = load_scene(scene)
         self.hold = check_hold_ticks(hold_ticks)
+        threads = check_threads(threads)
         # a step's noise must fit one block (the stream does not depend on the block's size)
         self.hw = hw = Hardware(scene, num_envs, events_per_env, noise_block=max(NOISE_BLOCK, self.hold))
         self.scene = scene
@@ -66,6 +80,18 @@ class Simulator:
         #: the compiled step's parameters and state (named tuples over the arrays of hw and fe)
         self.params = SimParams(self.hold, hw.params, fe.params, fe.obs_params, law_p)
         self.state = SimState(hw.state, fe.state, fe.obs_state, law_s, self.records)
+        self._blocks: list[tuple[int, int]] = []
+        self.threads = threads
+
+    @property
+    def threads(self) -> int:
+        """How many threads a step runs its envs in (1: serially); may be set between steps."""
+        return self._threads
+
+    @threads.setter
+    def threads(self, threads: int | None) -> None:
+        self._threads = check_threads(threads)
+        self._blocks = env_blocks(self.n, self._threads, MIN_BLOCK_ENVS)
 
     # -- episodes ------------------------------------------------------------------------------
     def reset(self, rngs, mask=None) -> np.ndarray:
@@ -90,9 +116,9 @@ class Simulator:
         self.hw.refill_noise(self.hold, None if active is None else act)
         args = (a, act, self.params, self.state)
         if self._step is None:  # its argument types are fixed from here on: float64[::1], bool[::1]
-            self._step = bound_call(sim_step, args)
+            self._step = bound_call(sim_step, (0, n) + args)  # (this first step: serially)
         else:
-            self._step(*args)
+            run_blocks(self._step, self._blocks, args)
 
     # -- what the rest of the project reads ---------------------------------------------------
     @property

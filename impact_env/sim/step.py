@@ -1,6 +1,7 @@
 """The simulator's compiled step: for every active env, ``hold`` ticks of the hardware stage
 under the held command, each followed by the front end's conditioning; then, unless the plant
-failed, the observation.  One call per step for the whole batch.
+failed, the observation.  One call per step for the whole batch, or one per block of envs
+when the simulator has threads (:mod:`impact_env._threads`).
 
 The order inside a tick is the rig's: the command for the tick is the policy's held action,
 plus, with a residual law, that law's command from the readings of the tick before (its own
@@ -95,9 +96,11 @@ def env_step(i, a, p, s):
     return ok
 
 
-@jit
-def sim_step(actions, active, p, s):
-    """:func:`env_step` for every env i with ``active[i]`` under ``actions[i]``."""
-    for i in range(actions.shape[0]):
+@jit(nogil=True)
+def sim_step(i0, i1, actions, active, p, s):
+    """:func:`env_step` for every env i of ``i0 .. i1 - 1`` with ``active[i]`` under ``actions[i]``
+    (the whole batch: 0, N).  Env i touches only its own rows, and the GIL is released, so blocks
+    of envs may run in threads at once (:mod:`impact_env._threads`) with the same results."""
+    for i in range(i0, i1):
         if active[i]:
             env_step(i, actions[i], p, s)

@@ -1,0 +1,181 @@
+"""Threads over blocks of envs (impact_env._threads): the vector env, rollouts and compare give
+bitwise the same results with any thread count, and a bad thread count is refused by name.
+
+The blocks' minimum size (the measured threshold below which a batch runs serially) is set to
+1 here, so that a handful of envs really runs in 2 and 3 threads."""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+import pytest
+
+import impact_env.eval.rollout as RO
+import impact_env.sim.simulator as SIM
+from impact_env._threads import check_threads, env_blocks, run_blocks
+from impact_env.cli import main
+from impact_env.env.vector import ImpactCatchVectorEnv
+from impact_env.eval.compare import compare
+from impact_env.eval.rollout import rollout
+from impact_env.policy.export import export_policy
+from impact_env.policy.registry import make_policy
+from impact_env.scene import load_scene
+from impact_env.sim.simulator import Simulator
+
+RIG = load_scene("rig")
+THREADS = (1, 2, 3)  # 3: more threads than the test machine's cores is fine
+
+
+@pytest.fixture
+def small_blocks(monkeypatch):
+    monkeypatch.setattr(SIM, "MIN_BLOCK_ENVS", 1)
+    monkeypatch.setattr(RO, "MIN_BLOCK_EPISODES", 1)
+
+
+# -- the thread count -------------------------------------------------------------------------------
+@pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True])
+def test_a_bad_thread_count_is_refused_naming_the_parameter(bad):
+    with pytest.raises(ValueError, match=r"threads = .* must be an integer >= 1"):
+        check_threads(bad)
+    with pytest.raises(ValueError, match="threads"):
+        Simulator(RIG, 2, threads=bad)
+    with pytest.raises(ValueError, match="threads"):
+        ImpactCatchVectorEnv(2, "rig", threads=bad)
+    with pytest.raises(ValueError, match="threads"):
+        rollout(RIG, make_policy("passive", RIG), [0], horizon=1e-3, threads=bad)
+    with pytest.raises(ValueError, match="threads"):
+        compare(RIG, ["passive"], episodes=1, horizon=1e-3, workers=1, progress=False, threads=bad)
+    sim = Simulator(RIG, 2)
+    with pytest.raises(ValueError, match="threads"):
+        sim.threads = bad
+
+
+def test_cli_compare_bad_threads_exits_2(capsys):
+    assert main(["compare", "--no-progress", "--threads", "0"]) == 2
+    assert "--threads 0 must be an integer >= 1" in capsys.readouterr().err
+
+
+def test_env_blocks_cover_the_envs_and_respect_the_minimum():
+    assert check_threads(None) == 1
+    assert env_blocks(10, 1, 1) == [(0, 10)]
+    assert env_blocks(10, 3, 1) == [(0, 3), (3, 7), (7, 10)]
+    assert env_blocks(10, 3, 4) == [(0, 5), (5, 10)]  # blocks of 4 envs at least
+    assert env_blocks(10, 3, 64) == [(0, 10)]  # too small a batch: serial
+    assert env_blocks(2, 8, 1) == [(0, 1), (1, 2)]
+    for n, k, m in ((1, 1, 1), (1000, 7, 3), (65, 2, 64), (128, 2, 64)):
+        b = env_blocks(n, k, m)
+        assert b[0][0] == 0 and b[-1][1] == n and all(b[j][1] == b[j + 1][0] for j in range(len(b) - 1))
+        assert len(b) == 1 or min(i1 - i0 for i0, i1 in b) >= m
+
+
+def test_run_blocks_runs_every_block_and_raises_after_all_ended():
+    out = np.zeros(10)
+
+    def kernel(i0, i1, arr, boom):
+        arr[i0:i1] = i0
+        if boom and i0 > 0:
+            raise RuntimeError(f"block {i0}")
+
+    run_blocks(kernel, env_blocks(10, 3, 1), (out, False))
+    np.testing.assert_array_equal(out, [0, 0, 0, 3, 3, 3, 3, 7, 7, 7])
+    out[:] = -1.0
+    with pytest.raises(RuntimeError, match="block 3"):  # the first failing block, in block order
+        run_blocks(kernel, env_blocks(10, 3, 1), (out, True))
+    assert (out >= 0).all()  # every block ran to its end
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
+def test_a_forked_child_gets_its_own_threads():
+    """compare's process pool forks: a child must not wait on its parent's pool threads (which
+    it does not have)."""
+    out = np.zeros(4)
+
+    def kernel(i0, i1, arr):
+        arr[i0:i1] = 1.0
+
+    run_blocks(kernel, env_blocks(4, 2, 1), (out,))  # the parent's pool exists now
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 only if its blocks ran
+        code = 1
+        try:
+            arr = np.zeros(4)
+            done = threading.Event()
+            t = threading.Thread(target=lambda: (run_blocks(kernel, env_blocks(4, 2, 1), (arr,)), done.set()),
+                                 daemon=True)
+            t.start()
+            code = 0 if done.wait(20.0) and arr.all() else 1
+        finally:
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+
+
+# -- bitwise: vector env ----------------------------------------------------------------------------
+def _vector_run(threads, scene, mode, task):
+    n = 5
+    env = ImpactCatchVectorEnv(n, scene, autoreset_mode=mode, threads=threads, horizon=2e-3, **task)
+    assert len(env.task.sim._blocks) == min(threads, n)
+    obs, info = env.reset(seed=11)
+    rng = np.random.default_rng(4)
+    out = [obs, *info.values()]
+    for _ in range(30):  # horizon 2 ms: every env ends (truncated) and is reset on the way
+        o, r, te, tr, inf = env.step(rng.uniform(-1.0, 1.0, (n, 1)).astype(np.float32))
+        out += [o, r, te, tr]
+        for key, v in sorted(inf.items()):
+            if key in ("final_obs", "final_info"):
+                out += [x for x in v if x is not None] if key == "final_obs" else list(v.values())
+            else:
+                out.append(v)
+    sim = env.task.sim
+    out += [sim.Y, sim.records, sim.readings, sim.hw.ST, sim.fe.state.filt]
+    return out
+
+
+@pytest.mark.parametrize("scene,mode,task", [
+    ("rig", "NextStep", {}),
+    ("rig-randomized", "SameStep", {"hold_ticks": 2, "residual": "pd-penetration", "history": 2}),
+])
+def test_vector_env_steps_do_not_depend_on_the_thread_count(small_blocks, scene, mode, task):
+    ref = _vector_run(1, scene, mode, task)
+    for threads in THREADS[1:]:
+        got = _vector_run(threads, scene, mode, task)
+        assert len(got) == len(ref)
+        for j, (a, b) in enumerate(zip(ref, got, strict=True)):
+            assert np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True), f"threads {threads}, #{j}"
+
+
+# -- bitwise: rollouts and compare ------------------------------------------------------------------
+def _same_rollouts(a, b):
+    assert a.metrics.keys() == b.metrics.keys()
+    for key in a.metrics:
+        assert np.array_equal(a.metrics[key], b.metrics[key], equal_nan=True), key
+    for key in a.traces:
+        assert np.array_equal(a.traces[key], b.traces[key], equal_nan=True), key
+    assert np.array_equal(a.t_touch, b.t_touch) and np.array_equal(a.impact_energy, b.impact_energy)
+    assert a.failures == b.failures
+
+
+@pytest.mark.parametrize("spec", ["passive", "pd-penetration", "compiled pd-penetration"])
+def test_a_rollout_does_not_depend_on_the_thread_count(small_blocks, spec):
+    """passive and pd-penetration: the Python loop (threads in the simulator's step); the
+    compiled policy: the compiled loop (threads over blocks of episodes, whole chunks)."""
+    def run(threads):
+        name = spec.split()[-1]
+        policy = export_policy(name, RIG) if spec.startswith("compiled") else make_policy(name, RIG)
+        return rollout(RIG, policy, [3, 4, 5, 6, 7], horizon=0.012, threads=threads, record_commands=False)
+
+    ref = run(1)
+    for threads in THREADS[1:]:
+        _same_rollouts(ref, run(threads))
+
+
+def test_compare_does_not_depend_on_the_thread_count(small_blocks):
+    specs = ["passive", "pd-penetration"]
+    a = compare(RIG, specs, episodes=4, seed=2, horizon=0.01, workers=1, progress=False, threads=1)
+    b = compare(RIG, specs, episodes=4, seed=2, horizon=0.01, workers=1, progress=False, threads=2)
+    for spec in specs:
+        for key, v in a[spec].metrics.items():
+            assert np.array_equal(v, b[spec].metrics[key], equal_nan=True), f"{spec} {key}"
+        assert np.array_equal(a[spec].energy_ratio, b[spec].energy_ratio)
