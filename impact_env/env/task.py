@@ -1,6 +1,9 @@
-"""The catch task on a batch of rigs: observation, reward, termination (dm_control's Task).
+"""The catch task on a batch of rigs: reward, termination and info (dm_control's Task).
 
-:class:`CatchTask` is the one place where the episode logic lives.  The single env
+:class:`CatchTask` is the one place where the episode logic lives.  It does not observe: the
+simulator's step ends with the controller's front end writing the observation, as the rig's
+target does (docs/architecture.md, "Who does what"); the task reads the true records of the
+step's ticks.  The single env
 (:mod:`impact_env.env.catch_env`) is a task of one rig, the vector env
 (:mod:`impact_env.env.vector`) a task of N, both stepping the same
 :class:`~impact_env.sim.simulator.Simulator` (one numba call for the whole batch), so the vector env
