@@ -53,7 +53,7 @@ from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, C, G
 from impact_env.scene import Scene
 from impact_env.sim import records as R
-from impact_env.sim.metrics import A_ENERGY, EPISODE_METRICS, EpisodeMetrics, update
+from impact_env.sim.metrics import A_ENERGY, EPISODE_METRICS, EpisodeMetrics, MetricArrays, update
 from impact_env.sim.simulator import Simulator
 from impact_env.sim.step import env_step
 
@@ -130,11 +130,36 @@ class Failures(NamedTuple):
     code: np.ndarray  # int64[N]: FAIL_ACTION or FAIL_DIVERGED
 
 
+class Steps(NamedTuple):
+    """The policy steps a call of the compiled loop runs: k0 + 1 .. k1, a trace sample every
+    ``stride`` steps."""
+
+    k0: int
+    k1: int
+    stride: int
+
+
+class LoopPolicy(NamedTuple):
+    """The compiled loop's policy: its packed arrays and its per-env memory rows."""
+
+    arrays: PolicyArrays
+    memory: np.ndarray  # float64[N, memory size]
+
+
+class LoopOut(NamedTuple):
+    """Where the compiled loop writes: the metrics' (acc, consts, settings), the failure marks,
+    the traces (float64[samples, N, len(TRACE_KEYS)])."""
+
+    metrics: MetricArrays
+    fails: Failures
+    traces: np.ndarray
+
+
 @jit(nogil=True)
-def _run_compiled(i0, i1, k0, k1, stride, policy, memory, p, s, metrics, fails, traces):
-    """Steps k0 + 1 .. k1 of a compiled ``policy`` (PolicyArrays; its ``memory`` rows) on every env
+def _run_compiled(i0, i1, steps, pol, p, s, out):
+    """Steps ``steps.k0 + 1 .. steps.k1`` of a compiled policy (``pol``: LoopPolicy) on every env
     ``i0 .. i1 - 1`` of the simulator (SimParams ``p``, SimState ``s``) that has not failed;
-    ``metrics``: (acc, consts, settings) of :class:`~impact_env.sim.metrics.EpisodeMetrics`.
+    writes ``out`` (LoopOut).
 
     Env by env, each for all its steps: env i reads and writes only its own rows (its policy
     memory, state, records, metrics, failure marks and trace column), so the order of envs, and
@@ -143,14 +168,17 @@ def _run_compiled(i0, i1, k0, k1, stride, policy, memory, p, s, metrics, fails, 
     P = p.hw.plant.p
     obs = s.obs.obs
     records = s.records
+    metrics, fails, traces = out.metrics, out.fails, out.traces
     acc, consts, settings = metrics.acc, metrics.consts, metrics.settings
     energy = acc[:, A_ENERGY]
     detected = s.fe.detected
     failed = fails.failed
     period = settings[0]
     hold = p.hold
+    policy, memory = pol.arrays, pol.memory
+    stride = steps.stride
     for i in range(i0, i1):
-        for k in range(k0 + 1, k1 + 1):
+        for k in range(steps.k0 + 1, steps.k1 + 1):
             if not failed[i]:
                 u = act(policy.ints, policy.floats, obs[i], memory[i])
                 if not np.isfinite(u):
@@ -264,8 +292,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         while k < n_steps:
             k1 = min(k + chunk, n_steps)
             sim.hw.refill_noise(hold * (k1 - k))  # the whole chunk's noise at once
-            run_blocks(_run_compiled, blocks, (k, k1, stride, PolicyArrays(pi, pf), mem, sim.params,
-                                               sim.state, metrics.arrays, fails, traces))
+            run_blocks(_run_compiled, blocks, (Steps(k, k1, stride), LoopPolicy(PolicyArrays(pi, pf), mem),
+                                               sim.params, sim.state, LoopOut(metrics.arrays, fails, traces)))
             if progress is not None:
                 progress(k1 - k)
             k = k1
