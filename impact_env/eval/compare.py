@@ -155,7 +155,7 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     bitwise.  The workers already fill the cores, so it pays with ``workers=1`` (one process,
     its episodes over the cores, no fork) or fewer workers than cores."""
     from impact_env._threads import check_threads
-    from impact_env.eval.parallel import connect, default_workers
+    from impact_env.eval.parallel import session
     from impact_env.scene import load_scene
 
     threads = check_threads(threads)
@@ -174,15 +174,8 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     _validate_specs(specs, scene)
     if cluster is not None:
         check_cluster_specs(specs)
-    cl, owned = connect(cluster)  # checked (address, scheduler, workers) before anything runs
-    try:
-        if workers is None:
-            workers = cl.workers if cl is not None else default_workers()
-        return _compare(scene, specs, episodes, seed, horizon, max(1, int(workers)), progress, trace_rate, cl,
-                        threads)
-    finally:
-        if owned and cl is not None:
-            cl.close()
+    with session(cluster, workers) as (cl, workers):
+        return _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rate, cl, threads)
 
 
 def _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rate,

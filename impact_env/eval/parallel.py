@@ -17,12 +17,13 @@ depends on the number of workers, on scheduling, or on where the tasks ran (docs
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import queue as _queue
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -271,3 +272,18 @@ def connect(cluster: str | Cluster | None, option: str = "--cluster") -> tuple[C
     if cluster is None or isinstance(cluster, Cluster):
         return cluster, False
     return Cluster(cluster, option), True
+
+
+@contextlib.contextmanager
+def session(cluster: str | Cluster | None, workers: int | None) -> Iterator[tuple[Cluster | None, int]]:
+    """``(Cluster or None, workers)`` for a run: the cluster connected (checked: address,
+    scheduler, workers, before anything runs) and closed at the end if this opened it; ``workers``
+    defaults to the cluster's worker threads, or the local pool's size."""
+    cl, owned = connect(cluster)
+    try:
+        if workers is None:
+            workers = cl.workers if cl is not None else default_workers()
+        yield cl, max(1, int(workers))
+    finally:
+        if owned and cl is not None:
+            cl.close()

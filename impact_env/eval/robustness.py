@@ -125,7 +125,7 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
     import itertools
 
     from impact_env.eval.compare import _validate_specs, check_cluster_specs
-    from impact_env.eval.parallel import connect, default_workers
+    from impact_env.eval.parallel import session
     from impact_env.scene import load_scene
 
     scene = load_scene(scene)
@@ -145,15 +145,8 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
         _validate_specs(specs, s)
     if cluster is not None:
         check_cluster_specs(specs)
-    cl, owned = connect(cluster)  # checked (address, scheduler, workers) before anything runs
-    try:
-        if workers is None:
-            workers = cl.workers if cl is not None else default_workers()
-        return _robustness(scene, scenes, points, specs, axes, episodes, seed, max(1, int(workers)), progress,
-                           cl)
-    finally:
-        if owned and cl is not None:
-            cl.close()
+    with session(cluster, workers) as (cl, workers):
+        return _robustness(scene, scenes, points, specs, axes, episodes, seed, workers, progress, cl)
 
 
 def _robustness(scene, scenes, points, specs, axes, episodes, seed, workers, progress, cl) -> Robustness:

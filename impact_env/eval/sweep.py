@@ -135,7 +135,7 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
     :class:`~impact_env.eval.parallel.Cluster`): the chunks run on its workers, with the same
     results; ``workers`` (the number of chunks) then defaults to the cluster's worker threads."""
     from impact_env.eval.compare import check_cluster_specs
-    from impact_env.eval.parallel import connect, default_workers
+    from impact_env.eval.parallel import session
     from impact_env.eval.rollout import EPISODE_METRICS
     from impact_env.scene import load_scene
 
@@ -154,15 +154,9 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
     cls(run_scene, **fixed, **{xn: np.asarray(xv, float), yn: np.asarray(yv, float)})
     if cluster is not None:
         check_cluster_specs([policy])
-    cl, owned = connect(cluster)  # checked (address, scheduler, workers) before anything runs
-    try:
-        if workers is None:
-            workers = cl.workers if cl is not None else default_workers()
+    with session(cluster, workers) as (cl, workers):
         return _sweep(run_scene, policy, xn, xv, yn, yv, fixed, seed, t_end, limit, objective, force_limit,
-                      max(1, int(workers)), progress, cl)
-    finally:
-        if owned and cl is not None:
-            cl.close()
+                      workers, progress, cl)
 
 
 def _sweep(run_scene, policy, xn, xv, yn, yv, fixed, seed, t_end, limit, objective, force_limit, workers,
