@@ -6,7 +6,10 @@
 2. The native vector env on ``rig`` at N = 1, 64, 1024, 4096: env-steps per second against
    Gymnasium's ``CartPoleVectorEnv`` at the same N.  Goal: ratio >= 1.0 at N = 1024.
 3. The env's share of a PPO training run's wall time (SB3 adapter, 16 envs).  Goal: < 5 %.
-4. Threads (``threads=`` of the Simulator, the vector env, rollout and compare): the speed-up of
+4. The batched control period as ``compare`` runs it (``rollout`` of ``rig`` at N = 400 episodes,
+   ``passive`` and ``pd-penetration``, one thread), per env per period, with the default
+   integrator and with the former default (RK4 at 1 us) in the same run.  Goal: <= 0.3 us.
+5. Threads (``threads=`` of the Simulator, the vector env, rollout and compare): the speed-up of
    2 threads over 1, measured in alternating rounds on the same objects: the simulator's step on
    ``rig`` at N = 16 .. 1024 (where a block of envs starts to pay: the threshold
    ``MIN_BLOCK_ENVS``), the vector env at N = 1024, and a rollout as ``compare`` runs it (``rig``,
@@ -230,20 +233,67 @@ def threads_table(quick: bool) -> None:
     print(f"\nload average after: {_loadavg()}")
 
 
+def _period_us(scene, spec: str, n: int, n_steps: int, repeats: int, compiled: bool = False) -> float:
+    """Wall time (us) of one control period per env of a rollout as compare runs it, between the
+    rollout's first progress report and its last (the episodes' resets are left out)."""
+    from impact_env.eval.rollout import rollout
+    from impact_env.policy.export import export_policy
+    from impact_env.policy.registry import make_policy
+
+    pol = export_policy(spec, scene) if compiled else make_policy(spec, scene)
+    best = np.inf
+    for _ in range(repeats):
+        marks: list[tuple[float, int]] = []
+        done = [0]
+
+        def progress(k, marks=marks, done=done):
+            done[0] += k
+            marks.append((time.perf_counter(), done[0]))
+
+        rollout(scene, pol, range(n), horizon=n_steps * scene.control_period, trace_rate=1e4, progress=progress)
+        (t_a, k_a), (t_b, k_b) = marks[0], marks[-1]
+        best = min(best, (t_b - t_a) / (k_b - k_a) / n)
+    return best * 1e6
+
+
+def period_table(quick: bool) -> None:
+    from impact_env.config import with_overrides
+
+    n = 100 if quick else 400
+    n_steps = 500 if quick else 4000
+    repeats = 1 if quick else 3
+    rig = impact_env.load_scene("rig")
+    old = with_overrides(rig, {"integrator.method": "rk4", "integrator.dt": 1e-6})
+    print(f"\n## The batched control period (rollout of rig, N = {n}, {n_steps} periods, one thread)\n")
+    print("| policy (loop) | default integrator ({}) us per env per period | RK4 at 1 us | ratio |".format(
+        rig.integrator.method))
+    print("|---|---|---|---|")
+    for spec, compiled in (("passive", False), ("pd-penetration", False), ("pd-penetration", True)):
+        new_us = _period_us(rig, spec, n, n_steps, repeats, compiled)
+        old_us = _period_us(old, spec, n, n_steps, repeats, compiled)
+        loop = "compiled loop" if compiled else "Python loop"
+        print(f"| {spec} ({loop}) | {new_us:.2f} | {old_us:.2f} | {old_us / new_us:.2f}x faster |")
+    print("\ngoal: <= 0.3 us per env per period")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and repeats (a smoke run)")
-    ap.add_argument("--only", choices=("threads",), help="run only this section")
+    ap.add_argument("--only", choices=("threads", "period"), help="run only this section")
     args = ap.parse_args()
     impact_env.load_scene("rig")
     if args.only == "threads":
         threads_table(args.quick)
+        return
+    if args.only == "period":
+        period_table(args.quick)
         return
     n_steps, repeats = (500, 2) if args.quick else (3000, 5)
     single_env_table(n_steps, repeats)
     vector_table((1, 64, 1024) if args.quick else (1, 64, 1024, 4096), 20 if args.quick else 100,
                  2 if args.quick else 3)
     ppo_share(8192 if args.quick else 32768)
+    period_table(args.quick)
     threads_table(args.quick)
 
 

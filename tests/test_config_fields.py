@@ -30,8 +30,10 @@ BASE = {"effects.active": ALL_EFFECTS, "effects.sensors.body1_displacement.enabl
 SPECIAL = {
     "initial.impact_speed": ({}, 1.3),
     "integrator.method": ({}, "dopri5"),
-    "integrator.rtol": ({"integrator.method": "dopri5"}, 1e-4),
-    "integrator.min_steps_per_contact": ({}, 1e4),  # a check: refuses this dt
+    "integrator.rtol": ({}, 1e-4),
+    "integrator.dt": ({"integrator.method": "rk4"}, None),  # (split, the default, has no fixed step)
+    "integrator.event_location": ({"integrator.method": "rk4"}, None),
+    "integrator.min_steps_per_contact": ({"integrator.method": "rk4"}, 1e4),  # a check: refuses this dt
     "episode.horizon": ({"episode.horizon": 2e-3}, 3e-3),
     "effects.active": ({}, ["sensors"]),
     "effects.shaker.model": ({"effects.shaker.fir_taps": [0.5, 0.5]}, "measured"),

@@ -17,7 +17,8 @@ from impact_env.plant.hertz import max_penetration
 from impact_env.plant.restitution import tsuji_damping
 from impact_env.scene import Scene
 
-METHOD_CODES = {"euler": L.EULER, "symplectic-euler": L.SYMPLECTIC_EULER, "rk4": L.RK4, "dopri5": L.DOPRI5}
+METHOD_CODES = {"euler": L.EULER, "symplectic-euler": L.SYMPLECTIC_EULER, "rk4": L.RK4, "dopri5": L.DOPRI5,
+                "split": L.SPLIT}
 
 
 def plant_params(scene: Scene, zeta_of: Callable[[float], float] | None = None) -> np.ndarray:

@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from impact_env.config import ConfigError
+from impact_env.scene.scene import ADAPTIVE
 from impact_env.plant.restitution import scaled_collision, zeta_for_restitution
 
 N_GRID = 40  # penetrations checked: d_max * 2^-k, k = 0 .. N_GRID - 1, and 0
@@ -254,7 +255,7 @@ def accuracy_warnings(scene) -> list[str]:
     ``NO_EVENT_MIN_STEPS`` steps per contact on an elastic one."""
     integ = scene.integrator
     out = []
-    if integ.method == "dopri5":
+    if integ.method in ADAPTIVE:
         if integ.rtol > DOPRI_MAX_RTOL:
             out.append(f"integrator.rtol = {integ.rtol:g} is loose for a contact: dopri5's position error "
                        f"is about {DOPRI_ERROR_PER_RTOL:g} rtol = {DOPRI_ERROR_PER_RTOL * integ.rtol:.2g} "
@@ -285,7 +286,7 @@ def check_step(scene) -> None:
     with fewer than ``integrator.min_steps_per_contact`` steps, for the scene and, if it is
     randomised, every corner of its plant ranges.  dopri5 is not checked (adaptive)."""
     integ = scene.integrator
-    if integ.method == "dopri5":
+    if integ.method in ADAPTIVE:
         return
     corners = list(_corners(scene))
     for drop, label in corners:

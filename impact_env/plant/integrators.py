@@ -23,6 +23,7 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.plant.dynamics import contact_force, deriv, event_value
+from impact_env.plant.free_flight import body1_after, body2_after, free_cap, touch_time
 from impact_env.plant.layout import (
     AUTO,
     C2,
@@ -37,6 +38,7 @@ from impact_env.plant.layout import (
     M2,
     OK,
     RK4,
+    SPLIT,
     STEP_UNDERFLOW,
     SYMPLECTIC_EULER,
     V1,
@@ -167,14 +169,48 @@ def _dense(y, k, h, theta, out):
 
 
 @jit
+def _dense_top(y, k, h, tmp):
+    """The largest penetration (m) inside a Dormand-Prince step from y (stages k, length h)
+    over which the penetration rate turns from + to -: the rate's root on the continuous
+    extension (Illinois regula falsi), and the penetration there.  ``tmp``: float64[6] scratch."""
+    lo, hi = 0.0, 1.0
+    flo = y[V1] - y[V2]
+    _dense(y, k, h, 1.0, tmp)
+    fhi = tmp[V1] - tmp[V2]
+    side = 0
+    th = 1.0
+    for _ in range(60):
+        th = (lo * fhi - hi * flo) / (fhi - flo) if fhi != flo else 0.5 * (lo + hi)
+        if not (lo < th < hi):
+            th = 0.5 * (lo + hi)
+        _dense(y, k, h, th, tmp)
+        fm = tmp[V1] - tmp[V2]
+        if fm > 0.0:
+            lo, flo = th, fm
+            if side == -1:
+                fhi *= 0.5
+            side = -1
+        else:
+            hi, fhi = th, fm
+            if side == 1:
+                flo *= 0.5
+            side = 1
+        if hi - lo <= 1e-12 or fm == 0.0:
+            break
+    _dense(y, k, h, th, tmp)
+    return tmp[X1] - tmp[X2]
+
+
+@jit
 def _dopri_step(y, out, err, k, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """One Dormand-Prince step from y; writes the 5th-order result to ``out``, the embedded
     error estimate to ``err`` (both length 6) and the seven stages (the last one at ``out``)
-    to ``k`` (float64[7, 6]), which the dense output (:func:`_dense`) needs."""
+    to ``k[:7]`` (k: float64[8, 6], its last row scratch), which the dense output
+    (:func:`_dense`) needs."""
     r = deriv(y[0], y[1], y[2], y[3], mode, f2, im1, im2, c, b, g, k2, c2)
     for j in range(6):
         k[0, j] = r[j]
-    t = np.empty(6)
+    t = k[7]
     for s in range(1, 7):
         for j in range(6):
             if s == 1:
@@ -205,7 +241,7 @@ def _dopri_step(y, out, err, k, mode, f2, h, im1, im2, c, b, g, k2, c2):
 def _trial(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """Take one step of length h from y into out (no error control)."""
     if method == DOPRI5:
-        _dopri_step(y, out, scratch, np.empty((7, 6)), mode, f2, h, im1, im2, c, b, g, k2, c2)
+        _dopri_step(y, out, scratch, np.empty((8, 6)), mode, f2, h, im1, im2, c, b, g, k2, c2)
     else:
         r = _fixed_step(method, y[0], y[1], y[2], y[3], y[4], y[5], mode, f2, h,
                         im1, im2, c, b, g, k2, c2)
@@ -462,11 +498,82 @@ def advance(mode, f2, t0, span, c, s):
     raised to the largest penetration at every step, :func:`_penetration_peak`).
     Returns ``(status, mode)``.
     """
+    if c.method == SPLIT:
+        return _advance_split(mode, f2, t0, span, c, s)
     if c.method != DOPRI5:
         return _advance_fixed(mode, f2, t0, span, c, s)
     status, mode, _n = dopri_run(mode, f2, t0, span, c, s,
                                  Records(np.empty((0, 6)), np.empty(0, dtype=np.int64), np.empty(0), 0, 0))
     return status, mode
+
+
+@jit(inline="always")
+def _pad_energy(d, c):
+    """Elastic energy of the pad at penetration d (J), ``(2/5) c d^2.5`` for d > 0."""
+    if d > 0.0:
+        return 0.4 * c * d * d * sqrt(d)
+    return 0.0
+
+
+DOPRI_WORK = 12  # rows of dopri5's scratch: 7 stages + 1, out, scratch, record, error
+
+MAX_FREE_STEPS = 1 << 24  # sub-steps and phases of one split span before EVENT_OVERFLOW
+
+
+@jit
+def _advance_split(mode, f2, t0, span, c, s):
+    """The ``split`` method of :func:`advance`: free flight exactly
+    (:mod:`impact_env.plant.free_flight`: the touch located on the exact motion), contact by
+    dopri5 at ``c.rtol`` with its separation located (:func:`_dopri_span`), alternately until
+    the span is done.  ``s.h`` carries dopri5's step between contacts and calls."""
+    y, ev, evn, peak = s.y, s.events, s.n_events, s.peak
+    p = c.p
+    m2 = p[M2]
+    im2 = 1.0 / m2
+    cc = p[C]
+    b = p[B]
+    g = p[G]
+    k2 = p[K2]
+    c2 = p[C2]
+    cap = free_cap(im2, k2, c2)
+    track = peak.shape[0] > 1
+    tol = 1e-12 * span
+    work = np.empty((0, 6))  # dopri5's scratch, allocated at the first contact of the span
+    t = 0.0
+    for _ in range(MAX_FREE_STEPS):
+        if span - t <= tol:
+            return OK, mode
+        if mode == CONTACT:
+            if work.shape[0] == 0:
+                work = np.empty((DOPRI_WORK, 6))
+            # no records: empty views of the right types, not three allocations a period
+            status, mode, _r, t = _dopri_span(mode, f2, t0, t, span, c, s, Records(
+                work[:0], evn[:0], work[0, :0], 0, 0), True, work)
+            if status != OK:
+                return status, mode
+            continue
+        x1, v1, x2, v2 = y[0], y[1], y[2], y[3]
+        h = min(span - t, cap)
+        tau = touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, cc, b)
+        step = h if tau < 0.0 else tau
+        a1, b1 = body1_after(x1, v1, step, g)
+        a2, b2 = body2_after(x2, v2, step, f2, im2, k2, c2)
+        # the shaker's work; the damper took it less body 2's stored energy, and a pad let go
+        # while still pressed (FREE with d > 0) releases its elastic energy as dissipated (as deriv)
+        w = -f2 * (a2 - x2)
+        y[0], y[1], y[2], y[3] = a1, b1, a2, b2
+        y[4] += w
+        y[5] += (w - 0.5 * (m2 * (b2 - v2) * (b2 + v2) + k2 * (a2 - x2) * (a2 + x2))
+                 - _pad_energy(a1 - a2, cc) + _pad_energy(x1 - x2, cc))
+        t += step
+        if _diverged(y):
+            return DIVERGED, mode
+        if track:
+            peak[1] = _penetration_peak(peak[1], x1 - x2, v1 - v2, a1 - a2, b1 - b2, step)
+        if tau >= 0.0:
+            mode = CONTACT
+            _log_event(ev, evn, t0 + t, 1.0, y)
+    return EVENT_OVERFLOW, mode
 
 
 @jit
@@ -481,6 +588,17 @@ def dopri_run(mode, f2, t0, span, c, s, rec):
 
     Returns ``(status, mode, records written)``.
     """
+    status, mode, r, _t = _dopri_span(mode, f2, t0, 0.0, span, c, s, rec, False,
+                                      np.empty((DOPRI_WORK, 6)))
+    return status, mode, r
+
+
+@jit
+def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
+    """:func:`dopri_run` from ``t`` (s after t0) to ``span``; with ``stop_free`` it returns at
+    the first separation (the ``split`` integrator takes the free flight exactly).  Records
+    (``rec.n > 0``) need ``t = 0``.  ``work``: float64[DOPRI_WORK, 6] scratch (one allocation
+    per caller, not per step).  Returns ``(status, mode, records written, time reached)``."""
     y, hstate, ev, evn, peak = s.y, s.h, s.events, s.n_events, s.peak
     p, rtol, scale = c.p, c.rtol, c.scale
     out_y, out_mode, out_peak, k0, n_rec = rec.y, rec.mode, rec.peak, rec.k0, rec.n
@@ -492,15 +610,14 @@ def dopri_run(mode, f2, t0, span, c, s, rec):
     k2 = p[K2]
     c2 = p[C2]
     status = OK
-    out = np.empty(6)
-    scratch = np.empty(6)
-    kst = np.empty((7, 6))
-    rec = np.empty(6)
-    err = np.empty(6)
+    kst = work[0:8]
+    out = work[8]
+    scratch = work[9]
+    rec = work[10]
+    err = work[11]
     rec_period = span / n_rec if n_rec > 0 else span
     r = 0  # records written
     pk = 0.0  # peak contact force since the last record
-    t = 0.0
     h = hstate[0]
     if not (h > 0.0):
         h = min(span, 1e-5)
@@ -530,6 +647,10 @@ def dopri_run(mode, f2, t0, span, c, s, rec):
             elif mode == AUTO and ((y[X1] - y[X2] > 0.0) != (out[X1] - out[X2] > 0.0)):
                 _log_event(ev, evn, t0 + t + h, 1.0 if out[X1] - out[X2] > 0.0 else -1.0, out)
             t_new = t + step
+            top = -1e300
+            if peak.shape[0] > 1 and new_mode == mode and s0 > 0.0 and out[V1] - out[V2] <= 0.0:
+                # the penetration turned inside this step: its top from the continuous extension
+                top = _dense_top(y, kst, step, rec)
             # records inside this step, from its continuous extension (the last at its end)
             while r < n_rec:
                 tr = (r + 1) * rec_period
@@ -555,9 +676,12 @@ def dopri_run(mode, f2, t0, span, c, s, rec):
                 _log_event(ev, evn, t0 + t, 1.0 if mode == CONTACT else -1.0, y)
             if _diverged(y):
                 hstate[0] = h
-                return DIVERGED, mode, _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec)
+                return DIVERGED, mode, _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec), t
             if peak.shape[0] > 1:
-                peak[1] = _penetration_peak(peak[1], d0, s0, y[X1] - y[X2], y[V1] - y[V2], step)
+                if top > -1e300:
+                    peak[1] = max(peak[1], top, y[X1] - y[X2])
+                else:
+                    peak[1] = _penetration_peak(peak[1], d0, s0, y[X1] - y[X2], y[V1] - y[V2], step)
             f = _force_now(y, mode, p)
             if f > peak[0]:
                 peak[0] = f
@@ -565,13 +689,15 @@ def dopri_run(mode, f2, t0, span, c, s, rec):
                 pk = f
             fac = 5.0 if en < 1e-4 else min(5.0, 0.9 * en ** -0.2)
             h *= fac
+            if stop_free and mode == FREE:
+                break
         else:
             h *= max(0.1, 0.9 * en ** -0.25)
             if h < hmin:
                 hstate[0] = h
-                return STEP_UNDERFLOW, mode, _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec)
+                return STEP_UNDERFLOW, mode, _fail_record(y, mode, out_y, out_mode, out_peak, k0, r, n_rec), t
     hstate[0] = h
-    return status, mode, r
+    return status, mode, r, t
 
 
 @jit

@@ -35,6 +35,7 @@ EULER = 0
 SYMPLECTIC_EULER = 1
 RK4 = 2
 DOPRI5 = 3
+SPLIT = 4  # exact free flight, dopri5 in contact (impact_env.plant.free_flight)
 
 # kernel status codes
 OK = 0

@@ -31,7 +31,8 @@ from impact_env.config import (
 from impact_env.scene.effects import EffectsConfig
 from impact_env.scene.randomize import RandomizeConfig, check_scene_ranges, overrides_for
 
-METHODS = ("euler", "symplectic-euler", "rk4", "dopri5")
+METHODS = ("euler", "symplectic-euler", "rk4", "dopri5", "split")
+ADAPTIVE = ("dopri5", "split")  # no fixed grid: any control rate, dt unused
 DEFAULT_DROP_HEIGHT = 0.05  # m (notes' start value: about 1 m/s at the touch)
 MAX_STEPS_PER_PERIOD = 1e6  # integration steps in one control period (one env step)
 
@@ -110,9 +111,11 @@ class InitialConfig:
 class IntegratorConfig:
     """Time integration of the plant."""
 
-    method: str = _f("rk4", "", "euler (thesis eq 3.8) | symplectic-euler | rk4 | dopri5 (adaptive)")
+    method: str = _f("split", "", "split (exact free flight, dopri5 in contact; default) | euler (thesis eq 3.8) | "
+                     "symplectic-euler | rk4 | dopri5 (adaptive)")
     dt: float = _f(1.0e-6, "s", "step of the fixed-step methods")
-    rtol: float = _f(1.0e-9, "", "relative tolerance of dopri5")
+    rtol: float = _f(1.0e-12, "", "relative tolerance of dopri5 (split: in contact); 1e-12 puts split's "
+                     "per-impact errors below RK4's at 1 us (scripts/split_accuracy.py, docs/plant.md)")
     event_location: bool = _f(True, "", "locate contact onset/separation instead of stepping across them")
     min_steps_per_contact: float = _f(8.0, "", "fixed-step methods: refuse a dt that takes the shortest "
                                       "contact in fewer steps (8: RK4's restitution within about 1e-3, "
@@ -172,7 +175,11 @@ class Scene:
         if self.control.rate is None and self.integrator.method == "dopri5":
             raise ConfigError("control.rate (Hz) must be given with integrator.method = dopri5, "
                               "which has no fixed step to sample at")
-        if self.integrator.method != "dopri5" and self.control.rate is not None:
+        if self.integrator.method == "split" and not self.integrator.event_location:
+            raise ConfigError("integrator.event_location = false needs a fixed-step method "
+                              "(euler, symplectic-euler, rk4): split locates every contact event by "
+                              "construction")
+        if self.integrator.method not in ADAPTIVE and self.control.rate is not None:
             ratio = self.control_period / self.integrator.dt
             if not whole_multiple(ratio):
                 raise ConfigError(

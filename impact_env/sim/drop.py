@@ -26,6 +26,7 @@ from impact_env.plant import layout as L
 from impact_env.plant.integrators import PlantCarry, PlantConsts, Records
 from impact_env.plant.run import run_periods
 from impact_env.scene import Scene, load_scene
+from impact_env.scene.scene import ADAPTIVE
 from impact_env.sim.trajectory import Trajectory, build_trajectory
 
 MAX_RECORDS = 20_000_000
@@ -85,8 +86,8 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
         raise ValueError(f"record_rate = {record_rate!r} Hz must be > 0 Hz")
     rec_period = 1.0 / record_rate
     if controller is None:
-        per = rec_period / integ.dt if integ.method != "dopri5" else 1.0
-        if integ.method != "dopri5" and not whole_multiple(per):
+        per = rec_period / integ.dt if integ.method not in ADAPTIVE else 1.0
+        if integ.method not in ADAPTIVE and not whole_multiple(per):
             raise ValueError(f"record_rate = {record_rate:g} Hz: its period must be a whole number "
                              f"of integration steps (integrator.dt = {integ.dt:g} s)")
         sub = 1

@@ -148,7 +148,7 @@ class Trajectory:
         err = self.energy_balance_error()
         if not err <= ENERGY_BALANCE_BOUND:
             integ = self.scene.integrator
-            step = f"rtol {integ.rtol:g}" if integ.method == "dopri5" else f"dt {integ.dt:g} s"
+            step = f"rtol {integ.rtol:g}" if integ.method in ("dopri5", "split") else f"dt {integ.dt:g} s"
             why = (" (explicit Euler, thesis eq 3.8, gains energy at every contact)"
                    if integ.method == "euler" else "")
             out.append(f"energy balance error {err:.3g} exceeds {ENERGY_BALANCE_BOUND:g}: {integ.method} at "
