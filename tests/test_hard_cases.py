@@ -58,7 +58,7 @@ def check_hertz(tr, m, c, v, tc, tol_time=1e-8, tol_force=1e-6):
 # stiff and soft pads, light and heavy bodies (gravity 0: closed form)
 # --------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split"])
 @pytest.mark.parametrize("c", [1e4, 1e6, 1e8, 1e10, 1e11])
 def test_stiff_and_soft_pads(c, method):
     """c from 1e4 to 1e11 N/m^1.5 (contact 31 ms to 49 us); rk4's step scales with t_c."""
@@ -66,7 +66,7 @@ def test_stiff_and_soft_pads(c, method):
     check_hertz(tr, m, c, 1.0, tc)
 
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split"])
 @pytest.mark.parametrize("m1,m2", [(1e-3, 1e-3), (1e-3, 10.0), (10.0, 1e-3), (10.0, 10.0),
                                    (10.0, 1e6)])
 def test_light_and_heavy_bodies(m1, m2, method):
@@ -103,7 +103,7 @@ def order(method):
     return 4 if method == "rk4" else None
 
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split"])
 @pytest.mark.parametrize("height", [1e-4, 1e-2, 2.0])
 def test_drop_heights(height, method):
     """First contact of a drop from 0.1 mm (gravity is 40 % of the peak pad force) to 2 m
@@ -143,7 +143,7 @@ def test_drop_heights(height, method):
 # grazing contact
 # --------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split"])
 @pytest.mark.parametrize("v", [1e-6, 1e-4])
 def test_grazing_impact_closed_form(v, method):
     """Impact at 1 um/s (d_max = 22 nm, a 65 ms contact): Hertz's closed form (exact), within
@@ -171,7 +171,7 @@ def test_grazing_impact_closed_form(v, method):
     assert rel(tr.metrics()["peak_contact_force_N"], hertz.peak_force(m, 2e6, v)) < 1e-6
 
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5", "euler", "symplectic-euler"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split", "euler", "symplectic-euler"])
 def test_touching_at_zero_speed_without_gravity_stays_put(method):
     """Surfaces touching, nothing moving, no gravity: exactly nothing happens."""
     ov = sim_overrides(method, control_rate=1e4, plant_gravity=0.0, initial_impact_speed=0.0)
@@ -181,7 +181,7 @@ def test_touching_at_zero_speed_without_gravity_stays_put(method):
         assert np.all(getattr(tr, k) == 0.0), k
 
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split"])
 def test_grazing_landing_with_gravity(method):
     """A 1 pm drop (4.4 um/s at the touch) under gravity: body 1 settles into an oscillation
     between d = 0 and 1.84 d_static, leaving the pad each period for a hop of only
@@ -249,7 +249,7 @@ def resting(method, restitution, c2):
     return impact_env.simulate("ideal", t_end=10.0, record_rate=1e3, overrides=ov)
 
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split"])
 def test_resting_damped_settles_to_static_equilibrium(method):
     """Released touching (drop height 0) on a damped pad (e = 0.5) and a damped suspension:
     after 10 s body 1 rests at d_static = (m1 g / c)^(2/3) with body 2 at m1 g / k2 (measured
@@ -264,7 +264,7 @@ def test_resting_damped_settles_to_static_equilibrium(method):
     assert tr.energy_balance_error() < 1e-6  # measured 1e-11 (rk4), 4e-10 (dopri5)
 
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split"])
 def test_resting_elastic_keeps_its_energy_for_10s(method):
     """The same without damping: body 1 oscillates on the pad for 10 s (about 800 periods)
     between d = 0 and 1.84 d_static.  The energy ledger closes to 1e-8 of the catch energy for
@@ -296,7 +296,7 @@ def test_resting_elastic_keeps_its_energy_for_10s(method):
 # 100 kN shaker forces
 # --------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("method", ["rk4", "dopri5"])
+@pytest.mark.parametrize("method", ["rk4", "dopri5", "split"])
 @pytest.mark.parametrize("force", [1e5, -1e5])
 def test_shaker_100kN(force, method):
     """+1e5 N drives body 2 into body 1 and both to 500 m/s in 5 ms (three contact events);

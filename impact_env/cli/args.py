@@ -50,7 +50,14 @@ def scene_from_args(args, scene: str | None = None):
         ov["integrator.dt"] = str(args.dt)
     if getattr(args, "rtol", None) is not None:
         ov["integrator.rtol"] = str(args.rtol)
-    return load_scene(scene if scene is not None else args.scene, ov)
+    out = load_scene(scene if scene is not None else args.scene, ov)
+    integ = out.integrator
+    if "integrator.dt" in ov and integ.method in ("split", "dopri5") and out.control.rate is not None:
+        # a step that would silently do nothing: the adaptive methods have no fixed step
+        raise ConfigError(f"integrator.dt = {integ.dt:g} s has no effect with integrator.method = "
+                          f"{integ.method} (adaptive; its accuracy is integrator.rtol = {integ.rtol:g}); "
+                          "add --method rk4 (or --set integrator.method=rk4) to step at a fixed dt")
+    return out
 
 
 def output_dir(path: str | Path, option: str = "--out") -> Path:

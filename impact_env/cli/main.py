@@ -32,7 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None,
                    help="for a scene with [randomize] ranges: draw this drop's values with this seed "
                         "(default: the scene's nominal values); the JSON lists them under 'drawn'")
-    p.add_argument("--method", help="euler | symplectic-euler | rk4 | dopri5")
+    p.add_argument("--method", help="split (default: exact free flight, dopri5 in contact) | euler | "
+                                    "symplectic-euler | rk4 | dopri5")
     p.add_argument("--dt", type=float, help="fixed step, s")
     p.add_argument("--rtol", type=float, help="dopri5 relative tolerance")
     p.add_argument("--t-end", type=float, default=None, help="simulated time, s (default: episode.horizon)")
