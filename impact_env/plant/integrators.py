@@ -201,6 +201,59 @@ def _dense_top(y, k, h, tmp):
     return tmp[X1] - tmp[X2]
 
 
+@jit(inline="always")
+def _force_rate(y, dy, c, b):
+    """Time derivative of the contact force (N/s) at state y (in contact, d > 0) whose time
+    derivative is dy (the stage)."""
+    d = y[X1] - y[X2]
+    dd = y[V1] - y[V2]
+    ddd = dy[V1] - dy[V2]
+    sd = sqrt(d)
+    r = 1.5 * c * sd * dd
+    if b != 0.0:
+        q = sqrt(sd)
+        r += b * (0.25 * dd * dd / (sd * q) + q * ddd)
+    return r
+
+
+@jit
+def _dense_force_top(y, k, h, tmp, mode, f2, im1, im2, c, b, g, k2, c2):
+    """The contact force's extremum inside a Dormand-Prince step (from y, stages k, length h)
+    over which its rate changes sign: the rate's root on the continuous extension (Illinois),
+    and the force there.  Returns ``(force N, theta)``, theta the fraction of the step."""
+    lo, hi = 0.0, 1.0
+    flo = _force_rate(y, k[0], c, b)
+    _dense(y, k, h, 1.0, tmp)
+    r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, im1, im2, c, b, g, k2, c2)
+    fhi = _force_rate(tmp, r, c, b)
+    side = 0
+    th = 1.0
+    for _ in range(60):
+        th = (lo * fhi - hi * flo) / (fhi - flo) if fhi != flo else 0.5 * (lo + hi)
+        if not (lo < th < hi):
+            th = 0.5 * (lo + hi)
+        _dense(y, k, h, th, tmp)
+        if not (tmp[X1] > tmp[X2]):
+            break
+        r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, im1, im2, c, b, g, k2, c2)
+        fm = _force_rate(tmp, r, c, b)
+        if (fm > 0.0) == (flo > 0.0):
+            lo, flo = th, fm
+            if side == -1:
+                fhi *= 0.5
+            side = -1
+        else:
+            hi, fhi = th, fm
+            if side == 1:
+                flo *= 0.5
+            side = 1
+        if hi - lo <= 1e-12 or fm == 0.0:
+            break
+    _dense(y, k, h, th, tmp)
+    f, _fe = contact_force(tmp[X1] - tmp[X2], tmp[V1] - tmp[V2], mode, c, b)
+    return f, th
+
+
 @jit
 def _dopri_step(y, out, err, k, mode, f2, h, im1, im2, c, b, g, k2, c2):
     """One Dormand-Prince step from y; writes the 5th-order result to ``out``, the embedded
@@ -623,6 +676,7 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
         h = min(span, 1e-5)
     hmin = 1e-15 * max(span, abs(t0) + span)
     while span - t > 1e-12 * span:
+        h_free = h  # the controller's step, before the span's end cuts it
         if h > span - t:
             h = span - t
         _dopri_step(y, out, err, kst, mode, f2, h, im1, im2, c, b, g, k2, c2)
@@ -651,6 +705,11 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
             if peak.shape[0] > 1 and new_mode == mode and s0 > 0.0 and out[V1] - out[V2] <= 0.0:
                 # the penetration turned inside this step: its top from the continuous extension
                 top = _dense_top(y, kst, step, rec)
+            ftop, fth = -1.0, 2.0
+            if mode == CONTACT and new_mode == mode and y[X1] > y[X2] and out[X1] > out[X2]:
+                if (_force_rate(y, kst[0], c, b) > 0.0) != (_force_rate(out, kst[6], c, b) > 0.0):
+                    # the contact force peaked inside this step: its top from the continuous extension
+                    ftop, fth = _dense_force_top(y, kst, step, rec, mode, f2, im1, im2, c, b, g, k2, c2)
             # records inside this step, from its continuous extension (the last at its end)
             while r < n_rec:
                 tr = (r + 1) * rec_period
@@ -662,6 +721,10 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
                 else:
                     _dense(y, kst, step, (tr - t) / step, rec)
                 fr, _fe = contact_force(rec[X1] - rec[X2], rec[V1] - rec[V2], mode, c, b)
+                if ftop >= 0.0 and (tr - t) / step >= fth:  # the force's top falls in this record
+                    pk = max(pk, ftop)
+                    peak[0] = max(peak[0], ftop)
+                    ftop = -1.0
                 for j in range(6):
                     out_y[k0 + r, j] = rec[j]
                 out_mode[k0 + r] = mode
@@ -683,12 +746,16 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
                 else:
                     peak[1] = _penetration_peak(peak[1], d0, s0, y[X1] - y[X2], y[V1] - y[V2], step)
             f = _force_now(y, mode, p)
+            if ftop > f:
+                f = ftop
             if f > peak[0]:
                 peak[0] = f
             if f > pk:
                 pk = f
             fac = 5.0 if en < 1e-4 else min(5.0, 0.9 * en ** -0.2)
-            h *= fac
+            # a step cut short by the span's end says little about the next: start the next
+            # span (a new control period) from the controller's own step, not the remnant
+            h = max(h * fac, h_free) if step == h and h < h_free else h * fac
             if stop_free and mode == FREE:
                 break
         else:

@@ -114,7 +114,7 @@ class IntegratorConfig:
     method: str = _f("split", "", "split (exact free flight, dopri5 in contact; default) | euler (thesis eq 3.8) | "
                      "symplectic-euler | rk4 | dopri5 (adaptive)")
     dt: float = _f(1.0e-6, "s", "step of the fixed-step methods")
-    rtol: float = _f(1.0e-12, "", "relative tolerance of dopri5 (split: in contact); 1e-12 puts split's "
+    rtol: float = _f(1.0e-13, "", "relative tolerance of dopri5 (split: in contact); 1e-13 puts split's "
                      "per-impact errors below RK4's at 1 us (scripts/split_accuracy.py, docs/plant.md)")
     event_location: bool = _f(True, "", "locate contact onset/separation instead of stepping across them")
     min_steps_per_contact: float = _f(8.0, "", "fixed-step methods: refuse a dt that takes the shortest "
