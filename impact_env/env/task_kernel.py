@@ -12,6 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, V1, X1, X2, C, G
@@ -72,6 +73,7 @@ def task_step(active, records, d, p, s, out):
     """After the simulator's step: reward, flags and info row of every active env (an inactive
     env gets reward 0 and no flags, and keeps its row).  ``d``: Drop, ``p``: TaskParams, ``s``:
     TaskState, ``out``: TaskOut."""
+    active, records, d, p, s, out = borrow(active), borrow(records), borrow(d), borrow(p), borrow(s), borrow(out)
     rewards, terminated, truncated = out.rewards, out.terminated, out.truncated
     steps, below, diverged, energy = s.steps, s.below, s.diverged, s.energy
     P = d.P

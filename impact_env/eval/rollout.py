@@ -45,6 +45,7 @@ from typing import NamedTuple
 import numpy as np
 from gymnasium.utils import seeding
 
+from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env._threads import check_threads, env_blocks, run_blocks
 from impact_env.control.observation import OBSERVATIONS, make_layout
@@ -118,6 +119,7 @@ def _trace_env(row, i, Y, records, acc_energy, detected):
 @jit
 def _trace_row(row, Y, records, acc_energy, detected):
     """One trace sample of every env (:func:`_trace_env`)."""
+    row, Y, records, acc_energy, detected = borrow(row), borrow(Y), borrow(records), borrow(acc_energy), borrow(detected)
     for i in range(Y.shape[0]):
         _trace_env(row, i, Y, records, acc_energy, detected)
 
@@ -164,6 +166,7 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
     Env by env, each for all its steps: env i reads and writes only its own rows (its policy
     memory, state, records, metrics, failure marks and trace column), so the order of envs, and
     blocks of envs run in threads at once (the GIL is released), give the same numbers."""
+    pol, p, s, out = borrow(pol), borrow(p), borrow(s), borrow(out)  # no reference counting inside
     Y = s.hw.plant.y
     P = p.hw.plant.p
     obs = s.obs.obs

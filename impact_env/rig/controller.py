@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.control.front_end import (
     FrontEnd,
@@ -112,6 +113,7 @@ class HostCommand(NamedTuple):
 def observe_tick(m, raw, truth, p, s):
     """Step 1 of tick m (module doc); ``truth``: x1, v1, x2, v2 for privileged entries (NaN on
     a physical rig).  Returns True at a step boundary."""
+    raw, truth, p, s = borrow(raw), borrow(truth), borrow(p), borrow(s)  # (impact_env._borrow)
     r = raw.reshape((1, raw.shape[0]))
     hold = p.hold
     if m > 0:
@@ -135,6 +137,7 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     sees whether it acted).  It acts from this tick on, whatever tick of its step that is; the
     watchdog's age counts from its step's first tick (``m - cmd.step H``), so a command is held
     for the rest of its step, repeated through the next one (REPEATED) and zeroed after."""
+    cmd, p, s, raw = borrow(cmd), borrow(p), borrow(s), borrow(raw)  # (impact_env._borrow)
     st = s.own
     hold = p.hold
     if p.onboard:
@@ -383,6 +386,7 @@ def run_ticks(m0, m1, cmd, p, s, rig, pacing):
     (:mod:`impact_env.sim.records`).  ``pacing.stop[0]`` set (by another thread: the GIL is
     released here) ends the loop before the next tick.  Returns (the next tick, OR of the status
     bits, an end code: END_NONE, or why the episode must end)."""
+    cmd, p, s, rig, pacing = borrow(cmd), borrow(p), borrow(s), borrow(rig), borrow(pacing)  # (_borrow)
     hw_p, hw_s = rig.hw, rig.state
     raw_all = hw_s.out.raw
     info = hw_s.out.info

@@ -36,6 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, C, G
@@ -107,6 +108,8 @@ def update(acc, rec, k_env, P_row, settings):
 @jit
 def update_batch(active, records, consts, P, settings, acc):
     """:func:`update` with every tick of the last step's records, for every active env."""
+    active, records, consts, P, settings, acc = (borrow(active), borrow(records), borrow(consts), borrow(P),
+                                                 borrow(settings), borrow(acc))  # (impact_env._borrow)
     for i in range(records.shape[0]):
         if active[i]:
             for k in range(records.shape[1]):

@@ -21,6 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.control.front_end import (
     FrontEndParams,
@@ -101,6 +102,7 @@ def sim_step(i0, i1, actions, active, p, s):
     """:func:`env_step` for every env i of ``i0 .. i1 - 1`` with ``active[i]`` under ``actions[i]``
     (the whole batch: 0, N).  Env i touches only its own rows, and the GIL is released, so blocks
     of envs may run in threads at once (:mod:`impact_env._threads`) with the same results."""
+    actions, active, p, s = borrow(actions), borrow(active), borrow(p), borrow(s)  # (impact_env._borrow)
     for i in range(i0, i1):
         if active[i]:
             env_step(i, actions[i], p, s)
