@@ -74,6 +74,17 @@ def event_value(x1, v1, x2, v2, c, b):
 
 
 @jit(inline="always")
+def event_sign(x1, v1, x2, v2, c, b):
+    """A value with the sign of :func:`event_value` (and zero where it is zero), without its
+    power 0.8: for the crossing test of every accepted step, where only the sign counts."""
+    d = x1 - x2
+    if d <= 0.0 or b == 0.0:
+        return d
+    q = d * sqrt(sqrt(d)) + (b / c) * (v1 - v2)
+    return q if q <= 0.0 else d
+
+
+@jit(inline="always")
 def deriv(x1, v1, x2, v2, mode, f2, im1, im2, c, b, g, k2, c2):
     """Time derivative of (x1, v1, x2, v2, W_ext, W_diss) under a shaker force f2 (N, upwards).
 

@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.plant.dynamics import contact_force, deriv, event_value
+from impact_env.plant.dynamics import contact_force, deriv, event_sign, event_value
 from impact_env.plant.free_flight import body1_after, body2_after, free_cap, touch_time
 from impact_env.plant.layout import (
     AUTO,
@@ -690,7 +690,7 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
         if en <= 1.0:
             d0 = y[X1] - y[X2]
             s0 = y[V1] - y[V2]
-            gv = event_value(out[0], out[1], out[2], out[3], c, b)
+            gv = event_sign(out[0], out[1], out[2], out[3], c, b)  # (only its sign is used here)
             step = h
             new_mode = mode
             if mode != AUTO and _crossed(mode, gv):
