@@ -13,6 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.hardware.stage import (
     INFO_STATUS,
@@ -57,6 +58,7 @@ def replay_kernel(U, p, s, R):
 @jit
 def _replay_env(i, U, p, s, R):
     """Env i of :func:`replay_kernel` (``p``, ``s``: the stage's HardwareParams and HardwareState)."""
+    U, p, s, R = borrow(U), borrow(p), borrow(s), borrow(R)  # (impact_env._borrow)
     n = U.shape[1]
     raw = s.out.raw
     info = s.out.info
