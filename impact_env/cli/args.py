@@ -42,6 +42,7 @@ def scene_from_args(args, scene: str | None = None):
     """The scene named by ``args.scene`` (or ``scene``) with ``args.set`` and the integrator
     options (``--method``, ``--dt``, ``--rtol``, where the command has them) applied."""
     from impact_env.scene import load_scene
+    from impact_env.scene.scene import ADAPTIVE
 
     ov = parse_overrides(getattr(args, "set", None))
     if getattr(args, "method", None):
@@ -52,7 +53,7 @@ def scene_from_args(args, scene: str | None = None):
         ov["integrator.rtol"] = str(args.rtol)
     out = load_scene(scene if scene is not None else args.scene, ov)
     integ = out.integrator
-    if "integrator.dt" in ov and integ.method in ("split", "dopri5") and out.control.rate is not None:
+    if "integrator.dt" in ov and integ.method in ADAPTIVE and out.control.rate is not None:
         # a step that would silently do nothing: the adaptive methods have no fixed step
         raise ConfigError(f"integrator.dt = {integ.dt:g} s has no effect with integrator.method = "
                           f"{integ.method} (adaptive; its accuracy is integrator.rtol = {integ.rtol:g}); "

@@ -227,7 +227,6 @@ class _Rig:
         sim.reset([drop_generator(seed) for _ in range(self.n)])
         e0 = np.array(sim.impact_energy, dtype=np.float64)
         acc = np.zeros(self.n)
-        ratio = sim.catch_energy() / e0
         # the population's steps in compiled chunks (a chunk's noise drawn first), not one Python
         # step at a time: the same numbers as sim.step per step (tests/test_oracle.py), since an env
         # touches only its own rows and the noise is the same stream drawn in pieces
@@ -238,8 +237,7 @@ class _Rig:
             k1 = min(U.shape[0], k + chunk)
             sim.hw.refill_noise(hold * (k1 - k))
             _replay_steps(k, k1, U, sim.params, sim.state, e0, acc)
-        if U.shape[0]:
-            ratio = sim.catch_energy() / e0
+        ratio = sim.catch_energy() / e0
         return acc * self.period * 1e3, {"ratio": ratio, "Y": np.array(sim.Y[:, :4]), "impact_energy": e0,
                                           "force": np.array(sim.info[:, INFO_F_APPLIED]),
                                           "diverged": np.asarray(sim.diverged(), dtype=bool)}

@@ -98,11 +98,13 @@ def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
     """
     d0 = x1 - x2
     hi = h
-    ghi = _switch_after(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b)
+    a1, b1 = body1_after(x1, v1, h, g)  # the sub-step's end, once: its switch and its rate
+    a2, b2 = body2_after(x2, v2, h, f2, im2, k2, c2)
+    ghi = event_value(a1, b1, a2, b2, c, b)
     if not (ghi > 0.0):
         # an excursion into the pad between the sub-step's ends: the penetration's interior top
         s0 = v1 - v2
-        _dh, s1 = gap_after(x1, v1, x2, v2, h, f2, g, im2, k2, c2)
+        s1 = b1 - b2
         if not (s0 > 0.0 and s1 < 0.0):
             return -1.0
         lo, up = 0.0, h

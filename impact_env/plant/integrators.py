@@ -168,39 +168,6 @@ def _dense(y, k, h, theta, out):
         out[j] = y[j] + h * acc
 
 
-@jit
-def _dense_top(y, k, h, tmp):
-    """The largest penetration (m) inside a Dormand-Prince step from y (stages k, length h)
-    over which the penetration rate turns from + to -: the rate's root on the continuous
-    extension (Illinois regula falsi), and the penetration there.  ``tmp``: float64[6] scratch."""
-    lo, hi = 0.0, 1.0
-    flo = y[V1] - y[V2]
-    _dense(y, k, h, 1.0, tmp)
-    fhi = tmp[V1] - tmp[V2]
-    side = 0
-    th = 1.0
-    for _ in range(60):
-        th = (lo * fhi - hi * flo) / (fhi - flo) if fhi != flo else 0.5 * (lo + hi)
-        if not (lo < th < hi):
-            th = 0.5 * (lo + hi)
-        _dense(y, k, h, th, tmp)
-        fm = tmp[V1] - tmp[V2]
-        if fm > 0.0:
-            lo, flo = th, fm
-            if side == -1:
-                fhi *= 0.5
-            side = -1
-        else:
-            hi, fhi = th, fm
-            if side == 1:
-                flo *= 0.5
-            side = 1
-        if hi - lo <= 1e-12 or fm == 0.0:
-            break
-    _dense(y, k, h, th, tmp)
-    return tmp[X1] - tmp[X2]
-
-
 @jit(inline="always")
 def _force_rate(y, dy, c, b):
     """Time derivative of the contact force (N/s) at state y (in contact, d > 0) whose time
@@ -216,16 +183,32 @@ def _force_rate(y, dy, c, b):
     return r
 
 
+TOP_PENETRATION = 0  # _dense_top: the root of the penetration rate
+TOP_FORCE = 1  # the root of the contact force's rate
+
+
+@jit(inline="always")
+def _rate(which, z, dz, c, b):
+    """The rate whose root :func:`_dense_top` finds, at state z with time derivative dz."""
+    if which == TOP_FORCE:
+        return _force_rate(z, dz, c, b)
+    return z[V1] - z[V2]
+
+
 @jit
-def _dense_force_top(y, k, h, tmp, mode, f2, im1, im2, c, b, g, k2, c2):
-    """The contact force's extremum inside a Dormand-Prince step (from y, stages k, length h)
-    over which its rate changes sign: the rate's root on the continuous extension (Illinois),
-    and the force there.  Returns ``(force N, theta)``, theta the fraction of the step."""
+def _dense_top(which, y, k, h, tmp, mode, f2, im1, im2, c, b, g, k2, c2):
+    """The extremum inside a Dormand-Prince step (from y, stages k, length h) over which a rate
+    changes sign: ``which`` = TOP_PENETRATION, the largest penetration (m; the rate turns from +
+    to -); TOP_FORCE, the contact force's extremum (N; in contact).  The rate's root on the
+    continuous extension (Illinois regula falsi), and the value there.  Returns ``(value,
+    theta)``, theta the fraction of the step; ``tmp``: float64[6] scratch."""
     lo, hi = 0.0, 1.0
-    flo = _force_rate(y, k[0], c, b)
+    flo = _rate(which, y, k[0], c, b)
     _dense(y, k, h, 1.0, tmp)
-    r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, im1, im2, c, b, g, k2, c2)
-    fhi = _force_rate(tmp, r, c, b)
+    r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the state's derivative, which only the force's rate needs
+    if which == TOP_FORCE:
+        r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, im1, im2, c, b, g, k2, c2)
+    fhi = _rate(which, tmp, r, c, b)
     side = 0
     th = 1.0
     for _ in range(60):
@@ -233,10 +216,11 @@ def _dense_force_top(y, k, h, tmp, mode, f2, im1, im2, c, b, g, k2, c2):
         if not (lo < th < hi):
             th = 0.5 * (lo + hi)
         _dense(y, k, h, th, tmp)
-        if not (tmp[X1] > tmp[X2]):
-            break
-        r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, im1, im2, c, b, g, k2, c2)
-        fm = _force_rate(tmp, r, c, b)
+        if which == TOP_FORCE:
+            if not (tmp[X1] > tmp[X2]):
+                break
+            r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, im1, im2, c, b, g, k2, c2)
+        fm = _rate(which, tmp, r, c, b)
         if (fm > 0.0) == (flo > 0.0):
             lo, flo = th, fm
             if side == -1:
@@ -250,8 +234,10 @@ def _dense_force_top(y, k, h, tmp, mode, f2, im1, im2, c, b, g, k2, c2):
         if hi - lo <= 1e-12 or fm == 0.0:
             break
     _dense(y, k, h, th, tmp)
-    f, _fe = contact_force(tmp[X1] - tmp[X2], tmp[V1] - tmp[V2], mode, c, b)
-    return f, th
+    if which == TOP_FORCE:
+        f, _fe = contact_force(tmp[X1] - tmp[X2], tmp[V1] - tmp[V2], mode, c, b)
+        return f, th
+    return tmp[X1] - tmp[X2], th
 
 
 @jit
@@ -704,12 +690,12 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
             top = -1e300
             if peak.shape[0] > 1 and new_mode == mode and s0 > 0.0 and out[V1] - out[V2] <= 0.0:
                 # the penetration turned inside this step: its top from the continuous extension
-                top = _dense_top(y, kst, step, rec)
+                top, _th = _dense_top(TOP_PENETRATION, y, kst, step, rec, mode, f2, im1, im2, c, b, g, k2, c2)
             ftop, fth = -1.0, 2.0
             if mode == CONTACT and new_mode == mode and y[X1] > y[X2] and out[X1] > out[X2]:
                 if (_force_rate(y, kst[0], c, b) > 0.0) != (_force_rate(out, kst[6], c, b) > 0.0):
                     # the contact force peaked inside this step: its top from the continuous extension
-                    ftop, fth = _dense_force_top(y, kst, step, rec, mode, f2, im1, im2, c, b, g, k2, c2)
+                    ftop, fth = _dense_top(TOP_FORCE, y, kst, step, rec, mode, f2, im1, im2, c, b, g, k2, c2)
             # records inside this step, from its continuous extension (the last at its end)
             while r < n_rec:
                 tr = (r + 1) * rec_period

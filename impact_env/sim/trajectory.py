@@ -11,6 +11,7 @@ from impact_env.plant import layout as L
 from impact_env.plant.dynamics import contact_forces
 from impact_env.plant.energy import catch_energy, energies, energy_above_rest
 from impact_env.scene import Scene
+from impact_env.scene.scene import ADAPTIVE
 
 # a run whose energy ledger misses more than this (relative to the larger of the initial total
 # and catch energies) is flagged: every converged setting stays below 1e-6 (RK4 at 1 us: 1e-10)
@@ -148,7 +149,7 @@ class Trajectory:
         err = self.energy_balance_error()
         if not err <= ENERGY_BALANCE_BOUND:
             integ = self.scene.integrator
-            step = f"rtol {integ.rtol:g}" if integ.method in ("dopri5", "split") else f"dt {integ.dt:g} s"
+            step = f"rtol {integ.rtol:g}" if integ.method in ADAPTIVE else f"dt {integ.dt:g} s"
             why = (" (explicit Euler, thesis eq 3.8, gains energy at every contact)"
                    if integ.method == "euler" else "")
             out.append(f"energy balance error {err:.3g} exceeds {ENERGY_BALANCE_BOUND:g}: {integ.method} at "
