@@ -163,3 +163,34 @@ def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
                 ghi *= 0.5
             side = -1
     return hi
+
+
+@jit(inline="always")
+def gap_top(x1, v1, x2, v2, h, f2, g, im2, k2, c2):
+    """The largest penetration (m; negative: the closest approach) on the exact free motion
+    within a sub-step of h seconds over which the penetration rate turns from + (at 0) to <= 0
+    (at h): Newton's method on the rate with its exact derivative ``g - x2''``, kept inside the
+    bracket (bisection where a step leaves it), to ``ROOT_TOL h``; the penetration there.  Near
+    the top the penetration is flat, so a time error dt costs only ``|g - x2''| dt^2 / 2``:
+    the top is exact to rounding, however shallow (no floor)."""
+    lo, hi = 0.0, h
+    t = h
+    a1, b1 = body1_after(x1, v1, t, g)
+    a2, b2 = body2_after(x2, v2, t, f2, im2, k2, c2)
+    s = b1 - b2
+    for _ in range(MAX_ROOT_ITER):
+        if s > 0.0:
+            lo = t
+        else:
+            hi = t
+        if hi - lo <= ROOT_TOL * h or s == 0.0:
+            break
+        ds = g - (-f2 - k2 * a2 - c2 * b2) * im2
+        tn = t - s / ds if ds != 0.0 else -1.0
+        if not (lo < tn < hi):
+            tn = 0.5 * (lo + hi)
+        t = tn
+        a1, b1 = body1_after(x1, v1, t, g)
+        a2, b2 = body2_after(x2, v2, t, f2, im2, k2, c2)
+        s = b1 - b2
+    return a1 - a2

@@ -23,7 +23,7 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.plant.dynamics import contact_force, deriv, event_sign, event_value
-from impact_env.plant.free_flight import body1_after, body2_after, free_cap, touch_time
+from impact_env.plant.free_flight import body1_after, body2_after, free_cap, gap_top, touch_time
 from impact_env.plant.layout import (
     AUTO,
     C2,
@@ -554,9 +554,69 @@ def _pad_energy(d, c):
     return 0.0
 
 
+@jit(inline="always")
+def _contact_scale(y, im1, im2, c, e_min):
+    """The error scales of the contact in progress: ``(penetration m, speed m/s, energy J)``.
+
+    From the energy of the relative motion, ``E_r = m u^2 / 2 + (2/5) c |d|^2.5`` (m the
+    effective mass, u = v1 - v2, d = x1 - x2): at a touch it is the contact's own approach
+    energy, ``m v_in^2 / 2``, and on an elastic pad without gravity it stays so through the
+    contact.  The speed scale is ``sqrt(2 E_r / m)`` (the approach speed), the penetration scale
+    the depth that energy reaches, ``(5 E_r / (2 c))^0.4`` (Hertz's d_max at that speed; never
+    below |d|); body 1 resting on the pad gets its static penetration's scales.  So a slow
+    impact, late in a drop, is integrated to the same relative accuracy as the first one,
+    whatever the scene's first impact speed was.  ``e_min`` (J) keeps a touch at exactly zero
+    speed from a zero scale."""
+    ad = abs(y[X1] - y[X2])
+    u = y[V1] - y[V2]
+    e = max(0.5 * u * u / (im1 + im2) + 0.4 * c * ad * ad * sqrt(ad), e_min)
+    return (2.5 * e / c) ** 0.4, sqrt(2.0 * e * (im1 + im2)), e
+
+
+@jit(inline="always")
+def _invariant(y, f2, m1, m2, c, g, k2):
+    """``E + W_diss - W_ext`` (J) in contact (elastic pad energy of the CONTACT mode's odd
+    extension, ``(2/5) c |d|^2.5``): constant along the exact motion under a constant f2 (the
+    shaker's work and the dampers' losses are in the ledger), so its change over a step is
+    that step's energy error."""
+    ad = abs(y[X1] - y[X2])
+    return (0.5 * m1 * y[V1] * y[V1] + 0.5 * m2 * y[V2] * y[V2] - m1 * g * y[X1]
+            + 0.5 * k2 * y[X2] * y[X2] + 0.4 * c * ad * ad * sqrt(ad) + y[W_DISS] - y[W_EXT])
+
+
+# a projection larger than this many tolerances of the contact's speed scale is not an
+# integration error being removed but an ill-conditioned one (both bodies nearly at rest): skipped
+MAX_PROJECTION = 1e3
+
+
+@jit(inline="always")
+def _project_energy(y, target, f2, m1, m2, c, g, k2, vs, rtol):
+    """Move the velocities of an elastic contact's state y (in place) onto the energy
+    invariant's level ``target`` (:func:`_invariant`): the standard projection (Hairer, Lubich
+    & Wanner, *Geometric Numerical Integration*, IV.4) along the gradient ``(m1 v1, m2 v2)`` in
+    the metric of the error scale, one Newton step (the residual is rtol-small, so the step's
+    own error is of order rtol^2).  Positions are not moved: the located switch stays where it
+    is.  Projection keeps the method's order and removes its energy drift, which otherwise
+    adds up bounce after bounce (dopri5 is not symplectic)."""
+    r = _invariant(y, f2, m1, m2, c, g, k2) - target
+    g1 = m1 * y[V1]
+    g2 = m2 * y[V2]
+    nn = g1 * g1 + g2 * g2
+    if not (nn > 0.0):
+        return
+    lam = r / nn
+    dv1 = lam * g1
+    dv2 = lam * g2
+    if abs(dv1) + abs(dv2) > MAX_PROJECTION * rtol * vs:
+        return
+    y[V1] -= dv1
+    y[V2] -= dv2
+
+
 DOPRI_WORK = 12  # rows of dopri5's scratch: 7 stages + 1, out, scratch, record, error
 
-MAX_FREE_STEPS = 1 << 24  # sub-steps and phases of one split span before EVENT_OVERFLOW
+MAX_FREE_STEPS = 1 << 24
+STATE_ROUNDING = 8.0 * 2.220446049250313e-16  # split's contact: the error norm's floor, per |y_j|  # sub-steps and phases of one split span before EVENT_OVERFLOW
 
 
 @jit
@@ -608,7 +668,13 @@ def _advance_split(mode, f2, t0, span, c, s):
         if _diverged(y):
             return DIVERGED, mode
         if track:
-            peak[1] = _penetration_peak(peak[1], x1 - x2, v1 - v2, a1 - a2, b1 - b2, step)
+            # the largest penetration, or the closest approach, on the exact motion: the
+            # sub-step's end, and where the rate turned from + to - inside, the exact top
+            top = a1 - a2
+            if v1 - v2 > 0.0 and b1 - b2 <= 0.0:
+                top = max(top, gap_top(x1, v1, x2, v2, step, f2, g, im2, k2, c2))
+            if top > peak[1]:
+                peak[1] = top
         if tau >= 0.0:
             mode = CONTACT
             _log_event(ev, evn, t0 + t, 1.0, y)
@@ -655,6 +721,17 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
     rec = work[10]
     err = work[11]
     rec_period = span / n_rec if n_rec > 0 else span
+    m1 = p[M1]
+    m2 = p[M2]
+    # split's contact: error scales of this contact (_contact_scale), and on an elastic pad the
+    # energy invariant at the start, onto which every step is projected (_project_energy)
+    project = stop_free and b == 0.0 and mode == CONTACT
+    level = _invariant(y, f2, m1, m2, c, g, k2) if project else 0.0
+    # the floor of the contact's energy scale: 1e-12 of body 1's static pad energy under its
+    # weight (a graze 1e-14 m deep on the rig has 1e-10 of it; only a touch at zero speed needs it)
+    dst = (m1 * abs(g) / c) ** (2.0 / 3.0)
+    e_min = max(1e-12 * 0.4 * c * dst * dst * sqrt(dst), 1e-300)
+    track = peak.shape[0] > 1
     r = 0  # records written
     pk = 0.0  # peak contact force since the last record
     h = hstate[0]
@@ -667,9 +744,19 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
             h = span - t
         _dopri_step(y, out, err, kst, mode, f2, h, im1, im2, c, b, g, k2, c2)
         en = 0.0
-        for j in range(6):
-            sc = rtol * scale[j] + rtol * max(abs(y[j]), abs(out[j]))
-            en += (err[j] / sc) ** 2
+        if stop_free:
+            # the contact's own scales, not the scene's first impact's; the state's rounding
+            # (a few eps of each component) is the floor below which no tolerance can hold
+            ds, vs, es = _contact_scale(y, im1, im2, c, e_min)
+            for j in range(6):
+                sj = ds if j < 4 and (j & 1) == 0 else (vs if j < 4 else es)
+                sc = rtol * sj + STATE_ROUNDING * max(abs(y[j]), abs(out[j]))
+                en += (err[j] / sc) ** 2
+        else:
+            vs = 0.0
+            for j in range(6):
+                sc = rtol * scale[j] + rtol * max(abs(y[j]), abs(out[j]))
+                en += (err[j] / sc) ** 2
         en = sqrt(en / 6.0)
         if not (en == en):
             en = 1e10
@@ -682,15 +769,20 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
             if mode != AUTO and _crossed(mode, gv):
                 step = _locate(DOPRI5, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2)
                 new_mode = FREE if mode == CONTACT else CONTACT
-                if n_rec > 0:  # the stages of the step that ends on the switch, for the records
+                if n_rec > 0 or (track and s0 > 0.0 and out[V1] - out[V2] <= 0.0):
+                    # the stages of the step that ends on the switch, for the records and for the
+                    # top of a graze that separates within it (the same step: the same ``out``)
                     _dopri_step(y, out, err, kst, mode, f2, step, im1, im2, c, b, g, k2, c2)
             elif mode == AUTO and ((y[X1] - y[X2] > 0.0) != (out[X1] - out[X2] > 0.0)):
                 _log_event(ev, evn, t0 + t + h, 1.0 if out[X1] - out[X2] > 0.0 else -1.0, out)
             t_new = t + step
             top = -1e300
-            if peak.shape[0] > 1 and new_mode == mode and s0 > 0.0 and out[V1] - out[V2] <= 0.0:
-                # the penetration turned inside this step: its top from the continuous extension
+            if track and s0 > 0.0 and out[V1] - out[V2] <= 0.0:
+                # the penetration turned inside this step (a graze's top too, when the step ends
+                # on the separation): its top from the continuous extension
                 top, _th = _dense_top(TOP_PENETRATION, y, kst, step, rec, mode, f2, im1, im2, c, b, g, k2, c2)
+            if project:
+                _project_energy(out, level, f2, m1, m2, c, g, k2, vs, rtol)
             ftop, fth = -1.0, 2.0
             if mode == CONTACT and new_mode == mode and y[X1] > y[X2] and out[X1] > out[X2]:
                 if (_force_rate(y, kst[0], c, b) > 0.0) != (_force_rate(out, kst[6], c, b) > 0.0):
