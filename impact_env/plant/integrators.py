@@ -615,8 +615,8 @@ def _project_energy(y, target, f2, m1, m2, c, g, k2, vs, rtol):
 
 DOPRI_WORK = 12  # rows of dopri5's scratch: 7 stages + 1, out, scratch, record, error
 
-MAX_FREE_STEPS = 1 << 24
-STATE_ROUNDING = 8.0 * 2.220446049250313e-16  # split's contact: the error norm's floor, per |y_j|  # sub-steps and phases of one split span before EVENT_OVERFLOW
+MAX_FREE_STEPS = 1 << 24  # sub-steps and phases of one split span before EVENT_OVERFLOW
+STATE_ROUNDING = 8.0 * 2.220446049250313e-16  # split's contact: the error norm's floor, per |y_j|
 
 
 @jit
