@@ -616,7 +616,6 @@ def _project_energy(y, target, f2, m1, m2, c, g, k2, vs, rtol):
 DOPRI_WORK = 12  # rows of dopri5's scratch: 7 stages + 1, out, scratch, record, error
 
 MAX_FREE_STEPS = 1 << 24  # sub-steps and phases of one split span before EVENT_OVERFLOW
-STATE_ROUNDING = 8.0 * 2.220446049250313e-16  # split's contact: the error norm's floor, per |y_j|
 
 
 @jit
@@ -746,13 +745,17 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
         _dopri_step(y, out, err, kst, mode, f2, h, im1, im2, c, b, g, k2, c2)
         en = 0.0
         if stop_free:
-            # the contact's own scales, not the scene's first impact's; the state's rounding
-            # (a few eps of each component) is the floor below which no tolerance can hold
+            # the contact's own scales, not the scene's first impact's: each component relative
+            # to them and to itself, and the relative motion (penetration, its rate) to them
+            # alone, since the bodies' common motion (on the suspension, mm) may dwarf the
+            # contact's (um) and would otherwise set the tolerance of the penetration
             ds, vs, es = _contact_scale(y, im1, im2, c, e_min)
             for j in range(6):
                 sj = ds if j < 4 and (j & 1) == 0 else (vs if j < 4 else es)
-                sc = rtol * sj + STATE_ROUNDING * max(abs(y[j]), abs(out[j]))
+                sc = rtol * sj + rtol * max(abs(y[j]), abs(out[j]))
                 en += (err[j] / sc) ** 2
+            en += ((err[X1] - err[X2]) / (rtol * ds)) ** 2 + ((err[V1] - err[V2]) / (rtol * vs)) ** 2
+            en *= 0.75  # the RMS over eight
         else:
             vs = 0.0
             for j in range(6):
