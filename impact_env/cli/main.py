@@ -18,7 +18,6 @@ from impact_env.cli.args import add_format_argument, add_scene_arguments
 from impact_env.cli.drop import cmd_drop, cmd_scene_show, cmd_scenes
 from impact_env.config import ConfigError
 
-
 DESCRIPTION = ("Catching a falling body with a shaker: simulate drops, compare control policies on the same "
                "seeded drops, export a policy, run it on a rig.")
 EPILOG = """examples:
