@@ -39,6 +39,7 @@ import atexit
 import hashlib
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -147,42 +148,65 @@ class _CompileProgress(event.Listener):
     numba broadcasts ``numba:compile`` only on a cache miss (a kernel loaded from the on-disk
     cache is not compiled), so the line appears exactly when kernels are compiled, never at
     import.  The total is counted when a kernel that no other kernel's compile asked for starts
-    compiling: itself and the project kernels it reaches that are not compiled yet."""
+    compiling: itself and the project kernels it reaches that are not compiled yet.  One kernel
+    can take minutes (typing a large one on a loaded machine), so while kernels compile a
+    daemon thread renews the line's seconds (every second on a terminal, every
+    :data:`LOG_EVERY_S` s in a log); numba's typing and LLVM let it run."""
 
     def __init__(self, stream=None):
         self.stream = stream
         self.depth = 0  # project kernels compiling now (nested: a caller types its callees)
+        self.started = 0
         self.done = 0
         self.counted: set[int] = set()
-        self.t0 = None
+        self.t0: float | None = None
         self.last = -1e300
         self.width = 0
+        self.current = ""
+        self.beat: tuple[int, threading.Thread] | None = None  # (pid, thread): a fork has none
 
     def _out(self):
         return self.stream if self.stream is not None else sys.stderr
+
+    def _show(self, force: bool) -> None:
+        if self.t0 is None or not self.current:
+            return
+        now = time.perf_counter()
+        total = max(len(self.counted), self.started)
+        where = "" if CACHE else "; caching is off: IMPACT_ENV_NUMBA_CACHE=0"
+        line = f"{PROGRESS_HEAD}{where}: {self.started}/{total} {self.current}, {now - self.t0:.0f} s"
+        out = self._out()
+        if out.isatty():
+            print("\r" + line.ljust(self.width), end="", file=out, flush=True)
+            self.width = len(line)
+        elif force or now - self.last >= LOG_EVERY_S:
+            print(line, file=out, flush=True)
+            self.last = now
+
+    def _heartbeat(self) -> None:
+        while True:
+            time.sleep(1.0 if self._out().isatty() else LOG_EVERY_S)
+            if self.depth > 0:
+                self._show(force=False)
 
     def on_start(self, ev):
         d = ev.data.get("dispatcher")
         func = getattr(d, "py_func", None)
         if func is None or id(func) not in _KERNELS:
             return
-        now = time.perf_counter()
         if self.t0 is None:
-            self.t0 = now
+            self.t0 = time.perf_counter()
             atexit.register(self.summary)
+        if self.beat is None or self.beat[0] != os.getpid():
+            thread = threading.Thread(target=self._heartbeat, name="impact_env-compile-progress", daemon=True)
+            thread.start()
+            self.beat = (os.getpid(), thread)
         if self.depth == 0:
             self.counted |= _to_compile(d)
         self.depth += 1
-        total = max(len(self.counted), self.done + 1)
-        where = "" if CACHE else "; caching is off: IMPACT_ENV_NUMBA_CACHE=0"
-        line = f"{PROGRESS_HEAD}{where}: {self.done + 1}/{total} {_kernel_name(func)}, {now - self.t0:.0f} s"
-        out = self._out()
-        if out.isatty():
-            print("\r" + line.ljust(self.width), end="", file=out, flush=True)
-            self.width = len(line)
-        elif now - self.last >= LOG_EVERY_S:
-            print(line, file=out, flush=True)
-            self.last = now
+        self.started += 1
+        self.current = _kernel_name(func)
+        self._show(force=self.started == 1)
 
     def on_end(self, ev):
         func = getattr(ev.data.get("dispatcher"), "py_func", None)
