@@ -88,8 +88,9 @@ if _ProjectCacheLocator not in caching.CacheImpl._locator_classes:
 
 
 PROGRESS_HEAD = "impact_env: compiling numba kernels (first run of this code; cached afterwards)"
-#: one line at most this often when stderr is not a terminal (a log file, CI)
-LOG_EVERY_S = 5.0
+#: one line at most this often when stderr is not a terminal (a log file, CI): a cold run's log
+#: gets a few dozen lines under load, not one per kernel and second
+LOG_EVERY_S = 20.0
 
 _KERNELS: dict[int, object] = {}  # id(py_func) -> its dispatcher, for every kernel made by jit()
 

@@ -49,7 +49,7 @@ def test_licence_matches_pyproject_and_the_heavy_deps_are_optional():
     assert users == [], f"a module imports Dask at its top (the core would need it): {users}"
 
 
-def test_gymnasium_make_with_the_module_prefix_in_a_fresh_interpreter():
+def test_gymnasium_make_with_the_module_prefix_in_a_fresh_interpreter(warm_kernels):
     """The documented form ``gymnasium.make("impact_env:ImpactCatch-v0")`` (no import of
     impact_env first) works in a new interpreter: gymnasium imports the module, which registers
     the env.  In this process impact_env is already imported, which would hide a failure."""

@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 
 import impact_env.eval.compare_plots as CP
-from impact_env.eval.compare import compare
 from impact_env.eval.labels import METRIC_LABELS, policy_colors
 from impact_env.scene import load_scene
 
 SPECS = ["passive", "thesis-rig", "pd-penetration"]  # passive: no force, so no spectrum line
 
 
-@pytest.fixture(scope="module")
-def runs():
-    return compare(load_scene("rig"), SPECS, episodes=3, seed=0, horizon=0.05, workers=1, progress=False)
+@pytest.fixture
+def runs(rig_runs):  # tests/conftest.py: built once per session
+    assert list(rig_runs) == SPECS
+    return rig_runs
 
 
 def capture(monkeypatch):
