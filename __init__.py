@@ -16,6 +16,8 @@ import sys
 _HERE = os.path.dirname(os.path.abspath(__file__))
 _INNER = os.path.join(_HERE, "impact_env")
 
+# Under any other name (pytest imports this file as the package of the tests' root folder) it
+# does nothing.
 if __name__ == "impact_env" and os.path.isfile(os.path.join(_INNER, "__init__.py")):
     _spec = importlib.util.spec_from_file_location("impact_env", os.path.join(_INNER, "__init__.py"),
                                                    submodule_search_locations=[_INNER])
@@ -23,6 +25,3 @@ if __name__ == "impact_env" and os.path.isfile(os.path.join(_INNER, "__init__.py
     _module = importlib.util.module_from_spec(_spec)
     sys.modules["impact_env"] = _module  # the import statement returns this module, the real package
     _spec.loader.exec_module(_module)
-else:
-    raise ImportError(f"{_HERE} is the impact_env repository's root, not a package; import impact_env "
-                      f"(the package, {_INNER}) instead")
