@@ -163,19 +163,22 @@ class _CompileProgress(event.Listener):
         self.t0: float | None = None
         self.last = -1e300
         self.width = 0
-        self.current = ""
+        self.busy = 0.0  # s spent compiling (outermost compiles' wall time, summed)
+        self.entered = 0.0  # when the outermost compile now running started
+        self.names: list[str] = []  # the kernels compiling now, callers first
         self.beat: tuple[int, threading.Thread] | None = None  # (pid, thread): a fork has none
 
     def _out(self):
         return self.stream if self.stream is not None else sys.stderr
 
     def _show(self, force: bool) -> None:
-        if self.t0 is None or not self.current:
+        if self.t0 is None or not self.names:
             return
         now = time.perf_counter()
         total = max(len(self.counted), self.started)
         where = "" if CACHE else "; caching is off: IMPACT_ENV_NUMBA_CACHE=0"
-        line = f"{PROGRESS_HEAD}{where}: {self.started}/{total} {self.current}, {now - self.t0:.0f} s"
+        busy = self.busy + now - self.entered  # s of compiling so far
+        line = f"{PROGRESS_HEAD}{where}: {self.started}/{total} {self.names[-1]}, {busy:.0f} s"
         out = self._out()
         if out.isatty():
             print("\r" + line.ljust(self.width), end="", file=out, flush=True)
@@ -204,9 +207,10 @@ class _CompileProgress(event.Listener):
             self.beat = (os.getpid(), thread)
         if self.depth == 0:
             self.counted |= _to_compile(d)
+            self.entered = time.perf_counter()
         self.depth += 1
         self.started += 1
-        self.current = _kernel_name(func)
+        self.names.append(_kernel_name(func))
         self._show(force=self.started == 1)
 
     def on_end(self, ev):
@@ -215,6 +219,10 @@ class _CompileProgress(event.Listener):
             return
         self.depth -= 1
         self.done += 1
+        if self.names:  # back in the caller (numba lowers it after typing its callees)
+            self.names.pop()
+        if self.depth == 0:
+            self.busy += time.perf_counter() - self.entered
         out = self._out()
         if self.depth == 0 and self.width and out.isatty():  # the line goes before anything else prints
             print("\r" + " " * self.width + "\r", end="", file=out, flush=True)
@@ -223,7 +231,7 @@ class _CompileProgress(event.Listener):
     def summary(self):
         if self.t0 is None or self.done == 0:
             return
-        print(f"impact_env: compiled {self.done} numba kernels in {time.perf_counter() - self.t0:.0f} s"
+        print(f"impact_env: compiled {self.done} numba kernels in {self.busy:.0f} s"
               + ("; later runs load them from the cache" if CACHE else " (caching is off)"),
               file=self._out(), flush=True)
         self.t0 = None
