@@ -20,20 +20,31 @@ Environment variables
     numba's own switch; ``1`` runs every kernel as plain Python (slow, but coverage and
     debuggers see the code).
 
-Before the first compile of a project kernel in a process (that is, when the cache for the
-current source stamp is cold), one line on stderr says so and how long it takes
-(:data:`COLD_COMPILE_NOTICE`); a warm cache prints nothing.
+While project kernels compile (the cache for the current source stamp is cold, or caching is
+off), a progress line on stderr says which kernel and how far (:class:`_CompileProgress`:
+"compiling numba kernels (first run of this code; cached afterwards): 7/23
+plant.integrators._advance_split, 41 s"), and a last line how many and how long; a warm cache
+prints nothing, and nothing is printed at import.
+
+Fewer specialisations: a kernel called from another kernel with a constant argument (``_trial(DOPRI5,
+...)``) would be compiled once per constant value (numba types the constant as a literal); the
+helper types such calls with the plain type (``int64``), so one machine-code version serves every
+call, as it does for calls from Python (:func:`_plain_call_template`; numbers unchanged: the same
+operations, no fastmath).
 """
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import os
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numba
-from numba.core import caching, config, event
+from numba.core import caching, config, errors, event, types
 
 CACHE = os.environ.get("IMPACT_ENV_NUMBA_CACHE", "1").strip().lower() not in ("0", "false", "no", "off")
 
@@ -76,38 +87,178 @@ if _ProjectCacheLocator not in caching.CacheImpl._locator_classes:
     caching.CacheImpl._locator_classes.insert(0, _ProjectCacheLocator)
 
 
-COLD_COMPILE_NOTICE = (
-    "impact_env: compiling the numba kernels for this version of the code (no cached machine code "
-    "for it yet{where}): about 20-60 s on a 2-core machine, once; later runs load them from the cache.")
+PROGRESS_HEAD = "impact_env: compiling numba kernels (first run of this code; cached afterwards)"
+#: one line at most this often when stderr is not a terminal (a log file, CI): a cold run's log
+#: gets a few dozen lines under load, not one per kernel and second
+LOG_EVERY_S = 20.0
+
+_KERNELS: dict[int, object] = {}  # id(py_func) -> its dispatcher, for every kernel made by jit()
 
 
-class _ColdCompileNotice(event.Listener):
-    """Says on stderr, once per process, that project kernels are being compiled.
+def _kernel_name(func) -> str:
+    mod = getattr(func, "__module__", "") or ""
+    mod = mod[len("impact_env."):] if mod.startswith("impact_env.") else mod
+    return f"{mod}.{func.__qualname__}" if mod else func.__qualname__
+
+
+def _callees(func) -> list:
+    """The project kernels ``func``'s code refers to by name (``f(...)`` or ``module.f(...)``)."""
+    code = getattr(func, "__code__", None)
+    if code is None:
+        return []
+    names: set[str] = set(code.co_names)
+    for const in code.co_consts:  # nested functions and comprehensions
+        if hasattr(const, "co_names"):
+            names.update(const.co_names)
+    g = getattr(func, "__globals__", {})
+    out = []
+    for name in names:
+        obj = g.get(name)
+        if obj is None:
+            continue
+        if type(obj).__name__ == "module":
+            out += [getattr(obj, n) for n in names if id(getattr(getattr(obj, n, None), "py_func", None))
+                    in _KERNELS]
+        elif id(getattr(obj, "py_func", None)) in _KERNELS:
+            out.append(obj)
+    return out
+
+
+def _to_compile(dispatcher) -> set[int]:
+    """The kernels a compile of ``dispatcher`` will compile with it: itself and every project
+    kernel it reaches that has no machine code in this process yet (inlined ones are compiled
+    into their callers, so not counted).  An estimate: a kernel may need a second signature."""
+    seen: set[int] = set()
+    out: set[int] = set()
+    todo = [dispatcher]
+    while todo:
+        d = todo.pop()
+        key = id(d.py_func)
+        if key in seen:
+            continue
+        seen.add(key)
+        if d.targetoptions.get("inline", "never") == "never" and not d.overloads:
+            out.add(key)
+        todo += _callees(d.py_func)
+    return out
+
+
+class _CompileProgress(event.Listener):
+    """The compile progress line on stderr (module doc).
 
     numba broadcasts ``numba:compile`` only on a cache miss (a kernel loaded from the on-disk
-    cache is not compiled), so the line appears exactly when the cache for the current source
-    stamp is cold (or caching is off), before the first compile, never at import."""
+    cache is not compiled), so the line appears exactly when kernels are compiled, never at
+    import.  The total is counted when a kernel that no other kernel's compile asked for starts
+    compiling: itself and the project kernels it reaches that are not compiled yet.  One kernel
+    can take minutes (typing a large one on a loaded machine), so while kernels compile a
+    daemon thread renews the line's seconds (every second on a terminal, every
+    :data:`LOG_EVERY_S` s in a log); numba's typing and LLVM let it run."""
 
-    def __init__(self):
-        self.said = False
+    def __init__(self, stream=None):
+        self.stream = stream
+        self.depth = 0  # project kernels compiling now (nested: a caller types its callees)
+        self.started = 0
+        self.done = 0
+        self.counted: set[int] = set()
+        self.t0: float | None = None
+        self.last = -1e300
+        self.width = 0
+        self.busy = 0.0  # s spent compiling (outermost compiles' wall time, summed)
+        self.entered = 0.0  # when the outermost compile now running started
+        self.names: list[str] = []  # the kernels compiling now, callers first
+        self.beat: tuple[int, threading.Thread] | None = None  # (pid, thread): a fork has none
+
+    def _out(self):
+        return self.stream if self.stream is not None else sys.stderr
+
+    def _show(self, force: bool) -> None:
+        if self.t0 is None or not self.names:
+            return
+        now = time.perf_counter()
+        total = max(len(self.counted), self.started)
+        where = "" if CACHE else "; caching is off: IMPACT_ENV_NUMBA_CACHE=0"
+        busy = self.busy + now - self.entered  # s of compiling so far
+        line = f"{PROGRESS_HEAD}{where}: {self.started}/{total} {self.names[-1]}, {busy:.0f} s"
+        out = self._out()
+        if out.isatty():
+            print("\r" + line.ljust(self.width), end="", file=out, flush=True)
+            self.width = len(line)
+        elif force or now - self.last >= LOG_EVERY_S:
+            print(line, file=out, flush=True)
+            self.last = now
+
+    def _heartbeat(self) -> None:
+        while True:
+            time.sleep(1.0 if self._out().isatty() else LOG_EVERY_S)
+            if self.depth > 0:
+                self._show(force=False)
 
     def on_start(self, ev):
-        if self.said:
+        d = ev.data.get("dispatcher")
+        func = getattr(d, "py_func", None)
+        if func is None or id(func) not in _KERNELS:
             return
-        func = getattr(ev.data.get("dispatcher"), "py_func", None)
-        code = getattr(func, "__code__", None)
-        if code is None or not os.path.abspath(code.co_filename).startswith(_PACKAGES):
-            return
-        self.said = True
-        where = "" if CACHE else "; caching is off: IMPACT_ENV_NUMBA_CACHE=0"
-        print(COLD_COMPILE_NOTICE.format(where=where), file=sys.stderr, flush=True)
+        if self.t0 is None:
+            self.t0 = time.perf_counter()
+            atexit.register(self.summary)
+        if self.beat is None or self.beat[0] != os.getpid():
+            thread = threading.Thread(target=self._heartbeat, name="impact_env-compile-progress", daemon=True)
+            thread.start()
+            self.beat = (os.getpid(), thread)
+        if self.depth == 0:
+            self.counted |= _to_compile(d)
+            self.entered = time.perf_counter()
+        self.depth += 1
+        self.started += 1
+        self.names.append(_kernel_name(func))
+        self._show(force=self.started == 1)
 
     def on_end(self, ev):
-        pass
+        func = getattr(ev.data.get("dispatcher"), "py_func", None)
+        if func is None or id(func) not in _KERNELS:
+            return
+        self.depth -= 1
+        self.done += 1
+        if self.names:  # back in the caller (numba lowers it after typing its callees)
+            self.names.pop()
+        if self.depth == 0:
+            self.busy += time.perf_counter() - self.entered
+        out = self._out()
+        if self.depth == 0 and self.width and out.isatty():  # the line goes before anything else prints
+            print("\r" + " " * self.width + "\r", end="", file=out, flush=True)
+            self.width = 0
+
+    def summary(self):
+        if self.t0 is None or self.done == 0:
+            return
+        print(f"impact_env: compiled {self.done} numba kernels in {self.busy:.0f} s"
+              + ("; later runs load them from the cache" if CACHE else " (caching is off)"),
+              file=self._out(), flush=True)
+        self.t0 = None
 
 
-_NOTICE = _ColdCompileNotice()
-event.register("numba:compile", _NOTICE)
+_PROGRESS = _CompileProgress()
+event.register("numba:compile", _PROGRESS)
+
+
+def _plain_call_template(dispatcher):
+    """``dispatcher.get_call_template`` typing a kernel-to-kernel call's literal arguments
+    (``Literal[int](3)``) as their plain types, so that one compiled version serves calls with
+    any constant; where a kernel needs the literal (it indexes a heterogeneous tuple with it),
+    numba's own typing."""
+    own = dispatcher.get_call_template
+
+    def get_call_template(args, kws):
+        plain = tuple(types.unliteral(a) for a in args)
+        plain_kws = {k: types.unliteral(v) for k, v in kws.items()}
+        if plain != tuple(args) or plain_kws != kws:
+            try:
+                return own(plain, plain_kws)
+            except errors.TypingError:
+                pass
+        return own(args, kws)
+
+    return get_call_template
 
 
 def jit(func=None, **options):
@@ -120,8 +271,11 @@ def jit(func=None, **options):
     options.setdefault("fastmath", False)
     options.setdefault("error_model", "numpy")
     if func is None:
-        return lambda f: numba.njit(**options)(f)
-    return numba.njit(**options)(func)
+        return lambda f: jit(f, **options)
+    dispatcher = numba.njit(**options)(func)
+    dispatcher.get_call_template = _plain_call_template(dispatcher)
+    _KERNELS[id(func)] = dispatcher
+    return dispatcher
 
 
 def bound_call(dispatcher, args: tuple):

@@ -49,7 +49,7 @@ def test_licence_matches_pyproject_and_the_heavy_deps_are_optional():
     assert users == [], f"a module imports Dask at its top (the core would need it): {users}"
 
 
-def test_gymnasium_make_with_the_module_prefix_in_a_fresh_interpreter():
+def test_gymnasium_make_with_the_module_prefix_in_a_fresh_interpreter(warm_kernels):
     """The documented form ``gymnasium.make("impact_env:ImpactCatch-v0")`` (no import of
     impact_env first) works in a new interpreter: gymnasium imports the module, which registers
     the env.  In this process impact_env is already imported, which would hide a failure."""
@@ -66,3 +66,48 @@ def test_gymnasium_make_with_the_module_prefix_in_a_fresh_interpreter():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.startswith("made ImpactCatch-v0"), out.stdout
+
+
+def test_version_and_help_import_neither_numba_nor_scipy():
+    """``impact-env --version`` took 21 s under load: it imported every command's modules, numba
+    and scipy.signal among them.  Now the package's public names load on first use, and the
+    commands import their machinery when they run."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from impact_env.cli.main import build_parser, main\n"
+            "build_parser().format_help()\n"
+            "try:\n"
+            "    main(['--version'])\n"
+            "except SystemExit:\n"
+            "    pass\n"
+            "heavy = [m for m in ('numba', 'scipy', 'matplotlib', 'torch', 'impact_env.scene')\n"
+            "         if m in sys.modules]\n"
+            "print('heavy', heavy)\n"
+            "import impact_env\n"
+            "assert impact_env.load_scene('rig').name == 'rig'  # the lazy names still work\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "heavy []" in out.stdout and f"impact-env {impact_env.__version__}" in out.stdout, out.stdout
+
+
+def test_a_script_beside_a_clone_named_impact_env_gets_the_package_not_an_empty_namespace(tmp_path):
+    """A clone is named impact_env by default; a script run from the folder that holds it found
+    the clone first and imported it as an empty namespace package (gymnasium.make then failed
+    with NameNotFound: ImpactCatch).  The root's __init__.py loads the package inside instead."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "impact_env").symlink_to(ROOT, target_is_directory=True)  # the clone, as git names it
+    code = ("import impact_env, gymnasium\n"
+            "print(impact_env.__file__)\n"
+            "print(gymnasium.spec('ImpactCatch-v0').id, impact_env.__version__)\n")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # the script's folder comes first
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                         cwd=tmp_path, env=env)
+    assert out.returncode == 0, out.stderr[-3000:]
+    first, second = out.stdout.splitlines()[:2]
+    assert first == str(tmp_path / "impact_env" / "impact_env" / "__init__.py")
+    assert second == f"ImpactCatch-v0 {impact_env.__version__}"

@@ -9,28 +9,30 @@ import numpy as np
 import pytest
 
 import impact_env.eval.compare_plots as CP
-from impact_env.eval.compare import compare
 from impact_env.eval.labels import METRIC_LABELS, policy_colors
 from impact_env.scene import load_scene
 
 SPECS = ["passive", "thesis-rig", "pd-penetration"]  # passive: no force, so no spectrum line
 
 
-@pytest.fixture(scope="module")
-def runs():
-    return compare(load_scene("rig"), SPECS, episodes=3, seed=0, horizon=0.05, workers=1, progress=False)
+@pytest.fixture
+def runs(rig_runs):  # tests/conftest.py: built once per session
+    assert list(rig_runs) == SPECS
+    return rig_runs
 
 
 def capture(monkeypatch):
     """Replace the figure writer by one that keeps each panel's line colours and axis labels."""
     seen = {}
 
-    def finish(plt, fig, ax, title, path, legend_size, xlabel=None, which="major"):
+    def finish(plt, fig, ax, title, path, legend_size, xlabel=None, which="major", legend_below=None):
         for a in ax:
             if xlabel:
                 a.set_xlabel(xlabel)
         seen["panels"] = [{"lines": {ln.get_label(): ln.get_color() for ln in a.get_lines()},
                            "x": a.get_xlabel(), "y": a.get_ylabel()} for a in ax]
+        seen["legend_below"] = None if legend_below is None else {
+            h.get_label(): (h.get_color(), h.get_linestyle()) for h in legend_below}
         plt.close(fig)
         return path
 
@@ -64,6 +66,46 @@ def test_the_filter_band_is_the_scenes():
 def test_the_catch_time_figure(runs, tmp_path):
     path = CP.plot_catch_time(runs, tmp_path / "catch_time.png", load_scene("rig"), 0.05)
     assert path.exists() and path.stat().st_size > 5000
+
+
+def test_the_catch_time_figure_is_in_ms_from_the_touch_like_the_others(runs, tmp_path, monkeypatch):
+    """It said "time after the release, s" while the catch times are from the first touch (the
+    episode starts 1 ms before it on rig) and every other figure says "time from first touch,
+    ms": now the same axis, the medians' dots at the table's medians in ms, and the censored
+    drops' triangles at the episode's end, the horizon less the time before the touch."""
+    import matplotlib.pyplot as plt
+
+    figs = []
+    monkeypatch.setattr(CP, "save_figure", lambda fig, path: (figs.append(fig), path)[1])
+    run = runs["passive"]
+    ttc = np.array([0.01, 0.02, np.inf])
+    from impact_env.eval.compare import PolicyRun
+
+    one = PolicyRun.__new__(PolicyRun)
+    one.metrics, one.episodes = {"time_to_catch_s": ttc}, [0, 1, 2]
+    one.summary = {"time_to_catch_median_s": 0.02}
+    one.t_touch0 = run.t_touch0
+    CP.plot_catch_time({"passive": one}, tmp_path / "c.png", load_scene("rig"), 0.05)
+    ax = figs[0].axes[0]
+    assert ax.get_xlabel() == CP.TOUCH_MS == "time from first touch, ms"
+    assert 0.0 < run.t_touch0 < 0.05  # the episode starts before the touch
+    marks = {ln.get_marker(): ln.get_xdata()[0] for ln in ax.get_lines() if ln.get_marker() in ("o", ">")}
+    assert marks["o"] == pytest.approx(20.0)  # the median, 0.02 s after the touch
+    assert marks[">"] == pytest.approx((0.05 - run.t_touch0) * 1e3)  # the episode's end after the touch
+    plt.close(figs[0])
+
+
+def test_the_motion_legend_sits_below_the_curves_one_entry_per_policy_and_per_body(runs, tmp_path,
+                                                                                   monkeypatch):
+    """motion.png had an 8-entry legend in each panel, over the curves: now one row under the
+    panels, a colour per policy and a line style per body."""
+    seen = capture(monkeypatch)
+    CP.plot_motion(runs, tmp_path / "m.png", load_scene("rig"))
+    want = policy_colors(SPECS)
+    legend = seen["legend_below"]
+    assert {k: v[0] for k, v in legend.items() if k in want} == want
+    styles = {v[1] for k, v in legend.items() if k not in want}
+    assert len(legend) == len(SPECS) + 2 and styles == {"-", "--"}
 
 
 def test_metric_labels_are_words_with_units():

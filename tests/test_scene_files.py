@@ -7,7 +7,6 @@ import pytest
 
 from impact_env.cli import compare as cli_compare
 from impact_env.cli import main
-from impact_env.cli import sweep as cli_sweep
 from impact_env.config import ConfigError
 from impact_env.scene import load_scene
 
@@ -73,7 +72,7 @@ def test_out_is_checked_before_anything_runs(tmp_path, capsys, monkeypatch):
         raise AssertionError("simulated before checking --out")
 
     monkeypatch.setattr(cli_compare, "compare", boom)
-    monkeypatch.setattr(cli_sweep, "sweep", boom)
+    monkeypatch.setattr("impact_env.eval.sweep.sweep", boom)  # cmd_sweep imports it when it runs
     afile = tmp_path / "afile"
     afile.write_text("x")
     assert main(["compare", "--policies", "passive", "--episodes", "1", "--out", str(afile)]) == 2

@@ -22,9 +22,12 @@ def add_parser(sub, scene_args) -> None:
     p = sub.add_parser("compare", help="run policies on the same seeded drops and tabulate catch metrics")
     scene_args(p)
     p.add_argument("--policies", action="append", metavar="LIST",
-                   help="comma-separated policy specs, e.g. "
-                        "passive,thesis-rig:h01=2.3e6,h11=18,pd-penetration "
-                        "or a saved SB3 model (PATH.zip, ppo:PATH.zip); repeatable")
+                   help="comma-separated policy specs (default passive,thesis-rig,pd-penetration): the "
+                        "classic laws passive, thesis-ideal, thesis-rig, pd-penetration (with parameters, "
+                        "e.g. thesis-rig:h01=2.3e6,h11=18; --list shows them), oracle (the per-drop "
+                        "open-loop optimum, CMA-ES: needs pip install 'impact-env[oracle]'), a saved SB3 "
+                        "model (PATH.zip, ppo:PATH.zip) or a compiled policy file "
+                        "(compiled:FILE.policy.json, from impact-env export); repeatable")
     p.add_argument("--episodes", type=int, default=100, help="episodes per policy (default 100)")
     p.add_argument("--seed", type=int, default=0, help="episode j is seeded seed + j (default 0)")
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: episode.horizon)")

@@ -18,11 +18,30 @@ from impact_env.cli.args import add_format_argument, add_scene_arguments
 from impact_env.cli.drop import cmd_drop, cmd_scene_show, cmd_scenes
 from impact_env.config import ConfigError
 
+DESCRIPTION = ("Catching a falling body with a shaker: simulate drops, compare control policies on the same "
+               "seeded drops, export a policy, run it on a rig.")
+EPILOG = """examples:
+  impact-env compare --scene rig --policies passive,thesis-rig,pd-penetration,thesis-ideal \\
+      --episodes 100 --seed 0 --out results      README's main job: a table, CSV/JSON and plots
+  impact-env compare --list                      the named policies and their parameters
+  impact-env drop --scene rig --plot drop.png    one uncontrolled drop, summarised and plotted
+  impact-env scenes                              the preset scenes
+  impact-env scene show rig                      a scene as TOML (a scene file: base = "rig" + changes)
+  impact-env export pd-penetration --out pd.policy.json
+                                                 a compiled policy (compare --policies compiled:FILE)
+  impact-env rig serve --virtual --port 5600     a virtual rig's target (compare --rig udp://...)
+  impact-env COMMAND --help                      a command's options
+
+The first run compiles the numba kernels (a progress line on stderr; cached afterwards).
+Docs: README.md and docs/ in the source tree (baselines.md: compare, sweep and the policies;
+scenes.md: scenes and --set; env.md: the Gymnasium env; rig.md: the rig; plant.md: the model)."""
+
 
 def build_parser() -> argparse.ArgumentParser:
     from impact_env import __version__
 
-    ap = argparse.ArgumentParser(prog="impact-env", description="Catching a falling body with a shaker.")
+    ap = argparse.ArgumentParser(prog="impact-env", description=DESCRIPTION, epilog=EPILOG,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--version", action="version", version=f"impact-env {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 

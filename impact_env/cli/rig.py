@@ -12,7 +12,9 @@ from impact_env.cli.args import add_format_argument, output_figure_file
 
 
 def add_parser(sub, scene_args) -> None:
-    p = sub.add_parser("rig", help="the rig: serve a target (virtual rig), summarise an episode log")
+    p = sub.add_parser("rig", help="the rig: serve a target (real or virtual), make a session key, run "
+                                  "the identification plan, summarise an episode log (serve | keygen | "
+                                  "identify | log)")
     rsub = p.add_subparsers(dest="rig_command", required=True)
     s = rsub.add_parser("serve", help="run the 10 kHz target until SIGTERM (prints a line with 'listening')")
     scene_args(s)

@@ -11,7 +11,6 @@ from impact_env.cli.args import (
     output_dir,
     scene_from_args,
 )
-from impact_env.eval.sweep import DEFAULT_AXES, parse_grid, plot, sweep, write_csv
 
 
 # -- command line ------------------------------------------------------------------------------------
@@ -44,6 +43,8 @@ def add_parser(sub, scene_args) -> None:
 
 
 def axes_from_args(args) -> tuple:
+    from impact_env.eval.sweep import DEFAULT_AXES, parse_grid
+
     items = []
     if args.h01:
         items.append(("h01", args.h01))
@@ -65,6 +66,7 @@ def axes_from_args(args) -> tuple:
 
 
 def cmd_sweep(args) -> int:
+    from impact_env.eval.sweep import plot, sweep, write_csv
     from impact_env.policy.registry import parse_spec
 
     cluster = cluster_from_args(args)

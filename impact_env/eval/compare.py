@@ -287,11 +287,13 @@ def _validate_specs(specs, scene) -> None:
 
 
 def _warm_up(scene, horizon) -> None:
-    """Compile (or load) the kernels once in the parent, so that forked workers inherit them."""
+    """Compile (or load) the kernels once in the parent, so that forked workers inherit them.
+    Two episodes, not one: a column of a one-row array is contiguous, of a wider one not, and
+    numba compiles a kernel for each layout (each worker compiled the trace kernel again)."""
     from impact_env.eval.rollout import rollout
     from impact_env.policy.registry import make_policy
 
-    rollout(scene, make_policy("passive", scene), [0], horizon=2 * scene.control_period, trace_rate=0.0)
+    rollout(scene, make_policy("passive", scene), [0, 1], horizon=2 * scene.control_period, trace_rate=0.0)
 
 
 def _merge(spec, parts, scene) -> PolicyRun:

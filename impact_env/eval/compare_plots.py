@@ -7,11 +7,14 @@
   30 ms after the touch) and its amplitude spectrum over the episode, with the scene's filter
   band (the force transducer's, when the scene filters) shaded.
 * ``motion.png`` (fig 3.2c-d): velocities and displacements of both bodies (first episode),
-  upwards positive as in the thesis's plots.
-* ``catch_time.png``: the catch time of every episode per policy (box and points), episodes not
-  caught within the horizon counted above it.
+  upwards positive as in the thesis's plots; one legend below the panels (a colour per policy, a
+  line style per body), not eight entries over the curves.
+* ``catch_time.png``: the fraction of drops not yet caught against time (a survival curve per
+  policy), drops not caught by the end of the episode counted as such (censored).
 
-Time is measured from the first touch.  Each policy keeps one colour in every panel and figure
+Time is measured from the first touch, in ms, in every figure (an episode starts
+``initial.pre_contact_time``, 1 ms on ``rig``, before it: the simulated drop starts just above the
+pad, not at the release).  Each policy keeps one colour in every panel and figure
 (:func:`impact_env.eval.labels.policy_colors`).
 """
 
@@ -39,15 +42,22 @@ TOUCH_MS = "time from first touch, ms"
 
 
 def _finish(plt, fig, ax, title: str, path: Path, legend_size: int, xlabel: str | None = None,
-            which: str = "major") -> Path:
-    """Grid, legend and x label on every panel, the title, then write the figure and close it."""
+            which: str = "major", legend_below: list | None = None) -> Path:
+    """Grid, legend and x label on every panel, the title, then write the figure and close it.
+    ``legend_below``: these handles in one legend under the panels instead of one per panel."""
     for a in ax:
         if xlabel:
             a.set_xlabel(xlabel)
         a.grid(alpha=0.3, which=which)
-        a.legend(fontsize=legend_size)
+        if legend_below is None:
+            a.legend(fontsize=legend_size)
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    if legend_below is None:
+        fig.tight_layout()
+    else:
+        fig.legend(handles=legend_below, loc="lower center", ncol=len(legend_below), fontsize=legend_size,
+                   frameon=False)
+        fig.tight_layout(rect=(0.0, 0.07, 1.0, 1.0))  # room for the legend row
     return save_figure(fig, path)
 
 
@@ -166,7 +176,15 @@ def plot_motion(runs, path: Path, scene, window_ms: float = 100.0) -> Path:
     ax[0].set_ylabel("velocity, m/s")
     ax[1].set_title("surface positions, up positive (cf. fig 3.2d)", fontsize=9)
     ax[1].set_ylabel("height, mm")
-    return _finish(plt, fig, ax, f"scene {scene.name}: motion of the bodies, episode 0", path, 6, TOUCH_MS)
+    # 2 lines per policy: a legend entry per policy (its colour) and per body (its line style)
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=colors[spec], lw=1.5, label=spec)
+               for spec, run in runs.items() if run.trace0 is not None]
+    handles += [Line2D([], [], color="0.3", lw=1, label="body 1 (falling)"),
+                Line2D([], [], color="0.3", lw=1, ls="--", label="body 2 (shaker)")]
+    return _finish(plt, fig, ax, f"scene {scene.name}: motion of the bodies, episode 0", path, 7, TOUCH_MS,
+                   legend_below=handles)
 
 
 def survival_curve(ttc) -> tuple[np.ndarray, np.ndarray]:
@@ -186,37 +204,46 @@ def survival_curve(ttc) -> tuple[np.ndarray, np.ndarray]:
 
 def plot_catch_time(runs, path: Path, scene, horizon: float) -> Path:
     """The catch time as a survival curve per policy: the fraction of drops not yet caught
-    against time after the release.  Drops not caught within the horizon are censored: the
-    curve ends at their share at the horizon, instead of leaving them out (a box over the caught
-    drops alone put pd-penetration's median at 0.18 s where the table, counting them, says
-    0.388 s).  The median of the table is where a curve crosses 1/2, marked with a dot."""
+    against the time from the first touch (ms, as the other figures; the table's catch times
+    are from the touch too).  Drops not caught by the end of the episode are censored: the curve
+    ends at their share there (the horizon less the time before the touch), instead of leaving
+    them out (a box over the caught drops alone put pd-penetration's median at 0.18 s where the
+    table, counting them, says 0.388 s).  The median of the table is where a curve crosses 1/2,
+    marked with a dot."""
     plt = _plt()
     colors = policy_colors(runs)
     fig, ax = plt.subplots(figsize=(7.5, 4.4))
+    ends = []
     for spec, run in runs.items():
         ttc = np.asarray(run.metrics["time_to_catch_s"], dtype=float)
         t, frac = survival_curve(ttc)
         if t.size == 1 and np.isnan(ttc).all():
             continue
-        ts = np.append(t, horizon)
+        t_touch = getattr(run, "t_touch0", math.nan)  # s after the episode start
+        end = horizon - t_touch if math.isfinite(t_touch) and 0.0 <= t_touch < horizon else horizon
+        ends.append(end)
+        ts = np.append(t, end) * 1e3
         fs = np.append(frac, frac[-1])
         med = run.summary.get("time_to_catch_median_s", math.nan) if run.summary else math.nan
-        lab = f"{spec}: median {med:.3f} s" if math.isfinite(med) else f"{spec}: median >{horizon:g} s"
+        lab = (f"{spec}: median {med * 1e3:.0f} ms" if math.isfinite(med)
+               else f"{spec}: median > {end * 1e3:.0f} ms")
         ax.step(ts, fs, where="post", color=colors[spec], lw=1.6, label=lab)
         if math.isfinite(med):
-            ax.plot([med], [0.5], "o", color=colors[spec], ms=5, zorder=3)
+            ax.plot([med * 1e3], [0.5], "o", color=colors[spec], ms=5, zorder=3)
         if frac[-1] > 0:
-            ax.plot([horizon], [frac[-1]], ">", color=colors[spec], ms=6, zorder=3)
+            ax.plot([end * 1e3], [frac[-1]], ">", color=colors[spec], ms=6, zorder=3)
+    end_ms = (max(ends) if ends else horizon) * 1e3
     ax.axhline(0.5, color="k", lw=0.6, ls=":")
-    ax.set_xlim(0.0, horizon * 1.02)
+    ax.set_xlim(0.0, end_ms * 1.02)
     ax.set_ylim(-0.02, 1.02)
-    ax.set_xlabel("time after the release, s")
+    ax.set_xlabel(TOUCH_MS)
     ax.set_ylabel("fraction of drops not yet caught")
     ax.grid(alpha=0.3)
     # the curves start at 1 and fall late: the lower left is where no curve runs
     ax.legend(fontsize=7, loc="lower left", framealpha=0.9)
     n = max((len(r.episodes) for r in runs.values()), default=0)
     ax.set_title(f"scene {scene.name}: catch time, {n} drops per policy (caught: catch energy below 1 % for "
-                 f"good)\ndots: the median; triangles at {horizon:g} s: the share never caught", fontsize=8)
+                 f"good)\ndots: the median; triangles at the episode's end ({end_ms:.0f} ms after the "
+                 "touch): the share never caught", fontsize=8)
     fig.tight_layout()
     return save_figure(fig, path)
