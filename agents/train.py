@@ -228,14 +228,14 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
 
     import torch
     from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.vec_env import VecMonitor
 
     from agents.callbacks import (
         CheckpointWithSettings,
         EpisodeStats,
+        EvalLine,
+        FinalEval,
         FixedSeeds,
-        ProgressLine,
         SettingsBeside,
     )
 
@@ -270,21 +270,32 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     venv.seed(env_seed)  # env i: env_seed + i at the first reset of this segment
     start_step = int(model.num_timesteps)
 
+    total = planned_steps(cfg, start_step)  # where the run ends: PPO's whole rollouts, SAC's vector steps
+    print(budget_line(cfg, start_step), file=sys.stderr, flush=True)
     stats = EpisodeStats(window=100)
-    callbacks = [stats]
-    progress_line = None
-    if progress:  # on a terminal by default (main): steps, episodes, recent return and caught fraction
-        progress_line = ProgressLine(stats, cfg.n_timesteps, sys.stderr)
-        callbacks.append(progress_line)
+    callbacks: list = [stats]
+    bar = None
+    if progress:  # SB3's tqdm/rich bar, on a terminal by default (main)
+        import warnings
+
+        from stable_baselines3.common.callbacks import ProgressBarCallback
+        from tqdm import TqdmExperimentalWarning
+
+        warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)  # tqdm.rich's "experimental"
+        bar = ProgressBarCallback()
+        callbacks.append(bar)
     eval_cb = None
     settings = model_settings(cfg)
     if tooling.eval_every is not None:
         eval_raw = _vec_env(cfg, tooling.eval_episodes, evaluation=True)
         eval_env = VecMonitor(FixedSeeds(eval_raw, tooling.eval_seed))
-        eval_cb = EvalCallback(eval_env, n_eval_episodes=tooling.eval_episodes,
-                               eval_freq=max(tooling.eval_every // cfg.n_envs, 1), log_path=str(out / "eval"),
-                               best_model_save_path=str(out), deterministic=True, verbose=verbose,
-                               callback_on_new_best=SettingsBeside(out / "best_model.zip", settings))
+        # one line per evaluation without the bar (logs, pipes); with it, the bar says enough
+        line = None if bar is not None else EvalLine(stats, total, sys.stderr, start_step)
+        eval_cb = FinalEval(eval_env, n_eval_episodes=tooling.eval_episodes,
+                            eval_freq=max(tooling.eval_every // cfg.n_envs, 1), log_path=str(out / "eval"),
+                            best_model_save_path=str(out), deterministic=True, verbose=verbose,
+                            callback_on_new_best=SettingsBeside(out / "best_model.zip", settings),
+                            callback_after_eval=line)
         _restore_evaluations(eval_cb, out / "eval" / "evaluations.npz")
         callbacks.append(eval_cb)
     if tooling.checkpoint_every is not None:
@@ -294,21 +305,25 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     t0 = time.perf_counter()
     interrupted = False
     try:
-        model.learn(total_timesteps=cfg.n_timesteps - start_step, callback=callbacks, progress_bar=False,
+        model.learn(total_timesteps=total - start_step, callback=callbacks, progress_bar=False,
                     reset_num_timesteps=not resume, tb_log_name=tb_name)
     except KeyboardInterrupt:  # Ctrl-C: keep what was learnt, with its settings, below
         interrupted = True
-        if progress_line is not None:
-            progress_line.finish()
+        if bar is not None and hasattr(bar, "pbar"):  # SB3 calls no _on_training_end here
+            bar.pbar.refresh()
+            bar.pbar.close()
+        sys.stderr.write(f"agents.train: interrupted at step {int(model.num_timesteps)} of {total}\n")
     wall = time.perf_counter() - t0
     done_steps = int(model.num_timesteps)
     ticks = (done_steps - start_step) * cfg.hold_ticks  # every policy step is hold_ticks ticks
     model.save(out / "model.zip")
     checkpoint = None
-    if interrupted:
+    if interrupted or (tooling.checkpoint_every is not None
+                       and not (out / "checkpoints" / f"model_{done_steps}_steps.zip").is_file()):
         # --resume continues only from checkpoints/ (model.zip may be a finished run's), and a new run
         # in this folder is refused: without this checkpoint an early Ctrl-C left a folder that
-        # neither could use.  Written whatever --checkpoint-every says.
+        # neither could use.  Written on Ctrl-C whatever --checkpoint-every says, and at the end of a
+        # run with checkpoints (a budget below --checkpoint-every left checkpoints/ empty).
         checkpoint = _save_checkpoint(model, out, settings, replay_buffer=cfg.algo == "sac")
     venv.close()
 
@@ -507,8 +522,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", metavar="DIR", default=None,
                    help="continue the run in DIR from its last checkpoint, with its settings")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                   help="a status line on stderr: steps, episodes, recent return and caught fraction "
-                        "(default: on when stderr is a terminal)")
+                   help="SB3's progress bar (tqdm + rich) in policy steps, ending where the budget "
+                        "line says (default: on when stderr is a terminal; otherwise one line per "
+                        "evaluation on stderr)")
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (0, 1, 2)")
     return p
@@ -556,16 +572,38 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
     return cfg, Path(args.out), tooling, False
 
 
-def _note_rounding(cfg: RunConfig) -> None:
-    """PPO learns whole rollouts (n_steps x n_envs policy steps): say when the budget grows to one."""
-    n_steps = cfg.hyperparameters.get("n_steps") if cfg.algo == "ppo" else None
-    if not n_steps:
-        return
-    per = int(n_steps) * cfg.n_envs
-    if cfg.n_timesteps % per:
-        whole = -(-cfg.n_timesteps // per) * per
-        print(f"agents.train: --steps {cfg.n_timesteps} is not a whole number of PPO rollouts of "
-              f"{n_steps} x {cfg.n_envs} = {per} steps: training {whole} steps", file=sys.stderr)
+def steps_per_collection(cfg: RunConfig) -> int:
+    """Policy steps SB3 collects between two looks at the budget: PPO a whole rollout (n_steps x
+    n_envs), SAC train_freq vector steps of n_envs (1 for a train_freq counted in episodes)."""
+    hp = cfg.hyperparameters
+    if cfg.algo == "ppo":
+        return int(hp.get("n_steps", 2048)) * cfg.n_envs
+    freq = hp.get("train_freq", 1)
+    if isinstance(freq, (list, tuple)):
+        freq = freq[0] if freq[1] == "step" else 1
+    return int(freq) * cfg.n_envs
+
+
+def planned_steps(cfg: RunConfig, start_step: int = 0) -> int:
+    """The policy step the run ends at: ``n_timesteps`` rounded up to whole collections from
+    ``start_step`` (SB3 stops only between them)."""
+    per = steps_per_collection(cfg)
+    return start_step + -(-max(cfg.n_timesteps - start_step, 0) // per) * per
+
+
+def budget_line(cfg: RunConfig, start_step: int = 0) -> str:
+    """What the run will do, said before it starts: the budget, its rounding and the env."""
+    total = planned_steps(cfg, start_step)
+    per = steps_per_collection(cfg)
+    what = (f"whole PPO rollouts of {cfg.hyperparameters.get('n_steps', 2048)} x {cfg.n_envs} envs"
+            if cfg.algo == "ppo" else
+            f"whole vector steps of {cfg.n_envs} envs x train_freq {per // cfg.n_envs}")
+    rounding = (f" (--steps {cfg.n_timesteps} rounded up to {what} = {per} steps)"
+                if total - start_step != cfg.n_timesteps - start_step else "")
+    start = f" from step {start_step}" if start_step else ""
+    return (f"agents.train: {cfg.algo} training {total - start_step} policy steps{start}, to step {total}"
+            f"{rounding}; {(total - start_step) * cfg.hold_ticks} control periods "
+            f"(hold_ticks {cfg.hold_ticks}), {cfg.n_envs} envs of {cfg.scene}")
 
 
 def _missing_extra() -> list[str]:
@@ -585,7 +623,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg, out, tooling, resume = _from_args(args)
         progress = sys.stderr.isatty() if args.progress is None else args.progress
-        _note_rounding(cfg)
         result = run(cfg, out, tooling, progress=progress, torch_threads=args.torch_threads,
                      verbose=args.verbose, resume=resume)
     except ConfigError as exc:

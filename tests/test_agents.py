@@ -256,20 +256,46 @@ def test_ctrl_c_saves_the_model_and_its_settings(tmp_path, capsys, monkeypatch, 
 
 
 @pytest.mark.training
-def test_progress_line_checkpoints_by_default_and_the_rounding_is_said(tmp_path, capsys):
-    """--steps 100 with 4 envs x n_steps 32: trained 128 steps, and stderr says so; --progress
-    writes the status line (on by default on a terminal); a checkpoint with its settings file is
-    written without asking (the default --checkpoint-every, here crossed by the budget's end)."""
+@pytest.mark.parametrize("algo, hp, steps, planned", [("ppo", TINY_PPO, 100, 128), ("sac", TINY_SAC, 10, 12)])
+def test_a_short_run_says_its_budget_and_ends_with_an_evaluation_and_a_checkpoint(tmp_path, capsys, algo, hp,
+                                                                                   steps, planned):
+    """A budget below --eval-every and --checkpoint-every (their defaults): the rounding is said
+    before training (PPO: whole rollouts of 32 x 4; SAC: vector steps of 4 envs), the run ends
+    where it said, with one evaluation of the final model (a line on stderr without a terminal),
+    best_model.zip and a checkpoint that --resume can continue from."""
     out = tmp_path / "run"
-    args = ["--algo", "ppo", "--out", str(out), "--steps", "100", "--envs", "4", "--horizon", str(HORIZON),
-            "--eval-every", "0", "--progress", "--checkpoint-every", "64"]
+    args = ["--algo", algo, "--out", str(out), "--steps", str(steps), "--envs", "4",
+            "--horizon", str(HORIZON), "--eval-episodes", "2", "--no-progress"]
+    for key, value in hp.items():
+        args += ["--hp", f"{key}={value}"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    budget = err.splitlines()[0]
+    assert f"training {planned} policy steps" in budget and f"--steps {steps} rounded up" in budget
+    assert f"eval: step {planned}/{planned} (100 %)" in err
+    assert json.loads((out / "model.json").read_text())["steps"] == planned
+    ev = np.load(out / "eval" / "evaluations.npz")
+    assert list(ev["timesteps"]) == [planned] and ev["results"].shape == (1, 2)
+    assert (out / "best_model.zip").is_file()
+    assert json.loads((out / "best_model.json").read_text())["steps"] == planned
+    assert (out / "checkpoints" / f"model_{planned}_steps.zip").is_file()
+
+
+@pytest.mark.training
+def test_progress_bar_and_a_budget_that_needs_no_rounding(tmp_path, capsys):
+    """--progress: SB3's bar (tqdm + rich), no evaluation lines; 128 = 4 rollouts of 32 x 4 is
+    trained as given and the budget line says no rounding; the default --checkpoint-every is kept
+    and crossed checkpoints are written."""
+    out = tmp_path / "run"
+    args = ["--algo", "ppo", "--out", str(out), "--steps", "128", "--envs", "4", "--horizon", str(HORIZON),
+            "--eval-every", "64", "--eval-episodes", "2", "--progress", "--checkpoint-every", "64"]
     for key, value in TINY_PPO.items():
         args += ["--hp", f"{key}={value}"]
     assert main(args) == 0
     err = capsys.readouterr().err
-    assert "not a whole number of PPO rollouts" in err and "training 128 steps" in err
-    assert "training: 128/100 steps" in err or "training: 128/128 steps" in err
+    assert "training 128 policy steps" in err and "rounded" not in err and "eval: step" not in err
     assert json.loads((out / "model.json").read_text())["steps"] == 128
+    assert list(np.load(out / "eval" / "evaluations.npz")["timesteps"]) == [64, 128]  # none added at the end
     assert (out / "checkpoints" / "model_64_steps.json").is_file()
     from agents.train import CHECKPOINT_EVERY, build_parser
 
