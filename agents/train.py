@@ -267,6 +267,10 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             from agents.policies import AsymmetricActorCriticPolicy as policy
         model = cls(policy, venv, seed=cfg.seed, device="cpu", policy_kwargs=cfg.policy_kwargs,
                     verbose=verbose, tensorboard_log=tb, **_algo_kwargs(cfg))
+        if cfg.algo == "sac" and "log_std_init" in cfg.policy_kwargs:  # SB3 reads it only with gSDE
+            from agents.policies import init_sac_actor
+
+            init_sac_actor(model, cfg.policy_kwargs["log_std_init"])
     venv.seed(env_seed)  # env i: env_seed + i at the first reset of this segment
     start_step = int(model.num_timesteps)
 
