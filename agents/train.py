@@ -157,8 +157,13 @@ def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
             if key in kwargs:
                 kwargs[key] = 0.0
         kwargs["terminate_on_catch"] = False
-    return make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, monitor=False,
-                            **kwargs)
+    env = make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, monitor=False,
+                           **kwargs)
+    if cfg.action_limit is not None:  # the policy's bounds for a residual (YAML vec_env_wrapper)
+        from impact_env.env.sb3_vecenv import ActionLimit
+
+        env = ActionLimit(env, cfg.action_limit)
+    return env
 
 
 def _algo_kwargs(cfg: RunConfig) -> dict:
@@ -435,7 +440,7 @@ def train(algo: str = "ppo", scene=None, overrides: dict | None = None, *, steps
 
 def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overrides=None, steps=None,
                 envs=None, seed=0, observation=None, history=None, env_kwargs=None, hyperparameters=None,
-                options=None, policy=None) -> RunConfig:
+                options=None, policy=None, action_limit=None) -> RunConfig:
     """The :class:`RunConfig` of a YAML entry with these values overriding it (None: the file's)."""
     algo = str(algo).lower()
     if algo not in ALGOS:
@@ -453,6 +458,10 @@ def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overr
     if scene is not None and not isinstance(scene, str):
         raise ConfigError(f"scene = {scene!r}: give a preset name or a .toml path (it is recorded in "
                           "model.json)")
+    if action_limit is not None:  # as the YAML's vec_env_wrapper would give it
+        from agents.run_config import ACTION_LIMIT
+
+        entry["vec_env_wrapper"] = [{ACTION_LIMIT: {"limit": action_limit}}]
     return resolve(algo, entry, seed=seed, n_timesteps=steps, n_envs=envs, hp_overrides=hyperparameters,
                    env_overrides=env_over, scene=scene, overrides=overrides, conf_file=str(conf),
                    policy=policy)
@@ -514,6 +523,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "residual=pd-penetration, terminate_on_catch=False); repeatable")
     p.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                    help="override a hyperparameter (Python literal), e.g. --hp learning_rate=1e-4")
+    p.add_argument("--action-limit", type=float, default=None, metavar="L",
+                   help="the policy's action bounds +-L (fraction of the command scale, 0 < L <= 1; "
+                        "default: the YAML's vec_env_wrapper ActionLimit, else +-1)")
     p.add_argument("--tensorboard", default=None, metavar="DIR", help="TensorBoard log folder")
     p.add_argument("--checkpoint-every", type=int, default=CHECKPOINT_EVERY, metavar="N",
                    help=f"save a checkpoint (and its settings file) every N policy steps, what --resume "
@@ -535,7 +547,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 SETTING_FLAGS = ("algo", "policy", "conf_file", "scene", "set", "envs", "observation", "history", "horizon",
-                 "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out")
+                 "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out", "action_limit")
 
 
 def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
@@ -569,7 +581,8 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
     cfg = make_config(args.algo, args.conf_file, env_id=args.env, scene=args.scene,
                       overrides=parse_overrides(args.set) or None, steps=args.steps, envs=args.envs,
                       seed=args.seed, observation=args.observation, history=args.history,
-                      env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"), policy=args.policy)
+                      env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"), policy=args.policy,
+                      action_limit=args.action_limit)
     tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every or None,
                       eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
                       eval_seed=args.eval_seed)

@@ -67,6 +67,9 @@ def run_info(d: Path) -> dict:
 def export(info: dict, scene) -> str:
     from impact_env.policy.export import export_policy
 
+    shipped = sorted(info["dir"].glob("*.policy.json"))
+    if info["model"].name == "model.zip" and shipped:  # a shipped folder: its own compiled policy
+        return f"compiled:{shipped[0]}"
     out = info["model"].with_suffix(".policy.json")
     export_policy(f"{info['algo']}:{info['model']}", scene).save(out)
     return f"compiled:{out}"
@@ -275,10 +278,11 @@ def ship(info: dict, dest: Path, stem: str = "best") -> dict:
     dest.mkdir(parents=True, exist_ok=True)
     meta_src = info["model"].with_suffix(".json")
     meta = json.loads((meta_src if meta_src.is_file() else info["dir"] / "model.json").read_text())
-    if info["model"].resolve() != (dest / "model.zip").resolve():
-        shutil.copyfile(info["model"], dest / "model.zip")
-        meta["shipped_from"] = {"run": str(info["dir"]), "model": info["model"].name, "label": info["label"]}
-        (dest / "model.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
+    if info["model"].resolve() == (dest / "model.zip").resolve():
+        return meta  # the shipped agent itself, evaluated again: already there with its files
+    shutil.copyfile(info["model"], dest / "model.zip")
+    meta["shipped_from"] = {"run": str(info["dir"]), "model": info["model"].name, "label": info["label"]}
+    (dest / "model.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
     pol = export_policy(f"{info['algo']}:{dest / 'model.zip'}", meta["scene"])
     pol.save(dest / f"{stem}.policy.json")
     write_onnx(pol, dest / f"{stem}.onnx")
