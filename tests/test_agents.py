@@ -111,6 +111,8 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     (["--env-kwargs", f"residual=ppo:{ROOT}/agents/models/ppo_rig/model.zip"], ["residual", "classic law"]),
     (["--seed", "990"], ["test drops 1000..1099"]),
     (["--eval-seed", "5"], ["validation seeds 5..20"]),
+    (["--action-limit", "1.5"], ["vec_env_wrapper limit", "<= 1"]),
+    (["--action-limit", "0"], ["vec_env_wrapper limit", "> 0"]),
 ])
 def test_bad_arguments_exit_2_naming_the_value_and_create_nothing(tmp_path, capsys, argv, names):
     out, tb = tmp_path / "out", tmp_path / "tb"
@@ -300,3 +302,31 @@ def test_progress_bar_and_a_budget_that_needs_no_rounding(tmp_path, capsys):
     from agents.train import CHECKPOINT_EVERY, build_parser
 
     assert build_parser().parse_args(["--algo", "ppo"]).checkpoint_every == CHECKPOINT_EVERY
+
+
+def test_a_malformed_vec_env_wrapper_is_refused_naming_the_one_it_takes():
+    for bad in ("impact_env.env.sb3_vecenv.ActionLimit", [{"some.Wrapper": {"limit": 0.5}}],
+                [{"impact_env.env.sb3_vecenv.ActionLimit": {"limit": 0.5, "x": 1}}]):
+        with pytest.raises(ConfigError, match="vec_env_wrapper: expected"):
+            resolve("sac", {"n_timesteps": 10, "vec_env_wrapper": bad})
+
+
+@pytest.mark.training
+def test_the_action_limit_is_the_models_bound_in_predict_and_the_export(tmp_path):
+    """sac.yml's ActionLimit: the saved model's action space is +-0.25, and the compiled export
+    (which reads the model's bounds) and predict both stay within it."""
+    from stable_baselines3 import SAC
+
+    from impact_env.policy.export import export_policy
+
+    out = tmp_path / "sac"
+    train("sac", "rig", steps=32, envs=4, seed=1, out=out, env_kwargs={"horizon": HORIZON},
+          hyperparameters=TINY_SAC, tooling=Tooling(eval_every=None))
+    assert json.loads((out / "run.json").read_text())["config"]["action_limit"] == 0.25
+    model = SAC.load(out / "model.zip", device="cpu")
+    assert (float(model.action_space.low[0]), float(model.action_space.high[0])) == (-0.25, 0.25)
+    obs = np.random.default_rng(0).normal(0, 3, (64, model.observation_space.shape[0])).astype(np.float32)
+    a, _ = model.predict(obs, deterministic=True)
+    assert np.all(np.abs(a) <= 0.25)
+    pol = export_policy(f"sac:{out / 'model.zip'}", "rig")
+    assert (pol.mlp["low"], pol.mlp["high"]) == (-0.25, 0.25)
