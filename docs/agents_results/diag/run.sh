@@ -1,6 +1,6 @@
 #!/bin/bash
 # SAC diagnostics: one change at a time, same budget, one process at a time
-cd "$(git rev-parse --show-toplevel)" && . /work/main/.venv/bin/activate && export PYTHONPATH=/work/wt/sac MPLBACKEND=Agg
+cd "$(git rev-parse --show-toplevel)" && export PYTHONPATH=$PWD MPLBACKEND=Agg  # in the project venv
 STEPS=${STEPS:-40000}
 run() { name=$1; shift; rm -rf runs/diag/$name
   /usr/bin/time -f "%e s wall" timeout 400 nice -n 5 python -m agents.train --algo sac --out runs/diag/$name --seed 0 \
