@@ -101,7 +101,13 @@ class TrainResult:
         if s.get("return_first_mean") is not None:
             lines.append(f"first {s['episodes_first']} episodes: return {s['return_first_mean']:.2f}")
         if self.best:
-            lines.append(f"best validation return {self.best['mean_reward']:.2f} at step {self.best['step']}")
+            line = f"best validation return {self.best['mean_reward']:.2f} at step {self.best['step']}"
+            if "residual_law_return" in self.best:
+                law = self.best["residual_law_return"]
+                verdict = "beats it" if self.best["mean_reward"] > law else "does NOT beat it"
+                line += (f"; {self.best['residual_law']} alone on the same validation drops: {law:.2f}: "
+                         f"the best model {verdict}")
+            lines.append(line)
         if self.interrupted:
             lines.append(f"interrupted (Ctrl-C) at step {self.steps}: the model so far is saved, and "
                          f"checkpoint {self.checkpoint}; continue with python -m agents.train --resume "
@@ -346,6 +352,11 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     seg_steps = done_steps - start_step
     train_stats = stats.stats(step_time)
     best = _best(out / "eval" / "evaluations.npz")
+    if best and cfg.residual is not None and not interrupted:
+        # the residual's own law on the same validation drops (action 0 is the law): the run says
+        # whether its best model beats it
+        best["residual_law"] = cfg.residual
+        best["residual_law_return"] = _law_return(cfg, tooling)
     meta = {"algo": cfg.algo, "observation": cfg.observation, "history": cfg.history, "scene": cfg.scene,
             "overrides": dict(cfg.overrides), "env_kwargs": dict(cfg.env_kwargs),
             "hold_ticks": cfg.hold_ticks, "residual": cfg.residual, "steps": done_steps, "ticks": ticks_total,
@@ -404,6 +415,26 @@ def _restore_evaluations(cb, path: Path) -> None:
     cb.evaluations_length = [list(r) for r in d["ep_lengths"]]
     if len(d["results"]):
         cb.best_mean_reward = float(np.max(np.mean(d["results"], axis=1)))
+
+
+def _law_return(cfg: RunConfig, tooling: Tooling) -> float:
+    """Mean validation return of the residual's law alone: the evaluation env (the same drops, the
+    same objective) with every action 0."""
+    import numpy as np
+
+    from agents.callbacks import FixedSeeds
+
+    env = FixedSeeds(_vec_env(cfg, tooling.eval_episodes, evaluation=True), tooling.eval_seed)
+    env.reset()
+    total = np.zeros(env.num_envs)
+    done = np.zeros(env.num_envs, dtype=bool)
+    zero = np.zeros((env.num_envs, 1), dtype=np.float32)
+    while not done.all():  # every validation episode runs the whole horizon (no termination)
+        _, rewards, dones, _ = env.step(zero)
+        total += np.where(done, 0.0, rewards)
+        done |= dones
+    env.close()
+    return float(total.mean())
 
 
 def _best(path: Path) -> dict:

@@ -271,7 +271,8 @@ def test_a_short_run_says_its_budget_and_ends_with_an_evaluation_and_a_checkpoin
     for key, value in hp.items():
         args += ["--hp", f"{key}={value}"]
     assert main(args) == 0
-    err = capsys.readouterr().err
+    captured = capsys.readouterr()
+    err, out_text = captured.err, captured.out
     budget = err.splitlines()[0]
     assert f"training {planned} policy steps" in budget and f"--steps {steps} rounded up" in budget
     assert f"eval: step {planned}/{planned} (100 %)" in err
@@ -281,6 +282,10 @@ def test_a_short_run_says_its_budget_and_ends_with_an_evaluation_and_a_checkpoin
     assert (out / "best_model.zip").is_file()
     assert json.loads((out / "best_model.json").read_text())["steps"] == planned
     assert (out / "checkpoints" / f"model_{planned}_steps.zip").is_file()
+    # the run says whether its best model beats the residual's law alone on the same drops
+    best = json.loads((out / "model.json").read_text())["validation"]["best"]
+    assert best["residual_law"] == "pd-penetration" and best["residual_law_return"] < 0
+    assert f"pd-penetration alone on the same validation drops: {best['residual_law_return']:.2f}" in out_text
 
 
 @pytest.mark.training
