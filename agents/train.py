@@ -28,6 +28,14 @@ by ``impact-env compare`` and :mod:`agents.evaluate`), ``run.json`` (the resolve
 replay buffer) every ``--checkpoint-every`` steps and on Ctrl-C (exit 130; ``--resume OUT``
 continues from it), and TensorBoard logs under ``--tensorboard DIR`` (``tensorboard --logdir DIR``).
 
+What a run says: the budget and its rounding (PPO learns whole rollouts, SAC whole vector steps)
+on stderr before training; SB3's progress bar in a terminal, one line per evaluation otherwise;
+an evaluation of the final model at the end of every run (so ``best_model.zip`` exists however
+short the budget) and, with a residual, whether the best model beats the residual's law alone on
+the same validation drops.  SAC's actor starts as PPO's (:func:`agents.policies.init_sac_actor`)
+whenever ``log_std_init`` is given; ``--action-limit`` (or the YAML's ``vec_env_wrapper``
+:class:`~impact_env.env.sb3_vecenv.ActionLimit`) bounds the policy's action.
+
 Seeds (none of the three ranges meets another; checked):
 
 * training: the model (torch, numpy, action sampling) is seeded ``seed``; env i starts from
