@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 
@@ -52,43 +52,56 @@ class EpisodeStats(BaseCallback):
                 "episodes_first": m, "return_first_mean": float(np.mean(self.returns[:m]))}
 
 
-class ProgressLine(BaseCallback):
-    """One status line on ``stream`` (a terminal's stderr), rewritten at most every
-    ``every_s`` seconds: policy steps done of the total, episodes finished, the mean return and
-    the caught fraction of the last episodes (from ``stats``, an :class:`EpisodeStats`)."""
+class EvalLine(BaseCallback):
+    """EvalCallback's ``callback_after_eval``: one line on ``stream`` per evaluation (what a log or
+    a run without a terminal shows in place of the progress bar): policy steps done of the
+    planned budget, the validation return, the best so far, the training episodes' caught
+    fraction, the wall time and the speed."""
 
-    def __init__(self, stats: EpisodeStats, total: int, stream, every_s: float = 2.0):
+    def __init__(self, stats: EpisodeStats, total: int, stream, start_step: int = 0):
         super().__init__()
-        self.stats, self.total, self.stream, self.every_s = stats, int(total), stream, float(every_s)
-        self._last = 0.0
+        self.stats, self.total, self.stream, self.start_step = stats, int(total), stream, int(start_step)
+        self._t0: float | None = None
 
-    def _line(self) -> str:
-        s = self.stats
-        n = min(s.window, len(s.returns))
-        recent = ""
-        if n:
-            caught = 100 * np.mean(s.caught[-n:])
-            recent = f", last {n}: return {np.mean(s.returns[-n:]):.2f}, caught {caught:.0f} %"
-        return f"\rtraining: {self.num_timesteps}/{self.total} steps, {len(s.returns)} episodes{recent}   "
+    def _on_training_start(self) -> None:
+        import time
+
+        self._t0 = time.perf_counter()
 
     def _on_step(self) -> bool:
         import time
 
-        now = time.monotonic()
-        if now - self._last >= self.every_s:
-            self._last = now
-            self.stream.write(self._line())
-            self.stream.flush()
+        ev = self.parent  # the EvalCallback that called us
+        s = self.stats
+        n = min(s.window, len(s.returns))
+        caught = f", training caught {100 * np.mean(s.caught[-n:]):.0f} %" if n else ""
+        wall = time.perf_counter() - (self._t0 or time.perf_counter())
+        done = self.num_timesteps
+        speed = (done - self.start_step) / wall if wall > 0 else 0.0
+        self.stream.write(f"eval: step {done}/{self.total} ({100 * done / self.total:.0f} %), validation "
+                          f"return {ev.last_mean_reward:.2f} (best {ev.best_mean_reward:.2f}){caught}, "
+                          f"{wall:.0f} s, {speed:.0f} steps/s\n")
+        self.stream.flush()
         return True
 
-    def _on_training_end(self) -> None:
-        self.finish()
 
-    def finish(self) -> None:
-        """The last status line, ended: also called on Ctrl-C, where SB3 calls no
-        ``_on_training_end`` and the summary would otherwise be printed over the line."""
-        self.stream.write(self._line() + "\n")
-        self.stream.flush()
+class FinalEval(EvalCallback):
+    """SB3's EvalCallback that also evaluates at the end of training when the last evaluation was
+    not at the last step: every run, however short (below ``eval_freq`` too), ends with an
+    evaluation of its final model and a ``best_model.zip``."""
+
+    def _on_training_end(self) -> None:
+        self.evaluate_now()
+
+    def evaluate_now(self) -> None:
+        """Evaluate the model as it is, unless it was just evaluated at this step."""
+        if self.evaluations_timesteps and self.evaluations_timesteps[-1] == self.num_timesteps:
+            return
+        freq, self.eval_freq = self.eval_freq, 1  # EvalCallback evaluates when n_calls % eval_freq == 0
+        try:
+            self._on_step()
+        finally:
+            self.eval_freq = freq
 
 
 class FixedSeeds(VecEnvWrapper):

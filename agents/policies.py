@@ -76,3 +76,28 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
         data = super()._get_constructor_parameters()
         data.update(frame_size=self._asym[0], actor_frame_size=self._asym[1], history=self._asym[2])
         return data
+
+
+def init_sac_actor(model, log_std_init: float, mean_gain: float = 0.01) -> None:
+    """Start an SB3 SAC actor as PPO's starts: the mean head orthogonal with gain ``mean_gain``
+    and bias 0 (the action starts near 0: on a residual env, the classic law itself), and, without
+    gSDE, the log-std head's weights 0 and bias ``log_std_init`` (std ``exp(log_std_init)`` in every
+    state).
+
+    Why: SB3's SAC reads ``log_std_init`` only with gSDE; without it both heads keep PyTorch's
+    default init, a log-std near 0 (std about 1 before the tanh: about +-200 N of exploration on
+    top of the law from the first step), which the experiments of docs/agents.md found ruinous on
+    the residual.  The heads stay ordinary Linear layers, so the saved model is a plain SAC
+    ``MlpPolicy`` (loads, exports and runs compiled as before).  Parameters are changed in place:
+    the optimisers already hold them."""
+    import math
+
+    if not math.isfinite(log_std_init):
+        raise ValueError(f"log_std_init = {log_std_init!r} must be a finite number")
+    actor = model.policy.actor
+    with th.no_grad():
+        nn.init.orthogonal_(actor.mu.weight, gain=mean_gain)
+        actor.mu.bias.zero_()
+        if isinstance(actor.log_std, nn.Linear):  # without gSDE; with it, SB3 applies log_std_init itself
+            actor.log_std.weight.zero_()
+            actor.log_std.bias.fill_(float(log_std_init))

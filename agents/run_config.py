@@ -35,7 +35,9 @@ ENV_ID = "ImpactCatch-v0"
 ALGOS = ("ppo", "sac")
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 ASYMMETRIC = "agents.policies.AsymmetricActorCriticPolicy"
-ZOO_KEYS = ("policy", "n_envs", "n_timesteps", "env_kwargs", "env_wrapper", "policy_kwargs", "normalize")
+ZOO_KEYS = ("policy", "n_envs", "n_timesteps", "env_kwargs", "env_wrapper", "policy_kwargs", "normalize",
+            "vec_env_wrapper")
+ACTION_LIMIT = "impact_env.env.sb3_vecenv.ActionLimit"
 # options of the first experiments that the env never took: refused with a pointer to docs/agents.md
 RETIRED_KEYS = {"chatter_weight": "the chatter penalty did not help (docs/agents.md, e7) and was dropped; "
                                   "the env's effort_weight is its effort penalty"}
@@ -221,6 +223,7 @@ class RunConfig:
     conf_file: str | None = None
     policy: str = "MlpPolicy"
     extra: dict = field(default_factory=dict)
+    action_limit: float | None = None  # ActionLimit's bound (YAML vec_env_wrapper), of the command scale
 
     @property
     def observation(self) -> str:
@@ -243,14 +246,14 @@ class RunConfig:
                 "env_kwargs": dict(self.env_kwargs),
                 "hyperparameters": dict(self.hyperparameters), "policy_kwargs": dict(self.policy_kwargs),
                 "n_envs": self.n_envs, "n_timesteps": self.n_timesteps, "seed": self.seed,
-                "conf_file": self.conf_file, "policy": self.policy}
+                "conf_file": self.conf_file, "policy": self.policy, "action_limit": self.action_limit}
 
     @classmethod
     def from_dict(cls, d: dict) -> RunConfig:
         return cls(algo=d["algo"], scene=d["scene"], overrides=d["overrides"], env_kwargs=d["env_kwargs"],
                    hyperparameters=d["hyperparameters"], policy_kwargs=d["policy_kwargs"], n_envs=d["n_envs"],
                    n_timesteps=d["n_timesteps"], seed=d["seed"], conf_file=d.get("conf_file"),
-                   policy=d.get("policy", "MlpPolicy"))
+                   policy=d.get("policy", "MlpPolicy"), action_limit=d.get("action_limit"))
 
 
 def default_conf_file(algo: str) -> Path:
@@ -319,6 +322,7 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
     if entry.pop("env_wrapper", None) is not None:
         raise ConfigError("env_wrapper: agents.train uses no env wrapper; give hold_ticks and residual "
                           "(the env's own options) in env_kwargs")
+    action_limit = _action_limit(entry.pop("vec_env_wrapper", None))
     policy_kwargs = dict(entry.pop("policy_kwargs", None) or {})
     if not isinstance(policy_kwargs, dict):
         raise ConfigError("policy_kwargs must be a mapping (net_arch, log_std_init, ...), got "
@@ -365,9 +369,24 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
                           f"{', '.join(sorted(valid | {'scene', 'overrides'}))}")
     cfg = RunConfig(algo=algo, scene=str(scene), overrides=ov, env_kwargs=env_kwargs, hyperparameters=hp,
                     policy_kwargs=policy_kwargs, n_envs=n_envs, n_timesteps=steps, seed=seed,
-                    conf_file=str(conf_file) if conf_file else None, policy=policy)
+                    conf_file=str(conf_file) if conf_file else None, policy=policy, action_limit=action_limit)
     check_env(cfg)
     return cfg
+
+
+def _action_limit(wrapper) -> float | None:
+    """The bound of RL Zoo's ``vec_env_wrapper: [{ActionLimit: {limit: L}}]``, the one vector-env
+    wrapper agents.train builds (None: no wrapper)."""
+    if wrapper is None:
+        return None
+    what = f"vec_env_wrapper: expected [{{{ACTION_LIMIT}: {{limit: L}}}}] with 0 < L <= 1"
+    items = wrapper if isinstance(wrapper, list) else [wrapper]
+    if len(items) != 1 or not isinstance(items[0], dict) or list(items[0]) != [ACTION_LIMIT]:
+        raise ConfigError(f"{what}, got {wrapper!r}")
+    kwargs = items[0][ACTION_LIMIT]
+    if not isinstance(kwargs, dict) or set(kwargs) != {"limit"}:
+        raise ConfigError(f"{what}, got {wrapper!r}")
+    return _float(0.0, 1.0, lo_open=True)("vec_env_wrapper limit", kwargs["limit"])
 
 
 def check_env(cfg: RunConfig) -> None:

@@ -28,6 +28,14 @@ by ``impact-env compare`` and :mod:`agents.evaluate`), ``run.json`` (the resolve
 replay buffer) every ``--checkpoint-every`` steps and on Ctrl-C (exit 130; ``--resume OUT``
 continues from it), and TensorBoard logs under ``--tensorboard DIR`` (``tensorboard --logdir DIR``).
 
+What a run says: the budget and its rounding (PPO learns whole rollouts, SAC whole vector steps)
+on stderr before training; SB3's progress bar in a terminal, one line per evaluation otherwise;
+an evaluation of the final model at the end of every run (so ``best_model.zip`` exists however
+short the budget) and, with a residual, whether the best model beats the residual's law alone on
+the same validation drops.  SAC's actor starts as PPO's (:func:`agents.policies.init_sac_actor`)
+whenever ``log_std_init`` is given; ``--action-limit`` (or the YAML's ``vec_env_wrapper``
+:class:`~impact_env.env.sb3_vecenv.ActionLimit`) bounds the policy's action.
+
 Seeds (none of the three ranges meets another; checked):
 
 * training: the model (torch, numpy, action sampling) is seeded ``seed``; env i starts from
@@ -101,7 +109,13 @@ class TrainResult:
         if s.get("return_first_mean") is not None:
             lines.append(f"first {s['episodes_first']} episodes: return {s['return_first_mean']:.2f}")
         if self.best:
-            lines.append(f"best validation return {self.best['mean_reward']:.2f} at step {self.best['step']}")
+            line = f"best validation return {self.best['mean_reward']:.2f} at step {self.best['step']}"
+            if "residual_law_return" in self.best:
+                law = self.best["residual_law_return"]
+                verdict = "beats it" if self.best["mean_reward"] > law else "does NOT beat it"
+                line += (f"; {self.best['residual_law']} alone on the same validation drops: {law:.2f}: "
+                         f"the best model {verdict}")
+            lines.append(line)
         if self.interrupted:
             lines.append(f"interrupted (Ctrl-C) at step {self.steps}: the model so far is saved, and "
                          f"checkpoint {self.checkpoint}; continue with python -m agents.train --resume "
@@ -157,8 +171,13 @@ def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
             if key in kwargs:
                 kwargs[key] = 0.0
         kwargs["terminate_on_catch"] = False
-    return make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, monitor=False,
-                            **kwargs)
+    env = make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, monitor=False,
+                           **kwargs)
+    if cfg.action_limit is not None:  # the policy's bounds for a residual (YAML vec_env_wrapper)
+        from impact_env.env.sb3_vecenv import ActionLimit
+
+        env = ActionLimit(env, cfg.action_limit)
+    return env
 
 
 def _algo_kwargs(cfg: RunConfig) -> dict:
@@ -228,14 +247,14 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
 
     import torch
     from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.vec_env import VecMonitor
 
     from agents.callbacks import (
         CheckpointWithSettings,
         EpisodeStats,
+        EvalLine,
+        FinalEval,
         FixedSeeds,
-        ProgressLine,
         SettingsBeside,
     )
 
@@ -267,24 +286,39 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             from agents.policies import AsymmetricActorCriticPolicy as policy
         model = cls(policy, venv, seed=cfg.seed, device="cpu", policy_kwargs=cfg.policy_kwargs,
                     verbose=verbose, tensorboard_log=tb, **_algo_kwargs(cfg))
+        if cfg.algo == "sac" and "log_std_init" in cfg.policy_kwargs:  # SB3 reads it only with gSDE
+            from agents.policies import init_sac_actor
+
+            init_sac_actor(model, cfg.policy_kwargs["log_std_init"])
     venv.seed(env_seed)  # env i: env_seed + i at the first reset of this segment
     start_step = int(model.num_timesteps)
 
+    total = planned_steps(cfg, start_step)  # where the run ends: PPO's whole rollouts, SAC's vector steps
+    print(budget_line(cfg, start_step), file=sys.stderr, flush=True)
     stats = EpisodeStats(window=100)
-    callbacks = [stats]
-    progress_line = None
-    if progress:  # on a terminal by default (main): steps, episodes, recent return and caught fraction
-        progress_line = ProgressLine(stats, cfg.n_timesteps, sys.stderr)
-        callbacks.append(progress_line)
+    callbacks: list = [stats]
+    bar = None
+    if progress:  # SB3's tqdm/rich bar, on a terminal by default (main)
+        import warnings
+
+        from stable_baselines3.common.callbacks import ProgressBarCallback
+        from tqdm import TqdmExperimentalWarning
+
+        warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)  # tqdm.rich's "experimental"
+        bar = ProgressBarCallback()
+        callbacks.append(bar)
     eval_cb = None
     settings = model_settings(cfg)
     if tooling.eval_every is not None:
         eval_raw = _vec_env(cfg, tooling.eval_episodes, evaluation=True)
         eval_env = VecMonitor(FixedSeeds(eval_raw, tooling.eval_seed))
-        eval_cb = EvalCallback(eval_env, n_eval_episodes=tooling.eval_episodes,
-                               eval_freq=max(tooling.eval_every // cfg.n_envs, 1), log_path=str(out / "eval"),
-                               best_model_save_path=str(out), deterministic=True, verbose=verbose,
-                               callback_on_new_best=SettingsBeside(out / "best_model.zip", settings))
+        # one line per evaluation without the bar (logs, pipes); with it, the bar says enough
+        line = None if bar is not None else EvalLine(stats, total, sys.stderr, start_step)
+        eval_cb = FinalEval(eval_env, n_eval_episodes=tooling.eval_episodes,
+                            eval_freq=max(tooling.eval_every // cfg.n_envs, 1), log_path=str(out / "eval"),
+                            best_model_save_path=str(out), deterministic=True, verbose=verbose,
+                            callback_on_new_best=SettingsBeside(out / "best_model.zip", settings),
+                            callback_after_eval=line)
         _restore_evaluations(eval_cb, out / "eval" / "evaluations.npz")
         callbacks.append(eval_cb)
     if tooling.checkpoint_every is not None:
@@ -294,21 +328,25 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     t0 = time.perf_counter()
     interrupted = False
     try:
-        model.learn(total_timesteps=cfg.n_timesteps - start_step, callback=callbacks, progress_bar=False,
+        model.learn(total_timesteps=total - start_step, callback=callbacks, progress_bar=False,
                     reset_num_timesteps=not resume, tb_log_name=tb_name)
     except KeyboardInterrupt:  # Ctrl-C: keep what was learnt, with its settings, below
         interrupted = True
-        if progress_line is not None:
-            progress_line.finish()
+        if bar is not None and hasattr(bar, "pbar"):  # SB3 calls no _on_training_end here
+            bar.pbar.refresh()
+            bar.pbar.close()
+        sys.stderr.write(f"agents.train: interrupted at step {int(model.num_timesteps)} of {total}\n")
     wall = time.perf_counter() - t0
     done_steps = int(model.num_timesteps)
     ticks = (done_steps - start_step) * cfg.hold_ticks  # every policy step is hold_ticks ticks
     model.save(out / "model.zip")
     checkpoint = None
-    if interrupted:
+    if interrupted or (tooling.checkpoint_every is not None
+                       and not (out / "checkpoints" / f"model_{done_steps}_steps.zip").is_file()):
         # --resume continues only from checkpoints/ (model.zip may be a finished run's), and a new run
         # in this folder is refused: without this checkpoint an early Ctrl-C left a folder that
-        # neither could use.  Written whatever --checkpoint-every says.
+        # neither could use.  Written on Ctrl-C whatever --checkpoint-every says, and at the end of a
+        # run with checkpoints (a budget below --checkpoint-every left checkpoints/ empty).
         checkpoint = _save_checkpoint(model, out, settings, replay_buffer=cfg.algo == "sac")
     venv.close()
 
@@ -322,6 +360,11 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     seg_steps = done_steps - start_step
     train_stats = stats.stats(step_time)
     best = _best(out / "eval" / "evaluations.npz")
+    if best and cfg.residual is not None and not interrupted:
+        # the residual's own law on the same validation drops (action 0 is the law): the run says
+        # whether its best model beats it
+        best["residual_law"] = cfg.residual
+        best["residual_law_return"] = _law_return(cfg, tooling)
     meta = {"algo": cfg.algo, "observation": cfg.observation, "history": cfg.history, "scene": cfg.scene,
             "overrides": dict(cfg.overrides), "env_kwargs": dict(cfg.env_kwargs),
             "hold_ticks": cfg.hold_ticks, "residual": cfg.residual, "steps": done_steps, "ticks": ticks_total,
@@ -382,6 +425,26 @@ def _restore_evaluations(cb, path: Path) -> None:
         cb.best_mean_reward = float(np.max(np.mean(d["results"], axis=1)))
 
 
+def _law_return(cfg: RunConfig, tooling: Tooling) -> float:
+    """Mean validation return of the residual's law alone: the evaluation env (the same drops, the
+    same objective) with every action 0."""
+    import numpy as np
+
+    from agents.callbacks import FixedSeeds
+
+    env = FixedSeeds(_vec_env(cfg, tooling.eval_episodes, evaluation=True), tooling.eval_seed)
+    env.reset()
+    total = np.zeros(env.num_envs)
+    done = np.zeros(env.num_envs, dtype=bool)
+    zero = np.zeros((env.num_envs, 1), dtype=np.float32)
+    while not done.all():  # every validation episode runs the whole horizon (no termination)
+        _, rewards, dones, _ = env.step(zero)
+        total += np.where(done, 0.0, rewards)
+        done |= dones
+    env.close()
+    return float(total.mean())
+
+
 def _best(path: Path) -> dict:
     import numpy as np
 
@@ -416,7 +479,7 @@ def train(algo: str = "ppo", scene=None, overrides: dict | None = None, *, steps
 
 def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overrides=None, steps=None,
                 envs=None, seed=0, observation=None, history=None, env_kwargs=None, hyperparameters=None,
-                options=None, policy=None) -> RunConfig:
+                options=None, policy=None, action_limit=None) -> RunConfig:
     """The :class:`RunConfig` of a YAML entry with these values overriding it (None: the file's)."""
     algo = str(algo).lower()
     if algo not in ALGOS:
@@ -434,6 +497,10 @@ def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overr
     if scene is not None and not isinstance(scene, str):
         raise ConfigError(f"scene = {scene!r}: give a preset name or a .toml path (it is recorded in "
                           "model.json)")
+    if action_limit is not None:  # as the YAML's vec_env_wrapper would give it
+        from agents.run_config import ACTION_LIMIT
+
+        entry["vec_env_wrapper"] = [{ACTION_LIMIT: {"limit": action_limit}}]
     return resolve(algo, entry, seed=seed, n_timesteps=steps, n_envs=envs, hp_overrides=hyperparameters,
                    env_overrides=env_over, scene=scene, overrides=overrides, conf_file=str(conf),
                    policy=policy)
@@ -495,6 +562,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "residual=pd-penetration, terminate_on_catch=False); repeatable")
     p.add_argument("--hp", action="append", default=[], metavar="KEY=VALUE",
                    help="override a hyperparameter (Python literal), e.g. --hp learning_rate=1e-4")
+    p.add_argument("--action-limit", type=float, default=None, metavar="L",
+                   help="the policy's action bounds +-L (fraction of the command scale, 0 < L <= 1; "
+                        "default: the YAML's vec_env_wrapper ActionLimit, else +-1)")
     p.add_argument("--tensorboard", default=None, metavar="DIR", help="TensorBoard log folder")
     p.add_argument("--checkpoint-every", type=int, default=CHECKPOINT_EVERY, metavar="N",
                    help=f"save a checkpoint (and its settings file) every N policy steps, what --resume "
@@ -507,15 +577,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", metavar="DIR", default=None,
                    help="continue the run in DIR from its last checkpoint, with its settings")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                   help="a status line on stderr: steps, episodes, recent return and caught fraction "
-                        "(default: on when stderr is a terminal)")
+                   help="SB3's progress bar (tqdm + rich) in policy steps, ending where the budget "
+                        "line says (default: on when stderr is a terminal; otherwise one line per "
+                        "evaluation on stderr)")
     p.add_argument("--torch-threads", type=int, default=1, help="torch CPU threads (default 1)")
     p.add_argument("--verbose", type=int, default=0, help="SB3 verbosity (0, 1, 2)")
     return p
 
 
 SETTING_FLAGS = ("algo", "policy", "conf_file", "scene", "set", "envs", "observation", "history", "horizon",
-                 "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out")
+                 "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out", "action_limit")
 
 
 def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
@@ -549,23 +620,46 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
     cfg = make_config(args.algo, args.conf_file, env_id=args.env, scene=args.scene,
                       overrides=parse_overrides(args.set) or None, steps=args.steps, envs=args.envs,
                       seed=args.seed, observation=args.observation, history=args.history,
-                      env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"), policy=args.policy)
+                      env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"), policy=args.policy,
+                      action_limit=args.action_limit)
     tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every or None,
                       eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
                       eval_seed=args.eval_seed)
     return cfg, Path(args.out), tooling, False
 
 
-def _note_rounding(cfg: RunConfig) -> None:
-    """PPO learns whole rollouts (n_steps x n_envs policy steps): say when the budget grows to one."""
-    n_steps = cfg.hyperparameters.get("n_steps") if cfg.algo == "ppo" else None
-    if not n_steps:
-        return
-    per = int(n_steps) * cfg.n_envs
-    if cfg.n_timesteps % per:
-        whole = -(-cfg.n_timesteps // per) * per
-        print(f"agents.train: --steps {cfg.n_timesteps} is not a whole number of PPO rollouts of "
-              f"{n_steps} x {cfg.n_envs} = {per} steps: training {whole} steps", file=sys.stderr)
+def steps_per_collection(cfg: RunConfig) -> int:
+    """Policy steps SB3 collects between two looks at the budget: PPO a whole rollout (n_steps x
+    n_envs), SAC train_freq vector steps of n_envs (1 for a train_freq counted in episodes)."""
+    hp = cfg.hyperparameters
+    if cfg.algo == "ppo":
+        return int(hp.get("n_steps", 2048)) * cfg.n_envs
+    freq = hp.get("train_freq", 1)
+    if isinstance(freq, (list, tuple)):
+        freq = freq[0] if freq[1] == "step" else 1
+    return int(freq) * cfg.n_envs
+
+
+def planned_steps(cfg: RunConfig, start_step: int = 0) -> int:
+    """The policy step the run ends at: ``n_timesteps`` rounded up to whole collections from
+    ``start_step`` (SB3 stops only between them)."""
+    per = steps_per_collection(cfg)
+    return start_step + -(-max(cfg.n_timesteps - start_step, 0) // per) * per
+
+
+def budget_line(cfg: RunConfig, start_step: int = 0) -> str:
+    """What the run will do, said before it starts: the budget, its rounding and the env."""
+    total = planned_steps(cfg, start_step)
+    per = steps_per_collection(cfg)
+    what = (f"whole PPO rollouts of {cfg.hyperparameters.get('n_steps', 2048)} x {cfg.n_envs} envs"
+            if cfg.algo == "ppo" else
+            f"whole vector steps of {cfg.n_envs} envs x train_freq {per // cfg.n_envs}")
+    rounding = (f" (--steps {cfg.n_timesteps} rounded up to {what} = {per} steps)"
+                if total - start_step != cfg.n_timesteps - start_step else "")
+    start = f" from step {start_step}" if start_step else ""
+    return (f"agents.train: {cfg.algo} training {total - start_step} policy steps{start}, to step {total}"
+            f"{rounding}; {(total - start_step) * cfg.hold_ticks} control periods "
+            f"(hold_ticks {cfg.hold_ticks}), {cfg.n_envs} envs of {cfg.scene}")
 
 
 def _missing_extra() -> list[str]:
@@ -585,7 +679,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg, out, tooling, resume = _from_args(args)
         progress = sys.stderr.isatty() if args.progress is None else args.progress
-        _note_rounding(cfg)
         result = run(cfg, out, tooling, progress=progress, torch_threads=args.torch_threads,
                      verbose=args.verbose, resume=resume)
     except ConfigError as exc:

@@ -58,7 +58,8 @@ def run_info(d: Path) -> dict:
     meta = json.loads((d / "model.json").read_text())
     best = (meta.get("validation") or {}).get("best") or {}
     model = d / "best_model.zip" if (d / "best_model.zip").is_file() else d / "model.zip"
-    return {"dir": d, "label": f"{meta['algo']}-s{meta['seed']}", "algo": meta["algo"], "seed": meta["seed"],
+    label = (meta.get("shipped_from") or {}).get("label") or f"{meta['algo']}-s{meta['seed']}"
+    return {"dir": d, "label": label, "algo": meta["algo"], "seed": meta["seed"],
             "model": model, "meta": meta, "val_best": best.get("mean_reward", -math.inf),
             "val_best_step": best.get("step")}
 
@@ -66,6 +67,9 @@ def run_info(d: Path) -> dict:
 def export(info: dict, scene) -> str:
     from impact_env.policy.export import export_policy
 
+    shipped = sorted(info["dir"].glob("*.policy.json"))
+    if info["model"].name == "model.zip" and shipped:  # a shipped folder: its own compiled policy
+        return f"compiled:{shipped[0]}"
     out = info["model"].with_suffix(".policy.json")
     export_policy(f"{info['algo']}:{info['model']}", scene).save(out)
     return f"compiled:{out}"
@@ -81,7 +85,8 @@ def evaluate_scene(scene_name: str, infos: list[dict], args) -> dict:
     specs = {b: b for b in BASELINES}
     for info in infos:
         specs[info["label"]] = export(info, scene)
-    specs["oracle"] = args.oracle
+    if args.oracle != "none":
+        specs["oracle"] = args.oracle
     t0 = time.perf_counter()
     runs = compare(scene, list(specs.values()), episodes=args.episodes, seed=args.seed, workers=args.workers,
                    progress=False, trace_rate=2000.0)
@@ -92,9 +97,10 @@ def evaluate_scene(scene_name: str, infos: list[dict], args) -> dict:
         for key in ("energy_integral_ms", "time_to_catch_s", "bounces", "rms_force_N", "peak_force_N"):
             out[f"{label}|{key}"] = np.asarray(r.metrics[key], dtype=np.float64)
         out[f"{label}|failed"] = np.array(len(r.failures))
-    st = runs[args.oracle].stats
-    out["oracle|source"] = np.asarray(st.get("source", []), dtype=str)
-    out["oracle|cpu_seconds"] = np.asarray(st.get("cpu_seconds", []), dtype=np.float64)
+    if "oracle" in specs:
+        st = runs[args.oracle].stats
+        out["oracle|source"] = np.asarray(st.get("source", []), dtype=str)
+        out["oracle|cpu_seconds"] = np.asarray(st.get("cpu_seconds", []), dtype=np.float64)
     return out
 
 
@@ -129,17 +135,19 @@ def bootstrap(values: np.ndarray, stat, idx: np.ndarray) -> tuple[float, float]:
 def scene_stats(d: dict, args) -> dict:
     n = len(d[f"{d['labels'][0]}|energy_integral_ms"])
     idx = np.random.default_rng(args.boot_seed).integers(0, n, (args.resamples, n))
-    oracle = d["oracle|energy_integral_ms"]
+    has_oracle = "oracle" in d["labels"]
+    oracle = d["oracle|energy_integral_ms"] if has_oracle else None
     out = {}
     for label in d["labels"]:
         e = d[f"{label}|energy_integral_ms"]
         t = d[f"{label}|time_to_catch_s"]
-        gap = e - oracle
+        gap = e - oracle if has_oracle else np.full_like(e, np.nan)
         out[label] = {
             "median_catch_s": median_catch(t), "median_catch_ci": bootstrap(t, median_catch, idx),
             "caught": float(np.mean(np.isfinite(t))),
             "energy_ms": float(np.mean(e)), "energy_ci": bootstrap(e, np.mean, idx),
-            "gap_ms": float(np.mean(gap)), "gap_ci": bootstrap(gap, np.mean, idx),
+            "gap_ms": float(np.mean(gap)),
+            "gap_ci": bootstrap(gap, np.mean, idx) if has_oracle else (math.nan, math.nan),
             "gap_median_ms": float(np.median(gap)), "gap_min_ms": float(np.min(gap)),
             "bounces": float(np.mean(d[f"{label}|bounces"])),
             "rms_N": float(np.mean(d[f"{label}|rms_force_N"])),
@@ -153,9 +161,11 @@ def scene_stats(d: dict, args) -> dict:
                                                          d["pd-penetration|time_to_catch_s"], "median_catch",
                                                          resamples=args.resamples, seed=args.boot_seed)}
                       for label in d["labels"] if label not in ("pd-penetration", "oracle")}
-    src = [str(s) for s in d["oracle|source"]]
-    out["_oracle"] = {"sources": {s: src.count(s) for s in sorted(set(src))},
-                      "cpu_s_per_drop": float(np.mean(d["oracle|cpu_seconds"])), "episodes": n}
+    out["_oracle"] = {"episodes": n}
+    if has_oracle:
+        src = [str(s) for s in d["oracle|source"]]
+        out["_oracle"].update(sources={s: src.count(s) for s in sorted(set(src))},
+                              cpu_s_per_drop=float(np.mean(d["oracle|cpu_seconds"])))
     return out
 
 
@@ -176,15 +186,23 @@ def _ci(ci, fmt="{:.3f}", t=False) -> str:
 
 
 def scene_table(stats: dict) -> str:
-    rows = ["| policy | median catch s [95 % CI] | caught | energy integral ms [95 % CI] | gap to oracle ms, "
-            "mean [95 % CI] (median) | bounces | RMS N |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    oracle = "oracle" in stats
+    gap_head = " gap to oracle ms, mean [95 % CI] (median) |" if oracle else ""
+    paired = stats.get("_paired", {})
+    rows = ["| policy | median catch s [95 % CI] | caught | energy integral ms [95 % CI] |" + gap_head +
+            " energy integral - pd-penetration's, paired, ms [95 % CI] | bounces | RMS N |",
+            "| --- | --- | --- | --- |" + (" --- |" if oracle else "") + " --- | --- | --- |"]
     for label, s in stats.items():
         if label.startswith("_"):
             continue
+        gap = (f" {s['gap_ms']:.2f} {_ci(s['gap_ci'], '{:.2f}')} ({s['gap_median_ms']:.2f}) |"
+               if oracle else "")
+        pe = paired.get(label, {}).get("energy")
+        diff = (f"{pe.difference:.2f} [{pe.low:.2f}, {pe.high:.2f}]" + (" better" if pe.a_better else "")
+                if pe is not None else "")
         rows.append(f"| {label} | {_t(s['median_catch_s'])} {_ci(s['median_catch_ci'], t=True)} | "
-                    f"{100 * s['caught']:.0f} % | {s['energy_ms']:.2f} {_ci(s['energy_ci'], '{:.2f}')} | "
-                    f"{s['gap_ms']:.2f} {_ci(s['gap_ci'], '{:.2f}')} ({s['gap_median_ms']:.2f}) | "
-                    f"{s['bounces']:.1f} | {s['rms_N']:.1f} |")
+                    f"{100 * s['caught']:.0f} % | {s['energy_ms']:.2f} {_ci(s['energy_ci'], '{:.2f}')} |"
+                    f"{gap} {diff} | {s['bounces']:.1f} | {s['rms_N']:.1f} |")
     return "\n".join(rows)
 
 
@@ -196,7 +214,7 @@ def training_table(infos: list[dict]) -> str:
         rows.append(f"| {i['label']} | {m['scene']} | {m['steps']:,} | {m['ticks']:,} | "
                     f"{m['wall_time_s']:.0f} | "
                     f"{m['steps'] / m['wall_time_s']:.0f} | {m['ticks'] / m['wall_time_s']:.0f} | "
-                    f"{i['val_best']:.2f} ({i['val_best_step']:,}) |")
+                    f"{i['val_best']:.2f} ({i['val_best_step'] or 0:,}) |")
     return "\n".join(rows)
 
 
@@ -252,19 +270,22 @@ def figure(all_stats: dict, path: Path, shipped: str) -> Path:
     return save_figure(fig, path)
 
 
-def ship(info: dict, dest: Path) -> dict:
-    """Copy the best model with its model.json; write its compiled policy and ONNX next to it."""
+def ship(info: dict, dest: Path, stem: str = "best") -> dict:
+    """Copy a run's best model with its model.json; write its compiled policy ``STEM.policy.json``
+    and ``STEM.onnx`` next to it (a folder shipped before, given as a run, is re-exported in place)."""
     from impact_env.policy.export import export_policy, write_onnx
 
     dest.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(info["model"], dest / "model.zip")
     meta_src = info["model"].with_suffix(".json")
     meta = json.loads((meta_src if meta_src.is_file() else info["dir"] / "model.json").read_text())
+    if info["model"].resolve() == (dest / "model.zip").resolve():
+        return meta  # the shipped agent itself, evaluated again: already there with its files
+    shutil.copyfile(info["model"], dest / "model.zip")
     meta["shipped_from"] = {"run": str(info["dir"]), "model": info["model"].name, "label": info["label"]}
     (dest / "model.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
     pol = export_policy(f"{info['algo']}:{dest / 'model.zip'}", meta["scene"])
-    pol.save(dest / "best.policy.json")
-    write_onnx(pol, dest / "best.onnx")
+    pol.save(dest / f"{stem}.policy.json")
+    write_onnx(pol, dest / f"{stem}.onnx")
     return meta
 
 
@@ -277,104 +298,140 @@ def write_doc(doc: Path, text: str) -> None:
     doc.write_text(head + BEGIN + "\n" + text.strip() + "\n" + END + tail)
 
 
-def report_text(infos, all_stats, shipped, args, walls) -> str:
-    # --reuse reads the per-drop results the same command saved, --no-ship skips a copy it made: the
-    # command that makes all of this is the one without them
-    argv = [a for a in args.argv if a not in ("--reuse", "--no-ship")]
-    lines = ["*Written by `python scripts/agents_report.py " + " ".join(argv) + "`; do not edit by "
-             "hand.*", ""]
-    lines += [f"Test drops: seeds {args.seed}..{args.seed + args.episodes - 1} of each scene (training used "
-              "seeds 0-15, 100-115, 200-215 and draws from their Generators; validation 900000-900015). "
-              f"Intervals: percentile bootstrap over drops, {args.resamples} resamples "
-              f"(`numpy.random.default_rng({args.boot_seed})`), the same resamples for every policy. "
-              f"Oracle: `{args.oracle}`.", ""]
+def report_text(infos, all_stats, shipped, settings, walls) -> str:
+    """The results section, from the kept per-drop results alone (``settings``: the evaluation's
+    settings and the command that made it, from ``RESULTS/report.json``)."""
+    lines = [f"*Written by `python scripts/agents_report.py` from the per-drop results kept in "
+             f"`{settings['results']}` (made by `python scripts/agents_report.py {settings['command']}`); "
+             "do not edit by hand.*", ""]
+    oracle = settings["oracle"]
+    lines += [f"Test drops: seeds {settings['seed']}..{settings['seed'] + settings['episodes'] - 1} of each "
+              "scene (training used seeds below 1000 and draws from their Generators; validation "
+              "900000-900015). Intervals: percentile bootstrap over drops, "
+              f"{settings['resamples']} resamples "
+              f"(`numpy.random.default_rng({settings['boot_seed']})`), the same resamples for every policy; "
+              "paired differences: `scipy.stats.bootstrap(paired=True)` (:mod:`impact_env.eval.paired`), "
+              "\"better\" when the whole interval is below 0. "
+              + (f"Oracle: `{oracle}`." if oracle != "none"
+                 else "No oracle in this evaluation (`--oracle none`)."),
+              ""]
     lines += ["### Training runs", "", training_table(infos), "",
-              f"Shipped (`{args.ship}`): **{shipped}**, the best validation return among the runs.", ""]
+              f"Best validation return among the runs: **{shipped}**.", ""]
     for scene, st in all_stats.items():
         o = st["_oracle"]
-        src = ", ".join(f"{k} {v}" for k, v in o["sources"].items())
-        lines += [f"### `{scene}`, {o['episodes']} held-out drops", "", scene_table(st), "",
-                  f"Oracle: {o['cpu_s_per_drop']:.1f} s of CPU per drop; its sequence per drop came from: "
-                  f"{src} "
-                  f"(a name other than `cma`: that policy's own recorded commands were the best found). "
-                  f"Evaluation wall time {walls[scene]:.0f} s.", ""]
-        pd, ag = st["pd-penetration"], st[shipped]
-        pe, pt = st["_paired"][shipped]["energy"], st["_paired"][shipped]["catch"]
-        verdict = {"catch": f"paired difference {pt.text('s')}: "
-                            f"{'better' if pt.a_better else 'NOT shown better'}",
-                   "energy": f"paired difference {pe.text('ms', '{:.2f}')}: "
-                             f"{'better' if pe.a_better else 'NOT shown better'}"}
-        share = (pd["energy_ms"] - ag["energy_ms"]) / (pd["energy_ms"] - st["oracle"]["energy_ms"]) \
-            if pd["energy_ms"] > st["oracle"]["energy_ms"] else math.nan
-        lines += [f"Shipped agent against pd-penetration on `{scene}`: median catch "
-                  f"{_t(ag['median_catch_s'])} {_ci(ag['median_catch_ci'], t=True)} s against "
-                  f"{_t(pd['median_catch_s'])} {_ci(pd['median_catch_ci'], t=True)} s "
-                  f"({verdict['catch']}); "
-                  f"energy integral {ag['energy_ms']:.2f} {_ci(ag['energy_ci'], '{:.2f}')} ms against "
-                  f"{pd['energy_ms']:.2f} {_ci(pd['energy_ci'], '{:.2f}')} ms "
-                  f"({verdict['energy']}); "
-                  f"it closes {100 * share:.0f} % of pd-penetration's gap to the oracle "
-                  f"({pd['gap_ms']:.2f} ms -> {ag['gap_ms']:.2f} ms).", ""]
-        worst = min((s["gap_min_ms"], k) for k, s in st.items() if not k.startswith("_") and k != "oracle")
-        lines += [f"No policy beats the oracle on any drop: the smallest per-drop gap is {worst[0]:.3f} ms "
-                  f"({worst[1]})." if worst[0] >= 0 else
-                  f"**{worst[1]} beats the oracle on a drop (gap {worst[0]:.3f} ms): the optimiser is too "
-                  "weak.**",
-                  ""]
+        lines += [f"### `{scene}`, {o['episodes']} held-out drops", "", scene_table(st), ""]
+        if "sources" in o:
+            src = ", ".join(f"{k} {v}" for k, v in o["sources"].items())
+            lines += [f"Oracle: {o['cpu_s_per_drop']:.1f} s of CPU per drop; its sequence per drop came "
+                      "from: "
+                      f"{src} (a name other than `cma`: that policy's own recorded commands were the best "
+                      "found).", ""]
+        lines += [f"Evaluation wall time {walls[scene]:.0f} s.", ""]
+        for label in [k for k in st if not k.startswith("_") and k not in BASELINES and k != "oracle"]:
+            pd, ag = st["pd-penetration"], st[label]
+            pe, pt = st["_paired"][label]["energy"], st["_paired"][label]["catch"]
+            share = ""
+            if "oracle" in st and pd["energy_ms"] > st["oracle"]["energy_ms"]:
+                frac = (pd["energy_ms"] - ag["energy_ms"]) / (pd["energy_ms"] - st["oracle"]["energy_ms"])
+                share = (f"; it closes {100 * frac:.0f} % of pd-penetration's gap to the oracle "
+                         f"({pd['gap_ms']:.2f} ms -> {ag['gap_ms']:.2f} ms)")
+            lines += [f"* {label} against pd-penetration: median catch {_t(ag['median_catch_s'])} against "
+                      f"{_t(pd['median_catch_s'])} s (paired difference {pt.text('s')}: "
+                      f"{'better' if pt.a_better else 'NOT shown better'}); energy integral "
+                      f"{ag['energy_ms']:.2f} against {pd['energy_ms']:.2f} ms (paired difference "
+                      f"{pe.text('ms', '{:.2f}')}: "
+                      f"{'better' if pe.a_better else 'NOT shown better'}){share}."]
+        lines.append("")
+        if "oracle" in st:
+            worst = min((v["gap_min_ms"], k) for k, v in st.items()
+                        if not k.startswith("_") and k != "oracle")
+            lines += [f"No policy beats the oracle on any drop: the smallest per-drop gap is "
+                      f"{worst[0]:.3f} ms ({worst[1]})." if worst[0] >= 0 else
+                      f"**{worst[1]} beats the oracle on a drop (gap {worst[0]:.3f} ms): the optimiser is "
+                      "too weak.**", ""]
     return "\n".join(lines)
+
+
+def _run_record(info: dict) -> dict:
+    """What the report needs of a run, kept in RESULTS/report.json."""
+    m = info["meta"]
+    return {"label": info["label"], "algo": info["algo"], "seed": info["seed"], "dir": str(info["dir"]),
+            "model": str(info["model"]), "val_best": info["val_best"], "val_best_step": info["val_best_step"],
+            "meta": {k: m[k] for k in ("scene", "steps", "ticks", "wall_time_s")}}
+
+
+def build(results: Path, doc: Path, figure_path: Path, resamples_override=None) -> tuple[str, Path]:
+    """The doc's results section and the figure, from RESULTS/report.json and RESULTS/SCENE.npz."""
+    rep = json.loads((results / "report.json").read_text())
+    settings = rep["settings"]
+    args = argparse.Namespace(resamples=settings["resamples"], boot_seed=settings["boot_seed"])
+    infos = rep["runs"]
+    all_stats, walls = {}, {}
+    for scene in settings["scenes"]:
+        d = load(results / f"{scene}.npz")
+        walls[scene] = d["wall_time_s"]
+        all_stats[scene] = scene_stats(d, args)
+    best = max(infos, key=lambda i: i["val_best"])["label"]
+    fig = figure(all_stats, figure_path, best)
+    text = report_text(infos, all_stats, best, settings, walls)
+    text += f"\n![results]({figure_path.relative_to(doc.parent)})\n"
+    write_doc(doc, text)
+    return best, fig
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--runs", nargs="+", required=True, help="run folders of agents.train")
+    p.add_argument("--runs", nargs="+", default=None,
+                   help="run folders of agents.train to evaluate (without: rebuild the doc from --results)")
+    p.add_argument("--results", default="docs/agents_results",
+                   help="where the per-drop results are kept (SCENE.npz, report.json; in the repository)")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=1000)
     p.add_argument("--scenes", default="rig,rig-randomized")
-    p.add_argument("--oracle", default="oracle:warm=given")
+    p.add_argument("--oracle", default="oracle:warm=given", help="the oracle's spec, or none")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--resamples", type=int, default=10000)
     p.add_argument("--boot-seed", type=int, default=20251122)
-    p.add_argument("--out", default="runs/report")
-    p.add_argument("--reuse", action="store_true", help="read OUT/SCENE.npz instead of evaluating again")
     p.add_argument("--doc", default="docs/agents.md")
     p.add_argument("--figure", default=None,
                    help="the figure file (default docs/figures/agents_results.FORMAT; its suffix picks the "
                         "format)")
     p.add_argument("--format", default=None, choices=FORMATS,
                    help=f"the figure's file format (default: --figure's suffix, else png; {DPI} dpi)")
-    p.add_argument("--ship", default="agents/models/best")
+    p.add_argument("--ship", default="agents/models/best", help="where the best run's agent goes")
+    p.add_argument("--ship-sac", default="agents/models/sac", help="where the best SAC run's agent goes")
     p.add_argument("--no-ship", action="store_true")
     args = p.parse_args(argv)
-    args.argv = sys.argv[1:] if argv is None else list(argv)
     try:  # checked before the evaluation, which takes minutes
         args.figure = output_figure(args.figure or DEFAULT_FIGURE.with_suffix(f".{args.format or 'png'}"),
                                     args.format if args.figure else None, "--figure")
     except ValueError as exc:
         p.error(str(exc))
-    infos = [run_info(Path(d)) for d in args.runs]
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    all_stats, walls = {}, {}
-    for scene in args.scenes.split(","):
-        path = out / f"{scene}.npz"
-        if args.reuse and path.is_file():
-            d = load(path)
-        else:
+    results = Path(args.results)
+    if args.runs:
+        infos = [run_info(Path(d)) for d in args.runs]
+        results.mkdir(parents=True, exist_ok=True)
+        for scene in args.scenes.split(","):
             d = evaluate_scene(scene, infos, args)
-            save(path, d)
-        walls[scene] = d["wall_time_s"]
-        all_stats[scene] = scene_stats(d, args)
-        print(f"== {scene} ({walls[scene]:.0f} s)\n{scene_table(all_stats[scene])}\n", flush=True)
-    best = max(infos, key=lambda i: i["val_best"])
-    (out / "stats.json").write_text(json.dumps(all_stats, indent=1, default=_json) + "\n")
-    if not args.no_ship:
-        ship(best, Path(args.ship))
-    fig = figure(all_stats, args.figure, best["label"])
-    text = report_text(infos, all_stats, best["label"], args, walls)
-    text += f"\n![results]({Path(args.figure).relative_to(Path(args.doc).parent)})\n"
-    write_doc(Path(args.doc), text)
-    shipped = "picked (not shipped: --no-ship)" if args.no_ship else f"shipped to {args.ship}"
-    print(f"{best['label']} {shipped}; wrote {args.doc} and {fig}")
+            save(results / f"{scene}.npz", d)
+            print(f"== {scene}: {d['wall_time_s']:.0f} s", flush=True)
+        command = " ".join(a for a in (sys.argv[1:] if argv is None else list(argv)) if a != "--no-ship")
+        settings = {"results": str(results), "command": command, "episodes": args.episodes, "seed": args.seed,
+                    "scenes": args.scenes.split(","), "oracle": args.oracle, "resamples": args.resamples,
+                    "boot_seed": args.boot_seed}
+        (results / "report.json").write_text(json.dumps({"settings": settings,
+                                                         "runs": [_run_record(i) for i in infos]},
+                                                        indent=1) + "\n")
+        if not args.no_ship:
+            best = max(infos, key=lambda i: i["val_best"])
+            ship(best, Path(args.ship))
+            sac = [i for i in infos if i["algo"] == "sac"]
+            if sac and args.ship_sac:
+                ship(max(sac, key=lambda i: i["val_best"]), Path(args.ship_sac), stem="sac")
+    elif not (results / "report.json").is_file():
+        p.error(f"no --runs and no {results / 'report.json'} to rebuild from")
+    best, fig = build(results, Path(args.doc), Path(args.figure))
+    print(f"best validation: {best}; wrote {args.doc} and {fig} from {results}")
     return 0
 
 

@@ -46,3 +46,40 @@ def test_actor_ignores_the_true_state_and_critic_reads_it(tmp_path, history):
     model.save(tmp_path / "m.zip")
     again = PPO.load(tmp_path / "m.zip", device="cpu")
     np.testing.assert_array_equal(again.predict(obs, deterministic=True)[0], a1)
+
+
+def test_sac_actor_starts_as_ppo_does_near_the_law_with_a_small_std(tmp_path):
+    """init_sac_actor: the deterministic action starts near 0 (on a residual env: the law itself)
+    and the exploration std is exp(log_std_init) in every state, where SB3's SAC (without gSDE)
+    ignores log_std_init and starts with a std near 1 (about +-200 N); the model stays a plain
+    SAC MlpPolicy that saves, loads and exports."""
+    from stable_baselines3 import SAC
+
+    from agents.policies import init_sac_actor
+    from impact_env.policy.export import export_policy
+
+    env = make_sb3_vec_env("rig", num_envs=2, hold_ticks=4, residual="pd-penetration")
+    model = SAC("MlpPolicy", env, seed=0, device="cpu", policy_kwargs={"net_arch": [64, 64]})
+    obs = torch.as_tensor(np.random.default_rng(0).normal(size=(256, env.observation_space.shape[0])),
+                          dtype=torch.float32)
+    with torch.no_grad():
+        _, log_std_before, _ = model.policy.actor.get_action_dist_params(obs)
+    assert float(log_std_before.exp().mean()) > 0.5  # SB3's own start: the reason for the init
+
+    init_sac_actor(model, -2.5)
+    with torch.no_grad():
+        mean, log_std, _ = model.policy.actor.get_action_dist_params(obs)
+    np.testing.assert_allclose(log_std.numpy(), -2.5)  # std exp(-2.5) = 0.08 (16 N) in every state
+    # mean head orthogonal with gain 0.01 on 64 tanh/relu features of order 1: |mean| well below 0.1
+    assert float(mean.abs().max()) < 0.1
+    path = tmp_path / "sac.zip"
+    model.save(path)
+    loaded = SAC.load(path, device="cpu")
+    assert type(loaded.policy).__name__ == "SACPolicy"
+    a, _ = loaded.predict(obs.numpy()[:8], deterministic=True)
+    np.testing.assert_allclose(a, np.tanh(mean.numpy()[:8]), atol=1e-6)
+    (tmp_path / "sac.json").write_text('{"algo": "sac", "observation": "sensors", "history": 1, '
+                                       '"hold_ticks": 4, "residual": "pd-penetration"}')
+    assert export_policy(f"sac:{path}", "rig").mlp["output"] == "squash"
+    with pytest.raises(ValueError, match="log_std_init"):
+        init_sac_actor(model, float("nan"))

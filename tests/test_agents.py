@@ -111,6 +111,8 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     (["--env-kwargs", f"residual=ppo:{ROOT}/agents/models/ppo_rig/model.zip"], ["residual", "classic law"]),
     (["--seed", "990"], ["test drops 1000..1099"]),
     (["--eval-seed", "5"], ["validation seeds 5..20"]),
+    (["--action-limit", "1.5"], ["vec_env_wrapper limit", "<= 1"]),
+    (["--action-limit", "0"], ["vec_env_wrapper limit", "> 0"]),
 ])
 def test_bad_arguments_exit_2_naming_the_value_and_create_nothing(tmp_path, capsys, argv, names):
     out, tb = tmp_path / "out", tmp_path / "tb"
@@ -256,21 +258,80 @@ def test_ctrl_c_saves_the_model_and_its_settings(tmp_path, capsys, monkeypatch, 
 
 
 @pytest.mark.training
-def test_progress_line_checkpoints_by_default_and_the_rounding_is_said(tmp_path, capsys):
-    """--steps 100 with 4 envs x n_steps 32: trained 128 steps, and stderr says so; --progress
-    writes the status line (on by default on a terminal); a checkpoint with its settings file is
-    written without asking (the default --checkpoint-every, here crossed by the budget's end)."""
+@pytest.mark.parametrize("algo, hp, steps, planned", [("ppo", TINY_PPO, 100, 128), ("sac", TINY_SAC, 10, 12)])
+def test_a_short_run_says_its_budget_and_ends_with_an_evaluation_and_a_checkpoint(tmp_path, capsys, algo, hp,
+                                                                                   steps, planned):
+    """A budget below --eval-every and --checkpoint-every (their defaults): the rounding is said
+    before training (PPO: whole rollouts of 32 x 4; SAC: vector steps of 4 envs), the run ends
+    where it said, with one evaluation of the final model (a line on stderr without a terminal),
+    best_model.zip and a checkpoint that --resume can continue from."""
     out = tmp_path / "run"
-    args = ["--algo", "ppo", "--out", str(out), "--steps", "100", "--envs", "4", "--horizon", str(HORIZON),
-            "--eval-every", "0", "--progress", "--checkpoint-every", "64"]
+    args = ["--algo", algo, "--out", str(out), "--steps", str(steps), "--envs", "4",
+            "--horizon", str(HORIZON), "--eval-episodes", "2", "--no-progress"]
+    for key, value in hp.items():
+        args += ["--hp", f"{key}={value}"]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    err, out_text = captured.err, captured.out
+    budget = err.splitlines()[0]
+    assert f"training {planned} policy steps" in budget and f"--steps {steps} rounded up" in budget
+    assert f"eval: step {planned}/{planned} (100 %)" in err
+    assert json.loads((out / "model.json").read_text())["steps"] == planned
+    ev = np.load(out / "eval" / "evaluations.npz")
+    assert list(ev["timesteps"]) == [planned] and ev["results"].shape == (1, 2)
+    assert (out / "best_model.zip").is_file()
+    assert json.loads((out / "best_model.json").read_text())["steps"] == planned
+    assert (out / "checkpoints" / f"model_{planned}_steps.zip").is_file()
+    # the run says whether its best model beats the residual's law alone on the same drops
+    best = json.loads((out / "model.json").read_text())["validation"]["best"]
+    assert best["residual_law"] == "pd-penetration" and best["residual_law_return"] < 0
+    assert f"pd-penetration alone on the same validation drops: {best['residual_law_return']:.2f}" in out_text
+
+
+@pytest.mark.training
+def test_progress_bar_and_a_budget_that_needs_no_rounding(tmp_path, capsys):
+    """--progress: SB3's bar (tqdm + rich), no evaluation lines; 128 = 4 rollouts of 32 x 4 is
+    trained as given and the budget line says no rounding; the default --checkpoint-every is kept
+    and crossed checkpoints are written."""
+    out = tmp_path / "run"
+    args = ["--algo", "ppo", "--out", str(out), "--steps", "128", "--envs", "4", "--horizon", str(HORIZON),
+            "--eval-every", "64", "--eval-episodes", "2", "--progress", "--checkpoint-every", "64"]
     for key, value in TINY_PPO.items():
         args += ["--hp", f"{key}={value}"]
     assert main(args) == 0
     err = capsys.readouterr().err
-    assert "not a whole number of PPO rollouts" in err and "training 128 steps" in err
-    assert "training: 128/100 steps" in err or "training: 128/128 steps" in err
+    assert "training 128 policy steps" in err and "rounded" not in err and "eval: step" not in err
     assert json.loads((out / "model.json").read_text())["steps"] == 128
+    assert list(np.load(out / "eval" / "evaluations.npz")["timesteps"]) == [64, 128]  # none added at the end
     assert (out / "checkpoints" / "model_64_steps.json").is_file()
     from agents.train import CHECKPOINT_EVERY, build_parser
 
     assert build_parser().parse_args(["--algo", "ppo"]).checkpoint_every == CHECKPOINT_EVERY
+
+
+def test_a_malformed_vec_env_wrapper_is_refused_naming_the_one_it_takes():
+    for bad in ("impact_env.env.sb3_vecenv.ActionLimit", [{"some.Wrapper": {"limit": 0.5}}],
+                [{"impact_env.env.sb3_vecenv.ActionLimit": {"limit": 0.5, "x": 1}}]):
+        with pytest.raises(ConfigError, match="vec_env_wrapper: expected"):
+            resolve("sac", {"n_timesteps": 10, "vec_env_wrapper": bad})
+
+
+@pytest.mark.training
+def test_the_action_limit_is_the_models_bound_in_predict_and_the_export(tmp_path):
+    """sac.yml's ActionLimit: the saved model's action space is +-0.25, and the compiled export
+    (which reads the model's bounds) and predict both stay within it."""
+    from stable_baselines3 import SAC
+
+    from impact_env.policy.export import export_policy
+
+    out = tmp_path / "sac"
+    train("sac", "rig", steps=32, envs=4, seed=1, out=out, env_kwargs={"horizon": HORIZON},
+          hyperparameters=TINY_SAC, tooling=Tooling(eval_every=None))
+    assert json.loads((out / "run.json").read_text())["config"]["action_limit"] == 0.25
+    model = SAC.load(out / "model.zip", device="cpu")
+    assert (float(model.action_space.low[0]), float(model.action_space.high[0])) == (-0.25, 0.25)
+    obs = np.random.default_rng(0).normal(0, 3, (64, model.observation_space.shape[0])).astype(np.float32)
+    a, _ = model.predict(obs, deterministic=True)
+    assert np.all(np.abs(a) <= 0.25)
+    pol = export_policy(f"sac:{out / 'model.zip'}", "rig")
+    assert (pol.mlp["low"], pol.mlp["high"]) == (-0.25, 0.25)

@@ -27,7 +27,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 try:
-    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvWrapper
 except ImportError as exc:  # the optional extra: say how to get it
     raise ImportError("impact_env.env.sb3_vecenv adapts the vector env to stable-baselines3, which is not "
                       "installed: pip install 'impact-env[sb3]' (stable-baselines3 and torch)") from exc
@@ -97,6 +97,42 @@ class SB3VecEnv(VecEnv):
     def get_images(self):
         frames = self.venv.render()
         return list(frames) if frames is not None else [None] * self.num_envs
+
+
+class ActionLimit(VecEnvWrapper):
+    """The action space narrowed to ``[-limit, limit]`` (fractions of the command scale), actions
+    passed on unchanged: a bound for a residual on a classic law, as SB3's algorithms see it.
+
+    SAC squashes its Gaussian with a tanh into the action space's bounds (and PPO clips to them),
+    so the bound is part of the policy: saved in ``model.zip``, honoured by ``predict``, by the
+    compiled export (which reads the model's bounds) and so by ``compare`` and the rig.  A
+    residual needs a fraction of the shaker's range (the shipped PPO agent's residual stays within
+    about +-0.2, docs/agents.md); the full +-1 (+-200 N on top of the law) lets an early, wrong
+    critic drive the actor to saturation.  In RL Zoo's YAML::
+
+        vec_env_wrapper:
+          - impact_env.env.sb3_vecenv.ActionLimit: {limit: 0.25}
+    """
+
+    def __init__(self, venv, limit: float):
+        limit = float(limit)
+        if not 0.0 < limit <= 1.0:
+            raise ValueError(f"ActionLimit limit = {limit!r} must be in (0, 1] (a fraction of the command "
+                             "scale)")
+        import gymnasium
+
+        self.limit = limit
+        space = gymnasium.spaces.Box(-limit, limit, shape=venv.action_space.shape, dtype=np.float32)
+        super().__init__(venv, action_space=space)
+
+    def reset(self):
+        return self.venv.reset()
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self.venv.step_async(actions)
+
+    def step_wait(self):
+        return self.venv.step_wait()
 
 
 def make_sb3_vec_env(scene="rig", num_envs: int = 16, monitor: bool = True, **kwargs):
