@@ -5,6 +5,8 @@ process, lock-step, on loopback."""
 
 from __future__ import annotations
 
+import os
+import stat
 import threading
 
 import numpy as np
@@ -48,15 +50,42 @@ def test_key_file_errors_name_the_option(tmp_path, capsys):
     with pytest.raises(KeyFileError, match="--key .*no such key file"):
         load_key(tmp_path / "missing.key")
     (tmp_path / "bad.key").write_text("not hex at all\n")
+    (tmp_path / "bad.key").chmod(0o600)
     with pytest.raises(KeyFileError, match="--key .*hexadecimal"):
         load_key(tmp_path / "bad.key")
     (tmp_path / "short.key").write_text("00ff" * 4)
+    (tmp_path / "short.key").chmod(0o600)
     with pytest.raises(KeyFileError, match="8 B; at least 16 B"):
         load_key(tmp_path / "short.key")
     assert main(["rig", "serve", "--virtual", "--port", "0", "--key", str(tmp_path / "missing.key")]) == 2
     assert "--key" in capsys.readouterr().err
     with pytest.raises(FileExistsError):
         write_key(tmp_path / "bad.key")  # a key file is never overwritten
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX file modes")
+@pytest.mark.parametrize("mode", [0o666, 0o644, 0o640, 0o604, 0o620])
+def test_a_key_file_open_to_group_or_others_is_refused_with_the_chmod_to_run(tmp_path, mode):
+    """As ssh refuses such a private key: the message gives the command that fixes it, and after
+    it the same file loads."""
+    path = write_key(tmp_path / "rig.key")
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600  # keygen's own mode
+    path.chmod(mode)
+    with pytest.raises(KeyFileError, match=rf"--key {path}: .*mode {mode:04o}.*chmod 600 {path}"):
+        load_key(path)
+    path.chmod(0o600)
+    assert len(load_key(path)) == 32
+
+
+def test_rig_keygen_writes_mode_0600_whatever_the_umask(tmp_path):
+    from impact_env.cli.main import main
+
+    old = os.umask(0)
+    try:
+        assert main(["rig", "keygen", str(tmp_path / "k.key")]) == 0
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "k.key").stat().st_mode) == 0o600
 
 
 def test_the_right_key_runs_an_episode(keyed, keys):
@@ -72,7 +101,7 @@ def test_the_right_key_runs_an_episode(keyed, keys):
 def test_a_host_without_the_key_is_refused_with_a_clear_error(keyed, keys, which):
     key = None if which == "none" else keys[1]
     with pytest.raises(RigError, match="UNAUTHENTICATED.*--key FILE") as info:
-        RigClient(keyed.address, key=key, timeout_s=0.05, retries=3)
+        RigClient(keyed.address, key=key, timeout_s=0.2, retries=5)
     assert ("has no key" if key is None else "has a key") in str(info.value)
     assert keyed.link.filter.counts()["unauthenticated"] > 0
 
@@ -83,8 +112,8 @@ def test_a_keyed_host_at_a_target_without_key_is_told_so(keys):
     th.start()
     try:
         assert target.link.filter.loopback_only  # no key: loopback peers only
-        with pytest.raises(RigError, match="started without a key.*--key FILE"):
-            RigClient(target.address, key=keys[0], timeout_s=0.05, retries=3)
+        with pytest.raises(RigError, match="started with another key or without one.*--key FILE"):
+            RigClient(target.address, key=keys[0], timeout_s=0.2, retries=5)
     finally:
         target.stop()
         th.join(10)
@@ -97,10 +126,10 @@ def test_a_hello_from_elsewhere_never_takes_the_session(keyed, keys):
     try:
         before = keyed.link.filter.counts()["stranger"]
         with pytest.raises(RigError, match="BUSY"):
-            RigClient(keyed.address, key=keys[0], timeout_s=0.05, retries=3)
+            RigClient(keyed.address, key=keys[0], timeout_s=0.2, retries=5)
         env.reset(seed=2)
         with pytest.raises(RigError, match="BUSY"):
-            RigClient(keyed.address, key=keys[0], timeout_s=0.05, retries=3)
+            RigClient(keyed.address, key=keys[0], timeout_s=0.2, retries=5)
         for _ in range(env.max_steps):
             _o, _r, te, tr, _i = env.step(np.array([0.1], np.float32))
             if te or tr:

@@ -20,59 +20,69 @@ HEAD = dict(session=0x01020304, seq=5, tick=10000, host_ns=1_000_000_007, target
 
 # Header bytes common to every golden message, then per message: type byte, payload length,
 # payload, tag (HMAC-SHA256 under GOLDEN_KEY with the session nonce GOLDEN_NONCE, 16 bytes).
-# Header: magic "IMPR" | major 02 | minor 01 | type | flags 00 | session 04030201 |
+# Header: magic "IMPR" | major 03 | minor 00 | type | flags 00 | session 04030201 |
 # seq 05000000 | tick 1027000000000000 (10000) | host_ns 07ca9a3b00000000 (1000000007) |
 # target_ns 0b94357700000000 (2000000011) | payload length (u16).
-MAGIC_VER = "494d5052" "02" "01"
+MAGIC_VER = "494d5052" "03" "00"
 GOLDEN_KEY = bytes(range(32))
 GOLDEN_NONCE = 0x0123456789ABCDEF
+HOST_NONCE = bytes.fromhex("00112233445566778899aabbccddeeff")
+TARGET_NONCE = bytes.fromhex("ffeeddccbbaa99887766554433221100")
 AFTER_TYPE = "00" "04030201" "05000000" "1027000000000000" "07ca9a3b00000000" "0b94357700000000"
 
 GOLDEN = [
-    (P.Hello(nonce=0xDEADBEEF), "01", "0400", "efbeadde", "0f71f0b7196e09126eca64634fd83cda"),
-    (P.Info(nonce=0xDEADBEEF, control_rate_hz=1e4, state=P.TargetState.IDLE, driver=0, lockstep=True,
+    # nonce | 64 zero bytes of padding
+    (P.Hello(nonce=HOST_NONCE), "01", "5000", HOST_NONCE.hex() + "00" * 64,
+     "9bf0b1d0b316cb38118235861f6003ba"),
+    (P.Challenge(nonce=HOST_NONCE, target_nonce=TARGET_NONCE), "0f", "2000",
+     HOST_NONCE.hex() + TARGET_NONCE.hex(), "cc1ea7a6d6566e804fbae49b33ab2234"),
+    # nonce | target nonce | 48 zero bytes of padding
+    (P.Response(nonce=HOST_NONCE, target_nonce=TARGET_NONCE), "10", "5000",
+     HOST_NONCE.hex() + TARGET_NONCE.hex() + "00" * 48, "31c966be0176a3a423dbf21189208da9"),
+    (P.Info(nonce=HOST_NONCE, control_rate_hz=1e4, state=P.TargetState.IDLE, driver=0, lockstep=True,
             scene_size=2345, scene_sha256=SHA_SCENE, session_nonce=0x1122334455667788, keyed=True),
-     "02", "3c00",
-     # nonce | rate 1e4 (f64) | state 00 | driver 00 | lockstep 01 | scene_size 2345 | sha256 |
+     "02", "4800",
+     # nonce (16 B) | rate 1e4 (f64) | state 00 | driver 00 | lockstep 01 | scene_size 2345 | sha256 |
      # session_nonce (u64) | keyed 01
-     "efbeadde" "000000000088c340" "00" "00" "01" "29090000" + SHA_SCENE.hex() + "8877665544332211" "01",
-     "78a92eb4db822dbff05a6328e4782801"),
+     HOST_NONCE.hex() + "000000000088c340" "00" "00" "01" "29090000" + SHA_SCENE.hex() + "8877665544332211"
+     "01",
+     "42cd1c410060367572f01f9b5757b9d6"),
     (P.Arm(mode="onboard", observation="sensors", history=2, options=P.ARM_TERMINATE_ON_CATCH, hold_ticks=10,
            seed=42, horizon_ticks=4000, first_command_timeout_ticks=1000, link_timeout_ms=500,
            policy_size=100000, policy_sha256=SHA_POLICY), "03", "3e00",
      # mode 02 | obs 00 | history 02 | options 01 | hold 10 | seed 42 | horizon 4000 | timeout 1000 |
      # link 500 ms | size 100000 | sha256
      "02" "00" "02" "01" "0a00" "2a00000000000000" "a00f0000" "e8030000" "f4010000" "a0860100"
-     + SHA_POLICY.hex(), "0520e29a3d09c12e05225c6dd447be48"),
+     + SHA_POLICY.hex(), "7847e7a44be1fba8631a1cd5134195e7"),
     (P.Armed(episode=3, start_tick=123456, obs_size=10, action_size=1, obs_dtype=4, telemetry_size=2,
              hold_ticks=10, control_rate_hz=1e4, scene_sha256=SHA_SCENE), "04", "3c00",
      "03000000" "40e2010000000000" "0a00" "0100" "04" "02" "0a00" "000000000088c340" + SHA_SCENE.hex(),
-     "ba4b32a2a18d16acf77e700f0f077694"),
+     "0b24683a2debf62286cda9eb3ad0e3e3"),
     (P.PolicyChunk(upload_id=0x0807060504030201, total=100000, offset=2048, data=b"\x00\x01\x02\xff"),
      "05", "1600", "0102030405060708" "a0860100" "00080000" "0400" "000102ff",
-     "8341add355a6b6e673346e2cfbe87a6e"),
+     "2650e7be6bf80212a04efa2577288dbe"),
     (P.Ack(acked_type=P.MsgType.POLICY_CHUNK, code=0, acked_seq=77, value=2052), "06", "0e00",
-     "05" "00" "4d000000" "0408000000000000", "6bd49e63ba3713187892dd03f8fc4627"),
+     "05" "00" "4d000000" "0408000000000000", "9c9f8330a910ca98c0664bb38c769c08"),
     (P.Command(episode=3, step=7, action=(0.25,)), "07", "1200",
-     "03000000" "07000000" "0100" "000000000000d03f", "890acbf56285b233ebd1d98223eabbec"),
+     "03000000" "07000000" "0100" "000000000000d03f", "26e1e54d8a595bcc4e88967144582d3c"),
     (P.Observation(episode=3, step=7, status=0x10002, dtype=4, obs=(1.5, -0.25, 0.0), telemetry=(12.5,)),
      "08", "2500",
      # episode | step | status | dtype 04 | n 3 | m 1 (u16) | 1.5f -0.25f 0.0f | 12.5 (f64)
      "03000000" "07000000" "02000100" "04" "0300" "0100" "0000c03f" "000080be" "00000000" "0000000000002940",
-     "8401dac8778114275bd0498b09a7fdee"),
+     "8e44b69de0f0b2a6b9dc748143699e14"),
     (P.EpisodeEnd(episode=3, reason=P.EndReason.HORIZON, status=0x4, n_ticks=4000, n_steps=400,
                   data_size=65536, data_sha256=SHA_POLICY), "09", "3900",
      "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(),
-     "0c01ca133044cadbcc6b8ed1afb3d9d9"),
+     "d4d5ebdbe6f285535177199066476153"),
     (P.Fetch(resource=P.Resource.EPISODE, item=3, offset=1024, max_len=1024), "0a", "0b00",
-     "02" "03000000" "00040000" "0004", "9baa42d3b187e89af19314832f9c13ac"),
+     "02" "03000000" "00040000" "0004", "d49bd74122fb20923b5346e81ac0018f"),
     (P.Chunk(resource=P.Resource.EPISODE, item=3, total=65536, offset=1024, data=b"HDF"), "0b", "1200",
-     "02" "03000000" "00000100" "00040000" "0300" "484446", "7a38227ebc038f82ed5298e5ad8e0005"),
-    (P.Disarm(reason=1), "0c", "0100", "01", "32515f914d7bcc0e7fae12db2f488dea"),
+     "02" "03000000" "00000100" "00040000" "0300" "484446", "db70e715486f97864aed81dce161b613"),
+    (P.Disarm(reason=1), "0c", "0100", "01", "dc33d693269a4b413410f80abc0f0f39"),
     (P.Heartbeat(state=P.TargetState.RUNNING, episode=3, step=7, peer_seq=99), "0d", "0d00",
-     "02" "03000000" "07000000" "63000000", "2bc3bdc36be7e9e6eedb6f881c86a7c8"),
+     "02" "03000000" "07000000" "63000000", "104a9c53aa1f996bc10ec78480b2a54a"),
     (P.Error(code=P.ErrorCode.BUSY, ref_seq=5, text="busy: session 0x1"), "0e", "1900",
-     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "1f9cf0cf378b3f4876af81279dd9da83"),
+     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "e2fd67d4386a9eee762bea38ba2eb0cc"),
 ]
 
 
@@ -86,9 +96,10 @@ def test_golden_bytes(body, mtype, plen, payload, tag):
     msg = P.Message(body, **HEAD)
     assert P.encode(msg, GOLDEN_KEY, GOLDEN_NONCE) == expected
     assert P.decode(expected, GOLDEN_KEY, GOLDEN_NONCE) == msg
-    # the trailer is the standard library's HMAC-SHA256 of the nonce (0 for HELLO, INFO and ERROR,
-    # sent before both sides know it) and everything before it, cut to 16 bytes
-    nonce = 0 if msg.type in (P.MsgType.HELLO, P.MsgType.INFO, P.MsgType.ERROR) else GOLDEN_NONCE
+    # the trailer is the standard library's HMAC-SHA256 of the nonce (0 for the handshake's types
+    # and ERROR, sent before both sides know it) and everything before it, cut to 16 bytes
+    nonce = 0 if msg.type in (P.MsgType.HELLO, P.MsgType.CHALLENGE, P.MsgType.RESPONSE, P.MsgType.INFO,
+                              P.MsgType.ERROR) else GOLDEN_NONCE
     mac = hmac.new(GOLDEN_KEY, nonce.to_bytes(8, "little") + expected[:-16], hashlib.sha256).digest()[:16]
     assert expected[-16:] == mac
     assert len(expected) == P.OVERHEAD + len(payload) // 2
@@ -118,9 +129,13 @@ def chunk_like(draw, cls, head):
     return cls(*head(draw), total, offset, data)
 
 
+nonce16 = st.binary(min_size=P.NONCE_SIZE, max_size=P.NONCE_SIZE)
 BODY_STRATEGIES = st.one_of(
-    st.builds(P.Hello, u32),
-    st.builds(P.Info, u32, rate, st.integers(0, 3), st.integers(0, 1), st.booleans(), u32, sha),
+    st.builds(P.Hello, nonce16),
+    st.builds(P.Challenge, nonce16, nonce16),
+    st.builds(P.Response, nonce16, nonce16),
+    st.builds(P.Info, nonce16, rate, st.integers(0, 3), st.integers(0, 1), st.booleans(), u32, sha, u64,
+              st.booleans()),
     st.builds(P.Arm, st.sampled_from(list(P.MODES)), st.sampled_from(list(P.OBSERVATIONS)),
               st.integers(1, 64), u8, st.integers(1, P.U16), u64, st.integers(1, P.U32), u32, u32, u32, sha),
     st.builds(P.Armed, u32, u64, st.integers(0, P.MAX_VALUES), st.integers(0, P.MAX_VALUES),
@@ -181,6 +196,8 @@ def test_float32_observations_are_rounded_on_encode():
     (lambda: P.Chunk(total=10, offset=8, data=b"abc"), "runs past the total"),
     (lambda: P.Error(text="x" * 2000), "at most 1024"),
     (lambda: P.Message(P.Hello(), session=2**32), "session"),
+    (lambda: P.Hello(nonce=1234), "nonce must be 16 bytes"),
+    (lambda: P.Response(target_nonce=bytes(8)), "target_nonce must be 16 bytes"),
     (lambda: P.Message("hello"), "body must be one of"),
 ])
 def test_invalid_fields_are_refused_with_their_name(make, match):
@@ -200,8 +217,8 @@ def _with_crc(frame: bytes) -> bytes:
     return frame + P.tag(b"", 0, frame)
 
 
-def _frame(mtype=P.MsgType.HELLO, payload=b"\0\0\0\0", major=P.VERSION_MAJOR, minor=P.VERSION_MINOR,
-           magic=P.MAGIC, plen=None, session=1, seq=1):
+def _frame(mtype=P.MsgType.HELLO, payload=bytes(P.Hello.FMT.size), major=P.VERSION_MAJOR,
+           minor=P.VERSION_MINOR, magic=P.MAGIC, plen=None, session=1, seq=1):
     head = P.HEADER.pack(magic, major, minor, mtype, 0, session, seq, 0, 0, 0,
                          len(payload) if plen is None else plen)
     return _with_crc(head + payload)
@@ -215,13 +232,14 @@ def _frame(mtype=P.MsgType.HELLO, payload=b"\0\0\0\0", major=P.VERSION_MAJOR, mi
     (_frame(plen=3), P.CorruptDatagram, "length"),
     (_frame()[:-1] + b"\0", P.Unauthenticated, "HELLO"),
     (_frame(mtype=99), P.UnknownType, "type"),
-    (_frame(payload=b"\0\0\0"), P.CorruptDatagram, "payload"),  # HELLO needs 4 bytes
-    (_frame(payload=b"\0" * 5), P.CorruptDatagram, "payload"),  # and exactly 4 at minor 0
+    (_frame(payload=bytes(79)), P.CorruptDatagram, "payload"),  # HELLO needs 80 bytes
+    (_frame(payload=bytes(81)), P.CorruptDatagram, "payload"),  # and exactly 80 at minor 0
     (_frame(P.MsgType.COMMAND, struct.pack("<IIH", 0, 0, 2) + bytes(8)), P.CorruptDatagram, "payload"),
     (_frame(P.MsgType.COMMAND, struct.pack("<IIH", 0, 0, 0)), P.CorruptDatagram, "payload"),  # no action
     (_frame(P.MsgType.ARM, bytes(62)), P.CorruptDatagram, "payload"),  # mode 0 is not a mode
     (_frame(P.MsgType.ERROR, struct.pack("<HIH", 1, 0, 2) + b"\xff\xfe"), P.CorruptDatagram, "payload"),
-    (_frame(P.MsgType.INFO, struct.pack("<IdBBBI32s", 0, float("nan"), 0, 0, 0, 0, bytes(32))),
+    (_frame(P.MsgType.INFO, struct.pack("<16sdBBBI32sQB", bytes(16), float("nan"), 0, 0, 0, 0, bytes(32), 1,
+                                        0)),
      P.CorruptDatagram, "payload"),
     (_frame(P.MsgType.CHUNK, struct.pack("<BIIIH", 2, 0, 2, 0, 3) + b"abc"), P.CorruptDatagram, "payload"),
 ])
@@ -259,7 +277,8 @@ def test_filter_sequence_window():
     assert f.accept(_cmd(12)) is None and f.last_reason == "out_of_order"  # left the window
     assert f.counts() == {"accepted": 4, "corrupt": 0, "wrong_version": 0, "unauthenticated": 0,
                           "not_loopback": 0, "stranger": 0, "wrong_session": 0,
-                          "unexpected": 0, "duplicate": 3, "out_of_order": 2, "late": 0}
+                          "unexpected": 0, "duplicate": 3, "out_of_order": 2, "late": 0, "rate_limited": 0,
+                          "no_challenge": 0}
 
 
 def test_filter_sequence_numbers_wrap():
@@ -281,7 +300,7 @@ def test_filter_streams_are_per_type():
 def test_filter_sessions_and_directions():
     f = P.DatagramFilter("target")
     assert f.accept(_cmd(1)) is None and f.last_reason == "wrong_session"  # no session open yet
-    hello = P.encode(P.Message(P.Hello(1), session=7, seq=0))
+    hello = P.encode(P.Message(P.Hello(), session=7, seq=0))
     assert f.accept(hello) is not None  # HELLO opens one, whatever the session
     f.session = 7
     assert f.accept(_cmd(1)) is not None
@@ -301,7 +320,8 @@ def test_filter_hello_flood_does_not_evict_the_open_session():
     f = P.DatagramFilter("target", session=7)
     assert f.accept(_cmd(100)) is not None
     for k in range(3 * P.DatagramFilter.MAX_STREAMS):
-        assert f.accept(P.encode(P.Message(P.Hello(), session=1000 + k, seq=0))) is not None
+        hello = P.encode(P.Message(P.Hello(), session=1000 + k, seq=0))
+        assert f.accept(hello, sender=("127.0.0.1", 2000 + k)) is not None  # a source each: no rate limit
     assert f.accept(_cmd(50)) is None and f.last_reason == "out_of_order"  # the stream is still known
 
 
@@ -319,7 +339,9 @@ N_FUZZ = 100_000
 
 
 _RANDOM_BODIES = {
-    P.MsgType.HELLO: lambda r: P.Hello(r.getrandbits(32)),
+    P.MsgType.HELLO: lambda r: P.Hello(r.randbytes(16)),
+    P.MsgType.RESPONSE: lambda r: P.Response(r.randbytes(16), r.randbytes(16)),
+    P.MsgType.CHALLENGE: lambda r: P.Challenge(r.randbytes(16), r.randbytes(16)),
     P.MsgType.ARM: lambda r: P.Arm(r.choice(list(P.MODES)), r.choice(list(P.OBSERVATIONS)), r.randint(1, 64),
                                    0, r.randint(1, 100), r.getrandbits(64), r.randint(1, 10**6),
                                    r.randint(0, 10**4), 0, 0, r.randbytes(32)),
@@ -332,7 +354,7 @@ _RANDOM_BODIES = {
     P.MsgType.HEARTBEAT: lambda r: P.Heartbeat(r.randint(0, 3), 1, r.getrandbits(16), r.getrandbits(32)),
     P.MsgType.ERROR: lambda r: P.Error(r.randint(0, 7), r.getrandbits(32), "e" * r.randint(0, 30)),
     P.MsgType.OBSERVATION: lambda r: P.Observation(1, 2, 3, 4, (0.5, 0.25)),
-    P.MsgType.INFO: lambda r: P.Info(1, 1e4, 0, 0, False, 10, r.randbytes(32)),
+    P.MsgType.INFO: lambda r: P.Info(r.randbytes(16), 1e4, 0, 0, False, 10, r.randbytes(32)),
     P.MsgType.CHUNK: lambda r: P.Chunk(2, 1, 100, 0, b"x"),
     P.MsgType.ARMED: lambda r: P.Armed(1, 0, 3, 1, 4, 0, 10, 1e4, r.randbytes(32)),
     P.MsgType.EPISODE_END: lambda r: P.EpisodeEnd(1, 1, 0, 10, 1, 0, r.randbytes(32)),
@@ -351,12 +373,14 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
     r = random.Random(20240611)
     session = 0x5EED
     home, elsewhere = ("127.0.0.1", 5600), ("127.0.0.1", 5601)
-    f = P.DatagramFilter("target", session=session, peer=home, loopback_only=True)
+    now = [0.0]  # the rate limiter's clock: 1 ms a datagram, so its verdicts are the seed's alone
+    f = P.DatagramFilter("target", session=session, peer=home, loopback_only=True,
+                         limiter=P._HS.RateLimiter(clock=lambda: now[0]))
     seq = 0
     episode, step = 1, 0
     sent: dict[int, list[bytes]] = {}  # type -> accepted datagrams, newest last
     newest: dict[int, int] = {}
-    h2t = sorted(P.HOST_TO_TARGET - {P.MsgType.HELLO})
+    h2t = sorted(P.HOST_TO_TARGET - P.HANDSHAKE_TYPES)
     t2h_only = sorted(P.TARGET_TO_HOST - P.HOST_TO_TARGET)
     outcome_counts: dict[str, int] = {}
 
@@ -370,6 +394,7 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
         return P.Message(body, session=session, seq=seq, tick=r.getrandbits(40))
 
     def feed(data, allowed, sender=home):
+        now[0] += 1e-3
         before = f.total
         msg = f.accept(data, episode, step, sender)
         assert f.total == before + 1, (i, kind)  # one counter moved, by one
@@ -393,8 +418,8 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
             step += 1
             if step > 400:
                 episode, step = episode + 1, 0
-        kind = r.randrange(15)
-        if kind == 11 and f.total >= N_FUZZ - 1:
+        kind = r.randrange(16)
+        if kind in (11, 15) and f.total >= N_FUZZ - 1:
             kind = 0
         t = r.choice(h2t)
         sender = home
@@ -417,10 +442,10 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
             b = bytearray(base[:-P.TAG_SIZE])
             what = r.randrange(5)
             if what == 0:
-                b[4] = r.choice([0, 1, 3, 255])
+                b[4] = r.choice([0, 1, 2, 255])  # any major but ours (3)
                 allowed = {"wrong_version"}
             elif what == 1:
-                b[6] = r.choice([0, 15, 16, 200, 255])
+                b[6] = r.choice([0, 17, 200, 255])
                 allowed = {"unexpected"}
             elif what == 2:
                 b[40:42] = struct.pack("<H", r.randint(0, 65535))
@@ -454,10 +479,20 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
         elif kind == 8:  # a type for the other direction
             data = P.encode(fresh(r.choice(t2h_only)))
             allowed = {"unexpected"}
-        elif kind == 9:  # another session's HELLO is let through; another's command is not
-            data = P.encode(P.Message(P.Hello(r.getrandbits(32)), session=r.getrandbits(32),
+        elif kind == 9:  # another session's HELLO is let through (at the per-source rate); its command is not
+            data = P.encode(P.Message(P.Hello(r.randbytes(16)), session=r.getrandbits(32),
                                       seq=r.getrandbits(32)))
-            allowed = {"accepted", "duplicate", "out_of_order"}
+            allowed = {"accepted", "duplicate", "out_of_order", "rate_limited"}
+        elif kind == 15:  # a RESPONSE to a challenge sent to its sender: accepted once, then spent
+            hs, hn, how = r.getrandbits(32), r.randbytes(16), r.randrange(3)
+            tn = f.challenges.issue(P.source(elsewhere if how == 1 else home), hs, hn)
+            if how == 0:  # answered, then the same answer again (a new number: past the window)
+                feed(P.encode(P.Message(P.Response(hn, tn), session=hs, seq=1)), {"accepted"})
+            elif how == 2:  # a target nonce that was never sent
+                tn = r.randbytes(16)
+            # how == 1: the challenge went to another port than the one answering
+            data = P.encode(P.Message(P.Response(hn, tn), session=hs, seq=2))
+            allowed = {"no_challenge"}
         else:  # a valid datagram sent twice in a row
             data = base
             allowed = {"accepted"}

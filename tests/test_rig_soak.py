@@ -173,7 +173,7 @@ import socket
 s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 s.bind(("127.0.0.1", 0))
 key = os.urandom(32)  # not the target's
-bodies = [P.Hello(1234), P.Arm("host", "sensors", 1, 0, 4, 7, 4000, 1000, 0, 0, bytes(32)),
+bodies = [P.Hello(bytes(16)), P.Arm("host", "sensors", 1, 0, 4, 7, 4000, 1000, 0, 0, bytes(32)),
           P.Command(1, 0, (1.0,)), P.Fetch(P.Resource.SCENE, 0, 0, 1024)]
 sent, seq, t0 = 0, 1, time.perf_counter()
 print("ready", flush=True)
@@ -256,7 +256,8 @@ while not os.path.exists(stop_file) and time.perf_counter() - t0 < 120:
         go += 1
     burst = max(0, burst - 1)
     if k % 2:  # HELLOs alternately with the host's session id and a new one
-        msg = P.Message(P.Hello(k), session=sess if k % 4 == 1 else 0xBAD0 + k % 7, seq=seq)
+        msg = P.Message(P.Hello(k.to_bytes(16, "little")), session=sess if k % 4 == 1 else 0xBAD0 + k % 7,
+                        seq=seq)
     else:  # full-scale COMMANDs for the episodes around the host's, steps ahead of it
         msg = P.Message(P.Command(ep + (k // 2) % 3, (k // 2) % 1000, (1.0,)), session=sess, seq=seq)
     s.sendto(P.encode(msg, b"", nonce), (host, port))

@@ -160,7 +160,7 @@ def _host(target: Responder, session=0xC0FFEE):
     return T.Link(T.Endpoint(LOOP, peer=target.ep.address), "host", session=session)
 
 
-def _hello(link, nonce=7, **kw):
+def _hello(link, nonce=b"\x07" * P.NONCE_SIZE, **kw):
     return link.request(P.Hello(nonce), lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce, "INFO",
                         **kw)
 

@@ -31,8 +31,10 @@ Timing contract (host mode; H = ``hold_ticks``, T the control period):
 from __future__ import annotations
 
 import hashlib
+import hmac
 import math
 import os
+import secrets
 import time
 from typing import Any
 
@@ -93,25 +95,41 @@ class RigClient:
         self.step = 0
 
     def hello(self) -> P.Info:
-        """HELLO -> INFO: opens the session (or confirms it: the same session id again keeps it;
-        one that the target closed after its idle timeout is opened anew, with a new nonce)."""
-        nonce = int.from_bytes(os.urandom(4), "little")
+        """HELLO -> CHALLENGE, RESPONSE -> INFO: opens the session (or confirms it: the same
+        session id again keeps it; one that the target closed after its idle timeout is opened
+        anew, with a new session nonce).  Both nonces are fresh (``secrets``), so no recorded
+        handshake opens anything again."""
+        nonce = secrets.token_bytes(P.NONCE_SIZE)
+        f = self.link.filter
+        refusals = f.unverified_refusals
         try:
-            info = self.link.request(P.Hello(nonce),
-                                     lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce,
-                                     "INFO (answer to HELLO)", self.timeout_s, self.retries).body
+            challenge = self.link.request(
+                P.Hello(nonce),
+                lambda m: m.type == P.MsgType.CHALLENGE and hmac.compare_digest(m.body.nonce, nonce),
+                "CHALLENGE (answer to HELLO)", self.timeout_s, self.retries).body
+            info = self.link.request(
+                P.Response(nonce, challenge.target_nonce),
+                lambda m: m.type == P.MsgType.INFO and hmac.compare_digest(m.body.nonce, nonce),
+                "INFO (answer to RESPONSE)", self.timeout_s, self.retries).body
         except (RigTimeout, RigError) as exc:
-            text = self.link.filter.auth_refusal  # a target with another key (or none) refused us
-            if isinstance(exc, RigError) and exc.code == P.ErrorCode.UNAUTHENTICATED:
-                text = exc.text  # a host without key reads the refusal as it is
-            if text:
-                side = "has a key" if self.link.filter.key else "has no key"
-                raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED,
-                               f"{text} (this host {side})") from None
+            # a host without key reads the target's refusal (tagged without key) as authentic; a
+            # host with one cannot check it, and only counts it: the text is this side's own
+            if ((isinstance(exc, RigError) and exc.code == P.ErrorCode.UNAUTHENTICATED)
+                    or (isinstance(exc, RigTimeout) and f.unverified_refusals > refusals)):
+                raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED, self._refused()) from None
             raise
-        self.link.filter.nonce = info.session_nonce
+        f.nonce = info.session_nonce
         self.info = info
         return info
+
+    def _refused(self) -> str:
+        if self.link.filter.key:
+            return ("the target refused this host's HELLO as unauthenticated (an unverifiable reply): it was "
+                    "started with another key or without one; start it with rig serve --key FILE using this "
+                    "host's key file, or give the host no key for a target without one (this host has a key)")
+        return ("the target refused this host's HELLO as unauthenticated: it was started with a key "
+                "(rig serve --key FILE); give the host the same key file (ImpactCatchRig-v0(key=FILE), "
+                "compare --key FILE) (this host has no key)")
 
     def arm(self, mode: str, seed: int, horizon_ticks: int, observation: str = "sensors", history: int = 1,
             hold_ticks: int = 1, policy: CompiledPolicy | None = None, link_timeout_ms: int = 0,

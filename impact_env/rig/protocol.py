@@ -1,10 +1,12 @@
-"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 2.1).
+"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 3.0).
 
 Every datagram is one message: a 42-byte header, a payload whose layout the message type fixes,
 and a 16-byte tag (HMAC-SHA256, :func:`tag`).  Version 2.0 replaced 1.0's CRC-32 trailer with
 the tag and appended session_nonce and keyed to INFO; 2.1 gave ARM's options bits 1-2, the
-episode kind (:class:`EpisodeKind`: drops, or identification episodes with body 1 held).  Integers are unsigned little-endian,
-floats IEEE-754 little-endian.
+episode kind (:class:`EpisodeKind`: drops, or identification episodes with body 1 held); 3.0
+opens a session by challenge and response (HELLO -> CHALLENGE, RESPONSE -> INFO, 128-bit
+nonces from both sides), so that no recorded datagram opens one again.  Integers are unsigned
+little-endian, floats IEEE-754 little-endian.
 
 Header (42 bytes) and trailer
 =============================
@@ -13,7 +15,7 @@ Header (42 bytes) and trailer
 offset  size  type        field
 ======  ====  ==========  =================================================================
 0       4     bytes       magic ``b"IMPR"``
-4       1     u8          major version (2): a receiver drops any other major
+4       1     u8          major version (3): a receiver drops any other major
 5       1     u8          minor version (0): see *Versioning*
 6       1     u8          message type (table below)
 7       1     u8          flags: bit 0 ``FLAG_RETRY`` (a request sent again); others reserved
@@ -30,7 +32,7 @@ offset  size  type        field
 42      L     bytes       payload
 42+L    16    bytes       tag: HMAC-SHA256(key, nonce u64 LE + bytes 0 .. 42+L-1)[:16]; key the
                           shared key (b"" without one), nonce the session's (from INFO; 0 for
-                          HELLO, INFO and ERROR)
+                          HELLO, CHALLENGE, RESPONSE, INFO and ERROR)
 ======  ====  ==========  =================================================================
 
 Message types and payloads (offsets from the payload start; ``H`` host, ``T`` target)
@@ -39,16 +41,26 @@ Message types and payloads (offsets from the payload start; ``H`` host, ``T`` ta
 =====  ============  =====  ===========================================================================
 code   type          dir    payload (offset type field [unit])
 =====  ============  =====  ===========================================================================
-1      HELLO         H->T   0 u32 nonce (echoed in INFO).  Opens a session: the header's session id.
-2      INFO          T->H   0 u32 nonce; 4 f64 control_rate_hz [Hz]; 12 u8 state (0 idle, 1 armed,
-                            2 running, 3 fault); 13 u8 driver (0 virtual, 1 hardware); 14 u8 lockstep
-                            (0/1); 15 u32 scene_size [B] (resource SCENE); 19 32s scene_sha256; 51 u64
-                            session_nonce (drawn per session; in every later tag); 59 u8 keyed.  = 60 B
+1      HELLO         H->T   0 16s nonce (the host's, fresh per handshake); 16 64 zero bytes (padding:
+                            no reply to a HELLO is larger).  Asks for a CHALLENGE; opens nothing.
+                            = 80 B
+15     CHALLENGE     T->H   0 16s nonce (the HELLO's); 16 16s target_nonce (fresh, ``secrets``).
+                            In the HELLO's session id.  = 32 B
+16     RESPONSE      H->T   0 16s nonce; 16 16s target_nonce (the CHALLENGE's); 32 48 zero bytes
+                            (padding).  Its tag covers both nonces: it opens the header's session
+                            (or confirms the open one) if it answers a live challenge sent to
+                            its sender, once.  = 80 B
+2      INFO          T->H   0 16s nonce (the RESPONSE's); 16 f64 control_rate_hz [Hz]; 24 u8 state
+                            (0 idle, 1 armed, 2 running, 3 fault); 25 u8 driver (0 virtual, 1
+                            hardware); 26 u8 lockstep (0/1); 27 u32 scene_size [B] (resource SCENE);
+                            31 32s scene_sha256; 63 u64 session_nonce (drawn per session; in every
+                            later tag); 71 u8 keyed.  = 72 B
 3      ARM           H->T   0 u8 mode (1 host, 2 onboard); 1 u8 observation (0 sensors, 1 privileged,
                             2 both); 2 u8 history [frames, 1..64]; 3 u8 options (bit 0
                             ``ARM_TERMINATE_ON_CATCH``; bits 1-2 the ``EpisodeKind``: 0 drop, 1
-                            identification drop, 2 shaker only, 3 quiet; 2.1); 4 u16 hold_ticks [ticks per policy step,
-                            >= 1]; 6 u64 seed; 14 u32 horizon_ticks [ticks, >= 1]; 18 u32
+                            identification drop, 2 shaker only, 3 quiet; 2.1); 4 u16 hold_ticks
+                            [ticks per policy step, >= 1]; 6 u64 seed; 14 u32 horizon_ticks [ticks,
+                            >= 1]; 18 u32
                             first_command_timeout_ticks [ticks; host mode; 0: the target's
                             safety.first_command_timeout_s]; 22 u32 link_timeout_ms [ms; 0 = none];
                             26 u32 policy_size [B; onboard, else 0]; 30 32s policy_sha256
@@ -104,8 +116,8 @@ sequence number it accepted and which of the 64 before it it accepted; anything 
 dropped (``duplicate`` if it was accepted before, else ``out_of_order``).  A COMMAND for a
 (episode, step) before the target's current one is dropped as ``late``.  Latest command wins:
 the target keeps only the newest accepted command; a command for a future step waits for it.
-Requests (HELLO, ARM, POLICY_CHUNK, FETCH, DISARM) are idempotent and retried with new sequence
-numbers until their reply (INFO, ARMED, ACK, CHUNK, ACK) arrives
+Requests (HELLO, RESPONSE, ARM, POLICY_CHUNK, FETCH, DISARM) are idempotent and retried with
+new sequence numbers until their reply (CHALLENGE, INFO, ARMED, ACK, CHUNK, ACK) arrives
 (:meth:`impact_env.rig.transport.Link.request`).
 
 Authentication (:class:`DatagramFilter` with ``key``, ``nonce``, ``peer``, ``loopback_only``).
@@ -114,6 +126,16 @@ key takes loopback peers only (``not_loopback``); once a target's session is ope
 host's address and port only (``stranger``: a HELLO from elsewhere is answered ERROR BUSY by
 the target, never evicting the session).  The session nonce in the tag makes a datagram of one
 session fail in any other; the sequence window refuses a copy within the session.
+
+Opening a session (:mod:`impact_env.rig.handshake`).  HELLO -> CHALLENGE (a fresh target nonce,
+kept 5 s for the HELLO's sender), RESPONSE (both nonces, tagged) -> INFO.  A RESPONSE that
+answers no live challenge sent to its sender is dropped (``no_challenge``): a recorded HELLO
+replayed draws only a challenge to its sender, a recorded RESPONSE names a spent challenge, so
+neither opens, holds nor evicts a session.  Without a key (loopback only) the round trip still
+proves the peer is live and reads the target's answers.  What a target sends to a sender that
+is not its session's host (CHALLENGE, ERROR BUSY, ERROR UNAUTHENTICATED) is never larger than
+the datagram it answers (HELLO is padded for that), names no host, and is rate-limited per
+source (token buckets: 32 at once, 50 per second; a HELLO past it is ``rate_limited``).
 """
 
 from __future__ import annotations
@@ -127,9 +149,11 @@ import struct
 from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
+from impact_env.rig import handshake as _HS
+
 MAGIC = b"IMPR"
-VERSION_MAJOR = 2
-VERSION_MINOR = 1
+VERSION_MAJOR = 3
+VERSION_MINOR = 0
 
 HEADER = struct.Struct("<4sBBBBIIQQQH")
 TAG_SIZE = 16  # bytes of HMAC-SHA256 kept (128 bits)
@@ -139,7 +163,10 @@ MAX_DATAGRAM = 65507  # largest UDP payload over IPv4, B
 MAX_PAYLOAD = MAX_DATAGRAM - OVERHEAD  # 65449 B
 MIN_KEY = 16  # bytes of a shared key, at least
 # the types tagged with nonce 0: those sent before the session's nonce is known to both sides
-OPEN_TYPES = frozenset({1, 2, 14})  # HELLO, INFO, ERROR
+OPEN_TYPES = frozenset({1, 2, 14, 15, 16})  # HELLO, INFO, ERROR, CHALLENGE, RESPONSE
+NONCE_SIZE = _HS.NONCE_SIZE  # bytes of the host's and the target's handshake nonces
+# zero bytes that pad HELLO and RESPONSE so that no reply to them is larger (anti-amplification)
+HELLO_PAD, RESPONSE_PAD = 64, 48
 MTU_DATAGRAM = 1472  # Ethernet MTU 1500 - IPv4 20 - UDP 8, B
 CHUNK_DATA = 1024  # data bytes per POLICY_CHUNK / CHUNK
 MAX_TEXT = 1024  # ERROR text, B (UTF-8)
@@ -173,12 +200,18 @@ class MsgType(enum.IntEnum):
     DISARM = 12
     HEARTBEAT = 13
     ERROR = 14
+    CHALLENGE = 15
+    RESPONSE = 16
 
 
-HOST_TO_TARGET = frozenset({MsgType.HELLO, MsgType.ARM, MsgType.POLICY_CHUNK, MsgType.COMMAND,
-                            MsgType.FETCH, MsgType.DISARM, MsgType.ACK, MsgType.HEARTBEAT, MsgType.ERROR})
-TARGET_TO_HOST = frozenset({MsgType.INFO, MsgType.ARMED, MsgType.OBSERVATION, MsgType.EPISODE_END,
-                            MsgType.CHUNK, MsgType.ACK, MsgType.HEARTBEAT, MsgType.ERROR})
+HOST_TO_TARGET = frozenset({MsgType.HELLO, MsgType.RESPONSE, MsgType.ARM, MsgType.POLICY_CHUNK,
+                            MsgType.COMMAND, MsgType.FETCH, MsgType.DISARM, MsgType.ACK, MsgType.HEARTBEAT,
+                            MsgType.ERROR})
+TARGET_TO_HOST = frozenset({MsgType.INFO, MsgType.CHALLENGE, MsgType.ARMED, MsgType.OBSERVATION,
+                            MsgType.EPISODE_END, MsgType.CHUNK, MsgType.ACK, MsgType.HEARTBEAT,
+                            MsgType.ERROR})
+# the target answers these itself, idle or running (:meth:`impact_env.rig.target.Target.handshake`)
+HANDSHAKE_TYPES = frozenset({MsgType.HELLO, MsgType.RESPONSE})
 
 
 class TargetState(enum.IntEnum):
@@ -283,6 +316,11 @@ def _floats(name: str, values, limit: int, lo: int = 0) -> None:
             raise ValueError(f"{name} must hold Python floats, got {v!r} ({type(v).__name__})")
 
 
+def _nonce(name: str, value) -> None:
+    if not isinstance(value, bytes) or len(value) != NONCE_SIZE:
+        raise ValueError(f"{name} must be {NONCE_SIZE} bytes (secrets.token_bytes), got {value!r:.80}")
+
+
 def _data(name: str, value, limit: int) -> None:
     if not isinstance(value, bytes) or len(value) > limit:
         raise ValueError(f"{name} must be bytes of at most {limit} B, got {type(value).__name__}"
@@ -323,19 +361,51 @@ def _need(payload, n: int, newer: bool, exact: bool) -> None:
 
 @dataclass(frozen=True)
 class Hello(Body):
+    """The host's nonce, then ``HELLO_PAD`` zero bytes (the CHALLENGE or ERROR answering it is
+    never larger)."""
+
     TYPE: ClassVar = MsgType.HELLO
-    FMT: ClassVar = struct.Struct("<I")
-    nonce: int = 0
+    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}s{HELLO_PAD}x")
+    nonce: bytes = bytes(NONCE_SIZE)
 
     def __post_init__(self):
-        _uint("nonce", self.nonce, U32)
+        _nonce("nonce", self.nonce)
+
+
+@dataclass(frozen=True)
+class Challenge(Body):
+    """The target's answer to a HELLO: its nonce echoed, and a fresh one of the target's."""
+
+    TYPE: ClassVar = MsgType.CHALLENGE
+    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}s{NONCE_SIZE}s")
+    nonce: bytes = bytes(NONCE_SIZE)
+    target_nonce: bytes = bytes(NONCE_SIZE)
+
+    def __post_init__(self):
+        _nonce("nonce", self.nonce)
+        _nonce("target_nonce", self.target_nonce)
+
+
+@dataclass(frozen=True)
+class Response(Body):
+    """The host's answer to a CHALLENGE: both nonces (so its tag is over both), then
+    ``RESPONSE_PAD`` zero bytes (the INFO answering it is never larger)."""
+
+    TYPE: ClassVar = MsgType.RESPONSE
+    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}s{NONCE_SIZE}s{RESPONSE_PAD}x")
+    nonce: bytes = bytes(NONCE_SIZE)
+    target_nonce: bytes = bytes(NONCE_SIZE)
+
+    def __post_init__(self):
+        _nonce("nonce", self.nonce)
+        _nonce("target_nonce", self.target_nonce)
 
 
 @dataclass(frozen=True)
 class Info(Body):
     TYPE: ClassVar = MsgType.INFO
-    FMT: ClassVar = struct.Struct("<IdBBBI32sQB")
-    nonce: int = 0
+    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}sdBBBI32sQB")
+    nonce: bytes = bytes(NONCE_SIZE)
     control_rate_hz: float = 1.0e4
     state: int = TargetState.IDLE
     driver: int = 0
@@ -346,7 +416,7 @@ class Info(Body):
     keyed: bool = False
 
     def __post_init__(self):
-        _uint("nonce", self.nonce, U32)
+        _nonce("nonce", self.nonce)
         if not (isinstance(self.control_rate_hz, float) and self.control_rate_hz > 0
                 and math.isfinite(self.control_rate_hz)):
             raise ValueError(f"control_rate_hz = {self.control_rate_hz!r} Hz must be a finite float > 0 Hz")
@@ -680,6 +750,16 @@ class Error(Body):
         raw = text.encode("utf-8", "replace")[:MAX_TEXT]
         return cls(code, ref_seq, raw.decode("utf-8", "ignore"))
 
+    @classmethod
+    def fitting(cls, code: int, ref_seq: int, text: str, size: int) -> Error | None:
+        """An ERROR whose datagram is at most ``size`` bytes (its text cut to fit, at a
+        character boundary), or None when not even an empty one fits: the reply to a datagram
+        from a sender not yet authenticated is never larger than that datagram."""
+        room = min(size - OVERHEAD - cls.FMT.size, MAX_TEXT)
+        if room < 0:
+            return None
+        return cls(code, ref_seq, text.encode("utf-8", "replace")[:room].decode("utf-8", "ignore"))
+
     def pack(self):
         raw = self.text.encode("utf-8")
         return self.FMT.pack(self.code, self.ref_seq, len(raw)) + raw
@@ -700,7 +780,7 @@ class Error(Body):
 
 BODIES: dict[int, type[Body]] = {cls.TYPE: cls for cls in (
     Hello, Info, Arm, Armed, PolicyChunk, Ack, Command, Observation, EpisodeEnd, Fetch, Chunk, Disarm,
-    Heartbeat, Error)}
+    Heartbeat, Error, Challenge, Response)}
 
 
 # -- messages -----------------------------------------------------------------------------------------
@@ -795,6 +875,11 @@ def decode(data: bytes, key: bytes = b"", nonce: int = 0) -> Message:
     return msg
 
 
+def source(sender: tuple | None) -> tuple | None:
+    """A sender's (host, port), the key of the per-source tables (IPv6's flow info and scope dropped)."""
+    return None if sender is None else (sender[0], sender[1])
+
+
 def is_loopback(host: str) -> bool:
     """Whether ``host`` (an address as the socket gives it) is a loopback address."""
     import ipaddress
@@ -821,8 +906,8 @@ class DatagramFilter:
 
     role: ``"target"`` accepts the host->target types, ``"host"`` the target->host ones (the
     other direction's types count as ``unexpected``).
-    session: the open session id; None accepts only ``open_types`` (by default HELLO at the
-    target, so that a host can open a session).  Setting it forgets the streams.
+    session: the open session id; None accepts only ``open_types`` (by default HELLO and RESPONSE
+    at the target, so that a host can open a session).  Setting it forgets the streams.
 
     ``accept(data, episode, step)`` returns the :class:`Message` or None; for the target, a
     COMMAND for an (episode, step) before the given one is ``late`` (it still moves its stream
@@ -830,11 +915,20 @@ class DatagramFilter:
     plain ints: ``accepted`` and one entry per reason in ``REASONS``, which add up to the number
     of datagrams seen; ``detail`` splits ``corrupt`` (truncated, magic, length, payload) and
     ``unauthenticated``, ``stranger`` (by message type).
+
+    The target's handshake (:mod:`impact_env.rig.handshake`): a HELLO past the per-source
+    ``limiter`` is ``rate_limited`` (not answered); a RESPONSE is accepted only if it answers a
+    live challenge of ``challenges`` sent to its sender (or repeats the handshake that opened the
+    session, ``opened``: its INFO was lost), else ``no_challenge``.  ``replies_limited`` counts
+    the answers to strangers and unauthenticated HELLOs that the limiter withheld.
+    On the host, an ERROR UNAUTHENTICATED whose tag does not check with this side's key is counted
+    ``unauthenticated`` like any other, and ``unverified_refusals`` counts it when it claims to
+    answer this session from its peer: a hint for the host's error message, never state.
     """
 
     REASONS: ClassVar[tuple[str, ...]] = ("corrupt", "wrong_version", "unauthenticated", "not_loopback",
                                           "stranger", "wrong_session", "unexpected", "duplicate",
-                                          "out_of_order", "late")
+                                          "out_of_order", "late", "rate_limited", "no_challenge")
     WINDOW: ClassVar[int] = 64
     MAX_STREAMS: ClassVar[int] = 1024  # other sessions' streams kept before the oldest is forgotten
 
@@ -851,7 +945,12 @@ class DatagramFilter:
     loopback_only: bool = False
     last_stranger: Message | None = None
     last_unauth: bool = False  # the last datagram dropped was a HELLO whose tag did not check
-    auth_refusal: str = ""
+    unverified_refusals: int = 0
+    replies_limited: int = 0
+    # the open session's handshake: (source, session, host nonce, target nonce)
+    opened: tuple | None = None
+    limiter: _HS.RateLimiter = field(default_factory=_HS.RateLimiter)
+    challenges: _HS.Challenges = field(default_factory=_HS.Challenges)
     # datagrams of the open session that authenticated from its peer, whatever their fate after
     # (accepted, or dropped as duplicate, out of order or late): a late COMMAND is still a host
     # that is alive, which is what a link timeout asks
@@ -862,7 +961,7 @@ class DatagramFilter:
             raise ValueError(f"role = {self.role!r} must be 'host' or 'target'")
         self._types = HOST_TO_TARGET if self.role == "target" else TARGET_TO_HOST
         if self.open_types is None:
-            self.open_types = frozenset({MsgType.HELLO}) if self.role == "target" else frozenset()
+            self.open_types = HANDSHAKE_TYPES if self.role == "target" else frozenset()
         self.counters = {"accepted": 0, **{r: 0 for r in self.REASONS}}
         self._streams: dict[tuple[int, int], _Stream] = {}
         self._foreign: dict[tuple[int, int], _Stream] = {}
@@ -901,7 +1000,7 @@ class DatagramFilter:
         except ProtocolError as exc:
             self._drop(exc.reason, str(exc), exc.detail)
             if isinstance(exc, Unauthenticated) and exc.detail == "ERROR" and self.role == "host":
-                self._refusal(data)
+                self._refusal(data, sender)
             self.last_unauth = isinstance(exc, Unauthenticated) and exc.detail == "HELLO"
             return None
         t = msg.type
@@ -920,6 +1019,13 @@ class DatagramFilter:
         self.authentic += 1
         if not self._fresh(msg):
             return None
+        if self.role == "target" and t == MsgType.HELLO and not self.limiter.allow(source(sender)):
+            self._drop("rate_limited", f"HELLO from {sender}: over the per-source reply rate")
+            return None
+        if self.role == "target" and t == MsgType.RESPONSE and not self._redeem(msg, sender):
+            self._drop("no_challenge", "RESPONSE that answers no live challenge sent to its sender "
+                       "(replayed, expired, or never asked)")
+            return None
         if (t == MsgType.COMMAND and episode is not None and step is not None
                 and (msg.body.episode, msg.body.step) < (episode, step)):
             self._drop("late", f"COMMAND for episode {msg.body.episode} step {msg.body.step} arrived at "
@@ -928,16 +1034,34 @@ class DatagramFilter:
         self.counters["accepted"] += 1
         return msg
 
-    def _refusal(self, data: bytes) -> None:
+    def _refusal(self, data: bytes, sender: tuple | None) -> None:
         """A target refuses a HELLO whose tag does not check with an ERROR tagged without a key
-        (the host may hold none, or another): its text, for the host to raise, is kept in
-        ``auth_refusal`` (the datagram is still counted ``unauthenticated``)."""
+        (the host may hold none, or another).  Anyone can make one, so nothing of it is kept:
+        only counted, when it claims to answer this session from its peer, so that a host whose
+        HELLO times out can say that a refusal came (its text is never read)."""
+        if self.peer is not None and sender is not None and tuple(sender[:2]) != tuple(self.peer[:2]):
+            return
         try:
             msg = decode(data)
         except ProtocolError:
             return
-        if msg.body.code == ErrorCode.UNAUTHENTICATED:
-            self.auth_refusal = msg.body.text
+        if msg.body.code == ErrorCode.UNAUTHENTICATED and msg.session == self.session:
+            self.unverified_refusals += 1
+
+    def _redeem(self, msg: Message, sender: tuple | None) -> bool:
+        b = msg.body
+        src = source(sender)
+        if self.opened is not None and self.opened == (src, msg.session, b.nonce, b.target_nonce):
+            return True  # the handshake that opened this session, again: its INFO was lost
+        return self.challenges.redeem(src, msg.session, b.nonce, b.target_nonce)
+
+    def allow_reply(self, sender: tuple | None) -> bool:
+        """Whether the per-source limiter lets this side answer a datagram from ``sender`` that
+        comes from no session's host (a stranger, an unauthenticated HELLO); counted if not."""
+        if self.limiter.allow(source(sender)):
+            return True
+        self.replies_limited += 1
+        return False
 
     def _fresh(self, msg: Message) -> bool:
         # the open session's streams are never evicted; other sessions' (open types only: a

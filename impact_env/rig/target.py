@@ -99,6 +99,7 @@ class Target:
         self.endpoint = Endpoint(bind)
         self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
         self.link.on_unauthenticated = self._unauthenticated
+        self.link.on_handshake = self.handshake
         self.link.filter.loopback_only = not self.cfg.key
         self._heard = 0.0  # perf_counter of the session host's last accepted datagram
         self._close_session = False
@@ -196,50 +197,77 @@ class Target:
     def keyed(self) -> bool:
         return bool(self.cfg.key)
 
-    def open_session(self, msg: P.Message) -> None:
-        """A HELLO from the session's host (or any allowed peer while none is open): a new
-        session id gets a fresh nonce and pins the host's address and port; the same id again
-        (a retried HELLO) keeps them."""
+    def handshake(self, msg: P.Message, addr: tuple) -> None:
+        """A HELLO or RESPONSE the filter accepted (the link's ``on_handshake``, idle or
+        running).  A HELLO opens nothing: it is answered with a CHALLENGE (a fresh target nonce,
+        the same one for a retried HELLO; the filter's per-source limit has let it through).  A
+        RESPONSE that answers a live challenge sent to ``addr`` (the filter checked it, and spent
+        the challenge) opens the session, or confirms it, and is answered with INFO."""
+        f = self.link.filter
+        b = msg.body
+        if msg.type == P.MsgType.HELLO:
+            target_nonce = f.challenges.issue(P.source(addr), msg.session, b.nonce)
+            self._send_raw(P.Challenge(b.nonce, target_nonce), msg.session, addr, self.cfg.key, msg)
+            return
+        if self.state == P.TargetState.RUNNING and msg.session != f.session:
+            self._send_raw(P.Error(P.ErrorCode.BUSY, msg.seq, "busy: an episode is running"), msg.session,
+                           addr, self.cfg.key, msg)
+            return
+        self.open_session(msg, addr)
+        self.link.send(self.info(b.nonce), reply_to=msg, addr=addr)
+
+    def open_session(self, msg: P.Message, addr: tuple) -> None:
+        """A RESPONSE that answers a live challenge (from the session's host, or any allowed peer
+        while none is open): a new session id gets a fresh session nonce and pins the host's
+        address and port; the same id again (the host says HELLO at every ARM) keeps them."""
         f = self.link.filter
         if f.session != msg.session or f.peer is None:
             self.link.session = msg.session  # a new session's streams start empty
             f.nonce = secrets.randbits(64) | 1
-            f.peer = self.link.last_sender
+            f.peer = addr
             self.counters["sessions"] += 1
+        f.opened = (P.source(addr), msg.session, msg.body.nonce, msg.body.target_nonce)
+        self.link.last_sender = addr
+        self._heard = time.perf_counter()
 
     def end_session(self) -> None:
-        """Forget the session: the next HELLO from any allowed peer opens one."""
+        """Forget the session: the next handshake from any allowed peer opens one."""
         f = self.link.filter
         self.link.session = None
-        f.peer, f.nonce = None, 0
+        f.peer, f.nonce, f.opened = None, 0, None
         self._close_session = False
 
     def _stranger(self, msg: P.Message, addr: tuple) -> None:
         """A well-tagged datagram from another address than the session's host's: counted by the
-        filter (``stranger``); a HELLO is answered with an ERROR (BUSY), the session kept."""
-        if msg.type == P.MsgType.HELLO:
-            p = self.link.filter.peer
-            self._send_raw(P.Error.shorten(P.ErrorCode.BUSY, msg.seq, f"busy: a session of {p[0]}:{p[1]} is "
-                                           f"open (it ends {self.cfg.session_timeout_s:g} s after its host "
-                                           f"falls silent while idle)"), msg.session, addr, self.cfg.key)
+        filter (``stranger``); a HELLO is answered with an ERROR (BUSY) that names no host, no
+        larger than the HELLO, within the per-source reply rate; the session is kept."""
+        if msg.type == P.MsgType.HELLO and self.link.filter.allow_reply(addr):
+            err = P.Error.fitting(P.ErrorCode.BUSY, msg.seq, "busy: another host's session is open",
+                                  P.OVERHEAD + P.Hello.FMT.size)
+            if err is not None:
+                self._send_raw(err, msg.session, addr, self.cfg.key, msg)
 
     def _unauthenticated(self, data: bytes, addr: tuple) -> None:
         """A HELLO whose tag does not check: answered (tagged without a key, so that a host with
-        none or another can read it) with an ERROR that names the option to fix."""
-        if self.keyed:
-            text = ("HELLO refused: its tag does not check with this target's key (rig serve --key FILE): "
-                    "give the host the same key file (ImpactCatchRig-v0(key=FILE), compare --key FILE)")
-        else:
-            text = ("HELLO refused: this target was started without a key; start it with rig serve --key "
-                    "FILE to use one, or give the host no key")
+        none or another can read it) with an ERROR no larger than the datagram, within the
+        per-source reply rate.  It says only which side lacks the key: a host cannot check who
+        sent it, and composes its message to the user itself."""
+        text = "refused: this target has a key" if self.keyed else "refused: this target has no key"
         try:
             head = P.HEADER.unpack_from(data)
         except Exception:  # noqa: BLE001 (a datagram shorter than a header: nothing to answer)
             return
-        self._send_raw(P.Error.shorten(P.ErrorCode.UNAUTHENTICATED, head[6], text), head[5], addr, b"")
+        err = P.Error.fitting(P.ErrorCode.UNAUTHENTICATED, head[6], text, len(data))
+        if err is not None and self.link.filter.allow_reply(addr):
+            self._send_raw(err, head[5], addr, b"")
 
-    def _send_raw(self, body: P.Body, session: int, addr: tuple, key: bytes) -> None:
-        msg = P.Message(body, session=session, seq=0, target_ns=time.perf_counter_ns() & P.U64)
+    def _send_raw(self, body: P.Body, session: int, addr: tuple, key: bytes,
+                  reply_to: P.Message | None = None) -> None:
+        """Send ``body`` to ``addr`` in ``session`` (not necessarily the open one), numbered from
+        the link's counter so that a host's stream of these never sees a number twice."""
+        seq, self.link.seq = self.link.seq, (self.link.seq + 1) & P.U32
+        msg = P.Message(body, session=session, seq=seq, host_ns=reply_to.host_ns if reply_to else 0,
+                        target_ns=time.perf_counter_ns() & P.U64)
         self.endpoint.send(P.encode(msg, key, 0), addr)
 
     # -- what a running episode may ask of its target ----------------------------------------------
@@ -264,10 +292,7 @@ class Target:
 
     def _handle_idle(self, msg: P.Message) -> None:
         t = msg.type
-        if t == P.MsgType.HELLO:
-            self.open_session(msg)
-            self.reply(self.info(msg.body.nonce), msg)
-        elif t == P.MsgType.FETCH:
+        if t == P.MsgType.FETCH:
             self.serve_fetch(msg)
         elif t == P.MsgType.POLICY_CHUNK:
             self.reply(self.upload.add(msg.body, msg.seq), msg)
@@ -452,7 +477,7 @@ class Target:
                                      ep.m // ctl.hold, len(data), hashlib.sha256(data).digest())
         self.link.send(self.last_end, addr=self.link.last_sender)
 
-    def info(self, nonce: int) -> P.Info:
+    def info(self, nonce: bytes) -> P.Info:
         return P.Info(nonce, self.rate, int(self.state), 0 if self.driver.virtual else 1, self.cfg.lockstep,
                       len(self.scene_toml), self.scene_sha, self.link.filter.nonce, self.keyed)
 

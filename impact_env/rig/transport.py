@@ -234,6 +234,9 @@ class Link:
         self.on_unauthenticated: Callable[[bytes, tuple], None] | None = None
         # sees every accepted message, whoever waits for it (a request's wait drops the others)
         self.on_accept: Callable[[P.Message], None] | None = None
+        # the target's handshake: takes the HELLOs and RESPONSEs (with their sender) that the
+        # filter accepted, idle or mid-episode; they are not returned by recv
+        self.on_handshake: Callable[[P.Message, tuple], None] | None = None
 
     @property
     def session(self) -> int | None:
@@ -279,7 +282,10 @@ class Link:
             if got is None:
                 return None
             msg = self.filter.accept(got[0], episode, step, got[1])
-            if msg is not None:
+            if msg is not None and self.on_handshake is not None and msg.type in P.HANDSHAKE_TYPES:
+                self.on_handshake(msg, got[1])
+                msg = None
+            elif msg is not None:
                 self.last_sender = got[1]
                 if self.on_accept is not None:
                     self.on_accept(msg)
