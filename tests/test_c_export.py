@@ -87,14 +87,16 @@ def _sequences_agree(pol, scene, cp, episodes, idle) -> list[PA.Recording]:
 
 
 def _hot(readings: np.ndarray, start: int = 200) -> np.ndarray:
-    """Readings of repeated hard contacts: 2000 N added to the force transducer's reading for 80
-    of every 100 ticks from ``start``.  The sensor-fed laws answer each with a saturated command,
-    so the applied force's RMS reaches the continuous rating within a fraction of the window and
-    the RMS clamp cuts from then on (a physical rig would never see this; the safety layer must
-    still act the same in both builds)."""
+    """Readings of repeated hard contacts: up to 400 N added to the force transducer's reading
+    for 80 of every 100 ticks from ``start``, rising and falling over 10 ticks (40 N a tick:
+    inside the converter's 500 N and the plausibility check's 125 N per tick, so these are
+    plausible readings).  The sensor-fed laws answer each with a saturated command, so the applied
+    force's RMS reaches the continuous rating within a fraction of the window and the RMS clamp
+    cuts from then on (a physical rig would never see this; the safety layer must still act the
+    same in both builds)."""
     r = readings.copy()
-    m = np.arange(start, len(r))
-    r[start:, 1] += np.where(m % 100 < 80, 2000.0, 0.0)
+    p = np.arange(start, len(r)) % 100
+    r[start:, 1] += 400.0 * np.clip(np.minimum(p, 80 - p) / 10.0, 0.0, 1.0)
     return r
 
 
@@ -134,34 +136,55 @@ def test_safety_branches_bitwise(spec, sac_spec, tmp_path):
     """Synthetic readings that drive every branch of the safety layer, as consecutive episodes of
     one power-on: hard contacts at a 300 N command scale (CLAMP_PEAK on every saturated tick, then
     CLAMP_RMS; twice, with less idle time than the window between, so the second starts hot and
-    the ring wraps while it clamps), a NaN accelerometer reading (the filters carry it: a tanh
-    network then acts NaN, NONFINITE), a NaN potentiometer reading (SENSOR_FAULT, latched), |x2|
-    beyond the 7 mm travel limit for three ticks (TRAVEL, latched), an infinite force reading;
-    the C double build against the numba target, bit for bit."""
+    the ring wraps while it clamps), a NaN accelerometer reading (the plausibility check holds the
+    last good one: SENSOR_FAULT and SENSOR_ACCELEROMETER for that tick, 0 N, the network never
+    sees the NaN), a NaN potentiometer reading (the same, its own bit), |x2| beyond the 7 mm
+    travel limit for three ticks (TRAVEL, latched), an infinite force reading, and a potentiometer
+    NaN for 30 ticks (beyond the 10-tick fault limit: SENSOR_TIMEOUT latched); the C double build
+    against the numba target, bit for bit."""
     scene = load_scene("rig", {"effects.command_scale": HOT_SCALE_N})
     pol = export_policy(sac_spec if spec == "sac" else spec, scene)
     cp = _build(pol, scene, tmp_path)
     base = PA.record(export_policy("passive", scene), scene, 0, 6000).readings  # a drop nobody acts on
     limit = SF.SafetyConfig().travel_limit_m
-    nan_acc, nan_pot, beyond, inf_force = (base[:2000].copy() for _ in range(4))
+    nan_acc, nan_pot, beyond, inf_force, long_fault = (base[:2000].copy() for _ in range(5))
     nan_acc[500, 0] = np.nan
     nan_pot[300, 2] = np.nan
+    # a physical excursion (0.2 mm a tick, inside the plausibility check's 0.35 mm): a jump to it
+    # would be an implausible reading instead
+    beyond[360:400, 2] = np.linspace(beyond[360, 2], 1.15 * limit, 40)
     beyond[400:403, 2] = 1.15 * limit
     inf_force[600, 1] = np.inf
-    episodes = [_hot(base), _hot(base), nan_acc, nan_pot, beyond, inf_force]
-    idle = [3000, 100, 100, 100, 100]
+    long_fault[700:730, 2] = np.nan
+    episodes = [_hot(base), _hot(base), nan_acc, nan_pot, beyond, inf_force, long_fault]
+    idle = [3000, 100, 100, 100, 100, 100]
     want = _sequences_agree(pol, scene, cp, episodes, idle)
     bits = [int(np.bitwise_or.reduce(w.status)) for w in want]
-    assert bits[3] & SF.SENSOR_FAULT and np.all(want[3].status[300:] & SF.SENSOR_FAULT)  # latched
-    assert bits[4] & SF.TRAVEL and np.all(want[4].status[400:] & SF.TRAVEL)
-    assert not np.any(want[4].status[:400] & SF.TRAVEL)  # the latch was cleared by the reset
-    assert np.all(want[3].force[301:] == 0.0) and np.all(want[4].force[401:] == 0.0)
-    if spec == AGENT:  # a tanh network carries the NaN to its action; a ReLU one (the SAC actor)
-        assert bits[2] & SF.NONFINITE  # maps it to 0 (c > 0 ? c : 0 is false for NaN), in both builds
-    elif pol.law is not None:
+    for k, (tick, chan) in {2: (500, SF.SENSOR_ACCELEROMETER), 3: (300, SF.SENSOR_POTENTIOMETER),
+                            5: (600, SF.SENSOR_FORCE)}.items():
+        st = want[k].status
+        assert st[tick] & SF.SENSOR_FAULT and st[tick] & chan and want[k].force[tick] == 0.0, k
+        assert np.count_nonzero(st & SF.SENSOR_FAULT) == 1, k  # that tick alone: not latched
+        assert not bits[k] & (SF.NONFINITE | SF.SENSOR_TIMEOUT), k  # the bad sample reached no policy
+    trip = int(np.argmax(want[4].status & SF.TRAVEL))
+    assert bits[4] & SF.TRAVEL and 360 < trip < 400 and np.all(want[4].status[trip:] & SF.TRAVEL)
+    assert not np.any(want[4].status[:403] & SF.SENSOR_FAULT)  # the excursion was plausible (its end is not)
+    assert np.all(want[4].force[trip:] == 0.0)
+    lf = want[6].status
+    n_lim = int(PA_limit(scene))
+    assert not np.any(lf[:700 + n_lim] & SF.SENSOR_TIMEOUT) and np.all(lf[700 + n_lim:] & SF.SENSOR_TIMEOUT)
+    assert np.all(want[6].force[700:] == 0.0)
+    if pol.law is not None:
         rms = [np.flatnonzero(w.status & SF.CLAMP_RMS) for w in want[:2]]
         assert bits[0] & SF.CLAMP_PEAK and rms[0].size and rms[1].size
         assert rms[1][0] < rms[0][0]  # the second hot episode started with the first one's heat
+
+
+def PA_limit(scene) -> float:
+    """The faulty ticks in a row the scene allows (effects.sensors.fault_limit_s in ticks)."""
+    from impact_env.control.plausibility import plausibility_params
+
+    return plausibility_params(scene).limit_ticks
 
 
 @pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])

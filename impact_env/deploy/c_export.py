@@ -40,6 +40,7 @@ from impact_env.control import laws as LW
 from impact_env.control import mlp as MLP
 from impact_env.control.front_end import F_DETECTOR, F_FILTERS, FrontEnd
 from impact_env.control.observation import OBS_LIMIT
+from impact_env.control import plausibility as PL
 from impact_env.control.policy import CompiledPolicy
 from impact_env.effects import detector as DT
 from impact_env.rig import safety as SF
@@ -118,7 +119,7 @@ def generate_c(policy: CompiledPolicy, scene, safety: SF.SafetyConfig | None = N
     # scale keeps its own inside its law (f / its scale), as impact_env.control.policy.act does
     sp = SF.safety_params(cfg, float(scene.effects.command_scale), policy.control_rate, policy.hold_ticks,
                           "onboard")
-    g = _Gen(policy, residual, scene, fe, rfe, sp, cfg, scene_sha, pol_sha, spec)
+    g = _Gen(policy, residual, scene, fe, rfe, sp, cfg, scene_sha, pol_sha, spec, PL.plausibility_params(scene))
     return CArtifact(g.header(), g.source(), scene_sha, pol_sha, policy.layout.size, policy.hold_ticks,
                      int(sp[SF.P_WINDOW]))
 
@@ -144,8 +145,9 @@ def write_c(policy: CompiledPolicy, scene, out_dir, force: bool = False,
 class _Gen:
     """Builds the two texts (one method per section, in the order of the tick)."""
 
-    def __init__(self, pol, res, scene, fe, rfe, sp, cfg, scene_sha, pol_sha, spec):
+    def __init__(self, pol, res, scene, fe, rfe, sp, cfg, scene_sha, pol_sha, spec, plaus):
         self.pol, self.res, self.scene, self.fe, self.rfe = pol, res, scene, fe, rfe
+        self.plaus = plaus
         self.sp, self.cfg, self.scene_sha, self.pol_sha, self.spec = sp, cfg, scene_sha, pol_sha, spec
         lay = pol.layout
         self.F, self.H, self.size = lay.frame_size, lay.history, lay.size
@@ -186,7 +188,12 @@ class _Gen:
  *   readings[0] accelerometer on body 2   m/s^2  down positive
  *   readings[1] force transducer          N      compression positive
  *   readings[2] potentiometer (x2)        m      down positive, 0 at rest
- *   readings[3] body-1 sensor             m      (none on the rig: pass NaN; unused)
+ *   readings[3] body-1 sensor             m      {'checked like the others' if self.plaus.ch[3, PL.P_ON] else
+                                                    '(disabled in the scene, as on the rig: pass NaN; not read)'}
+ * Every reading is checked first (impact_env.control.plausibility): outside the converter's range,
+ * NaN/inf, or a jump no physics gives sets IMPACT_STATUS_SENSOR_FAULT and the channel's bit, drives
+ * 0 N and holds the channel's last plausible reading for the filters; faulty ticks in a row beyond
+ * {int(self.plaus.limit_ticks)} latch IMPACT_STATUS_SENSOR_TIMEOUT (0 N until impact_reset: end the episode).
  * Outputs, per tick:
  *   *command   the drive command, dimensionless: 1 = {_r(self.scale)} N upwards (the
  *              amplifier's input; the driver turns it into volts)
@@ -241,10 +248,19 @@ typedef double impact_real;
 #define IMPACT_STATUS_CLAMP_PEAK  0x{SF.CLAMP_PEAK:04x}u  /* |f| cut to the peak rating */
 #define IMPACT_STATUS_CLAMP_RMS   0x{SF.CLAMP_RMS:04x}u  /* cut by the continuous (RMS) rating */
 #define IMPACT_STATUS_TRAVEL      0x{SF.TRAVEL:04x}u  /* latched: |x2| beyond the travel limit, 0 N */
-#define IMPACT_STATUS_SENSOR_FAULT 0x{SF.SENSOR_FAULT:04x}u  /* latched: x2 not finite, 0 N */
+#define IMPACT_STATUS_SENSOR_FAULT 0x{SF.SENSOR_FAULT:04x}u  /* a reading implausible this tick: 0 N, held */
+#define IMPACT_STATUS_SENSOR_ACCELEROMETER 0x{SF.SENSOR_ACCELEROMETER:04x}u  /* ... readings[0] */
+#define IMPACT_STATUS_SENSOR_FORCE 0x{SF.SENSOR_FORCE:04x}u  /* ... readings[1] */
+#define IMPACT_STATUS_SENSOR_POTENTIOMETER 0x{SF.SENSOR_POTENTIOMETER:04x}u  /* ... readings[2] */
+#define IMPACT_STATUS_SENSOR_BODY1 0x{SF.SENSOR_BODY1:04x}u  /* ... readings[3] */
+#define IMPACT_STATUS_SENSOR_TIMEOUT 0x{SF.SENSOR_TIMEOUT:04x}u  /* latched: faults too long, 0 N: end the episode */
 
 typedef struct {{
     int64_t tick;                               /* ticks since the episode's release */
+    /* the plausibility check: each channel's last plausible reading and its tick, the faulty
+     * ticks in a row, the SENSOR_TIMEOUT latch, whether a reading was seen this episode */
+    double pl_good[IMPACT_N_READINGS], pl_last[IMPACT_N_READINGS];
+    double pl_run, pl_latch, pl_primed;
     /* front end: SOS filter memory (transposed direct form II), detector, conditioned readings */
     impact_real filt[IMPACT_N_READINGS][{self.nsec}][2];
     impact_real det_prev_s, det_latch;           /* eq 4.4 signal (N) at the last tick, contact bit */
@@ -260,7 +276,7 @@ typedef struct {{
     int64_t rms_head;
     double rms_sum;
     double rms_ring[IMPACT_RMS_WINDOW_TICKS];
-    int64_t nonfinite_ticks, clamp_peak_ticks, clamp_rms_ticks, travel_trips;
+    int64_t nonfinite_ticks, clamp_peak_ticks, clamp_rms_ticks, travel_trips, sensor_fault_ticks;
 }} impact_state;
 
 /* Power-on: every state zero (the RMS window cool). */
@@ -281,7 +297,8 @@ uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READIN
 
     # -- the source -------------------------------------------------------------------------------
     def source(self) -> str:
-        parts = [self._banner(), self._prelude(), self._front_end(), self._observe("main", self.pol.layout),
+        parts = [self._banner(), self._prelude(), self._plausibility(), self._front_end(),
+                 self._observe("main", self.pol.layout),
                  self._policy()]
         if self.res is not None:
             parts += [self._observe("res", self.res.layout), self._law("res", self.res)]
@@ -313,6 +330,60 @@ uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READIN
 static const impact_real OBS_LIMIT = {_r(OBS_LIMIT)};
 /* the force that drive command 1 demands, N upwards (the scene's effects.command_scale) */
 static const impact_real COMMAND_SCALE_N = {_r(self.scale)};"""
+
+    def _plausibility(self) -> str:
+        ch = self.plaus.ch
+        return f"""/* ---- sensor plausibility (impact_env.control.plausibility): every reading checked before
+ * the filters; compared in double in both builds ---- */
+
+/* per channel: checked (1) or disabled (0: read as 0.0), the converter's range (lo, hi), the
+ * largest change per tick (max_step |gain|, 0: no jump check) and the noise allowance, from the
+ * scene's effects.sensors */
+static const double PL_ON[IMPACT_N_READINGS] = {_arr(ch[:, PL.P_ON])};
+static const double PL_LO[IMPACT_N_READINGS] = {_arr(ch[:, PL.P_LO])};
+static const double PL_HI[IMPACT_N_READINGS] = {_arr(ch[:, PL.P_HI])};
+static const double PL_STEP[IMPACT_N_READINGS] = {_arr(ch[:, PL.P_STEP])};
+static const double PL_TOL[IMPACT_N_READINGS] = {_arr(ch[:, PL.P_TOL])};
+/* faulty ticks in a row allowed (effects.sensors.fault_limit_s at the control rate) */
+static const double PL_LIMIT_TICKS = {_r(self.plaus.limit_ticks)};
+
+/* the readings the front end may use (a bad one: the channel's last plausible one); the status bits */
+static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_READINGS],
+                          impact_real checked[IMPACT_N_READINGS])
+{{
+    uint32_t bits = 0;
+    int primed = s->pl_primed != 0.0;
+    for (int c = 0; c < IMPACT_N_READINGS; c++) {{
+        if (PL_ON[c] == 0.0) {{
+            checked[c] = 0.0;
+            continue;
+        }}
+        double x = (double)readings[c];
+        int ok = PL_LO[c] <= x && x <= PL_HI[c];  /* false for NaN */
+        if (ok && primed && PL_STEP[c] > 0.0) {{
+            double allowed = PL_STEP[c] * ((double)s->tick - s->pl_last[c]) + PL_TOL[c];
+            ok = fabs(x - s->pl_good[c]) <= allowed;
+        }}
+        if (ok) {{
+            s->pl_good[c] = x;
+            s->pl_last[c] = (double)s->tick;
+            checked[c] = readings[c];
+        }} else {{
+            bits |= (uint32_t)1u << (9 + c);
+            checked[c] = (impact_real)s->pl_good[c];
+        }}
+    }}
+    s->pl_primed = 1.0;
+    if (bits != 0) {{
+        bits |= IMPACT_STATUS_SENSOR_FAULT;
+        s->pl_run += 1.0;
+        if (s->pl_run > PL_LIMIT_TICKS) s->pl_latch = 1.0;
+    }} else {{
+        s->pl_run = 0.0;
+    }}
+    if (s->pl_latch != 0.0) bits |= IMPACT_STATUS_SENSOR_TIMEOUT;
+    return bits;
+}}"""
 
     def _front_end(self) -> str:
         fe = self.fe
@@ -569,10 +640,11 @@ static const double RMS_QUANTUM_N2 = {_r(sp[SF.P_QUANTUM])};        /* N^2 per q
 static const double RMS_BUDGET_QUANTA = {_r(budget)};  /* {'no RMS clamp' if budget < 0 else 'continuous rating'} */
 
 #define MODIFIED (IMPACT_STATUS_NONFINITE | IMPACT_STATUS_CLAMP_PEAK | IMPACT_STATUS_CLAMP_RMS \\
-                  | IMPACT_STATUS_TRAVEL | IMPACT_STATUS_SENSOR_FAULT)
+                  | IMPACT_STATUS_TRAVEL | IMPACT_STATUS_SENSOR_FAULT | IMPACT_STATUS_SENSOR_TIMEOUT)
 
-/* the force to apply (N, up) for the demanded command u; x2: the potentiometer's reading */
-static impact_real safety(impact_state *s, impact_real u, impact_real x2, uint32_t *bits)
+/* the force to apply (N, up) for the demanded command u; x2: the potentiometer's reading as the
+ * plausibility check passed it; sensor: the check's bits for this tick */
+static impact_real safety(impact_state *s, impact_real u, impact_real x2, uint32_t sensor, uint32_t *bits)
 {{
     uint32_t status = 0;
     impact_real f = u * COMMAND_SCALE_N;
@@ -581,9 +653,14 @@ static impact_real safety(impact_state *s, impact_real u, impact_real x2, uint32
         s->nonfinite_ticks++;
         f = 0.0;
     }}
+    if (!isfinite(x2)) sensor |= IMPACT_STATUS_SENSOR_FAULT | IMPACT_STATUS_SENSOR_POTENTIOMETER;
+    if (sensor != 0) {{  /* never a force from a bad sample */
+        status |= sensor;
+        s->sensor_fault_ticks++;
+        f = 0.0;
+    }}
     uint32_t latch = s->latch;
-    if (!isfinite(x2)) latch |= IMPACT_STATUS_SENSOR_FAULT;
-    else if (fabs((double)x2) > (double)SAFETY_TRAVEL_LIMIT_M) {{
+    if (isfinite(x2) && fabs((double)x2) > (double)SAFETY_TRAVEL_LIMIT_M) {{
         if ((latch & IMPACT_STATUS_TRAVEL) == 0) s->travel_trips++;
         latch |= IMPACT_STATUS_TRAVEL;
     }}
@@ -646,7 +723,10 @@ void impact_reset(impact_state *s)
 {{
     s->tick = 0;
     s->latch = 0;
-    s->nonfinite_ticks = s->clamp_peak_ticks = s->clamp_rms_ticks = s->travel_trips = 0;
+    s->nonfinite_ticks = s->clamp_peak_ticks = s->clamp_rms_ticks = s->travel_trips = s->sensor_fault_ticks = 0;
+    memset(s->pl_good, 0, sizeof s->pl_good);
+    memset(s->pl_last, 0, sizeof s->pl_last);
+    s->pl_run = s->pl_latch = s->pl_primed = 0.0;
 }}
 
 void impact_idle(impact_state *s, int64_t ticks)
@@ -664,16 +744,18 @@ uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READIN
                      impact_real *command, impact_real *force_n)
 {{
     int boundary = (s->tick % IMPACT_HOLD_TICKS) == 0;
+    impact_real checked[IMPACT_N_READINGS];
+    uint32_t sensor = plausible(s, readings, checked);
     if (s->tick == 0) {{
-        start(s, readings);
+        start(s, checked);
     }} else {{
-        condition(s, readings);{tick_res}
+        condition(s, checked);{tick_res}
         if (boundary) observe(s, 1, s->action);
     }}
     if (boundary) s->action = policy_act(s->obs, {mem});
     impact_real u = s->action;{add_res}
     uint32_t status;
-    impact_real f = safety(s, u, readings[2], &status);
+    impact_real f = safety(s, u, checked[2], sensor, &status);
     *command = (status & MODIFIED) ? f / COMMAND_SCALE_N : u;
     *force_n = f;
     s->tick++;
