@@ -128,8 +128,8 @@ def plausibility_params(scene) -> PlausibilityParams:
         ch[i, P_STEP] = c.max_step * abs(c.gain)
         ch[i, P_TOL] = NOISE_SIGMAS * math.sqrt(2.0) * c.noise_std * noise + 2.0 * q
         if c.enabled and c.max_step > 0.0 and not ch[i, P_STEP] + ch[i, P_TOL] > 0.0:
-            raise ConfigError(f"effects.sensors.{CHANNELS[i]}.max_step = {c.max_step!r} allows no change at all "
-                              "between two ticks; give a positive value (or 0: no jump check)")
+            raise ConfigError(f"effects.sensors.{CHANNELS[i]}.max_step = {c.max_step!r} allows no change "
+                              "at all between two ticks; give a positive value (or 0: no jump check)")
     limit = math.ceil(sens.fault_limit_s * scene.control_rate - 1e-9)
     return PlausibilityParams(ch, float(max(limit, 1)))
 

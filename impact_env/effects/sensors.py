@@ -89,7 +89,8 @@ class ChannelConfig:
     adc_bits: int = _f(16, "", "ADC resolution in bits; 0 = ideal (no quantisation, no clipping)")
     adc_range: float = _f(1.0, "", "ADC full scale: readings are clipped to +-adc_range, channel's unit")
     max_step: float = _f(0.0, "", "largest plausible change of the true value between two ticks at the "
-                         "control rate (the rig target's plausibility check), channel's unit; 0 = no jump check")
+                         "control rate (the rig target's plausibility check), channel's unit; 0 = no jump "
+                         "check")
 
     def __post_init__(self):
         p, u = f"effects.sensors.{self._key}", self.unit
@@ -128,7 +129,8 @@ class AccelerometerConfig(ChannelConfig):
     noise_std: float = _f(0.5, "m/s^2", "white noise std per sample (ASSUMED: ~0.05 g broadband)")
     adc_bits: int = _f(16, "", "ADC bits (ASSUMED: dSPACE 16-bit ADC); 0 = ideal")
     adc_range: float = _f(500.0, "m/s^2", "full scale +-, about 50 g (ASSUMED: holds ~300 m/s^2 peaks)")
-    max_step: float = _f(500.0, "m/s^2", "largest plausible change of a2 per tick: (a 2 x 200 N reversal of the "
+    max_step: float = _f(500.0, "m/s^2", "largest plausible change of a2 per tick: (a 2 x 200 N reversal "
+                         "of the "
                          "drive + 75 N of contact force) / m2 1 kg (DERIVED for the rig at 10 kHz, "
                          "impact_env.control.plausibility); 0 = no jump check")
 
@@ -170,7 +172,8 @@ class PotentiometerConfig(ChannelConfig):
     noise_std: float = _f(1.0e-5, "m", "white noise std per sample (ASSUMED: 10 um)")
     adc_bits: int = _f(16, "", "ADC bits (ASSUMED: dSPACE 16-bit ADC); 0 = ideal")
     adc_range: float = _f(0.01, "m", "full scale +- (ASSUMED: about a small shaker's stroke)")
-    max_step: float = _f(3.5e-4, "m", "largest plausible change of x2 per tick at 10 kHz: body 2 below 3.5 m/s "
+    max_step: float = _f(3.5e-4, "m", "largest plausible change of x2 per tick at 10 kHz: body 2 "
+                         "below 3.5 m/s "
                          "(energy bound, impact_env.control.plausibility) x 0.1 ms; 0 = off")
 
 
@@ -187,7 +190,8 @@ class Body1DisplacementConfig(ChannelConfig):
     noise_std: float = _f(1.0e-5, "m", "white noise std per sample (ASSUMED: 10 um)")
     adc_bits: int = _f(16, "", "ADC bits (ASSUMED: dSPACE 16-bit ADC); 0 = ideal")
     adc_range: float = _f(0.1, "m", "full scale +- (ASSUMED: holds a 50 mm drop)")
-    max_step: float = _f(3.5e-4, "m", "largest plausible change of x1 per tick at 10 kHz: body 1 below 3.5 m/s "
+    max_step: float = _f(3.5e-4, "m", "largest plausible change of x1 per tick at 10 kHz: body 1 "
+                         "below 3.5 m/s "
                          "x 0.1 ms (as x2's bound); 0 = off")
 
 
@@ -199,7 +203,8 @@ class SensorsConfig:
     force: ForceTransducerConfig = field(default_factory=ForceTransducerConfig)
     potentiometer: PotentiometerConfig = field(default_factory=PotentiometerConfig)
     body1_displacement: Body1DisplacementConfig = field(default_factory=Body1DisplacementConfig)
-    fault_limit_s: float = _f(1.0e-3, "s", "the rig target ends an episode SENSOR_FAULT when implausible readings "
+    fault_limit_s: float = _f(1.0e-3, "s", "the rig target ends an episode SENSOR_FAULT when implausible "
+                              "readings "
                               "last longer than this (ASSUMED: 10 ticks at 10 kHz, a quarter of a contact; "
                               "impact_env.control.plausibility)")
 

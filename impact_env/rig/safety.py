@@ -320,8 +320,8 @@ class SafetyLayer:
 
     def step(self, demand: float, age_ticks: int, ticks_armed: int, x2_m: float,
              sensor_bits: int = 0) -> tuple[float, int]:
-        f, status = safety_step(float(demand), int(age_ticks), int(ticks_armed), float(x2_m), int(sensor_bits),
-                                self.params, self.state)
+        f, status = safety_step(float(demand), int(age_ticks), int(ticks_armed), float(x2_m),
+                                int(sensor_bits), self.params, self.state)
         return float(f), int(status)
 
     def new_episode(self) -> None:
