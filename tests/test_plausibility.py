@@ -75,8 +75,10 @@ def test_an_enabled_body1_channel_is_checked():
 
 
 @pytest.mark.parametrize("key,value,match", [
-    ("effects.sensors.potentiometer.max_step", -1e-3, r"effects.sensors.potentiometer.max_step = -0.001 m is out"),
-    ("effects.sensors.fault_limit_s", 0.0, r"effects.sensors.fault_limit_s = 0.0 s is out of range: must be > 0"),
+    ("effects.sensors.potentiometer.max_step", -1e-3,
+     r"effects.sensors.potentiometer.max_step = -0.001 m is out"),
+    ("effects.sensors.fault_limit_s", 0.0,
+     r"effects.sensors.fault_limit_s = 0.0 s is out of range: must be > 0"),
     ("effects.sensors.accelerometer.max_step", float("nan"), r"accelerometer.max_step = nan m/s\^2"),
 ])
 def test_scene_fields_are_validated_with_their_names_and_units(key, value, match):
@@ -84,7 +86,7 @@ def test_scene_fields_are_validated_with_their_names_and_units(key, value, match
         load_scene("rig", {key: value})
 
 
-# -- the target's tick and the C tick -------------------------------------------------------------------------
+# -- the target's tick and the C tick ---------------------------------------------------------------
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory):
     """pd-penetration on the rig, drop seed 0: the recorded readings, the numba target's clean run and

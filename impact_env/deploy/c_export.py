@@ -290,6 +290,9 @@ void impact_reset(impact_state *s);
 void impact_idle(impact_state *s, int64_t ticks);
 /* sizeof(impact_state), for callers that allocate it from another language */
 unsigned long impact_state_bytes(void);
+/* The front end's contact detector bit after the last impact_step (1: contact), for a log: with the
+ * status bits, the tick's discrete decisions (the laws gate their force on it) */
+int impact_contact(const impact_state *s);
 /* One tick (see the banner): returns the status bits. */
 uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READINGS],
                      impact_real *command, impact_real *force_n);
@@ -714,6 +717,11 @@ static void start(impact_state *s, const impact_real readings[IMPACT_N_READINGS]
 unsigned long impact_state_bytes(void)
 {{
     return (unsigned long)sizeof(impact_state);
+}}
+
+int impact_contact(const impact_state *s)
+{{
+    return s->detected != 0.0;
 }}
 
 void impact_init(impact_state *s)
