@@ -105,12 +105,28 @@ def test_travel_limit_latches_until_a_new_episode(sign):
     assert s.step(0.5, 0, 0, 0.0) == (100.0, 0) and s.counters()["travel_trips"] == 0
 
 
-def test_nonfinite_potentiometer_is_a_latched_sensor_fault():
+def test_nonfinite_potentiometer_is_a_sensor_fault_for_its_tick():
+    """A caller without the plausibility check (impact_env.control.plausibility) hands a NaN x2
+    straight in: 0 N and the potentiometer's fault bits for that tick, not latched (the check's
+    SENSOR_TIMEOUT is what ends an episode); the travel limit still latches."""
     s = layer()
-    assert s.step(0.5, 0, 0, math.nan) == (0.0, S.SENSOR_FAULT)
-    assert s.step(0.5, 0, 1, 0.0) == (0.0, S.SENSOR_FAULT)
+    bad = S.SENSOR_FAULT | S.SENSOR_POTENTIOMETER
+    assert s.step(0.5, 0, 0, math.nan) == (0.0, bad)
+    assert s.step(0.5, 0, 1, 0.0) == (100.0, 0)
     f, st = s.step(0.5, 0, 2, 1.0)
-    assert f == 0.0 and st == S.SENSOR_FAULT | S.TRAVEL
+    assert f == 0.0 and st == S.TRAVEL
+    assert s.counters()["sensor_fault_ticks"] == 1
+
+
+@pytest.mark.parametrize("bits", [S.SENSOR_FAULT | S.SENSOR_FORCE, S.SENSOR_FAULT | S.SENSOR_TIMEOUT
+                                  | S.SENSOR_ACCELEROMETER])
+def test_sensor_bits_zero_the_tick_before_the_clamps(bits):
+    """The plausibility check's bits: 0 N on that tick (the RMS ledger gets a 0), the bits
+    reported; the next clean tick acts again."""
+    s = layer(rms_window_s=0.001)
+    assert s.step(1.0, 0, 0, 0.0, bits) == (0.0, bits)
+    assert s.window_rms_n == 0.0
+    assert s.step(0.25, 0, 1, 0.0) == (50.0, 0)
 
 
 # -- force clamps ---------------------------------------------------------------------------------------

@@ -47,6 +47,9 @@ def add_parser(sub, scene_args) -> None:
                         "beside it")
     p.add_argument("--key", metavar="FILE",
                    help="with --rig: the session key file the target was started with (rig serve --key FILE)")
+    p.add_argument("--allow-overruns", action="store_true",
+                   help="with --rig and --scene: report the sim-to-rig gap even when more than 1 %% of a "
+                        "policy's ticks were skipped by overruns (by default that is refused: exit 1)")
     p.set_defaults(func=cmd_compare)
 
 
@@ -63,6 +66,8 @@ def cmd_compare(args) -> int:
 
     if args.key and not args.rig:
         raise ConfigError("--key FILE is the rig's session key: it goes with --rig udp://HOST:PORT")
+    if args.allow_overruns and not args.rig:
+        raise ConfigError("--allow-overruns goes with --rig udp://HOST:PORT")
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed} must be an integer >= 0 (episode j is seeded seed + j)")
     if args.threads is not None and args.threads < 1:
@@ -156,16 +161,29 @@ def _compare_rig(args, specs) -> int:
         sim_runs = {spec: runs[s] for spec, s in sim_specs.items()}
         for spec, run in sim_runs.items():
             run.spec = spec
+    overrun = {spec: f for spec, run in rig_runs.items()
+               if (f := run.summary.get("skipped_tick_fraction")) is not None and f > MAX_SKIPPED_FRACTION}
+    refuse = bool(overrun) and sim_runs is not None and not args.allow_overruns
     if args.json:
         out = {"rig": summary_json(rig_runs)}
-        if sim_runs is not None:
+        if sim_runs is not None and not refuse:
             out["sim"] = summary_json(sim_runs)
         print(json.dumps(out))
     else:
         print(f"rig at {args.rig} (scene {rig_scene.name}): {args.episodes} episodes of {horizon:g} s, "
               f"seed {args.seed}")
         print(format_table(rig_runs, horizon))
-        if sim_runs is not None:
+        print("skipped ticks (overruns: the loop a period or more behind, the command held): "
+              + ", ".join(f"{spec} {_pct(run.summary.get('skipped_tick_fraction'))}"
+                          for spec, run in rig_runs.items()))
+    if refuse:
+        print("impact-env compare --rig: no sim-to-rig gap: "
+              + ", ".join(f"{spec!r} skipped {_pct(f)} of its ticks" for spec, f in overrun.items())
+              + f" (more than {_pct(MAX_SKIPPED_FRACTION)}), so the rig's numbers are not the episodes the "
+              "simulator ran; run the target in lock-step (rig serve --lockstep) or on an idle core, or pass "
+              "--allow-overruns (exit 1)", file=sys.stderr)
+    if not args.json:
+        if sim_runs is not None and not refuse:
             print(f"\nsimulation (scene {scene.name}), the same seeds and policies:")
             print(format_table(sim_runs, horizon))
             print("\nsim-to-rig gap (rig minus simulation):")
@@ -183,7 +201,17 @@ def _compare_rig(args, specs) -> int:
         paths = write_outputs(rig_runs, Path(args.out), rig_scene, args.seed, horizon, fmt=args.format)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
-    return 0
+    return 1 if refuse else 0
+
+
+# above this share of skipped ticks a rig's episodes are not the simulator's: no gap is reported
+MAX_SKIPPED_FRACTION = 0.01
+
+
+def _pct(f) -> str:
+    import math
+
+    return "n/a" if f is None or not math.isfinite(f) else f"{100 * f:.3g} %"
 
 
 def _gap(key: str, rig, sim) -> str:

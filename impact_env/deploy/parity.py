@@ -26,6 +26,15 @@ from impact_env.deploy.c_export import HEADER_NAME, SOURCE_NAME
 
 CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off")
 F32_EPS = float(np.finfo(np.float32).eps)
+# What docs/rig.md promises of a build ("Deploying to real-time hardware", "How it is checked"):
+# the double build bitwise the numba target's (every command, force and status word); the float32
+# build within F32_BOUND of full scale on the ticks where both builds take the same discrete
+# decisions (the same status bits and the same contact-detector bit, at the tick and at its policy
+# step's first tick, where the policy read it), and at most F32_FLIP_FRACTION of the ticks deciding
+# differently (on those the command may differ by anything up to full scale: a law's force gated
+# on a detector a tick apart is 0 N in one build and 20 N in the other).
+F32_BOUND = 1e-4
+F32_FLIP_FRACTION = 0.05
 
 
 def find_cc() -> str:
@@ -108,6 +117,8 @@ class CPolicy:
         ptr = ctypes.POINTER(self.real)
         self.lib.impact_step.argtypes = [ctypes.c_void_p, ptr, ptr, ptr]
         self.lib.impact_idle.argtypes = [ctypes.c_void_p, ctypes.c_int64]
+        self.lib.impact_contact.argtypes = [ctypes.c_void_p]
+        self.lib.impact_contact.restype = ctypes.c_int
         self._r = np.zeros(4, dtype=self.dtype)
         self._cmd, self._f = self.real(), self.real()
         self.lib.impact_init(self.state)
@@ -128,6 +139,10 @@ class CPolicy:
         st = self.lib.impact_step(self.state, self._r.ctypes.data_as(ctypes.POINTER(self.real)),
                                   ctypes.byref(self._cmd), ctypes.byref(self._f))
         return float(self._cmd.value), float(self._f.value), int(st)
+
+    def contact(self) -> int:
+        """The front end's contact detector bit after the last step (0 or 1)."""
+        return int(self.lib.impact_contact(self.state))
 
 
 def numba_controller(policy: CompiledPolicy, scene, horizon_ticks: int):
@@ -159,6 +174,7 @@ class Recording:
     force: np.ndarray
     status: np.ndarray
     records: np.ndarray | None = None  # the virtual rig's true records (float64[n, N_REC]), closed loops
+    detected: np.ndarray | None = None  # int64[n]: the front end's contact detector bit of each tick
 
 
 def _true_record(drv, m: int, u: float) -> np.ndarray:
@@ -211,13 +227,36 @@ def record(policy: CompiledPolicy, scene, seed: int, ticks: int) -> Recording:
     ctl = numba_controller(policy, scene, ticks)
     raw = np.zeros((ticks, 4))
     out = np.zeros((3, ticks))
+    det = np.zeros(ticks, np.int64)
     for m in range(ticks):
         raw[m] = drv.read()
         cmd, f, st = _numba_tick(ctl, m, raw[m].copy())
         out[:, m] = cmd, f, st
+        det[m] = int(ctl.fe.detected[0] != 0.0)
         drv.apply(cmd)
     drv.shutdown()
-    return Recording(raw, out[0], out[1], out[2].astype(np.int64))
+    return Recording(raw, out[0], out[1], out[2].astype(np.int64), detected=det)
+
+
+def readings_from_log(log) -> np.ndarray:
+    """The raw readings of a rig episode log (:class:`impact_env.rig.log.EpisodeLog`) as the C
+    tick takes them: float64[n, 4], one row per tick from tick 0 (accelerometer m/s^2, force N,
+    potentiometer m, and NaN for the body-1 sensor, which the log does not hold: the rig has
+    none).  ConfigError when ticks are missing (skipped by overruns: their readings were never
+    read, and a replay needs every tick)."""
+    tick = np.asarray(log["tick"], dtype=np.int64)
+    if tick.size == 0:
+        raise ConfigError("the log has no rows")
+    gaps = np.flatnonzero(np.diff(tick) != 1)
+    if tick[0] != 0 or gaps.size:
+        where = f"tick {int(tick[gaps[0]]) + 1}" if gaps.size else f"ticks 0 to {int(tick[0]) - 1}"
+        raise ConfigError(f"the log misses {int(tick[-1]) + 1 - tick.size} ticks (first: {where}; skipped by "
+                          "overruns, their readings never read): a replay needs every tick; record it in "
+                          "lock-step (rig serve --lockstep) or on an idle core")
+    out = np.full((tick.size, 4), np.nan)
+    for j, name in enumerate(("accelerometer_mps2", "force_N", "potentiometer_m")):
+        out[:, j] = log[name]
+    return out
 
 
 def replay(cp: CPolicy, rec: Recording) -> Recording:
@@ -227,9 +266,11 @@ def replay(cp: CPolicy, rec: Recording) -> Recording:
     cp.reset()
     n = rec.readings.shape[0]
     out = np.zeros((3, n))
+    det = np.zeros(n, np.int64)
     for m in range(n):
         out[:, m] = cp.step(rec.readings[m])
-    return Recording(rec.readings, out[0], out[1], out[2].astype(np.int64))
+        det[m] = cp.contact()
+    return Recording(rec.readings, out[0], out[1], out[2].astype(np.int64), detected=det)
 
 
 def closed_loop(cp: CPolicy, scene, seed: int, ticks: int, perturb: np.ndarray | None = None) -> Recording:
@@ -295,22 +336,57 @@ def c_sequence(cp: CPolicy, episodes, idle_ticks) -> list[Recording]:
 @dataclass
 class ParityReport:
     """How a build compares with the numba target: ticks compared, ticks whose command differs
-    bitwise, the largest |command difference| and the status bits that differ."""
+    bitwise, the largest |command difference| (of full scale: commands are in units of it) and the
+    status words that differ; ``flipped``: the ticks whose discrete decisions differ (status bits or
+    the contact detector, :func:`decisions_differ`), ``max_abs_same`` the largest |command
+    difference| on the other ticks."""
 
     ticks: int
     differing: int
     max_abs: float
     status_differing: int
+    flipped: int = 0
+    max_abs_same: float = 0.0
 
     def __str__(self) -> str:
         return (f"{self.ticks} ticks: {self.differing} commands differ (max |diff| {self.max_abs:.3g}), "
                 f"{self.status_differing} status words differ")
 
+    def verdict(self, float32: bool) -> tuple[bool, str]:
+        """(passed, a line saying against which bound of docs/rig.md): the double build bitwise; the
+        float32 build within :data:`F32_BOUND` of full scale where the decisions agree, and at most
+        :data:`F32_FLIP_FRACTION` of the ticks deciding differently."""
+        if not float32:
+            ok = self.differing == 0 and self.status_differing == 0
+            return ok, (f"{'PASS' if ok else 'FAIL'}: {self.differing} of {self.ticks} commands and "
+                        f"{self.status_differing} status words differ (bound: 0, bitwise)")
+        frac = self.flipped / max(self.ticks, 1)
+        ok = self.max_abs_same <= F32_BOUND and frac <= F32_FLIP_FRACTION
+        return ok, (f"{'PASS' if ok else 'FAIL'}: on the {self.ticks - self.flipped} ticks with the same "
+                    f"decisions max |diff| {self.max_abs_same:.3g} of full scale (bound {F32_BOUND:g}); "
+                    f"{self.flipped} ticks ({100 * frac:.2f} %) decide differently (status bits or contact "
+                    f"detector; bound {100 * F32_FLIP_FRACTION:g} %), there max |diff| {self.max_abs:.3g}")
 
-def compare_runs(a: Recording, b: Recording) -> ParityReport:
+
+def decisions_differ(a: Recording, b: Recording, hold: int = 1) -> np.ndarray:
+    """bool[n]: the ticks where the two runs take different discrete decisions: other status bits,
+    another contact-detector bit (the laws gate their force on it), or another detector bit at the
+    first tick of the tick's policy step (the policy read it there and holds its action)."""
+    flip = a.status != b.status
+    if a.detected is not None and b.detected is not None:
+        det = a.detected != b.detected
+        first = np.arange(det.size) // hold * hold
+        flip = flip | det | det[first]
+    return flip
+
+
+def compare_runs(a: Recording, b: Recording, hold: int = 1) -> ParityReport:
     d = np.abs(a.command - b.command)
+    flip = decisions_differ(a, b, hold)
+    same = d[~flip]
     return ParityReport(int(a.command.size), int(np.count_nonzero(a.command != b.command)), float(d.max()),
-                        int(np.count_nonzero(a.status != b.status)))
+                        int(np.count_nonzero(a.status != b.status)), int(np.count_nonzero(flip)),
+                        float(same.max()) if same.size else 0.0)
 
 
 def check(policy: CompiledPolicy, scene, c_dir, seeds=(0, 1), ticks: int = 2000,
@@ -323,9 +399,10 @@ def check(policy: CompiledPolicy, scene, c_dir, seeds=(0, 1), ticks: int = 2000,
         out = []
         for s in seeds:
             rec = record(policy, scene, s, ticks)
-            out.append(compare_runs(rec, replay(cp, rec)))
+            out.append(compare_runs(rec, replay(cp, rec), policy.hold_ticks))
         return out
 
 
-__all__ = ["CPolicy", "HEADER_NAME", "ParityReport", "Recording", "build_shared", "c_sequence", "check",
+__all__ = ["CPolicy", "F32_BOUND", "F32_FLIP_FRACTION", "HEADER_NAME", "ParityReport",
+           "decisions_differ", "readings_from_log", "Recording", "build_shared", "c_sequence", "check",
            "closed_loop", "compare_runs", "episode_metrics", "numba_sequence", "record", "replay"]

@@ -88,6 +88,9 @@ class ChannelConfig:
     noise_std: float = _f(0.0, "", "standard deviation of white Gaussian noise per sample, channel's unit")
     adc_bits: int = _f(16, "", "ADC resolution in bits; 0 = ideal (no quantisation, no clipping)")
     adc_range: float = _f(1.0, "", "ADC full scale: readings are clipped to +-adc_range, channel's unit")
+    max_step: float = _f(0.0, "", "largest plausible change of the true value between two ticks at the "
+                         "control rate (the rig target's plausibility check), channel's unit; 0 = no jump "
+                         "check")
 
     def __post_init__(self):
         p, u = f"effects.sensors.{self._key}", self.unit
@@ -105,6 +108,7 @@ class ChannelConfig:
             raise ConfigError(f"{p}.adc_bits must be an integer (0 to 32), got {self.adc_bits!r}")
         check_range(f"{p}.adc_bits", self.adc_bits, "bits", 0, 32)
         check_range(f"{p}.adc_range", self.adc_range, u, 1e-9, 1e9)
+        check_range(f"{p}.max_step", self.max_step, u, 0.0, 1e9)
 
     @property
     def quantum(self) -> float:
@@ -125,6 +129,10 @@ class AccelerometerConfig(ChannelConfig):
     noise_std: float = _f(0.5, "m/s^2", "white noise std per sample (ASSUMED: ~0.05 g broadband)")
     adc_bits: int = _f(16, "", "ADC bits (ASSUMED: dSPACE 16-bit ADC); 0 = ideal")
     adc_range: float = _f(500.0, "m/s^2", "full scale +-, about 50 g (ASSUMED: holds ~300 m/s^2 peaks)")
+    max_step: float = _f(500.0, "m/s^2", "largest plausible change of a2 per tick: (a 2 x 200 N reversal "
+                         "of the "
+                         "drive + 75 N of contact force) / m2 1 kg (DERIVED for the rig at 10 kHz, "
+                         "impact_env.control.plausibility); 0 = no jump check")
 
 
 @dataclass(frozen=True)
@@ -140,6 +148,9 @@ class ForceTransducerConfig(ChannelConfig):
     noise_std: float = _f(0.2, "N", "white noise std per sample (ASSUMED)")
     adc_bits: int = _f(16, "", "ADC bits (ASSUMED: dSPACE 16-bit ADC); 0 = ideal")
     adc_range: float = _f(500.0, "N", "full scale +- (ASSUMED: holds ~90 N contact + 200 N shaker)")
+    max_step: float = _f(125.0, "N", "largest plausible change of T = Phi - m2' a2 per tick: 75 N of contact "
+                         "force + m2' 0.1 kg x 500 m/s^2 (DERIVED for the rig at 10 kHz, "
+                         "impact_env.control.plausibility); 0 = off")
     top_mass: float = _f(0.1, "kg", "m2', the part of body 2 above the transducer (ASSUMED: pad + plate, "
                          "0.1 m2 with m2 = 1 kg; thesis eq 4.4 gives no value)")
 
@@ -161,6 +172,9 @@ class PotentiometerConfig(ChannelConfig):
     noise_std: float = _f(1.0e-5, "m", "white noise std per sample (ASSUMED: 10 um)")
     adc_bits: int = _f(16, "", "ADC bits (ASSUMED: dSPACE 16-bit ADC); 0 = ideal")
     adc_range: float = _f(0.01, "m", "full scale +- (ASSUMED: about a small shaker's stroke)")
+    max_step: float = _f(3.5e-4, "m", "largest plausible change of x2 per tick at 10 kHz: body 2 "
+                         "below 3.5 m/s "
+                         "(energy bound, impact_env.control.plausibility) x 0.1 ms; 0 = off")
 
 
 @dataclass(frozen=True)
@@ -176,6 +190,9 @@ class Body1DisplacementConfig(ChannelConfig):
     noise_std: float = _f(1.0e-5, "m", "white noise std per sample (ASSUMED: 10 um)")
     adc_bits: int = _f(16, "", "ADC bits (ASSUMED: dSPACE 16-bit ADC); 0 = ideal")
     adc_range: float = _f(0.1, "m", "full scale +- (ASSUMED: holds a 50 mm drop)")
+    max_step: float = _f(3.5e-4, "m", "largest plausible change of x1 per tick at 10 kHz: body 1 "
+                         "below 3.5 m/s "
+                         "x 0.1 ms (as x2's bound); 0 = off")
 
 
 @dataclass(frozen=True)
@@ -186,6 +203,13 @@ class SensorsConfig:
     force: ForceTransducerConfig = field(default_factory=ForceTransducerConfig)
     potentiometer: PotentiometerConfig = field(default_factory=PotentiometerConfig)
     body1_displacement: Body1DisplacementConfig = field(default_factory=Body1DisplacementConfig)
+    fault_limit_s: float = _f(1.0e-3, "s", "the rig target ends an episode SENSOR_FAULT when implausible "
+                              "readings "
+                              "last longer than this (ASSUMED: 10 ticks at 10 kHz, a quarter of a contact; "
+                              "impact_env.control.plausibility)")
+
+    def __post_init__(self):
+        check_range("effects.sensors.fault_limit_s", self.fault_limit_s, "s", 0.0, 10.0, lo_open=True)
 
     def channels(self) -> tuple[ChannelConfig, ...]:
         return tuple(getattr(self, name) for name in CHANNELS)

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from impact_env.eval.compare import ENERGY_CURVE_RATE, PolicyRun, summarize
-from impact_env.rig.log_metrics import exact_metrics, has_truth
+from impact_env.rig.log_metrics import exact_metrics, has_truth, skipped_fraction
 from impact_env.sim.metrics import EPISODE_METRICS
 
 TRACE_MAP = {"x1": "true_x1_m", "v1": "true_v1_mps", "x2": "true_x2_m", "v2": "true_v2_mps",
@@ -38,11 +38,18 @@ def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 
                 key=None) -> tuple[Any, dict[str, PolicyRun]]:
     """(the target's scene, spec -> PolicyRun) measured on the rig at ``address`` (``key``: the
     session key file the target was started with, or None)."""
+    from impact_env.config import ConfigError
     from impact_env.policy.export import export_policy
     from impact_env.policy.registry import is_model_spec, make_policy
     from impact_env.rig.host import RigClient
+    from impact_env.rig.transport import RigTimeout
 
-    client = RigClient(address, key=key)
+    try:
+        client = RigClient(address, key=key)
+    except (RigTimeout, ConnectionError) as exc:  # nothing listening yet: one line, not a traceback
+        raise ConfigError(f"--rig {address}: no target answered ({type(exc).__name__}: {exc}); start it "
+                          "first (impact-env rig serve --virtual|--driver ... --port PORT) or check the "
+                          "address") from None
     scene = client.scene
     horizon = scene.episode.horizon if horizon is None else float(horizon)
     runs = {}
@@ -70,11 +77,20 @@ def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 
                           file=__import__("sys").stderr)
             if progress:
                 print(file=__import__("sys").stderr)
-            runs[spec] = _run(spec, logs, failures, time.perf_counter() - t0)
+            runs[spec], skipped = _run(spec, logs, failures, time.perf_counter() - t0)
             runs[spec].summary = summarize(runs[spec])
+            runs[spec].summary["skipped_tick_fraction"] = skipped_tick_fraction(skipped)
     finally:
         client.close()
     return scene, runs
+
+
+def skipped_tick_fraction(per_episode: np.ndarray) -> float:
+    """The share of a policy's ticks that did not run (overruns): the mean of its episodes' shares
+    (:func:`impact_env.rig.log_metrics.skipped_fraction`, NaN: no log); NaN without logs."""
+    f = np.asarray(per_episode, dtype=np.float64)
+    f = f[np.isfinite(f)]
+    return float(f.mean()) if f.size else math.nan
 
 
 def _episode(client, mode: str, pol, seed: int, horizon: float, scene):
@@ -118,18 +134,21 @@ def _observation(client, step: int, resend=None):
     raise RigTimeout(f"OBSERVATION of step {step}", (client.retries + 1) * client.timeout_s, client.address)
 
 
-def _run(spec: str, logs: list, failures: list, wall: float) -> PolicyRun:
-    """A PolicyRun (as compare makes it) from the episodes' logs."""
+def _run(spec: str, logs: list, failures: list, wall: float) -> tuple[PolicyRun, np.ndarray]:
+    """A PolicyRun (as compare makes it) from the episodes' logs, and each episode's share of
+    skipped ticks (NaN: no log)."""
     n = len(logs)
     metrics = {k: np.full(n, np.nan) for k in EPISODE_METRICS}
     period = math.nan
     trace0, trace_t, t_touch0, e00 = None, None, math.nan, math.nan
     ratios = []
     energy_t: Any = None
+    skipped = np.full(n, np.nan)
     for j, log in enumerate(logs):
         if log is None:
             continue
         period = 1.0 / log.meta.control_rate_hz
+        skipped[j] = skipped_fraction(log)
         if has_truth(log):
             m = exact_metrics(log)
         else:
@@ -147,8 +166,10 @@ def _run(spec: str, logs: list, failures: list, wall: float) -> PolicyRun:
             e0 = float(log["impact_energy_J"][0])
             stride = max(1, int(round(1.0 / (ENERGY_CURVE_RATE * period))))
             t = log["t_s"] + period  # a row's truth is the state after its tick
-            ratios.append((e / e0)[::stride])
-            energy_t = t[::stride]
+            tick = np.asarray(log["tick"], dtype=np.int64)
+            grid = np.arange(0, int(tick[-1]) + 1, stride)  # the true time axis, not the rows
+            ratios.append(np.interp(grid, tick, e / e0))
+            energy_t = (grid + 1) * period
             if trace0 is None:
                 trace_t = t
                 trace0 = {k: np.asarray(log[c], dtype=np.float64) for k, c in TRACE_MAP.items()}
@@ -160,6 +181,7 @@ def _run(spec: str, logs: list, failures: list, wall: float) -> PolicyRun:
         energy_t = energy_t[:size]
     else:
         ratio = None
-    return PolicyRun(spec=spec, episodes=np.arange(n), metrics=metrics, failures=failures, trace_t=trace_t,
-                     trace0=trace0, t_touch0=t_touch0, impact_energy0=e00, energy_t=energy_t,
-                     energy_ratio=ratio, control_period=period, wall_time_s=wall)
+    run = PolicyRun(spec=spec, episodes=np.arange(n), metrics=metrics, failures=failures, trace_t=trace_t,
+                    trace0=trace0, t_touch0=t_touch0, impact_energy0=e00, energy_t=energy_t,
+                    energy_ratio=ratio, control_period=period, wall_time_s=wall)
+    return run, skipped

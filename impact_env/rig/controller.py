@@ -40,6 +40,13 @@ from impact_env.control.front_end import (
     observe,
 )
 from impact_env.control.observation import ObservationLayout
+from impact_env.control.plausibility import (  # issue 25: the sensor plausibility check
+    PlausibilityParams,
+    check_readings,
+    make_state,
+    plausibility_params,
+    reset_state,
+)
 from impact_env.control.policy import CompiledPolicy, PolicyArrays, act
 from impact_env.control.residual import (
     ResidualParams,
@@ -67,9 +74,10 @@ from impact_env.rig.safety import SafetyConfig, safety_step
 from impact_env.sim import records as R
 
 # the controller's own state (float64[N_STATE]): the action and the command sent of the last
-# tick, the id of the host command in use and the tick it first acted at
-ST_ACTION, ST_COMMAND, ST_CMD_ID, ST_CMD_FIRST = range(4)
-N_STATE = 4
+# tick, the id of the host command in use and the tick it first acted at, the plausibility
+# check's status bits for this tick
+ST_ACTION, ST_COMMAND, ST_CMD_ID, ST_CMD_FIRST, ST_SENSOR = range(5)
+N_STATE = 5
 # the safety bits after which the command sent is the safety layer's force, not the demand
 MODIFIED = SF.FORCE_ZEROED | SF.CLAMP_PEAK | SF.CLAMP_RMS | SF.LATCHING
 NAN4 = np.full(4, np.nan)
@@ -87,6 +95,7 @@ class ControllerParams(NamedTuple):
     law: ResidualParams
     policy: PolicyArrays  # the onboard policy (a placeholder in host mode)
     safety: np.ndarray  # float64[SF.N_PARAMS]: the safety layer's parameters
+    plaus: PlausibilityParams  # the sensor plausibility check's (impact_env.control.plausibility)
 
 
 class ControllerState(NamedTuple):
@@ -99,6 +108,8 @@ class ControllerState(NamedTuple):
     safety: np.ndarray  # the safety layer's state (impact_env.rig.safety)
     own: np.ndarray  # float64[N_STATE]: columns ST_*
     log: LG.LogBuffers
+    plaus: np.ndarray  # the plausibility check's state
+    readings: np.ndarray  # float64[4]: this tick's readings as the check passed them (bad ones held)
 
 
 class HostCommand(NamedTuple):
@@ -114,9 +125,11 @@ def observe_tick(m, raw, truth, p, s):
     """Step 1 of tick m (module doc); ``truth``: x1, v1, x2, v2 for privileged entries (NaN on
     a physical rig).  Returns True at a step boundary."""
     raw, truth, p, s = borrow(raw), borrow(truth), borrow(p), borrow(s)  # (impact_env._borrow)
-    r = raw.reshape((1, raw.shape[0]))
     hold = p.hold
     if m > 0:
+        # issue 25: no reading reaches the filters unchecked (a bad one: the last good one, 0 N)
+        s.own[ST_SENSOR] = check_readings(m, raw, p.plaus, s.plaus, s.readings)
+        r = s.readings.reshape((1, s.readings.shape[0]))
         condition(0, r, p.fe, s.fe)
         if p.law.on:
             observe_residual(0, truth, s.fe, p.law, s.law)
@@ -162,7 +175,7 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     u = st[ST_ACTION]
     if p.law.on:
         u = add_residual(u, 0, p.law, s.law)
-    f, status = safety_step(u, age, ticks_armed, raw[POT], p.safety, s.safety)
+    f, status = safety_step(u, age, ticks_armed, s.readings[POT], int(st[ST_SENSOR]), p.safety, s.safety)
     out = f / p.scale if status & MODIFIED else u
     st[ST_COMMAND] = out
     rows = s.log.rows
@@ -244,9 +257,9 @@ class Controller:
         sp = self.safety.params
         self.log = LG.TickLog(int(horizon_ticks) + 1, layout.size, extra=extra_columns)
         self.params = ControllerParams(mode == "onboard", self.hold, self.scale, self.rate, self.fe.params,
-                                       self.fe.obs_params, law_p, pol, sp)
+                                       self.fe.obs_params, law_p, pol, sp, plausibility_params(scene))
         self.state = ControllerState(self.fe.state, self.fe.obs_state, law_s, memory, self.safety.state,
-                                     np.zeros(N_STATE), self.log.buffers)
+                                     np.zeros(N_STATE), self.log.buffers, make_state(), np.zeros(4))
 
     @property
     def st(self) -> np.ndarray:
@@ -260,13 +273,16 @@ class Controller:
         t = NAN4 if truth is None else np.asarray(truth, dtype=np.float64).reshape(1, 4)
         t = t.reshape(1, 4)
         idx = np.zeros(1, np.int64)
-        self.fe.start(idx, np.asarray(raw, dtype=np.float64).reshape(1, -1), t)
         s = self.state
+        reset_state(s.plaus)  # issue 25: tick 0's readings are checked too (range only: no previous one)
+        bits = check_readings(0, np.asarray(raw, dtype=np.float64), self.params.plaus, s.plaus, s.readings)
+        self.fe.start(idx, s.readings.reshape(1, -1).copy(), t)
         if self.params.law.on:
             start_residual(idx, t, s.fe, self.params.law, s.law)
         s.memory[:] = 0.0
         s.own[:] = 0.0
         s.own[ST_CMD_ID] = -1.0
+        s.own[ST_SENSOR] = bits
         self.safety.new_episode()
         self.log.reset()
 
@@ -293,7 +309,7 @@ class Controller:
 
 
 # -- the virtual rig's compiled tick loop ---------------------------------------------------------
-END_NONE, END_FIRST_COMMAND, END_SAFETY, END_FAULT, END_STOP = range(5)
+END_NONE, END_FIRST_COMMAND, END_SAFETY, END_FAULT, END_STOP, END_SENSOR_FAULT = range(6)
 # the tick accounts (int64[3], kept across calls): ticks skipped not yet reported on a row, the
 # episode's skipped ticks, rows flagged OVERRUN
 ACCT_UNREPORTED, ACCT_SKIPPED, ACCT_OVERRUNS = range(3)
@@ -466,6 +482,9 @@ def run_ticks(m0, m1, cmd, p, s, rig, pacing):
         if status & SF.FIRST_COMMAND_TIMEOUT:
             _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
             return m, status_or, END_FIRST_COMMAND
+        if status & SF.SENSOR_TIMEOUT:  # issue 25: implausible readings outlasted the scene's limit
+            _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
+            return m, status_or, END_SENSOR_FAULT
         if status & SF.LATCHING:
             _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
             return m, status_or, END_SAFETY

@@ -35,7 +35,8 @@ from impact_env.rig.cycles import cached_ns_per_cycle, cycles_now
 from impact_env.sim import records as R
 
 _END = {CT.END_FIRST_COMMAND: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END_SAFETY: P.EndReason.SAFETY,
-        CT.END_FAULT: P.EndReason.FAULT, CT.END_STOP: P.EndReason.DISARMED}
+        CT.END_FAULT: P.EndReason.FAULT, CT.END_STOP: P.EndReason.DISARMED,
+        CT.END_SENSOR_FAULT: P.EndReason.SENSOR_FAULT}  # issue 25 (rig-sensors)
 
 
 class Episode:
@@ -373,6 +374,8 @@ class Episode:
                 return P.EndReason.FAULT
             if status & SF.FIRST_COMMAND_TIMEOUT:
                 return P.EndReason.FIRST_COMMAND_TIMEOUT
+            if status & SF.SENSOR_TIMEOUT:  # issue 25 (rig-sensors): implausible readings too long
+                return P.EndReason.SENSOR_FAULT
             if status & SF.LATCHING:
                 return P.EndReason.SAFETY
             self.m += 1

@@ -17,24 +17,49 @@ def has_truth(log: EpisodeLog) -> bool:
 
 
 def log_records(log: EpisodeLog) -> np.ndarray:
-    """The tick records (float64[n, N_REC], :mod:`impact_env.sim.records`) of the ticks that
-    applied a command, from a virtual rig's log.  A tick's detector bit is the one of the next
+    """The tick records (float64[n, N_REC], :mod:`impact_env.sim.records`) of ticks 0 .. n - 1, n
+    the tick after the last that applied a command, from a virtual rig's log, on the true time
+    axis: row k is tick k (``tick / rate``), whatever rows the log lacks.  A tick skipped by an
+    overrun has no row: its command is the one held (the DAC held it: exact), its true state is
+    interpolated linearly between the rows around it (an approximation, for those ticks only; a
+    log without skipped ticks is used as it is).  A tick's detector bit is the one of the next
     row: the front end conditions tick k's readings at tick k + 1."""
     act = ~np.isnan(log["action"])
-    n = int(np.flatnonzero(act)[-1]) + 1 if act.any() else 0
+    n_rows = int(np.flatnonzero(act)[-1]) + 1 if act.any() else 0
+    tick = np.asarray(log["tick"][:n_rows], dtype=np.int64)
+    n = int(tick[-1]) + 1 if n_rows else 0
+    k = np.arange(n)
+    prev = np.searchsorted(tick, k, side="right") - 1  # the row at or before each tick (held values)
+
+    def smooth(name):
+        v = np.asarray(log[name][:n_rows], dtype=np.float64)
+        return v if n == n_rows else np.interp(k, tick, v)  # (no gap: the rows as they are)
+
+    def held(values):
+        return np.asarray(values, dtype=np.float64)[:n_rows][prev] if n else np.zeros(0)
+
     rec = np.zeros((n, R.N_REC))
-    rec[:, R.REC_T] = (np.arange(n) + 1) / log.meta.control_rate_hz
+    rec[:, R.REC_T] = (k + 1) / log.meta.control_rate_hz
     for j, name in enumerate(("true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps")):
-        rec[:, R.REC_X1 + j] = log[name][:n]
-    rec[:, R.REC_U] = log["command"][:n]
-    rec[:, R.REC_F_DEMAND] = log["hw_force_demand_N"][:n]
-    rec[:, R.REC_F_APPLIED] = log["hw_force_applied_N"][:n]
-    rec[:, R.REC_SATURATED] = log["hw_saturated"][:n]
-    rec[:, R.REC_CONTACT_FORCE] = log["hw_contact_force_N"][:n]
-    det = log["contact_detected"].astype(np.float64)
-    rec[:, R.REC_DETECTED] = det[1:n + 1] if det.size > n else np.append(det[1:n + 1], det[-1])
-    rec[:, R.REC_STATUS] = log["hw_status"][:n]
+        rec[:, R.REC_X1 + j] = smooth(name)
+    rec[:, R.REC_U] = held(log["command"])
+    rec[:, R.REC_F_DEMAND] = held(log["hw_force_demand_N"])
+    rec[:, R.REC_F_APPLIED] = smooth("hw_force_applied_N")
+    rec[:, R.REC_SATURATED] = held(log["hw_saturated"])
+    rec[:, R.REC_CONTACT_FORCE] = smooth("hw_contact_force_N")
+    det = np.asarray(log["contact_detected"], dtype=np.float64)
+    nxt = np.append(det[1:n_rows + 1], det[-1]) if det.size <= n_rows else det[1:n_rows + 1]
+    rec[:, R.REC_DETECTED] = nxt[prev] if n else 0.0
+    rec[:, R.REC_STATUS] = held(log["hw_status"])
     return rec
+
+
+def skipped_fraction(log: EpisodeLog) -> float:
+    """The share of the episode's ticks that did not run (overruns), from its rows' tick numbers."""
+    tick = np.asarray(log["tick"], dtype=np.int64)
+    if tick.size == 0:
+        return 0.0
+    return float(int(tick[-1]) + 1 - tick.size) / float(int(tick[-1]) + 1)
 
 
 def exact_metrics(log: EpisodeLog, catch_fraction: float = 0.01,

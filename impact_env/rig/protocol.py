@@ -234,6 +234,7 @@ class EndReason(enum.IntEnum):
     SAFETY = 5  # a latched safety trip (travel limit, sensor fault)
     LINK_LOST = 6  # nothing authentic heard from the host within link_timeout_ms (late commands count)
     FAULT = 7  # the driver reported an error
+    SENSOR_FAULT = 8  # implausible readings outlasted effects.sensors.fault_limit_s (issue 25)
 
 
 class EpisodeKind(enum.IntEnum):

@@ -9,7 +9,10 @@ force to apply (N, up positive, the thesis's f2) and status bits.  Its inputs:
   controller passes ``m - step H``: a command that arrived late in its step gets no extra
   time; < 0: no command yet this episode).  Host mode only; onboard mode passes 0.
 * ``ticks_armed``: ticks since the episode was armed.
-* ``x2_m``: the potentiometer's reading of body 2's travel (m, down positive, 0 at rest).
+* ``x2_m``: the potentiometer's reading of body 2's travel (m, down positive, 0 at rest), as the
+  plausibility check passed it (:mod:`impact_env.control.plausibility`: the last plausible one
+  when this tick's was not).
+* ``sensor_bits``: the plausibility check's status bits for this tick (0: every reading plausible).
 
 Rules, in the order applied (host mode = ``mode="host"``; H = hold_ticks):
 
@@ -23,12 +26,17 @@ Rules, in the order applied (host mode = ``mode="host"``; H = hold_ticks):
    ``FIRST_COMMAND_TIMEOUT`` is set: the target disarms.
 3. **Non-finite** demand (NaN, inf, or a product with the command scale that overflows):
    0 N for this tick, ``NONFINITE``.
-4. **Travel limit** (latched).  ``|x2| > travel_limit_m`` sets ``TRAVEL``; a non-finite reading
-   sets ``SENSOR_FAULT``.  Both latch: the force stays 0 for the rest of the episode (the
-   suspension brings body 2 back; a policy that drove the armature out of its stroke is not
-   trusted to bring it back), and the latched bits are reported on every later tick.
-5. **Peak clamp**: ``|f| <= peak_n`` (``CLAMP_PEAK``).
-6. **Continuous (RMS) clamp**: the RMS of the applied force over any window of
+4. **Implausible readings** (:mod:`impact_env.control.plausibility`): any ``sensor_bits``
+   (``SENSOR_FAULT`` and the channel's bit; ``SENSOR_TIMEOUT`` once the fault outlasted
+   ``effects.sensors.fault_limit_s``, latched by the check): 0 N for this tick, never a force
+   from a bad sample.  A non-finite ``x2_m`` (a caller without the check) is a potentiometer
+   fault the same way.
+5. **Travel limit** (latched).  ``|x2| > travel_limit_m`` sets ``TRAVEL``: the force stays 0 for
+   the rest of the episode (the suspension brings body 2 back; a policy that drove the armature
+   out of its stroke is not trusted to bring it back), and the bit is reported on every later
+   tick.
+6. **Peak clamp**: ``|f| <= peak_n`` (``CLAMP_PEAK``).
+7. **Continuous (RMS) clamp**: the RMS of the applied force over any window of
    ``rms_window_s`` (n = rate * window ticks, this one included) stays at or below
    ``continuous_n / sqrt(2)`` (the RMS of a sine of peak ``continuous_n``): the allowed
    ``f^2`` is ``n R^2`` minus the sum of the other n-1 squares in the window (``CLAMP_RMS``).
@@ -63,7 +71,14 @@ bit   name                       meaning
 5     ``CLAMP_PEAK``             the peak clamp cut the force
 6     ``CLAMP_RMS``              the continuous (RMS) clamp cut the force
 7     ``TRAVEL``                 (latched) body 2 beyond its travel limit: 0 N
-8     ``SENSOR_FAULT``           (latched) the potentiometer reading was not finite: 0 N
+8     ``SENSOR_FAULT``           a reading of this tick was implausible (out of the converter's
+                                 range, NaN/inf, or a jump no physics gives): 0 N, held readings
+9-12  ``SENSOR_ACCELEROMETER``,  which channel(s) (accelerometer, force transducer, potentiometer,
+      ``_FORCE``,                body-1 sensor)
+      ``_POTENTIOMETER``,
+      ``_BODY1``
+13    ``SENSOR_TIMEOUT``         (latched) implausible readings outlasted fault_limit_s: 0 N; the
+                                 target ends the episode SENSOR_FAULT
 16    ``OVERRUN``                (target loop) the tick started a period or more late, or ticks
                                  were skipped just before it (the log's ``skipped_ticks``)
 ====  =========================  ==============================================================
@@ -78,6 +93,7 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError, check_hold_ticks, check_range, doc_field
+from impact_env.control import plausibility as PL
 
 NO_COMMAND = 1 << 0
 REPEATED = 1 << 1
@@ -87,25 +103,35 @@ NONFINITE = 1 << 4
 CLAMP_PEAK = 1 << 5
 CLAMP_RMS = 1 << 6
 TRAVEL = 1 << 7
-SENSOR_FAULT = 1 << 8
+# the plausibility check's bits (impact_env.control.plausibility: it runs below this layer)
+SENSOR_FAULT = PL.SENSOR_FAULT
+SENSOR_ACCELEROMETER = PL.SENSOR_ACCELEROMETER
+SENSOR_FORCE = PL.SENSOR_FORCE
+SENSOR_POTENTIOMETER = PL.SENSOR_POTENTIOMETER
+SENSOR_BODY1 = PL.SENSOR_BODY1
+SENSOR_TIMEOUT = PL.SENSOR_TIMEOUT
+SENSOR_BITS = PL.SENSOR_BITS
 OVERRUN = 1 << 16
-LATCHING = TRAVEL | SENSOR_FAULT
-FORCE_ZEROED = NO_COMMAND | WATCHDOG | NONFINITE | TRAVEL | SENSOR_FAULT
+LATCHING = TRAVEL
+FORCE_ZEROED = NO_COMMAND | WATCHDOG | NONFINITE | TRAVEL | SENSOR_FAULT | SENSOR_TIMEOUT
 
 STATUS_BITS = {"NO_COMMAND": NO_COMMAND, "REPEATED": REPEATED, "WATCHDOG": WATCHDOG,
                "FIRST_COMMAND_TIMEOUT": FIRST_COMMAND_TIMEOUT, "NONFINITE": NONFINITE,
                "CLAMP_PEAK": CLAMP_PEAK, "CLAMP_RMS": CLAMP_RMS, "TRAVEL": TRAVEL,
-               "SENSOR_FAULT": SENSOR_FAULT, "OVERRUN": OVERRUN}
+               "SENSOR_FAULT": SENSOR_FAULT, "SENSOR_ACCELEROMETER": SENSOR_ACCELEROMETER,
+               "SENSOR_FORCE": SENSOR_FORCE, "SENSOR_POTENTIOMETER": SENSOR_POTENTIOMETER,
+               "SENSOR_BODY1": SENSOR_BODY1, "SENSOR_TIMEOUT": SENSOR_TIMEOUT, "OVERRUN": OVERRUN}
 
 # parameter array (float64[N_PARAMS])
 P_SCALE, P_PEAK, P_BUDGET, P_QUANTUM, P_WINDOW, P_TRAVEL, P_FIRST, P_HOLD, P_HOST = range(9)
 N_PARAMS = 9
 # state array (float64[N_STATE_FIXED + window]): latched bits, running sum of squares (quanta),
 # ring head, counters, then the ring of squares (quanta)
-S_LATCH, S_SUM, S_HEAD, S_PREV_WD, S_WD_TRIPS, S_NONFINITE, S_PEAK, S_RMS, S_TRAVEL_TRIPS = range(9)
-N_STATE_FIXED = 9
+(S_LATCH, S_SUM, S_HEAD, S_PREV_WD, S_WD_TRIPS, S_NONFINITE, S_PEAK, S_RMS, S_TRAVEL_TRIPS,
+ S_SENSOR_TICKS) = range(10)
+N_STATE_FIXED = 10
 COUNTERS = {"watchdog_trips": S_WD_TRIPS, "nonfinite_ticks": S_NONFINITE, "clamp_peak_ticks": S_PEAK,
-            "clamp_rms_ticks": S_RMS, "travel_trips": S_TRAVEL_TRIPS}
+            "clamp_rms_ticks": S_RMS, "travel_trips": S_TRAVEL_TRIPS, "sensor_fault_ticks": S_SENSOR_TICKS}
 MAX_WINDOW = 10_000_000  # ticks (80 MB of state): a guard against a mistyped window or rate
 
 _f = doc_field
@@ -192,7 +218,7 @@ def drain_window(state, params, n_ticks):
 
 
 @jit
-def safety_step(demand, age_ticks, ticks_armed, x2_m, params, state):
+def safety_step(demand, age_ticks, ticks_armed, x2_m, sensor_bits, params, state):
     """One tick of the safety layer (module doc): returns ``(force_N, status)``, the force to
     apply (N, up positive) and the status bits (int64); updates ``state``."""
     status = 0
@@ -222,10 +248,14 @@ def safety_step(demand, age_ticks, ticks_armed, x2_m, params, state):
             status |= NONFINITE
             state[S_NONFINITE] += 1.0
             f = 0.0
-    latch = int(state[S_LATCH])
     if not np.isfinite(x2_m):
-        latch |= SENSOR_FAULT
-    elif abs(x2_m) > params[P_TRAVEL]:
+        sensor_bits |= SENSOR_FAULT | SENSOR_POTENTIOMETER
+    if sensor_bits != 0:
+        status |= sensor_bits
+        state[S_SENSOR_TICKS] += 1.0
+        f = 0.0
+    latch = int(state[S_LATCH])
+    if np.isfinite(x2_m) and abs(x2_m) > params[P_TRAVEL]:
         if (latch & TRAVEL) == 0:
             state[S_TRAVEL_TRIPS] += 1.0
         latch |= TRAVEL
@@ -288,9 +318,10 @@ class SafetyLayer:
         self.params = safety_params(self.cfg, command_scale, rate, hold_ticks, mode)
         self.state = make_safety_state(self.params)
 
-    def step(self, demand: float, age_ticks: int, ticks_armed: int, x2_m: float) -> tuple[float, int]:
-        f, status = safety_step(float(demand), int(age_ticks), int(ticks_armed), float(x2_m), self.params,
-                                self.state)
+    def step(self, demand: float, age_ticks: int, ticks_armed: int, x2_m: float,
+             sensor_bits: int = 0) -> tuple[float, int]:
+        f, status = safety_step(float(demand), int(age_ticks), int(ticks_armed), float(x2_m),
+                                int(sensor_bits), self.params, self.state)
         return float(f), int(status)
 
     def new_episode(self) -> None:
@@ -309,5 +340,6 @@ class SafetyLayer:
         return int(self.state[S_LATCH])
 
     def counters(self) -> dict[str, int]:
-        """Per-episode counts (plain ints): watchdog trips, non-finite ticks, clamped ticks, travel trips."""
+        """Per-episode counts (plain ints): watchdog trips, non-finite ticks, clamped ticks, travel trips,
+        ticks with implausible readings."""
         return {name: int(self.state[i]) for name, i in COUNTERS.items()}
