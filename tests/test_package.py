@@ -90,24 +90,3 @@ def test_version_and_help_import_neither_numba_nor_scipy():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "heavy []" in out.stdout and f"impact-env {impact_env.__version__}" in out.stdout, out.stdout
-
-
-def test_a_script_beside_a_clone_named_impact_env_gets_the_package_not_an_empty_namespace(tmp_path):
-    """A clone is named impact_env by default; a script run from the folder that holds it found
-    the clone first and imported it as an empty namespace package (gymnasium.make then failed
-    with NameNotFound: ImpactCatch).  The root's __init__.py loads the package inside instead."""
-    import os
-    import subprocess
-    import sys
-
-    (tmp_path / "impact_env").symlink_to(ROOT, target_is_directory=True)  # the clone, as git names it
-    code = ("import impact_env, gymnasium\n"
-            "print(impact_env.__file__)\n"
-            "print(gymnasium.spec('ImpactCatch-v0').id, impact_env.__version__)\n")
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # the script's folder comes first
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
-                         cwd=tmp_path, env=env)
-    assert out.returncode == 0, out.stderr[-3000:]
-    first, second = out.stdout.splitlines()[:2]
-    assert first == str(tmp_path / "impact_env" / "impact_env" / "__init__.py")
-    assert second == f"ImpactCatch-v0 {impact_env.__version__}"
