@@ -1,4 +1,4 @@
-"""The rig's real-time host mode (impact_env.rig.episode, controller.run_ticks): commands act from
+"""The rig's real-time host mode (impact_env.rig.episode, rtloop.run_episode): commands act from
 their arrival, every skipped tick is flagged, episodes end the way the target says.  Lateness is
 injected (the target's clock started far in the past: every tick is late), so what the tests
 assert does not depend on the machine's load; each checks that the fault really happened."""
@@ -68,9 +68,15 @@ def _rig_log_json(target, episode, tmp_path) -> dict:
     return json.loads(buf.getvalue())
 
 
-@pytest.mark.parametrize("python_loop", [False, True], ids=["compiled", "python-loop"])
+def test_the_python_tick_loop_is_refused_for_real_time():
+    """The per-tick Python loop is for lock-step tests only: real time would run Python each tick."""
+    with pytest.raises(ValueError, match="cannot keep real time"):
+        Target(VirtualRig("rig"), config=TargetConfig(python_loop=True))
+
+
 @pytest.mark.parametrize("hold", [1, 4])
-def test_every_tick_late_is_flagged_and_every_command_accounted(monkeypatch, tmp_path, python_loop, hold):
+def test_every_tick_late_is_flagged_and_every_command_accounted(monkeypatch, tmp_path, hold):
+    python_loop = False
     _late_clock(monkeypatch, python_loop)
     target, th = _serve(python_loop=python_loop)
     horizon = 0.01  # 100 ticks

@@ -201,6 +201,7 @@ class EndReason(enum.IntEnum):
     SAFETY = 5  # a latched safety trip (travel limit, sensor fault)
     LINK_LOST = 6  # nothing authentic heard from the host within link_timeout_ms (late commands count)
     FAULT = 7  # the driver reported an error
+    OVERRUN = 8  # real time: no tick ran for longer than the target's limit (max_gap_s): 0 N, ended
 
 
 class EpisodeKind(enum.IntEnum):

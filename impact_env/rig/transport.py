@@ -111,6 +111,9 @@ def _resolve(addr: Address) -> tuple[int, tuple]:
 
 
 # -- endpoint ------------------------------------------------------------------------------------------
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: the kernel's drop count with each datagram
+
+
 class Endpoint:
     """A non-blocking UDP socket bound to ``bind`` (default: loopback, a free port).
 
@@ -138,6 +141,14 @@ class Endpoint:
         if peer is not None:
             self.peer = _resolve(_as_address(peer))[1]
         self.sent = self.received = self.send_dropped = 0
+        # datagrams the kernel dropped because the receive buffer was full (Linux SO_RXQ_OVFL:
+        # the count arrives with each datagram; None where the platform has no such counter)
+        self.kernel_dropped: int | None = None
+        try:
+            self._sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+            self.kernel_dropped = 0
+        except OSError:
+            pass
         self._closed = False
 
     @property
@@ -195,6 +206,45 @@ class Endpoint:
                 if self._closed:
                     raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
                 raise
+
+    def recv_many(self, limit: int = 4096) -> list[tuple[bytes, tuple]]:
+        """Every datagram waiting on the socket now (at most ``limit``), without waiting: a
+        reader that drains the queue at each wake-up, so that junk never queues ahead of the host.
+        Reads the kernel's drop counter (``kernel_dropped``) from each datagram's ancillary data."""
+        self._check()
+        out = []
+        anc = socket.CMSG_SPACE(4) if self.kernel_dropped is not None else 0
+        while len(out) < limit:
+            try:
+                data, ancdata, _flags, addr = self._sock.recvmsg(P.MAX_DATAGRAM + 1, anc)
+            except (BlockingIOError, InterruptedError):
+                break
+            except ConnectionRefusedError:
+                continue
+            except OSError:
+                if self._closed:
+                    raise EndpointClosed(f"endpoint {self.address} was closed while reading") from None
+                raise
+            self.received += 1
+            for level, kind, value in ancdata:
+                if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                    # the socket's drops since it opened (it is this endpoint's own socket)
+                    self.kernel_dropped = int.from_bytes(value[:4], "little")
+            out.append((data, addr))
+        return out
+
+    def wait_readable(self, timeout: float, *others) -> list:
+        """select() on the socket and ``others`` (file descriptors) for at most ``timeout`` s."""
+        self._check()
+        try:
+            return select.select([self._sock, *others], [], [], max(float(timeout), 0.0))[0]
+        except (OSError, ValueError):
+            if self._closed:
+                raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
+            raise
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
 
     def close(self) -> None:
         """Close the socket (idempotent, never blocks)."""
@@ -293,6 +343,28 @@ class Link:
                     self.on_stranger(stranger, got[1])
             if time.perf_counter() >= deadline:
                 return None
+
+    def recv_all(self, episode: int | None = None, step: int | None = None,
+                 limit: int = 4096) -> list[P.Message]:
+        """Every datagram waiting now through the filter (each one accepted or counted under its
+        reason by ``self.filter``); returns the accepted messages, in order."""
+        out = []
+        for data, addr in self.endpoint.recv_many(limit):
+            msg = self.filter.accept(data, episode, step, addr)
+            if msg is not None:
+                self.last_sender = addr
+                if self.on_accept is not None:
+                    self.on_accept(msg)
+                out.append(msg)
+                continue
+            if self.filter.last_unauth and self.on_unauthenticated is not None:
+                self.on_unauthenticated(data, addr)
+            self.filter.last_unauth = False
+            if self.filter.last_stranger is not None:
+                stranger, self.filter.last_stranger = self.filter.last_stranger, None
+                if self.on_stranger is not None:
+                    self.on_stranger(stranger, addr)
+        return out
 
     def request(self, body: P.Body, match: Callable[[P.Message], bool], what: str, timeout_s: float = 0.05,
                 retries: int = 5, on_other: Callable[[P.Message], None] | None = None,
