@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import shutil
 import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -49,6 +48,7 @@ def replay(tmp_path_factory):
 
 
 def _serve(driver, **cfg):
+    cfg.setdefault("max_gap_s", 10.0)  # no OVERRUN end on a loaded machine unless a test sets the limit
     target = Target(driver, config=TargetConfig(**cfg))
     th = threading.Thread(target=target.serve, daemon=True)
     th.start()
@@ -62,7 +62,8 @@ def _stop(target, th):
 
 
 def _onboard(target, law, seed):
-    c = RigClient(target.address, timeout_s=0.2, retries=25)
+    # a long first wait: a retried ARM that came after a short episode's end would start another
+    c = RigClient(target.address, timeout_s=2.0, retries=5)
     try:
         c.arm("onboard", seed, HORIZON, policy=law, hold_ticks=law.hold_ticks)
         c.wait_end(30.0)
@@ -108,7 +109,7 @@ def test_c_driver_real_time_every_tick_applied_or_skipped(replay, tmp_path):
     through the C driver, the row's command) or was skipped (counted on the next row, no apply)."""
     _lib, _readings, _ref, law = replay
     drv, out = _cdriver(replay, tmp_path, ";read_delay_us=150")
-    target, th = _serve(drv, max_gap_s=10.0)  # no OVERRUN end on a loaded machine
+    target, th = _serve(drv)
     try:
         log = _onboard(target, law, seed=7)
     finally:
@@ -131,7 +132,7 @@ def test_a_stall_longer_than_the_limit_ends_overrun_at_zero_newtons(replay, tmp_
     episode ends OVERRUN; its last row counts the ticks that passed unrun."""
     _lib, _readings, _ref, law = replay
     drv, out = _cdriver(replay, tmp_path, ";stall=100:5000")
-    target, th = _serve(drv)
+    target, th = _serve(drv, max_gap_s=1e-3)  # the target's default limit
     try:
         log = _onboard(target, law, seed=7)
         assert target.counters["overrun_episodes"] == 1
@@ -151,8 +152,8 @@ def test_first_command_allowance_counts_seconds_not_ticks(replay, tmp_path):
     """Host mode, hold 4, a slow read (250 us: the loop runs about one tick in three): the
     first-command allowance of 0.005 s trips at the clock's tick 50, after far fewer ticks ran."""
     drv, _out = _cdriver(replay, tmp_path, ";read_delay_us=250")
-    target, th = _serve(drv, max_gap_s=10.0)  # no OVERRUN end on a loaded machine
-    c = RigClient(target.address, timeout_s=0.2, retries=25)
+    target, th = _serve(drv)
+    c = RigClient(target.address, timeout_s=2.0, retries=5)
     try:
         c.arm("host", 2, HORIZON, hold_ticks=4, first_command_timeout_ticks=50)
         end = c.wait_end(30.0)
@@ -171,15 +172,12 @@ def test_first_command_allowance_counts_seconds_not_ticks(replay, tmp_path):
     assert log.n_ticks < tick[-1] and np.any(log["skipped_ticks"] > 0)  # the fault happened: ticks skipped
 
 
-def test_cli_loads_a_c_driver_and_refuses_a_python_one_for_real_time(replay, tmp_path, capsys):
+def test_cli_loads_a_c_driver_and_refuses_a_python_one_for_real_time(replay, capsys):
     from impact_env.cli.main import main
-    from impact_env.config import ConfigError
 
-    lib, readings, _log, _law = replay
-    with pytest.raises((ConfigError, SystemExit)) as exc:
-        main(["rig", "serve", "--driver", "tests.rig_drivers:BlindRig", "--port", "0"])
-    assert "cannot keep real time" in str(exc.value) + capsys.readouterr().err
-    with pytest.raises((ConfigError, SystemExit)) as exc:
-        main(["rig", "serve", "--driver", str(lib), "--driver-config", "nope", "--port", "0"])
-    assert "impact_driver_open" in str(exc.value) + capsys.readouterr().err
-    assert Path(lib).stat().st_size > 0
+    lib, _readings, _log, _law = replay
+    assert main(["rig", "serve", "--driver", "tests.rig_drivers:BlindRig", "--port", "0"]) != 0
+    err = capsys.readouterr().err
+    assert "cannot keep real time" in err and "impact_driver.h" in err
+    assert main(["rig", "serve", "--driver", str(lib), "--driver-config", "nope", "--port", "0"]) != 0
+    assert "impact_driver_open(config='nope') returned -2" in capsys.readouterr().err

@@ -22,6 +22,9 @@ LAG_S = 1000.0  # the injected lateness: far more than any episode lasts
 
 
 def _serve(**cfg):
+    # no OVERRUN end on a loaded machine (the 1 ms gap limit is tested with an injected stall,
+    # tests/test_rig_cdriver.py)
+    cfg.setdefault("max_gap_s", 10.0)
     target = Target(VirtualRig("rig"), config=TargetConfig(**cfg))
     th = threading.Thread(target=target.serve, daemon=True)
     th.start()

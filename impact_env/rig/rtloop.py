@@ -335,7 +335,7 @@ def run_episode(m1, p, s, io, tm, acct, hl):
     status_or = 0
     end = END_NONE
     m = 0
-    prev = t0c - cpt
+    prev = -1.0  # the start of the last tick run (none yet: no gap before the first)
     while True:
         if sh[RG.SH_STOP] != 0:
             io_zero(io, m)
@@ -349,7 +349,7 @@ def run_episode(m1, p, s, io, tm, acct, hl):
             while now < dl:
                 now = float(cycles())
             late = now - dl
-            if now - prev > (tm.max_gap_ticks + 1) * cpt:  # no tick ran for too long: 0 N, end
+            if prev >= 0.0 and now - prev > (tm.max_gap_ticks + 1) * cpt:  # no tick for too long: 0 N, end
                 io_zero(io, m)
                 k = min(int(late // cpt), m1 - m)
                 acct[ACCT_UNREPORTED] += k

@@ -471,7 +471,7 @@ class Target:
         """The link's datagram counters since the target started (see :meth:`_finish`)."""
         # kernel: datagrams the kernel dropped on a full receive buffer (SO_RXQ_OVFL; 0 where unknown)
         return {**self.link.filter.counts(), "received": self.endpoint.received,
-                "kernel": self.endpoint.kernel_dropped or 0}
+                "kernel": self.endpoint.kernel_drops()}
 
     def _finish(self, ep: Episode, end, policy) -> None:
         ctl = ep.ctl

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import ipaddress
+import os
 import select
 import socket
 import time
@@ -232,6 +233,25 @@ class Endpoint:
                     self.kernel_dropped = int.from_bytes(value[:4], "little")
             out.append((data, addr))
         return out
+
+    def kernel_drops(self) -> int:
+        """Datagrams the kernel dropped for this socket since it opened (its receive buffer
+        full): Linux's per-socket counter in /proc/net/udp (read now, so drops after the last
+        datagram count too), else the last SO_RXQ_OVFL value seen, else 0."""
+        if self._closed:  # the last count read (a closed socket has left /proc)
+            return self.kernel_dropped or 0
+        ino = str(os.fstat(self._sock.fileno()).st_ino)
+        for name in ("/proc/net/udp", "/proc/net/udp6"):
+            try:
+                with open(name) as fh:
+                    for line in fh.read().splitlines()[1:]:
+                        f = line.split()
+                        if len(f) >= 13 and f[9] == ino:
+                            self.kernel_dropped = int(f[12])
+                            return self.kernel_dropped
+            except (OSError, ValueError):
+                continue
+        return self.kernel_dropped or 0
 
     def wait_readable(self, timeout: float, *others) -> list:
         """select() on the socket and ``others`` (file descriptors) for at most ``timeout`` s."""
