@@ -309,8 +309,7 @@ class Episode:
         hl = RG.host_link(ctl.layout.size, CF.libc_address("write"), wake_w, CF.libc_address("usleep"))
         self.hl = hl
         max_gap = int(round(tg.cfg.max_gap_s * tg.rate))
-        tm = RL.Timing(not self.lockstep, self.lockstep and self.host, float(_now()) + cpt, cpt, nspc,
-                       max_gap)
+        tm = RL.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap)
         result: list = []
 
         def loop():

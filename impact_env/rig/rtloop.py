@@ -99,7 +99,7 @@ class CIO(NamedTuple):
 class Timing(NamedTuple):
     realtime: bool  # pace the ticks on the clock (else lock-step: as fast as they run)
     lockstep_host: bool  # lock-step host mode: a step's first tick waits for the step's command
-    t0: float  # cycles: the deadline of tick 0
+    t0: float  # cycles added to the deadline of tick 0 (one period after the loop starts; 0 normally)
     cycles_per_tick: float
     ns_per_cycle: float
     max_gap_ticks: int  # more periods than this with no tick run: 0 N, the episode ends OVERRUN
@@ -330,7 +330,10 @@ def run_episode(m1, p, s, io, tm, acct, hl):
     hold = p.hold
     host = not p.onboard
     realtime = tm.realtime
-    t0c, cpt, nspc = tm.t0, tm.cycles_per_tick, tm.ns_per_cycle
+    cpt, nspc = tm.cycles_per_tick, tm.ns_per_cycle
+    # tick 0 is due one period after the loop starts (plus ``tm.t0``, an offset in cycles for
+    # tests): the set-up before it (threads, the log file) must not make the episode start late
+    t0c = float(cycles()) + cpt + tm.t0
     sh, cs, cc = hl.shared, hl.cs, hl.cc
     status_or = 0
     end = END_NONE
