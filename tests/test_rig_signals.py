@@ -75,15 +75,18 @@ HOST = r"""
 import sys
 from impact_env.rig.host import RigClient
 c = RigClient(sys.argv[1])
-c.arm("host", 5, 200_000, hold_ticks=4, link_timeout_ms=2000, first_command_timeout_ticks=100_000)
+c.arm("host", 5, 200_000, hold_ticks=10, link_timeout_ms=2000, first_command_timeout_ticks=100_000)
 step = 0
 while True:
     obs = c.observation(step, 0.5)
-    if obs is None or not hasattr(obs, "obs"):
+    if obs is None:
+        continue
+    if not hasattr(obs, "obs"):
+        print("ended", obs, flush=True)
         break
-    c.command(obs.step, 0.05)
+    c.command(obs.step, 0.02)
     step = obs.step + 1
-    if step == 200:
+    if step >= 200:
         print("stepping", flush=True)
 """
 
