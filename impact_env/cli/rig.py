@@ -20,9 +20,18 @@ def add_parser(sub, scene_args) -> None:
     scene_args(s)
     d = s.add_mutually_exclusive_group(required=True)
     d.add_argument("--virtual", action="store_true", help="drive a simulated rig (the driver built in)")
-    d.add_argument("--driver", metavar="MODULE:CLASS",
-                   help="drive a rig through a RigDriver subclass (importable; constructed with the scene): "
-                        "a DAQ card's driver, docs/rig.md 'Writing a driver'")
+    d.add_argument("--driver", metavar="LIB.so|MODULE:CLASS",
+                   help="drive a rig through a C driver (a shared library exporting impact_driver_open, "
+                        "impact_env/deploy/rt/impact_driver.h: what real time needs) or a Python RigDriver "
+                        "subclass (lock-step only); docs/rig.md 'Writing a driver for a DAQ card'")
+    s.add_argument("--driver-config", default="", metavar="STRING",
+                   help="passed to the C driver's impact_driver_open (its syntax is the driver's; the replay "
+                        "driver's: 'READINGS.f64;COMMANDS.f64')")
+    s.add_argument("--max-gap", type=float, default=1.0, metavar="MS",
+                   help="real time: no tick run for longer than this ends the episode OVERRUN at 0 N "
+                        "(default 1 ms)")
+    s.add_argument("--max-horizon", type=float, default=60.0, metavar="S",
+                   help="the longest episode an ARM may ask for (default 60 s); longer ones are refused")
     s.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: loopback only)")
     s.add_argument("--port", type=int, default=5600, help="UDP port (default 5600; 0: any free port)")
     s.add_argument("--lockstep", action="store_true",
@@ -97,13 +106,18 @@ def cmd_serve(args) -> int:
 
         driver = VirtualRig(scene, load_scene(args.physics) if args.physics else None)
     else:
-        driver = load_driver(args.driver, scene)
+        driver = load_driver(args.driver, scene, args.driver_config)
     kind = "virtual rig" if driver.virtual else f"driver {type(driver).__name__}"
     print(f"impact-env rig: compiling the target's kernels for scene {scene.name!r} ...", file=sys.stderr,
           flush=True)
-    target = Target(driver, f"udp://{args.host}:{args.port}",
-                    TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
-                                 seed_offset=args.seed, key=key, session_timeout_s=args.session_timeout))
+    try:
+        target = Target(driver, f"udp://{args.host}:{args.port}",
+                        TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
+                                     seed_offset=args.seed, key=key, session_timeout_s=args.session_timeout,
+                                     max_gap_s=args.max_gap / 1e3, max_horizon_s=args.max_horizon))
+    except ValueError as exc:
+        driver.shutdown()
+        raise ConfigError(f"--driver {args.driver}: {exc}") from None
     target.install_signal_handlers()
     if key:
         print(f"impact-env rig: session key from {args.key}: every datagram is authenticated",
@@ -119,6 +133,9 @@ def cmd_serve(args) -> int:
         counts = {**target.lifetime_counts(), "commands_after_end": target.counters["commands_after_end"]}
         print(f"impact-env rig: datagrams since start: "
               f"{', '.join(f'{k} {v}' for k, v in counts.items() if v) or 'none'}", flush=True)
+        c = target.counters
+        print(f"impact-env rig: ticks since start: {c['overruns']} overruns, {c['skipped_ticks']} skipped ticks "
+              f"({c['overrun_episodes']} episodes ended OVERRUN)", flush=True)
         print(f"impact-env rig: stopped after {target.counters['episodes']} episodes; shaker at 0 N",
               flush=True)
     except BrokenPipeError:  # whoever started us is gone; the shaker is at 0 N all the same
@@ -140,17 +157,27 @@ def cmd_keygen(args) -> int:
     return 0
 
 
-def load_driver(spec: str, scene):
-    """``MODULE:CLASS`` -> an instance of that :class:`~impact_env.rig.driver.RigDriver` subclass,
+def load_driver(spec: str, scene, config: str = ""):
+    """``LIB.so`` (a C driver, :class:`~impact_env.rig.cdriver.CDriver`, opened with ``config``)
+    or ``MODULE:CLASS`` -> an instance of that :class:`~impact_env.rig.driver.RigDriver` subclass,
     constructed with ``scene``; ConfigError naming what is wrong before any device is opened."""
     import importlib
 
     from impact_env.config import ConfigError
     from impact_env.rig.driver import RigDriver
 
+    if spec.endswith(".so") or spec.endswith(".dylib") or "/" in spec:
+        from impact_env.rig.cdriver import CDriver
+        from impact_env.rig.errors import RigError
+
+        try:
+            return CDriver(spec, scene, config)
+        except RigError as exc:
+            raise ConfigError(str(exc)) from None
     module, sep, name = spec.partition(":")
     if not sep or not module or not name:
-        raise ConfigError(f"--driver {spec!r}: expected MODULE:CLASS, e.g. myrig.driver:NiRig")
+        raise ConfigError(f"--driver {spec!r}: expected LIB.so or MODULE:CLASS, e.g. ./nidaq.so or "
+                          "myrig.driver:NiRig")
     try:
         mod = importlib.import_module(module)
     except ImportError as e:

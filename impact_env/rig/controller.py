@@ -57,19 +57,9 @@ from impact_env.control.residual import (
     start_residual,
 )
 from impact_env.effects.sensors import POT
-from impact_env.hardware.stage import (
-    INFO_CONTACT_FORCE,
-    INFO_F_APPLIED,
-    INFO_F_DEMAND,
-    INFO_SATURATED,
-    HardwareParams,
-    HardwareState,
-    hardware_tick,
-    state_ok,
-)
+from impact_env.hardware.stage import INFO_CONTACT_FORCE, INFO_F_APPLIED, INFO_F_DEMAND, INFO_SATURATED
 from impact_env.rig import log as LG
 from impact_env.rig import safety as SF
-from impact_env.rig.cycles import cycles
 from impact_env.rig.safety import SafetyConfig, safety_step
 from impact_env.sim import records as R
 
@@ -148,8 +138,11 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     ``cmd.step`` (-1: none yet: 0 N, NO_COMMAND), ``cmd.id`` its serial number (the tick it
     first acts at is kept in ``own[ST_CMD_FIRST]``, the id in ``own[ST_CMD_ID]``: so the caller
     sees whether it acted).  It acts from this tick on, whatever tick of its step that is; the
-    watchdog's age counts from its step's first tick (``m - cmd.step H``), so a command is held
-    for the rest of its step, repeated through the next one (REPEATED) and zeroed after."""
+    watchdog's age counts from its step's first tick to ``ticks_armed`` (``ticks_armed - cmd.step
+    H``), so a command is held for the rest of its step, repeated through the next one (REPEATED)
+    and zeroed after.  ``ticks_armed`` is the time since tick 0 in periods of the clock (the
+    real-time loop passes the tick the clock is in, which a late tick is behind of; lock-step: m),
+    so the watchdog and the first-command allowance count seconds, not ticks run."""
     cmd, p, s, raw = borrow(cmd), borrow(p), borrow(s), borrow(raw)  # (impact_env._borrow)
     st = s.own
     hold = p.hold
@@ -169,7 +162,7 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
             st[ST_CMD_ID] = cmd.id
             st[ST_CMD_FIRST] = m
         st[ST_ACTION] = cmd.action
-        age = m - cmd.step * hold
+        age = ticks_armed - cmd.step * hold  # the clock's time since its step began (see below)
         log_age = m - int(st[ST_CMD_FIRST])
         log_step = cmd.step
     u = st[ST_ACTION]
@@ -308,8 +301,8 @@ class Controller:
         self.safety.drain(int(ticks))
 
 
-# -- the virtual rig's compiled tick loop ---------------------------------------------------------
-END_NONE, END_FIRST_COMMAND, END_SAFETY, END_FAULT, END_STOP, END_SENSOR_FAULT = range(6)
+# -- for the compiled real-time loop (impact_env.rig.rtloop) ------------------------------------
+END_NONE, END_FIRST_COMMAND, END_SAFETY, END_FAULT, END_STOP, END_SENSOR_FAULT, END_OVERRUN = range(7)
 # the tick accounts (int64[3], kept across calls): ticks skipped not yet reported on a row, the
 # episode's skipped ticks, rows flagged OVERRUN
 ACCT_UNREPORTED, ACCT_SKIPPED, ACCT_OVERRUNS = range(3)
@@ -360,143 +353,6 @@ class DropConstants(NamedTuple):
     impact_energy: float  # J
     impact_speed: float  # m/s
     t_touch: float  # s
-
-
-class VirtualRig(NamedTuple):
-    """The virtual rig the compiled loop drives: its hardware and what it logs of the truth."""
-
-    hw: HardwareParams
-    state: HardwareState
-    truth: TruthColumns
-    drop: DropConstants
-    records: np.ndarray  # float64[horizon + 1, N_REC]: the true record of every tick that passed
-
-
-class Pace(NamedTuple):
-    realtime: bool  # pace the ticks in real time (else lock-step: as fast as they run)
-    t0: float  # cycles: the deadline of tick 0
-    cycles_per_tick: float
-    ns_per_cycle: float
-
-
-class Pacing(NamedTuple):
-    pace: Pace
-    lateness: np.ndarray  # float64[horizon + 1]: ns each tick started late
-    stop: np.ndarray  # int64[1]: set by another thread, ends the loop before the next tick
-    acct: np.ndarray  # int64[N_ACCT]: columns ACCT_*
-
-
-@jit(nogil=True)
-def run_ticks(m0, m1, cmd, p, s, rig, pacing):
-    """Ticks m0 .. m1 - 1 of a virtual rig, each: (real time: spin to its deadline) act -> safety
-    -> the hardware stage -> the log row with the truth -> the front end on the new readings.
-    The front end has seen tick m0's readings already.  ``cmd``: HostCommand; ``p``, ``s``: the
-    controller's ControllerParams and ControllerState; ``rig``: VirtualRig; ``pacing``: Pacing.
-    A tick that starts one period or more late lets
-    the ticks that cannot run on time pass (:func:`skip_allowed`: in host mode never a step's first
-    tick): the DAC holds the last command sent (the hardware stage runs them with it), the controller
-    and the safety layer do not run and they get no log row; the front end then conditions the
-    readings after them, and the next row carries OVERRUN and their number in ``skipped_ticks``
-    (the accounts ``pacing.acct``, kept across calls).  ``rig.records``: the
-    virtual rig's true record of every tick that passed, run or skipped
-    (:mod:`impact_env.sim.records`).  ``pacing.stop[0]`` set (by another thread: the GIL is
-    released here) ends the loop before the next tick.  Returns (the next tick, OR of the status
-    bits, an end code: END_NONE, or why the episode must end)."""
-    cmd, p, s, rig, pacing = borrow(cmd), borrow(p), borrow(s), borrow(rig), borrow(pacing)  # (_borrow)
-    hw_p, hw_s = rig.hw, rig.state
-    raw_all = hw_s.out.raw
-    info = hw_s.out.info
-    Y = hw_s.plant.y
-    trec = rig.records
-    tc = rig.truth
-    drop = rig.drop
-    pace = pacing.pace
-    acct = pacing.acct
-    stop = pacing.stop
-    realtime = pace.realtime
-    t0c, cpt, nspc = pace.t0, pace.cycles_per_tick, pace.ns_per_cycle
-    rate = p.rate
-    hold = p.hold
-    st = s.own
-    rows = s.log.rows
-    detected = s.fe.detected
-    status_or = 0
-    m = m0
-    while m < m1:
-        if stop[0] != 0:
-            return m, status_or, END_STOP
-        late = 0.0
-        if realtime:
-            dl = t0c + m * cpt
-            now = float(cycles())
-            while now < dl:
-                now = float(cycles())
-            late = now - dl
-            k = skip_allowed(m, int(late // cpt), hold, m1, p.onboard) if late >= cpt else 0
-            if k > 0:
-                for _ in range(k):
-                    hardware_tick(0, st[ST_COMMAND], hw_p, hw_s)
-                    _true_record(trec, m, Y, info, st[ST_COMMAND], detected[0], state_ok(0, hw_s), rate)
-                    m += 1
-                acct[ACCT_UNREPORTED] += k
-                acct[ACCT_SKIPPED] += k
-                observe_tick(m, raw_all[0], Y[0, :4], p, s)
-                if m >= m1:
-                    break
-                late = now - (t0c + m * cpt)
-            pacing.lateness[m] = late * nspc
-        w0 = cycles()
-        raw = raw_all[0]
-        out, f, status, row = act_tick(m, m, cmd, p, s, raw)
-        if realtime and late >= cpt:
-            status |= SF.OVERRUN
-        if acct[ACCT_UNREPORTED] > 0:
-            status |= SF.OVERRUN
-        hardware_tick(0, out, hw_p, hw_s)
-        ok = state_ok(0, hw_s)
-        status_or |= status
-        if row >= 0:
-            r = rows[row]
-            r[LG.FORCE_APPLIED] = info[0, INFO_F_APPLIED]
-            r[LG.STATUS] = status
-            r[LG.LATENESS_NS] = late * nspc
-            r[LG.SKIPPED] = acct[ACCT_UNREPORTED]
-            r[tc.command] = out
-            r[tc.x1] = Y[0, 0]
-            r[tc.v1] = Y[0, 1]
-            r[tc.x2] = Y[0, 2]
-            r[tc.v2] = Y[0, 3]
-            r[tc.force_demand] = info[0, INFO_F_DEMAND]
-            r[tc.force_applied] = info[0, INFO_F_APPLIED]
-            r[tc.saturated] = info[0, INFO_SATURATED]
-            r[tc.contact_force] = info[0, INFO_CONTACT_FORCE]
-            r[tc.status] = 0.0 if ok else 1.0
-            r[tc.impact_energy] = drop.impact_energy
-            r[tc.impact_speed] = drop.impact_speed
-            r[tc.t_touch] = drop.t_touch
-        if status & SF.OVERRUN:
-            acct[ACCT_OVERRUNS] += 1
-        acct[ACCT_UNREPORTED] = 0
-        mt = m
-        m += 1
-        if status & SF.FIRST_COMMAND_TIMEOUT:
-            _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
-            return m, status_or, END_FIRST_COMMAND
-        if status & SF.SENSOR_TIMEOUT:  # issue 25: implausible readings outlasted the scene's limit
-            _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
-            return m, status_or, END_SENSOR_FAULT
-        if status & SF.LATCHING:
-            _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
-            return m, status_or, END_SAFETY
-        if not ok:
-            _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
-            return m, status_or, END_FAULT
-        observe_tick(m, raw_all[0], Y[0, :4], p, s)
-        # a tick's detector bit is the one of the readings it produced
-        _true_record(trec, mt, Y, info, out, detected[0], ok, rate)
-        if row >= 0:
-            rows[row, LG.COMPUTE_NS] = (cycles() - w0) * nspc
-    return m, status_or, END_NONE
 
 
 @jit(inline="always")

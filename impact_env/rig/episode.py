@@ -2,20 +2,20 @@
 
 Two loops, the same ticks (:mod:`impact_env.rig.controller`):
 
-* :meth:`Episode.run_compiled`, for the virtual rig: ticks in compiled calls
-  (:func:`~impact_env.rig.controller.run_ticks`: act, safety, the hardware stage, the log row,
-  the front end), paced in real time by the CPU's cycle counter inside compiled code, so a tick
-  costs no Python.  Onboard the whole episode is one call that releases the GIL while a thread
-  takes the host's datagrams (a DISARM stops it before the next tick); in host mode a call runs
-  one policy step in lock-step, one tick in real time (a command takes effect at the first tick
-  after it arrives), and Python reads the commands and sends the observations in between.
-* :meth:`Episode.run_python`, for any :class:`~impact_env.rig.driver.RigDriver`: Python reads,
-  calls the controller's two compiled steps and applies, tick by tick, paced by
-  :class:`~impact_env.rig.clock.TickClock` (a physical rig's driver is Python code).
+* :meth:`Episode.run_compiled`, for the virtual rig and C drivers (:mod:`impact_env.rig.cdriver`),
+  in real time or lock-step: the whole episode is ONE compiled call
+  (:func:`impact_env.rig.rtloop.run_episode`: pacing on the CPU's cycle counter, read, front end,
+  policy or the host's newest command, safety, apply, the log row) in its own thread with the
+  GIL released.  Python stays off the tick: the calling thread is the network (it drains every
+  datagram at each wake-up, writes the host's commands into a lock-free ring, sends each step's
+  OBSERVATION as the loop publishes it, stops the loop through a flag it reads every tick), and
+  a third thread streams the log to disk (:class:`impact_env.rig.log.LogStream`).
+* :meth:`Episode.run_python`, for a Python :class:`~impact_env.rig.driver.RigDriver`, in
+  lock-step only (tests; the target refuses it for real time): Python reads, calls the
+  controller's two compiled steps and applies, tick by tick.
 
 Both send, at every step boundary in host mode, the OBSERVATION of that step with the telemetry
-of :mod:`impact_env.rig.protocol` (and a virtual rig's true records of the step's ticks, built
-from the log's truth columns).
+of :mod:`impact_env.rig.protocol` (and a virtual rig's true records of the step's ticks).
 """
 
 from __future__ import annotations
@@ -32,11 +32,12 @@ from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
 from impact_env.rig.clock import TickClock
 from impact_env.rig.cycles import cached_ns_per_cycle, cycles_now
+from impact_env.rig.ring import push_command
 from impact_env.sim import records as R
 
 _END = {CT.END_FIRST_COMMAND: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END_SAFETY: P.EndReason.SAFETY,
         CT.END_FAULT: P.EndReason.FAULT, CT.END_STOP: P.EndReason.DISARMED,
-        CT.END_SENSOR_FAULT: P.EndReason.SENSOR_FAULT}  # issue 25 (rig-sensors)
+        CT.END_SENSOR_FAULT: P.EndReason.SENSOR_FAULT, CT.END_OVERRUN: P.EndReason.OVERRUN}
 
 
 class Episode:
@@ -63,7 +64,7 @@ class Episode:
         self.n_cmd = 0
         self.cmd_counts = {"commands_accepted": 0, "commands_acted": 0, "commands_superseded": 0,
                            "commands_expired": 0, "commands_unused_at_end": 0}
-        self.acct = np.zeros(CT.N_ACCT, dtype=np.int64)  # see controller.run_ticks
+        self.acct = np.zeros(CT.N_ACCT, dtype=np.int64)  # see rtloop.run_episode
         self.last_heard = time.perf_counter()
         self._authentic = target.link.filter.authentic
         self.status_or = 0
@@ -76,6 +77,10 @@ class Episode:
         self.trec = np.full((self.horizon + 1, R.N_REC), np.nan) if target.driver.virtual else None
         log = ctl.log
         self.cols = {name: log.col(name) for name in log.names}
+        self.hl = None  # the compiled loop's rings (impact_env.rig.ring), while it runs
+        self.stream = None  # the log streamed to disk (impact_env.rig.log.LogStream), if any
+        self.stop_asked_tick = -1  # the tick the loop was at when it was asked to stop
+        self.stop_tick = -1  # the tick it stopped at
 
     @property
     def overruns(self) -> int:
@@ -93,7 +98,10 @@ class Episode:
         """An incoming message during the episode; returns an end reason's name, or None."""
         t, tg = msg.type, self.t
         self.last_heard = time.perf_counter()
-        if t == P.MsgType.COMMAND and msg.body.episode == self.ep:
+        if t == P.MsgType.COMMAND and msg.body.episode == self.ep and self.hl is not None:
+            self.cmd_counts["commands_accepted"] += 1
+            push_command(self.hl, int(msg.body.step), float(msg.body.action[0]))
+        elif t == P.MsgType.COMMAND and msg.body.episode == self.ep:
             self.cmd_counts["commands_accepted"] += 1
             if self.next_cmd is None or msg.body.step >= self.next_cmd[0]:
                 if self.next_cmd is not None:  # latest wins: the one it replaces never acts
@@ -196,6 +204,17 @@ class Episode:
 
     def command_counters(self) -> dict[str, int]:
         """What became of this episode's commands (every accepted one is counted once)."""
+        hl = self.hl
+        if hl is not None:  # the compiled loop kept them (impact_env.rig.rtloop)
+            from impact_env.rig import ring as RG
+
+            cs, cc = hl.cs, hl.cc
+            unseen = int(hl.cmd_head[0] - hl.shared[RG.SH_SEEN])
+            return {"commands_accepted": self.cmd_counts["commands_accepted"],
+                    "commands_acted": int(cc[RG.CC_ACTED]), "commands_superseded": int(cc[RG.CC_SUPERSEDED]),
+                    "commands_expired": int(cc[RG.CC_EXPIRED]),
+                    "commands_unused_at_end": unseen + int(cs[RG.CS_NEXT_STEP] >= 0)
+                    + int(cs[RG.CS_CUR_ACTED] == 0.0)}
         self.note_acted()
         out = dict(self.cmd_counts)
         out["commands_unused_at_end"] = (self.next_cmd is not None) + (not self.cmd_acted)
@@ -227,9 +246,22 @@ class Episode:
                                      tuple(telem))
         self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
 
-    def final_row(self, raw: np.ndarray) -> None:
+    def final_row(self, raw: np.ndarray, stopped: bool = False) -> None:
         """The row of tick ``horizon``: its readings and observation, no command (and the ticks
-        skipped just before it, if any, flagged on it)."""
+        skipped just before it, if any, flagged on it).  ``stopped``: the row of the tick the
+        loop stopped at (a stop, an overrun): 0 N, the readings of the last tick read."""
+        if stopped:
+            skipped = int(self.acct[CT.ACCT_UNREPORTED])
+            self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
+                                accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
+                                action=math.nan, step=self.m // self.hold, force_demand_N=0.0,
+                                force_applied_N=0.0, contact_detected=self.ctl.fe.detected[0],
+                                command_age_ticks=-1, command_step=-1, skipped_ticks=skipped,
+                                status=SF.OVERRUN if skipped else 0)
+            if skipped:
+                self.acct[CT.ACCT_UNREPORTED] = 0
+                self.acct[CT.ACCT_OVERRUNS] += 1
+            return
         skipped = int(self.acct[CT.ACCT_UNREPORTED])
         self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
                             accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
@@ -240,91 +272,139 @@ class Episode:
             self.acct[CT.ACCT_UNREPORTED] = 0
             self.acct[CT.ACCT_OVERRUNS] += 1
 
-    # -- the virtual rig's compiled loop ---------------------------------------------------------------
+    # -- the compiled real-time core (rtloop): the virtual rig and C drivers ----------------------
     def run_compiled(self) -> P.EndReason:
-        drv, ctl = self.t.driver, self.ctl
-        hw = drv.hw
-        nspc = cached_ns_per_cycle()
-        t_col = self.cols["true_t_s"]
-        cpt = 1e9 / self.t.rate / nspc
-        hw.set_noise_block(max(self.horizon + 1, hw.noise_block))
-        hw.refill_noise(self.horizon)  # the whole episode's noise now: no draws between chunks
-        rig = CT.VirtualRig(hw.params, hw.state, CT.truth_columns(ctl.log),
-                            CT.DropConstants(float(hw.impact_energy[0]), float(hw.impact_speed[0]),
-                                             float(hw.t_touch[0])), self.trec)
-        ctl.start(drv.read().copy(), drv.truth())
-        # tick 0 due in a period
-        stop = np.zeros(1, dtype=np.int64)
-        pacing = CT.Pacing(CT.Pace(not self.lockstep, float(_now()) + cpt, cpt, nspc), self.lateness, stop,
-                           self.acct)
-        ticks = lambda m0, m1: CT.run_ticks(  # noqa: E731
-            m0, m1, CT.HostCommand(float(self.cmd_value), int(self.cmd_step), int(self.cmd_id)), ctl.params,
-            ctl.state, rig, pacing)
-        if not self.host:  # onboard: the whole episode in one compiled call; a thread hears the host
-            why = self._listen_while(lambda: ticks(0, self.horizon), stop)
-            self._after(t_col)
-            if why:
-                return P.EndReason[why]
-            if self.end_code != CT.END_NONE:
-                return _END[self.end_code]
-            self.final_row(drv.read())
-            return P.EndReason.HORIZON
-        while True:
-            boundary = self.m % self.hold == 0
-            if boundary:
-                self.send_observation()
-            if self.m >= self.horizon:
-                self.final_row(drv.read())
-                return P.EndReason.HORIZON
-            why = self.command_for_tick(boundary)
-            if why:
-                return P.EndReason[why]
-            if self.t.stopping:
-                return P.EndReason.DISARMED
-            m1 = self.m + (self.hold if self.lockstep else 1)
-            n0 = ctl.log.n
-            m, status, end = ticks(self.m, m1)
-            self._chunk_done(n0, m, status, t_col)
-            if end != CT.END_NONE:
-                return _END[end]
-
-    def _listen_while(self, run, stop: np.ndarray) -> str | None:
-        """``run()`` (a compiled call that releases the GIL) while a thread takes the host's
-        datagrams and sets ``stop[0]`` on a DISARM, an ARM or the target's stop; returns the end
-        reason's name the thread heard, or None."""
+        """The whole episode in one compiled call (:func:`impact_env.rig.rtloop.run_episode`) in
+        its own thread, the GIL released; this thread (the target's serve thread, the main
+        thread under ``rig serve``, where SIGTERM's handler runs) is the network: it drains every
+        datagram at each wake-up, puts the host's commands in the command ring, sends each
+        step's OBSERVATION as the loop publishes it, and watches the link; a third thread
+        streams the log to disk."""
+        import os
         import threading
 
-        heard: list[str] = []
-        done = threading.Event()
+        from impact_env.rig import cfunc as CF
+        from impact_env.rig import ring as RG
+        from impact_env.rig import rtloop as RL
+        from impact_env.rig.cdriver import CDriver
 
-        def listen():
-            while not done.is_set():
-                why = self.drain(0.02)
-                if why or self.t.stopping:
-                    heard.append(why or "DISARMED")
-                    stop[0] = 1
-                    return
+        drv, ctl, tg = self.t.driver, self.ctl, self.t
+        nspc = cached_ns_per_cycle()
+        cpt = 1e9 / tg.rate / nspc
+        if isinstance(drv, CDriver):
+            raw0 = drv.read_tick(0)
+            read, apply, ctx = drv.addresses
+            io = RL.CIO(read, apply, ctx, raw0.copy(), np.full(4, np.nan), self.cols["command"])
+            ctl.start(raw0, None)
+        else:
+            hw = drv.hw
+            hw.set_noise_block(max(self.horizon + 1, hw.noise_block))
+            hw.refill_noise(self.horizon)  # the whole episode's noise now: no draws in the loop
+            io = RL.VirtualIO(hw.params, hw.state, CT.truth_columns(ctl.log),
+                              CT.DropConstants(float(hw.impact_energy[0]), float(hw.impact_speed[0]),
+                                               float(hw.t_touch[0])), self.trec, self.cols["true_t_s"])
+            ctl.start(drv.read().copy(), drv.truth())
+        wake_r, wake_w = os.pipe()
+        os.set_blocking(wake_w, False)
+        os.set_blocking(wake_r, False)
+        hl = RG.host_link(ctl.layout.size, CF.libc_address("write"), wake_w, CF.libc_address("usleep"))
+        self.hl = hl
+        max_gap = int(round(tg.cfg.max_gap_s * tg.rate))
+        tm = RL.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap)
+        result: list = []
 
-        th = threading.Thread(target=listen, daemon=True)
-        th.start()
-        n0 = self.ctl.log.n
+        def loop():
+            result.append(RL.run_episode(self.horizon, ctl.params, ctl.state, io, tm, self.acct, hl))
+
+        stream = tg.open_stream(self, hl.shared[RG.SH_ROWS:RG.SH_ROWS + 1])
+        tg.running_link = hl
+        rt = threading.Thread(target=loop, name="rig-rt-loop", daemon=True)
+        rt.start()
         try:
-            self.m, status, self.end_code = run()
+            why = self._network(rt, hl, wake_r)
         finally:
-            done.set()
-            th.join(5.0)
+            rt.join()
+            tg.running_link = None
+            os.close(wake_r)
+            os.close(wake_w)
+        self.m, status, self.end_code = result[0]
         self.status_or |= status
-        self._n0 = n0
-        return heard[0] if heard else None
+        self.stop_tick = int(hl.shared[RG.SH_TICK])
+        if self.end_code == CT.END_NONE:
+            self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read())
+            end = P.EndReason.HORIZON
+        elif self.end_code == CT.END_STOP:
+            self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read(), stopped=True)
+            end = P.EndReason[why or "DISARMED"]
+        elif self.end_code == RL.END_OVERRUN:
+            self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read(), stopped=True)
+            end = P.EndReason.OVERRUN
+        else:
+            end = _END[self.end_code]
+        self.stream = stream
+        return end
 
-    def _after(self, t_col: int) -> None:
-        self._chunk_done(self._n0, self.m, 0, t_col)
+    def _network(self, rt, hl, wake_r) -> str | None:
+        """The network while the loop runs (see :meth:`run_compiled`); returns the end reason's
+        name it asked the loop to stop for, or None."""
+        from impact_env.rig import ring as RG
 
-    def _chunk_done(self, n0: int, m: int, status: int, t_col: int) -> None:
-        rows = self.ctl.log.rows[n0:self.ctl.log.n]
-        rows[:, t_col] = _tick_times(rows[:, LG.TICK], self.t.rate)
-        self.m = m
-        self.status_or |= status
+        tg, link = self.t, self.t.link
+        sh = hl.shared
+        sent = 0  # observations sent (the ring's head when last sent)
+        sent_at = time.perf_counter()
+        why: str | None = None
+        while True:
+            done = sh[RG.SH_DONE] != 0 or not rt.is_alive()
+            got = RG.newest_observation(hl, sent)
+            if got is not None:
+                sent = int(got[0][RG.OM_STEP]) + 1
+                self._send_observation(*got)
+                sent_at = time.perf_counter()
+            if done:
+                if sh[RG.SH_OBS_HEAD] > sent:
+                    continue
+                return why
+            ready = link.endpoint.wait_readable(0.02, wake_r)
+            if wake_r in ready:
+                try:
+                    os_read(wake_r)
+                except BlockingIOError:
+                    pass
+            if why is not None:
+                continue
+            step = int(sh[RG.SH_TICK]) // self.hold
+            for msg in link.recv_all(episode=self.ep, step=step):
+                why = self.take(msg)
+                if why:
+                    break
+            now = time.perf_counter()
+            if not why and self.host and self.link_lost(now):
+                why = "LINK_LOST"
+            if not why and tg.stopping:
+                why = "DISARMED"
+            if why:
+                self.stop_asked_tick = int(sh[RG.SH_TICK])
+                sh[RG.SH_STOP] = 1
+            elif (self.lockstep and self.host and self.obs_msg is not None
+                  and now - sent_at >= tg.cfg.resend_s and hl.cs[RG.CS_NEXT_STEP] < self.obs_msg.step):
+                link.send(self.obs_msg, tick=int(sh[RG.SH_TICK]), addr=link.last_sender)  # lost? again
+                sent_at = now
+
+    def _send_observation(self, meta: np.ndarray, obs: np.ndarray) -> None:
+        """The OBSERVATION the loop published (ring metadata ``meta``), with a virtual rig's true
+        records of the previous step's ticks (complete: the loop records every tick)."""
+        from impact_env.rig import ring as RG
+
+        m = int(meta[RG.OM_TICK])
+        telem = [float(meta[RG.OM_DEMAND]), float(meta[RG.OM_APPLIED]), float(meta[RG.OM_AGE])]
+        if self.trec is not None and m >= self.hold:
+            rec = self.trec[m - self.hold:m]
+            if not np.isnan(rec).any():
+                telem += rec.ravel().tolist()
+        self.obs_msg = P.Observation(self.ep, int(meta[RG.OM_STEP]), int(meta[RG.OM_STATUS]) & P.U32, 4,
+                                     tuple(float(x) for x in obs[:self.ctl.layout.size]), tuple(telem))
+        self.t.link.send(self.obs_msg, tick=m, addr=self.t.link.last_sender)
 
     # -- any driver, tick by tick in Python ------------------------------------------------------------
     def run_python(self) -> P.EndReason:
@@ -425,8 +505,7 @@ def _now() -> int:
     return int(cycles_now())
 
 
-def _tick_times(ticks: np.ndarray, rate: float) -> np.ndarray:
-    """The simulator's time after each tick, as its hardware accumulates it (``t += period``),
-    for the ticks of a chunk: the virtual rig's own clock, read back from its record."""
-    return (ticks + 1.0) / rate
+def os_read(fd: int) -> bytes:
+    import os
 
+    return os.read(fd, 4096)

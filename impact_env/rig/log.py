@@ -383,9 +383,12 @@ def read_episode(path: str | os.PathLike) -> EpisodeLog:
         kw["obs_names"] = tuple(str(s) for s in f["observation"].attrs["names"])
         meta = EpisodeMeta(**kw)
         names = [c[0] for c in COLUMNS] + [str(s) for s in f.attrs["extra_columns"]]
-        columns = {k: f[k][()] for k in names}
+        # n_ticks bounds every dataset: a streamed file (LogStream) killed while it grew its
+        # datasets may have some longer than the rows its last flush made complete
+        n = int(f.attrs["n_ticks"])
+        columns = {k: f[k][:n] for k in names}
         units = {k: str(f[k].attrs["unit"]) for k in names}
-        obs = f["observation"][()]
+        obs = f["observation"][:n]
     return EpisodeLog(columns, obs, meta, units, path)
 
 
@@ -393,3 +396,94 @@ def list_episodes(directory: str | os.PathLike) -> list[Path]:
     """The finished episode files in ``directory`` (temporary files of unfinished writes are
     ignored), sorted by name."""
     return sorted(p for p in Path(directory).glob("*.h5") if not p.name.startswith("."))
+
+
+PARTIAL_SUFFIX = ".partial"  # a streamed log's name while its episode runs: episode_S_E.h5.partial
+INCOMPLETE = "INCOMPLETE"  # the end reason of a streamed log whose episode never finished
+
+
+class LogStream:
+    """A log streamed to disk while its episode runs: a thread appends the rows the compiled
+    loop has completed (``published[0]`` rows of ``log``) to ``path`` every ``period_s``
+    (default 0.05 s) and flushes the file, so that a target killed at any moment (kill -9, power)
+    leaves a log readable by :func:`read_episode` (and ``impact-env rig log``) up to its last
+    flush, with ``end_reason`` INCOMPLETE.  When the episode ends, :meth:`close` writes the last
+    rows; the target then writes the finished file with :func:`write_episode` and deletes this
+    one.  Same datasets and attributes as a finished file; datasets are chunked and grow."""
+
+    def __init__(self, log: TickLog, path: str | os.PathLike, meta: EpisodeMeta, published: np.ndarray,
+                 period_s: float = 0.05):
+        import threading
+
+        h5py = _h5py()
+        self.log, self.path, self.published = log, Path(path), published
+        self.period_s = float(period_s)
+        self.written = 0
+        self.flushes = 0
+        self._f = h5py.File(self.path, "w")
+        f = self._f
+        f.attrs["format"] = FORMAT
+        f.attrs["format_version"] = FORMAT_VERSION
+        for fd in fields(EpisodeMeta):
+            if fd.name in ("counters", "versions", "obs_names"):
+                continue
+            f.attrs[fd.name] = getattr(meta, fd.name)
+        f.attrs["end_reason"] = INCOMPLETE
+        f.create_group("counters")
+        g = f.create_group("versions")
+        for k, v in meta.versions.items():
+            g.attrs[k] = v
+        units = {c[0]: c[1] for c in COLUMNS} | log.extra_units
+        dtypes = {c[0]: c[2] for c in COLUMNS}
+        self._cols = []
+        for j, name in enumerate(log.names):
+            d = f.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtypes.get(name, "float64"),
+                                 chunks=(4096,))
+            d.attrs["unit"] = units.get(name, "")
+            self._cols.append((j, d))
+        nobs = log.obs.shape[1]
+        self._obs = f.create_dataset("observation", shape=(0, nobs), maxshape=(None, nobs), dtype="float64",
+                                     chunks=(4096, max(1, nobs)))
+        self._obs.attrs["names"] = list(meta.obs_names)
+        self._obs.attrs["unit"] = "reference units (impact_env.sim.observation)"
+        f.attrs["n_ticks"] = 0
+        f.attrs["extra_columns"] = list(log.extra)
+        f.flush()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="rig-log-stream", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            self.flush()
+
+    def flush(self, upto: int | None = None) -> None:
+        """Append the completed rows not yet on disk and flush the file."""
+        n = int(self.published[0]) if upto is None else int(upto)
+        n = min(n, self.log.n)
+        if n <= self.written:
+            return
+        a, rows = self.written, self.log.rows
+        for j, d in self._cols:
+            d.resize((n,))
+            d[a:n] = rows[a:n, j]
+        self._obs.resize((n, self._obs.shape[1]))
+        self._obs[a:n] = self.log.obs[a:n]
+        self._f.attrs["n_ticks"] = n  # after the data: a reader never reads past complete rows
+        self._f.flush()
+        self.written = n
+        self.flushes += 1
+
+    def close(self) -> None:
+        """Stop the thread, write every row of the log (the final row too), close the file."""
+        self._stop.set()
+        self._thread.join()
+        if self._f:
+            self.flush(self.log.n)
+            self._f.close()
+            self._f = None
+
+    def discard(self) -> None:
+        """Close and delete the file (its episode was written as a finished file)."""
+        self.close()
+        self.path.unlink(missing_ok=True)

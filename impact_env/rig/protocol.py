@@ -235,6 +235,7 @@ class EndReason(enum.IntEnum):
     LINK_LOST = 6  # nothing authentic heard from the host within link_timeout_ms (late commands count)
     FAULT = 7  # the driver reported an error
     SENSOR_FAULT = 8  # implausible readings outlasted effects.sensors.fault_limit_s (issue 25)
+    OVERRUN = 9  # real time: no tick ran for longer than the target's limit (max_gap_s): 0 N, ended
 
 
 class EpisodeKind(enum.IntEnum):

@@ -84,6 +84,20 @@ class TargetConfig:
     key: bytes = b""
     # an idle session whose host has sent nothing for this long is closed (another host may open one)
     session_timeout_s: float = 60.0
+    # real time: a stretch longer than this with no tick run (a preempted loop, a stalled driver)
+    # drives 0 N and ends the episode OVERRUN; s
+    max_gap_s: float = 1e-3
+    # the longest episode ARM may ask for (s): a longer horizon is refused before anything moves
+    max_horizon_s: float = 60.0
+    # the log streamed to disk during the episode is flushed this often (s)
+    log_flush_s: float = 0.05
+
+    def __post_init__(self):
+        from impact_env.config import check_range
+
+        check_range("max_gap_s", self.max_gap_s, "s", 0.0, 10.0, lo_open=True)
+        check_range("max_horizon_s", self.max_horizon_s, "s", 0.0, 3600.0, lo_open=True)
+        check_range("log_flush_s", self.log_flush_s, "s", 0.0, 0.1, lo_open=True)
 
 
 class Target:
@@ -94,6 +108,20 @@ class Target:
                  config: TargetConfig | None = None):
         self.driver = driver
         self.cfg = config or TargetConfig()
+        from impact_env.rig.cdriver import CDriver
+
+        #: whether episodes run in the compiled real-time core (impact_env.rig.rtloop)
+        self.compiled = isinstance(driver, (VirtualRig, CDriver)) and not self.cfg.python_loop
+        if not self.compiled and not self.cfg.lockstep:
+            what = (f"the Python driver {type(driver).__name__}" if not self.cfg.python_loop
+                    else "the per-tick Python loop (python_loop)")
+            raise ValueError(f"{what} cannot keep real time: its read() and apply() would run Python on "
+                             "every 100 us tick (the GIL, the garbage collector and the interpreter are late "
+                             "by milliseconds under load). A Python RigDriver is for lock-step testing "
+                             "(rig serve --lockstep). For real time write the driver in C against "
+                             "impact_env/deploy/rt/impact_driver.h and load it with rig serve --driver "
+                             "LIB.so (docs/rig.md, 'Writing a driver for a DAQ card')")
+        self.running_link = None  # the running compiled loop's rings (impact_env.rig.ring)
         self.scene = driver.scene
         self.rate = float(self.scene.control_rate)
         self.endpoint = Endpoint(bind)
@@ -116,7 +144,7 @@ class Target:
         self._closed = False
         # since the target started (the logs' counters are per episode)
         self.counters = {"episodes": 0, "sessions": 0, "overruns": 0, "skipped_ticks": 0, "watchdog_trips": 0,
-                         "commands_after_end": 0}
+                         "commands_after_end": 0, "overrun_episodes": 0}
         driver.initialise()
         self._warm_up()
 
@@ -129,35 +157,61 @@ class Target:
         layout = make_layout(self.scene, "sensors", 1)
         law = CompiledPolicy.from_law("passive", {}, {}, self.scene, "sensors")
         ctl = Controller(self.scene, layout, 1, 4, "onboard", law, law, self.cfg.safety,
-                         extra_columns=TRUTH_COLUMNS)
+                         extra_columns=TRUTH_COLUMNS if self.driver.virtual else ("command",))
         raw = np.zeros(4)
         ctl.start(raw, None)
         ctl.observe(1, raw, None)
         ctl.act(1, 0.0, 0, 1, 1, raw)
         ctl.drain(1)
         ctl.log.record(tick=0)
-        if isinstance(self.driver, VirtualRig):  # its compiled loop, on a throwaway drop
-            from impact_env.rig import controller as CT
-            from impact_env.rig.cycles import cached_ns_per_cycle
-            from impact_env.sim.records import N_REC
+        if self.compiled:
+            self._warm_up_loop(ctl)
 
-            cached_ns_per_cycle(refresh=True)
+    def _warm_up_loop(self, ctl: Controller) -> None:
+        """Compile (or load) the real-time core for this driver's kind, both modes, on a
+        throwaway controller in lock-step for one tick (a virtual rig's hardware on a throwaway
+        drop; a C driver is not called: its addresses are replaced by a C function of the loop's
+        own that reads zeros)."""
+        from impact_env.rig import controller as CT
+        from impact_env.rig import ring as RG
+        from impact_env.rig import rtloop as RL
+        from impact_env.rig.cdriver import CDriver
+        from impact_env.rig.cycles import cached_ns_per_cycle
+        from impact_env.sim.records import N_REC
+
+        cached_ns_per_cycle(refresh=True)
+        if isinstance(self.driver, CDriver):
+            read, apply, ctx = self.driver.addresses
+            io = RL.CIO(read, apply, ctx, np.zeros(4), np.full(4, np.nan), ctl.log.col("command")) \
+                if "command" in ctl.log.names else None
+            if io is None:
+                return
+            m1 = 0  # no tick: a C driver is not called before its first episode
+        else:
             hw = self.driver.hw
-            hw.refill_noise(1)
-            rig = CT.VirtualRig(hw.params, hw.state, CT.truth_columns(ctl.log),
-                                CT.DropConstants(0.0, 0.0, 0.0), np.zeros((4, N_REC)))
-            pacing = CT.Pacing(CT.Pace(False, 0.0, 1.0, 1.0), np.zeros(4), np.zeros(1, dtype=np.int64),
-                               np.zeros(CT.N_ACCT, dtype=np.int64))
-            for onboard in (True, False):
-                CT.run_ticks(1, 2, CT.HostCommand(0.0, 0, 1), ctl.params._replace(onboard=onboard), ctl.state,
-                             rig, pacing)
+            hw.refill_noise(2)
+            io = RL.VirtualIO(hw.params, hw.state, CT.truth_columns(ctl.log), CT.DropConstants(0.0, 0.0, 0.0),
+                              np.zeros((4, N_REC)), ctl.log.col("true_t_s"))
+            m1 = 1
+        tm = RL.Timing(False, False, 0.0, 1.0, 1.0, 10)
+        for onboard in (True, False):
+            hl = RG.host_link(ctl.layout.size)
+            RL.run_episode(m1, ctl.params._replace(onboard=onboard), ctl.state, io, tm,
+                           np.zeros(CT.N_ACCT, dtype=np.int64), hl)
+            ctl.log.reset()
 
     @property
     def address(self) -> str:
         return self.endpoint.address
 
     def stop(self) -> None:
+        """Stop serving; a running compiled loop sees it before its next tick (0 N, DISARMED)."""
         self._stop.set()
+        hl = self.running_link
+        if hl is not None:
+            from impact_env.rig.ring import SH_STOP
+
+            hl.shared[SH_STOP] = 1
 
     def install_signal_handlers(self) -> None:
         """SIGTERM and SIGINT stop the serve loop, which zeroes the shaker on its way out."""
@@ -351,6 +405,10 @@ class Target:
                 observation, history, hold = policy.observation, policy.history, policy.hold_ticks
             else:
                 observation, history, hold = a.observation, a.history, a.hold_ticks
+            if a.horizon_ticks > self.cfg.max_horizon_s * self.rate:
+                raise _Refused(P.ErrorCode.OUT_OF_RANGE, f"horizon_ticks = {a.horizon_ticks} "
+                               f"({a.horizon_ticks / self.rate:g} s) exceeds this target's longest episode, "
+                               f"{self.cfg.max_horizon_s:g} s (rig serve --max-horizon S)")
             if a.horizon_ticks % hold:
                 raise _Refused(P.ErrorCode.BAD_REQUEST, f"horizon_ticks = {a.horizon_ticks} is not a whole "
                                f"number of policy steps of {hold} ticks")
@@ -418,9 +476,9 @@ class Target:
             drv.release()
         ep = Episode(self, arm_msg, armed, ctl, hold, seed)
         ep.datagrams0 = datagrams0
-        compiled = isinstance(drv, VirtualRig) and not self.cfg.python_loop
+        ep.policy = policy
         try:
-            end = ep.run_compiled() if compiled else ep.run_python()
+            end = ep.run_compiled() if self.compiled else ep.run_python()
         finally:
             drv.idle()
             self.state = P.TargetState.IDLE
@@ -436,10 +494,12 @@ class Target:
 
     def _datagram_counts(self) -> dict[str, int]:
         """The link's datagram counters since the target started (see :meth:`_finish`)."""
-        return {**self.link.filter.counts(), "received": self.endpoint.received}
+        # kernel: datagrams the kernel dropped on a full receive buffer (SO_RXQ_OVFL; 0 where unknown)
+        return {**self.link.filter.counts(), "received": self.endpoint.received,
+                "kernel": self.endpoint.kernel_drops()}
 
     def _finish(self, ep: Episode, end, policy) -> None:
-        ctl, a = ep.ctl, ep.a
+        ctl = ep.ctl
         # every counter of the log is of this episode alone (ARM to EPISODE_END)
         now = self._datagram_counts()
         counts = {k: v - ep.datagrams0.get(k, 0) for k, v in now.items()}
@@ -450,19 +510,43 @@ class Target:
                     **(ep.command_counters() if ep.host else {})}
         if ep.host:
             counters["commands_late"] = counts["late"]
-        meta = LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold,
+        if ep.stop_asked_tick >= 0:  # asked to stop (DISARM, a signal, a lost link) at this tick; stopped at
+            counters["stop_asked_tick"] = ep.stop_asked_tick
+            counters["stop_tick"] = ep.stop_tick
+        meta = self._meta(ep, policy, end.name, counters)
+        self._write(ep, meta, end)
+
+    def _meta(self, ep: Episode, policy, end_reason: str, counters: dict) -> LG.EpisodeMeta:
+        ctl, a = ep.ctl, ep.a
+        return LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold,
                               seed=ep.seed, control_rate_hz=self.rate, episode=ep.ep,
                               session=self.link.session or 0, policy="" if policy is None else policy.name,
                               policy_sha256=("" if policy is None or not a.policy_size
                                              else hashlib.sha256(self.upload.data).hexdigest()),
                               observation=ctl.observation, history=ctl.layout.history,
-                              obs_names=ctl.layout.names, end_reason=end.name, counters=counters,
+                              obs_names=ctl.layout.names, end_reason=end_reason, counters=counters,
                               kind=a.kind.name.lower(),
                               excitation=(policy.excitation.to_json() if isinstance(policy, EX.ExcitationPolicy)
                                           else ""),
                               physics_toml=getattr(self.driver, "physics_toml", ""))
+
+    def open_stream(self, ep: Episode, published: np.ndarray) -> LG.LogStream | None:
+        """The episode's log streamed to ``log_dir`` while it runs (None without a log dir)."""
+        if self.cfg.log_dir is None:
+            return None
+        meta = self._meta(ep, ep.policy, LG.INCOMPLETE, {})
+        name = LG.episode_filename(ep.ep, self.link.session or 0) + LG.PARTIAL_SUFFIX
+        Path(self.cfg.log_dir).mkdir(parents=True, exist_ok=True)
+        return LG.LogStream(ep.ctl.log, Path(self.cfg.log_dir) / name, meta, published, self.cfg.log_flush_s)
+
+    def _write(self, ep: Episode, meta: LG.EpisodeMeta, end) -> None:
+        ctl = ep.ctl
+        if ep.stream is not None:
+            ep.stream.close()
         if self.cfg.log_dir is not None:
             data = LG.write_episode(ctl.log, self.cfg.log_dir, meta).read_bytes()
+            if ep.stream is not None:
+                ep.stream.discard()  # the finished file replaces what was streamed
         else:
             with tempfile.TemporaryDirectory(prefix="impact-env-rig-") as tmp:
                 data = LG.write_episode(ctl.log, tmp, meta).read_bytes()
@@ -472,7 +556,8 @@ class Target:
         self.counters["episodes"] += 1
         self.counters["overruns"] += ep.overruns
         self.counters["skipped_ticks"] += ep.skipped_ticks
-        self.counters["watchdog_trips"] += counters.get("watchdog_trips", 0)
+        self.counters["overrun_episodes"] += end == P.EndReason.OVERRUN
+        self.counters["watchdog_trips"] += meta.counters.get("watchdog_trips", 0)
         self.last_end = P.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & P.U32, ctl.log.n,
                                      ep.m // ctl.hold, len(data), hashlib.sha256(data).digest())
         self.link.send(self.last_end, addr=self.link.last_sender)

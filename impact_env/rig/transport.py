@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import ipaddress
+import os
 import select
 import socket
 import time
@@ -111,6 +112,9 @@ def _resolve(addr: Address) -> tuple[int, tuple]:
 
 
 # -- endpoint ------------------------------------------------------------------------------------------
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: the kernel's drop count with each datagram
+
+
 class Endpoint:
     """A non-blocking UDP socket bound to ``bind`` (default: loopback, a free port).
 
@@ -138,6 +142,14 @@ class Endpoint:
         if peer is not None:
             self.peer = _resolve(_as_address(peer))[1]
         self.sent = self.received = self.send_dropped = 0
+        # datagrams the kernel dropped because the receive buffer was full (Linux SO_RXQ_OVFL:
+        # the count arrives with each datagram; None where the platform has no such counter)
+        self.kernel_dropped: int | None = None
+        try:
+            self._sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+            self.kernel_dropped = 0
+        except OSError:
+            pass
         self._closed = False
 
     @property
@@ -195,6 +207,64 @@ class Endpoint:
                 if self._closed:
                     raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
                 raise
+
+    def recv_many(self, limit: int = 4096) -> list[tuple[bytes, tuple]]:
+        """Every datagram waiting on the socket now (at most ``limit``), without waiting: a
+        reader that drains the queue at each wake-up, so that junk never queues ahead of the host.
+        Reads the kernel's drop counter (``kernel_dropped``) from each datagram's ancillary data."""
+        self._check()
+        out = []
+        anc = socket.CMSG_SPACE(4) if self.kernel_dropped is not None else 0
+        while len(out) < limit:
+            try:
+                data, ancdata, _flags, addr = self._sock.recvmsg(P.MAX_DATAGRAM + 1, anc)
+            except (BlockingIOError, InterruptedError):
+                break
+            except ConnectionRefusedError:
+                continue
+            except OSError:
+                if self._closed:
+                    raise EndpointClosed(f"endpoint {self.address} was closed while reading") from None
+                raise
+            self.received += 1
+            for level, kind, value in ancdata:
+                if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                    # the socket's drops since it opened (it is this endpoint's own socket)
+                    self.kernel_dropped = int.from_bytes(value[:4], "little")
+            out.append((data, addr))
+        return out
+
+    def kernel_drops(self) -> int:
+        """Datagrams the kernel dropped for this socket since it opened (its receive buffer
+        full): Linux's per-socket counter in /proc/net/udp (read now, so drops after the last
+        datagram count too), else the last SO_RXQ_OVFL value seen, else 0."""
+        if self._closed:  # the last count read (a closed socket has left /proc)
+            return self.kernel_dropped or 0
+        ino = str(os.fstat(self._sock.fileno()).st_ino)
+        for name in ("/proc/net/udp", "/proc/net/udp6"):
+            try:
+                with open(name) as fh:
+                    for line in fh.read().splitlines()[1:]:
+                        f = line.split()
+                        if len(f) >= 13 and f[9] == ino:
+                            self.kernel_dropped = int(f[12])
+                            return self.kernel_dropped
+            except (OSError, ValueError):
+                continue
+        return self.kernel_dropped or 0
+
+    def wait_readable(self, timeout: float, *others) -> list:
+        """select() on the socket and ``others`` (file descriptors) for at most ``timeout`` s."""
+        self._check()
+        try:
+            return select.select([self._sock, *others], [], [], max(float(timeout), 0.0))[0]
+        except (OSError, ValueError):
+            if self._closed:
+                raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
+            raise
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
 
     def close(self) -> None:
         """Close the socket (idempotent, never blocks)."""
@@ -281,24 +351,45 @@ class Link:
             got = self.endpoint.recv(max(deadline - time.perf_counter(), 0.0))
             if got is None:
                 return None
-            msg = self.filter.accept(got[0], episode, step, got[1])
-            if msg is not None and self.on_handshake is not None and msg.type in P.HANDSHAKE_TYPES:
-                self.on_handshake(msg, got[1])
-                msg = None
-            elif msg is not None:
-                self.last_sender = got[1]
-                if self.on_accept is not None:
-                    self.on_accept(msg)
+            msg = self._take(got[0], got[1], episode, step)
+            if msg is not None:
                 return msg
-            if self.filter.last_unauth and self.on_unauthenticated is not None:
-                self.on_unauthenticated(got[0], got[1])
-            self.filter.last_unauth = False
-            if self.filter.last_stranger is not None:
-                stranger, self.filter.last_stranger = self.filter.last_stranger, None
-                if self.on_stranger is not None:
-                    self.on_stranger(stranger, got[1])
             if time.perf_counter() >= deadline:
                 return None
+
+    def recv_all(self, episode: int | None = None, step: int | None = None,
+                 limit: int = 4096) -> list[P.Message]:
+        """Every datagram waiting now through the filter (each one accepted or counted under its
+        reason by ``self.filter``); returns the accepted messages, in order."""
+        out = []
+        for data, addr in self.endpoint.recv_many(limit):
+            msg = self._take(data, addr, episode, step)
+            if msg is not None:
+                out.append(msg)
+        return out
+
+    def _take(self, data: bytes, addr: tuple, episode: int | None, step: int | None) -> P.Message | None:
+        """One datagram through the filter: an accepted message for the caller; a handshake
+        (HELLO, RESPONSE) to ``on_handshake``; a rejected one counted and reported to
+        ``on_unauthenticated`` / ``on_stranger``.  The one path of :meth:`recv` and
+        :meth:`recv_all`, so that both treat every datagram alike."""
+        msg = self.filter.accept(data, episode, step, addr)
+        if msg is not None and self.on_handshake is not None and msg.type in P.HANDSHAKE_TYPES:
+            self.on_handshake(msg, addr)
+            return None
+        if msg is not None:
+            self.last_sender = addr
+            if self.on_accept is not None:
+                self.on_accept(msg)
+            return msg
+        if self.filter.last_unauth and self.on_unauthenticated is not None:
+            self.on_unauthenticated(data, addr)
+        self.filter.last_unauth = False
+        if self.filter.last_stranger is not None:
+            stranger, self.filter.last_stranger = self.filter.last_stranger, None
+            if self.on_stranger is not None:
+                self.on_stranger(stranger, addr)
+        return None
 
     def request(self, body: P.Body, match: Callable[[P.Message], bool], what: str, timeout_s: float = 0.05,
                 retries: int = 5, on_other: Callable[[P.Message], None] | None = None,

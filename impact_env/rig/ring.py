@@ -1,0 +1,99 @@
+"""Lock-free rings between the target's Python threads and its compiled real-time loop
+(:mod:`impact_env.rig.rtloop`), after robot_interfaces' time series: one writer per ring, each
+entry stamped with a sequence number, the head (entries written) stored after the entry it
+announces, and a reader that takes the newest entry by sequence number and checks it was not
+overwritten while it read.  The arrays are plain numpy arrays shared by the threads of one
+process (the compiled loop runs with the GIL released).
+
+* :class:`CommandRing` (writer: the network thread; reader: the loop): the host's accepted
+  COMMANDs (step, action).  The loop takes every entry it has not seen, in order, before each
+  tick (latest wins, the rest counted superseded).
+* the observation ring (writer: the loop; reader: the network thread): at each step boundary
+  of host mode, the step's observation and telemetry; the network thread sends the newest.
+* ``shared``: single-word values the loop publishes (the tick it is at, rows of the log
+  complete, its end) and the stop word the Python side sets (a DISARM, a signal, a lost link).
+
+Ordering: the loop fences (:func:`impact_env.rig.cfunc.fence`) between an entry and its head;
+on the Python side the stores of one thread reach memory in program order on x86-64 (TSO), which
+is what the writer relies on (an arm64 target would need a fence there too).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+N_CMD = 64  # command slots: more than a host can send in a step
+N_OBS = 16  # observation slots: the network thread sends the newest
+
+# shared int64 words
+(SH_TICK, SH_ROWS, SH_OBS_HEAD, SH_STOP, SH_DONE, SH_SEEN) = range(6)
+N_SHARED = 6
+# the observation slot's metadata columns (float64)
+OM_STEP, OM_TICK, OM_STATUS, OM_DEMAND, OM_APPLIED, OM_AGE = range(6)
+N_OM = 6
+# the loop's command state (float64, kept in an array so Python reads it at the end)
+CS_NEXT_STEP, CS_NEXT_VAL, CS_CUR_STEP, CS_CUR_VAL, CS_CUR_ID, CS_CUR_ACTED, CS_N_CMD = range(7)
+N_CS = 7
+# what became of the commands (int64, written by the loop)
+CC_ACTED, CC_SUPERSEDED, CC_EXPIRED = range(3)
+N_CC = 3
+
+
+class HostLink(NamedTuple):
+    """The arrays the compiled loop shares with the target's Python threads."""
+
+    cmd_step: np.ndarray  # int64[N_CMD]
+    cmd_val: np.ndarray  # float64[N_CMD]
+    cmd_head: np.ndarray  # int64[1]: commands written (the writer's sequence number)
+    obs: np.ndarray  # float64[N_OBS, obs size]
+    obs_meta: np.ndarray  # float64[N_OBS, N_OM]
+    shared: np.ndarray  # int64[N_SHARED]
+    cs: np.ndarray  # float64[N_CS]
+    cc: np.ndarray  # int64[N_CC]
+    wake: np.ndarray  # int64[3]: libc write's address, the pipe's write end (-1: none), usleep's address
+    byte: np.ndarray  # uint8[1]: what is written to the pipe
+
+
+def host_link(obs_size: int, write_addr: int = 0, wake_fd: int = -1, usleep_addr: int = 0) -> HostLink:
+    link = HostLink(np.zeros(N_CMD, np.int64), np.zeros(N_CMD), np.zeros(1, np.int64),
+                    np.zeros((N_OBS, max(1, obs_size))), np.zeros((N_OBS, N_OM)),
+                    np.zeros(N_SHARED, np.int64), np.zeros(N_CS), np.zeros(N_CC, np.int64),
+                    np.array([write_addr, wake_fd, usleep_addr], np.int64), np.ones(1, np.uint8))
+    reset(link)
+    return link
+
+
+def reset(link: HostLink) -> None:
+    link.cmd_head[0] = 0
+    link.shared[:] = 0
+    link.cs[:] = 0.0
+    link.cs[CS_NEXT_STEP] = -1.0
+    link.cs[CS_CUR_STEP] = -1.0
+    link.cs[CS_CUR_ID] = -1.0
+    link.cs[CS_CUR_ACTED] = 1.0
+    link.cc[:] = 0
+
+
+def push_command(link: HostLink, step: int, action: float) -> None:
+    """The network thread's write: the entry, then the head that announces it."""
+    h = int(link.cmd_head[0])
+    j = h % N_CMD
+    link.cmd_step[j] = step
+    link.cmd_val[j] = action
+    link.cmd_head[0] = h + 1
+
+
+def newest_observation(link: HostLink, after: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The newest observation published after the ``after``-th one (its metadata row and the
+    observation, copies), or None; None too if the loop overwrote it while it was read."""
+    head = int(link.shared[SH_OBS_HEAD])
+    if head <= after:
+        return None
+    j = (head - 1) % N_OBS
+    meta = link.obs_meta[j].copy()
+    obs = link.obs[j].copy()
+    if int(link.shared[SH_OBS_HEAD]) - head >= N_OBS - 1:  # lapped while copying: a newer one comes
+        return None
+    return meta, obs

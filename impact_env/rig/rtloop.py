@@ -1,0 +1,438 @@
+"""The target's real-time core: a whole episode in ONE compiled call that releases the GIL, for
+every driver and both modes (:class:`impact_env.rig.episode.Episode` runs it in its own thread).
+
+Each tick m: (real time) spin on the CPU's cycle counter to the tick's absolute deadline; let
+the ticks that cannot run on time pass (:func:`impact_env.rig.controller.skip_allowed`); read
+the driver; the front end (:func:`~impact_env.rig.controller.observe_tick`); host mode, at a
+step boundary: publish the step's observation to the observation ring and wake the network
+thread; take every host command the network thread put in the command ring since the last
+tick (:mod:`impact_env.rig.ring`) and choose the one in use; the onboard policy or that
+command, the residual law and the safety layer (:func:`~impact_env.rig.controller.act_tick`);
+apply; the log row, then the row count published for the log's writer thread.
+
+The driver is one of two kinds, chosen by the type of ``io`` (numba compiles one loop for each):
+
+* :class:`VirtualIO`: the virtual rig's hardware stage, compiled into the loop (its truth columns
+  and true records too);
+* :class:`CIO`: a C driver's ``read``/``apply`` called through their addresses
+  (:mod:`impact_env.rig.cdriver`, ``impact_env/deploy/rt/impact_driver.h``).
+
+Time is the clock's: a command's age and the first-command allowance count periods of the clock
+(the tick the clock is in), not ticks run, so they hold in seconds whatever the loop skipped.  A
+stretch of more than ``max_gap_ticks`` periods with no tick run (a preempted loop, a stalled
+driver) drives 0 N and ends the episode OVERRUN.  ``hl.shared[SH_STOP]`` set by another thread
+(DISARM, SIGTERM, a lost link) is read before every tick: 0 N at once and the loop ends.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import types
+from numba.extending import overload
+
+from impact_env._borrow import borrow
+from impact_env._jit import jit
+from impact_env.hardware.stage import (
+    INFO_CONTACT_FORCE,
+    INFO_F_APPLIED,
+    INFO_F_DEMAND,
+    INFO_SATURATED,
+    HardwareParams,
+    HardwareState,
+    hardware_tick,
+    state_ok,
+)
+from impact_env.rig import log as LG
+from impact_env.rig import ring as RG
+from impact_env.rig import safety as SF
+from impact_env.rig.cfunc import call_apply, call_read, call_usleep, call_write, fence
+from impact_env.rig.controller import (
+    ACCT_OVERRUNS,
+    ACCT_SKIPPED,
+    ACCT_UNREPORTED,
+    END_FAULT,
+    END_FIRST_COMMAND,
+    END_NONE,
+    END_OVERRUN,
+    END_SAFETY,
+    END_SENSOR_FAULT,
+    END_STOP,
+    ST_CMD_FIRST,
+    ST_CMD_ID,
+    ST_COMMAND,
+    DropConstants,
+    HostCommand,
+    TruthColumns,
+    _true_record,
+    act_tick,
+    observe_tick,
+    skip_allowed,
+)
+from impact_env.rig.cycles import cycles
+from impact_env.sim import records as R
+
+
+
+class VirtualIO(NamedTuple):
+    """The virtual rig as the loop's driver: its hardware stage and what it logs of the truth."""
+
+    hw: HardwareParams
+    state: HardwareState
+    truth: TruthColumns
+    drop: DropConstants
+    records: np.ndarray  # float64[horizon + 1, N_REC]: the true record of every tick that passed
+    t_col: int  # the log column of the true time (true_t_s)
+
+
+class CIO(NamedTuple):
+    """A C driver as the loop's driver: its functions' addresses and context."""
+
+    read: int
+    apply: int
+    ctx: int
+    raw: np.ndarray  # float64[4]: the readings of the current tick
+    truth: np.ndarray  # float64[4] NaN: a physical rig measures no body-1 state
+    command_col: int  # the log column of the command sent
+
+
+class Timing(NamedTuple):
+    realtime: bool  # pace the ticks on the clock (else lock-step: as fast as they run)
+    lockstep_host: bool  # lock-step host mode: a step's first tick waits for the step's command
+    t0: float  # cycles added to the deadline of tick 0 (one period after the loop starts; 0 normally)
+    cycles_per_tick: float
+    ns_per_cycle: float
+    max_gap_ticks: int  # more periods than this with no tick run: 0 N, the episode ends OVERRUN
+
+
+# -- the driver's operations, one implementation per kind ---------------------------------------------
+def io_read(io, m):
+    """Read tick m's readings; 0 ok, else the driver's code."""
+
+
+def io_raw(io):
+    """The readings of the current tick (float64[4])."""
+
+
+def io_truth(io):
+    """x1, v1, x2, v2 of a virtual rig (NaN on a physical one)."""
+
+
+def io_seen(io, m, detected):
+    """The front end has seen tick m's readings: a virtual rig's record of tick m - 1 gets the
+    detector bit of the readings it produced."""
+
+
+def io_apply(io, m, out, f, row, rows, detected, rate):
+    """Apply command ``out`` for tick m (``f`` N after safety); complete the log row; returns 0
+    ok, else a fault code."""
+
+
+def io_skip(io, m, k, u, detected, rate):
+    """Ticks m .. m + k - 1 pass unrun with command ``u`` held (the DAC holds it)."""
+
+
+def io_zero(io, m):
+    """0 N now (a stop, an overrun)."""
+
+
+def _is(io, cls) -> bool:
+    return isinstance(io, types.BaseNamedTuple) and getattr(io, "instance_class", None) is cls
+
+
+@overload(io_read)
+def _ov_read(io, m):
+    if _is(io, VirtualIO):
+        return lambda io, m: 0
+    if _is(io, CIO):
+        return lambda io, m: call_read(io.read, io.ctx, m, io.raw)
+
+
+@overload(io_raw)
+def _ov_raw(io):
+    if _is(io, VirtualIO):
+        return lambda io: io.state.out.raw[0]
+    if _is(io, CIO):
+        return lambda io: io.raw
+
+
+@overload(io_truth)
+def _ov_truth(io):
+    if _is(io, VirtualIO):
+        return lambda io: io.state.plant.y[0, :4]
+    if _is(io, CIO):
+        return lambda io: io.truth
+
+
+@overload(io_seen)
+def _ov_seen(io, m, detected):
+    if _is(io, VirtualIO):
+        def impl(io, m, detected):
+            if m > 0:
+                io.records[m - 1, R.REC_DETECTED] = detected
+        return impl
+    if _is(io, CIO):
+        return lambda io, m, detected: None
+
+
+@overload(io_apply)
+def _ov_apply(io, m, out, f, row, rows, detected, rate):
+    if _is(io, VirtualIO):
+        def impl(io, m, out, f, row, rows, detected, rate):
+            hw_s = io.state
+            hardware_tick(0, out, io.hw, hw_s)
+            ok = state_ok(0, hw_s)
+            info = hw_s.out.info
+            Y = hw_s.plant.y
+            if row >= 0:
+                r = rows[row]
+                tc = io.truth
+                r[LG.FORCE_APPLIED] = info[0, INFO_F_APPLIED]
+                r[tc.command] = out
+                r[tc.x1] = Y[0, 0]
+                r[tc.v1] = Y[0, 1]
+                r[tc.x2] = Y[0, 2]
+                r[tc.v2] = Y[0, 3]
+                r[tc.force_demand] = info[0, INFO_F_DEMAND]
+                r[tc.force_applied] = info[0, INFO_F_APPLIED]
+                r[tc.saturated] = info[0, INFO_SATURATED]
+                r[tc.contact_force] = info[0, INFO_CONTACT_FORCE]
+                r[tc.status] = 0.0 if ok else 1.0
+                r[tc.impact_energy] = io.drop.impact_energy
+                r[tc.impact_speed] = io.drop.impact_speed
+                r[tc.t_touch] = io.drop.t_touch
+                r[io.t_col] = (m + 1.0) / rate
+            _true_record(io.records, m, Y, info, out, detected, ok, rate)
+            return 0 if ok else -1
+        return impl
+    if _is(io, CIO):
+        def impl(io, m, out, f, row, rows, detected, rate):
+            rc = call_apply(io.apply, io.ctx, m, out)
+            if row >= 0:
+                r = rows[row]
+                r[LG.FORCE_APPLIED] = f
+                r[io.command_col] = out
+            return rc
+        return impl
+
+
+@overload(io_skip)
+def _ov_skip(io, m, k, u, detected, rate):
+    if _is(io, VirtualIO):
+        def impl(io, m, k, u, detected, rate):
+            hw_s = io.state
+            for i in range(k):
+                hardware_tick(0, u, io.hw, hw_s)
+                ok = state_ok(0, hw_s)
+                _true_record(io.records, m + i, hw_s.plant.y, hw_s.out.info, u, detected, ok, rate)
+        return impl
+    if _is(io, CIO):
+        return lambda io, m, k, u, detected, rate: None
+
+
+@overload(io_zero)
+def _ov_zero(io, m):
+    if _is(io, VirtualIO):
+        return lambda io, m: 0  # the target idles the virtual rig as the call returns
+    if _is(io, CIO):
+        return lambda io, m: call_apply(io.apply, io.ctx, m, 0.0)
+
+
+# -- the host's commands ---------------------------------------------------------------------------------
+@jit(inline="always")
+def _drain_commands(hl):
+    """Take every command the network thread wrote since the last call, in order: the newest for
+    the latest step waits to be used (latest wins); each one it replaces is superseded."""
+    h = hl.cmd_head[0]
+    fence()
+    cs, cc, sh = hl.cs, hl.cc, hl.shared
+    seen = sh[RG.SH_SEEN]
+    while seen < h:
+        if h - seen > RG.N_CMD:  # overwritten before the loop saw it (never at 10 kHz): counted
+            cc[RG.CC_SUPERSEDED] += 1
+            seen += 1
+            continue
+        j = seen % RG.N_CMD
+        step = hl.cmd_step[j]
+        val = hl.cmd_val[j]
+        seen += 1
+        if cs[RG.CS_NEXT_STEP] < 0 or step >= cs[RG.CS_NEXT_STEP]:
+            if cs[RG.CS_NEXT_STEP] >= 0:
+                cc[RG.CC_SUPERSEDED] += 1
+            cs[RG.CS_NEXT_STEP] = step
+            cs[RG.CS_NEXT_VAL] = val
+        else:
+            cc[RG.CC_SUPERSEDED] += 1
+    sh[RG.SH_SEEN] = seen
+
+
+@jit(inline="always")
+def _select_command(hl, step):
+    """The waiting command for ``step`` becomes the one in use from this tick on; one whose step
+    is over before a tick could run it expires."""
+    cs, cc = hl.cs, hl.cc
+    nxt = cs[RG.CS_NEXT_STEP]
+    if nxt < 0 or nxt > step:
+        return
+    cs[RG.CS_NEXT_STEP] = -1.0
+    if nxt < step:
+        cc[RG.CC_EXPIRED] += 1
+        return
+    if cs[RG.CS_CUR_ACTED] == 0.0:
+        cc[RG.CC_SUPERSEDED] += 1
+    cs[RG.CS_N_CMD] += 1.0
+    cs[RG.CS_CUR_STEP] = nxt
+    cs[RG.CS_CUR_VAL] = cs[RG.CS_NEXT_VAL]
+    cs[RG.CS_CUR_ID] = cs[RG.CS_N_CMD]
+    cs[RG.CS_CUR_ACTED] = 0.0
+
+
+@jit(inline="always")
+def _wake(hl):
+    if hl.wake[1] >= 0:
+        call_write(hl.wake[0], hl.wake[1], hl.byte)
+
+
+@jit
+def _publish_observation(m, status_or, p, s, hl):
+    """The observation of the step that starts at tick m, with its telemetry, into the ring."""
+    step = m // p.hold
+    j = step % RG.N_OBS
+    meta = hl.obs_meta[j]
+    n = s.log.filled[0]
+    rows = s.log.rows
+    meta[RG.OM_STEP] = step
+    meta[RG.OM_TICK] = m
+    meta[RG.OM_STATUS] = status_or
+    meta[RG.OM_DEMAND] = rows[n - 1, LG.FORCE_DEMAND] if n > 0 else 0.0
+    meta[RG.OM_APPLIED] = rows[n - 1, LG.FORCE_APPLIED] if n > 0 else 0.0
+    cs = hl.cs
+    acted = cs[RG.CS_CUR_ACTED] != 0.0 and cs[RG.CS_CUR_STEP] >= 0
+    meta[RG.OM_AGE] = m - s.own[ST_CMD_FIRST] if acted else -1.0
+    obs = s.obs.obs[0]
+    for i in range(obs.shape[0]):
+        hl.obs[j, i] = obs[i]
+    fence()
+    hl.shared[RG.SH_OBS_HEAD] = step + 1
+    _wake(hl)
+
+
+# -- the loop -----------------------------------------------------------------------------------------------
+@jit(nogil=True)
+def run_episode(m1, p, s, io, tm, acct, hl):
+    """Ticks 0 .. m1 - 1 of an episode and the readings of tick m1 (module doc).  ``p``, ``s``: the
+    controller's params and state (the front end has seen tick 0's readings); ``io``: VirtualIO or
+    CIO; ``tm``: Timing; ``acct``: int64[N_ACCT] tick accounts; ``hl``: the rings (HostLink).
+    Returns (the tick reached, OR of the status bits, the end code: END_NONE at the horizon)."""
+    p, s, io, tm, hl = borrow(p), borrow(s), borrow(io), borrow(tm), borrow(hl)  # (impact_env._borrow)
+    st = s.own
+    rows = s.log.rows
+    hold = p.hold
+    host = not p.onboard
+    realtime = tm.realtime
+    cpt, nspc = tm.cycles_per_tick, tm.ns_per_cycle
+    # tick 0 is due one period after the loop starts (plus ``tm.t0``, an offset in cycles for
+    # tests): the set-up before it (threads, the log file) must not make the episode start late
+    t0c = float(cycles()) + cpt + tm.t0
+    sh, cs, cc = hl.shared, hl.cs, hl.cc
+    status_or = 0
+    end = END_NONE
+    m = 0
+    prev = -1.0  # the start of the last tick run (none yet: no gap before the first)
+    while True:
+        if sh[RG.SH_STOP] != 0:
+            io_zero(io, m)
+            end = END_STOP
+            break
+        late = 0.0
+        clock_tick = m
+        if realtime:
+            dl = t0c + m * cpt
+            now = float(cycles())
+            while now < dl:
+                now = float(cycles())
+            late = now - dl
+            if prev >= 0.0 and now - prev > (tm.max_gap_ticks + 1) * cpt:  # no tick for too long: 0 N, end
+                io_zero(io, m)
+                k = min(int(late // cpt), m1 - m)
+                acct[ACCT_UNREPORTED] += k
+                acct[ACCT_SKIPPED] += k
+                m += k
+                end = END_OVERRUN
+                break
+            k = skip_allowed(m, int(late // cpt), hold, m1, p.onboard) if late >= cpt else 0
+            if k > 0:
+                io_skip(io, m, k, st[ST_COMMAND], s.fe.detected[0], p.rate)
+                m += k
+                acct[ACCT_UNREPORTED] += k
+                acct[ACCT_SKIPPED] += k
+                late = now - (t0c + m * cpt)
+            prev = now
+            clock_tick = max(m, int((now - t0c) // cpt))  # time in periods of the clock
+        w0 = cycles()
+        sh[RG.SH_TICK] = m
+        if m > 0:
+            if io_read(io, m) != 0:
+                io_zero(io, m)
+                end = END_FAULT
+                break
+            observe_tick(m, io_raw(io), io_truth(io), p, s)
+            io_seen(io, m, s.fe.detected[0])
+        boundary = m % hold == 0
+        if host and boundary:
+            _publish_observation(m, status_or, p, s, hl)
+        if m >= m1:
+            break
+        if host:
+            step = m // hold
+            _drain_commands(hl)
+            if tm.lockstep_host and boundary:  # lock-step: the step's command first
+                while cs[RG.CS_NEXT_STEP] < step and sh[RG.SH_STOP] == 0:
+                    call_usleep(hl.wake[2], 50)
+                    _drain_commands(hl)
+                if sh[RG.SH_STOP] != 0:
+                    continue
+            _select_command(hl, step)
+        cmd = HostCommand(cs[RG.CS_CUR_VAL], int(cs[RG.CS_CUR_STEP]), int(cs[RG.CS_CUR_ID]))
+        out, f, status, row = act_tick(m, clock_tick, cmd, p, s, io_raw(io))
+        if realtime and late >= cpt:
+            status |= SF.OVERRUN
+        if acct[ACCT_UNREPORTED] > 0:
+            status |= SF.OVERRUN
+        rc = io_apply(io, m, out, f, row, rows, s.fe.detected[0], p.rate)
+        status_or |= status
+        if row >= 0:
+            r = rows[row]
+            r[LG.STATUS] = status
+            r[LG.LATENESS_NS] = late * nspc
+            r[LG.SKIPPED] = acct[ACCT_UNREPORTED]
+        if status & SF.OVERRUN:
+            acct[ACCT_OVERRUNS] += 1
+        acct[ACCT_UNREPORTED] = 0
+        if host and cs[RG.CS_CUR_ACTED] == 0.0 and st[ST_CMD_ID] == cs[RG.CS_CUR_ID]:
+            cs[RG.CS_CUR_ACTED] = 1.0
+            cc[RG.CC_ACTED] += 1
+        if row >= 0:
+            rows[row, LG.COMPUTE_NS] = (cycles() - w0) * nspc
+        fence()
+        sh[RG.SH_ROWS] = s.log.filled[0]
+        m += 1
+        if status & SF.FIRST_COMMAND_TIMEOUT:
+            end = END_FIRST_COMMAND
+            break
+        if status & SF.SENSOR_TIMEOUT:  # implausible readings outlasted the scene's limit
+            end = END_SENSOR_FAULT
+            break
+        if status & SF.LATCHING:
+            end = END_SAFETY
+            break
+        if rc != 0:
+            io_zero(io, m)
+            end = END_FAULT
+            break
+    sh[RG.SH_TICK] = m
+    fence()
+    sh[RG.SH_DONE] = 1
+    _wake(hl)
+    return m, status_or, end
