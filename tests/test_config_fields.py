@@ -4,7 +4,10 @@ For each leaf field of :class:`impact_env.scene.Scene` (except the two labels ``
 ``description``) the test changes the field, in a context that lets it act (an inverse filter's
 roll-off needs the inverse filter on, and so on), and requires the env's first steps to change:
 observations (sensors, detector bit and true state), rewards, ends and info, or a refusal where
-the field is a check (``integrator.min_steps_per_contact``).  A field that nothing reads fails
+the field is a check (``integrator.min_steps_per_contact``).  The rig's sensor plausibility check
+(``effects.sensors.<channel>.max_step``, ``effects.sensors.fault_limit_s``) runs in the target's
+tick and the C export, not in the env: its verdicts on fixed probe readings are part of the
+fingerprint too.  A field that nothing reads fails
 here: ``effects.shaker.enabled`` did, and is gone.
 """
 
@@ -18,6 +21,7 @@ import pytest
 
 import impact_env  # noqa: F401  (registers ImpactCatch-v0)
 from impact_env.config import ConfigError
+from impact_env.control import plausibility as PL
 from impact_env.scene import Scene, load_scene
 from impact_env.scene.effects import EFFECTS
 
@@ -117,7 +121,34 @@ def fingerprint(scene: Scene):
         if term or trunc:
             break
     env.close()
-    return ("ran", len(rows), np.concatenate([np.ravel(x) for x in rows]))
+    try:
+        probe = _plausibility_probe(scene)
+    except ConfigError as exc:
+        return ("refused", str(exc))
+    return ("ran", len(rows), np.concatenate([np.ravel(x) for x in rows] + [probe]))
+
+
+def _plausibility_probe(scene: Scene) -> np.ndarray:
+    """The sensor check's verdicts (:func:`impact_env.control.plausibility.check_readings`) on
+    probe readings: on each channel a jump across 0 of each of a ladder of sizes 5 % apart (a
+    largest step changed by 25 % moves the verdict of some rung), then a run of faulty ticks
+    (the tick that latches SENSOR_TIMEOUT moves with the fault limit)."""
+    p = PL.plausibility_params(scene)
+    out = np.zeros(4)
+    verdicts = []
+    for c in range(4):
+        for x in np.geomspace(1e-8, 1e4, 567):
+            s = PL.reset_state(PL.make_state())
+            raw = np.zeros(4)
+            raw[c] = -0.5 * x  # a jump of x across 0: up to twice a converter's half range
+            verdicts.append(PL.check_readings(0, raw, p, s, out))
+            raw[c] = 0.5 * x
+            verdicts.append(PL.check_readings(1, raw, p, s, out))
+    s = PL.reset_state(PL.make_state())
+    PL.check_readings(0, np.zeros(4), p, s, out)
+    for m in range(1, 40):
+        verdicts.append(PL.check_readings(m, np.array([np.nan, 0.0, 0.0, 0.0]), p, s, out))
+    return np.asarray(verdicts, dtype=np.float64)
 
 
 def same(a, b) -> bool:

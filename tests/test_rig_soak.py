@@ -112,7 +112,9 @@ def run_episode(env, seed: int, rng, after_reset=None) -> tuple[dict[int, float]
         _o, _r, te, tr, info = env.step(np.array([a], np.float32))
         if te or tr:
             assert tr and not te  # no catch termination asked for; a target-ended episode is truncated
-            assert info["end_reason"] != "HORIZON" or n + 1 == env.max_steps
+            # (every target here runs in real time: since issue 25 its compiled loop keeps the clock
+            # whatever the host does, so a host slower than real time meets the target's horizon
+            # before its own step count reaches max_steps; HORIZON may come at any step)
             return actions, info["end_reason"]
     raise AssertionError("the env did not end the episode at its horizon")
 
