@@ -106,10 +106,12 @@ def run_episode(env, seed: int, rng, after_reset=None) -> tuple[dict[int, float]
     if after_reset is not None:
         after_reset()
     actions = {}
-    for n in range(env.max_steps):
+    step = 0  # the step the next command is for: the last observation's (a host slower than real
+    for n in range(env.max_steps):  # time skips the steps whose observations it never took)
         a = float(np.float32(rng.uniform(-0.3, 0.3)))
-        actions[n] = a
+        actions[step] = a
         _o, _r, te, tr, info = env.step(np.array([a], np.float32))
+        step = int(info.get("step", step + 1))
         if te or tr:
             assert tr and not te  # no catch termination asked for; a target-ended episode is truncated
             # (every target here runs in real time: since issue 25 its compiled loop keeps the clock
