@@ -278,7 +278,7 @@ def test_filter_sequence_window():
     assert f.counts() == {"accepted": 4, "corrupt": 0, "wrong_version": 0, "unauthenticated": 0,
                           "not_loopback": 0, "stranger": 0, "wrong_session": 0,
                           "unexpected": 0, "duplicate": 3, "out_of_order": 2, "late": 0, "rate_limited": 0,
-                          "no_challenge": 0}
+                          "no_challenge": 0, "queue_full": 0}
 
 
 def test_filter_sequence_numbers_wrap():
@@ -504,7 +504,8 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
     counts = f.counts()
     assert sum(counts.values()) == N_FUZZ == f.total
     assert counts == {k: outcome_counts.get(k, 0) for k in counts}
-    assert all(counts[k] > 0 for k in counts), counts  # every reason was exercised
+    # every reason the filter gives was exercised (the loop's own, queue_full, in test_rig_wire.py)
+    assert all(counts[k] > 0 for k in counts if k not in P.DatagramFilter.LOOP_REASONS), counts
     print("fuzz:", f.total, "datagrams:", counts, "corrupt detail:", dict(sorted(f.detail.items())))
 
 

@@ -206,3 +206,58 @@ def test_a_host_whose_commands_all_come_late_is_alive_not_lost():
         c.close()
         target.stop()
         th.join(10)
+
+
+def _own_step_share(wait_ms: float) -> tuple[int, int, dict]:
+    """A 2.5 kHz target (``rig serve --command-wait WAIT_MS``, its own process) and this process as
+    its host at hold 1 for a 40 ms episode: (commands acting in their own step, commands sent,
+    the episode's counters)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from rig_helpers import start_target, stop
+
+    import os
+
+    proc, addr = start_target("--scene", "rig", "--set", "control.rate=2500", "--command-wait", str(wait_ms))
+    # the target's loop spins on the last CPU (impact_env.rig.placement); a host on the same machine
+    # keeps off it (as docs/rig.md says: taskset), or the two share a core in scheduler slices of ms
+    before = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, set(sorted(before)[:-1]))
+    env = RigEnv(addr, hold_ticks=1, horizon=0.04, terminate_on_catch=False, timeout_s=0.2, retries=25)
+    try:
+        env.reset(seed=4)
+        sent = 0
+        while True:
+            _o, _r, te, tr, _info = env.step(np.array([0.05], np.float32))
+            sent += 1
+            if te or tr:
+                break
+        log = _episode_log(env)
+    finally:
+        env.close()
+        stop(proc)
+        os.sched_setaffinity(0, before)
+    tick = log["tick"].astype(np.int64)[:-1]
+    cstep = log["command_step"].astype(np.int64)[:-1]
+    own = np.unique(cstep[(cstep >= 0) & (tick == cstep)]).size  # hold 1: a step is its tick
+    return own, sent, log.meta.counters
+
+
+@pytest.mark.skipif(len(getattr(__import__("os"), "sched_getaffinity", lambda _: [0])(0)) < 2,
+                    reason="needs two CPUs: the target's loop spins on one, the host on another")
+def test_a_tick_waits_for_its_steps_command_within_the_command_wait():
+    """Hold 1 in real time: the observation of step n leaves at tick n's start and its command can
+    only come a round trip later, so without a wait (``--command-wait 0``) the tick has acted by
+    then and the command comes late (the fault, shown: most of them late; one acts in its own
+    step only when the loop was preempted between sending the observation and acting); with a
+    wait of 0.35 ms (of the 0.4 ms period) the tick waits for it and at least half of a Python
+    host's commands act in their own step (its round trip, well inside that on a loaded machine,
+    is not what is tested)."""
+    own, sent, c = _own_step_share(0.35)
+    assert c["commands_accepted"] + c["commands_late"] >= sent - 1  # each one accounted for
+    assert own >= 0.5 * sent, (own, sent, c)
+    own0, sent0, c0 = _own_step_share(0.0)
+    assert c0["commands_late"] > 0.5 * sent0, c0  # they came, one step late
+    assert own0 / sent0 < 0.5 * own / sent, (own0, sent0, own, sent)

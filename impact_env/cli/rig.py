@@ -30,6 +30,14 @@ def add_parser(sub, scene_args) -> None:
     s.add_argument("--max-gap", type=float, default=1.0, metavar="MS",
                    help="real time: no tick run for longer than this ends the episode OVERRUN at 0 N "
                         "(default 1 ms)")
+    s.add_argument("--command-wait", type=float, default=None, metavar="MS",
+                   help="real-time host mode: a tick whose step's command has not come waits this long for it "
+                        "before acting (default 0.7 of the control period: 0.07 ms at 10 kHz; 0: never)")
+    s.add_argument("--loop-cpu", type=int, default=None, metavar="N",
+                   help="the CPU the real-time loop is pinned to, the target's Python threads going to the "
+                        "others (default: the last CPU, with two or more; -1: no pinning)")
+    s.add_argument("--loop-nice", type=int, default=0, metavar="N",
+                   help="the loop thread's nice value, e.g. -10 (needs root or CAP_SYS_NICE; default 0)")
     s.add_argument("--max-horizon", type=float, default=60.0, metavar="S",
                    help="the longest episode an ARM may ask for (default 60 s); longer ones are refused")
     s.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: loopback only)")
@@ -114,10 +122,14 @@ def cmd_serve(args) -> int:
         target = Target(driver, f"udp://{args.host}:{args.port}",
                         TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
                                      seed_offset=args.seed, key=key, session_timeout_s=args.session_timeout,
-                                     max_gap_s=args.max_gap / 1e3, max_horizon_s=args.max_horizon))
+                                     max_gap_s=args.max_gap / 1e3, max_horizon_s=args.max_horizon,
+                                     command_wait_s=None if args.command_wait is None else args.command_wait / 1e3,
+                                     loop_cpu=args.loop_cpu, loop_nice=args.loop_nice))
     except ValueError as exc:
         driver.shutdown()
-        raise ConfigError(f"--driver {args.driver}: {exc}") from None
+        option = any(name in str(exc) for name in ("command_wait_s", "loop_cpu", "loop_nice", "max_gap_s",
+                                                      "max_horizon_s", "log_flush_s"))
+        raise ConfigError(str(exc) if option or args.virtual else f"--driver {args.driver}: {exc}") from None
     target.install_signal_handlers()
     if key:
         print(f"impact-env rig: session key from {args.key}: every datagram is authenticated",
@@ -126,6 +138,7 @@ def cmd_serve(args) -> int:
     else:
         print("impact-env rig: no --key: answering loopback peers only (127.0.0.0/8, ::1); give --key FILE "
               "to serve a network", file=sys.stderr, flush=True)
+    print(f"impact-env rig: {target.placement.describe()}", file=sys.stderr, flush=True)
     print(f"impact-env rig: listening on {target.address} ({kind}, scene {scene.name}, "
           f"{'lock-step' if args.lockstep else 'real time'} at {scene.control_rate:g} Hz)", flush=True)
     target.serve()

@@ -80,3 +80,84 @@ def libc_address(name: str) -> int:
     libc = ctypes.CDLL(None, use_errno=True)
     return int(ctypes.cast(getattr(libc, name), ctypes.c_void_p).value or 0)
 
+
+
+def _ptr(context, builder, aty, arr, off=None):
+    """The data pointer of array ``arr`` (type ``aty``) as i8*, ``off`` bytes in."""
+    p = builder.bitcast(context.make_array(aty)(context, builder, arr).data, _I8P)
+    return p if off is None else builder.gep(p, [off])
+
+
+@intrinsic
+def call_recvfrom(typingctx, addr, fd, buf, off, n, flags, src, srclen):
+    """libc's ``ssize_t recvfrom(int fd, void *buf + off, size_t n, int flags, struct sockaddr
+    *src, socklen_t *srclen)`` at ``addr``: -1 when nothing is waiting (``MSG_DONTWAIT``)."""
+    def codegen(context, builder, sig, args):
+        a, f, arr, o, nn, fl, s, sl = args
+        fnty = ir.FunctionType(_I64, [_I32, _I8P, _I64, _I32, _I8P, _I8P])
+        return builder.call(builder.inttoptr(a, fnty.as_pointer()),
+                            [builder.trunc(f, _I32), _ptr(context, builder, sig.args[2], arr, o), nn,
+                             builder.trunc(fl, _I32), _ptr(context, builder, sig.args[6], s),
+                             _ptr(context, builder, sig.args[7], sl)])
+    return types.int64(addr, fd, buf, off, n, flags, src, srclen), codegen
+
+
+@intrinsic
+def call_sendto(typingctx, addr, fd, buf, off, n, flags, dst, dstlen):
+    """libc's ``ssize_t sendto(int fd, const void *buf + off, size_t n, int flags, const struct
+    sockaddr *dst, socklen_t dstlen)`` at ``addr``."""
+    def codegen(context, builder, sig, args):
+        a, f, arr, o, nn, fl, d, dl = args
+        fnty = ir.FunctionType(_I64, [_I32, _I8P, _I64, _I32, _I8P, _I32])
+        return builder.call(builder.inttoptr(a, fnty.as_pointer()),
+                            [builder.trunc(f, _I32), _ptr(context, builder, sig.args[2], arr, o), nn,
+                             builder.trunc(fl, _I32), _ptr(context, builder, sig.args[6], d),
+                             builder.trunc(dl, _I32)])
+    return types.int64(addr, fd, buf, off, n, flags, dst, dstlen), codegen
+
+
+@intrinsic
+def call_hmac(typingctx, addr, md, key, key_len, buf, n, out, outlen):
+    """OpenSSL's one-shot ``unsigned char *HMAC(const EVP_MD *md, const void *key, int key_len,
+    const unsigned char *buf, size_t n, unsigned char *out, unsigned int *outlen)`` at ``addr``:
+    the address of ``out`` (0 on failure)."""
+    def codegen(context, builder, sig, args):
+        a, m, k, kl, arr, nn, o, ol = args
+        fnty = ir.FunctionType(_I8P, [_I8P, _I8P, _I32, _I8P, _I64, _I8P, _I8P])
+        r = builder.call(builder.inttoptr(a, fnty.as_pointer()),
+                         [builder.inttoptr(m, _I8P), _ptr(context, builder, sig.args[2], k),
+                          builder.trunc(kl, _I32), _ptr(context, builder, sig.args[4], arr), nn,
+                          _ptr(context, builder, sig.args[6], o), _ptr(context, builder, sig.args[7], ol)])
+        return builder.ptrtoint(r, _I64)
+    return types.int64(addr, md, key, key_len, buf, n, out, outlen), codegen
+
+
+@intrinsic
+def call_clock_gettime(typingctx, addr, clock, ts):
+    """libc's ``int clock_gettime(clockid_t clock, struct timespec *ts)`` at ``addr`` (``ts`` an
+    int64[2] array: seconds, nanoseconds)."""
+    def codegen(context, builder, sig, args):
+        a, c, t = args
+        fnty = ir.FunctionType(_I32, [_I32, _I8P])
+        return builder.call(builder.inttoptr(a, fnty.as_pointer()),
+                            [builder.trunc(c, _I32), _ptr(context, builder, sig.args[2], t)])
+    return types.int32(addr, clock, ts), codegen
+
+
+def libcrypto_addresses() -> tuple[int, int]:
+    """The addresses of OpenSSL's ``HMAC`` and of the ``EVP_MD`` that ``EVP_sha256()`` returns,
+    from the libcrypto that Python's own ``hashlib`` is linked against (so the loop's tags are
+    made by the library that makes the Python side's).  Raises OSError if there is none."""
+    import _hashlib  # the standard library's OpenSSL binding: its dependencies hold libcrypto
+
+    lib = ctypes.CDLL(_hashlib.__file__)
+    try:
+        hmac_fn, sha256 = lib.HMAC, lib.EVP_sha256
+    except AttributeError as exc:
+        raise OSError(f"Python's hashlib ({_hashlib.__file__}) is not linked against OpenSSL's "
+                      "libcrypto, which the real-time loop's tags need") from exc
+    sha256.restype = ctypes.c_void_p
+    md = sha256()
+    if not md:
+        raise OSError("OpenSSL's EVP_sha256() returned NULL")
+    return int(ctypes.cast(hmac_fn, ctypes.c_void_p).value or 0), int(md)

@@ -21,6 +21,7 @@ of :mod:`impact_env.rig.protocol` (and a virtual rig's true records of the step'
 from __future__ import annotations
 
 import math
+import select
 import time
 
 import numpy as np
@@ -29,10 +30,11 @@ from impact_env.hardware import stage as HS
 from impact_env.rig import controller as CT
 from impact_env.rig import log as LG
 from impact_env.rig import protocol as P
+from impact_env.rig import ring as RG
 from impact_env.rig import safety as SF
+from impact_env.rig import wire as WR
 from impact_env.rig.clock import TickClock
 from impact_env.rig.cycles import cached_ns_per_cycle, cycles_now
-from impact_env.rig.ring import push_command
 from impact_env.sim import records as R
 
 _END = {CT.END_FIRST_COMMAND: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END_SAFETY: P.EndReason.SAFETY,
@@ -78,6 +80,7 @@ class Episode:
         log = ctl.log
         self.cols = {name: log.col(name) for name in log.names}
         self.hl = None  # the compiled loop's rings (impact_env.rig.ring), while it runs
+        self.wire: WR.Wire | None = None  # host mode: the loop's wire (impact_env.rig.wire)
         self.stream = None  # the log streamed to disk (impact_env.rig.log.LogStream), if any
         self.stop_asked_tick = -1  # the tick the loop was at when it was asked to stop
         self.stop_tick = -1  # the tick it stopped at
@@ -98,10 +101,8 @@ class Episode:
         """An incoming message during the episode; returns an end reason's name, or None."""
         t, tg = msg.type, self.t
         self.last_heard = time.perf_counter()
-        if t == P.MsgType.COMMAND and msg.body.episode == self.ep and self.hl is not None:
-            self.cmd_counts["commands_accepted"] += 1
-            push_command(self.hl, int(msg.body.step), float(msg.body.action[0]))
-        elif t == P.MsgType.COMMAND and msg.body.episode == self.ep:
+        if t == P.MsgType.COMMAND and msg.body.episode == self.ep:  # the Python loop's (the compiled
+            # loop takes the host's COMMANDs off the wire itself: impact_env.rig.wire)
             self.cmd_counts["commands_accepted"] += 1
             if self.next_cmd is None or msg.body.step >= self.next_cmd[0]:
                 if self.next_cmd is not None:  # latest wins: the one it replaces never acts
@@ -173,7 +174,7 @@ class Episode:
     def link_lost(self, now: float) -> bool:
         """Nothing authentic from the host for the link timeout: not even a late command (those
         are dropped by the filter, but a host that sends them is alive)."""
-        heard = self.t.link.filter.authentic
+        heard = self.t.link.filter.authentic + (int(self.wire.c.authentic[0]) if self.wire is not None else 0)
         if heard != self._authentic:
             self._authentic = heard
             self.last_heard = now
@@ -205,16 +206,12 @@ class Episode:
     def command_counters(self) -> dict[str, int]:
         """What became of this episode's commands (every accepted one is counted once)."""
         hl = self.hl
-        if hl is not None:  # the compiled loop kept them (impact_env.rig.rtloop)
-            from impact_env.rig import ring as RG
-
+        if hl is not None:  # the compiled loop kept them (impact_env.rig.rtloop, wire)
             cs, cc = hl.cs, hl.cc
-            unseen = int(hl.cmd_head[0] - hl.shared[RG.SH_SEEN])
-            return {"commands_accepted": self.cmd_counts["commands_accepted"],
+            return {"commands_accepted": int(self.wire.c.commands[0]),
                     "commands_acted": int(cc[RG.CC_ACTED]), "commands_superseded": int(cc[RG.CC_SUPERSEDED]),
                     "commands_expired": int(cc[RG.CC_EXPIRED]),
-                    "commands_unused_at_end": unseen + int(cs[RG.CS_NEXT_STEP] >= 0)
-                    + int(cs[RG.CS_CUR_ACTED] == 0.0)}
+                    "commands_unused_at_end": int(cs[RG.CS_NEXT_STEP] >= 0) + int(cs[RG.CS_CUR_ACTED] == 0.0)}
         self.note_acted()
         out = dict(self.cmd_counts)
         out["commands_unused_at_end"] = (self.next_cmd is not None) + (not self.cmd_acted)
@@ -275,16 +272,15 @@ class Episode:
     # -- the compiled real-time core (rtloop): the virtual rig and C drivers ----------------------
     def run_compiled(self) -> P.EndReason:
         """The whole episode in one compiled call (:func:`impact_env.rig.rtloop.run_episode`) in
-        its own thread, the GIL released; this thread (the target's serve thread, the main
-        thread under ``rig serve``, where SIGTERM's handler runs) is the network: it drains every
-        datagram at each wake-up, puts the host's commands in the command ring, sends each
-        step's OBSERVATION as the loop publishes it, and watches the link; a third thread
-        streams the log to disk."""
+        its own thread, the GIL released.  In host mode the loop reads the socket itself and
+        takes the host's COMMANDs and sends the OBSERVATIONs (:mod:`impact_env.rig.wire`); this
+        thread (the target's serve thread, the main thread under ``rig serve``, where SIGTERM's
+        handler runs) is the rest of the network: the datagrams the loop queued for it (onboard:
+        the socket itself), the link's watch, a stop.  A third thread streams the log to disk."""
         import os
         import threading
 
         from impact_env.rig import cfunc as CF
-        from impact_env.rig import ring as RG
         from impact_env.rig import rtloop as RL
         from impact_env.rig.cdriver import CDriver
 
@@ -294,7 +290,8 @@ class Episode:
         if isinstance(drv, CDriver):
             raw0 = drv.read_tick(0)
             read, apply, ctx = drv.addresses
-            io = RL.CIO(read, apply, ctx, raw0.copy(), np.full(4, np.nan), self.cols["command"])
+            io = RL.CIO(read, apply, ctx, raw0.copy(), np.full(4, np.nan), self.cols["command"],
+                        np.zeros((0, R.N_REC)))
             ctl.start(raw0, None)
         else:
             hw = drv.hw
@@ -309,24 +306,41 @@ class Episode:
         os.set_blocking(wake_r, False)
         hl = RG.host_link(ctl.layout.size, CF.libc_address("write"), wake_w, CF.libc_address("usleep"))
         self.hl = hl
+        link, f = tg.link, tg.link.filter
+        if self.host:  # the loop owns the socket for the episode
+            self.wire = WR.make(link.endpoint.fileno(), f.key, f.nonce, f.session or 0, self.ep,
+                                link.last_sender,
+                                f.stream(f.session or 0, P.MsgType.COMMAND), link.seq, wake_fd=wake_w)
+        else:
+            self.wire = WR.none()
         max_gap = int(round(tg.cfg.max_gap_s * tg.rate))
-        tm = RL.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap)
+        wait = tg.command_wait_s * 1e9 / nspc if self.host and not self.lockstep else 0.0
+        tm = RL.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap, wait,
+                       tg.cfg.resend_s * 1e9 / nspc)
         result: list = []
 
         def loop():
-            result.append(RL.run_episode(self.horizon, ctl.params, ctl.state, io, tm, self.acct, hl))
+            tg.placement.loop_thread()
+            w = self.wire
+            result.append(RL.run_episode(self.horizon, ctl.params, ctl.state, io, tm, self.acct, hl, w))
 
         stream = tg.open_stream(self, hl.shared[RG.SH_ROWS:RG.SH_ROWS + 1])
         tg.running_link = hl
         rt = threading.Thread(target=loop, name="rig-rt-loop", daemon=True)
+        restore = tg.placement.python_thread()
         rt.start()
         try:
             why = self._network(rt, hl, wake_r)
         finally:
             rt.join()
+            restore()
             tg.running_link = None
             os.close(wake_r)
             os.close(wake_w)
+        if self.host:
+            self._take_queued(None)  # what the loop queued after the network thread's last look
+            WR.merge(self.wire, link)
+            self._last_observation(hl)
         self.m, status, self.end_code = result[0]
         self.status_or |= status
         self.stop_tick = int(hl.shared[RG.SH_TICK])
@@ -347,25 +361,19 @@ class Episode:
     def _network(self, rt, hl, wake_r) -> str | None:
         """The network while the loop runs (see :meth:`run_compiled`); returns the end reason's
         name it asked the loop to stop for, or None."""
-        from impact_env.rig import ring as RG
-
         tg, link = self.t, self.t.link
         sh = hl.shared
-        sent = 0  # observations sent (the ring's head when last sent)
-        sent_at = time.perf_counter()
         why: str | None = None
         while True:
             done = sh[RG.SH_DONE] != 0 or not rt.is_alive()
-            got = RG.newest_observation(hl, sent)
-            if got is not None:
-                sent = int(got[0][RG.OM_STEP]) + 1
-                self._send_observation(*got)
-                sent_at = time.perf_counter()
+            if self.host:
+                why = self._take_queued(why)
             if done:
-                if sh[RG.SH_OBS_HEAD] > sent:
-                    continue
                 return why
-            ready = link.endpoint.wait_readable(0.02, wake_r)
+            if self.host:
+                ready = select.select([wake_r], [], [], 0.005)[0]
+            else:
+                ready = link.endpoint.wait_readable(0.02, wake_r)
             if wake_r in ready:
                 try:
                     os_read(wake_r)
@@ -373,11 +381,12 @@ class Episode:
                     pass
             if why is not None:
                 continue
-            step = int(sh[RG.SH_TICK]) // self.hold
-            for msg in link.recv_all(episode=self.ep, step=step):
-                why = self.take(msg)
-                if why:
-                    break
+            if not self.host:
+                step = int(sh[RG.SH_TICK]) // self.hold
+                for msg in link.recv_all(episode=self.ep, step=step):
+                    why = self.take(msg)
+                    if why:
+                        break
             now = time.perf_counter()
             if not why and self.host and self.link_lost(now):
                 why = "LINK_LOST"
@@ -386,16 +395,28 @@ class Episode:
             if why:
                 self.stop_asked_tick = int(sh[RG.SH_TICK])
                 sh[RG.SH_STOP] = 1
-            elif (self.lockstep and self.host and self.obs_msg is not None
-                  and now - sent_at >= tg.cfg.resend_s and hl.cs[RG.CS_NEXT_STEP] < self.obs_msg.step):
-                link.send(self.obs_msg, tick=int(sh[RG.SH_TICK]), addr=link.last_sender)  # lost? again
-                sent_at = now
 
-    def _send_observation(self, meta: np.ndarray, obs: np.ndarray) -> None:
-        """The OBSERVATION the loop published (ring metadata ``meta``), with a virtual rig's true
-        records of the previous step's ticks (complete: the loop records every tick)."""
-        from impact_env.rig import ring as RG
+    def _take_queued(self, why: str | None) -> str | None:
+        """The datagrams the loop handed over (:func:`impact_env.rig.wire.queued`) through the
+        link's filter, each accepted one taken; returns the first end reason one of them gave."""
+        link, sh = self.t.link, self.hl.shared
+        step = int(sh[RG.SH_TICK]) // self.hold
+        for data, addr in WR.queued(self.wire):
+            msg = link.take(data, addr, self.ep, step)
+            if msg is not None and why is None:
+                why = self.take(msg)
+                if why:
+                    self.stop_asked_tick = int(sh[RG.SH_TICK])
+                    sh[RG.SH_STOP] = 1
+        return why
 
+    def _last_observation(self, hl) -> None:
+        """The last OBSERVATION the loop sent, as a message (the target sends it again to a host
+        still stepping an episode that ended)."""
+        got = RG.newest_observation(hl, 0)
+        if got is None:
+            return
+        meta, obs = got
         m = int(meta[RG.OM_TICK])
         telem = [float(meta[RG.OM_DEMAND]), float(meta[RG.OM_APPLIED]), float(meta[RG.OM_AGE])]
         if self.trec is not None and m >= self.hold:
@@ -404,7 +425,6 @@ class Episode:
                 telem += rec.ravel().tolist()
         self.obs_msg = P.Observation(self.ep, int(meta[RG.OM_STEP]), int(meta[RG.OM_STATUS]) & P.U32, 4,
                                      tuple(float(x) for x in obs[:self.ctl.layout.size]), tuple(telem))
-        self.t.link.send(self.obs_msg, tick=m, addr=self.t.link.last_sender)
 
     # -- any driver, tick by tick in Python ------------------------------------------------------------
     def run_python(self) -> P.EndReason:

@@ -42,6 +42,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from impact_env._jit import bound_call
 from impact_env.control.observation import OBS_LIMIT, make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.env import task_kernel as TK
@@ -54,6 +55,7 @@ from impact_env.scene import scene_from_dict
 from impact_env.sim import records as R
 
 N_TEL = len(P.TELEMETRY_FIELDS)
+SPIN_STEPS = 4  # a real-time host polls for the next OBSERVATION this many policy periods, then sleeps
 
 
 def status_names(status: int) -> list[str]:
@@ -67,7 +69,8 @@ class RigClient:
     Every wait is bounded (``timeout_s`` per try, ``retries`` tries): a dead target raises
     :class:`~impact_env.rig.transport.RigTimeout`, and :meth:`close` never blocks."""
 
-    def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10, key=None):
+    def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10, key=None,
+                 spin_s: float = 0.0):
         from impact_env.rig.auth import key_from
 
         key = key_from(key, "key")
@@ -76,6 +79,8 @@ class RigClient:
                                                       else "udp://0.0.0.0:0")
         self.address = address
         self.timeout_s, self.retries = float(timeout_s), int(retries)
+        # waiting for an OBSERVATION, poll this long before sleeping (see Endpoint.recv)
+        self.spin_s = float(spin_s)
         self.endpoint = Endpoint(local, peer=address)
         self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1, key=key)
         self.link.filter.peer = self.endpoint.peer  # only the target's replies count
@@ -161,29 +166,38 @@ class RigClient:
         return armed
 
     def command(self, step: int, action: float) -> None:
-        self.link.send(P.Command(self.episode, int(step), (float(action),)))
+        """Send the COMMAND of ``step`` (one datagram, not acknowledged)."""
+        link, f = self.link, self.link.filter
+        seq = link.seq
+        link.seq = (seq + 1) & P.U32
+        self.endpoint.send(P.command_datagram(self.episode, int(step), float(action), link.session or 0, seq,
+                                              time.perf_counter_ns() & P.U64, 0, f.key, f.nonce))
 
     def observation(self, step: int, timeout_s: float) -> P.Observation | P.EpisodeEnd | None:
-        """The OBSERVATION of ``step`` of the current episode (newer ones are returned too), the
-        EPISODE_END of the current episode if the target ended it before that step's observation
-        (also kept in ``last_end``), or None after ``timeout_s``.  An episode that reached its
-        horizon has a last OBSERVATION: its EPISODE_END is kept, and the wait goes on for it."""
+        """The newest OBSERVATION of the current episode that has come, of ``step`` or later (a
+        host slower than the target's steps skips the older ones: in real time the newest is the
+        one to answer), the EPISODE_END of the current episode if the target ended it before that
+        step's observation (also kept in ``last_end``), or None after ``timeout_s``.  An episode
+        that reached its horizon has a last OBSERVATION: its EPISODE_END is kept, and the wait goes
+        on for it."""
         end = self.last_end
         if end is not None and end.episode == self.episode and not self._has_last_obs(end, step):
             return end
         deadline = time.perf_counter() + timeout_s
+        got = None
         while (left := deadline - time.perf_counter()) > 0:
-            msg = self.link.recv(left)
+            msg = self.link.recv(0.0 if got is not None else left, spin_s=self.spin_s)
             if msg is None:
-                return None
+                return got
             b = msg.body
             if msg.type == P.MsgType.OBSERVATION and b.episode == self.episode and b.step >= step:
-                return b
-            if msg.type == P.MsgType.EPISODE_END and b.episode == self.episode:
+                if got is None or b.step > got.step:
+                    got = b
+            elif msg.type == P.MsgType.EPISODE_END and b.episode == self.episode:
                 self.last_end = b
-                if not self._has_last_obs(b, step):
+                if got is None and not self._has_last_obs(b, step):
                     return b
-        return None
+        return got
 
     def _seen(self, msg: P.Message) -> None:
         """Every accepted message: an EPISODE_END is kept even when a request (a FETCH, an
@@ -274,13 +288,17 @@ class RigEnv(gym.Env):
     ``first_command_timeout_s`` (s: the target disarms an episode whose first COMMAND has not
     arrived by then; the safety layer's own 0.1 s by default) and ``link_timeout_s`` (s: the
     target ends an episode LINK_LOST when it hears nothing from the host for that long; None: the
-    target's own, 0.5 s in real time).
+    target's own, 0.5 s in real time) and ``spin_s`` (s: waiting for an OBSERVATION, poll the
+    socket this long before sleeping; None: 4 policy periods against a real-time target, 0 in
+    lock-step).  In real time ``step`` returns the newest OBSERVATION that has come: a host
+    slower than the target's steps skips the ones between (``info["steps_missed"]``).
     """
 
     metadata = {"render_modes": []}
 
     def __init__(self, address: str, *, timeout_s: float = 0.05, retries: int = 20, key=None,
-                 first_command_timeout_s: float = 0.1, link_timeout_s: float | None = None, **task: Any):
+                 first_command_timeout_s: float = 0.1, link_timeout_s: float | None = None,
+                 spin_s: float | None = None, **task: Any):
         if not (isinstance(first_command_timeout_s, (int, float)) and 0.0 < first_command_timeout_s <= 60.0):
             raise ValueError(f"first_command_timeout_s = {first_command_timeout_s!r} s is out of range: "
                              "must be > 0 s and <= 60 s")
@@ -290,8 +308,14 @@ class RigEnv(gym.Env):
                              "<= 60 s (or None: the target's own)")
         # ARM carries it in whole ms; 0 asks for the target's own
         self._link_ms = 0 if link_timeout_s is None else max(1, int(round(link_timeout_s * 1e3)))
+        if spin_s is not None and not (isinstance(spin_s, (int, float)) and 0.0 <= spin_s <= 1.0):
+            raise ValueError(f"spin_s = {spin_s!r} s is out of range: must be >= 0 s and <= 1 s (or None)")
         self.config = config = TaskConfig.from_options(task)
         self.client = RigClient(address, timeout_s, retries, key=key)
+        # a real-time host polls for its next OBSERVATION rather than sleep (Endpoint.recv): up to
+        # a few policy steps, then it sleeps
+        self.client.spin_s = (0.0 if self.client.lockstep else SPIN_STEPS * config.hold_ticks
+                              / self.client.scene.control_rate) if spin_s is None else float(spin_s)
         self.scene = scene = self.client.scene
         self.layout = make_layout(scene, config.observation, config.history)
         if self.layout.privileged:
@@ -309,6 +333,9 @@ class RigEnv(gym.Env):
         self.tp = config.params(scene)
         self.max_steps = int(self.tp.max_steps)
         self._a1 = np.zeros(1)
+        self._y = np.zeros((1, 4))  # body 1's and 2's state at the step's end, for the task kernel
+        self._active = np.ones(1, bool)
+        self._task_fn = None  # the task kernel's compiled entry point (bound_call)
         self._hw = Hardware(scene, 1) if self.client.virtual else None
         self._state = new_task_state(1)
         self._out = new_task_out(1)
@@ -350,8 +377,13 @@ class RigEnv(gym.Env):
 
     def _task_step(self, recs: np.ndarray, state: TK.TaskState, out: TK.TaskOut) -> None:
         hw = self._hw
-        drop = TK.Drop(recs[:, -1, R.REC_X1:R.REC_V2 + 1].copy(), hw.P, hw.impact_energy, hw.impact_speed)
-        TK.task_step(np.ones(1, bool), recs, drop, self.tp, state, out)
+        self._y[:] = recs[:, -1, R.REC_X1:R.REC_V2 + 1]
+        drop = TK.Drop(self._y, hw.P, hw.impact_energy, hw.impact_speed)
+        args = (self._active, recs, drop, self.tp, state, out)
+        if self._task_fn is None:  # the first call runs it and binds it (numba's typing skipped after)
+            self._task_fn = bound_call(TK.task_step, args)
+        else:
+            self._task_fn(*args)
 
     def _warm_up(self) -> None:
         """Compile (or load) the reward kernels now, on copies, so that no episode waits for them:

@@ -412,7 +412,7 @@ class LogStream:
     one.  Same datasets and attributes as a finished file; datasets are chunked and grow."""
 
     def __init__(self, log: TickLog, path: str | os.PathLike, meta: EpisodeMeta, published: np.ndarray,
-                 period_s: float = 0.05):
+                 period_s: float = 0.05, thread_setup=None):
         import threading
 
         h5py = _h5py()
@@ -450,10 +450,13 @@ class LogStream:
         f.attrs["extra_columns"] = list(log.extra)
         f.flush()
         self._stop = threading.Event()
+        self._setup = thread_setup  # called first in the writer's thread (where it may run: placement)
         self._thread = threading.Thread(target=self._run, name="rig-log-stream", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
+        if self._setup is not None:
+            self._setup()
         while not self._stop.wait(self.period_s):
             self.flush()
 

@@ -142,7 +142,6 @@ from __future__ import annotations
 
 import enum
 import functools
-import hashlib
 import hmac
 import math
 import struct
@@ -635,7 +634,12 @@ class Observation(Body):
             raise CorruptDatagram("payload", f"OBSERVATION dtype {dtype} or telemetry size {m} invalid")
         _need(payload, cls.FMT.size + dtype * n + 8 * m, newer, exact=True)
         vals = struct.unpack_from(f"<{n}{'f' if dtype == 4 else 'd'}{m}d", payload, cls.FMT.size)
-        return cls(ep, step, status, dtype, vals[:n], vals[n:])
+        # every field is in range by construction (struct): skip the checks of __post_init__, the
+        # larger part of a host's decoding time (one per policy step)
+        out = object.__new__(cls)
+        out.__dict__.update(episode=ep, step=step, status=status, dtype=dtype, obs=vals[:n],
+                            telemetry=vals[n:])
+        return out
 
 
 @dataclass(frozen=True)
@@ -817,9 +821,20 @@ def tag(key: bytes, nonce: int, frame) -> bytes:
     """The datagram's tag: HMAC-SHA256 under ``key`` (b"": no key, an integrity check only) of
     the session nonce (u64 little-endian; 0 for HELLO, INFO and ERROR) and the header and payload
     bytes ``frame``, its first ``TAG_SIZE`` bytes."""
-    h = hmac.new(key, nonce.to_bytes(8, "little"), hashlib.sha256)
-    h.update(frame)
-    return h.digest()[:TAG_SIZE]
+    return hmac.digest(key, nonce.to_bytes(8, "little") + frame, "sha256")[:TAG_SIZE]
+
+
+_COMMAND1 = struct.Struct("<IIHd")  # a COMMAND's payload with one action
+
+
+def command_datagram(episode: int, step: int, action: float, session: int, seq: int, host_ns: int,
+                     target_ns: int = 0, key: bytes = b"", nonce: int = 0) -> bytes:
+    """The datagram of a one-action COMMAND: ``encode(Message(Command(episode, step, (action,)),
+    ...))`` byte for byte (``tests/test_rig_protocol.py``), without building the message: a host
+    in real time sends one every policy step."""
+    frame = HEADER.pack(MAGIC, VERSION_MAJOR, VERSION_MINOR, MsgType.COMMAND, 0, session, seq, 0, host_ns,
+                        target_ns, _COMMAND1.size) + _COMMAND1.pack(episode, step, 1, action)
+    return frame + tag(key, nonce, frame)
 
 
 def encode(msg: Message, key: bytes = b"", nonce: int = 0) -> bytes:
@@ -930,7 +945,11 @@ class DatagramFilter:
 
     REASONS: ClassVar[tuple[str, ...]] = ("corrupt", "wrong_version", "unauthenticated", "not_loopback",
                                           "stranger", "wrong_session", "unexpected", "duplicate",
-                                          "out_of_order", "late", "rate_limited", "no_challenge")
+                                          "out_of_order", "late", "rate_limited", "no_challenge",
+                                          "queue_full")
+    # counted by the real-time loop, which reads the socket during an episode (impact_env.rig.wire):
+    # a datagram it could not hand to the network thread; never given by accept()
+    LOOP_REASONS: ClassVar[tuple[str, ...]] = ("queue_full",)
     WINDOW: ClassVar[int] = 64
     MAX_STREAMS: ClassVar[int] = 1024  # other sessions' streams kept before the oldest is forgotten
 
@@ -1064,6 +1083,17 @@ class DatagramFilter:
             return True
         self.replies_limited += 1
         return False
+
+    def stream(self, session: int, mtype: int) -> tuple[int, int] | None:
+        """The open session's window of one message type: (newest sequence number, mask of the
+        last WINDOW accepted), or None before its first (the real-time loop takes the COMMAND
+        stream for an episode: :mod:`impact_env.rig.wire`)."""
+        s = self._streams.get((session, int(mtype)))
+        return None if s is None else (s.newest, s.mask)
+
+    def set_stream(self, session: int, mtype: int, newest: int, mask: int) -> None:
+        """Hand a stream's window back (see :meth:`stream`)."""
+        self._streams[(session, int(mtype))] = _Stream(int(newest), int(mask))
 
     def _fresh(self, msg: Message) -> bool:
         # the open session's streams are never evicted; other sessions' (open types only: a

@@ -5,13 +5,14 @@ announces, and a reader that takes the newest entry by sequence number and check
 overwritten while it read.  The arrays are plain numpy arrays shared by the threads of one
 process (the compiled loop runs with the GIL released).
 
-* :class:`CommandRing` (writer: the network thread; reader: the loop): the host's accepted
-  COMMANDs (step, action).  The loop takes every entry it has not seen, in order, before each
-  tick (latest wins, the rest counted superseded).
-* the observation ring (writer: the loop; reader: the network thread): at each step boundary
-  of host mode, the step's observation and telemetry; the network thread sends the newest.
+* the observation ring (writer: the loop; reader: the target's Python side): at each step
+  boundary of host mode, the step's observation and telemetry, as the loop sent it to the host
+  (:mod:`impact_env.rig.wire`: the loop sends and receives host mode's datagrams itself; the
+  datagrams it does not take reach the network thread through the wire's queue).
 * ``shared``: single-word values the loop publishes (the tick it is at, rows of the log
   complete, its end) and the stop word the Python side sets (a DISARM, a signal, a lost link).
+* the command state ``cs`` and counts ``cc``: what the loop did with the host's commands, read
+  by Python at the episode's end.
 
 Ordering: the loop fences (:func:`impact_env.rig.cfunc.fence`) between an entry and its head;
 on the Python side the stores of one thread reach memory in program order on x86-64 (TSO), which
@@ -24,12 +25,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-N_CMD = 64  # command slots: more than a host can send in a step
-N_OBS = 16  # observation slots: the network thread sends the newest
+N_OBS = 16  # observation slots
 
 # shared int64 words
-(SH_TICK, SH_ROWS, SH_OBS_HEAD, SH_STOP, SH_DONE, SH_SEEN) = range(6)
-N_SHARED = 6
+(SH_TICK, SH_ROWS, SH_OBS_HEAD, SH_STOP, SH_DONE) = range(5)
+N_SHARED = 5
 # the observation slot's metadata columns (float64)
 OM_STEP, OM_TICK, OM_STATUS, OM_DEMAND, OM_APPLIED, OM_AGE = range(6)
 N_OM = 6
@@ -44,9 +44,6 @@ N_CC = 3
 class HostLink(NamedTuple):
     """The arrays the compiled loop shares with the target's Python threads."""
 
-    cmd_step: np.ndarray  # int64[N_CMD]
-    cmd_val: np.ndarray  # float64[N_CMD]
-    cmd_head: np.ndarray  # int64[1]: commands written (the writer's sequence number)
     obs: np.ndarray  # float64[N_OBS, obs size]
     obs_meta: np.ndarray  # float64[N_OBS, N_OM]
     shared: np.ndarray  # int64[N_SHARED]
@@ -54,19 +51,18 @@ class HostLink(NamedTuple):
     cc: np.ndarray  # int64[N_CC]
     wake: np.ndarray  # int64[3]: libc write's address, the pipe's write end (-1: none), usleep's address
     byte: np.ndarray  # uint8[1]: what is written to the pipe
+    telem: np.ndarray  # float64[3]: the telemetry of the OBSERVATION being made (TELEMETRY_FIELDS)
 
 
 def host_link(obs_size: int, write_addr: int = 0, wake_fd: int = -1, usleep_addr: int = 0) -> HostLink:
-    link = HostLink(np.zeros(N_CMD, np.int64), np.zeros(N_CMD), np.zeros(1, np.int64),
-                    np.zeros((N_OBS, max(1, obs_size))), np.zeros((N_OBS, N_OM)),
+    link = HostLink(np.zeros((N_OBS, max(1, obs_size))), np.zeros((N_OBS, N_OM)),
                     np.zeros(N_SHARED, np.int64), np.zeros(N_CS), np.zeros(N_CC, np.int64),
-                    np.array([write_addr, wake_fd, usleep_addr], np.int64), np.ones(1, np.uint8))
+                    np.array([write_addr, wake_fd, usleep_addr], np.int64), np.ones(1, np.uint8), np.zeros(3))
     reset(link)
     return link
 
 
 def reset(link: HostLink) -> None:
-    link.cmd_head[0] = 0
     link.shared[:] = 0
     link.cs[:] = 0.0
     link.cs[CS_NEXT_STEP] = -1.0
@@ -74,15 +70,6 @@ def reset(link: HostLink) -> None:
     link.cs[CS_CUR_ID] = -1.0
     link.cs[CS_CUR_ACTED] = 1.0
     link.cc[:] = 0
-
-
-def push_command(link: HostLink, step: int, action: float) -> None:
-    """The network thread's write: the entry, then the head that announces it."""
-    h = int(link.cmd_head[0])
-    j = h % N_CMD
-    link.cmd_step[j] = step
-    link.cmd_val[j] = action
-    link.cmd_head[0] = h + 1
 
 
 def newest_observation(link: HostLink, after: int) -> tuple[np.ndarray, np.ndarray] | None:

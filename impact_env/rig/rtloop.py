@@ -47,6 +47,7 @@ from impact_env.hardware.stage import (
 from impact_env.rig import log as LG
 from impact_env.rig import ring as RG
 from impact_env.rig import safety as SF
+from impact_env.rig import wire as WR
 from impact_env.rig.cfunc import call_apply, call_read, call_usleep, call_write, fence
 from impact_env.rig.controller import (
     ACCT_OVERRUNS,
@@ -74,7 +75,6 @@ from impact_env.rig.cycles import cycles
 from impact_env.sim import records as R
 
 
-
 class VirtualIO(NamedTuple):
     """The virtual rig as the loop's driver: its hardware stage and what it logs of the truth."""
 
@@ -95,6 +95,7 @@ class CIO(NamedTuple):
     raw: np.ndarray  # float64[4]: the readings of the current tick
     truth: np.ndarray  # float64[4] NaN: a physical rig measures no body-1 state
     command_col: int  # the log column of the command sent
+    records: np.ndarray  # float64[0, N_REC]: a physical rig has no true records to send the host
 
 
 class Timing(NamedTuple):
@@ -104,6 +105,11 @@ class Timing(NamedTuple):
     cycles_per_tick: float
     ns_per_cycle: float
     max_gap_ticks: int  # more periods than this with no tick run: 0 N, the episode ends OVERRUN
+    # real-time host mode: a tick whose step's command has not come waits for it this long after
+    # its deadline before it acts (0: not at all); cycles
+    command_wait: float = 0.0
+    # lock-step host mode: the OBSERVATION is sent again after this long without the command; cycles
+    resend: float = 0.0
 
 
 # -- the driver's operations, one implementation per kind ---------------------------------------------
@@ -135,6 +141,10 @@ def io_skip(io, m, k, u, detected, rate):
 
 def io_zero(io, m):
     """0 N now (a stop, an overrun)."""
+
+
+def io_records(io):
+    """The true records of the ticks that passed (float64[ticks, N_REC]; none on a physical rig)."""
 
 
 def _is(io, cls) -> bool:
@@ -231,6 +241,12 @@ def _ov_skip(io, m, k, u, detected, rate):
         return lambda io, m, k, u, detected, rate: None
 
 
+@overload(io_records)
+def _ov_records(io):
+    if _is(io, VirtualIO) or _is(io, CIO):
+        return lambda io: io.records
+
+
 @overload(io_zero)
 def _ov_zero(io, m):
     if _is(io, VirtualIO):
@@ -241,30 +257,27 @@ def _ov_zero(io, m):
 
 # -- the host's commands ---------------------------------------------------------------------------------
 @jit(inline="always")
-def _drain_commands(hl):
-    """Take every command the network thread wrote since the last call, in order: the newest for
-    the latest step waits to be used (latest wins); each one it replaces is superseded."""
-    h = hl.cmd_head[0]
-    fence()
-    cs, cc, sh = hl.cs, hl.cc, hl.shared
-    seen = sh[RG.SH_SEEN]
-    while seen < h:
-        if h - seen > RG.N_CMD:  # overwritten before the loop saw it (never at 10 kHz): counted
+def _offer(hl, step, val):
+    """A command the wire accepted: the newest for the latest step waits to be used (latest wins);
+    each one it replaces is superseded."""
+    cs, cc = hl.cs, hl.cc
+    if cs[RG.CS_NEXT_STEP] < 0 or step >= cs[RG.CS_NEXT_STEP]:
+        if cs[RG.CS_NEXT_STEP] >= 0:
             cc[RG.CC_SUPERSEDED] += 1
-            seen += 1
-            continue
-        j = seen % RG.N_CMD
-        step = hl.cmd_step[j]
-        val = hl.cmd_val[j]
-        seen += 1
-        if cs[RG.CS_NEXT_STEP] < 0 or step >= cs[RG.CS_NEXT_STEP]:
-            if cs[RG.CS_NEXT_STEP] >= 0:
-                cc[RG.CC_SUPERSEDED] += 1
-            cs[RG.CS_NEXT_STEP] = step
-            cs[RG.CS_NEXT_VAL] = val
-        else:
-            cc[RG.CC_SUPERSEDED] += 1
-    sh[RG.SH_SEEN] = seen
+        cs[RG.CS_NEXT_STEP] = step
+        cs[RG.CS_NEXT_VAL] = val
+    else:
+        cc[RG.CC_SUPERSEDED] += 1
+
+
+@jit(inline="always")
+def _poll(w, hl, step):
+    """One waiting datagram through the wire (:func:`impact_env.rig.wire.read_one`); an accepted
+    COMMAND is offered.  Returns what the wire did (NONE: nothing was waiting)."""
+    r = WR.read_one(w, step)
+    if r == WR.COMMAND:
+        _offer(hl, w.st.cmd_step[0], w.st.cmd_val[0])
+    return r
 
 
 @jit(inline="always")
@@ -295,8 +308,9 @@ def _wake(hl):
 
 
 @jit
-def _publish_observation(m, status_or, p, s, hl):
-    """The observation of the step that starts at tick m, with its telemetry, into the ring."""
+def _publish_observation(m, status_or, p, s, hl, w, records):
+    """The observation of the step that starts at tick m, with its telemetry: into the ring (the
+    target's record of it) and, as an OBSERVATION datagram, to the host."""
     step = m // p.hold
     j = step % RG.N_OBS
     meta = hl.obs_meta[j]
@@ -313,19 +327,34 @@ def _publish_observation(m, status_or, p, s, hl):
     obs = s.obs.obs[0]
     for i in range(obs.shape[0]):
         hl.obs[j, i] = obs[i]
+    tel = hl.telem
+    tel[0] = meta[RG.OM_DEMAND]
+    tel[1] = meta[RG.OM_APPLIED]
+    tel[2] = meta[RG.OM_AGE]
+    r0 = r1 = 0
+    if m >= p.hold and records.shape[0] > 0:  # a virtual rig: the true records of the step's ticks
+        r0, r1 = m - p.hold, m
+    WR.send_observation(w, m, step, status_or, obs, tel, records, r0, r1)
     fence()
     hl.shared[RG.SH_OBS_HEAD] = step + 1
-    _wake(hl)
 
 
 # -- the loop -----------------------------------------------------------------------------------------------
+# a tick's deadline this close (ns), the spin stops reading datagrams: one read and its tag take
+# a few microseconds, and the tick must start on time
+POLL_MARGIN_NS = 5_000.0
+LATE_READS = 8  # datagrams read at most per tick when the loop is behind (no spin to read them in)
+
+
 @jit(nogil=True)
-def run_episode(m1, p, s, io, tm, acct, hl):
+def run_episode(m1, p, s, io, tm, acct, hl, w):
     """Ticks 0 .. m1 - 1 of an episode and the readings of tick m1 (module doc).  ``p``, ``s``: the
     controller's params and state (the front end has seen tick 0's readings); ``io``: VirtualIO or
-    CIO; ``tm``: Timing; ``acct``: int64[N_ACCT] tick accounts; ``hl``: the rings (HostLink).
+    CIO; ``tm``: Timing; ``acct``: int64[N_ACCT] tick accounts; ``hl``: the rings (HostLink);
+    ``w``: the wire (:mod:`impact_env.rig.wire`; host mode reads and sends its datagrams through it).
     Returns (the tick reached, OR of the status bits, the end code: END_NONE at the horizon)."""
-    p, s, io, tm, hl = borrow(p), borrow(s), borrow(io), borrow(tm), borrow(hl)  # (impact_env._borrow)
+    p, s, io, tm, hl, w = borrow(p), borrow(s), borrow(io), borrow(tm), borrow(hl), borrow(w)
+    margin = POLL_MARGIN_NS / tm.ns_per_cycle
     st = s.own
     rows = s.log.rows
     hold = p.hold
@@ -351,6 +380,8 @@ def run_episode(m1, p, s, io, tm, acct, hl):
             dl = t0c + m * cpt
             now = float(cycles())
             while now < dl:
+                if host and dl - now > margin:  # the host's datagrams, as they come
+                    _poll(w, hl, m // hold)
                 now = float(cycles())
             late = now - dl
             if prev >= 0.0 and now - prev > (tm.max_gap_ticks + 1) * cpt:  # no tick for too long: 0 N, end
@@ -381,19 +412,34 @@ def run_episode(m1, p, s, io, tm, acct, hl):
             io_seen(io, m, s.fe.detected[0])
         boundary = m % hold == 0
         if host and boundary:
-            _publish_observation(m, status_or, p, s, hl)
+            _publish_observation(m, status_or, p, s, hl, w, io_records(io))
         if m >= m1:
             break
         if host:
             step = m // hold
-            _drain_commands(hl)
+            for _ in range(LATE_READS):  # what came since the spin stopped reading (or, behind, at all)
+                if _poll(w, hl, step) == WR.NONE:
+                    break
             if tm.lockstep_host and boundary:  # lock-step: the step's command first
+                sent = float(cycles())
                 while cs[RG.CS_NEXT_STEP] < step and sh[RG.SH_STOP] == 0:
-                    call_usleep(hl.wake[2], 50)
-                    _drain_commands(hl)
+                    if _poll(w, hl, step) != WR.NONE:
+                        continue
+                    if tm.resend > 0.0 and float(cycles()) - sent >= tm.resend:  # lost? send it again
+                        WR.resend_observation(w)
+                        sent = float(cycles())
+                    call_usleep(hl.wake[2], 20)
                 if sh[RG.SH_STOP] != 0:
                     continue
             _select_command(hl, step)
+            if realtime and tm.command_wait > 0.0 and cs[RG.CS_CUR_STEP] != step:
+                # the step's command has not come: wait for it, up to command_wait into the period
+                until = t0c + m * cpt + tm.command_wait
+                while float(cycles()) < until and sh[RG.SH_STOP] == 0:
+                    if _poll(w, hl, step) == WR.COMMAND:
+                        _select_command(hl, step)
+                        if cs[RG.CS_CUR_STEP] == step:
+                            break
         cmd = HostCommand(cs[RG.CS_CUR_VAL], int(cs[RG.CS_CUR_STEP]), int(cs[RG.CS_CUR_ID]))
         out, f, status, row = act_tick(m, clock_tick, cmd, p, s, io_raw(io))
         if realtime and late >= cpt:

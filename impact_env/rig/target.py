@@ -54,6 +54,7 @@ from impact_env.rig import safety as SF
 from impact_env.rig.controller import TRUTH_COLUMNS, TRUTH_UNITS, Controller
 from impact_env.rig.driver import RigDriver, VirtualRig
 from impact_env.rig.episode import Episode
+from impact_env.rig.placement import Placement
 from impact_env.rig.safety import SafetyConfig
 from impact_env.rig.transport import Endpoint, Link, UploadAssembler, chunk_reply
 
@@ -91,10 +92,22 @@ class TargetConfig:
     max_horizon_s: float = 60.0
     # the log streamed to disk during the episode is flushed this often (s)
     log_flush_s: float = 0.05
+    # real-time host mode: a tick whose step's command has not arrived waits for it this long
+    # after its deadline before it acts (s; None: 0.7 of the control period, leaving the tick's own
+    # work the rest).  A host that answers an OBSERVATION within it acts in the step it was asked
+    # for, 1 tick at hold 1 included; the force then changes that late in the tick (as a DAC
+    # written then): the round trip is the host's sensor-to-actuator delay
+    command_wait_s: float | None = None
+    # the real-time loop's CPU (None: the last one allowed when there are two or more; -1: not
+    # pinned) and its thread's nice value (0: unchanged): impact_env.rig.placement
+    loop_cpu: int | None = None
+    loop_nice: int = 0
 
     def __post_init__(self):
         from impact_env.config import check_range
 
+        if self.command_wait_s is not None:
+            check_range("command_wait_s", self.command_wait_s, "s", 0.0, 1.0)
         check_range("max_gap_s", self.max_gap_s, "s", 0.0, 10.0, lo_open=True)
         check_range("max_horizon_s", self.max_horizon_s, "s", 0.0, 3600.0, lo_open=True)
         check_range("log_flush_s", self.log_flush_s, "s", 0.0, 0.1, lo_open=True)
@@ -124,6 +137,13 @@ class Target:
         self.running_link = None  # the running compiled loop's rings (impact_env.rig.ring)
         self.scene = driver.scene
         self.rate = float(self.scene.control_rate)
+        wait = self.cfg.command_wait_s
+        #: real-time host mode's wait for a step's command (s): TargetConfig.command_wait_s
+        self.command_wait_s = 0.7 / self.rate if wait is None else float(wait)
+        if self.command_wait_s * self.rate > 0.9:
+            raise ValueError(f"command_wait_s = {self.command_wait_s:g} s is more than 0.9 of the control "
+                             f"period ({1 / self.rate:g} s): the tick's own work needs the rest")
+        self.placement = Placement(self.cfg.loop_cpu, self.cfg.loop_nice)
         self.endpoint = Endpoint(bind)
         self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
         self.link.on_unauthenticated = self._unauthenticated
@@ -182,8 +202,8 @@ class Target:
         cached_ns_per_cycle(refresh=True)
         if isinstance(self.driver, CDriver):
             read, apply, ctx = self.driver.addresses
-            io = RL.CIO(read, apply, ctx, np.zeros(4), np.full(4, np.nan), ctl.log.col("command")) \
-                if "command" in ctl.log.names else None
+            io = RL.CIO(read, apply, ctx, np.zeros(4), np.full(4, np.nan), ctl.log.col("command"),
+                        np.zeros((0, N_REC))) if "command" in ctl.log.names else None
             if io is None:
                 return
             m1 = 0  # no tick: a C driver is not called before its first episode
@@ -193,11 +213,13 @@ class Target:
             io = RL.VirtualIO(hw.params, hw.state, CT.truth_columns(ctl.log), CT.DropConstants(0.0, 0.0, 0.0),
                               np.zeros((4, N_REC)), ctl.log.col("true_t_s"))
             m1 = 1
-        tm = RL.Timing(False, False, 0.0, 1.0, 1.0, 10)
+        tm = RL.Timing(False, False, 0.0, 1.0, 1.0, 10, 0.0, 0.0)
+        from impact_env.rig import wire as WR
+
         for onboard in (True, False):
             hl = RG.host_link(ctl.layout.size)
             RL.run_episode(m1, ctl.params._replace(onboard=onboard), ctl.state, io, tm,
-                           np.zeros(CT.N_ACCT, dtype=np.int64), hl)
+                           np.zeros(CT.N_ACCT, dtype=np.int64), hl, WR.none())
             ctl.log.reset()
 
     @property
@@ -537,7 +559,8 @@ class Target:
         meta = self._meta(ep, ep.policy, LG.INCOMPLETE, {})
         name = LG.episode_filename(ep.ep, self.link.session or 0) + LG.PARTIAL_SUFFIX
         Path(self.cfg.log_dir).mkdir(parents=True, exist_ok=True)
-        return LG.LogStream(ep.ctl.log, Path(self.cfg.log_dir) / name, meta, published, self.cfg.log_flush_s)
+        return LG.LogStream(ep.ctl.log, Path(self.cfg.log_dir) / name, meta, published, self.cfg.log_flush_s,
+                            self.placement.background_thread)
 
     def _write(self, ep: Episode, meta: LG.EpisodeMeta, end) -> None:
         ctl = ep.ctl

@@ -180,11 +180,15 @@ class Endpoint:
         self.sent += 1
         return True
 
-    def recv(self, timeout: float = 0.0) -> tuple[bytes, tuple] | None:
+    def recv(self, timeout: float = 0.0, spin_s: float = 0.0) -> tuple[bytes, tuple] | None:
         """The next datagram and its sender, waiting at most ``timeout`` s (0: just poll);
-        None if none came."""
+        None if none came.  ``spin_s``: the first part of the wait, up to that long, polls the
+        socket without sleeping (a real-time host: a thread asleep in select() takes tens of
+        microseconds to wake on a virtual machine's idle CPU; spinning, none)."""
         self._check()
-        deadline = time.perf_counter() + max(float(timeout), 0.0)
+        now = time.perf_counter()
+        deadline = now + max(float(timeout), 0.0)
+        spin_until = now + min(max(float(spin_s), 0.0), max(float(timeout), 0.0))
         while True:
             try:
                 data, addr = self._sock.recvfrom(P.MAX_DATAGRAM + 1)
@@ -198,9 +202,12 @@ class Endpoint:
                 if self._closed:
                     raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
                 raise
-            remaining = deadline - time.perf_counter()
+            now = time.perf_counter()
+            remaining = deadline - now
             if remaining <= 0:
                 return None
+            if now < spin_until:
+                continue
             try:
                 select.select([self._sock], [], [], remaining)
             except (OSError, ValueError):
@@ -343,15 +350,16 @@ class Link:
         return msg
 
     def recv(self, timeout: float = 0.0, episode: int | None = None,
-             step: int | None = None) -> P.Message | None:
+             step: int | None = None, spin_s: float = 0.0) -> P.Message | None:
         """The next accepted message within ``timeout`` s (dropped datagrams are counted by
-        ``self.filter`` and waiting goes on); None if none came in time."""
+        ``self.filter`` and waiting goes on); None if none came in time.  ``spin_s``: see
+        :meth:`Endpoint.recv`."""
         deadline = time.perf_counter() + max(float(timeout), 0.0)
         while True:
-            got = self.endpoint.recv(max(deadline - time.perf_counter(), 0.0))
+            got = self.endpoint.recv(max(deadline - time.perf_counter(), 0.0), spin_s)
             if got is None:
                 return None
-            msg = self._take(got[0], got[1], episode, step)
+            msg = self.take(got[0], got[1], episode, step)
             if msg is not None:
                 return msg
             if time.perf_counter() >= deadline:
@@ -363,16 +371,18 @@ class Link:
         reason by ``self.filter``); returns the accepted messages, in order."""
         out = []
         for data, addr in self.endpoint.recv_many(limit):
-            msg = self._take(data, addr, episode, step)
+            msg = self.take(data, addr, episode, step)
             if msg is not None:
                 out.append(msg)
         return out
 
-    def _take(self, data: bytes, addr: tuple, episode: int | None, step: int | None) -> P.Message | None:
+    def take(self, data: bytes, addr: tuple, episode: int | None = None,
+             step: int | None = None) -> P.Message | None:
         """One datagram through the filter: an accepted message for the caller; a handshake
         (HELLO, RESPONSE) to ``on_handshake``; a rejected one counted and reported to
-        ``on_unauthenticated`` / ``on_stranger``.  The one path of :meth:`recv` and
-        :meth:`recv_all`, so that both treat every datagram alike."""
+        ``on_unauthenticated`` / ``on_stranger``.  The one path of :meth:`recv`, :meth:`recv_all`
+        and the datagrams the target's real-time loop read (:mod:`impact_env.rig.wire`), so that
+        all treat every datagram alike."""
         msg = self.filter.accept(data, episode, step, addr)
         if msg is not None and self.on_handshake is not None and msg.type in P.HANDSHAKE_TYPES:
             self.on_handshake(msg, addr)

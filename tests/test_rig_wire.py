@@ -1,0 +1,193 @@
+"""The real-time loop's wire (impact_env.rig.wire) against the protocol's Python side, its oracle:
+every datagram the compiled classifier takes from the session's host gets the reason the Python
+filter gives it (fuzzed), every other datagram is queued for the network thread, a full queue is
+counted, and the OBSERVATION the loop encodes and tags decodes with protocol.decode."""
+
+from __future__ import annotations
+
+import random
+import socket
+import struct
+
+import numpy as np
+import pytest
+
+from impact_env.rig import protocol as P
+from impact_env.rig import wire as WR
+
+KEY = bytes(range(32))
+NONCE = 0x1234_5678_9ABC_DEF1
+SESSION = 0xC0FFEE
+EPISODE = 3
+HOST = ("127.0.0.1", 40001)
+STRANGER = ("127.0.0.1", 40002)
+
+
+def _wire(fd: int = -1, peer=HOST, key: bytes = KEY) -> WR.Wire:
+    return WR.make(fd, key, NONCE, SESSION, EPISODE, peer, None, 100)
+
+
+def _put(w: WR.Wire, data: bytes, sender: tuple) -> None:
+    """``data`` from ``sender`` where recvfrom would have left them."""
+    raw, _mask = WR.sockaddr(sender)
+    w.src[:] = 0
+    w.src[:len(raw)] = np.frombuffer(raw, np.uint8)
+    w.srclen[0] = len(raw)
+    w.rx[WR.NONCE:WR.NONCE + len(data)] = np.frombuffer(data, np.uint8)
+
+
+def _feed(w: WR.Wire, data: bytes, sender: tuple, step: int) -> tuple[str, tuple | None]:
+    """One datagram through the compiled classifier: its outcome (a reason, "accepted", or
+    "queued") and, for an accepted COMMAND of the episode, (step, action)."""
+    _put(w, data, sender)
+    before = {f: int(getattr(w.c, f)[0]) for f in WR.WireCounts._fields}
+    code = WR.classify(w, len(data), step)
+    moved = [f for f in WR.WireCounts._fields if int(getattr(w.c, f)[0]) != before[f] and f != "commands"
+             and f != "authentic"]
+    assert len(moved) == 1, moved  # one outcome per datagram
+    what = moved[0]
+    if what == "queued":
+        assert WR.queued(w) == [(data, sender)]  # the network thread gets it as it came
+    got = (int(w.st.cmd_step[0]), float(w.st.cmd_val[0])) if code == WR.COMMAND else None
+    return what, got
+
+
+def _command(seq: int, episode: int = EPISODE, step: int = 0, action: float = 0.25, session: int = SESSION,
+             key: bytes = KEY, nonce: int = NONCE) -> bytes:
+    return P.encode(P.Message(P.Command(episode, step, (action,)), session=session, seq=seq, host_ns=seq * 7),
+                    key, nonce)
+
+
+def test_the_compiled_classifier_gives_every_datagram_the_filters_reason():
+    """20 000 seeded datagrams from the host and a stranger (valid commands, replays, older
+    numbers, flipped bits, cuts, wrong session, another key, late steps, bad payloads, other
+    types): each host COMMAND gets the Python filter's reason, each other datagram is queued,
+    and an accepted command carries its step and action."""
+    r = random.Random(25)
+    w = _wire()
+    f = P.DatagramFilter("target", session=SESSION, key=KEY)
+    f.nonce, f.peer = NONCE, HOST
+    seq, step, sent = 0, 0, []
+    outcomes: dict[str, int] = {}
+    for i in range(20_000):
+        if i % 40 == 0:
+            step += 1
+        kind = r.randrange(11)
+        seq += 1
+        sender = HOST
+        if kind <= 2:  # valid, for this step or a later one
+            data = _command(seq, step=step + r.randint(0, 2), action=r.uniform(-1, 1))
+        elif kind == 3 and sent:  # a replay
+            data = r.choice(sent[-80:])
+        elif kind == 4:  # an older number never sent
+            data = _command((seq - 1 - r.randint(0, 100)) & P.U32, step=step)
+            seq -= 1
+        elif kind == 5:  # flipped bits
+            b = bytearray(_command(seq, step=step))
+            for bit in r.sample(range(8 * len(b)), r.randint(1, 3)):
+                b[bit // 8] ^= 1 << (bit % 8)
+            data = bytes(b)
+        elif kind == 6:  # cut or extended
+            base = _command(seq, step=step)
+            data = base[:r.randint(0, len(base) - 1)] if r.random() < 0.5 else base + bytes(r.randint(1, 9))
+        elif kind == 7:  # wrong session, another key, or a step already over
+            data = r.choice([_command(seq, session=SESSION ^ 1, step=step),
+                             _command(seq, key=b"x" * 32, step=step),
+                             _command(seq, step=max(0, step - r.randint(1, 3))),
+                             _command(seq, episode=EPISODE - 1, step=step)])
+        elif kind == 8:  # a payload the protocol refuses (no action), well tagged
+            head = P.HEADER.pack(P.MAGIC, 3, 0, 7, 0, SESSION, seq, 0, 0, 0, 10)
+            frame = head + struct.pack("<IIH", EPISODE, step, 0)
+            data = frame + P.tag(KEY, NONCE, frame)
+        elif kind == 9:  # other types from the host: the network thread's
+            data = P.encode(P.Message(r.choice([P.Heartbeat(2, EPISODE, step, 0), P.Disarm(0)]),
+                                      session=SESSION, seq=seq), KEY, NONCE)
+        else:  # a stranger's well-tagged command
+            data, sender = _command(seq, step=step), STRANGER
+        what, got = _feed(w, data, sender, step)
+        if what == "queued":
+            assert sender != HOST or len(data) < P.OVERHEAD or data[6] != P.MsgType.COMMAND \
+                or data[:4] != P.MAGIC or data[4] != 3
+        else:
+            msg = f.accept(data, EPISODE, step, sender)
+            want = "accepted" if msg is not None else f.last_reason
+            assert what == want, (i, kind, what, want, f.last_error)
+            if msg is not None:
+                sent.append(data)
+                if msg.body.episode == EPISODE:
+                    assert got == (msg.body.step, msg.body.action[0])
+                else:
+                    assert got is None
+        outcomes[what] = outcomes.get(what, 0) + 1
+    for reason in ("accepted", "corrupt", "unauthenticated", "wrong_session", "duplicate", "out_of_order",
+                   "late", "queued"):
+        assert outcomes.get(reason, 0) > 0, outcomes  # every outcome was exercised
+    assert int(w.c.accepted[0]) == f.counts()["accepted"]
+    print("wire fuzz:", outcomes)
+
+
+def test_a_full_queue_drops_and_counts():
+    """The network thread reads nothing: the first N_Q datagrams wait in the queue, the rest are
+    counted queue_full; once it has read them, the queue takes datagrams again."""
+    w = _wire()
+    junk = b"\x00" * 70
+    for _ in range(WR.N_Q + 5):
+        _put(w, junk, STRANGER)
+        WR.classify(w, len(junk), 0)
+    assert int(w.c.queued[0]) == WR.N_Q and int(w.c.queue_full[0]) == 5
+    got = WR.queued(w)
+    assert len(got) == WR.N_Q and got[0] == (junk, STRANGER)
+    assert _feed(w, junk, STRANGER, 0)[0] == "queued"
+
+
+def test_the_loops_observation_decodes_with_the_protocol_and_its_resend_is_a_new_number():
+    """send_observation through a real socket: the datagram decodes (tag under the key and the
+    session nonce) to the observation, telemetry and records given, numbered from the stream's
+    counter; a re-send carries the next number."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tx.bind(("127.0.0.1", 0))
+    try:
+        w = _wire(tx.fileno(), peer=rx.getsockname())
+        obs = np.array([0.5, -1.25, 3.0, 1e-3])
+        tel = np.array([12.0, 11.5, 2.0])
+        records = np.arange(5 * 12, dtype=np.float64).reshape(5, 12) * 0.5
+        WR.send_observation(w, 40, 10, 0x105, obs, tel, records, 1, 5)
+        WR.resend_observation(w)
+        rx.settimeout(2.0)
+        msgs = [P.decode(rx.recv(65536), KEY, NONCE) for _ in range(2)]
+    finally:
+        rx.close()
+        tx.close()
+    m = msgs[0]
+    assert m.type == P.MsgType.OBSERVATION and m.session == SESSION and m.seq == 100 and m.tick == 40
+    b = m.body
+    assert (b.episode, b.step, b.status, b.dtype) == (EPISODE, 10, 0x105, 4)
+    assert b.obs == tuple(float(np.float32(x)) for x in obs)
+    assert b.telemetry == tuple(tel) + tuple(records[1:5].ravel())
+    assert msgs[1].seq == 101 and msgs[1].body == b and int(w.c.obs_sent[0]) == 2
+
+
+def test_records_with_a_nan_are_left_out():
+    """A step whose true records hold a NaN (not known) is sent without them: the host marks it."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        w = _wire(tx.fileno(), peer=rx.getsockname())
+        records = np.zeros((4, 12))
+        records[2, 3] = np.nan
+        WR.send_observation(w, 4, 1, 0, np.zeros(2), np.ones(3), records, 0, 4)
+        rx.settimeout(2.0)
+        b = P.decode(rx.recv(65536), KEY, NONCE).body
+    finally:
+        rx.close()
+        tx.close()
+    assert b.telemetry == (1.0, 1.0, 1.0)
+
+
+@pytest.mark.parametrize("peer", [("127.0.0.1", 5600), ("::1", 5600, 0, 0)])
+def test_sockaddr_round_trip(peer):
+    raw, mask = WR.sockaddr(peer)
+    assert len(raw) == len(mask) and WR.address(np.frombuffer(raw, np.uint8), len(raw))[:2] == peer[:2]
