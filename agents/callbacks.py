@@ -88,7 +88,40 @@ class EvalLine(BaseCallback):
 class FinalEval(EvalCallback):
     """SB3's EvalCallback that also evaluates at the end of training when the last evaluation was
     not at the last step: every run, however short (below ``eval_freq`` too), ends with an
-    evaluation of its final model and a ``best_model.zip``."""
+    evaluation of its final model and a ``best_model.zip``.
+
+    It also keeps, for every evaluation, the wall time since training started (``wall_s``: the
+    evaluations' own time excluded, so that the figure is the training's) and the training
+    env's time so far (``env_s``, from a :class:`StepTimer` given as ``timer``): what the run's
+    ``model.json`` reports as the time until the model first beat a reference and until its best."""
+
+    def __init__(self, *args, timer: StepTimer | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.timer = timer
+        self.wall_s: list[float] = []
+        self.env_s: list[float] = []
+        self._t0: float | None = None
+        self._env0 = 0.0
+        self._eval_time = 0.0
+
+    def _init_callback(self) -> None:
+        super()._init_callback()
+        import time
+
+        self._t0 = time.perf_counter()
+        self._env0 = self.timer.seconds if self.timer is not None else 0.0
+
+    def _on_step(self) -> bool:
+        import time
+
+        n = len(self.evaluations_timesteps)
+        t = time.perf_counter()
+        ok = super()._on_step()
+        if len(self.evaluations_timesteps) > n:  # an evaluation ran in this call
+            self.wall_s.append(t - (self._t0 or t) - self._eval_time)
+            self.env_s.append(self.timer.seconds - self._env0 if self.timer is not None else float("nan"))
+            self._eval_time += time.perf_counter() - t
+        return ok
 
     def _on_training_end(self) -> None:
         self.evaluate_now()
@@ -102,6 +135,38 @@ class FinalEval(EvalCallback):
             self._on_step()
         finally:
             self.eval_freq = freq
+
+
+class StepTimer(VecEnvWrapper):
+    """Wall time spent inside the wrapped vector env (``reset`` and ``step``), in ``seconds``: the
+    env's share of a training run is ``seconds`` over the run's wall time."""
+
+    def __init__(self, venv):
+        super().__init__(venv)
+        self.seconds = 0.0
+
+    def reset(self):
+        import time
+
+        t = time.perf_counter()
+        obs = self.venv.reset()
+        self.seconds += time.perf_counter() - t
+        return obs
+
+    def step_async(self, actions) -> None:
+        import time
+
+        t = time.perf_counter()
+        self.venv.step_async(actions)
+        self.seconds += time.perf_counter() - t
+
+    def step_wait(self):
+        import time
+
+        t = time.perf_counter()
+        out = self.venv.step_wait()
+        self.seconds += time.perf_counter() - t
+        return out
 
 
 class FixedSeeds(VecEnvWrapper):

@@ -6,6 +6,7 @@
         [--hp learning_rate=1e-4 ...] [--tensorboard runs/tb] [--checkpoint-every 200000]
         [--eval-every 100000] [--eval-episodes 16] [--progress]
     python -m agents.train --resume runs/ppo0 [--steps 4000000] [--progress]
+    python -m agents.train --quick [--algo sac] [--seed 0]     # a first agent in about a minute
 
 Hyperparameters come from the RL-Zoo-style YAML file (default ``agents/hyperparams/ALGO.yml``,
 entry ``ImpactCatch-v0``; format in :mod:`agents.run_config`), which ``python -m rl_zoo3.train
@@ -28,11 +29,20 @@ by ``impact-env compare`` and :mod:`agents.evaluate`), ``run.json`` (the resolve
 replay buffer) every ``--checkpoint-every`` steps and on Ctrl-C (exit 130; ``--resume OUT``
 continues from it), and TensorBoard logs under ``--tensorboard DIR`` (``tensorboard --logdir DIR``).
 
+``--quick`` is the YAML's settings with a short budget (:data:`QUICK_STEPS`), an evaluation
+every :data:`QUICK_EVAL_EVERY` steps and the run folder ``runs/quick`` (or the first free
+``runs/quick-N``); like every run with a residual it ends by saying whether its best model beats
+the residual's law on the validation drops, with both figures.
+
 What a run says: the budget and its rounding (PPO learns whole rollouts, SAC whole vector steps)
 on stderr before training; SB3's progress bar in a terminal, one line per evaluation otherwise;
 an evaluation of the final model at the end of every run (so ``best_model.zip`` exists however
 short the budget) and, with a residual, whether the best model beats the residual's law alone on
-the same validation drops.  SAC's actor starts as PPO's (:func:`agents.policies.init_sac_actor`)
+the same validation drops, and after how much training time it first did.  ``model.json``
+keeps the wall time, the env's part of it (``env_time_s``, ``env_share``: time inside the vector
+env's reset and step) and every evaluation (``validation.history``: policy step, training wall
+time before it with the evaluations' own time left out, the env's part, validation return).
+SAC's actor starts as PPO's (:func:`agents.policies.init_sac_actor`)
 whenever ``log_std_init`` is given; ``--action-limit`` (or the YAML's ``vec_env_wrapper``
 :class:`~impact_env.env.sb3_vecenv.ActionLimit`) bounds the policy's action.
 
@@ -74,6 +84,11 @@ from impact_env.config import ConfigError
 OBSERVATIONS = ("sensors", "privileged", "both")
 EVAL_SEED = 900_000  # validation drops: eval_seed + j
 CHECKPOINT_EVERY = 100_000  # policy steps between checkpoints by default (--resume needs one)
+EVAL_EVERY = 100_000  # policy steps between evaluations by default
+# --quick: a budget of about a minute on a 2-core machine with the YAML's settings (docs/agents.md,
+# "A good agent in minutes": where each algorithm first beats pd-penetration on the validation drops)
+QUICK_STEPS = {"ppo": 1_000_000, "sac": 250_000}
+QUICK_EVAL_EVERY = {"ppo": 256_000, "sac": 50_000}
 TEST_SEED = 1000  # the README's held-out drops (compare --seed 1000)
 TEST_EPISODES = 100
 
@@ -94,12 +109,14 @@ class TrainResult:
     best: dict = field(default_factory=dict)
     interrupted: bool = False
     checkpoint: Path | None = None  # written on Ctrl-C: what --resume continues from
+    env_time_s: float = 0.0  # wall time inside the training env (reset and step)
 
     def summary(self) -> str:
         s = self.stats
         lines = [f"{self.algo}: {self.steps} policy steps ({self.ticks} control periods) in "
                  f"{self.wall_time_s:.1f} s ({self.steps_per_s:.0f} steps/s, "
-                 f"{self.ticks / max(self.wall_time_s, 1e-9):.0f} periods/s), "
+                 f"{self.ticks / max(self.wall_time_s, 1e-9):.0f} periods/s, the env "
+                 f"{100 * self.env_time_s / max(self.wall_time_s, 1e-9):.0f} % of it), "
                  f"{self.episodes} episodes finished"]
         if s.get("episodes_last"):
             lines.append(f"last {s['episodes_last']} episodes: return {s['return_mean']:.2f} "
@@ -109,13 +126,23 @@ class TrainResult:
         if s.get("return_first_mean") is not None:
             lines.append(f"first {s['episodes_first']} episodes: return {s['return_first_mean']:.2f}")
         if self.best:
-            line = f"best validation return {self.best['mean_reward']:.2f} at step {self.best['step']}"
-            if "residual_law_return" in self.best:
-                law = self.best["residual_law_return"]
-                verdict = "beats it" if self.best["mean_reward"] > law else "does NOT beat it"
-                line += (f"; {self.best['residual_law']} alone on the same validation drops: {law:.2f}: "
-                         f"the best model {verdict}")
-            lines.append(line)
+            b = self.best
+            lines.append(f"best validation return {b['mean_reward']:.2f} at step {b['step']}")
+            if "residual_law_return" in b:
+                law = b["residual_law_return"]
+                drops = b.get("drops") or [0, -1]
+                beats = b["mean_reward"] > law
+                gain = 100 * (1 - b["mean_reward"] / law)
+                verdict = (f"it beats {b['residual_law']} by {gain:.0f} %" if beats
+                           else f"it does NOT beat {b['residual_law']}")
+                line = (f"validation ({drops[1] - drops[0] + 1} drops, seeds {drops[0]}-{drops[1]}): energy "
+                        f"integral {-b['mean_reward']:.2f} ms (best model) against {b['residual_law']}'s "
+                        f"{-law:.2f} ms alone: {verdict}")
+                first = b.get("first_beats_law")
+                if first:
+                    line += (f" (first at step {first['step']:,} after {first['wall_s']:.0f} s of training, "
+                             f"evaluations excluded; the best after {b.get('wall_s') or 0:.0f} s)")
+                lines.append(line)
         if self.interrupted:
             lines.append(f"interrupted (Ctrl-C) at step {self.steps}: the model so far is saved, and "
                          f"checkpoint {self.checkpoint}; continue with python -m agents.train --resume "
@@ -256,6 +283,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
         FinalEval,
         FixedSeeds,
         SettingsBeside,
+        StepTimer,
     )
 
     if torch_threads is not None:
@@ -268,7 +296,8 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     (out / "run.json").write_text(json.dumps(state, indent=2) + "\n")
 
     raw = _vec_env(cfg, cfg.n_envs)
-    venv = VecMonitor(raw)
+    timer = StepTimer(raw)  # the env's share of the wall time
+    venv = VecMonitor(timer)
     cls = PPO if cfg.algo == "ppo" else SAC
     env_seed = cfg.seed + resumes * cfg.n_envs
     tb = tooling.tensorboard
@@ -282,8 +311,10 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             model.load_replay_buffer(str(buf))
     else:
         policy = cfg.policy
-        if policy != "MlpPolicy":
-            from agents.policies import AsymmetricActorCriticPolicy as policy
+        if policy != "MlpPolicy":  # agents.policies.Asymmetric*: the class itself
+            import agents.policies
+
+            policy = getattr(agents.policies, policy.rsplit(".", 1)[1])
         model = cls(policy, venv, seed=cfg.seed, device="cpu", policy_kwargs=cfg.policy_kwargs,
                     verbose=verbose, tensorboard_log=tb, **_algo_kwargs(cfg))
         if cfg.algo == "sac" and "log_std_init" in cfg.policy_kwargs:  # SB3 reads it only with gSDE
@@ -318,13 +349,14 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
                             eval_freq=max(tooling.eval_every // cfg.n_envs, 1), log_path=str(out / "eval"),
                             best_model_save_path=str(out), deterministic=True, verbose=verbose,
                             callback_on_new_best=SettingsBeside(out / "best_model.zip", settings),
-                            callback_after_eval=line)
+                            callback_after_eval=line, timer=timer)
         _restore_evaluations(eval_cb, out / "eval" / "evaluations.npz")
         callbacks.append(eval_cb)
     if tooling.checkpoint_every is not None:
         every = max(tooling.checkpoint_every // cfg.n_envs, 1)
         callbacks.append(CheckpointWithSettings(settings, save_freq=every, save_path=str(out / "checkpoints"),
                                                 name_prefix="model", save_replay_buffer=cfg.algo == "sac"))
+    load0 = _load_average()
     t0 = time.perf_counter()
     interrupted = False
     try:
@@ -337,6 +369,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             bar.pbar.close()
         sys.stderr.write(f"agents.train: interrupted at step {int(model.num_timesteps)} of {total}\n")
     wall = time.perf_counter() - t0
+    load = [load0, _load_average()]  # the machine's 1-minute load average at the start and the end
     done_steps = int(model.num_timesteps)
     ticks = (done_steps - start_step) * cfg.hold_ticks  # every policy step is hold_ticks ticks
     model.save(out / "model.zip")
@@ -360,22 +393,32 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     seg_steps = done_steps - start_step
     train_stats = stats.stats(step_time)
     best = _best(out / "eval" / "evaluations.npz")
+    history = _history(eval_cb)
     if best and cfg.residual is not None and not interrupted:
         # the residual's own law on the same validation drops (action 0 is the law): the run says
-        # whether its best model beats it
+        # whether its best model beats it, and when it first did
         best["residual_law"] = cfg.residual
         best["residual_law_return"] = _law_return(cfg, tooling)
+        first = next((h for h in history if h["return"] > best["residual_law_return"]), None)
+        best["first_beats_law"] = first
+    if best:
+        best["drops"] = [tooling.eval_seed, tooling.eval_seed + tooling.eval_episodes - 1]
+    if history:
+        at_best = [h for h in history if h["step"] == best.get("step")]
+        best["wall_s"] = at_best[-1]["wall_s"] if at_best else None
     meta = {"algo": cfg.algo, "observation": cfg.observation, "history": cfg.history, "scene": cfg.scene,
             "overrides": dict(cfg.overrides), "env_kwargs": dict(cfg.env_kwargs),
             "hold_ticks": cfg.hold_ticks, "residual": cfg.residual, "steps": done_steps, "ticks": ticks_total,
             "envs": cfg.n_envs, "seed": cfg.seed, "wall_time_s": round(wall_total, 2),
             "steps_per_s": round(seg_steps / wall, 1), "ticks_per_s": round(ticks / wall, 1),
+            "env_time_s": round(timer.seconds, 4), "env_share": round(timer.seconds / max(wall, 1e-9), 4),
+            "torch_threads": torch_threads, "load_average": load,
             "control_period_s": period, "policy_period_s": step_time,
             "hyperparameters": {**cfg.hyperparameters, **cfg.policy_kwargs}, "conf_file": cfg.conf_file,
             "policy": cfg.policy,
             "episodes": len(stats.returns), "train_stats_last_episodes": train_stats,
             "validation": {"seeds": [tooling.eval_seed, tooling.eval_seed + tooling.eval_episodes - 1],
-                           "best": best} if eval_cb is not None else None,
+                           "best": best, "history": history} if eval_cb is not None else None,
             "segments": state["segments"], "versions": _versions(), "interrupted": interrupted}
     meta_path = out / "model.json"
     meta_path.write_text(json.dumps(meta, indent=2, default=str) + "\n")
@@ -384,7 +427,18 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
                                                         default=str) + "\n")
     return TrainResult(out / "model.zip", meta_path, cfg.algo, done_steps, wall, seg_steps / max(wall, 1e-9),
                        len(stats.returns), train_stats, ticks=ticks, best=best, interrupted=interrupted,
-                       checkpoint=checkpoint)
+                       checkpoint=checkpoint, env_time_s=timer.seconds)
+
+
+def _load_average() -> float | None:
+    """The 1-minute load average (None where the OS has none): wall times on a shared machine are
+    read with it."""
+    import os
+
+    try:
+        return round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):
+        return None
 
 
 def _save_checkpoint(model, out: Path, settings: dict, replay_buffer: bool) -> Path:
@@ -423,6 +477,19 @@ def _restore_evaluations(cb, path: Path) -> None:
     cb.evaluations_length = [list(r) for r in d["ep_lengths"]]
     if len(d["results"]):
         cb.best_mean_reward = float(np.max(np.mean(d["results"], axis=1)))
+
+
+def _history(eval_cb) -> list[dict]:
+    """Every evaluation of this segment: policy step, training wall time before it (the
+    evaluations' own time excluded), the env's part of it, and the validation return."""
+    if eval_cb is None:
+        return []
+    k = len(eval_cb.wall_s)
+    steps = eval_cb.evaluations_timesteps[-k:] if k else []
+    results = eval_cb.evaluations_results[-k:] if k else []
+    return [{"step": int(st), "wall_s": round(w, 3), "env_s": round(e, 3),
+             "return": round(float(sum(r) / len(r)), 4)}
+            for st, w, e, r in zip(steps, eval_cb.wall_s, eval_cb.env_s, results, strict=True)]
 
 
 def _law_return(cfg: RunConfig, tooling: Tooling) -> float:
@@ -541,7 +608,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="Hyperparameters: agents/hyperparams/*.yml (RL Zoo format).")
-    p.add_argument("--algo", choices=ALGOS, help="ppo or sac (required unless --resume)")
+    p.add_argument("--algo", choices=ALGOS, help="ppo or sac (required unless --resume or --quick)")
+    p.add_argument("--quick", action="store_true",
+                   help="a first agent in about a minute: the YAML's settings with a budget of "
+                        f"{QUICK_STEPS['ppo']:,} policy steps for PPO ({QUICK_STEPS['sac']:,} for SAC), "
+                        f"evaluated every {QUICK_EVAL_EVERY['ppo']:,} (SAC {QUICK_EVAL_EVERY['sac']:,}); "
+                        "--algo defaults to ppo and --out to the first free runs/quick[-N]; at the end "
+                        "the run says whether it beats pd-penetration on the validation drops")
     p.add_argument("--conf-file", default=None, metavar="YML",
                    help="RL-Zoo-style hyperparameters (default agents/hyperparams/ALGO.yml)")
     p.add_argument("--env", default=ENV_ID, help=f"entry of the YAML file (default {ENV_ID})")
@@ -552,8 +625,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--envs", type=int, default=None, help="rigs stepped together (default: n_envs)")
     p.add_argument("--seed", type=int, default=0, help="model seed; env i starts from seed + i (default 0)")
     p.add_argument("--out", metavar="DIR", help="run folder (required unless --resume)")
-    p.add_argument("--policy", default=None, help="MlpPolicy or agents.policies.AsymmetricActorCriticPolicy "
-                   "(ppo, observation both: the actor reads the sensors, the critic the true state too)")
+    p.add_argument("--policy", default=None,
+                   help="MlpPolicy, or with --observation both the asymmetric actor-critic: "
+                        "agents.policies.AsymmetricActorCriticPolicy (ppo) or "
+                        "agents.policies.AsymmetricSACPolicy (sac): the actor reads the sensors, the critic "
+                        "the true state too")
     p.add_argument("--observation", choices=OBSERVATIONS, default=None, help="default: the YAML's (sensors)")
     p.add_argument("--history", type=int, default=None, help="frames stacked in the observation")
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: the scene's)")
@@ -569,8 +645,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=int, default=CHECKPOINT_EVERY, metavar="N",
                    help=f"save a checkpoint (and its settings file) every N policy steps, what --resume "
                         f"continues from (default {CHECKPOINT_EVERY}; 0: never)")
-    p.add_argument("--eval-every", type=int, default=100_000, metavar="N",
-                   help="evaluate on the validation drops every N policy steps, keep the best (0: never)")
+    p.add_argument("--eval-every", type=int, default=None, metavar="N",
+                   help="evaluate on the validation drops every N policy steps, keep the best (0: never; "
+                        "default 100000, with --quick the quick budget's)")
     p.add_argument("--eval-episodes", type=int, default=16, help="validation drops (default 16)")
     p.add_argument("--eval-seed", type=int, default=EVAL_SEED,
                    help=f"first validation seed (default {EVAL_SEED})")
@@ -610,8 +687,17 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
                 raise ConfigError(f"--steps {args.steps} must be >= 1")
             cfg.n_timesteps = args.steps
         return cfg, out, Tooling(**state["tooling"]), True
+    if args.quick:
+        args.algo = args.algo or "ppo"
+        args.out = args.out or str(_free_folder(Path("runs") / "quick"))
+        if args.steps is None:
+            args.steps = QUICK_STEPS[args.algo]
+        if args.eval_every is None:
+            args.eval_every = QUICK_EVAL_EVERY[args.algo]
     if args.algo is None or args.out is None:
-        raise ConfigError("--algo and --out are required (or --resume DIR)")
+        raise ConfigError("--algo and --out are required (or --resume DIR, or --quick)")
+    if args.eval_every is None:
+        args.eval_every = EVAL_EVERY
     env_kwargs = _pairs(args.env_kwargs, "--env-kwargs")
     if args.horizon is not None:
         if not (args.horizon > 0 and math.isfinite(args.horizon)):
@@ -626,6 +712,15 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
                       eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
                       eval_seed=args.eval_seed)
     return cfg, Path(args.out), tooling, False
+
+
+def _free_folder(base: Path) -> Path:
+    """``base`` if it holds no run, else the first ``base-N`` (N = 1, 2, ...) that holds none."""
+    k, path = 0, base
+    while path.exists() and any((path / name).exists() for name in ("run.json", "model.zip", "checkpoints")):
+        k += 1
+        path = base.with_name(f"{base.name}-{k}")
+    return path
 
 
 def steps_per_collection(cfg: RunConfig) -> int:
@@ -677,6 +772,8 @@ def main(argv: list[str] | None = None) -> int:
               "pip install 'impact-env[sb3]' (README: install torch's CPU build first)", file=sys.stderr)
         return 2
     try:
+        if args.quick and args.resume is not None:
+            raise ConfigError("--quick starts a new run; drop it with --resume")
         cfg, out, tooling, resume = _from_args(args)
         progress = sys.stderr.isatty() if args.progress is None else args.progress
         result = run(cfg, out, tooling, progress=progress, torch_threads=args.torch_threads,

@@ -285,7 +285,16 @@ def test_a_short_run_says_its_budget_and_ends_with_an_evaluation_and_a_checkpoin
     # the run says whether its best model beats the residual's law alone on the same drops
     best = json.loads((out / "model.json").read_text())["validation"]["best"]
     assert best["residual_law"] == "pd-penetration" and best["residual_law_return"] < 0
-    assert f"pd-penetration alone on the same validation drops: {best['residual_law_return']:.2f}" in out_text
+    assert (f"energy integral {-best['mean_reward']:.2f} ms (best model) against pd-penetration's "
+            f"{-best['residual_law_return']:.2f} ms alone: it ") in out_text
+    # the env's share of the wall time and every evaluation's training time are kept
+    meta = json.loads((out / "model.json").read_text())
+    assert 0 < meta["env_time_s"] <= meta["wall_time_s"] and 0 < meta["env_share"] <= 1
+    hist = meta["validation"]["history"]
+    assert [h["step"] for h in hist] == [planned]
+    assert hist[0]["return"] == pytest.approx(best["mean_reward"], abs=1e-4)
+    assert 0 <= hist[0]["env_s"] <= hist[0]["wall_s"] <= meta["wall_time_s"] + 0.01  # rounded to 10 ms
+    assert best["drops"] == [900000, 900001] and "the env" in out_text
 
 
 @pytest.mark.training
@@ -335,3 +344,22 @@ def test_the_action_limit_is_the_models_bound_in_predict_and_the_export(tmp_path
     assert np.all(np.abs(a) <= 0.25)
     pol = export_policy(f"sac:{out / 'model.zip'}", "rig")
     assert (pol.mlp["low"], pol.mlp["high"]) == (-0.25, 0.25)
+
+
+def test_quick_defaults_to_ppo_a_short_budget_and_a_free_folder(tmp_path, monkeypatch):
+    """--quick: PPO, the quick budget and evaluation interval, runs/quick or the first free
+    runs/quick-N; what is given explicitly wins; it does not go with --resume."""
+    from agents.train import QUICK_EVAL_EVERY, QUICK_STEPS, _from_args, build_parser
+
+    monkeypatch.chdir(tmp_path)
+    cfg, out, tooling, resume = _from_args(build_parser().parse_args(["--quick"]))
+    assert (cfg.algo, cfg.n_timesteps, tooling.eval_every, out, resume) == \
+        ("ppo", QUICK_STEPS["ppo"], QUICK_EVAL_EVERY["ppo"], Path("runs/quick"), False)
+    (tmp_path / "runs" / "quick").mkdir(parents=True)
+    (tmp_path / "runs" / "quick" / "run.json").write_text("{}")
+    cfg, out, tooling, _ = _from_args(build_parser().parse_args(["--quick", "--algo", "sac", "--steps", "500",
+                                                                 "--eval-every", "100"]))
+    assert (cfg.algo, cfg.n_timesteps, tooling.eval_every, out) == ("sac", 500, 100, Path("runs/quick-1"))
+    _, _, tooling, _ = _from_args(build_parser().parse_args(["--algo", "ppo", "--out", "x"]))
+    assert tooling.eval_every == 100_000
+    assert main(["--quick", "--resume", str(tmp_path / "runs" / "quick")]) == 2
