@@ -32,10 +32,13 @@ def add_parser(sub, scene_args) -> None:
                         "(default 1 ms)")
     s.add_argument("--command-wait", type=float, default=None, metavar="MS",
                    help="real-time host mode: a tick whose step's command has not come waits this long for it "
-                        "before acting (default 0.7 of the control period: 0.07 ms at 10 kHz; 0: never)")
+                        "before acting (default 0.8 of the control period: 0.08 ms at 10 kHz; 0: never)")
     s.add_argument("--loop-cpu", type=int, default=None, metavar="N",
                    help="the CPU the real-time loop is pinned to, the target's Python threads going to the "
                         "others (default: the last CPU, with two or more; -1: no pinning)")
+    s.add_argument("--loop-fifo", type=int, default=0, metavar="PRIO",
+                   help="run the loop's thread under SCHED_FIFO at this priority (1-99; needs root or "
+                        "CAP_SYS_NICE): no other thread preempts it; it then sleeps until 50 us before each tick")
     s.add_argument("--loop-nice", type=int, default=0, metavar="N",
                    help="the loop thread's nice value, e.g. -10 (needs root or CAP_SYS_NICE; default 0)")
     s.add_argument("--max-horizon", type=float, default=60.0, metavar="S",
@@ -124,10 +127,11 @@ def cmd_serve(args) -> int:
                                      seed_offset=args.seed, key=key, session_timeout_s=args.session_timeout,
                                      max_gap_s=args.max_gap / 1e3, max_horizon_s=args.max_horizon,
                                      command_wait_s=None if args.command_wait is None else args.command_wait / 1e3,
-                                     loop_cpu=args.loop_cpu, loop_nice=args.loop_nice))
+                                     loop_cpu=args.loop_cpu, loop_nice=args.loop_nice,
+                                     loop_fifo=args.loop_fifo))
     except ValueError as exc:
         driver.shutdown()
-        option = any(name in str(exc) for name in ("command_wait_s", "loop_cpu", "loop_nice", "max_gap_s",
+        option = any(name in str(exc) for name in ("command_wait_s", "loop_cpu", "loop_nice", "loop_fifo", "max_gap_s",
                                                       "max_horizon_s", "log_flush_s"))
         raise ConfigError(str(exc) if option or args.virtual else f"--driver {args.driver}: {exc}") from None
     target.install_signal_handlers()

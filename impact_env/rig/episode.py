@@ -316,7 +316,7 @@ class Episode:
         max_gap = int(round(tg.cfg.max_gap_s * tg.rate))
         wait = tg.command_wait_s * 1e9 / nspc if self.host and not self.lockstep else 0.0
         tm = RL.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap, wait,
-                       tg.cfg.resend_s * 1e9 / nspc)
+                       tg.cfg.resend_s * 1e9 / nspc, tg.placement.sleep_margin_s * 1e9 / nspc)
         result: list = []
 
         def loop():

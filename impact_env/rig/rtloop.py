@@ -110,6 +110,9 @@ class Timing(NamedTuple):
     command_wait: float = 0.0
     # lock-step host mode: the OBSERVATION is sent again after this long without the command; cycles
     resend: float = 0.0
+    # real time: sleep (clock_nanosleep) until this long before each deadline, then spin (0: spin
+    # only); for a thread of a real-time policy, which may not spin for ever; cycles
+    sleep_margin: float = 0.0
 
 
 # -- the driver's operations, one implementation per kind ---------------------------------------------
@@ -364,6 +367,7 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
     # tick 0 is due one period after the loop starts (plus ``tm.t0``, an offset in cycles for
     # tests): the set-up before it (threads, the log file) must not make the episode start late
     t0c = float(cycles()) + cpt + tm.t0
+    c_ref, n_ref = float(cycles()), float(WR.now_ns(w))  # the cycle counter against CLOCK_MONOTONIC
     sh, cs, cc = hl.shared, hl.cs, hl.cc
     status_or = 0
     end = END_NONE
@@ -379,6 +383,9 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
         if realtime:
             dl = t0c + m * cpt
             now = float(cycles())
+            if tm.sleep_margin > 0.0 and dl - now > tm.sleep_margin:
+                WR.sleep_until_ns(w, np.int64(n_ref + (dl - tm.sleep_margin - c_ref) * nspc))
+                now = float(cycles())
             while now < dl:
                 if host and dl - now > margin:  # the host's datagrams, as they come
                     _poll(w, hl, m // hold)

@@ -59,6 +59,10 @@ from impact_env.rig.safety import SafetyConfig
 from impact_env.rig.transport import Endpoint, Link, UploadAssembler, chunk_reply
 
 N_TELEMETRY = len(P.TELEMETRY_FIELDS)
+# real-time host mode's default wait for a step's command, in control periods: the host's round
+# trip (about 50 us for ImpactCatchRig-v0 on a 2-core VM, scripts/bench_rig.py) must fit in it,
+# and the tick's own work after it (act, safety, apply, the log row: 3-6 us at p99) in the rest
+COMMAND_WAIT = 0.8
 
 
 @dataclass
@@ -93,8 +97,8 @@ class TargetConfig:
     # the log streamed to disk during the episode is flushed this often (s)
     log_flush_s: float = 0.05
     # real-time host mode: a tick whose step's command has not arrived waits for it this long
-    # after its deadline before it acts (s; None: 0.7 of the control period, leaving the tick's own
-    # work the rest).  A host that answers an OBSERVATION within it acts in the step it was asked
+    # after its deadline before it acts (s; None: COMMAND_WAIT of the control period, leaving the
+    # tick's own work the rest).  A host that answers an OBSERVATION within it acts in the step it was asked
     # for, 1 tick at hold 1 included; the force then changes that late in the tick (as a DAC
     # written then): the round trip is the host's sensor-to-actuator delay
     command_wait_s: float | None = None
@@ -102,6 +106,7 @@ class TargetConfig:
     # pinned) and its thread's nice value (0: unchanged): impact_env.rig.placement
     loop_cpu: int | None = None
     loop_nice: int = 0
+    loop_fifo: int = 0  # SCHED_FIFO priority of the loop's thread (0: none; placement.py)
 
     def __post_init__(self):
         from impact_env.config import check_range
@@ -139,11 +144,11 @@ class Target:
         self.rate = float(self.scene.control_rate)
         wait = self.cfg.command_wait_s
         #: real-time host mode's wait for a step's command (s): TargetConfig.command_wait_s
-        self.command_wait_s = 0.7 / self.rate if wait is None else float(wait)
+        self.command_wait_s = COMMAND_WAIT / self.rate if wait is None else float(wait)
         if self.command_wait_s * self.rate > 0.9:
             raise ValueError(f"command_wait_s = {self.command_wait_s:g} s is more than 0.9 of the control "
                              f"period ({1 / self.rate:g} s): the tick's own work needs the rest")
-        self.placement = Placement(self.cfg.loop_cpu, self.cfg.loop_nice)
+        self.placement = Placement(self.cfg.loop_cpu, self.cfg.loop_nice, self.cfg.loop_fifo)
         self.endpoint = Endpoint(bind)
         self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
         self.link.on_unauthenticated = self._unauthenticated
@@ -213,7 +218,7 @@ class Target:
             io = RL.VirtualIO(hw.params, hw.state, CT.truth_columns(ctl.log), CT.DropConstants(0.0, 0.0, 0.0),
                               np.zeros((4, N_REC)), ctl.log.col("true_t_s"))
             m1 = 1
-        tm = RL.Timing(False, False, 0.0, 1.0, 1.0, 10, 0.0, 0.0)
+        tm = RL.Timing(False, False, 0.0, 1.0, 1.0, 10, 0.0, 0.0, 0.0)
         from impact_env.rig import wire as WR
 
         for onboard in (True, False):
