@@ -142,8 +142,12 @@ def host_realtime(env: RigEnv, log_dir: Path, hold: int, episodes: int, seed0: i
     return tot
 
 
+lost_total = [0]
+
+
 def _row(hold: int, what: str, h: dict) -> str:
     lost = h["sent"] - h["accounted"]
+    lost_total[0] += lost
     share = 100.0 * h["own_step"] / max(1, h["sent"])
     lp, wp = h["lateness"], h["wall"]
     return (f"| {hold} | {what} | {h['sent']} | {h['own_step']} ({share:.1f} %) | {h['unanswered']} | {lost} | "
@@ -266,6 +270,9 @@ def main() -> int:
         print("\n" + "\n".join(line for line in text.splitlines() if "since start" in line))
         counts = _since_start(text)
         if counts:
+            print(f"\ncommands in no episode's counters (the rows' 'lost'): {lost_total[0]}; the target's "
+                  f"commands_after_end (commands that came after their episode had ended, counted there): "
+                  f"{counts.get('commands_after_end', 0)}")
             read = counts.get("datagrams_received", 0)
             print(f"\nthe target's accounts since start: {read} datagrams read = "
                   f"{counts.get('datagrams_accepted', 0)} accepted + "
