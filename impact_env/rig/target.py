@@ -63,6 +63,7 @@ N_TELEMETRY = len(P.TELEMETRY_FIELDS)
 # trip (about 50 us for ImpactCatchRig-v0 on a 2-core VM, scripts/bench_rig.py) must fit in it,
 # and the tick's own work after it (act, safety, apply, the log row: 3-6 us at p99) in the rest
 COMMAND_WAIT = 0.8
+RCVBUF = 4 << 20  # bytes asked for the target's socket's receive buffer
 
 
 @dataclass
@@ -149,7 +150,9 @@ class Target:
             raise ValueError(f"command_wait_s = {self.command_wait_s:g} s is more than 0.9 of the control "
                              f"period ({1 / self.rate:g} s): the tick's own work needs the rest")
         self.placement = Placement(self.cfg.loop_cpu, self.cfg.loop_nice, self.cfg.loop_fifo)
-        self.endpoint = Endpoint(bind)
+        # a receive buffer for a flood to fill while the loop cannot read (the kernel caps it at
+        # net.core.rmem_max, 4 MB here): a stall of the machine then drops junk, not the host's commands
+        self.endpoint = Endpoint(bind, rcvbuf=RCVBUF)
         self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
         self.link.on_unauthenticated = self._unauthenticated
         self.link.on_handshake = self.handshake
