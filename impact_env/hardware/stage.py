@@ -45,9 +45,9 @@ from impact_env.effects.delay import ACTUATOR_DELAY, SENSOR_DELAY, delay_packed
 from impact_env.effects.saturation import saturate
 from impact_env.effects.sensors import read_packed, sense_packed
 from impact_env.effects.shaker import shaker_packed
-from impact_env.plant.dynamics import contact_force
+from impact_env.plant.dynamics import coefs, contact_force
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
-from impact_env.plant.layout import C2, K2, M2, X1, X2, B, C
+from impact_env.plant.layout import X1, X2
 
 # flag bits (the hardware's effects, as each declares itself: impact_env.effects.registry)
 F_ACT_DELAY = ACTUATOR_DELAY.flag
@@ -208,8 +208,9 @@ def hardware_tick(i, u, p, s):
     inf[INFO_STATUS] = status
     # the true contact force and body 2's acceleration at the end of the period, by the same
     # expressions as plant.dynamics.deriv (one contact-force evaluation, not two)
-    phi, _fe = contact_force(y[0] - y[2], y[1] - y[3], mode, pp[C], pp[B])
-    a2 = (phi - f - pp[K2] * y[2] - pp[C2] * y[3]) * (1.0 / pp[M2])
+    pc = coefs(pp)
+    phi, _fe = contact_force(y[0] - y[2], y[1] - y[3], mode, pc.c, pc.b)
+    a2 = (phi - f - pc.k2 * y[2] - pc.c2 * y[3]) * pc.im2
     inf[INFO_CONTACT_FORCE] = phi
     inf[INFO_A2] = a2
     r = s.out.raw[i]
