@@ -29,6 +29,7 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError, check_range, doc_field
+from impact_env.effects.effect import CONTROLLER, Effect
 
 PREV_S, LATCH = 0, 1
 N_STATE = 2
@@ -182,7 +183,5 @@ def block_sizes() -> tuple[int, int]:
     return 5, N_STATE
 
 
-from impact_env.effects.effect import CONTROLLER, Effect  # noqa: E402
-
-EFFECT = Effect("detector", CONTROLLER, "detector", flag=2, readings_only=True, params=True, state=True,
-                step=detect)
+EFFECT = Effect("detector", CONTROLLER, "detector", DetectorConfig,
+                "contact from the sensors (thesis eq 4.4)", readings_only=True)

@@ -32,6 +32,7 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError, check_range, doc_field
+from impact_env.effects.effect import HARDWARE, Effect
 
 MS, PREV = 0, 1
 N_STATE = 2
@@ -135,7 +136,9 @@ def block_sizes() -> tuple[int, int]:
     return 4, N_STATE
 
 
-from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+def _pack(cfg: SaturationConfig, rate: float, on: bool) -> tuple[np.ndarray, int]:
+    return saturation_params(cfg, rate), block_sizes()[1]
 
-EFFECT = Effect("saturation", HARDWARE, "saturation", flag=4, readings_only=False, params=True, state=True,
-                step=saturate)
+
+EFFECT = Effect("saturation", HARDWARE, "saturation", SaturationConfig, "the amplifier's peak limit, RMS "
+                "(thermal) budget and slew rate", readings_only=False, pack=_pack)

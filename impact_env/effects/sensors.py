@@ -55,6 +55,7 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError, check_choice, check_range, doc_field
+from impact_env.effects.effect import HARDWARE, Effect
 
 CHANNELS = ("accelerometer", "force", "potentiometer", "body1_displacement")
 UNITS = ("m/s^2", "N", "m", "m")
@@ -315,7 +316,10 @@ def sense_packed(truth, z, p, out):
     return sense(truth, z, p[1:].reshape((N_CHANNELS, N_PARAM)), out)
 
 
-from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+def _pack(cfg: SensorsConfig, rate: float, on: bool) -> tuple[np.ndarray, int]:
+    """Packed even when off: the true readings need the force transducer's top mass."""
+    return pack_params(cfg, cfg.force.top_mass), block_sizes()[1]
 
-EFFECT = Effect("sensors", HARDWARE, "sensors", flag=8, readings_only=True, params=True, state=False,
-                step=sense_packed)
+
+EFFECT = Effect("sensors", HARDWARE, "sensors", SensorsConfig, "gain, offset, noise, ADC quantisation and "
+                "clipping of each channel", readings_only=True, pack=_pack)

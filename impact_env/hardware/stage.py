@@ -38,10 +38,7 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.effects import registry
-from impact_env.effects import saturation as _SA
-from impact_env.effects import sensors as _SE
-from impact_env.effects import shaker as _SH
-from impact_env.effects.delay import ACTUATOR_DELAY, SENSOR_DELAY, delay_packed
+from impact_env.effects.delay import delay_packed
 from impact_env.effects.saturation import saturate
 from impact_env.effects.sensors import read_packed, sense_packed
 from impact_env.effects.shaker import shaker_packed
@@ -49,29 +46,28 @@ from impact_env.plant.dynamics import coefs, contact_force
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
 from impact_env.plant.layout import X1, X2
 
-# flag bits (the hardware's effects, as each declares itself: impact_env.effects.registry)
-F_ACT_DELAY = ACTUATOR_DELAY.flag
-F_SHAKER = _SH.EFFECT.flag
-F_SATURATION = _SA.EFFECT.flag
-F_SENSORS = _SE.EFFECT.flag
-F_SENS_DELAY = SENSOR_DELAY.flag
-F_BACK_EMF = 32  # the shaker's back-EMF input (effects.shaker.back_emf), with F_SHAKER
-assert not F_BACK_EMF & registry.flags(registry.HARDWARE, registry.NAMES)
+# flag bits (the hardware's effects, as the registry orders them: impact_env.effects.registry)
+F_ACT_DELAY = registry.flag("actuator_delay")
+F_SHAKER = registry.flag("shaker")
+F_SATURATION = registry.flag("saturation")
+F_SENSORS = registry.flag("sensors")
+F_SENS_DELAY = registry.flag("sensor_delay")
+F_BACK_EMF = registry.option_flag("shaker", "back_emf")  # the shaker's back-EMF input, with F_SHAKER
 
-# packed blocks, in signal order (the registry's hardware effects that have them; sizes from the
-# effect modules); a block is found by its name
-PARAM_BLOCKS = ("drive",) + tuple(e.name for e in registry.side(registry.HARDWARE) if e.params)
-STATE_BLOCKS = tuple(e.name for e in registry.side(registry.HARDWARE) if e.state)
+# packed blocks: the stage's own drive block, then every hardware effect's, in registry order
+# (sizes from each effect's packer, impact_env.hardware.batch); a block is found by its name
+PARAM_BLOCKS = ("drive",) + tuple(e.name for e in registry.side(registry.HARDWARE))
+STATE_BLOCKS = tuple(e.name for e in registry.side(registry.HARDWARE))
 PB_DRIVE = PARAM_BLOCKS.index("drive")
-PB_ACT_DELAY = PARAM_BLOCKS.index(ACTUATOR_DELAY.name)
-PB_SHAKER = PARAM_BLOCKS.index(_SH.EFFECT.name)
-PB_SATURATION = PARAM_BLOCKS.index(_SA.EFFECT.name)
-PB_SENSORS = PARAM_BLOCKS.index(_SE.EFFECT.name)
-PB_SENS_DELAY = PARAM_BLOCKS.index(SENSOR_DELAY.name)
-SB_ACT_DELAY = STATE_BLOCKS.index(ACTUATOR_DELAY.name)
-SB_SHAKER = STATE_BLOCKS.index(_SH.EFFECT.name)
-SB_SATURATION = STATE_BLOCKS.index(_SA.EFFECT.name)
-SB_SENS_DELAY = STATE_BLOCKS.index(SENSOR_DELAY.name)
+PB_ACT_DELAY = PARAM_BLOCKS.index("actuator_delay")
+PB_SHAKER = PARAM_BLOCKS.index("shaker")
+PB_SATURATION = PARAM_BLOCKS.index("saturation")
+PB_SENSORS = PARAM_BLOCKS.index("sensors")
+PB_SENS_DELAY = PARAM_BLOCKS.index("sensor_delay")
+SB_ACT_DELAY = STATE_BLOCKS.index("actuator_delay")
+SB_SHAKER = STATE_BLOCKS.index("shaker")
+SB_SATURATION = STATE_BLOCKS.index("saturation")
+SB_SENS_DELAY = STATE_BLOCKS.index("sensor_delay")
 
 # columns of the per-env info array
 INFO_F_DEMAND = 0  # N, demanded force (command * command scale)

@@ -133,6 +133,11 @@ class RandomizeConfig:
     def dist(name: str) -> str:
         return _FIELDS[name].metadata["dist"]
 
+    @staticmethod
+    def target(name: str) -> str:
+        """The dotted scene field that the range ``name`` varies."""
+        return _FIELDS[name].metadata["target"]
+
     # -- drawing ----------------------------------------------------------------------------
     def values_at(self, u: np.ndarray | float, rate: float) -> dict[str, float]:
         """The values of the ranged fields at quantiles ``u`` (one per ranged field, or one
