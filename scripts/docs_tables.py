@@ -4,7 +4,8 @@ Each table sits in a doc between ``<!-- NAME:start -->`` and ``<!-- NAME:end -->
 by a function of the registry that owns the list (the tests check that each doc holds what its
 function writes):
 
-* ``effects-table`` in docs/scenes.md: :func:`impact_env.effects.registry.markdown_table`.
+* ``effects-table`` in docs/scenes.md: :func:`impact_env.effects.registry.markdown_table`;
+* ``laws-table`` in docs/baselines.md: :func:`impact_env.control.laws.markdown_table`.
 
     python scripts/docs_tables.py            # rewrite the tables
     python scripts/docs_tables.py --check    # fail if a doc's table is stale
@@ -17,11 +18,13 @@ import re
 import sys
 from pathlib import Path
 
+from impact_env.control import laws
 from impact_env.effects import registry as effects
 
 ROOT = Path(__file__).resolve().parents[1]
 TABLES = {  # marker name: (doc, the function that writes the table)
     "effects-table": (ROOT / "docs" / "scenes.md", effects.markdown_table),
+    "laws-table": (ROOT / "docs" / "baselines.md", laws.markdown_table),
 }
 
 

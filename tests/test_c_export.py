@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from impact_env.config import ConfigError
+from impact_env.control import laws as LW
 from impact_env.deploy import parity as PA
 from impact_env.deploy.c_export import generate_c, write_c
 from impact_env.policy.export import export_policy
@@ -25,6 +26,8 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parent.parent
 AGENT = f"compiled:{ROOT / 'agents/models/best/best.policy.json'}"
 TICKS = 2500  # 0.25 s at 10 kHz: the drop, the first contacts and the catch of most drops
+C_LAWS = [law.name for law in LW.REGISTRY if law.c_body is not None]  # every law that exports to C
+ACTING_C_LAWS = [name for name in C_LAWS if LW.BY_NAME[name].required()]  # ... and reads something
 # float32 build (docs/rig.md, "Deploying to real-time hardware"): on ticks where both builds
 # make the same discrete decisions (status bits and the contact detector), |command difference|
 # <= F32_BOUND of full scale; the ticks where they decide differently (an RMS clamp or a detector
@@ -55,8 +58,8 @@ def _build(pol, scene, tmp_path, float32=False):
 
 
 @pytest.mark.parametrize("scene_name,seed", [("rig", 0), ("rig-randomized", 7)])
-@pytest.mark.parametrize("spec", ["passive", "pd-penetration", "thesis-rig", "thesis-rig:h01=3e6,h11=25",
-                                  "pd-penetration:kp=3e5", AGENT, "sac"])
+@pytest.mark.parametrize("spec", [*C_LAWS, "thesis-rig:h01=3e6,h11=25", "pd-penetration:kp=3e5", AGENT,
+                                  "sac"])
 def test_double_build_is_bitwise_the_numba_target(spec, scene_name, seed, sac_spec, tmp_path):
     scene = load_scene(scene_name)
     pol = export_policy(sac_spec if spec == "sac" else spec, scene)
@@ -131,7 +134,7 @@ def test_consecutive_episodes_wrap_the_rms_window_bitwise(spec, scene_name, tmp_
 HOT_SCALE_N = 300.0
 
 
-@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT, "sac"])
+@pytest.mark.parametrize("spec", [*ACTING_C_LAWS, AGENT, "sac"])
 def test_safety_branches_bitwise(spec, sac_spec, tmp_path):
     """Synthetic readings that drive every branch of the safety layer, as consecutive episodes of
     one power-on: hard contacts at a 300 N command scale (CLAMP_PEAK on every saturated tick, then
@@ -187,7 +190,7 @@ def PA_limit(scene) -> float:
     return plausibility_params(scene).limit_ticks
 
 
-@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])
+@pytest.mark.parametrize("spec", [*ACTING_C_LAWS, AGENT])
 def test_float32_build_within_its_bound(spec, tmp_path):
     scene = load_scene("rig-randomized")
     pol = export_policy(spec, scene)
@@ -314,7 +317,7 @@ def _libm_bound(pol) -> float:
 @pytest.mark.skipif(shutil.which("qemu-arm") is None or shutil.which(PA.ARM_LINUX_CC) is None,
                     reason="Debian's qemu-user and gcc-arm-linux-gnueabihf are not installed "
                            "(.ci/run installs them)")
-@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])
+@pytest.mark.parametrize("spec", [*ACTING_C_LAWS, AGENT])
 def test_parity_of_an_arm_linux_build_under_qemu_arm(spec, tmp_path):
     """The real-time example cross-built for 32-bit ARM Linux (arm-linux-gnueabihf-gcc -static,
     the same CFLAGS) and run by qemu-arm in user mode, --no-sleep, on readings recorded from the

@@ -40,15 +40,17 @@ from impact_env.control.observation import OBSERVATIONS, ObservationLayout, Refe
 
 FORMAT = "impact-env-policy"
 VERSION = 1
-KIND_MLP = len(LW.LAWS)
+# a packed policy's kind: a classic law's code (its place in impact_env.control.laws.REGISTRY,
+# >= 0), or one of these (below 0, so that adding a law moves neither)
+KIND_MLP = -1
 # an open-loop command sequence (an identification excitation, impact_env.rig.excitation): the
 # observation is not read; pf's body holds the commands, memory[0] counts the calls
-KIND_SEQUENCE = len(LW.LAWS) + 1
+KIND_SEQUENCE = -2
 
 # pi (int64): header, the law's slots, then the MLP's layer table
 PI_KIND, PI_OBS, PI_FRAME, PI_MEM, PI_NLAYERS, PI_OUT = range(6)
 PI_SLOTS = 6
-PI_LAYERS = PI_SLOTS + len(LW.SLOTS)
+PI_LAYERS = PI_SLOTS + LW.N_SLOTS
 # pf (float64): header, the frame's scales, then the law's constants or the MLP's weights
 PF_CMD, PF_LOW, PF_HIGH = range(3)
 PF_SCALES = 3
@@ -105,7 +107,7 @@ def sequence_arrays(commands: np.ndarray, obs_size: int, command_scale: float) -
     if not np.all(np.isfinite(c)) or np.any(np.abs(c) > 1.0):
         raise ConfigError("an open-loop command sequence must be finite and within [-1, 1]")
     pi = np.concatenate([np.array([KIND_SEQUENCE, int(obs_size), 0, 1, 0, 0], dtype=np.int64),
-                         np.full(len(LW.SLOTS), -1, dtype=np.int64)])
+                         np.full(LW.N_SLOTS, -1, dtype=np.int64)])
     return pi, np.concatenate([[float(command_scale), -1.0, 1.0], c]), 1
 
 
@@ -209,7 +211,7 @@ class CompiledPolicy:
         lay = self.layout
         F = lay.frame_size
         head_f = [self.command_scale, -1.0, 1.0, *(float(s) for s in lay.scales)]
-        slots = np.full(len(LW.SLOTS), -1, dtype=np.int64)
+        slots = np.full(LW.N_SLOTS, -1, dtype=np.int64)
         if self.law is not None:
             kind, slots, consts = LW.pack_law(self.law["name"], self.law["constants"], lay.names)
             n_layers, out, table, body, mem = 0, 0, np.zeros(0, np.int64), consts, LW.MEMORY + F

@@ -514,39 +514,11 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
         P = _ident(which)
         cdefs = "\n".join(f"static const impact_real {P}_{_ident(c)} = {_r(v)};"
                           for c, v in zip(consts, k, strict=True))
-        sl = {s: int(slots[i]) for i, s in enumerate(LW.SLOTS)}
-        est = ""
-        if name in ("thesis-rig", "pd-penetration"):
-            top, c, rate, thr = (f"{P}_TOP_MASS", f"{P}_C", f"{P}_RATE", f"{P}_THRESHOLD")
-            det = (f"v[{sl['contact_detected']}] > 0.5" if sl["contact_detected"] >= 0
-                   else f"{top} * a2 + t > {thr}")
-            est = f"""
-    /* the contact force by thesis eq 4.4, the penetration by Hertz (Phi = c d^1.5), their rates */
-    impact_real a2 = v[{sl['accelerometer']}], t = v[{sl['force']}], x2 = v[{sl['potentiometer']}];
-    impact_real sig = {top} * a2 + t;
-    impact_real phi = sig > 0.0 ? sig : 0.0;
-    impact_real d = R_POW(phi / {c}, (impact_real)(2.0 / 3.0));
-    impact_real d_rate = (d - mem[0]) * {rate};
-    impact_real v2 = (x2 - mem[1]) * {rate};
-    int detected = {det};
-    mem[0] = d;
-    mem[1] = x2;"""
-        if name == "passive":
-            body = "\n    (void)v;\n    (void)mem;\n    f = 0.0;"
-        elif name == "thesis-rig":
-            body = est + f"""
-    /* thesis eq 4.3 (its derivative term corrected), gated by the detector */
-    if (!detected) f = 0.0;
-    else f = {P}_M2 * (phi * ({P}_M1 + {P}_M2) / ({P}_M1 * {P}_M2) - {P}_G - {P}_H11 * d_rate
-                       - {P}_H01 * (d - {P}_DREF)) - {P}_H12 * v2 - {P}_H02 * x2;"""
-        elif name == "pd-penetration":
-            body = est + f"""
-    (void)v2;
-    /* PD on the penetration's error, gated by the detector */
-    if (!detected) f = 0.0;
-    else f = -{P}_M2 * ({P}_KP * (d - {P}_DREF) + {P}_KD * d_rate);"""
-        else:
+        sl = {s: int(slots[i]) for i, s in enumerate(LW.READS[name])}
+        law = LW.BY_NAME[name]
+        if law.c_body is None:
             raise ConfigError(f"law {name!r} cannot be deployed from the sensors")
+        body = law.c_body(P, sl)
         fn = "policy_act" if which == "main" else "residual_act"
         return f"""/* ---- {'the policy' if which == 'main' else 'the residual law'}: {name} (impact_env.control.laws, kind {kind}) ---- */
 

@@ -7,11 +7,12 @@ for choice parameters), a saved stable-baselines3 model: ``PATH.zip``, ``ALGO:PA
 file: ``compiled:FILE`` (:mod:`impact_env.control.policy`; ``impact-env export`` writes one).
 Unknown names or parameters raise :class:`impact_env.config.ConfigError` listing the valid ones.
 
-Named policies are found through the entry-point group ``impact_env.policies`` (name ->
-``module:Class``; this project's ``pyproject.toml`` registers the classic laws of the top-level
-``baselines`` package there), so that :mod:`impact_env` never imports the packages that build on
-it, and a user's own package can add policies the same way.  A class takes ``(scene, **params)``
-and has ``observation``, ``PARAMS`` and SB3's ``predict``.
+Named policies: the classic laws (:data:`impact_env.policy.laws.LAW_POLICIES`, one per law of
+:mod:`impact_env.control.laws`), then the entry-point group ``impact_env.policies`` (name ->
+``module:Class``), where a user's own package adds policies without :mod:`impact_env` importing
+it (this project's ``pyproject.toml`` registers the oracle there, which needs the ``oracle``
+extra), then :func:`register_policy` (a class of this process; it wins over both).  A class
+takes ``(scene, **params)`` and has ``observation``, ``PARAMS`` and SB3's ``predict``.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from impact_env.config import ConfigError
+from impact_env.policy.laws import LAW_POLICIES
 from impact_env.scene import Scene, load_scene
 
 GROUP = "impact_env.policies"
@@ -48,12 +50,12 @@ def _load(name: str) -> type:
 
 
 def policy_names() -> list[str]:
-    return list(dict.fromkeys([*_entry_points(), *REGISTERED]))
+    return list(dict.fromkeys([*LAW_POLICIES, *_entry_points(), *REGISTERED]))
 
 
 def policy_classes() -> dict[str, Any]:
-    """Every named policy that loads: name -> class, from the entry points (each loaded when
-    first asked for) and :func:`register_policy`."""
+    """Every named policy that loads: name -> class, the classic laws, the entry points (each
+    loaded when first asked for) and :func:`register_policy`."""
     out = {}
     for name in policy_names():
         try:
@@ -72,6 +74,8 @@ def register_policy(cls: Any, name: str | None = None) -> None:
 def policy_class(name: str) -> Any:
     if name in REGISTERED:
         return REGISTERED[name]
+    if name in LAW_POLICIES:
+        return LAW_POLICIES[name]
     if name in _entry_points():
         return _load(name)
     import difflib
