@@ -19,19 +19,6 @@ from impact_env.plant.layout import M1, V1, X1, X2, C, G
 from impact_env.sim import records as R
 
 
-class TaskParams(NamedTuple):
-    """The task's settings, as the kernels read them (built by :mod:`impact_env.env.task`)."""
-
-    step_weight: float  # the reward's factor T / t_unit
-    threshold: float  # catch threshold, fraction of the impact energy
-    hold: float  # ticks below the threshold that make a catch
-    terminate: float  # 1: a catch terminates the episode
-    effort: float  # effort weight
-    limit: float  # saturation weight
-    command_scale: float  # N per unit command
-    max_steps: float  # policy steps to the horizon
-
-
 class TaskState(NamedTuple):
     """Per-env episode state (:func:`reset_task` starts it)."""
 
@@ -71,8 +58,9 @@ N_COL = len(INFO_KEYS)
 @jit
 def task_step(active, records, d, p, s, out):
     """After the simulator's step: reward, flags and info row of every active env (an inactive
-    env gets reward 0 and no flags, and keeps its row).  ``d``: Drop, ``p``: TaskParams, ``s``:
-    TaskState, ``out``: TaskOut."""
+    env gets reward 0 and no flags, and keeps its row).  ``d``: Drop, ``p``: TaskParams (the
+    options the kernel reads, by their names, and what the task derives from them:
+    :mod:`impact_env.env.task`), ``s``: TaskState, ``out``: TaskOut."""
     active, records, d, p, s, out = borrow(active), borrow(records), borrow(d), borrow(p), borrow(s), borrow(out)
     rewards, terminated, truncated = out.rewards, out.terminated, out.truncated
     steps, below, diverged, energy = s.steps, s.below, s.diverged, s.energy
@@ -99,14 +87,14 @@ def task_step(active, records, d, p, s, out):
                 energy[i] = e
                 ratio = e / e0
                 cost = ratio
-                if p.effort != 0.0:
+                if p.effort_weight != 0.0:
                     u = r[R.REC_F_APPLIED] / p.command_scale
-                    cost += p.effort * u * u
-                if p.limit != 0.0:
-                    cost += p.limit * r[R.REC_SATURATED]
-                below[i] = below[i] + 1 if ratio < p.threshold else 0
+                    cost += p.effort_weight * u * u
+                if p.limit_weight != 0.0:
+                    cost += p.limit_weight * r[R.REC_SATURATED]
+                below[i] = below[i] + 1 if ratio < p.catch_threshold else 0
             total += cost
-        term = bad or (p.terminate != 0.0 and below[i] >= p.hold)
+        term = bad or (p.terminate_on_catch != 0.0 and below[i] >= p.hold)
         rewards[i] = -total * p.step_weight
         terminated[i] = term
         truncated[i] = (steps[i] >= p.max_steps) and not term
