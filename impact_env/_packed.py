@@ -18,6 +18,7 @@ from __future__ import annotations
 from typing import Any
 
 
-def positions(cls: Any) -> Any:
-    """The instance of the NamedTuple class ``cls`` whose field ``k`` holds ``k``'s position."""
-    return cls(*range(len(cls._fields)))
+def positions(cls: Any, start: int = 0) -> Any:
+    """The instance of the NamedTuple class ``cls`` whose field ``k`` holds ``k``'s position
+    (counted from ``start``: the entries follow others in the same array)."""
+    return cls(*range(start, start + len(cls._fields)))

@@ -135,7 +135,7 @@ def test_quantisation_step_midtread_and_clipping():
     inside = (x > -1.0) & (x < 1.0 - q)
     assert np.max(np.abs(y[inside] - x[inside])) <= q / 2 + 1e-15
     assert np.all(y[np.abs(x) < q / 2 - 1e-12] == 0.0)  # mid-tread: zero is a level
-    assert S.sensor_params(S.SensorsConfig())[S.FORCE, S.P_STEP] == 1000.0 / 2**16
+    assert S.sensor_params(S.SensorsConfig())[S.FORCE, S.CP.adc_step] == 1000.0 / 2**16
 
 
 def test_true_readings_transducer_force_and_eq_4_4():
@@ -187,7 +187,7 @@ def test_saturation_never_exceeded(cmd, peak, frac, tau, slew):
     assert np.all(np.abs(f) <= peak)
     np.testing.assert_array_equal(flags, f != cmd)
     # the mean-square budget, recomputed outside the kernel
-    alpha, ms, r2 = p[SA.P_ALPHA], 0.0, cfg.rms_limit_n**2
+    alpha, ms, r2 = p[SA.SP.alpha], 0.0, cfg.rms_limit_n**2
     for v in f:
         ms += alpha * (v * v - ms)
         if cfg.continuous_n > 0:

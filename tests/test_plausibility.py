@@ -192,7 +192,7 @@ def test_defaults_never_flag_a_real_episode():
     for name in ("rig", "rig-randomized"):
         scene = load_scene(name)
         p = PL.plausibility_params(scene)
-        allowed = p.ch[:, PL.P_STEP] + p.ch[:, PL.P_TOL]
+        allowed = p.ch[:, PL.CC.max_jump] + p.ch[:, PL.CC.tol]
         worst = np.zeros(3)
         for spec in ("passive", "pd-penetration", "thesis-rig", AGENT):
             pol = export_policy(spec, scene)

@@ -184,14 +184,14 @@ def _true_record(drv, m: int, u: float) -> np.ndarray:
 
     r = np.zeros(R.N_REC)
     info = drv.last_info
-    r[R.REC_T] = (m + 1.0) / drv.scene.control_rate
-    r[R.REC_X1:R.REC_V2 + 1] = drv.truth()
-    r[R.REC_U] = u
-    r[R.REC_F_DEMAND] = info[HS.INFO_F_DEMAND]
-    r[R.REC_F_APPLIED] = info[HS.INFO_F_APPLIED]
-    r[R.REC_SATURATED] = info[HS.INFO_SATURATED]
-    r[R.REC_CONTACT_FORCE] = info[HS.INFO_CONTACT_FORCE]
-    r[R.REC_STATUS] = info[HS.INFO_STATUS]
+    r[R.REC.t] = (m + 1.0) / drv.scene.control_rate
+    r[R.REC.x1:R.REC.v2 + 1] = drv.truth()
+    r[R.REC.u] = u
+    r[R.REC.f_demand] = info[HS.INFO_F_DEMAND]
+    r[R.REC.f_applied] = info[HS.INFO_F_APPLIED]
+    r[R.REC.saturated] = info[HS.INFO_SATURATED]
+    r[R.REC.contact_force] = info[HS.INFO_CONTACT_FORCE]
+    r[R.REC.status] = info[HS.INFO_STATUS]
     return r
 
 
@@ -211,7 +211,7 @@ def episode_metrics(scene, seed: int, records: np.ndarray) -> dict[str, float]:
     m.step(records[None, :, :], hw.P)
     from impact_env.sim import records as R
 
-    failed = np.array([bool(np.any(records[:, R.REC_STATUS] != 0.0))])
+    failed = np.array([bool(np.any(records[:, R.REC.status] != 0.0))])
     return {k: float(v[0]) for k, v in m.finish(failed).items()}
 
 

@@ -43,7 +43,7 @@ from impact_env.sim.simulator import Simulator
 
 # info_dict's scalar entries in INFO_KEYS order: (key, column, is a flag); the state goes as one array
 _INFO_SCALARS = tuple((key, j, key in TK.BOOL_KEYS) for j, key in enumerate(TK.INFO_KEYS)
-                      if not TK.COL_X1 <= j <= TK.COL_V2)
+                      if not TK.INFO.x1 <= j <= TK.INFO.v2)
 
 REWARD_TIME_UNIT = 1e-3  # s
 
@@ -172,7 +172,7 @@ def info_from_row(row: np.ndarray) -> dict:
     """One env's info as Python scalars (and ``state`` as float64[4]) from its info row."""
     vals = row.tolist()
     out = {key: (vals[j] > 0.5 if flag else vals[j]) for key, j, flag in _INFO_SCALARS}
-    out["state"] = np.array(vals[TK.COL_X1:TK.COL_V2 + 1])
+    out["state"] = np.array(vals[TK.INFO.x1:TK.INFO.v2 + 1])
     return out
 
 
@@ -248,7 +248,7 @@ class CatchTask:
     def reset(self, rngs, mask=None) -> None:
         sim = self.sim
         idx = sim.reset(rngs, mask)
-        self.rows[idx, TK.COL_TTOUCH] = sim.t_touch[idx]  # kept by the kernels, which skip this column
+        self.rows[idx, TK.INFO.t_touch] = sim.t_touch[idx]  # kept by the kernels, which skip this column
         TK.task_reset_rows(idx, sim.records, self.drop, self.params, self.state, self.rows)
 
     def check_actions(self, actions) -> np.ndarray:
@@ -281,12 +281,12 @@ class CatchTask:
         """Per-env diagnostics after the last step or reset (SI units), from the info rows."""
         rows = self.rows
         out = {}
-        for j, key in enumerate(TK.INFO_KEYS[:TK.COL_X1]):
+        for j, key in enumerate(TK.INFO_KEYS[:TK.INFO.x1]):
             out[key] = rows[:, j] > 0.5 if key in TK.BOOL_KEYS else rows[:, j].copy()
-        out["state"] = rows[:, TK.COL_X1:TK.COL_V2 + 1].copy()
-        out["diverged"] = rows[:, TK.COL_DIV] > 0.5
-        out["caught"] = rows[:, TK.COL_CAUGHT] > 0.5
-        out["t_touch"] = rows[:, TK.COL_TTOUCH].copy()
+        out["state"] = rows[:, TK.INFO.x1:TK.INFO.v2 + 1].copy()
+        out["diverged"] = rows[:, TK.INFO.diverged] > 0.5
+        out["caught"] = rows[:, TK.INFO.caught] > 0.5
+        out["t_touch"] = rows[:, TK.INFO.t_touch].copy()
         return out
 
     def info_dict(self, i: int) -> dict:

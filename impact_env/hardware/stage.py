@@ -164,6 +164,12 @@ def reset_env(s: HardwareState, i: int, y0: np.ndarray, mode0: int) -> None:
 
 
 @jit(inline="always")
+def block(row, offsets, j):
+    """Block ``j`` of a packed row (:mod:`impact_env.hardware.blocks`): a view."""
+    return row[offsets[j]:offsets[j + 1]]
+
+
+@jit(inline="always")
 def hardware_tick(i, u, p, s):
     """Advance env i by one control period under the drive command u (1 = the scene's
     command scale newtons upwards, before the drawn amplifier gain); ``p``: HardwareParams,
@@ -183,16 +189,14 @@ def hardware_tick(i, u, p, s):
     if flags & F_ACT_DELAY:
         cell = inf[INFO_F_APPLIED:INFO_F_APPLIED + 1]
         cell[0] = f
-        delay_packed(pr[po[PB_ACT_DELAY]:po[PB_ACT_DELAY + 1]], st[so[SB_ACT_DELAY]:so[SB_ACT_DELAY + 1]],
-                     cell, cell)
+        delay_packed(block(pr, po, PB_ACT_DELAY), block(st, so, SB_ACT_DELAY), cell, cell)
         f = cell[0]
     if flags & F_SHAKER:
-        f = shaker_packed(pr[po[PB_SHAKER]:po[PB_SHAKER + 1]], st[so[SB_SHAKER]:so[SB_SHAKER + 1]], f, y[3],
+        f = shaker_packed(block(pr, po, PB_SHAKER), block(st, so, SB_SHAKER), f, y[3],
                           (flags & F_BACK_EMF) != 0)
     sat = False
     if flags & F_SATURATION:
-        f, sat = saturate(f, st[so[SB_SATURATION]:so[SB_SATURATION + 1]],
-                          pr[po[PB_SATURATION]:po[PB_SATURATION + 1]])
+        f, sat = saturate(f, block(st, so, SB_SATURATION), block(pr, po, PB_SATURATION))
     inf[INFO_F_APPLIED] = f
     inf[INFO_SATURATED] = 1.0 if sat else 0.0
     peak = inf[INFO_PEAK_FORCE:INFO_PEAK_FORCE + 1]
@@ -210,7 +214,7 @@ def hardware_tick(i, u, p, s):
     inf[INFO_CONTACT_FORCE] = phi
     inf[INFO_A2] = a2
     r = s.out.raw[i]
-    sens = pr[po[PB_SENSORS]:po[PB_SENSORS + 1]]
+    sens = block(pr, po, PB_SENSORS)
     read_packed(y[0], y[2], a2, phi, sens, r)
     if flags & F_SENSORS:  # each sensor stage reads channel j before writing it: in place
         z = s.noise.z
@@ -221,8 +225,7 @@ def hardware_tick(i, u, p, s):
         sense_packed(r, z[i, c], sens, r)
         cursor[i] = c + 1
     if flags & F_SENS_DELAY:
-        delay_packed(pr[po[PB_SENS_DELAY]:po[PB_SENS_DELAY + 1]], st[so[SB_SENS_DELAY]:so[SB_SENS_DELAY + 1]],
-                     r, r)
+        delay_packed(block(pr, po, PB_SENS_DELAY), block(st, so, SB_SENS_DELAY), r, r)
     ps.t[i] += cfg.period
 
 
