@@ -17,10 +17,10 @@ RIG_RUN_SPECS = ("passive", "thesis-rig", "pd-penetration")  # passive: no force
 
 @pytest.fixture(scope="session")
 def warm_kernels():
-    from impact_env.eval.compare import _warm_up
+    from impact_env.eval.compare import warm_up
     from impact_env.scene import load_scene
 
-    _warm_up(load_scene("rig"), 0.01)
+    warm_up(load_scene("rig"), 0.01)
 
 
 @pytest.fixture(scope="session")

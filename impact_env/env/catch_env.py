@@ -138,7 +138,7 @@ TASK_OPTIONS_DOC
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
-        from impact_env.env.render import draw_frame, show_frame
+        from impact_env.env.render import draw_frame, show_frame  # matplotlib loads only to render
 
         frame = draw_frame(self.task, 0)
         if self.render_mode == "rgb_array":
@@ -148,7 +148,7 @@ TASK_OPTIONS_DOC
 
     def close(self):
         if self._viewer is not None:
-            from impact_env.env.render import close_viewer
+            from impact_env.env.render import close_viewer  # (a viewer exists: render is loaded)
 
             close_viewer(self._viewer)
             self._viewer = None

@@ -38,6 +38,7 @@ from impact_env._jit import bound_call
 from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.env import task_kernel as TK
+from impact_env.policy.export import export_policy
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.simulator import Simulator
 
@@ -205,8 +206,6 @@ def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig
     layout = make_layout(scene, config.observation, config.history)
     residual = None
     if config.residual is not None:
-        from impact_env.policy.export import export_policy
-
         residual = export_policy(config.residual, scene)
     return CatchTask(Simulator(scene, num_envs, layout, config.hold_ticks, residual, threads=threads), config)
 

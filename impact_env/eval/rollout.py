@@ -53,6 +53,7 @@ from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.control.policy import CompiledPolicy, PolicyArrays, act
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, C, G
+from impact_env.policy.export import export_policy
 from impact_env.scene import Scene
 from impact_env.sim import records as R
 from impact_env.sim.metrics import AC, EPISODE_METRICS, ST, EpisodeMetrics, MetricArrays, update
@@ -227,7 +228,6 @@ def residual_law(policy, scene) -> CompiledPolicy | None:
     spec = getattr(policy, "residual", None)
     if spec is None:
         return None
-    from impact_env.policy.export import export_policy
 
     return export_policy(spec, scene)
 

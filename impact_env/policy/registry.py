@@ -22,7 +22,9 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from impact_env.config import ConfigError
+from impact_env.control.policy import CompiledPolicy
 from impact_env.policy.laws import LAW_POLICIES
+from impact_env.policy.sb3 import load_model_policy, model_settings, parse_model_spec, require_sb3
 from impact_env.scene import Scene, load_scene
 
 GROUP = "impact_env.policies"
@@ -32,7 +34,9 @@ REGISTERED: dict[str, type] = {}  # added at run time with register_policy (they
 
 
 @functools.cache
-def _entry_points() -> dict:
+def entry_point_policies() -> dict:
+    """The policies other packages register (entry-point group ``impact_env.policies``): name ->
+    entry point, loaded when first asked for."""
     out: dict = {}
     for ep in entry_points(group=GROUP):  # in the order each package declares them
         out.setdefault(ep.name, ep)
@@ -41,7 +45,7 @@ def _entry_points() -> dict:
 
 @functools.cache
 def _load(name: str) -> type:
-    ep = _entry_points()[name]
+    ep = entry_point_policies()[name]
     try:
         return ep.load()
     except Exception as exc:  # one broken plugin must not take the others down
@@ -50,7 +54,7 @@ def _load(name: str) -> type:
 
 
 def policy_names() -> list[str]:
-    return list(dict.fromkeys([*LAW_POLICIES, *_entry_points(), *REGISTERED]))
+    return list(dict.fromkeys([*LAW_POLICIES, *entry_point_policies(), *REGISTERED]))
 
 
 def policy_classes() -> dict[str, Any]:
@@ -76,7 +80,7 @@ def policy_class(name: str) -> Any:
         return REGISTERED[name]
     if name in LAW_POLICIES:
         return LAW_POLICIES[name]
-    if name in _entry_points():
+    if name in entry_point_policies():
         return _load(name)
     import difflib
 
@@ -116,14 +120,10 @@ def is_model_spec(spec: str) -> bool:
 def make_policy(spec: str, scene: Scene | str | dict):
     """A policy from its spec (see the module doc), built for ``scene``."""
     if spec.startswith("compiled:"):
-        from impact_env.control.policy import CompiledPolicy
-
         pol = CompiledPolicy.load(spec.partition(":")[2])
         pol.check_scene(load_scene(scene))
         return pol
     if is_model_spec(spec):
-        from impact_env.policy.sb3 import load_model_policy
-
         return load_model_policy(spec, scene)
     name, params = parse_spec(spec)
     return policy_class(name)(load_scene(scene), **params)
@@ -133,8 +133,6 @@ def check_spec(spec: str, scene) -> None:
     """Validate a spec without the cost of loading a model (models: syntax, file and settings,
     so that a model without its settings is one error before anything runs, not one per episode)."""
     if is_model_spec(spec) and not spec.startswith("compiled:"):
-        from impact_env.policy.sb3 import model_settings, parse_model_spec, require_sb3
-
         _algo, path, opts = parse_model_spec(spec)
         model_settings(path, opts, spec)
         require_sb3()

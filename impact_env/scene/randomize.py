@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from impact_env.config import ConfigError
+from impact_env.effects.delay import delay_samples
 
 UNIFORM, LOG, SAMPLES = "uniform", "log-uniform", "samples"
 
@@ -200,7 +201,6 @@ def overrides_for(scene, values: dict[str, float]) -> dict[str, Any]:
 
 def check_scene_ranges(scene) -> None:
     """Cross-field checks of ``scene.randomize`` against the rest of the scene (ConfigError)."""
-    from impact_env.effects.delay import delay_samples
 
     rz = scene.randomize
     names = rz.ranged()
