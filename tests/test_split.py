@@ -18,26 +18,21 @@ exact motion for the touch, and ``solve_ivp`` (DOP853, rtol 1e-12, event restart
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
+import budget
 import numpy as np
 import pytest
+from naive import Params, reference_drop, sim_overrides
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import budget  # noqa: E402
-from naive import Params, reference_drop, sim_overrides  # noqa: E402
-
-import impact_env  # noqa: E402
-from impact_env.config import ConfigError  # noqa: E402
-from impact_env.hardware.arrays import initial_state, plant_params  # noqa: E402
-from impact_env.plant import layout as L  # noqa: E402
-from impact_env.plant.dynamics import Coefs  # noqa: E402
-from impact_env.plant.free_flight import MAX_TERMS, ROOT_TOL, body2_after, free_cap, touch_time  # noqa: E402
-from impact_env.plant.integrators import PlantCarry, PlantConsts, advance  # noqa: E402
+import impact_env
+from impact_env.config import ConfigError
+from impact_env.hardware.arrays import initial_state, plant_params
+from impact_env.plant import layout as L
+from impact_env.plant.dynamics import Coefs
+from impact_env.plant.free_flight import MAX_TERMS, ROOT_TOL, body2_after, free_cap, touch_time
+from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
 
 EPS = float(np.finfo(float).eps)
 G_ACC = 9.81
