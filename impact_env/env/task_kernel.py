@@ -76,7 +76,6 @@ INFO = positions(InfoRow)
 INFO_KEYS = InfoRow._fields
 BOOL_KEYS = ("contact", "saturated", "detected", "diverged", "caught")
 N_COL = len(INFO)
-COL_TTOUCH = INFO.t_touch  # (the rig's name for it: it goes when the rig reads INFO)
 
 
 @jit

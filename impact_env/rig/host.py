@@ -49,10 +49,13 @@ from impact_env.control.policy import CompiledPolicy
 from impact_env.env import task_kernel as TK
 from impact_env.env.task import TaskConfig, check_actions, info_from_row, new_task_out, new_task_state
 from impact_env.hardware.batch import Hardware
+from impact_env.policy.export import export_policy
 from impact_env.rig import host_wire as HW
 from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
 from impact_env.rig import wire as WR
+from impact_env.rig.auth import key_from
+from impact_env.rig.log import read_episode
 from impact_env.rig.transport import Endpoint, Link, RigError, RigTimeout, fetch, parse_address, upload
 from impact_env.scene import scene_from_dict
 from impact_env.sim import records as R
@@ -79,8 +82,6 @@ class RigClient:
 
     def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10, key=None,
                  spin_s: float = 0.0):
-        from impact_env.rig.auth import key_from
-
         key = key_from(key, "key")
         host, port = parse_address(address)
         local = "udp://[::1]:0" if ":" in host else ("udp://127.0.0.1:0" if host in ("127.0.0.1", "localhost")
@@ -288,8 +289,6 @@ class RigClient:
 
     def fetch_log(self, episode: int | None = None, sha256: bytes | None = None):
         """The episode's log (:class:`impact_env.rig.log.EpisodeLog`), fetched from the target."""
-        from impact_env.rig.log import read_episode
-
         ep = self.episode if episode is None else episode
         deadline = time.perf_counter() + 10.0
         while True:
@@ -384,8 +383,6 @@ class RigEnv(gym.Env):
             raise ValueError("observation must be 'sensors' on a rig: it measures no body-1 state")
         self.residual = None
         if config.residual is not None:
-            from impact_env.policy.export import export_policy
-
             self.residual = export_policy(config.residual, scene)
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, (self.layout.size,), np.float32)
@@ -432,13 +429,13 @@ class RigEnv(gym.Env):
 
         hw = self._hw
         hw.reset([seeding.np_random(ep_seed)[0]])
-        rows[0, TK.COL_TTOUCH] = hw.t_touch[0]
+        rows[0, TK.INFO.t_touch] = hw.t_touch[0]
         TK.task_reset_rows(np.zeros(1, np.int64), np.zeros((1, 1, R.N_REC)),
                            TK.Drop(hw.Y, hw.P, hw.impact_energy, hw.impact_speed), self.tp, state, rows)
 
     def _task_step(self, recs: np.ndarray, state: TK.TaskState, out: TK.TaskOut) -> None:
         hw = self._hw
-        self._y[:] = recs[:, -1, R.REC_X1:R.REC_V2 + 1]
+        self._y[:] = recs[:, -1, R.REC.x1:R.REC.v2 + 1]
         drop = TK.Drop(self._y, hw.P, hw.impact_energy, hw.impact_speed)
         args = (self._active, recs, drop, self.tp, state, out)
         if self._task_fn is None:  # the first call runs it and binds it (numba's typing skipped after)

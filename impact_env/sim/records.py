@@ -37,16 +37,3 @@ class Record(NamedTuple):
 REC = positions(Record)
 N_REC = len(REC)
 
-# the rig (impact_env.rig) still reads the columns by these names: they go when it reads REC
-REC_T = REC.t
-REC_X1 = REC.x1
-REC_V1 = REC.v1
-REC_X2 = REC.x2
-REC_V2 = REC.v2
-REC_U = REC.u
-REC_F_DEMAND = REC.f_demand
-REC_F_APPLIED = REC.f_applied
-REC_SATURATED = REC.saturated
-REC_CONTACT_FORCE = REC.contact_force
-REC_DETECTED = REC.detected
-REC_STATUS = REC.status
