@@ -53,7 +53,8 @@ Seeds (none of the three ranges meets another; checked):
   reseeds env i with ``seed + r * envs + i`` (the envs' Generators are not checkpointed);
 * validation (``EvalCallback``, keeps ``best_model.zip``): ``--eval-episodes`` drops seeded
   ``eval_seed + j`` (default 900000 + j), the same drops at every evaluation, on the env
-  without reward penalties (``effort_weight``, ``limit_weight`` = 0) and
+  with the task options at their evaluation values (no reward penalty: ``EVALUATION_OPTIONS`` of
+  ``impact_env.env.task``) and
   without termination on catch, as ``compare`` runs them: the best model is the one with the
   lowest energy integral over the whole horizon (a model that catches and then lets go loses);
 * test: ``impact-env compare --seed 1000`` (drops 1000 + j), what the README's tables use; the
@@ -80,6 +81,7 @@ from agents.run_config import (
     resolve,
 )
 from impact_env.config import ConfigError
+from impact_env.env.task import EVALUATION_OPTIONS
 
 OBSERVATIONS = ("sensors", "privileged", "both")
 EVAL_SEED = 900_000  # validation drops: eval_seed + j
@@ -194,10 +196,7 @@ def _vec_env(cfg: RunConfig, num_envs: int, evaluation: bool = False):
 
     kwargs = dict(cfg.env_kwargs)
     if evaluation:
-        for key in ("effort_weight", "limit_weight"):
-            if key in kwargs:
-                kwargs[key] = 0.0
-        kwargs["terminate_on_catch"] = False
+        kwargs.update(EVALUATION_OPTIONS)  # (the task's options that carry an evaluation value)
     env = make_sb3_vec_env(cfg.scene, num_envs=num_envs, overrides=cfg.overrides or None, monitor=False,
                            **kwargs)
     if cfg.action_limit is not None:  # the policy's bounds for a residual (YAML vec_env_wrapper)

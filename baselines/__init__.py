@@ -1,9 +1,10 @@
 """Classic controllers (baselines) with the stable-baselines3 ``predict`` interface.
 
 ``make_policy("thesis-rig:h01=2.3e6,h11=18", scene)`` builds one by name; ``POLICIES`` lists
-them.  Every policy has ``observation`` ("sensors" or "privileged"), and
+them, one class per law of :mod:`impact_env.control.laws` (each law's docs, gains and kernel are
+its module there).  Every policy has ``observation`` ("sensors" or "privileged"), and
 ``predict(obs, state=None, episode_start=None, deterministic=True) -> (action, state)`` with
-actions clipped to the env's [-1, 1] (see :mod:`baselines.base`).
+actions clipped to the env's [-1, 1] (see :mod:`impact_env.policy.laws`).
 """
 
 from baselines.base import Param, Policy

@@ -1,12 +1,8 @@
-"""``passive``: no shaker force at all (the uncontrolled drop, thesis fig 4.8 'control off')."""
+"""``passive``: the policy class of the law :mod:`impact_env.control.laws.passive` (its docs are there);
+this module keeps its old import path."""
 
-from __future__ import annotations
+from impact_env.policy.laws import LAW_POLICIES
 
-from baselines.base import Policy
+Passive = LAW_POLICIES["passive"]
 
-
-class Passive(Policy):
-    """Demands 0 N always.  Reads the sensor observation only to know the batch size."""
-
-    name = "passive"
-    observation = "sensors"
+__all__ = ["Passive"]

@@ -1,59 +1,8 @@
-"""``pd-penetration``: a PD loop on the estimated pad compression, the first thing a control
-engineer would try on this rig.
+"""``pd-penetration``: the policy class of the law :mod:`impact_env.control.laws.pd_penetration`
+(its docs are there); this module keeps its old import path."""
 
-    f2 = -m2 (kp (d - dref) + kd d')     while contact is detected,  0 otherwise
+from impact_env.policy.laws import LAW_POLICIES
 
-with the penetration d (m) and its rate d' (m/s) estimated from body 2's accelerometer and force
-transducer exactly as for ``thesis-rig`` (:mod:`baselines.estimate`), the same detector gate,
-and no model of the contact law: compared with eq 4.3 it drops the feedforward
-``Phi (m1+m2)/(m1 m2) - g`` that cancels the pad.  ``f2 < 0`` pulls body 2 down, away from
-body 1: the shaker gives way while the pad is compressed (``kp``) and while the compression
-grows (``kd``), i.e. it makes the pad look softer and damped to body 1.  Gains are per unit
-mass of body 2 (kp in 1/s^2, kd in 1/s), like the thesis's h01 and h11.
+PDPenetration = LAW_POLICIES["pd-penetration"]
 
-Tuning (how the defaults were chosen): minimise ``energy_integral_ms``, the time integral of
-body 1's catch-energy ratio over a 0.3 s episode (minus the env's return with its default
-reward), on the ``rig`` scene with its 200 N limit, over a 14 x 14 log grid::
-
-    impact-env sweep --scene rig --policy pd-penetration --grid kp=1e4:3e6:14 --grid kd=30:5000:14 \
-        --log --t-end 0.3 --limit scene --objective energy_integral_ms --out sweep-pd
-
-Best pair kp = 2.157e5 1/s^2, kd = 318 1/s (7.6 ms against 65 ms uncontrolled), rounded to the
-defaults below; checked on 30 seeded episodes with ``impact-env compare`` (README, "Baselines and
-comparison").  The fastest catch on that grid is kp = 1.34e5, kd = 1786 (body 1's energy below
-1 % for good after 0.091 s, against 0.142 s with the defaults), at a higher energy integral.
-"""
-
-from __future__ import annotations
-
-import numpy as np
-
-from baselines.base import Param, Policy
-from baselines.estimate import MEMORY
-
-
-class PDPenetration(Policy):
-    name = "pd-penetration"
-    observation = "sensors"
-    memory_size = MEMORY
-    PARAMS = {
-        "kp": Param(2.2e5, "1/s^2", "proportional gain on the estimated penetration, per kg of m2", lo=0.0),
-        "kd": Param(320.0, "1/s", "derivative gain on the estimated penetration rate, per kg of m2", lo=0.0),
-        "dref": Param(0.0, "m", "penetration the loop holds (0: the estimate reads 0 at rest)", lo=0.0),
-        "top_mass": Param(None, "kg", "m2' in Phi = m2' a2 + T; default effects.sensors.force.top_mass",
-                          lo=0.0),
-    }
-
-    def __init__(self, scene, **params):
-        super().__init__(scene, **params)
-        self.m2 = self.scene.plant.m2
-        if self.params["top_mass"] is None:
-            self.params["top_mass"] = float(self.scene.effects.sensors.force.top_mass)
-        for ch in ("accelerometer", "force", "potentiometer"):
-            self.column(np.zeros((1, self.layout.frame_size)), ch)
-
-    def law_constants(self) -> dict[str, float]:
-        P = self.params
-        return {"m2": self.m2, "c": self.scene.plant.c, "kp": P["kp"], "kd": P["kd"], "dref": P["dref"],
-                "top_mass": P["top_mass"], "rate": self.scene.control_rate,
-                "threshold": self.scene.effects.detector.threshold_n}
+__all__ = ["PDPenetration"]

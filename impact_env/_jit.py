@@ -286,6 +286,13 @@ def bound_call(dispatcher, args: tuple):
     where numba did not record it.  Only for arguments whose types never change (the caller keeps
     its arrays, dtypes and layouts fixed); arrays must be C-contiguous where they were."""
     dispatcher(*args)
+    return entry_point(dispatcher, args)
+
+
+def entry_point(dispatcher, args: tuple):
+    """The compiled entry point of ``dispatcher`` for the types of ``args``, once a call with them
+    has compiled or loaded it (else the dispatcher): :func:`bound_call` for a caller that needs
+    its first call's result."""
     sig = tuple(numba.typeof(a) for a in args)
     cres = dispatcher.overloads.get(sig)
     return dispatcher if cres is None else cres.entry_point

@@ -85,7 +85,7 @@ def main() -> int:
     import numpy as np
     from local_cluster import local_cluster
 
-    from impact_env.eval.compare import RolloutJob, _run_task, compare
+    from impact_env.eval.compare import RolloutJob, compare, run_job
     from impact_env.eval.parallel import Cluster, run_tasks
     from impact_env.scene import load_scene
 
@@ -135,9 +135,9 @@ def main() -> int:
             task = RolloutJob("pd-penetration", scene, list(range(50)), 0, scene.episode.horizon, 1.0e4,
                         record=True)
             task_bytes = len(pickle.dumps(task))
-            result_bytes = len(pickle.dumps(_run_task(task))) / 50
+            result_bytes = len(pickle.dumps(run_job(task))) / 50
             task.record = False
-            result_plain_bytes = len(pickle.dumps(_run_task(task))) / 50
+            result_plain_bytes = len(pickle.dumps(run_job(task))) / 50
 
             modes = {"serial": {"workers": 1}, "pool": {"workers": 2}, "cluster": {"cluster": cluster}}
             walls: dict = {w: {m: [] for m in modes} for w in workloads}

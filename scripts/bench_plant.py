@@ -165,21 +165,18 @@ def minimal_rk4_rate(n: int, repeats: int) -> float:
     4 states, no ledger, no event or divergence checks): the bound the stage chain's latency
     sets for one trajectory, against which advance()'s figure is read."""
     from impact_env._jit import jit
-    from impact_env.plant.dynamics import deriv
+    from impact_env.plant.dynamics import coefs, deriv
 
     @jit(cache=False)
     def loop(y, n, h, p):
-        im1, im2, c, b, g, k2, c2 = 1.0 / p[0], 1.0 / p[1], p[2], p[3], p[4], p[5], p[6]
+        pc = coefs(p)
         x1, v1, x2, v2 = y[0], y[1], y[2], y[3]
         hh, h6 = 0.5 * h, h / 6.0
         for _ in range(n):
-            a = deriv(x1, v1, x2, v2, L.AUTO, 0.0, im1, im2, c, b, g, k2, c2)
-            q = deriv(x1 + hh * a[0], v1 + hh * a[1], x2 + hh * a[2], v2 + hh * a[3], L.AUTO, 0.0,
-                      im1, im2, c, b, g, k2, c2)
-            r = deriv(x1 + hh * q[0], v1 + hh * q[1], x2 + hh * q[2], v2 + hh * q[3], L.AUTO, 0.0,
-                      im1, im2, c, b, g, k2, c2)
-            s = deriv(x1 + h * r[0], v1 + h * r[1], x2 + h * r[2], v2 + h * r[3], L.AUTO, 0.0,
-                      im1, im2, c, b, g, k2, c2)
+            a = deriv(x1, v1, x2, v2, L.AUTO, 0.0, pc)
+            q = deriv(x1 + hh * a[0], v1 + hh * a[1], x2 + hh * a[2], v2 + hh * a[3], L.AUTO, 0.0, pc)
+            r = deriv(x1 + hh * q[0], v1 + hh * q[1], x2 + hh * q[2], v2 + hh * q[3], L.AUTO, 0.0, pc)
+            s = deriv(x1 + h * r[0], v1 + h * r[1], x2 + h * r[2], v2 + h * r[3], L.AUTO, 0.0, pc)
             x1 += h6 * (a[0] + 2.0 * (q[0] + r[0]) + s[0])
             v1 += h6 * (a[1] + 2.0 * (q[1] + r[1]) + s[1])
             x2 += h6 * (a[2] + 2.0 * (q[2] + r[2]) + s[2])

@@ -7,10 +7,12 @@ simulated number.  Cases use only public entry points (``gymnasium.make``, ``imp
 the compare function), so that they survive moves inside the package.
 
 Bitwise equality is defined on the machine that recorded the files: scipy's ``expm`` (the
-shaker's exact discretisation) and ``solve_ivp`` use BLAS kernels that differ between CPUs in
-the last bit, and an impact amplifies a last-bit difference.  The files therefore carry a
-fingerprint (the CPU name and features numba compiles for, numpy's and scipy's versions);
-:func:`fingerprint` is compared before the arrays.
+shaker's exact discretisation) and LAPACK (the pad damping's fit, the filters' design) use BLAS
+kernels that differ between CPUs in the last bit, and an impact amplifies a last-bit difference.
+The files therefore carry a fingerprint (the CPU name and features numba compiles for, numpy's
+and scipy's versions); :func:`fingerprint` is compared before the arrays, and elsewhere the
+test allows each array what the integration resolves (``tests/test_golden.py``): every case can
+run with its integrator's tolerance loosened (``run_case(name, loosen)``).
 """
 
 from __future__ import annotations
@@ -64,13 +66,16 @@ def fingerprint() -> dict[str, str]:
             "numpy": np.__version__, "scipy": scipy.__version__, "numba": numba.__version__}
 
 
-def _compare_fn():
-    from impact_env.eval.compare import compare
+def _loosened(scene, ov, loosen: float):
+    """``ov`` with the integrator's tolerance of ``scene`` (with ``ov``) times ``loosen``."""
+    if loosen == 1.0:
+        return ov
+    from impact_env.scene import load_scene
 
-    return compare
+    return {**(ov or {}), "integrator.rtol": load_scene(scene, ov).integrator.rtol * loosen}
 
 
-def episode_case(name: str) -> dict[str, np.ndarray]:
+def episode_case(name: str, loosen: float = 1.0) -> dict[str, np.ndarray]:
     """Whole episodes of one single env: observation, reward, flags and info after every step,
     under uniform random actions from a seeded Generator."""
     import gymnasium as gym
@@ -78,6 +83,7 @@ def episode_case(name: str) -> dict[str, np.ndarray]:
     import impact_env  # noqa: F401  (registers the env)
 
     scene, ov, kwargs, seeds, action_seed = EPISODE_CASES[name]
+    ov = _loosened(scene, ov, loosen)
     env = gym.make("ImpactCatch-v0", scene=scene, overrides=ov, **kwargs).unwrapped
     rng = np.random.default_rng(action_seed)
     obs_l, rew, flags, infos = [], [], [], []
@@ -108,7 +114,7 @@ def _info_row(info) -> list[float]:
     return [float(info[k]) for k in INFO_KEYS] + [float(x) for x in info["state"]]
 
 
-def vector_case(name: str) -> dict[str, np.ndarray]:
+def vector_case(name: str, loosen: float = 1.0) -> dict[str, np.ndarray]:
     """The native vector env through autoresets (short episodes: horizon 0.03 s)."""
     from gymnasium.vector import AutoresetMode
 
@@ -118,7 +124,8 @@ def vector_case(name: str) -> dict[str, np.ndarray]:
     import gymnasium as gym
 
     venv = gym.make_vec("ImpactCatch-v0", num_envs=n, vectorization_mode="vector_entry_point", scene=scene,
-                        autoreset_mode=AutoresetMode(mode), horizon=0.03)
+                        overrides=_loosened(scene, None, loosen), autoreset_mode=AutoresetMode(mode),
+                        horizon=0.03)
     rng = np.random.default_rng(seed)
     obs, info = venv.reset(seed=seed)
     out = {"obs": [obs], "reward": [], "terminated": [], "truncated": [], "info": [], "final_obs": []}
@@ -138,13 +145,14 @@ def vector_case(name: str) -> dict[str, np.ndarray]:
     return {k: np.array(v) for k, v in out.items()}
 
 
-def compare_case(name: str) -> dict[str, np.ndarray]:
+def compare_case(name: str, loosen: float = 1.0) -> dict[str, np.ndarray]:
     """Every per-episode metric of every policy, and episode 0's traces."""
+    from impact_env.eval.compare import compare
     from impact_env.scene import load_scene
 
     scene, ov, specs, episodes, seed, horizon = COMPARE_CASES[name]
-    runs = _compare_fn()(load_scene(scene, ov), list(specs), episodes=episodes, seed=seed, horizon=horizon,
-                         workers=1, progress=False)
+    runs = compare(load_scene(scene, _loosened(scene, ov, loosen)), list(specs), episodes=episodes, seed=seed,
+                   horizon=horizon, workers=1, progress=False)
     out = {}
     for j, spec in enumerate(specs):
         run = runs[spec]
@@ -156,11 +164,12 @@ def compare_case(name: str) -> dict[str, np.ndarray]:
     return out
 
 
-def drop_case(name: str) -> dict[str, np.ndarray]:
+def drop_case(name: str, loosen: float = 1.0) -> dict[str, np.ndarray]:
     """One simulated drop: every Trajectory array and its metrics (wall time left out)."""
     import impact_env
 
     scene, ov, t_end, rate, seed = DROP_CASES[name]
+    ov = _loosened(scene, ov, loosen)
     tr = impact_env.simulate(scene, t_end=t_end, record_rate=rate, overrides=ov, rng=seed, plant_only=True)
     out = {k: np.asarray(getattr(tr, k)) for k in TRAJECTORY_KEYS}
     m = tr.metrics()
@@ -175,5 +184,6 @@ CASES = {**{k: episode_case for k in EPISODE_CASES}, **{k: vector_case for k in 
          **{k: compare_case for k in COMPARE_CASES}, **{k: drop_case for k in DROP_CASES}}
 
 
-def run_case(name: str) -> dict[str, np.ndarray]:
-    return CASES[name](name)
+def run_case(name: str, loosen: float = 1.0) -> dict[str, np.ndarray]:
+    """Case ``name``'s arrays; ``loosen``: its integrator's tolerance times this (1: as recorded)."""
+    return CASES[name](name, loosen)

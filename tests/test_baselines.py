@@ -9,6 +9,7 @@ from scipy import signal
 from baselines import POLICIES, PDPenetration, ThesisIdeal, ThesisRig, make_policy, parse_spec
 from impact_env import simulate
 from impact_env.config import ConfigError
+from impact_env.control import laws as LW
 from impact_env.control.observation import make_layout
 from impact_env.policy.sb3 import parse_model_spec
 from impact_env.scene import load_scene
@@ -21,11 +22,42 @@ IDEAL = load_scene("ideal")
 # -- registry and interface ---------------------------------------------------------------------
 
 def test_registry_names_and_params():
-    assert set(POLICIES) == {"passive", "thesis-ideal", "thesis-rig", "pd-penetration"}
+    assert set(POLICIES) == set(LW.LAWS) and {"thesis-rig", "thesis-ideal"} <= set(POLICIES)
     p = make_policy("thesis-rig:h01=1.2e6,h11=18", RIG)
     assert isinstance(p, ThesisRig) and p.params["h01"] == 1.2e6 and p.params["h11"] == 18.0
     assert make_policy("thesis-rig", RIG).params["h01"] == 2.3e6
     assert parse_spec("thesis-ideal:free_law=printed") == ("thesis-ideal", {"free_law": "printed"})
+
+
+def test_every_law_module_is_registered_and_dispatched():
+    """A module of impact_env/control/laws/ that declares a Law is in the registry (a new law's
+    module without its registry line fails here), the compiled dispatch runs each registered
+    law's own kernel (its branch in law_force), each law's class exists by name, and the docs'
+    table of laws is the one the registry writes (``python scripts/docs_tables.py``)."""
+    import importlib
+    import pkgutil
+    from pathlib import Path
+
+    from impact_env.control.laws.law import Law
+
+    declared = []
+    for mod in pkgutil.iter_modules(LW.__path__):
+        m = importlib.import_module(f"{LW.__name__}.{mod.name}")
+        declared += [v for v in vars(m).values() if isinstance(v, Law)]
+    assert set(declared) == set(LW.REGISTRY)
+    rng = np.random.default_rng(5)
+    for law in LW.REGISTRY:
+        m = importlib.import_module(f"{LW.__name__}.{law.name.replace('-', '_')}")
+        names = tuple(law.reads._fields)
+        slots = LW.law_slots(law.name, names)
+        k = rng.uniform(0.5, 2.0, (16, len(law.constants._fields)))
+        v = rng.uniform(-1.0, 1.0, (16, len(names)))
+        want = np.array([m.force.py_func(slots, k[i], v[i], np.zeros(LW.MEMORY)) for i in range(16)])
+        got = LW.law_forces(LW.KIND[law.name], slots, k, v, np.zeros((16, LW.MEMORY)), np.empty(16))
+        np.testing.assert_allclose(got, want, rtol=1e-12, err_msg=law.name)
+        assert POLICIES[law.name].law is law
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "baselines.md").read_text()
+    assert LW.markdown_table() in docs, "docs/baselines.md: stale laws table (scripts/docs_tables.py)"
 
 
 @pytest.mark.parametrize("spec,match", [

@@ -7,6 +7,7 @@ rig; the real-time example, the Cortex-M7 cross-build and the refusals."""
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import subprocess
 from pathlib import Path
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 
 from impact_env.config import ConfigError
+from impact_env.control import laws as LW
 from impact_env.deploy import parity as PA
 from impact_env.deploy.c_export import generate_c, write_c
 from impact_env.policy.export import export_policy
@@ -25,6 +27,8 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parent.parent
 AGENT = f"compiled:{ROOT / 'agents/models/best/best.policy.json'}"
 TICKS = 2500  # 0.25 s at 10 kHz: the drop, the first contacts and the catch of most drops
+C_LAWS = [law.name for law in LW.REGISTRY if law.c_body is not None]  # every law that exports to C
+ACTING_C_LAWS = [name for name in C_LAWS if LW.BY_NAME[name].required()]  # ... and reads something
 # float32 build (docs/rig.md, "Deploying to real-time hardware"): on ticks where both builds
 # make the same discrete decisions (status bits and the contact detector), |command difference|
 # <= F32_BOUND of full scale; the ticks where they decide differently (an RMS clamp or a detector
@@ -33,10 +37,27 @@ F32_BOUND = PA.F32_BOUND
 F32_FLIP_FRACTION = PA.F32_FLIP_FRACTION
 
 
+# a core install (no torch, no stable-baselines3, no onnxruntime) runs every test of the classic
+# laws and the compiled agent; the cases that need an extra say so and are skipped there
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ImportError:
+        return False
+
+
+NEEDS_SB3 = pytest.mark.skipif(not _installed("stable_baselines3"),
+                               reason="an SB3 model needs the extra: pip install 'impact-env[sb3]'")
+NEEDS_ONNX = pytest.mark.skipif(not _installed("onnxruntime"),
+                                reason="ONNX needs the extra: pip install 'impact-env[onnx]'")
+SAC = pytest.param("sac", marks=NEEDS_SB3)
+
+
 @pytest.fixture(scope="module")
 def sac_spec(tmp_path_factory):
-    """An untrained SAC actor of the shape agents.train makes (tanh-squashed, ReLU)."""
-    import stable_baselines3 as sb3
+    """An untrained SAC actor of the shape agents.train makes (tanh-squashed, ReLU); asked for
+    only by the "sac" cases (:func:`_spec`)."""
+    sb3 = pytest.importorskip("stable_baselines3")
 
     from impact_env.env.sb3_vecenv import make_sb3_vec_env
 
@@ -47,6 +68,11 @@ def sac_spec(tmp_path_factory):
     return f"sac:{path}:observation=sensors,history=2,hold_ticks=1,residual=none"
 
 
+def _spec(spec: str, request) -> str:
+    """The spec to export: the SAC actor's (built by the fixture) for "sac"."""
+    return request.getfixturevalue("sac_spec") if spec == "sac" else spec
+
+
 def _build(pol, scene, tmp_path, float32=False):
     d = tmp_path / ("c32" if float32 else "c64")
     if not (d / "impact_policy.c").exists():
@@ -55,11 +81,10 @@ def _build(pol, scene, tmp_path, float32=False):
 
 
 @pytest.mark.parametrize("scene_name,seed", [("rig", 0), ("rig-randomized", 7)])
-@pytest.mark.parametrize("spec", ["passive", "pd-penetration", "thesis-rig", "thesis-rig:h01=3e6,h11=25",
-                                  "pd-penetration:kp=3e5", AGENT, "sac"])
-def test_double_build_is_bitwise_the_numba_target(spec, scene_name, seed, sac_spec, tmp_path):
+@pytest.mark.parametrize("spec", [*C_LAWS, "thesis-rig:h01=3e6,h11=25", "pd-penetration:kp=3e5", AGENT, SAC])
+def test_double_build_is_bitwise_the_numba_target(spec, scene_name, seed, request, tmp_path):
     scene = load_scene(scene_name)
-    pol = export_policy(sac_spec if spec == "sac" else spec, scene)
+    pol = export_policy(_spec(spec, request), scene)
     cp = _build(pol, scene, tmp_path)
     rec = PA.record(pol, scene, seed, TICKS)
     got = PA.replay(cp, rec)
@@ -131,8 +156,10 @@ def test_consecutive_episodes_wrap_the_rms_window_bitwise(spec, scene_name, tmp_
 HOT_SCALE_N = 300.0
 
 
-@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT, "sac"])
-def test_safety_branches_bitwise(spec, sac_spec, tmp_path):
+# policies that demand the peak on hard contacts (a law's gains decide that, so not every law:
+# this list is chosen, not derived)
+@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT, SAC])
+def test_safety_branches_bitwise(spec, request, tmp_path):
     """Synthetic readings that drive every branch of the safety layer, as consecutive episodes of
     one power-on: hard contacts at a 300 N command scale (CLAMP_PEAK on every saturated tick, then
     CLAMP_RMS; twice, with less idle time than the window between, so the second starts hot and
@@ -143,7 +170,7 @@ def test_safety_branches_bitwise(spec, sac_spec, tmp_path):
     NaN for 30 ticks (beyond the 10-tick fault limit: SENSOR_TIMEOUT latched); the C double build
     against the numba target, bit for bit."""
     scene = load_scene("rig", {"effects.command_scale": HOT_SCALE_N})
-    pol = export_policy(sac_spec if spec == "sac" else spec, scene)
+    pol = export_policy(_spec(spec, request), scene)
     cp = _build(pol, scene, tmp_path)
     base = PA.record(export_policy("passive", scene), scene, 0, 6000).readings  # a drop nobody acts on
     limit = SF.SafetyConfig().travel_limit_m
@@ -187,7 +214,7 @@ def PA_limit(scene) -> float:
     return plausibility_params(scene).limit_ticks
 
 
-@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])
+@pytest.mark.parametrize("spec", [*ACTING_C_LAWS, AGENT])
 def test_float32_build_within_its_bound(spec, tmp_path):
     scene = load_scene("rig-randomized")
     pol = export_policy(spec, scene)
@@ -314,7 +341,7 @@ def _libm_bound(pol) -> float:
 @pytest.mark.skipif(shutil.which("qemu-arm") is None or shutil.which(PA.ARM_LINUX_CC) is None,
                     reason="Debian's qemu-user and gcc-arm-linux-gnueabihf are not installed "
                            "(.ci/run installs them)")
-@pytest.mark.parametrize("spec", ["pd-penetration", "thesis-rig", AGENT])
+@pytest.mark.parametrize("spec", [*ACTING_C_LAWS, AGENT])
 def test_parity_of_an_arm_linux_build_under_qemu_arm(spec, tmp_path):
     """The real-time example cross-built for 32-bit ARM Linux (arm-linux-gnueabihf-gcc -static,
     the same CFLAGS) and run by qemu-arm in user mode, --no-sleep, on readings recorded from the
@@ -383,6 +410,7 @@ def test_refusals(tmp_path, capsys):
     assert "FAIL" not in out and "PASS: both builds" in out
 
 
+@NEEDS_ONNX
 def test_onnx_carries_its_meaning(tmp_path):
     import json
 
@@ -405,6 +433,7 @@ def test_onnx_carries_its_meaning(tmp_path):
     assert meta["impact_env.policy_sha256"] == pol.sha256()
 
 
+@NEEDS_SB3
 def test_export_c_of_a_ppo_zip(tmp_path, capsys):
     """``impact-env export ppo:agents/models/best/model.zip --scene rig --c DIR --check``: the SB3
     zip itself (its model.json beside it gives observation, hold and residual) becomes the C

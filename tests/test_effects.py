@@ -135,7 +135,7 @@ def test_quantisation_step_midtread_and_clipping():
     inside = (x > -1.0) & (x < 1.0 - q)
     assert np.max(np.abs(y[inside] - x[inside])) <= q / 2 + 1e-15
     assert np.all(y[np.abs(x) < q / 2 - 1e-12] == 0.0)  # mid-tread: zero is a level
-    assert S.sensor_params(S.SensorsConfig())[S.FORCE, S.P_STEP] == 1000.0 / 2**16
+    assert S.sensor_params(S.SensorsConfig())[S.FORCE, S.CP.adc_step] == 1000.0 / 2**16
 
 
 def test_true_readings_transducer_force_and_eq_4_4():
@@ -187,7 +187,7 @@ def test_saturation_never_exceeded(cmd, peak, frac, tau, slew):
     assert np.all(np.abs(f) <= peak)
     np.testing.assert_array_equal(flags, f != cmd)
     # the mean-square budget, recomputed outside the kernel
-    alpha, ms, r2 = p[SA.P_ALPHA], 0.0, cfg.rms_limit_n**2
+    alpha, ms, r2 = p[SA.SP.alpha], 0.0, cfg.rms_limit_n**2
     for v in f:
         ms += alpha * (v * v - ms)
         if cfg.continuous_n > 0:
@@ -330,22 +330,54 @@ def test_nyquist_message_names_rate():
 
 
 def test_every_list_of_effects_is_derived_from_the_registry():
-    """Each effect declares itself once (impact_env.effects.registry); the scene's names, the
-    hardware stage's flags and blocks, the front end's flags and the oracle's readings-only list
-    are read from it."""
-    from impact_env.control import front_end as FE
+    """Each effect declares itself once (impact_env.effects.registry); the scene's names and
+    sections, both sides' flag words, the hardware stage's blocks and their sizes, and the
+    oracle's readings-only list are read from it."""
+    import dataclasses
+
     from impact_env.effects import registry as REG
     from impact_env.eval.oracle import SENSOR_SIDE
     from impact_env.hardware import stage as HS
-    from impact_env.scene.effects import EFFECTS
+    from impact_env.hardware.batch import Hardware
+    from impact_env.scene import load_scene
+    from impact_env.scene.effects import EFFECTS, EffectsConfig
 
     assert EFFECTS == REG.NAMES and len(set(EFFECTS)) == len(EFFECTS)
+    sections = {f.name: f.default_factory for f in dataclasses.fields(EffectsConfig)}
+    assert all(sections[e.section] is e.config for e in REG.REGISTRY)
+    for which in (REG.HARDWARE, REG.CONTROLLER):
+        bits = [REG.flag(e.name) for e in REG.side(which)]
+        bits += [REG.option_flag(e.name, o) for e in REG.side(which) for o in e.options]
+        assert sorted(bits) == [1 << j for j in range(len(bits))], which
     hw = REG.side(REG.HARDWARE)
-    assert HS.PARAM_BLOCKS == ("drive",) + tuple(e.name for e in hw if e.params)
-    assert HS.STATE_BLOCKS == tuple(e.name for e in hw if e.state)
-    assert (HS.F_ACT_DELAY | HS.F_SHAKER | HS.F_SATURATION | HS.F_SENSORS | HS.F_SENS_DELAY
-            == REG.flags(REG.HARDWARE, EFFECTS))
-    assert FE.F_FILTERS | FE.F_DETECTOR == REG.flags(REG.CONTROLLER, EFFECTS)
+    assert HS.PARAM_BLOCKS == ("drive",) + tuple(e.name for e in hw)
+    assert HS.STATE_BLOCKS == tuple(e.name for e in hw)
+    scene = load_scene("rig-randomized", {"effects.shaker.back_emf": True})
+    hard = Hardware(scene, 1)
+    assert hard.flags == sum(REG.flag(e.name) for e in hw if scene.effects.on(e.name)) + HS.F_BACK_EMF
+    for e in hw:  # each block as big as the effect's packer says (the largest over the ranges)
+        assert e.pack is not None
+        p, s = e.pack(getattr(scene.effects, e.section), hard.rate, scene.effects.on(e.name))
+        assert hard.param_block(e.name).shape[1] == p.size and hard.state_block(e.name).shape[1] >= s
     assert SENSOR_SIDE == REG.READINGS_ONLY
-    for e in REG.REGISTRY:
-        assert callable(e.step) and e.side in (REG.HARDWARE, REG.CONTROLLER)
+
+
+def test_every_effect_module_is_in_the_registry():
+    """A module of impact_env/effects/ that declares an Effect is listed in the registry (a new
+    effect's module without its registry line fails here), and the docs' table of effects is the
+    one the registry writes (``python scripts/docs_tables.py`` rewrites it)."""
+    import importlib
+    import pkgutil
+    from pathlib import Path
+
+    import impact_env.effects as pkg
+    from impact_env.effects import registry as REG
+    from impact_env.effects.effect import Effect
+
+    declared = []
+    for mod in pkgutil.iter_modules(pkg.__path__):
+        m = importlib.import_module(f"impact_env.effects.{mod.name}")
+        declared += [v for k, v in vars(m).items() if isinstance(v, Effect) and m.__name__ != REG.__name__]
+    assert set(declared) == set(REG.REGISTRY)
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "scenes.md").read_text()
+    assert REG.markdown_table() in docs, "docs/scenes.md: stale effects table (scripts/docs_tables.py)"

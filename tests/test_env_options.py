@@ -97,3 +97,49 @@ def test_every_env_takes_the_task_options_from_one_definition():
         ImpactCatchEnv(RIG, catch_treshold=0.1)
     with pytest.raises(TypeError, match="'catch_treshold'"):
         RigEnv("udp://127.0.0.1:9", catch_treshold=0.1)  # refused before any datagram is sent
+
+
+def test_the_reward_effort_term():
+    """``effort_weight`` w adds ``w (f_applied / command_scale)^2 * T / 1 ms`` to each tick's cost:
+    two envs on the same seed and actions (the weight changes no state) differ in reward by
+    exactly that, to rounding; the observations stay bitwise the same."""
+    w = 0.3
+    weighted = ImpactCatchEnv(RIG, effort_weight=w, horizon=0.02)
+    plain = ImpactCatchEnv(RIG, horizon=0.02)
+    ow, _ = weighted.reset(seed=2)
+    op, _ = plain.reset(seed=2)
+    rng = np.random.default_rng(4)
+    scale = RIG.effects.command_scale
+    step_weight = RIG.control_period / 1e-3
+    pushed = 0
+    for _ in range(200):
+        a = rng.uniform(-1, 1, 1).astype(np.float32)
+        ow, rw, tew, trw, iw = weighted.step(a)
+        op, rp, tep, trp, ip = plain.step(a)
+        assert np.array_equal(ow, op) and iw["force_applied"] == ip["force_applied"]
+        u = iw["force_applied"] / scale
+        assert rw - rp == pytest.approx(-w * u * u * step_weight, rel=1e-9, abs=1e-15)
+        pushed += abs(u) > 0.1
+        if tew or trw:
+            break
+    assert pushed > 10  # the term was exercised, not only its zero
+
+
+def test_task_options_derive_the_evaluation_and_the_docs():
+    """Each option's metadata says what follows from it: the kernel's parameters (the options it
+    reads, by name), the values at evaluation (every reward penalty 0; agents.train applies
+    them) and the env's documented option list."""
+    from dataclasses import fields
+
+    from impact_env.env.task import EVALUATION_OPTIONS, TaskConfig, TaskParams
+
+    cfg = TaskConfig()
+    p = cfg.params(RIG)
+    for f in fields(TaskConfig):
+        assert (f.name in TaskParams._fields) == f.metadata["kernel"], f.name
+        if f.metadata["kernel"]:
+            assert getattr(p, f.name) == float(getattr(cfg, f.name))
+        if f.name.endswith("_weight"):  # a reward penalty: off when an agent is evaluated
+            assert EVALUATION_OPTIONS[f.name] == 0.0, f.name
+        assert f"``{f.name}=" in ImpactCatchEnv.__doc__, f.name
+    assert EVALUATION_OPTIONS["terminate_on_catch"] is False

@@ -4,14 +4,9 @@ figures in the report come from ``python tests/fuzz_scene.py 3000``."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
+from fuzz_scene import FIELDS, cases, outcome
 from hypothesis import HealthCheck, given, settings
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fuzz_scene import FIELDS, cases, outcome  # noqa: E402
 
 
 @pytest.mark.slow

@@ -11,23 +11,19 @@ never comes back.
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
+import budget
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from naive import Params, hertz_drop, reference_drop, sim_overrides
 
 import impact_env
 from impact_env import SimulationDiverged
 from impact_env.hardware.arrays import initial_state, plant_params
 from impact_env.hardware.stability import STABILITY_LIMIT
 from impact_env.plant import hertz
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import budget  # noqa: E402
-from naive import Params, hertz_drop, reference_drop, sim_overrides  # noqa: E402
 
 G = 9.81
 

@@ -3,7 +3,6 @@ scripts/paired_comparison.py): policies run on the same drops are compared drop 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -56,7 +55,6 @@ def test_agents_report_says_better_from_the_paired_difference(monkeypatch):
     so 'better'; its catch times are drawn like pd-penetration's, so 'NOT shown better'.  The figure
     keys every colour it draws (the shipped agent, other PPO runs, SAC runs, classic laws, the
     oracle) and labels every x axis."""
-    sys.path.insert(0, str(ROOT / "scripts"))
     import agents_report as AR
     from matplotlib.colors import to_rgba
 

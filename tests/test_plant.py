@@ -12,24 +12,20 @@ from __future__ import annotations
 
 import math
 import re
-import sys
-from pathlib import Path
 
+import budget
+import naive
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from naive import Params, hertz_drop, reference_drop, sim_overrides
 
 import impact_env
 from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params
 from impact_env.plant import hertz
 from impact_env.plant import layout as L
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import budget  # noqa: E402
-import naive  # noqa: E402
-from naive import Params, hertz_drop, reference_drop, sim_overrides  # noqa: E402
 
 G = 9.81
 

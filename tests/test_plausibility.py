@@ -5,12 +5,12 @@ episode on a target whose driver reports a fault longer than the scene's limit."
 
 from __future__ import annotations
 
-import sys
 import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+from rig_drivers import BlindRig
 
 from impact_env.config import ConfigError
 from impact_env.control import plausibility as PL
@@ -19,9 +19,6 @@ from impact_env.deploy.c_export import write_c
 from impact_env.policy.export import export_policy
 from impact_env.rig import safety as SF
 from impact_env.scene import load_scene
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from rig_drivers import BlindRig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENT = f"compiled:{ROOT / 'agents/models/best/best.policy.json'}"
@@ -192,7 +189,7 @@ def test_defaults_never_flag_a_real_episode():
     for name in ("rig", "rig-randomized"):
         scene = load_scene(name)
         p = PL.plausibility_params(scene)
-        allowed = p.ch[:, PL.P_STEP] + p.ch[:, PL.P_TOL]
+        allowed = p.ch[:, PL.CC.max_jump] + p.ch[:, PL.CC.tol]
         worst = np.zeros(3)
         for spec in ("passive", "pd-penetration", "thesis-rig", AGENT):
             pol = export_policy(spec, scene)

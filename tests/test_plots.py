@@ -171,11 +171,10 @@ MAGIC = {"png": b"\x89PNG", "pdf": b"%PDF", "svg": b"<svg"}
 
 
 @pytest.fixture(scope="module")
-def rig_logs(tmp_path_factory):
+def rig_logs(tmp_path_factory, wait_until):
     """Episode logs of ``passive`` and ``pd-penetration`` run onboard on the virtual rig (lock-step,
     the target in a thread of this process): {policy: path}."""
     import threading
-    import time
 
     from impact_env.policy.export import export_policy
     from impact_env.rig.driver import VirtualRig
@@ -191,11 +190,12 @@ def rig_logs(tmp_path_factory):
         for policy in ("passive", "pd-penetration"):
             before = set(logs.glob("episode_*.h5"))
             client.arm("onboard", 3, 1500, policy=export_policy(policy, load_scene("rig")))
-            deadline = time.monotonic() + 120
-            while not (new := set(logs.glob("episode_*.h5")) - before):
-                assert time.monotonic() < deadline, f"no log of the {policy} episode"
-                time.sleep(0.05)
-            out[policy] = new.pop()
+            def new(before=before):
+                return set(logs.glob("episode_*.h5")) - before
+
+            # a 1500-tick episode takes about a second here: 120 s only guards against a hang
+            wait_until(lambda: bool(new()), f"the {policy} episode's log", 120)
+            out[policy] = new().pop()
     finally:
         client.close()
         target.stop()

@@ -228,7 +228,9 @@ def test_per_env_delays_shift_by_their_own_length():
     seeds.sort()
     sim = Simulator(sc, 2)
     sim.reset([np.random.default_rng(s) for _, s in seeds])
-    assert list(sim.hw.param_block("sensor_delay")[:, 0]) == [0, 3] and sim.hw.k_sens_max == 3
+    # the delay line holds the longest delay of the range: 3 samples of 4 channels, and its head
+    assert list(sim.hw.param_block("sensor_delay")[:, 0]) == [0, 3]
+    assert sim.hw.state_block("sensor_delay").shape[1] == 1 + 3 * 4
     _ys, rd, _info = _run(sim, 0.0, 300)
     # same plant (only the delay is ranged): env 1 reads env 0's readings 3 samples late
     np.testing.assert_array_equal(rd[3:, 1], rd[:-3, 0])

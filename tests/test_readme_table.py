@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
+import readme_table as RT
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
-import readme_table as RT  # noqa: E402
 
 
 def test_the_readme_command_is_the_main_job():

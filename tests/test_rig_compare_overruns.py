@@ -36,15 +36,15 @@ def test_records_sit_on_their_ticks_across_skipped_ones():
     log = _log_with_gap(range(40, 50))
     rec = log_records(log)
     assert rec.shape[0] == 100  # ticks 0..99, not the 90 rows
-    np.testing.assert_array_equal(rec[:, R.REC_T], (np.arange(100) + 1) / RATE)
-    np.testing.assert_allclose(rec[:, R.REC_X1], 1e-3 * np.arange(100), rtol=0, atol=1e-15)  # linear: exact
-    assert np.all(rec[40:50, R.REC_U] == rec[39, R.REC_U])  # the command the DAC held
-    assert rec[50, R.REC_U] == 0.5 and rec[39, R.REC_U] == 0.39
+    np.testing.assert_array_equal(rec[:, R.REC.t], (np.arange(100) + 1) / RATE)
+    np.testing.assert_allclose(rec[:, R.REC.x1], 1e-3 * np.arange(100), rtol=0, atol=1e-15)  # linear: exact
+    assert np.all(rec[40:50, R.REC.u] == rec[39, R.REC.u])  # the command the DAC held
+    assert rec[50, R.REC.u] == 0.5 and rec[39, R.REC.u] == 0.39
     assert skipped_fraction(log) == pytest.approx(0.1)
     full = _log_with_gap(range(0))
     assert skipped_fraction(full) == 0.0
     r = log_records(full)  # without a gap: the rows as they are, bitwise
-    assert np.array_equal(r[:, R.REC_X1], full["true_x1_m"][:100]) and r.shape[0] == 100
+    assert np.array_equal(r[:, R.REC.x1], full["true_x1_m"][:100]) and r.shape[0] == 100
 
 
 def _free_udp_port() -> int:

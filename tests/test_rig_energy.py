@@ -173,8 +173,8 @@ def _match(est, sep, on, scene):
     late_on, early_off = EN.crossing_delays(_thr(scene), scene.plant.c, on[3] - on[5], sep[5] - sep[3],
                                             sep[2] - sep[4])
     fl = est.flights
-    ok = ((fl[:, EN.F_TSEP] >= sep[0] - early_off - dt) & (fl[:, EN.F_TSEP] <= sep[0] + dt)
-          & (fl[:, EN.F_TON] >= on[0] - dt) & (fl[:, EN.F_TON] <= on[0] + late_on + dt))
+    ok = ((fl[:, EN.FL.t_sep] >= sep[0] - early_off - dt) & (fl[:, EN.FL.t_sep] <= sep[0] + dt)
+          & (fl[:, EN.FL.t_on] >= on[0] - dt) & (fl[:, EN.FL.t_on] <= on[0] + late_on + dt))
     j = np.flatnonzero(ok)
     return int(j[0]) if j.size else None
 
@@ -214,11 +214,11 @@ def test_flight_energies_within_the_derived_bounds(case, source, method, request
             continue
         matched += 1
         f = est.flights[j]
-        chk = FlightCheck(scene, sep, on, f[EN.F_T], _v2max(log, sep[0], on[0]), method)
-        assert -2 / scene.control_rate <= f[EN.F_T] - chk.T <= chk.dT_max
-        assert abs(f[EN.F_ESEP] - chk.e_sep) <= chk.dE
+        chk = FlightCheck(scene, sep, on, f[EN.FL.T], _v2max(log, sep[0], on[0]), method)
+        assert -2 / scene.control_rate <= f[EN.FL.T] - chk.T <= chk.dT_max
+        assert abs(f[EN.FL.e_sep] - chk.e_sep) <= chk.dE
         if method == "ballistic":
-            assert abs(f[EN.F_V1] - chk.v1) <= chk.dv
+            assert abs(f[EN.FL.v1] - chk.v1) <= chk.dv
     assert matched >= (8 if case == "passive_rig" else 2)
 
 
@@ -245,14 +245,14 @@ def test_summary_against_the_simulator(case, request):
             continue  # read during a contact: an interpolation, not checked
         sep, on = inside[0]
         j = _match(est, sep, on, scene)
-        chk = FlightCheck(scene, sep, on, est.flights[j, EN.F_T], _v2max(log, sep[0], on[0]), "ballistic")
+        chk = FlightCheck(scene, sep, on, est.flights[j, EN.FL.T], _v2max(log, sep[0], on[0]), "ballistic")
         sx = scene.effects.sensors.potentiometer.noise_std
         bound = chk.dE + m1 * G * (chk.edge_x + 5.0 * sx + chk.d_sep)
         assert abs(s[f"residual_energy_{mark}ms"] * e0 - e_true[k]) <= bound, mark
         checked += 1
     assert checked >= 2
     sep, on = flights[0]
-    chk = FlightCheck(scene, sep, on, est.flights[0, EN.F_T], _v2max(log, sep[0], on[0]), "ballistic")
+    chk = FlightCheck(scene, sep, on, est.flights[0, EN.FL.T], _v2max(log, sep[0], on[0]), "ballistic")
     assert abs(s["exit_velocity_ratio"] * scene.impact_speed - (-sep[3])) <= chk.dv
     # bounces: every true flight of 1 ms or more that the force threshold resolves, and no other
     true_bounces = [(a, b) for a, b in flights if b[0] - a[0] >= 1e-3]
@@ -289,10 +289,10 @@ def test_estimate_flights_interpolation_and_the_final_contact():
     u0, e0 = PLANT.rest_energy, PLANT.impact_energy
     f1 = EN.flight_energy(0.096, 0.1, G) + u0
     f2 = EN.flight_energy(0.047, 0.1, G) + u0
-    np.testing.assert_allclose(est.flights[:, EN.F_T], [0.096, 0.047])
-    np.testing.assert_allclose(est.flights[:, EN.F_V1], [-G * 0.096 / 2, -G * 0.047 / 2])  # no x2: eq 4.5
-    np.testing.assert_allclose(est.flights[:, EN.F_ESEP], [f1, f2])
-    np.testing.assert_allclose(est.flights[:, EN.F_ELAND], [f1, f2])
+    np.testing.assert_allclose(est.flights[:, EN.FL.T], [0.096, 0.047])
+    np.testing.assert_allclose(est.flights[:, EN.FL.v1], [-G * 0.096 / 2, -G * 0.047 / 2])  # no x2: eq 4.5
+    np.testing.assert_allclose(est.flights[:, EN.FL.e_sep], [f1, f2])
+    np.testing.assert_allclose(est.flights[:, EN.FL.e_land], [f1, f2])
     E = est.energy_J
 
     def at(t):

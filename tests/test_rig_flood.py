@@ -29,7 +29,7 @@ from impact_env.rig.auth import write_key
 from impact_env.rig.host import RigEnv
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from rig_helpers import start_target, stop  # noqa: E402
+from rig_helpers import FLOOD, start_target, stop  # noqa: E402
 from test_rig_session import Recorder  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(not Path("/proc/net/udp").exists(),
@@ -38,62 +38,6 @@ pytestmark = [pytest.mark.slow, pytest.mark.skipif(not Path("/proc/net/udp").exi
 N_FLOOD = 20_000  # datagrams; at the rate one Python process sends them, a second or two
 MAX_FLOOD_S = 20.0
 
-FLOOD = r"""
-import json, os, random, socket, sys, time
-host, port, hello_hex, go_file, n_max, max_s = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4], \
-    int(sys.argv[5]), float(sys.argv[6])
-hello = bytes.fromhex(hello_hex)
-s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-s.bind(("127.0.0.1", 0))
-s.setblocking(False)
-rng = random.Random(7)
-# a COMMAND-shaped frame (valid magic, version, length) under a tag nobody's key makes
-frame = bytearray(hello[:42])
-frame[6] = 7
-frame[40:42] = (18).to_bytes(2, "little")
-bad_tag = bytes(frame) + bytes(18) + bytes(16)
-kinds = ("replayed_hello", "bad_tag", "malformed", "truncated")
-sent = dict.fromkeys(kinds, 0)
-not_sent = replies = reply_bytes = 0
-print("ready", flush=True)
-while not os.path.exists(go_file):
-    time.sleep(0.001)
-t0 = time.perf_counter()
-k = 0
-while k < n_max and time.perf_counter() - t0 < max_s:
-    kind = kinds[k % 4]
-    if kind == "replayed_hello":
-        data = hello
-    elif kind == "bad_tag":
-        data = bad_tag[:-16] + rng.randbytes(16)
-    elif kind == "malformed":
-        data = b"JUNK" + rng.randbytes(rng.randint(60, 400))
-    else:
-        data = hello[:rng.randint(0, 57)]
-    k += 1
-    try:
-        s.sendto(data, (host, port))
-        sent[kind] += 1
-    except BlockingIOError:
-        not_sent += 1
-    if k % 64 == 0:
-        while True:
-            try:
-                reply_bytes += len(s.recv(70000))
-                replies += 1
-            except BlockingIOError:
-                break
-elapsed = time.perf_counter() - t0
-time.sleep(0.3)
-while True:
-    try:
-        reply_bytes += len(s.recv(70000))
-        replies += 1
-    except BlockingIOError:
-        break
-print(json.dumps({"sent": sent, "not_sent": not_sent, "replies": replies, "reply_bytes": reply_bytes,
-                  "elapsed_s": elapsed}), flush=True)
-"""
 
 
 def _kernel_drops(port: int) -> int:

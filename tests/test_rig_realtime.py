@@ -111,7 +111,7 @@ def test_host_commands_act_from_their_arrival_tick():
             assert status & SF.WATCHDOG and f == 0.0
         if m >= 6:
             assert rows[m, LG.COMMAND_STEP] == 1 and rows[m, LG.COMMAND_AGE] == m - 6
-    assert ctl.st[CT.ST_CMD_FIRST] == 6
+    assert ctl.st[CT.OWN.cmd_first] == 6
 
 
 def test_skip_rule():
@@ -216,9 +216,9 @@ def _own_step_share(wait_ms: float) -> tuple[int, int, dict]:
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from rig_helpers import start_target, stop
-
     import os
+
+    from rig_helpers import start_target, stop
 
     proc, addr = start_target("--scene", "rig", "--set", "control.rate=2500", "--command-wait", str(wait_ms))
     # the target's loop spins on the last CPU (impact_env.rig.placement); a host on the same machine

@@ -166,7 +166,7 @@ def test_the_loops_observation_decodes_with_the_protocol_and_its_resend_is_a_new
     assert (b.episode, b.step, b.status, b.dtype) == (EPISODE, 10, 0x105, 4)
     assert b.obs == tuple(float(np.float32(x)) for x in obs)
     assert b.telemetry == tuple(tel) + tuple(records[1:5].ravel())
-    assert msgs[1].seq == 101 and msgs[1].body == b and int(w.c.obs_sent[0]) == 2
+    assert msgs[1].seq == 101 and msgs[1].body == b and int(w.c.sent[0]) == 2
 
 
 def test_records_with_a_nan_are_left_out():
@@ -191,3 +191,102 @@ def test_records_with_a_nan_are_left_out():
 def test_sockaddr_round_trip(peer):
     raw, mask = WR.sockaddr(peer)
     assert len(raw) == len(mask) and WR.address(np.frombuffer(raw, np.uint8), len(raw))[:2] == peer[:2]
+
+
+def _observation(seq: int, episode: int = EPISODE, step: int = 0, n: int = 3, m: int = 4, dtype: int = 4,
+                 session: int = SESSION, key: bytes = KEY, nonce: int = NONCE) -> bytes:
+    obs = tuple(float(np.float32(0.25 * k - 0.5)) for k in range(n))
+    tel = tuple(float(k) * 1.5 for k in range(m))
+    return P.encode(P.Message(P.Observation(episode, step, 7, dtype, obs, tel), session=session, seq=seq), key,
+                    nonce)
+
+
+def test_the_hosts_compiled_path_gives_every_observation_the_filters_reason():
+    """The host's side (impact_env.rig.host_wire.classify_observation) against the host's Python
+    filter, fuzzed as the target's: each OBSERVATION from the target gets the filter's reason,
+    every other datagram is queued, and an accepted one of the episode at or after the step
+    awaited, newer than the one held, is copied out with its values."""
+    from impact_env.rig import host_wire as HW
+
+    r = random.Random(26)
+    w = _wire()
+    f = P.DatagramFilter("host", session=SESSION, key=KEY)
+    f.nonce, f.peer = NONCE, HOST
+    seq, step, sent = 0, 0, []
+    outcomes: dict[str, int] = {}
+    for i in range(10_000):
+        if i % 30 == 0:
+            step += 1
+            w.st.got[0] = 0  # a new wait
+        kind = r.randrange(9)
+        seq += 1
+        sender = HOST
+        if kind <= 2:
+            data = _observation(seq, step=step + r.randint(-1, 1), n=r.randint(0, 12), m=r.randint(0, 30),
+                                dtype=r.choice([4, 8]))
+        elif kind == 3 and sent:
+            data = r.choice(sent[-80:])
+        elif kind == 4:
+            data = _observation((seq - 1 - r.randint(0, 100)) & P.U32, step=step)
+            seq -= 1
+        elif kind == 5:
+            b = bytearray(_observation(seq, step=step))
+            for bit in r.sample(range(8 * len(b)), r.randint(1, 3)):
+                b[bit // 8] ^= 1 << (bit % 8)
+            data = bytes(b)
+        elif kind == 6:
+            base = _observation(seq, step=step)
+            data = base[:r.randint(0, len(base) - 1)] if r.random() < 0.5 else base + bytes(r.randint(1, 9))
+        elif kind == 7:
+            data = r.choice([_observation(seq, session=SESSION ^ 1, step=step),
+                             _observation(seq, key=b"x" * 32, step=step),
+                             _observation(seq, episode=EPISODE + 1, step=step),
+                             P.encode(P.Message(P.EpisodeEnd(EPISODE, 1, 0, 10, 2, 0, bytes(32)), session=SESSION,
+                                                seq=seq), KEY, NONCE)])
+        else:
+            data, sender = _observation(seq, step=step), STRANGER
+        _put(w, data, sender)
+        before = {k: int(getattr(w.c, k)[0]) for k in WR.WireCounts._fields}
+        held = (int(w.st.got[0]), int(w.st.out_step[0]))
+        HW.classify_observation(w, len(data), EPISODE, step)
+        moved = [k for k in WR.WireCounts._fields if int(getattr(w.c, k)[0]) != before[k] and k != "authentic"]
+        assert len(moved) == 1, moved
+        what = moved[0]
+        if what == "queued":
+            assert WR.queued(w) == [(data, sender)]
+        else:
+            msg = f.accept(data, None, None, sender)
+            want = "accepted" if msg is not None else f.last_reason
+            assert what == want, (i, kind, what, want, f.last_error)
+            if msg is not None:
+                sent.append(data)
+                b = msg.body
+                taken = b.episode == EPISODE and b.step >= step and not (held[0] and b.step <= held[1])
+                assert (int(w.st.got[0]), int(w.st.out_step[0])) == ((1, b.step) if taken else held)
+                if taken:
+                    n, m = int(w.st.out_n[0]), int(w.st.out_m[0])
+                    assert (n, m, int(w.st.out_status[0])) == (len(b.obs), len(b.telemetry), b.status)
+                    assert tuple(w.out[:n]) == b.obs and tuple(w.out[n:n + m]) == b.telemetry
+        outcomes[what] = outcomes.get(what, 0) + 1
+    for reason in ("accepted", "corrupt", "unauthenticated", "wrong_session", "duplicate", "out_of_order",
+                   "queued"):
+        assert outcomes.get(reason, 0) > 0, outcomes
+    print("host wire fuzz:", outcomes)
+
+
+def test_the_hosts_command_is_protocol_command_datagram_byte_for_byte():
+    """host_wire.send_command puts protocol.command_datagram's bytes on the wire."""
+    from impact_env.rig import host_wire as HW
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        w = _wire(tx.fileno(), peer=rx.getsockname())
+        HW.send_command(w, EPISODE, 41, -0.375, 9, 123456789)
+        rx.settimeout(2.0)
+        got = rx.recv(65536)
+    finally:
+        rx.close()
+        tx.close()
+    assert got == P.command_datagram(EPISODE, 41, -0.375, SESSION, 9, 123456789, 0, KEY, NONCE)

@@ -72,7 +72,7 @@ def test_out_is_checked_before_anything_runs(tmp_path, capsys, monkeypatch):
         raise AssertionError("simulated before checking --out")
 
     monkeypatch.setattr(cli_compare, "compare", boom)
-    monkeypatch.setattr("impact_env.eval.sweep.sweep", boom)  # cmd_sweep imports it when it runs
+    monkeypatch.setattr("impact_env.cli.sweep.sweep", boom)
     afile = tmp_path / "afile"
     afile.write_text("x")
     assert main(["compare", "--policies", "passive", "--episodes", "1", "--out", str(afile)]) == 2

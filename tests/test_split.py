@@ -18,25 +18,21 @@ exact motion for the touch, and ``solve_ivp`` (DOP853, rtol 1e-12, event restart
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
+import budget
 import numpy as np
 import pytest
+from naive import Params, reference_drop, sim_overrides
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import budget  # noqa: E402
-from naive import Params, reference_drop, sim_overrides  # noqa: E402
-
-import impact_env  # noqa: E402
-from impact_env.config import ConfigError  # noqa: E402
-from impact_env.hardware.arrays import initial_state, plant_params  # noqa: E402
-from impact_env.plant import layout as L  # noqa: E402
-from impact_env.plant.free_flight import MAX_TERMS, ROOT_TOL, body2_after, free_cap, touch_time  # noqa: E402
-from impact_env.plant.integrators import PlantCarry, PlantConsts, advance  # noqa: E402
+import impact_env
+from impact_env.config import ConfigError
+from impact_env.hardware.arrays import initial_state, plant_params
+from impact_env.plant import layout as L
+from impact_env.plant.dynamics import Coefs
+from impact_env.plant.free_flight import MAX_TERMS, ROOT_TOL, body2_after, free_cap, touch_time
+from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
 
 EPS = float(np.finfo(float).eps)
 G_ACC = 9.81
@@ -47,6 +43,11 @@ def exact_body2(x2, v2, h, f2, m2, k2, c2):
     a = np.array([[0.0, 1.0, 0.0], [-k2 / m2, -c2 / m2, -f2 / m2], [0.0, 0.0, 0.0]])
     z = expm(a * h) @ np.array([x2, v2, 1.0])
     return z[0], z[1]
+
+
+def coefs_of(m2, k2, c2, m1=0.1, c=2e6, b=0.0, g=G_ACC):
+    """The kernels' :class:`Coefs` of these parameters."""
+    return Coefs(m1, m2, 1.0 / m1, 1.0 / m2, c, b, g, k2, c2)
 
 
 def random_body2(rng):
@@ -62,10 +63,10 @@ def test_body2_free_motion_matches_expm():
     rng = np.random.default_rng(7)
     for _ in range(300):
         m2, k2, c2 = random_body2(rng)
-        cap = free_cap(1.0 / m2, k2, c2)
+        cap = free_cap(coefs_of(m2, k2, c2))
         h = min(cap, 1e-3) * rng.uniform(0.01, 1.0)
         x2, v2, f2 = rng.normal(0, 1e-3), rng.normal(0, 0.1), rng.normal(0, 50.0)
-        got = body2_after(x2, v2, h, f2, 1.0 / m2, k2, c2)
+        got = body2_after(x2, v2, h, f2, coefs_of(m2, k2, c2))
         want = exact_body2(x2, v2, h, f2, m2, k2, c2)
         sx = abs(x2) + abs(v2) * h + abs(want[0] - x2) + 1e-300
         sv = abs(v2) + abs(want[1] - v2) + 1e-300
@@ -89,7 +90,7 @@ def test_touch_time_matches_brentq(graze):
     found = 0
     for _ in range(200):
         m2, k2, c2 = random_body2(rng)
-        h = min(free_cap(1.0 / m2, k2, c2), 1e-4)
+        h = min(free_cap(coefs_of(m2, k2, c2)), 1e-4)
         x2, v2 = rng.normal(0, 1e-4), rng.normal(0, 0.01)
         if graze:
             # body 2 at rest, accelerated away from body 1 at acc: the gap rises to its top
@@ -105,7 +106,7 @@ def test_touch_time_matches_brentq(graze):
             x1 = x2 - rate * h * rng.uniform(0.05, 0.95)
         v1 = v2 + rate
         args = (x1, v1, x2, v2, f2, g, m2, k2, c2)
-        tau = touch_time(x1, v1, x2, v2, h, f2, g, 1.0 / m2, k2, c2, 2e6, 0.0)
+        tau = touch_time(x1, v1, x2, v2, h, f2, coefs_of(m2, k2, c2, g=g))
         ends_negative = _gap(h, *args) < 0
         if graze:
             assert ends_negative

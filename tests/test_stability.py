@@ -8,20 +8,16 @@ undamped limits, and simulations just inside and outside the limits the checks r
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from steps_per_contact import restitution_error
 
 import impact_env
 from impact_env.config import ConfigError
 from impact_env.hardware import stability as S
 from impact_env.scene import load_scene
 from impact_env.sim.simulator import Simulator
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from steps_per_contact import restitution_error  # noqa: E402
 
 
 def rk4_real_limit() -> float:

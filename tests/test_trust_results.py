@@ -124,12 +124,12 @@ def test_a_model_without_its_settings_is_refused_once_naming_the_file_and_keys(t
 def test_compare_exits_non_zero_when_a_policy_failed_every_episode():
     from types import SimpleNamespace
 
-    from impact_env.cli.compare import _all_failed
+    from impact_env.cli.compare import all_failed
 
     ok = SimpleNamespace(episodes=[0, 1], failures=[{"episode": 1}])
     dead = SimpleNamespace(episodes=[0, 1], failures=[{"episode": 0}, {"episode": 1}])
-    assert _all_failed({"a": ok}) == 0
-    assert _all_failed({"a": ok, "b": dead}) == 1
+    assert all_failed({"a": ok}) == 0
+    assert all_failed({"a": ok, "b": dead}) == 1
 
 
 def test_smaller_traps_each_with_its_fix(tmp_path, capsys):

@@ -7,6 +7,10 @@ import os
 from pathlib import Path
 
 from impact_env.config import ConfigError
+from impact_env.eval.parallel import parse_cluster
+from impact_env.figstyle import DPI, FORMATS, output_figure
+from impact_env.scene import load_scene
+from impact_env.scene.scene import ADAPTIVE
 
 
 def parse_overrides(pairs: list[str] | None) -> dict[str, str]:
@@ -41,8 +45,6 @@ def add_scene_arguments(p: argparse.ArgumentParser, positional: bool = False, de
 def scene_from_args(args, scene: str | None = None):
     """The scene named by ``args.scene`` (or ``scene``) with ``args.set`` and the integrator
     options (``--method``, ``--dt``, ``--rtol``, where the command has them) applied."""
-    from impact_env.scene import load_scene
-    from impact_env.scene.scene import ADAPTIVE
 
     ov = parse_overrides(getattr(args, "set", None))
     if getattr(args, "method", None):
@@ -80,7 +82,6 @@ def output_dir(path: str | Path, option: str = "--out") -> Path:
 def add_format_argument(p: argparse.ArgumentParser, default: str | None = "png",
                         what: str = "the plots'") -> None:
     """``--format png|pdf|svg``, the same on every command that plots (:mod:`impact_env.figstyle`)."""
-    from impact_env.figstyle import DPI, FORMATS
 
     extra = f"default {default}, {DPI} dpi" if default else f"default: the file's suffix; PNG at {DPI} dpi"
     p.add_argument("--format", default=default, choices=FORMATS, help=f"{what} file format ({extra})")
@@ -90,7 +91,6 @@ def output_figure_file(path: str | Path, fmt: str | None, option: str) -> Path:
     """The figure file ``option PATH [--format FMT]`` names (:func:`impact_env.figstyle.output_figure`:
     the suffix and the format agree), writable; checked before anything runs.  ConfigError naming
     the option otherwise."""
-    from impact_env.figstyle import output_figure
 
     try:
         p = output_figure(path, fmt, option)
@@ -127,7 +127,6 @@ def add_workers_arguments(p: argparse.ArgumentParser) -> None:
 def cluster_from_args(args) -> str | None:
     """``--cluster``'s address, checked before anything runs (ConfigError naming the option); the
     connection itself is made, and checked, by the command before its first task."""
-    from impact_env.eval.parallel import parse_cluster
 
     value = getattr(args, "cluster", None)
     if value is None:

@@ -8,19 +8,27 @@ from pathlib import Path
 
 from impact_env.cli.args import (
     add_format_argument,
+    add_scene_arguments,
     add_workers_arguments,
     cluster_from_args,
     output_dir,
     scene_from_args,
 )
+from impact_env.config import ConfigError
+from impact_env.eval import rig_compare as RC  # (called through the module: the rig tests stand in for it)
 from impact_env.eval.compare import compare, format_table, split_policies, summary_json, write_outputs
+from impact_env.policy.export import export_policy
+from impact_env.policy.registry import describe_policies, is_model_spec
+from impact_env.rig import protocol as P
+from impact_env.rig.auth import KeyFileError, load_key
+from impact_env.rig.transport import RigError
 
 
 # -- command line -------------------------------------------------------------------------------------
-def add_parser(sub, scene_args) -> None:
-    """Register ``compare`` on the CLI's subparsers (``scene_args`` adds --scene/--set)."""
-    p = sub.add_parser("compare", help="run policies on the same seeded drops and tabulate catch metrics")
-    scene_args(p)
+def add_arguments(p) -> None:
+    """``compare``'s arguments on its subparser (:data:`impact_env.cli.main.COMMANDS`)."""
+    add_scene_arguments(  # None: rig, or with --rig the rig's own
+        p, default=None, default_text="rig; with --rig, the simulation beside it only when given")
     p.add_argument("--policies", action="append", metavar="LIST",
                    help="comma-separated policy specs (default passive,thesis-rig,pd-penetration): the "
                         "classic laws passive, thesis-ideal, thesis-rig, pd-penetration (with parameters, "
@@ -55,14 +63,11 @@ def add_parser(sub, scene_args) -> None:
 
 def cmd_compare(args) -> int:
     if args.list:
-        from impact_env.policy.registry import describe_policies
-
         print(describe_policies())
         return 0
     texts = args.policies or ["passive,thesis-rig,pd-penetration"]
     specs = [s for text in texts for s in split_policies(text)]
     out_dir = output_dir(args.out) if args.out else None  # checked before anything runs
-    from impact_env.config import ConfigError
 
     if args.key and not args.rig:
         raise ConfigError("--key FILE is the rig's session key: it goes with --rig udp://HOST:PORT")
@@ -105,10 +110,10 @@ def cmd_compare(args) -> int:
         paths = write_outputs(runs, out_dir, scene, args.seed, horizon, fmt=args.format)
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
-    return _all_failed(runs)
+    return all_failed(runs)
 
 
-def _all_failed(runs) -> int:
+def all_failed(runs) -> int:
     """1 (and a line on stderr) when some policy failed in every episode: its row is no result."""
     dead = [spec for spec, run in runs.items() if run.episodes is not None and len(run.failures) > 0
             and len(run.failures) >= len(run.episodes)]
@@ -122,22 +127,14 @@ def _compare_rig(args, specs) -> int:
     """``--rig``: the rig's table, and with ``--scene`` the simulation's and the gap."""
     import tempfile
 
-    from impact_env.config import ConfigError
-    from impact_env.eval.rig_compare import rig_compare
-    from impact_env.policy.export import export_policy
-    from impact_env.policy.registry import is_model_spec
-    from impact_env.rig.auth import KeyFileError, load_key
-
     try:
         key = load_key(args.key, "--key") if args.key else None
     except KeyFileError as exc:
         raise ConfigError(str(exc)) from None
-    from impact_env.rig import protocol as P
-    from impact_env.rig.transport import RigError
 
     try:
         progress = not args.no_progress and not args.json
-        rig_scene, rig_runs = rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
+        rig_scene, rig_runs = RC.rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
                                           horizon=args.horizon, progress=progress, key=key)
     except RigError as exc:  # a key on one side only, or another: the refusal names the option, no traceback
         if exc.code == P.ErrorCode.UNAUTHENTICATED:

@@ -7,18 +7,59 @@ import math
 import sys
 from typing import Any
 
-from impact_env.cli.args import output_figure_file, parse_overrides, scene_from_args
+from impact_env.cli.args import (
+    add_format_argument,
+    add_scene_arguments,
+    output_figure_file,
+    parse_overrides,
+    scene_from_args,
+)
+from impact_env.config import ConfigError, to_dict
+from impact_env.eval.plots import plot_trajectory
+from impact_env.scene.presets import PRESETS
+from impact_env.sim.drop import SimulationDiverged, simulate
+
+
+def add_drop_arguments(p) -> None:
+    """``drop``'s arguments on its subparser (:data:`impact_env.cli.main.COMMANDS`)."""
+    add_scene_arguments(p, default_text="ideal, the thesis's ch. 3 drop without the rig's effects; "
+                                        "compare, sweep and the envs default to rig")
+    p.add_argument("--seed", type=int, default=None,
+                   help="for a scene with [randomize] ranges: draw this drop's values with this seed "
+                        "(default: the scene's nominal values); the JSON lists them under 'drawn'")
+    p.add_argument("--method", help="split (default: exact free flight, dopri5 in contact) | euler | "
+                                    "symplectic-euler | rk4 | dopri5")
+    p.add_argument("--dt", type=float, help="fixed step, s")
+    p.add_argument("--rtol", type=float, help="dopri5 relative tolerance")
+    p.add_argument("--t-end", type=float, default=None, help="simulated time, s (default: episode.horizon)")
+    p.add_argument("--record-rate", type=float, default=None,
+                   help="samples per second (default: control.rate)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plot", metavar="FILE.png", help="write positions, velocities, forces and energies "
+                                                      "(the suffix picks png, pdf or svg)")
+    add_format_argument(p, default=None, what="--plot's")
+    p.set_defaults(func=cmd_drop)
+
+
+def add_scenes_arguments(p) -> None:
+    """``scenes``'s arguments."""
+    add_scene_arguments(p, scene=False)
+    p.set_defaults(func=cmd_scenes)
+
+
+def add_scene_tools(p) -> None:
+    """``scene``'s subcommands (show)."""
+    ssub = p.add_subparsers(dest="scene_command", required=True)
+    q = ssub.add_parser("show", help="print a scene as TOML")
+    add_scene_arguments(q, positional=True)
+    q.set_defaults(func=cmd_scene_show)
 
 
 def cmd_drop(args) -> int:
-    from impact_env.sim.drop import SimulationDiverged, simulate
-
     scene = scene_from_args(args)
     plot = output_figure_file(args.plot, args.format, "--plot") if args.plot else None  # before simulating
     record_rate = args.record_rate
     if args.seed is not None and args.seed < 0:
-        from impact_env.config import ConfigError
-
         raise ConfigError(f"--seed {args.seed} must be an integer >= 0")
     if args.t_end is not None and args.t_end > 0 and math.isfinite(args.t_end):
         rate = record_rate or scene.control_rate
@@ -63,8 +104,6 @@ def cmd_drop(args) -> int:
         for w in m["warnings"]:
             print(f"  warning: {w}")
     if plot is not None:
-        from impact_env.eval.plots import plot_trajectory
-
         plot_trajectory(traj, str(plot))
         if not args.json:
             print(f"  plot written to {plot}")
@@ -74,8 +113,6 @@ def cmd_drop(args) -> int:
 def cmd_scenes(args) -> int:
     """List the presets; with ``--set``, every preset with the overrides applied (each must
     accept them) and the overridden values shown."""
-    from impact_env.config import to_dict
-    from impact_env.scene.presets import PRESETS
 
     ov = parse_overrides(args.set)
     for name in PRESETS:

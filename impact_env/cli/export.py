@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
-from impact_env.cli.args import scene_from_args
+from impact_env.cli.args import add_scene_arguments, scene_from_args
+from impact_env.config import ConfigError
+from impact_env.deploy.c_export import generate_c, write_c
+from impact_env.deploy.parity import check
+from impact_env.policy.export import export_policy, write_onnx
 
 
-def add_parser(sub, scene_args) -> None:
-    p = sub.add_parser("export", help="write a policy as a compiled policy file (runs without Python; "
-                                      "optionally also ONNX)")
+def add_arguments(p) -> None:
+    """``export``'s arguments on its subparser (:data:`impact_env.cli.main.COMMANDS`)."""
     p.add_argument("spec", help="a policy spec as compare takes it: pd-penetration:kp=3e5, ppo:PATH.zip, "
                                 "compiled:FILE")
-    scene_args(p)
+    add_scene_arguments(p, default="rig")
     p.add_argument("--out", metavar="FILE", help="the policy file to write (JSON)")
     p.add_argument("--onnx", metavar="FILE.onnx", help="also write the network as ONNX (MLP policies only)")
     p.add_argument("--c", metavar="DIR", dest="c_dir",
@@ -29,9 +32,6 @@ def add_parser(sub, scene_args) -> None:
 
 def cmd_export(args) -> int:
     from pathlib import Path
-
-    from impact_env.config import ConfigError
-    from impact_env.policy.export import export_policy, write_onnx
 
     if not (args.out or args.onnx or args.c_dir):
         raise ConfigError("nothing to write: give --out FILE (policy file), --c DIR (C source) and/or "
@@ -52,8 +52,6 @@ def cmd_export(args) -> int:
         f"MLP {' x '.join(str(len(ly['bias'])) for ly in mlp['layers'])} ({mlp['output']})"
     names = ", ".join(pol.layout.names)
     if args.c_dir:
-        from impact_env.deploy.c_export import generate_c
-
         generate_c(pol, scene, spec=args.spec)  # refuses what C cannot express before writing anything
     if args.out:
         pol.save(args.out)
@@ -64,14 +62,10 @@ def cmd_export(args) -> int:
         print(f"{args.onnx}: ONNX, input obs float32[N, {pol.layout.size}], output action float32[N, 1], "
               "with the observation's meaning in its metadata")
     if args.c_dir:
-        from impact_env.deploy.c_export import write_c
-
         h, c = write_c(pol, scene, args.c_dir, force=args.force, spec=args.spec)
         print(f"{c}, {h}: C99, {what}; impact_step(state, readings[4], &command, &force_n) once per tick "
               f"at {pol.control_rate:g} Hz")
         if args.check:
-            from impact_env.deploy.parity import check
-
             failed = []
             for f32 in (False, True):
                 build = "float32" if f32 else "double"

@@ -7,6 +7,15 @@ import json
 import sys
 from pathlib import Path
 
+from impact_env.cli.args import add_format_argument
+from impact_env.config import ConfigError
+from impact_env.ident import report
+from impact_env.ident.experiments import ExperimentError, load
+from impact_env.ident.fit import identify
+from impact_env.ident.plan import default_plan, run_plan
+from impact_env.rig.host import RigClient
+from impact_env.scene import PRESETS, load_scene
+
 
 def add_identify_arguments(p) -> None:
     p.add_argument("--base", default=None, metavar="SCENE",
@@ -16,14 +25,13 @@ def add_identify_arguments(p) -> None:
                    help="write [randomize] ranges of +-K standard uncertainties around each identified value "
                         "(for training on the identified rig with its uncertainty); default: one-point "
                         "ranges for the fields the controller reads, fixed values for the others")
-    from impact_env.cli.args import add_format_argument
 
     add_format_argument(p, what="the report's figures'")
     p.add_argument("--json", action="store_true", help="print the identification as one JSON object")
 
 
-def add_parser(sub) -> None:
-    p = sub.add_parser("identify", help="calibrate a scene to a rig from its identification logs (offline)")
+def add_arguments(p) -> None:
+    """``identify``'s arguments on its subparser (:data:`impact_env.cli.main.COMMANDS`)."""
     p.add_argument("logs", nargs="+", help="episode logs (.h5) or folders of them: quiet, shaker and "
                                            "identification-drop episodes (impact-env rig identify)")
     p.add_argument("--out", required=True, metavar="FILE.toml", help="the calibrated scene file to write")
@@ -36,8 +44,6 @@ def add_parser(sub) -> None:
 
 
 def _check_out(out: Path, force: bool) -> None:
-    from impact_env.config import ConfigError
-
     if out.suffix != ".toml":
         raise ConfigError(f"--out {str(out)!r} must be a .toml scene file")
     if out.exists() and not force:
@@ -45,10 +51,6 @@ def _check_out(out: Path, force: bool) -> None:
 
 
 def _base(args, exps):
-    from impact_env.config import ConfigError
-    from impact_env.ident.experiments import ExperimentError
-    from impact_env.scene import PRESETS, load_scene
-
     if args.base is None:
         scene = exps[0].scene
         ref = scene.name if scene.name in PRESETS and scene == load_scene(scene.name) else None
@@ -70,13 +72,7 @@ def _base(args, exps):
 
 
 def run_identification(args, paths, out: Path, report_dir: Path) -> int:
-    from impact_env.ident import report
-    from impact_env.ident.experiments import load
-    from impact_env.ident.fit import identify
-
     if args.ranges is not None and not 0 < args.ranges <= 10:
-        from impact_env.config import ConfigError
-
         raise ConfigError(f"--ranges {args.ranges!r} must be > 0 and <= 10 standard uncertainties")
     exps = load(paths)
     base, ref = _base(args, exps)
@@ -88,7 +84,6 @@ def run_identification(args, paths, out: Path, report_dir: Path) -> int:
         ref = base_file.name
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(report.scene_text(fit, ref, args.ranges))
-    from impact_env.scene import load_scene
 
     load_scene(out)  # what was written loads (and validates)
     data = report.to_json(fit)
@@ -114,9 +109,6 @@ def cmd_identify(args) -> int:
 
 def cmd_rig_identify(args) -> int:
     """Run the identification plan on the target at --rig, then fit (unless --no-fit)."""
-    from impact_env.config import ConfigError
-    from impact_env.ident.plan import default_plan, run_plan
-    from impact_env.rig.host import RigClient
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():

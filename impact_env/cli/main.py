@@ -1,8 +1,10 @@
 """Command line: ``impact-env drop | scenes | scene show | compare | sweep | export | rig | identify |
 robustness``.
 
-Every command takes ``--set KEY=VALUE`` (repeatable) through :func:`add_scene_arguments` and
-builds its scene with :func:`scene_from_args`; new commands should use the same two helpers.
+Every command takes ``--set KEY=VALUE`` (repeatable) through
+:func:`impact_env.cli.args.add_scene_arguments` and builds its scene with
+:func:`impact_env.cli.args.scene_from_args`; new commands should use the same two helpers, and
+a line in :data:`COMMANDS`.
 
 Bad input (unknown scene, key or method, a value out of range) prints one line naming the
 parameter to stderr and exits with code 2, before anything is simulated.
@@ -11,11 +13,10 @@ parameter to stderr and exits with code 2, before anything is simulated.
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
-from impact_env.cli import compare, export, identify, rig, robustness, sweep
-from impact_env.cli.args import add_format_argument, add_scene_arguments
-from impact_env.cli.drop import cmd_drop, cmd_scene_show, cmd_scenes
+from impact_env import __version__
 from impact_env.config import ConfigError
 
 DESCRIPTION = ("Catching a falling body with a shaker: simulate drops, compare control policies on the same "
@@ -37,55 +38,49 @@ Docs: README.md and docs/ in the source tree (baselines.md: compare, sweep and t
 scenes.md: scenes and --set; env.md: the Gymnasium env; rig.md: the rig; plant.md: the model)."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from impact_env import __version__
+#: every command: name -> (the function that adds its arguments, as "module:function", its one-line
+#: help).  A command's module is imported only when that command is parsed: the modules import
+#: their machinery (numba, scipy, the rig) at their top, and ``impact-env --help`` and
+#: ``--version`` import none of it.
+COMMANDS = {
+    "drop": ("impact_env.cli.drop:add_drop_arguments", "simulate one uncontrolled drop and summarise it"),
+    "scenes": ("impact_env.cli.drop:add_scenes_arguments",
+               "list the preset scenes (with --set: each with the overrides applied)"),
+    "scene": ("impact_env.cli.drop:add_scene_tools", "scene tools"),
+    "compare": ("impact_env.cli.compare:add_arguments",
+                "run policies on the same seeded drops and tabulate catch metrics"),
+    "sweep": ("impact_env.cli.sweep:add_arguments",
+              "sweep a baseline's two gains over a grid (thesis fig 4.4)"),
+    "export": ("impact_env.cli.export:add_arguments",
+               "write a policy as a compiled policy file (runs without Python; optionally also ONNX)"),
+    "rig": ("impact_env.cli.rig:add_arguments", "the rig: serve a target (real or virtual), make a session "
+            "key, run the identification plan, summarise an episode log (serve | keygen | identify | log)"),
+    "identify": ("impact_env.cli.identify:add_arguments",
+                 "calibrate a scene to a rig from its identification logs (offline)"),
+    "robustness": ("impact_env.cli.robustness:add_arguments", "map where each policy breaks as the rig's "
+                   "hardware departs from the scene (energy integral, catch time, peak force, saturation)"),
+}
 
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The command line's parser, with the arguments of ``command`` (the others by name and help
+    only: their modules stay unimported)."""
     ap = argparse.ArgumentParser(prog="impact-env", description=DESCRIPTION, epilog=EPILOG,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--version", action="version", version=f"impact-env {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
-
-    p = sub.add_parser("drop", help="simulate one uncontrolled drop and summarise it")
-    add_scene_arguments(p, default_text="ideal, the thesis's ch. 3 drop without the rig's effects; "
-                                        "compare, sweep and the envs default to rig")
-    p.add_argument("--seed", type=int, default=None,
-                   help="for a scene with [randomize] ranges: draw this drop's values with this seed "
-                        "(default: the scene's nominal values); the JSON lists them under 'drawn'")
-    p.add_argument("--method", help="split (default: exact free flight, dopri5 in contact) | euler | "
-                                    "symplectic-euler | rk4 | dopri5")
-    p.add_argument("--dt", type=float, help="fixed step, s")
-    p.add_argument("--rtol", type=float, help="dopri5 relative tolerance")
-    p.add_argument("--t-end", type=float, default=None, help="simulated time, s (default: episode.horizon)")
-    p.add_argument("--record-rate", type=float, default=None,
-                   help="samples per second (default: control.rate)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--plot", metavar="FILE.png", help="write positions, velocities, forces and energies "
-                                                      "(the suffix picks png, pdf or svg)")
-    add_format_argument(p, default=None, what="--plot's")
-    p.set_defaults(func=cmd_drop)
-
-    p = sub.add_parser("scenes", help="list the preset scenes (with --set: each with the overrides applied)")
-    add_scene_arguments(p, scene=False)
-    p.set_defaults(func=cmd_scenes)
-
-    p = sub.add_parser("scene", help="scene tools")
-    ssub = p.add_subparsers(dest="scene_command", required=True)
-    q = ssub.add_parser("show", help="print a scene as TOML")
-    add_scene_arguments(q, positional=True)
-    q.set_defaults(func=cmd_scene_show)
-
-    compare.add_parser(sub, lambda p: add_scene_arguments(  # None: rig, or with --rig the rig's own
-        p, default=None, default_text="rig; with --rig, the simulation beside it only when given"))
-    sweep.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
-    export.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
-    rig.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
-    identify.add_parser(sub)
-    robustness.add_parser(sub, lambda p: add_scene_arguments(p, default="rig"))
+    for name, (where, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name == command:
+            module, _, function = where.partition(":")
+            getattr(importlib.import_module(module), function)(p)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    ap = build_parser(command)
     args = ap.parse_args(argv)
     try:
         return args.func(args)

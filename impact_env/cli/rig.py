@@ -8,16 +8,27 @@ import math
 import sys
 import typing
 
-from impact_env.cli.args import add_format_argument, output_figure_file
+from impact_env.cli.args import add_format_argument, add_scene_arguments, output_figure_file, scene_from_args
+from impact_env.cli.identify import add_identify_arguments, cmd_rig_identify
+from impact_env.config import ConfigError
+from impact_env.rig.auth import KeyFileError, load_key, write_key
+from impact_env.rig.cdriver import CDriver
+from impact_env.rig.driver import RigDriver, VirtualRig
+from impact_env.rig.errors import RigError
+from impact_env.rig.flight_energy import summarize
+from impact_env.rig.log import read_episode
+from impact_env.rig.log_metrics import exact_metrics, has_truth
+from impact_env.rig.log_plot import plot_log
+from impact_env.rig.safety import OVERRUN, describe_status
+from impact_env.rig.target import Target, TargetConfig
+from impact_env.scene import load_scene
 
 
-def add_parser(sub, scene_args) -> None:
-    p = sub.add_parser("rig", help="the rig: serve a target (real or virtual), make a session key, run "
-                                  "the identification plan, summarise an episode log (serve | keygen | "
-                                  "identify | log)")
+def add_arguments(p) -> None:
+    """``rig``'s subcommands and their arguments on its subparser (:data:`impact_env.cli.main.COMMANDS`)."""
     rsub = p.add_subparsers(dest="rig_command", required=True)
     s = rsub.add_parser("serve", help="run the 10 kHz target until SIGTERM (prints a line with 'listening')")
-    scene_args(s)
+    add_scene_arguments(s, default="rig")
     d = s.add_mutually_exclusive_group(required=True)
     d.add_argument("--virtual", action="store_true", help="drive a simulated rig (the driver built in)")
     d.add_argument("--driver", metavar="LIB.so|MODULE:CLASS",
@@ -32,10 +43,13 @@ def add_parser(sub, scene_args) -> None:
                         "(default 1 ms)")
     s.add_argument("--command-wait", type=float, default=None, metavar="MS",
                    help="real-time host mode: a tick whose step's command has not come waits this long for it "
-                        "before acting (default 0.7 of the control period: 0.07 ms at 10 kHz; 0: never)")
+                        "before acting (default 0.8 of the control period: 0.08 ms at 10 kHz; 0: never)")
     s.add_argument("--loop-cpu", type=int, default=None, metavar="N",
                    help="the CPU the real-time loop is pinned to, the target's Python threads going to the "
                         "others (default: the last CPU, with two or more; -1: no pinning)")
+    s.add_argument("--loop-fifo", type=int, default=0, metavar="PRIO",
+                   help="run the loop's thread under SCHED_FIFO at this priority (1-99; needs root or "
+                        "CAP_SYS_NICE): no other thread preempts it; it then sleeps until 50 us before each tick")
     s.add_argument("--loop-nice", type=int, default=0, metavar="N",
                    help="the loop thread's nice value, e.g. -10 (needs root or CAP_SYS_NICE; default 0)")
     s.add_argument("--max-horizon", type=float, default=60.0, metavar="S",
@@ -70,8 +84,6 @@ def add_parser(sub, scene_args) -> None:
     i.add_argument("--seed", type=int, default=0, help="the episodes' seeds start here (default 0)")
     i.add_argument("--no-fit", action="store_true", help="record the logs only (fit later: impact-env identify)")
     i.add_argument("--force", action="store_true", help="add to a non-empty --out")
-    from impact_env.cli.identify import add_identify_arguments, cmd_rig_identify
-
     add_identify_arguments(i)
     i.set_defaults(func=cmd_rig_identify)
     k = rsub.add_parser("keygen", help="write a new random session key file (32 bytes, hex, mode 0600)")
@@ -89,18 +101,12 @@ def add_parser(sub, scene_args) -> None:
 def cmd_serve(args) -> int:
     from pathlib import Path
 
-    from impact_env.cli.args import scene_from_args
-    from impact_env.config import ConfigError
-    from impact_env.rig.driver import VirtualRig
-    from impact_env.rig.target import Target, TargetConfig
-
     if not args.session_timeout > 0:
         raise ConfigError(f"--session-timeout {args.session_timeout} s must be > 0 s")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port} is out of range: 0 to 65535")
     if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
         raise ConfigError(f"--log-dir {args.log_dir!r} exists and is not a folder")
-    from impact_env.rig.auth import KeyFileError, load_key
 
     try:
         key = load_key(args.key, "--key") if args.key else b""
@@ -110,8 +116,6 @@ def cmd_serve(args) -> int:
     if args.physics and not args.virtual:
         raise ConfigError("--physics describes a virtual rig's hardware: give it with --virtual")
     if args.virtual:
-        from impact_env.scene import load_scene
-
         driver = VirtualRig(scene, load_scene(args.physics) if args.physics else None)
     else:
         driver = load_driver(args.driver, scene, args.driver_config)
@@ -124,10 +128,11 @@ def cmd_serve(args) -> int:
                                      seed_offset=args.seed, key=key, session_timeout_s=args.session_timeout,
                                      max_gap_s=args.max_gap / 1e3, max_horizon_s=args.max_horizon,
                                      command_wait_s=None if args.command_wait is None else args.command_wait / 1e3,
-                                     loop_cpu=args.loop_cpu, loop_nice=args.loop_nice))
+                                     loop_cpu=args.loop_cpu, loop_nice=args.loop_nice,
+                                     loop_fifo=args.loop_fifo))
     except ValueError as exc:
         driver.shutdown()
-        option = any(name in str(exc) for name in ("command_wait_s", "loop_cpu", "loop_nice", "max_gap_s",
+        option = any(name in str(exc) for name in ("command_wait_s", "loop_cpu", "loop_nice", "loop_fifo", "max_gap_s",
                                                       "max_horizon_s", "log_flush_s"))
         raise ConfigError(str(exc) if option or args.virtual else f"--driver {args.driver}: {exc}") from None
     target.install_signal_handlers()
@@ -157,9 +162,6 @@ def cmd_serve(args) -> int:
 
 
 def cmd_keygen(args) -> int:
-    from impact_env.config import ConfigError
-    from impact_env.rig.auth import write_key
-
     try:
         path = write_key(args.file)
     except FileExistsError:
@@ -176,13 +178,7 @@ def load_driver(spec: str, scene, config: str = ""):
     constructed with ``scene``; ConfigError naming what is wrong before any device is opened."""
     import importlib
 
-    from impact_env.config import ConfigError
-    from impact_env.rig.driver import RigDriver
-
     if spec.endswith(".so") or spec.endswith(".dylib") or "/" in spec:
-        from impact_env.rig.cdriver import CDriver
-        from impact_env.rig.errors import RigError
-
         try:
             return CDriver(spec, scene, config)
         except RigError as exc:
@@ -211,12 +207,6 @@ def cmd_log(args) -> int:
     from pathlib import Path
 
     import numpy as np
-
-    from impact_env.config import ConfigError
-    from impact_env.rig.flight_energy import summarize
-    from impact_env.rig.log import read_episode
-    from impact_env.rig.log_metrics import exact_metrics, has_truth
-    from impact_env.rig.safety import describe_status
 
     if not Path(args.file).is_file():
         raise ConfigError(f"log file {args.file!r} not found")
@@ -264,8 +254,6 @@ def cmd_log(args) -> int:
         print(f"  counters (this episode): "
               f"{', '.join(f'{k} {v}' for k, v in log.meta.counters.items() if v) or 'all 0'}")
     if plot is not None:
-        from impact_env.rig.log_plot import plot_log
-
         plot_log(log, plot, est)
         if not args.json:
             print(f"  plot written to {plot}")
@@ -276,8 +264,6 @@ def timing_summary(log) -> dict:
     """Overruns and skipped ticks of an episode log, from its rows (and its counters, which the
     target wrote: both are given so that a reader sees they agree), with the lateness percentiles."""
     import numpy as np
-
-    from impact_env.rig.safety import OVERRUN
 
     n = log.n_ticks
     status = np.asarray(log["status"], dtype=np.int64) if n else np.zeros(0, np.int64)

@@ -6,17 +6,26 @@ import sys
 
 from impact_env.cli.args import (
     add_format_argument,
+    add_scene_arguments,
     add_workers_arguments,
     cluster_from_args,
     output_dir,
     scene_from_args,
 )
+from impact_env.config import ConfigError
+from impact_env.eval.compare import split_policies
+from impact_env.eval.robustness import (
+    format_table,
+    identified_bands,
+    parse_vary,
+    robustness,
+    write_outputs,
+)
 
 
-def add_parser(sub, scene_args) -> None:
-    p = sub.add_parser("robustness", help="map where each policy breaks as the rig's hardware departs from "
-                                          "the scene (energy integral, catch time, peak force, saturation)")
-    scene_args(p)
+def add_arguments(p) -> None:
+    """``robustness``'s arguments on its subparser (:data:`impact_env.cli.main.COMMANDS`)."""
+    add_scene_arguments(p, default="rig")
     p.add_argument("--policies", required=True,
                    help="comma-separated policies, as compare takes them (e.g. pd-penetration,thesis-rig,"
                         "compiled:agents/models/best/best.policy.json)")
@@ -37,16 +46,6 @@ def add_parser(sub, scene_args) -> None:
 
 
 def cmd_robustness(args) -> int:
-    from impact_env.config import ConfigError
-    from impact_env.eval.compare import split_policies
-    from impact_env.eval.robustness import (
-        format_table,
-        identified_bands,
-        parse_vary,
-        robustness,
-        write_outputs,
-    )
-
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed} must be >= 0")
     cluster = cluster_from_args(args)

@@ -6,17 +6,21 @@ import json
 
 from impact_env.cli.args import (
     add_format_argument,
+    add_scene_arguments,
     add_workers_arguments,
     cluster_from_args,
     output_dir,
     scene_from_args,
 )
+from impact_env.config import ConfigError
+from impact_env.eval.sweep import DEFAULT_AXES, parse_grid, plot, sweep, write_csv
+from impact_env.policy.registry import parse_spec
 
 
 # -- command line ------------------------------------------------------------------------------------
-def add_parser(sub, scene_args) -> None:
-    p = sub.add_parser("sweep", help="sweep a baseline's two gains over a grid (thesis fig 4.4)")
-    scene_args(p)
+def add_arguments(p) -> None:
+    """``sweep``'s arguments on its subparser (:data:`impact_env.cli.main.COMMANDS`)."""
+    add_scene_arguments(p, default="rig")
     p.add_argument("--policy", default="thesis-rig",
                    help="baseline whose gains are swept (default thesis-rig)")
     p.add_argument("--h01", metavar="LO:HI:N", help="grid of h01, 1/s^2 (thesis-rig default 1e5:5e6:20)")
@@ -43,8 +47,6 @@ def add_parser(sub, scene_args) -> None:
 
 
 def axes_from_args(args) -> tuple:
-    from impact_env.eval.sweep import DEFAULT_AXES, parse_grid
-
     items = []
     if args.h01:
         items.append(("h01", args.h01))
@@ -66,17 +68,12 @@ def axes_from_args(args) -> tuple:
 
 
 def cmd_sweep(args) -> int:
-    from impact_env.eval.sweep import plot, sweep, write_csv
-    from impact_env.policy.registry import parse_spec
-
     cluster = cluster_from_args(args)
     scene = scene_from_args(args)
     out = output_dir(args.out)  # checked before anything runs
     axes = axes_from_args(args)
     _, fixed = parse_spec(f"{args.policy}:{args.fixed}") if args.fixed else (None, {})
     if args.seed < 0:
-        from impact_env.config import ConfigError
-
         raise ConfigError(f"--seed {args.seed} must be an integer >= 0")
     res = sweep(scene, args.policy, axes, fixed, seed=args.seed, t_end=args.t_end, limit=args.limit,
                 objective=args.objective, workers=args.workers, progress=not (args.no_progress or args.json),

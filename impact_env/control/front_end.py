@@ -24,16 +24,14 @@ import numpy as np
 from impact_env._jit import jit
 from impact_env.control.observation import OBS_LIMIT, ObservationLayout
 from impact_env.effects import registry
-from impact_env.effects.detector import EFFECT as DETECTOR
 from impact_env.effects.detector import detect, detector_params
-from impact_env.effects.filters import EFFECT as FILTERS
 from impact_env.effects.filters import design_filters, filter_step
 from impact_env.effects.sensors import ACCEL, FORCE, N_CHANNELS
 from impact_env.scene import Scene
 
-# flag bits (the controller's effects, as each declares itself: impact_env.effects.registry)
-F_FILTERS = FILTERS.flag
-F_DETECTOR = DETECTOR.flag
+# flag bits (the controller's effects, as the registry orders them: impact_env.effects.registry)
+F_FILTERS = registry.flag("filters")
+F_DETECTOR = registry.flag("detector")
 
 
 class FrontEndParams(NamedTuple):
@@ -191,7 +189,7 @@ class FrontEnd:
         rate = scene.control_rate
         n = int(num_envs)
         self.layout = layout
-        flags = registry.flags(registry.CONTROLLER, fx.active)
+        flags = registry.flags(registry.CONTROLLER, fx)
         sos = design_filters(fx.filters, rate) if fx.on("filters") else np.zeros((N_CHANNELS, 1, 6))
         self.params = FrontEndParams(np.int64(flags), sos, detector_params(fx.detector, rate))
         self.state = FrontEndState(np.zeros((n, N_CHANNELS, sos.shape[1], 2)), np.zeros((n, 2)),

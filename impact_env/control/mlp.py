@@ -17,21 +17,39 @@ in registers, each in input order (``b + W[:, 0] x0 + ...``), so nothing is reas
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.config import ConfigError
 
 ACTIVATIONS = ("identity", "tanh", "relu", "hardtanh", "leaky_relu", "elu")
 ACT = {name: k for k, name in enumerate(ACTIVATIONS)}
 OUTPUTS = ("clip", "squash")
 OUT = {name: k for k, name in enumerate(OUTPUTS)}
-L_IN, L_OUT, L_ACT, L_W, L_B, L_A0, L_A1 = range(7)  # per-layer ints; L_A0/L_A1: activation params' offsets
-N_LAYER_INTS = 7
+
+
+class LayerInts(NamedTuple):
+    """A row of the layer table (int64[n_layers, N_LAYER_INTS]): sizes, the activation's code and
+    where the layer's floats start in the weights vector."""
+
+    n_in: int
+    n_out: int
+    activation: int  # ACT[name]
+    weight: int  # offset of W^T (n_in x n_out, row-major)
+    bias: int  # offset of b
+    a0: int  # offset of the activation's first parameter
+    a1: int  # ... and of its second
+
+
+LI = positions(LayerInts)
+N_LAYER_INTS = len(LI)
 
 
 def pack_mlp(layers: list[dict]) -> tuple[np.ndarray, np.ndarray, int]:
-    """(int64[n_layers, 7], float64 weights, widest layer) from ``[{"weight": [[...]], "bias":
+    """(int64[n_layers, N_LAYER_INTS], float64 weights, widest layer) from ``[{"weight": [[...]], "bias":
     [...], "activation": name, "params": [a0, a1]}, ...]`` (``params``: hardtanh's min and max,
     leaky_relu's slope, elu's alpha)."""
     if not layers:
@@ -56,8 +74,8 @@ def pack_mlp(layers: list[dict]) -> tuple[np.ndarray, np.ndarray, int]:
             raise ConfigError(f"MLP layer {j}: weights must be finite")
         params = np.asarray(layer.get("params", [0.0, 0.0]), dtype=np.float64).reshape(-1)
         params = np.concatenate([params, np.zeros(2)])[:2]
-        ints[j] = (W.shape[1], W.shape[0], ACT[act], off, off + W.size, off + W.size + b.size,
-                   off + W.size + b.size + 1)
+        ints[j] = LayerInts(n_in=W.shape[1], n_out=W.shape[0], activation=ACT[act], weight=off,
+                            bias=off + W.size, a0=off + W.size + b.size, a1=off + W.size + b.size + 1)
         chunks += [W.T.ravel(), b, params]
         off += W.size + b.size + 2
         n_prev = W.shape[0]
@@ -87,17 +105,17 @@ def mlp_forward(layers, w, obs, scratch):
     widest = scratch.shape[0] // 2
     x = scratch[:widest]
     y = scratch[widest:]
-    n0 = layers[0, L_IN]
+    n0 = layers[0, LI.n_in]
     for i in range(n0):
         x[i] = obs[i]
     for j in range(layers.shape[0]):
-        n_in = layers[j, L_IN]
-        n_out = layers[j, L_OUT]
-        ow = layers[j, L_W]
-        ob = layers[j, L_B]
-        code = layers[j, L_ACT]
-        a0 = w[layers[j, L_A0]]
-        a1 = w[layers[j, L_A1]]
+        n_in = layers[j, LI.n_in]
+        n_out = layers[j, LI.n_out]
+        ow = layers[j, LI.weight]
+        ob = layers[j, LI.bias]
+        code = layers[j, LI.activation]
+        a0 = w[layers[j, LI.a0]]
+        a1 = w[layers[j, LI.a1]]
         # eight outputs at a time in locals: eight independent add chains in registers, where
         # y[o] += ... in memory made every step a load and a store (y may alias w for LLVM).
         # Each output is still summed b + W[:, 0] x0 + W[:, 1] x1 + ...: bitwise the same.
@@ -130,7 +148,7 @@ def mlp_forward(layers, w, obs, scratch):
             o += 1
         for o in range(n_out):
             x[o] = _activate(code, y[o], a0, a1)
-    return x[:layers[layers.shape[0] - 1, L_OUT]]
+    return x[:layers[layers.shape[0] - 1, LI.n_out]]
 
 
 @jit(inline="always")

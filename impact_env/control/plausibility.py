@@ -69,6 +69,7 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.config import ConfigError
 from impact_env.effects.sensors import CHANNELS, N_CHANNELS
 
@@ -87,21 +88,40 @@ SENSOR_BITS = SENSOR_FAULT | SENSOR_TIMEOUT | SENSOR_ACCELEROMETER | SENSOR_FORC
 # a Gaussian exceeds 8 sigma with probability 1.2e-15, once in 3e4 years of ticks at 10 kHz
 NOISE_SIGMAS = 8.0
 
-# per-channel parameters (float64[N_CHANNELS, N_P])
-P_ON, P_LO, P_HI, P_STEP, P_TOL = range(5)
-N_P = 5
-# state (float64[N_STATE]): the last plausible reading of each channel and its tick, the faulty
-# ticks in a row, the latch, whether a reading was seen this episode, the episode's faulty ticks
+
+
+class ChannelCheck(NamedTuple):
+    """A row of the per-channel parameters (float64[N_CHANNELS, N_P])."""
+
+    on: float  # 1: the channel is checked (enabled)
+    lo: float  # the lowest plausible reading
+    hi: float  # the highest plausible reading
+    max_jump: float  # the largest plausible change per tick (0: no jump check)
+    tol: float  # the noise and quantisation allowance of the jump check
+
+
+class Counters(NamedTuple):
+    """The state's scalars, after its two per-channel blocks (the last plausible reading of
+    each channel from S_GOOD, the tick of it from S_LAST)."""
+
+    run: float  # faulty ticks in a row
+    latch: float  # 1 once they outlasted the limit (SENSOR_TIMEOUT)
+    primed: float  # 1 once a reading was seen this episode
+    faulty: float  # the episode's faulty ticks
+
+
+CC = positions(ChannelCheck)
+N_P = len(CC)
 S_GOOD = 0
 S_LAST = N_CHANNELS
-S_RUN, S_LATCH, S_PRIMED, S_COUNT = 2 * N_CHANNELS, 2 * N_CHANNELS + 1, 2 * N_CHANNELS + 2, 2 * N_CHANNELS + 3
-N_STATE = 2 * N_CHANNELS + 4
+SC = positions(Counters, start=2 * N_CHANNELS)
+N_STATE = 2 * N_CHANNELS + len(SC)
 
 
 class PlausibilityParams(NamedTuple):
     """What :func:`check_readings` checks against (fixed for a scene)."""
 
-    ch: np.ndarray  # float64[N_CHANNELS, N_P]: columns P_*
+    ch: np.ndarray  # float64[N_CHANNELS, N_P]: columns ChannelCheck
     limit_ticks: float  # faulty ticks in a row allowed; one more latches SENSOR_TIMEOUT
 
 
@@ -117,17 +137,17 @@ def plausibility_params(scene) -> PlausibilityParams:
     noise = _noise_scale_max(scene)
     ch = np.zeros((N_CHANNELS, N_P))
     for i, c in enumerate(sens.channels()):
-        ch[i, P_ON] = 1.0 if c.enabled else 0.0
+        ch[i, CC.on] = 1.0 if c.enabled else 0.0
         if c.adc_bits:
             q = c.quantum
             half = 2.0 ** (c.adc_bits - 1)
-            ch[i, P_LO], ch[i, P_HI] = -half * q, (half - 1.0) * q
+            ch[i, CC.lo], ch[i, CC.hi] = -half * q, (half - 1.0) * q
         else:
             q = 0.0
-            ch[i, P_LO], ch[i, P_HI] = -c.adc_range, c.adc_range
-        ch[i, P_STEP] = c.max_step * abs(c.gain)
-        ch[i, P_TOL] = NOISE_SIGMAS * math.sqrt(2.0) * c.noise_std * noise + 2.0 * q
-        if c.enabled and c.max_step > 0.0 and not ch[i, P_STEP] + ch[i, P_TOL] > 0.0:
+            ch[i, CC.lo], ch[i, CC.hi] = -c.adc_range, c.adc_range
+        ch[i, CC.max_jump] = c.max_step * abs(c.gain)
+        ch[i, CC.tol] = NOISE_SIGMAS * math.sqrt(2.0) * c.noise_std * noise + 2.0 * q
+        if c.enabled and c.max_step > 0.0 and not ch[i, CC.max_jump] + ch[i, CC.tol] > 0.0:
             raise ConfigError(f"effects.sensors.{CHANNELS[i]}.max_step = {c.max_step!r} allows no change "
                               "at all between two ticks; give a positive value (or 0: no jump check)")
     limit = math.ceil(sens.fault_limit_s * scene.control_rate - 1e-9)
@@ -153,15 +173,15 @@ def check_readings(m, raw, p, s, out):
     channel).  Returns the status bits (0: all plausible; module doc)."""
     ch = p.ch
     bits = 0
-    primed = s[S_PRIMED] != 0.0
+    primed = s[SC.primed] != 0.0
     for c in range(N_CHANNELS):
-        if ch[c, P_ON] == 0.0:
+        if ch[c, CC.on] == 0.0:
             out[c] = 0.0
             continue
         x = raw[c]
-        ok = ch[c, P_LO] <= x and x <= ch[c, P_HI]
-        if ok and primed and ch[c, P_STEP] > 0.0:
-            allowed = ch[c, P_STEP] * (m - s[S_LAST + c]) + ch[c, P_TOL]
+        ok = ch[c, CC.lo] <= x and x <= ch[c, CC.hi]
+        if ok and primed and ch[c, CC.max_jump] > 0.0:
+            allowed = ch[c, CC.max_jump] * (m - s[S_LAST + c]) + ch[c, CC.tol]
             ok = abs(x - s[S_GOOD + c]) <= allowed
         if ok:
             s[S_GOOD + c] = x
@@ -170,16 +190,16 @@ def check_readings(m, raw, p, s, out):
         else:
             bits |= 1 << (9 + c)
             out[c] = s[S_GOOD + c]
-    s[S_PRIMED] = 1.0
+    s[SC.primed] = 1.0
     if bits != 0:
         bits |= SENSOR_FAULT
-        s[S_RUN] += 1.0
-        s[S_COUNT] += 1.0
-        if s[S_RUN] > p.limit_ticks:
-            s[S_LATCH] = 1.0
+        s[SC.run] += 1.0
+        s[SC.faulty] += 1.0
+        if s[SC.run] > p.limit_ticks:
+            s[SC.latch] = 1.0
     else:
-        s[S_RUN] = 0.0
-    if s[S_LATCH] != 0.0:
+        s[SC.run] = 0.0
+    if s[SC.latch] != 0.0:
         bits |= SENSOR_TIMEOUT
     return bits
 

@@ -33,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.config import ConfigError, check_hold_ticks
 from impact_env.control import laws as LW
 from impact_env.control import mlp as MLP
@@ -40,25 +41,47 @@ from impact_env.control.observation import OBSERVATIONS, ObservationLayout, Refe
 
 FORMAT = "impact-env-policy"
 VERSION = 1
-KIND_MLP = len(LW.LAWS)
+# a packed policy's kind: a classic law's code (its place in impact_env.control.laws.REGISTRY,
+# >= 0), or one of these (below 0, so that adding a law moves neither)
+KIND_MLP = -1
 # an open-loop command sequence (an identification excitation, impact_env.rig.excitation): the
 # observation is not read; pf's body holds the commands, memory[0] counts the calls
-KIND_SEQUENCE = len(LW.LAWS) + 1
+KIND_SEQUENCE = -2
 
-# pi (int64): header, the law's slots, then the MLP's layer table
-PI_KIND, PI_OBS, PI_FRAME, PI_MEM, PI_NLAYERS, PI_OUT = range(6)
-PI_SLOTS = 6
-PI_LAYERS = PI_SLOTS + len(LW.SLOTS)
-# pf (float64): header, the frame's scales, then the law's constants or the MLP's weights
-PF_CMD, PF_LOW, PF_HIGH = range(3)
-PF_SCALES = 3
+
+
+class IntsHead(NamedTuple):
+    """pi's header (int64); the law's slots follow, then the MLP's layer table."""
+
+    kind: int  # a law's code, KIND_MLP or KIND_SEQUENCE
+    obs_size: int  # the observation row's length
+    frame: int  # the frame's length (the law reads the first frame)
+    memory: int  # the memory row's length
+    n_layers: int  # the MLP's layers
+    output: int  # the MLP's output transform (impact_env.control.mlp.OUT)
+
+
+class FloatsHead(NamedTuple):
+    """pf's header (float64); the frame's scales follow, then the law's constants or the MLP's
+    weights."""
+
+    command_scale: float  # N per unit command
+    low: float  # the MLP's output range
+    high: float
+
+
+PI = positions(IntsHead)
+PF = positions(FloatsHead)
+PI_SLOTS = len(PI)  # where the law's slots start in pi
+PI_LAYERS = PI_SLOTS + LW.N_SLOTS  # ... and the layer table
+PF_SCALES = len(PF)  # where the frame's scales start in pf
 
 
 class PolicyArrays(NamedTuple):
     """A packed policy, as :func:`act` takes it (:meth:`CompiledPolicy.arrays`)."""
 
-    ints: np.ndarray  # int64: header (PI_*), the law's slots, the MLP's layer table
-    floats: np.ndarray  # float64: header (PF_*), the frame's scales, the law's constants or the weights
+    ints: np.ndarray  # int64: header (IntsHead), the law's slots, the MLP's layer table
+    floats: np.ndarray  # float64: header (FloatsHead), the frame's scales, the law's constants or the weights
 
 
 @jit(inline="always")
@@ -66,23 +89,23 @@ def act(pi, pf, obs, mem):
     """The command (float64 in [-1, 1]) of the packed policy for the observation row ``obs``
     (float32 or float64[obs size]); ``mem`` (float64[memory size]) is its memory and scratch,
     zeroed by the caller at the episode start."""
-    kind = pi[PI_KIND]
-    F = pi[PI_FRAME]
+    kind = pi[PI.kind]
+    F = pi[PI.frame]
     body = PF_SCALES + F
     if kind == KIND_SEQUENCE:
         k = int(mem[0])
         mem[0] = k + 1.0
         return pf[body + k] if body + k < pf.shape[0] else 0.0
     if kind == KIND_MLP:
-        nl = pi[PI_NLAYERS]
+        nl = pi[PI.n_layers]
         layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
         out = MLP.mlp_forward(layers, pf[body:], obs, mem)
-        return MLP.output_transform(pi[PI_OUT], out[0], pf[PF_LOW], pf[PF_HIGH])
+        return MLP.output_transform(pi[PI.output], out[0], pf[PF.low], pf[PF.high])
     v = mem[LW.MEMORY:LW.MEMORY + F]
     for j in range(F):
         v[j] = float(obs[j]) * pf[PF_SCALES + j]
     f = LW.law_force(kind, pi[PI_SLOTS:PI_LAYERS], pf[body:], v, mem[:LW.MEMORY])
-    u = f / pf[PF_CMD]
+    u = f / pf[PF.command_scale]
     if u < -1.0:
         return -1.0
     if u > 1.0:
@@ -104,9 +127,9 @@ def sequence_arrays(commands: np.ndarray, obs_size: int, command_scale: float) -
     c = np.asarray(commands, dtype=np.float64).ravel()
     if not np.all(np.isfinite(c)) or np.any(np.abs(c) > 1.0):
         raise ConfigError("an open-loop command sequence must be finite and within [-1, 1]")
-    pi = np.concatenate([np.array([KIND_SEQUENCE, int(obs_size), 0, 1, 0, 0], dtype=np.int64),
-                         np.full(len(LW.SLOTS), -1, dtype=np.int64)])
-    return pi, np.concatenate([[float(command_scale), -1.0, 1.0], c]), 1
+    head = IntsHead(kind=KIND_SEQUENCE, obs_size=int(obs_size), frame=0, memory=1, n_layers=0, output=0)
+    pi = np.concatenate([np.array(head, dtype=np.int64), np.full(LW.N_SLOTS, -1, dtype=np.int64)])
+    return pi, np.concatenate([FloatsHead(float(command_scale), -1.0, 1.0), c]), 1
 
 
 def _layout_dict(layout: ObservationLayout, kind: str) -> dict:
@@ -208,23 +231,25 @@ class CompiledPolicy:
             return self._packed
         lay = self.layout
         F = lay.frame_size
-        head_f = [self.command_scale, -1.0, 1.0, *(float(s) for s in lay.scales)]
-        slots = np.full(len(LW.SLOTS), -1, dtype=np.int64)
+        head_f = [*FloatsHead(self.command_scale, -1.0, 1.0), *(float(s) for s in lay.scales)]
+        slots = np.full(LW.N_SLOTS, -1, dtype=np.int64)
         if self.law is not None:
             kind, slots, consts = LW.pack_law(self.law["name"], self.law["constants"], lay.names)
             n_layers, out, table, body, mem = 0, 0, np.zeros(0, np.int64), consts, LW.MEMORY + F
         else:
             mlp = typing.cast(dict, self.mlp)  # exactly one of law and mlp (__post_init__)
             table2, body, widest = MLP.pack_mlp(mlp["layers"])
-            if table2[0, MLP.L_IN] != lay.size:
-                raise ConfigError(f"the network takes {table2[0, MLP.L_IN]} inputs but the observation "
+            if table2[0, MLP.LI.n_in] != lay.size:
+                raise ConfigError(f"the network takes {table2[0, MLP.LI.n_in]} inputs but the observation "
                                   f"({self.observation}, history {lay.history}) has {lay.size}")
-            if table2[-1, MLP.L_OUT] != 1:
-                raise ConfigError(f"the network gives {table2[-1, MLP.L_OUT]} outputs; the shaker takes one")
+            if table2[-1, MLP.LI.n_out] != 1:
+                raise ConfigError(f"the network gives {table2[-1, MLP.LI.n_out]} outputs; the shaker takes "
+                                  "one")
             kind, n_layers, out, table, mem = KIND_MLP, table2.shape[0], MLP.OUT[mlp["output"]], \
                 table2.ravel(), 2 * widest
-            head_f[PF_LOW], head_f[PF_HIGH] = mlp["low"], mlp["high"]
-        pi = np.concatenate([np.array([kind, lay.size, F, mem, n_layers, out], dtype=np.int64), slots, table])
+            head_f[PF.low], head_f[PF.high] = mlp["low"], mlp["high"]
+        head = IntsHead(kind=kind, obs_size=lay.size, frame=F, memory=mem, n_layers=n_layers, output=out)
+        pi = np.concatenate([np.array(head, dtype=np.int64), slots, table])
         pf = np.concatenate([np.array(head_f, dtype=np.float64), body])
         self._packed = (pi.astype(np.int64), pf, int(mem))
         return self._packed

@@ -21,8 +21,15 @@ from pathlib import Path
 import numpy as np
 
 from impact_env.config import ConfigError
+from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.deploy.c_export import HEADER_NAME, SOURCE_NAME
+from impact_env.hardware import stage as HS
+from impact_env.hardware.batch import Hardware
+from impact_env.rig.controller import Controller
+from impact_env.rig.driver import VirtualRig
+from impact_env.sim import records as R
+from impact_env.sim.metrics import EpisodeMetrics
 
 CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off")
 F32_EPS = float(np.finfo(np.float32).eps)
@@ -147,8 +154,6 @@ class CPolicy:
 
 def numba_controller(policy: CompiledPolicy, scene, horizon_ticks: int):
     """The rig target's controller for ``policy`` in onboard mode (its residual law included)."""
-    from impact_env.control.observation import make_layout
-    from impact_env.rig.controller import Controller
 
     layout = make_layout(scene, policy.observation, policy.history)
     return Controller(scene, layout, policy.hold_ticks, horizon_ticks, "onboard", policy,
@@ -179,19 +184,17 @@ class Recording:
 
 def _true_record(drv, m: int, u: float) -> np.ndarray:
     """The virtual rig's true record of tick m (:mod:`impact_env.sim.records`), after ``apply``."""
-    from impact_env.hardware import stage as HS
-    from impact_env.sim import records as R
 
     r = np.zeros(R.N_REC)
     info = drv.last_info
-    r[R.REC_T] = (m + 1.0) / drv.scene.control_rate
-    r[R.REC_X1:R.REC_V2 + 1] = drv.truth()
-    r[R.REC_U] = u
-    r[R.REC_F_DEMAND] = info[HS.INFO_F_DEMAND]
-    r[R.REC_F_APPLIED] = info[HS.INFO_F_APPLIED]
-    r[R.REC_SATURATED] = info[HS.INFO_SATURATED]
-    r[R.REC_CONTACT_FORCE] = info[HS.INFO_CONTACT_FORCE]
-    r[R.REC_STATUS] = info[HS.INFO_STATUS]
+    r[R.REC.t] = (m + 1.0) / drv.scene.control_rate
+    r[R.REC.x1:R.REC.v2 + 1] = drv.truth()
+    r[R.REC.u] = u
+    r[R.REC.f_demand] = info[HS.INFO_F_DEMAND]
+    r[R.REC.f_applied] = info[HS.INFO_F_APPLIED]
+    r[R.REC.saturated] = info[HS.INFO_SATURATED]
+    r[R.REC.contact_force] = info[HS.INFO_CONTACT_FORCE]
+    r[R.REC.status] = info[HS.INFO_STATUS]
     return r
 
 
@@ -201,24 +204,19 @@ def episode_metrics(scene, seed: int, records: np.ndarray) -> dict[str, float]:
     :func:`impact_env.rig.log_metrics.exact_metrics` does for a virtual rig's log)."""
     from gymnasium.utils import seeding
 
-    from impact_env.hardware.batch import Hardware
-    from impact_env.sim.metrics import EpisodeMetrics
-
     hw = Hardware(scene, 1)
     hw.reset([seeding.np_random(int(seed))[0]])
     m = EpisodeMetrics(1, 1.0 / scene.control_rate)
     m.start(hw.t_touch, hw.impact_speed, hw.impact_energy, hw.Y[:, 0] - hw.Y[:, 2] > 0.0)
     m.step(records[None, :, :], hw.P)
-    from impact_env.sim import records as R
 
-    failed = np.array([bool(np.any(records[:, R.REC_STATUS] != 0.0))])
+    failed = np.array([bool(np.any(records[:, R.REC.status] != 0.0))])
     return {k: float(v[0]) for k, v in m.finish(failed).items()}
 
 
 def record(policy: CompiledPolicy, scene, seed: int, ticks: int) -> Recording:
     """The numba target in closed loop with the virtual rig for ``ticks`` ticks of the drop
     ``seed`` (the drop and noise ``ImpactCatch-v0`` meets for that reset seed)."""
-    from impact_env.rig.driver import VirtualRig
 
     drv = VirtualRig(scene)
     drv.initialise()
@@ -278,7 +276,6 @@ def closed_loop(cp: CPolicy, scene, seed: int, ticks: int, perturb: np.ndarray |
     the rig's true records.  ``perturb`` (float64[ticks]): added to each tick's command on its way
     to the rig (the C state does not see it): a model of a build's command error, for the
     sensitivity of the metrics to it."""
-    from impact_env.rig.driver import VirtualRig
 
     drv = VirtualRig(scene)
     drv.initialise()

@@ -27,6 +27,8 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError, check_range, doc_field
+from impact_env.effects.effect import HARDWARE, Effect
+from impact_env.effects.sensors import N_CHANNELS
 
 REL_TOL = 1e-6
 MAX_DELAY_SAMPLES = 100_000  # 10 s at 10 kHz
@@ -134,9 +136,19 @@ def delay_packed(p, st, x, out):
     return delay_step(st[1:1 + k * n].reshape((k, n)), st[0:1], x, out)
 
 
-from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+def _packer(path: int, n_channels: int):
+    """The packer of one path's delay line (``path``: 0 sensor, 1 actuator, as
+    :meth:`DelayConfig.samples` orders them): [k] and a line of k samples of n_channels; an
+    effect that is off gets k = 0 (the delays are checked either way)."""
+    def pack(cfg: DelayConfig, rate: float, on: bool) -> tuple[np.ndarray, int]:
+        k = cfg.samples(rate)[path]
+        if not on:
+            k = 0
+        return pack_params(k), block_sizes(k, n_channels)[1]
+    return pack
 
-ACTUATOR_DELAY = Effect("actuator_delay", HARDWARE, "delay", flag=1, readings_only=False, params=True,
-                        state=True, step=delay_packed)
-SENSOR_DELAY = Effect("sensor_delay", HARDWARE, "delay", flag=16, readings_only=True, params=True, state=True,
-                      step=delay_packed)
+
+ACTUATOR_DELAY = Effect("actuator_delay", HARDWARE, "delay", DelayConfig, "the force command reaches the "
+                        "plant whole control periods late", readings_only=False, pack=_packer(1, 1))
+SENSOR_DELAY = Effect("sensor_delay", HARDWARE, "delay", DelayConfig, "the raw readings reach the controller "
+                      "whole control periods late", readings_only=True, pack=_packer(0, N_CHANNELS))

@@ -24,15 +24,37 @@ State: float64[2] = (s at the previous sample N, latched contact 0/1).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.config import ConfigError, check_range, doc_field
+from impact_env.effects.effect import CONTROLLER, Effect
 
-PREV_S, LATCH = 0, 1
-N_STATE = 2
-P_MASS, P_THRESH, P_USE_DERIV, P_DTHRESH, P_RATE = range(5)
+
+class DetectorState(NamedTuple):
+    """The state array's entries (float64[N_STATE])."""
+
+    prev_signal: float  # N, the signal m2' a2 + f at the previous sample
+    latch: float  # 1 while contact is detected, else 0
+
+
+class DetectorParams(NamedTuple):
+    """The parameter array's entries (float64[N_PARAM], :func:`detector_params`)."""
+
+    top_mass: float  # kg, m2'
+    threshold: float  # N, the level mode's threshold
+    use_derivative: float  # 1: the derivative mode, 0: the level mode
+    derivative_threshold: float  # N/s, the derivative mode's edge
+    rate: float  # Hz, the control rate
+
+
+DS = positions(DetectorState)
+DP = positions(DetectorParams)
+N_STATE = len(DS)
+N_PARAM = len(DP)
 
 
 _f = doc_field
@@ -60,15 +82,17 @@ class DetectorConfig:
 
 
 def detector_params(cfg: DetectorConfig, rate: float) -> np.ndarray:
-    """float64[5] for :func:`detect`: top mass, threshold, use_derivative, derivative threshold, rate."""
+    """float64[N_PARAM] (:class:`DetectorParams`) for :func:`detect`."""
     check_range("control.rate", rate, "Hz", 0.0, None, lo_open=True)
-    return np.array([cfg.top_mass, cfg.threshold_n, 1.0 if cfg.use_derivative else 0.0,
-                     cfg.derivative_threshold_n_per_s, rate])
+    return np.array(DetectorParams(top_mass=cfg.top_mass, threshold=cfg.threshold_n,
+                                   use_derivative=1.0 if cfg.use_derivative else 0.0,
+                                   derivative_threshold=cfg.derivative_threshold_n_per_s, rate=rate),
+                    dtype=np.float64)
 
 
 def make_detector_state(s0: float = 0.0) -> np.ndarray:
-    """State float64[2]: previous signal s0 (N), no contact."""
-    return np.array([s0, 0.0])
+    """State float64[N_STATE] (:class:`DetectorState`): previous signal s0 (N), no contact."""
+    return np.array(DetectorState(prev_signal=s0, latch=0.0), dtype=np.float64)
 
 
 @jit(inline="always")
@@ -78,18 +102,18 @@ def detect(a2_meas, f_meas, state, params):
     a2_meas: measured acceleration of body 2 (m/s^2, down positive); f_meas: transducer reading
     (N, compression positive).
     """
-    s = params[P_MASS] * a2_meas + f_meas
-    if params[P_USE_DERIV] == 0.0:
-        on = s > params[P_THRESH]
-        state[LATCH] = 1.0 if on else 0.0
+    s = params[DP.top_mass] * a2_meas + f_meas
+    if params[DP.use_derivative] == 0.0:
+        on = s > params[DP.threshold]
+        state[DS.latch] = 1.0 if on else 0.0
     else:
-        ds = (s - state[PREV_S]) * params[P_RATE]
-        if ds > params[P_DTHRESH]:
-            state[LATCH] = 1.0
-        elif ds < -params[P_DTHRESH]:
-            state[LATCH] = 0.0
-    state[PREV_S] = s
-    return state[LATCH] != 0.0
+        ds = (s - state[DS.prev_signal]) * params[DP.rate]
+        if ds > params[DP.derivative_threshold]:
+            state[DS.latch] = 1.0
+        elif ds < -params[DP.derivative_threshold]:
+            state[DS.latch] = 0.0
+    state[DS.prev_signal] = s
+    return state[DS.latch] != 0.0
 
 
 @jit
@@ -179,10 +203,8 @@ def score_detection(true_contact, detected, rate: float) -> DetectionScore:
 
 def block_sizes() -> tuple[int, int]:
     """(parameter, state) sizes of the packed detector block."""
-    return 5, N_STATE
+    return N_PARAM, N_STATE
 
 
-from impact_env.effects.effect import CONTROLLER, Effect  # noqa: E402
-
-EFFECT = Effect("detector", CONTROLLER, "detector", flag=2, readings_only=True, params=True, state=True,
-                step=detect)
+EFFECT = Effect("detector", CONTROLLER, "detector", DetectorConfig,
+                "contact from the sensors (thesis eq 4.4)", readings_only=True)

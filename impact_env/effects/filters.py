@@ -28,6 +28,7 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError, check_choice, check_range, doc_field
+from impact_env.effects.effect import CONTROLLER, Effect
 from impact_env.effects.sensors import CHANNELS, N_CHANNELS
 
 KINDS = ("bandpass", "lowpass", "none")
@@ -221,7 +222,5 @@ def filter_block(sos, zi, x, out):
     return out
 
 
-from impact_env.effects.effect import CONTROLLER, Effect  # noqa: E402
-
-EFFECT = Effect("filters", CONTROLLER, "filters", flag=1, readings_only=True, params=True, state=True,
-                step=filter_step)
+EFFECT = Effect("filters", CONTROLLER, "filters", FiltersConfig, "a Butterworth band- or low-pass per sensor "
+                "channel", readings_only=True)

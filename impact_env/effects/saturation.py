@@ -27,16 +27,36 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.config import ConfigError, check_range, doc_field
+from impact_env.effects.effect import HARDWARE, Effect
 
-MS, PREV = 0, 1
-N_STATE = 2
-# parameter array (float64[4]): peak N, R^2 N^2 (< 0: off), alpha, max step per sample N (inf: off)
-P_PEAK, P_RMS2, P_ALPHA, P_STEP = range(4)
+
+class SaturationState(NamedTuple):
+    """The state array's entries (float64[N_STATE], zero at the start)."""
+
+    mean_square: float  # N^2, the tracked mean-square force
+    prev: float  # N, the previous applied force
+
+
+class SaturationParams(NamedTuple):
+    """The parameter array's entries (float64[N_PARAM], :func:`saturation_params`)."""
+
+    peak: float  # N, the peak limit
+    rms2: float  # N^2, the RMS budget squared (< 0: no budget)
+    alpha: float  # the mean-square tracker's factor per period
+    slew_step: float  # N, the largest change per period (inf: no slew limit)
+
+
+ST = positions(SaturationState)
+SP = positions(SaturationParams)
+N_STATE = len(ST)
+N_PARAM = len(SP)
 
 
 _f = doc_field
@@ -70,13 +90,14 @@ class SaturationConfig:
 
 
 def saturation_params(cfg: SaturationConfig, rate: float) -> np.ndarray:
-    """float64[4] for :func:`saturate` at the control rate ``rate`` (Hz)."""
+    """float64[N_PARAM] (:class:`SaturationParams`) for :func:`saturate` at the control rate
+    ``rate`` (Hz)."""
     check_range("control.rate", rate, "Hz", 0.0, None, lo_open=True)
-    p = np.empty(4)
-    p[P_PEAK] = cfg.peak_n
-    p[P_RMS2] = cfg.rms_limit_n**2 if cfg.continuous_n > 0 else -1.0
-    p[P_ALPHA] = -math.expm1(-1.0 / (rate * cfg.tau_s))
-    p[P_STEP] = cfg.slew_n_per_s / rate if cfg.slew_n_per_s > 0 else np.inf
+    p = np.empty(N_PARAM)
+    p[SP.peak] = cfg.peak_n
+    p[SP.rms2] = cfg.rms_limit_n**2 if cfg.continuous_n > 0 else -1.0
+    p[SP.alpha] = -math.expm1(-1.0 / (rate * cfg.tau_s))
+    p[SP.slew_step] = cfg.slew_n_per_s / rate if cfg.slew_n_per_s > 0 else np.inf
     return p
 
 
@@ -94,17 +115,17 @@ def saturate(f_cmd, state, params):
     f = f_cmd
     if not np.isfinite(f):
         f = 0.0
-    prev = state[PREV]
-    step = params[P_STEP]
+    prev = state[ST.prev]
+    step = params[SP.slew_step]
     if f > prev + step:
         f = prev + step
     elif f < prev - step:
         f = prev - step
-    lim = params[P_PEAK]
-    rms2 = params[P_RMS2]
+    lim = params[SP.peak]
+    rms2 = params[SP.rms2]
     if rms2 >= 0.0:
-        ms = state[MS]
-        room = ms + (rms2 - ms) / params[P_ALPHA]
+        ms = state[ST.mean_square]
+        room = ms + (rms2 - ms) / params[SP.alpha]
         if room < 0.0:
             room = 0.0
         r = np.sqrt(room)
@@ -114,8 +135,8 @@ def saturate(f_cmd, state, params):
         f = lim
     elif f < -lim:
         f = -lim
-    state[MS] += params[P_ALPHA] * (f * f - state[MS])
-    state[PREV] = f
+    state[ST.mean_square] += params[SP.alpha] * (f * f - state[ST.mean_square])
+    state[ST.prev] = f
     return f, f != f_cmd
 
 
@@ -132,10 +153,12 @@ def saturate_block(f_cmd, state, params, out, flags):
 
 def block_sizes() -> tuple[int, int]:
     """(parameter, state) sizes of the packed saturation block."""
-    return 4, N_STATE
+    return N_PARAM, N_STATE
 
 
-from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+def _pack(cfg: SaturationConfig, rate: float, on: bool) -> tuple[np.ndarray, int]:
+    return saturation_params(cfg, rate), block_sizes()[1]
 
-EFFECT = Effect("saturation", HARDWARE, "saturation", flag=4, readings_only=False, params=True, state=True,
-                step=saturate)
+
+EFFECT = Effect("saturation", HARDWARE, "saturation", SaturationConfig, "the amplifier's peak limit, RMS "
+                "(thermal) budget and slew rate", readings_only=False, pack=_pack)

@@ -49,21 +49,36 @@ so |a2| up to about 300 m/s^2 with m2 = 1 kg).  ``adc_bits = 16``: the dSPACE bo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.config import ConfigError, check_choice, check_range, doc_field
+from impact_env.effects.effect import HARDWARE, Effect
 
 CHANNELS = ("accelerometer", "force", "potentiometer", "body1_displacement")
 UNITS = ("m/s^2", "N", "m", "m")
 ACCEL, FORCE, POT, BODY1 = 0, 1, 2, 3
 N_CHANNELS = 4
 
-# columns of the parameter array built by sensor_params (float64[N_CHANNELS, N_PARAM])
-P_ENABLED, P_GAIN, P_OFFSET, P_NOISE, P_STEP, P_LO, P_HI = range(7)
-N_PARAM = 7
+
+
+class ChannelParams(NamedTuple):
+    """A row of the parameter array built by :func:`sensor_params` (float64[N_CHANNELS, N_PARAM])."""
+
+    enabled: float  # 1 if the channel reads, else 0 (it then reads 0)
+    gain: float
+    offset: float  # in the channel's unit
+    noise_std: float  # in the channel's unit
+    adc_step: float  # the ADC's quantisation step (0: no ADC)
+    lo: float  # the ADC's lowest code (-inf: no ADC)
+    hi: float  # the ADC's highest code (inf: no ADC)
+
+
+CP = positions(ChannelParams)
+N_PARAM = len(CP)
 
 
 _f = doc_field
@@ -225,19 +240,19 @@ def sensor_params(cfg: SensorsConfig) -> np.ndarray:
     ADC step q (0 = none), lowest and highest output value."""
     p = np.zeros((N_CHANNELS, N_PARAM))
     for i, ch in enumerate(cfg.channels()):
-        p[i, P_ENABLED] = 1.0 if ch.enabled else 0.0
-        p[i, P_GAIN] = ch.gain
-        p[i, P_OFFSET] = ch.offset
-        p[i, P_NOISE] = ch.noise_std
+        p[i, CP.enabled] = 1.0 if ch.enabled else 0.0
+        p[i, CP.gain] = ch.gain
+        p[i, CP.offset] = ch.offset
+        p[i, CP.noise_std] = ch.noise_std
         if ch.adc_bits:
             q = ch.quantum
             half = 2.0 ** (ch.adc_bits - 1)
-            p[i, P_STEP] = q
-            p[i, P_LO] = -half * q
-            p[i, P_HI] = (half - 1.0) * q
+            p[i, CP.adc_step] = q
+            p[i, CP.lo] = -half * q
+            p[i, CP.hi] = (half - 1.0) * q
         else:
-            p[i, P_LO] = -np.inf
-            p[i, P_HI] = np.inf
+            p[i, CP.lo] = -np.inf
+            p[i, CP.hi] = np.inf
     return p
 
 
@@ -264,17 +279,17 @@ def sense(truth, z, params, out):
     truth, z, out: float64[N_CHANNELS]; params from :func:`sensor_params`.  Returns ``out``.
     """
     for i in range(truth.shape[0]):
-        if params[i, P_ENABLED] == 0.0:
+        if params[i, CP.enabled] == 0.0:
             out[i] = 0.0
             continue
-        y = params[i, P_GAIN] * truth[i] + params[i, P_OFFSET] + params[i, P_NOISE] * z[i]
-        q = params[i, P_STEP]
+        y = params[i, CP.gain] * truth[i] + params[i, CP.offset] + params[i, CP.noise_std] * z[i]
+        q = params[i, CP.adc_step]
         if q > 0.0:
             y = q * np.floor(y / q + 0.5)
-            if y < params[i, P_LO]:
-                y = params[i, P_LO]
-            elif y > params[i, P_HI]:
-                y = params[i, P_HI]
+            if y < params[i, CP.lo]:
+                y = params[i, CP.lo]
+            elif y > params[i, CP.hi]:
+                y = params[i, CP.hi]
         out[i] = y
     return out
 
@@ -315,7 +330,10 @@ def sense_packed(truth, z, p, out):
     return sense(truth, z, p[1:].reshape((N_CHANNELS, N_PARAM)), out)
 
 
-from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+def _pack(cfg: SensorsConfig, rate: float, on: bool) -> tuple[np.ndarray, int]:
+    """Packed even when off: the true readings need the force transducer's top mass."""
+    return pack_params(cfg, cfg.force.top_mass), block_sizes()[1]
 
-EFFECT = Effect("sensors", HARDWARE, "sensors", flag=8, readings_only=True, params=True, state=False,
-                step=sense_packed)
+
+EFFECT = Effect("sensors", HARDWARE, "sensors", SensorsConfig, "gain, offset, noise, ADC quantisation and "
+                "clipping of each channel", readings_only=True, pack=_pack)

@@ -51,6 +51,7 @@ from scipy import signal
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError, check_choice, check_range, doc_field
+from impact_env.effects.effect import HARDWARE, Effect
 
 _f = doc_field
 MAX_TAPS = 4096  # measured impulse responses are a few hundred taps at 10 kHz
@@ -308,7 +309,16 @@ def shaker_packed(p, st, u, v2, back_emf):
     return f
 
 
-from impact_env.effects.effect import HARDWARE, Effect  # noqa: E402
+def _pack(cfg: ShakerConfig, rate: float, on: bool) -> tuple[np.ndarray, int]:
+    """The discretised model at ``rate``; a shaker that is off gets a model of order 1 and zeros
+    (never read)."""
+    if on:
+        A, B, C, D, E = discrete_emf_model(cfg, rate)
+    else:
+        A, B, C, D, E = np.zeros((1, 1)), np.zeros(1), np.zeros(1), 0.0, np.zeros(1)
+    return pack_params(A, B, C, D, E), block_sizes(A.shape[0])[1]
 
-EFFECT = Effect("shaker", HARDWARE, "shaker", flag=2, readings_only=False, params=True, state=True,
-                step=shaker_packed)
+
+EFFECT = Effect("shaker", HARDWARE, "shaker", ShakerConfig,
+                "the amplifier and exciter: force demand to force on body 2", readings_only=False, pack=_pack,
+                options=("back_emf",))

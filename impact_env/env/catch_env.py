@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from impact_env.control.observation import OBS_LIMIT
-from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, info_from_row, make_catch_task
+from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, info_from_row, make_catch_task, options_doc
 from impact_env.scene import Scene
 
 
@@ -74,13 +74,13 @@ class ImpactCatchEnv(gym.Env):
 
     ## Arguments
 
-    ``gymnasium.make("ImpactCatch-v0", scene="rig", overrides=None, observation="sensors",
-    history=1, hold_ticks=1, residual=None, horizon=None, catch_threshold=0.01, catch_hold=0.01,
-    terminate_on_catch=True, effort_weight=0.0, limit_weight=0.0, action_bounds="clip",
-    render_mode=None)``.
-    The keywords other than ``scene``, ``overrides`` and ``render_mode`` are the task's options,
-    the fields of :class:`~impact_env.env.task.TaskConfig` (one definition, shared with the
-    vector env and ``ImpactCatchRig-v0``).
+    ``gymnasium.make("ImpactCatch-v0", scene="rig", overrides=None, render_mode=None, **options)``,
+    the options being the task's (the fields of :class:`~impact_env.env.task.TaskConfig`, one
+    definition shared with the vector env and ``ImpactCatchRig-v0``; this list is written from
+    them):
+
+TASK_OPTIONS_DOC
+
     ``scene``: a preset name, a :class:`~impact_env.scene.Scene`, a dict or a TOML path;
     ``overrides``: dotted keys (``{"plant.m1": 0.05}``).  ``hold_ticks``: control periods per
     policy step (the action is held, rewards summed, the observation is the last period's; an
@@ -138,7 +138,7 @@ class ImpactCatchEnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
-        from impact_env.env.render import draw_frame, show_frame
+        from impact_env.env.render import draw_frame, show_frame  # matplotlib loads only to render
 
         frame = draw_frame(self.task, 0)
         if self.render_mode == "rgb_array":
@@ -148,7 +148,10 @@ class ImpactCatchEnv(gym.Env):
 
     def close(self):
         if self._viewer is not None:
-            from impact_env.env.render import close_viewer
+            from impact_env.env.render import close_viewer  # (a viewer exists: render is loaded)
 
             close_viewer(self._viewer)
             self._viewer = None
+
+
+ImpactCatchEnv.__doc__ = (ImpactCatchEnv.__doc__ or "").replace("TASK_OPTIONS_DOC", options_doc("    "))

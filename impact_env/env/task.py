@@ -28,7 +28,9 @@ last finite one and the reward is ``-1 * T / t_unit``); ``truncated`` at the hor
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+import collections
+from dataclasses import MISSING, dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
@@ -36,40 +38,57 @@ from impact_env._jit import bound_call
 from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.env import task_kernel as TK
+from impact_env.policy.export import export_policy
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.simulator import Simulator
 
 # info_dict's scalar entries in INFO_KEYS order: (key, column, is a flag); the state goes as one array
 _INFO_SCALARS = tuple((key, j, key in TK.BOOL_KEYS) for j, key in enumerate(TK.INFO_KEYS)
-                      if not TK.COL_X1 <= j <= TK.COL_V2)
+                      if not TK.INFO.x1 <= j <= TK.INFO.v2)
 
 REWARD_TIME_UNIT = 1e-3  # s
 
 
+def _option(default: Any, doc: str, unit: str = "", *, bounds: tuple | None = None, kernel: bool = False,
+            evaluation: Any = MISSING) -> Any:
+    """A task option: its default, meaning and unit; ``bounds`` = (lo, hi, lo_open), checked when
+    the config is built; ``kernel``: the task kernel reads it (as a float, by its own name, in
+    :data:`TaskParams`); ``evaluation``: its value when an agent is evaluated on the test's
+    objective (a reward penalty is 0 there: ``agents.train``)."""
+    meta = {"doc": doc, "unit": unit, "bounds": bounds, "kernel": kernel}
+    if evaluation is not MISSING:
+        meta["evaluation"] = evaluation
+    return field(default=default, metadata=meta)
+
+
 @dataclass(frozen=True)
 class TaskConfig:
-    """Episode and reward settings of the catch task (SI units)."""
+    """Episode and reward settings of the catch task (SI units).  Each field is an option of
+    every env of the task; its metadata says what the docs, the kernel and the evaluation
+    derive from it (:func:`_option`)."""
 
-    observation: str = "sensors"
-    history: int = 1
-    hold_ticks: int = 1  # control periods per policy step
-    residual: str | None = None  # a classic law's spec: the action adds to its command, every tick
-    horizon: float | None = None  # s; None: the scene's episode.horizon
-    catch_threshold: float = 0.01  # of the impact energy
-    catch_hold: float = 0.01  # s
-    terminate_on_catch: bool = True
-    effort_weight: float = 0.0
-    limit_weight: float = 0.0
-    action_bounds: str = "clip"  # or "raise"
+    observation: str = _option("sensors", "what the policy sees: sensors, privileged (true state) or both")
+    history: int = _option(1, "frames (and past actions) stacked in the observation")
+    hold_ticks: int = _option(1, "control periods per policy step (the action held, rewards summed)")
+    residual: str | None = _option(None, "a classic law's spec: the action adds to its command, every tick")
+    horizon: float | None = _option(None, "episode length; None: the scene's episode.horizon", "s",
+                                    bounds=(0.0, 1e4, True))
+    catch_threshold: float = _option(0.01, "caught below this catch energy",
+                                     "(fraction of the impact energy)", bounds=(0.0, 1.0, True), kernel=True)
+    catch_hold: float = _option(0.01, "for at least this long", "s", bounds=(0.0, 10.0, False))
+    terminate_on_catch: bool = _option(True, "a catch ends the episode", kernel=True, evaluation=False)
+    effort_weight: float = _option(0.0, "reward penalty on (f_applied / command_scale)^2",
+                                   bounds=(0.0, None, False), kernel=True, evaluation=0.0)
+    limit_weight: float = _option(0.0, "reward penalty per saturated tick", bounds=(0.0, None, False),
+                                  kernel=True, evaluation=0.0)
+    action_bounds: str = _option("clip", "an action outside [-1, 1]: clip, or raise")
 
     def __post_init__(self):
-        if self.horizon is not None:
-            check_range("horizon", self.horizon, "s", 0.0, 1e4, lo_open=True)
-        check_range("catch_threshold", self.catch_threshold, "(fraction of the impact energy)", 0.0, 1.0,
-                    lo_open=True)
-        check_range("catch_hold", self.catch_hold, "s", 0.0, 10.0)
-        check_range("effort_weight", self.effort_weight, "", 0.0)
-        check_range("limit_weight", self.limit_weight, "", 0.0)
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.metadata["bounds"] is not None and value is not None:
+                lo, hi, lo_open = f.metadata["bounds"]
+                check_range(f.name, value, f.metadata["unit"], lo, hi, lo_open=lo_open)
         check_choice("action_bounds", self.action_bounds, ("clip", "raise"))
         check_hold_ticks(self.hold_ticks)
         if self.residual is not None and (not isinstance(self.residual, str) or not self.residual.strip()):
@@ -91,8 +110,8 @@ class TaskConfig:
         """The episode's horizon (s): this config's, or the scene's ``episode.horizon``."""
         return self.horizon if self.horizon is not None else scene.episode.horizon
 
-    def params(self, scene: Scene) -> TK.TaskParams:
-        """The kernels' task parameters of this config on ``scene``."""
+    def params(self, scene: Scene):
+        """The kernels' task parameters (:data:`TaskParams`) of this config on ``scene``."""
         return task_params(self, scene.control_period, self.hold_ticks, self.horizon_on(scene),
                            scene.effects.command_scale)
 
@@ -100,6 +119,27 @@ class TaskConfig:
 #: the catch task's options, the keyword arguments every env of it takes (ImpactCatch-v0, the vector
 #: env, ImpactCatchRig-v0): TaskConfig's fields
 TASK_OPTIONS = tuple(f.name for f in fields(TaskConfig))
+#: the options at evaluation on the test's objective (no reward penalty, every episode the whole horizon)
+EVALUATION_OPTIONS = {f.name: f.metadata["evaluation"] for f in fields(TaskConfig)
+                      if "evaluation" in f.metadata}
+#: what the task kernel reads (impact_env.env.task_kernel), as floats: the options it reads, by their
+#: own names, then what the task derives from the options and the scene: the reward's factor
+#: T / t_unit, the ticks below the threshold that make a catch, N per unit command, the policy
+#: steps to the horizon
+_namedtuple: Any = collections.namedtuple  # (a class of fields known at run time: typed Any)
+TaskParams = _namedtuple(
+    "TaskParams", [f.name for f in fields(TaskConfig) if f.metadata["kernel"]]
+    + ["step_weight", "hold", "command_scale", "max_steps"])
+
+
+def options_doc(indent: str = "") -> str:
+    """The task's options, one line each (name = default, unit, meaning): the docs of every env
+    of the task list them from here."""
+    lines = []
+    for f in fields(TaskConfig):
+        unit = f" {f.metadata['unit']}" if f.metadata["unit"] else ""
+        lines.append(f"{indent}* ``{f.name}={f.default!r}``{unit}: {f.metadata['doc']}")
+    return "\n".join(lines)
 
 
 def check_actions(actions, n: int, action_bounds: str, command_scale: float,
@@ -133,20 +173,19 @@ def info_from_row(row: np.ndarray) -> dict:
     """One env's info as Python scalars (and ``state`` as float64[4]) from its info row."""
     vals = row.tolist()
     out = {key: (vals[j] > 0.5 if flag else vals[j]) for key, j, flag in _INFO_SCALARS}
-    out["state"] = np.array(vals[TK.COL_X1:TK.COL_V2 + 1])
+    out["state"] = np.array(vals[TK.INFO.x1:TK.INFO.v2 + 1])
     return out
 
 
-def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float,
-                command_scale: float) -> TK.TaskParams:
-    """The kernels' task parameters for ``config`` at the control ``period`` (s), ``hold_ticks``
-    per policy step, a ``horizon`` (s) and ``command_scale`` (N per unit command)."""
+def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float, command_scale: float):
+    """The kernels' task parameters (:data:`TaskParams`) for ``config`` at the control ``period``
+    (s), ``hold_ticks`` per policy step, a ``horizon`` (s) and ``command_scale`` (N per unit
+    command)."""
     max_steps = max(1, int(round(horizon / (period * hold_ticks))))  # round: whole periods up to noise
     hold_steps = max(1, int(np.ceil(config.catch_hold / period - 1e-9)))  # ticks
-    return TK.TaskParams(step_weight=period / REWARD_TIME_UNIT, threshold=float(config.catch_threshold),
-                         hold=float(hold_steps), terminate=1.0 if config.terminate_on_catch else 0.0,
-                         effort=float(config.effort_weight), limit=float(config.limit_weight),
-                         command_scale=float(command_scale), max_steps=float(max_steps))
+    options = {f.name: float(getattr(config, f.name)) for f in fields(config) if f.metadata["kernel"]}
+    return TaskParams(**options, step_weight=period / REWARD_TIME_UNIT, hold=float(hold_steps),
+                      command_scale=float(command_scale), max_steps=float(max_steps))
 
 
 def new_task_state(n: int) -> TK.TaskState:
@@ -167,8 +206,6 @@ def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig
     layout = make_layout(scene, config.observation, config.history)
     residual = None
     if config.residual is not None:
-        from impact_env.policy.export import export_policy
-
         residual = export_policy(config.residual, scene)
     return CatchTask(Simulator(scene, num_envs, layout, config.hold_ticks, residual, threads=threads), config)
 
@@ -210,7 +247,7 @@ class CatchTask:
     def reset(self, rngs, mask=None) -> None:
         sim = self.sim
         idx = sim.reset(rngs, mask)
-        self.rows[idx, TK.COL_TTOUCH] = sim.t_touch[idx]  # kept by the kernels, which skip this column
+        self.rows[idx, TK.INFO.t_touch] = sim.t_touch[idx]  # kept by the kernels, which skip this column
         TK.task_reset_rows(idx, sim.records, self.drop, self.params, self.state, self.rows)
 
     def check_actions(self, actions) -> np.ndarray:
@@ -243,12 +280,12 @@ class CatchTask:
         """Per-env diagnostics after the last step or reset (SI units), from the info rows."""
         rows = self.rows
         out = {}
-        for j, key in enumerate(TK.INFO_KEYS[:TK.COL_X1]):
+        for j, key in enumerate(TK.INFO_KEYS[:TK.INFO.x1]):
             out[key] = rows[:, j] > 0.5 if key in TK.BOOL_KEYS else rows[:, j].copy()
-        out["state"] = rows[:, TK.COL_X1:TK.COL_V2 + 1].copy()
-        out["diverged"] = rows[:, TK.COL_DIV] > 0.5
-        out["caught"] = rows[:, TK.COL_CAUGHT] > 0.5
-        out["t_touch"] = rows[:, TK.COL_TTOUCH].copy()
+        out["state"] = rows[:, TK.INFO.x1:TK.INFO.v2 + 1].copy()
+        out["diverged"] = rows[:, TK.INFO.diverged] > 0.5
+        out["caught"] = rows[:, TK.INFO.caught] > 0.5
+        out["t_touch"] = rows[:, TK.INFO.t_touch].copy()
         return out
 
     def info_dict(self, i: int) -> dict:

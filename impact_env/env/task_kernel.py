@@ -14,22 +14,10 @@ import numpy as np
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, V1, X1, X2, C, G
 from impact_env.sim import records as R
-
-
-class TaskParams(NamedTuple):
-    """The task's settings, as the kernels read them (built by :mod:`impact_env.env.task`)."""
-
-    step_weight: float  # the reward's factor T / t_unit
-    threshold: float  # catch threshold, fraction of the impact energy
-    hold: float  # ticks below the threshold that make a catch
-    terminate: float  # 1: a catch terminates the episode
-    effort: float  # effort weight
-    limit: float  # saturation weight
-    command_scale: float  # N per unit command
-    max_steps: float  # policy steps to the horizon
 
 
 class TaskState(NamedTuple):
@@ -58,21 +46,44 @@ class TaskOut(NamedTuple):
     truncated: np.ndarray  # bool[N]
     rows: np.ndarray  # float64[N, N_COL]: the info rows
 
-# columns of the per-env info row
-INFO_KEYS = ("t", "catch_energy", "catch_energy_ratio", "impact_energy", "impact_speed", "contact",
-             "contact_force", "force_demand", "force_applied", "saturated", "detected", "x1", "v1", "x2",
-             "v2", "diverged", "caught", "t_touch")
+
+
+class InfoRow(NamedTuple):
+    """The per-env info row's columns (float64[N_COL], SI units; booleans as 0/1), read by name:
+    ``rows[i, INFO.x1]``; the env's info dict has these keys (``state`` for x1 .. v2)."""
+
+    t: float  # s since the episode start
+    catch_energy: float  # J
+    catch_energy_ratio: float  # over the impact energy
+    impact_energy: float  # J
+    impact_speed: float  # m/s
+    contact: float  # true contact
+    contact_force: float  # N
+    force_demand: float  # N
+    force_applied: float  # N
+    saturated: float
+    detected: float
+    x1: float  # the true state: x1, v1, x2, v2 (m, m/s)
+    v1: float
+    x2: float
+    v2: float
+    diverged: float
+    caught: float
+    t_touch: float  # s, the first touch after the episode start (written by the task, kept by the kernels)
+
+
+INFO = positions(InfoRow)
+INFO_KEYS = InfoRow._fields
 BOOL_KEYS = ("contact", "saturated", "detected", "diverged", "caught")
-(COL_T, COL_E, COL_RATIO, COL_E0, COL_V0, COL_CONTACT, COL_FC, COL_FD, COL_FA, COL_SAT, COL_DET, COL_X1,
- COL_V1, COL_X2, COL_V2, COL_DIV, COL_CAUGHT, COL_TTOUCH) = range(len(INFO_KEYS))
-N_COL = len(INFO_KEYS)
+N_COL = len(INFO)
 
 
 @jit
 def task_step(active, records, d, p, s, out):
     """After the simulator's step: reward, flags and info row of every active env (an inactive
-    env gets reward 0 and no flags, and keeps its row).  ``d``: Drop, ``p``: TaskParams, ``s``:
-    TaskState, ``out``: TaskOut."""
+    env gets reward 0 and no flags, and keeps its row).  ``d``: Drop, ``p``: TaskParams (the
+    options the kernel reads, by their names, and what the task derives from them:
+    :mod:`impact_env.env.task`), ``s``: TaskState, ``out``: TaskOut."""
     active, records, d, p, s, out = borrow(active), borrow(records), borrow(d), borrow(p), borrow(s), borrow(out)
     rewards, terminated, truncated = out.rewards, out.terminated, out.truncated
     steps, below, diverged, energy = s.steps, s.below, s.diverged, s.energy
@@ -89,24 +100,24 @@ def task_step(active, records, d, p, s, out):
         bad = False
         for k in range(records.shape[1]):
             r = records[i, k]
-            if r[R.REC_STATUS] != 0.0:
+            if r[R.REC.status] != 0.0:
                 bad = True
                 diverged[i] = True
                 below[i] = 0
                 cost = 1.0
             else:
-                e = catch_energy_at(r[R.REC_X1], r[R.REC_V1], r[R.REC_X2], P[i, M1], P[i, C], P[i, G])
+                e = catch_energy_at(r[R.REC.x1], r[R.REC.v1], r[R.REC.x2], P[i, M1], P[i, C], P[i, G])
                 energy[i] = e
                 ratio = e / e0
                 cost = ratio
-                if p.effort != 0.0:
-                    u = r[R.REC_F_APPLIED] / p.command_scale
-                    cost += p.effort * u * u
-                if p.limit != 0.0:
-                    cost += p.limit * r[R.REC_SATURATED]
-                below[i] = below[i] + 1 if ratio < p.threshold else 0
+                if p.effort_weight != 0.0:
+                    u = r[R.REC.f_applied] / p.command_scale
+                    cost += p.effort_weight * u * u
+                if p.limit_weight != 0.0:
+                    cost += p.limit_weight * r[R.REC.saturated]
+                below[i] = below[i] + 1 if ratio < p.catch_threshold else 0
             total += cost
-        term = bad or (p.terminate != 0.0 and below[i] >= p.hold)
+        term = bad or (p.terminate_on_catch != 0.0 and below[i] >= p.hold)
         rewards[i] = -total * p.step_weight
         terminated[i] = term
         truncated[i] = (steps[i] >= p.max_steps) and not term
@@ -119,22 +130,22 @@ def fill_row(i, last, d, p, s, rows):
     """Env i's info row (columns INFO_KEYS, SI units; booleans as 0/1; the state of a
     diverged env reads 0 where it is not finite) from its state and its last tick's record."""
     r = rows[i]
-    r[COL_T] = last[R.REC_T]
-    r[COL_E] = s.energy[i]
-    r[COL_E0] = d.impact_energy[i]
-    r[COL_RATIO] = s.energy[i] / d.impact_energy[i]
-    r[COL_V0] = d.impact_speed[i]
+    r[INFO.t] = last[R.REC.t]
+    r[INFO.catch_energy] = s.energy[i]
+    r[INFO.impact_energy] = d.impact_energy[i]
+    r[INFO.catch_energy_ratio] = s.energy[i] / d.impact_energy[i]
+    r[INFO.impact_speed] = d.impact_speed[i]
     for k in range(4):
         v = d.Y[i, k]
-        r[COL_X1 + k] = v if np.isfinite(v) else 0.0
-    r[COL_CONTACT] = 1.0 if r[COL_X1] - r[COL_X2] > 0.0 else 0.0
-    r[COL_FC] = last[R.REC_CONTACT_FORCE]
-    r[COL_FD] = last[R.REC_F_DEMAND]
-    r[COL_FA] = last[R.REC_F_APPLIED]
-    r[COL_SAT] = last[R.REC_SATURATED]
-    r[COL_DET] = last[R.REC_DETECTED]
-    r[COL_DIV] = 1.0 if s.diverged[i] else 0.0
-    r[COL_CAUGHT] = 1.0 if s.below[i] >= p.hold else 0.0
+        r[INFO.x1 + k] = v if np.isfinite(v) else 0.0
+    r[INFO.contact] = 1.0 if r[INFO.x1] - r[INFO.x2] > 0.0 else 0.0
+    r[INFO.contact_force] = last[R.REC.contact_force]
+    r[INFO.force_demand] = last[R.REC.f_demand]
+    r[INFO.force_applied] = last[R.REC.f_applied]
+    r[INFO.saturated] = last[R.REC.saturated]
+    r[INFO.detected] = last[R.REC.detected]
+    r[INFO.diverged] = 1.0 if s.diverged[i] else 0.0
+    r[INFO.caught] = 1.0 if s.below[i] >= p.hold else 0.0
 
 
 @jit(inline="always")

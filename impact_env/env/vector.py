@@ -150,6 +150,6 @@ class ImpactCatchVectorEnv(VectorEnv):
     def render(self):
         if self.render_mode is None:
             return None
-        from impact_env.env.render import draw_frame
+        from impact_env.env.render import draw_frame  # matplotlib loads only to render
 
         return tuple(draw_frame(self.task, i) for i in range(self.num_envs))

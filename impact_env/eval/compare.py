@@ -42,6 +42,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+from impact_env._threads import check_threads
+from impact_env.config import ConfigError
+from impact_env.eval.compare_plots import plot_catch_time, plot_energy, plot_force, plot_motion
+from impact_env.eval.parallel import prepare, report, run_tasks, session
+from impact_env.eval.rollout import EPISODE_METRICS, rollout
+from impact_env.policy.registry import (
+    REGISTERED,
+    check_spec,
+    entry_point_policies,
+    is_model_spec,
+    make_policy,
+    parse_spec,
+    policy_class,
+)
+from impact_env.scene import load_scene
+
 if TYPE_CHECKING:
     from impact_env.eval.parallel import Cluster
     from impact_env.scene import Scene
@@ -109,16 +127,11 @@ class PolicyRun:
     stats: dict = field(default_factory=dict)  # a prepared policy's per-episode figures (the oracle's)
 
 
-def _run_task(task: RolloutJob):
-    import numpy as np
-
-    from impact_env.eval.parallel import report
-    from impact_env.eval.rollout import rollout
-
+def run_job(task: RolloutJob):
+    """One job's episodes (in a worker): the rollout's results as plain data, or the error that
+    kept its policy from being built."""
     seeds = [task.seed + j for j in task.episodes]
     try:
-        from impact_env.policy.registry import make_policy
-
         policy = make_policy(task.spec, task.scene)
     except Exception as exc:  # a policy that cannot be built fails its episodes, not the run
         n_steps = int(round(task.horizon / task.scene.control_period))
@@ -154,9 +167,6 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     (:func:`~impact_env.eval.rollout.rollout`; None: 1); the results do not depend on it,
     bitwise.  The workers already fill the cores, so it pays with ``workers=1`` (one process,
     its episodes over the cores, no fork) or fewer workers than cores."""
-    from impact_env._threads import check_threads
-    from impact_env.eval.parallel import session
-    from impact_env.scene import load_scene
 
     threads = check_threads(threads)
     scene = load_scene(scene)
@@ -171,7 +181,7 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
         raise ValueError("no policy given (e.g. --policies passive,thesis-rig)")
     if len(set(specs)) != len(specs):
         raise ValueError(f"policy listed twice: {specs}")
-    _validate_specs(specs, scene)
+    check_specs(specs, scene)
     if cluster is not None:
         check_cluster_specs(specs)
     with session(cluster, workers) as (cl, workers):
@@ -180,33 +190,33 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
 
 def _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rate,
              cl, threads=1) -> dict[str, PolicyRun]:
-    from impact_env.eval.parallel import prepare, run_tasks
 
     oracles = [s for s in specs if _is_oracle(s)]
     others = [s for s in specs if s not in oracles]
     # chunks of episodes so that every worker has work; results do not depend on the chunking
     per_policy = max(1, math.ceil(workers / max(len(others), 1))) if workers > 1 else 1
     tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles), threads=threads)
-             for spec in others for chunk in _chunks(episodes, per_policy)]
-    prepare(_warm_up, scene, horizon, workers=workers, cluster=cl)
+             for spec in others for chunk in split_episodes(episodes, per_policy)]
+    prepare(warm_up, scene, horizon, workers=workers, cluster=cl)
     n_steps = int(round(horizon / scene.control_period))
     t0 = time.perf_counter()
-    outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),
+    outs = run_tasks(run_job, tasks, workers, total=n_steps * len(tasks),
                      desc=f"compare ({len(others)} policies x {episodes} episodes)",
                      progress=progress, cluster=cl) if tasks else []
     runs = {}
     for spec in others:
-        runs[spec] = _merge(spec, [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec], scene)
+        runs[spec] = merge_runs(spec, [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec], scene)
     if oracles:  # after the others, with their commands as warm starts, over every worker
         warm = {spec: run.commands for spec, run in runs.items() if run.commands is not None}
         tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate,
                       warm_starts={k: u[:, chunk[0]:chunk[-1] + 1] for k, u in warm.items()},
                       threads=threads)
-                 for spec in oracles for chunk in _chunks(episodes, workers)]
-        outs = run_tasks(_run_task, tasks, workers, total=n_steps * len(tasks),
+                 for spec in oracles for chunk in split_episodes(episodes, workers)]
+        outs = run_tasks(run_job, tasks, workers, total=n_steps * len(tasks),
                          desc=f"compare: oracle optimising {episodes} drops", progress=progress, cluster=cl)
         for spec in oracles:
-            runs[spec] = _merge(spec, [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec], scene)
+            parts = [o for t, o in zip(tasks, outs, strict=True) if t.spec == spec]
+            runs[spec] = merge_runs(spec, parts, scene)
     wall = time.perf_counter() - t0
     runs = {spec: runs[spec] for spec in specs}
     for run in runs.values():
@@ -217,17 +227,14 @@ def _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rat
     return runs
 
 
-def _chunks(episodes: int, parts: int) -> list[list[int]]:
-    import numpy as np
-
+def split_episodes(episodes: int, parts: int) -> list[list[int]]:
+    """Episodes ``0 .. episodes - 1`` in ``parts`` consecutive runs of near-equal length (the jobs)."""
     parts = max(1, min(parts, episodes))
     bounds = np.linspace(0, episodes, parts + 1).round().astype(int)
     return [list(range(bounds[c], bounds[c + 1])) for c in range(parts)]
 
 
 def _is_oracle(spec: str) -> bool:
-    from impact_env.policy.registry import is_model_spec, parse_spec, policy_class
-
     if is_model_spec(spec) or spec.startswith("compiled:"):
         return False
     return bool(getattr(policy_class(parse_spec(spec)[0]), "is_oracle", False))
@@ -236,8 +243,6 @@ def _is_oracle(spec: str) -> bool:
 def add_oracle_gaps(runs: dict[str, PolicyRun], oracle: str) -> None:
     """Every run's ``gap_to_oracle_ms`` (median over episodes of its energy integral minus the
     oracle's) and ``gap_to_oracle_min_ms``; the oracle's improvement on its warm starts and time."""
-    import numpy as np
-
     ref = runs[oracle].metrics["energy_integral_ms"]
     for run in runs.values():
         gap = run.metrics["energy_integral_ms"] - ref
@@ -258,9 +263,6 @@ def check_cluster_specs(specs, option: str = "--cluster") -> None:
     give absolute paths on a disk every worker sees).  ConfigError naming ``option``."""
     from pathlib import PurePath
 
-    from impact_env.config import ConfigError
-    from impact_env.policy.registry import REGISTERED, _entry_points, is_model_spec, parse_spec
-
     for spec in specs:
         if spec.startswith("compiled:") or is_model_spec(spec):
             compiled = spec.startswith("compiled:")
@@ -273,34 +275,28 @@ def check_cluster_specs(specs, option: str = "--cluster") -> None:
                                   "on a disk every worker sees")
         else:
             name = parse_spec(spec)[0]
-            if name in REGISTERED and name not in _entry_points():
+            if name in REGISTERED and name not in entry_point_policies():
                 raise ConfigError(f"{option}: policy {name!r} is registered in this process only "
                                   "(register_policy); the cluster's workers find policies through installed "
                                   "entry points ([project.entry-points.\"impact_env.policies\"])")
 
 
-def _validate_specs(specs, scene) -> None:
-    from impact_env.policy.registry import check_spec
-
+def check_specs(specs, scene) -> None:
+    """Every spec validated on ``scene`` before any job starts (ConfigError naming the bad one)."""
     for spec in specs:
         check_spec(spec, scene)  # a model's syntax and file only: loading waits for the worker
 
 
-def _warm_up(scene, horizon) -> None:
+def warm_up(scene, horizon) -> None:
     """Compile (or load) the kernels once in the parent, so that forked workers inherit them.
     Two episodes, not one: a column of a one-row array is contiguous, of a wider one not, and
     numba compiles a kernel for each layout (each worker compiled the trace kernel again)."""
-    from impact_env.eval.rollout import rollout
-    from impact_env.policy.registry import make_policy
 
     rollout(scene, make_policy("passive", scene), [0, 1], horizon=2 * scene.control_period, trace_rate=0.0)
 
 
-def _merge(spec, parts, scene) -> PolicyRun:
-    import numpy as np
-
-    from impact_env.eval.rollout import EPISODE_METRICS
-
+def merge_runs(spec, parts, scene) -> PolicyRun:
+    """One policy's run from its jobs' results (:func:`run_job`), in episode order."""
     episodes = np.concatenate([np.asarray(p["episodes"], dtype=np.int64) for p in parts])
     metrics: dict = {}
     failures: list = []
@@ -345,8 +341,6 @@ def _merge(spec, parts, scene) -> PolicyRun:
 
 def summarize(run: PolicyRun) -> dict:
     """The table's numbers for one policy (see the module doc)."""
-    import numpy as np
-
     m = run.metrics
     ok = ~np.isnan(m["time_to_catch_s"])
     out: dict = {"episodes": int(len(run.episodes)), "failed_episodes": int((~ok).sum())}
@@ -435,9 +429,6 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
     """summary.csv, summary.json, episodes.csv and the plots (``fmt``: png, pdf or svg) into
     ``out_dir``; returns the paths."""
     import csv
-
-    from impact_env.eval.compare_plots import plot_catch_time, plot_energy, plot_force, plot_motion
-    from impact_env.eval.rollout import EPISODE_METRICS
 
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []

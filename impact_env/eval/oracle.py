@@ -102,11 +102,14 @@ from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.config import ConfigError, check_range
 from impact_env.effects.registry import READINGS_ONLY
+from impact_env.eval.rollout import rollout
 from impact_env.hardware.stage import INFO_F_APPLIED
 from impact_env.plant.energy import catch_energy_at
-from impact_env.plant.layout import C, G, M1
-from impact_env.sim.step import env_step
+from impact_env.plant.layout import M1, C, G
+from impact_env.policy.registry import make_policy
 from impact_env.scene import Scene, load_scene
+from impact_env.sim.simulator import Simulator
+from impact_env.sim.step import env_step
 
 SENSOR_SIDE = READINGS_ONLY  # effects that only compute readings (impact_env.effects.registry)
 WARM_POLICIES = ("pd-penetration", "thesis-rig", "passive")  # the classic laws the oracle rolls out itself
@@ -216,8 +219,6 @@ class _Rig:
     (bool[N])."""
 
     def __init__(self, scene: Scene, n: int):
-        from impact_env.sim.simulator import Simulator
-
         self.sim = Simulator(scene, n)
         self.n = n
         self.period = scene.control_period
@@ -439,7 +440,6 @@ class _Replay:
 def replay(scene: Scene, seeds, commands: np.ndarray, horizon: float):
     """Roll out ``commands`` (float64[n_steps, N]) open loop on the drops ``seeds`` (N ints) of
     the full scene; returns the :class:`~impact_env.eval.rollout.RolloutResult`."""
-    from impact_env.eval.rollout import rollout
 
     return rollout(scene, _Replay(np.asarray(commands, dtype=np.float64)), list(seeds), horizon=horizon,
                    trace_rate=0.0, name="replay")
@@ -448,8 +448,6 @@ def replay(scene: Scene, seeds, commands: np.ndarray, horizon: float):
 def classic_warm_starts(scene: Scene, seeds, horizon: float, specs=WARM_POLICIES) -> dict[str, np.ndarray]:
     """The commands the classic laws issue on the drops (name -> float64[n_steps, N]); laws the
     scene cannot run (a missing sensor channel) are left out."""
-    from impact_env.eval.rollout import rollout
-    from impact_env.policy.registry import make_policy
 
     out = {}
     for spec in specs:

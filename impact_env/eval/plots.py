@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from impact_env.figstyle import save_figure
+
 
 def plot_trajectory(traj, path: str) -> None:
     """Positions, velocities, forces and energies over time, in the style of thesis fig 3.2."""
@@ -34,6 +36,5 @@ def plot_trajectory(traj, path: str) -> None:
         a.legend(loc="upper right", fontsize=8)
     fig.suptitle(f"scene {traj.scene.name}: drop at {traj.scene.impact_speed:.3g} m/s")
     fig.tight_layout()
-    from impact_env.figstyle import save_figure
 
     save_figure(fig, path)

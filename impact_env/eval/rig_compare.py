@@ -23,8 +23,15 @@ from typing import Any
 
 import numpy as np
 
+from impact_env.config import ConfigError
 from impact_env.eval.compare import ENERGY_CURVE_RATE, PolicyRun, summarize
+from impact_env.plant.energy import catch_energy
+from impact_env.policy.export import export_policy
+from impact_env.policy.registry import is_model_spec, make_policy
+from impact_env.rig.flight_energy import summarize as estimate
+from impact_env.rig.host import RigClient
 from impact_env.rig.log_metrics import exact_metrics, has_truth, skipped_fraction
+from impact_env.rig.transport import RigTimeout
 from impact_env.sim.metrics import EPISODE_METRICS
 
 TRACE_MAP = {"x1": "true_x1_m", "v1": "true_v1_mps", "x2": "true_x2_m", "v2": "true_v2_mps",
@@ -38,11 +45,6 @@ def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 
                 key=None) -> tuple[Any, dict[str, PolicyRun]]:
     """(the target's scene, spec -> PolicyRun) measured on the rig at ``address`` (``key``: the
     session key file the target was started with, or None)."""
-    from impact_env.config import ConfigError
-    from impact_env.policy.export import export_policy
-    from impact_env.policy.registry import is_model_spec, make_policy
-    from impact_env.rig.host import RigClient
-    from impact_env.rig.transport import RigTimeout
 
     try:
         client = RigClient(address, key=key)
@@ -104,8 +106,6 @@ def _episode(client, mode: str, pol, seed: int, horizon: float, scene):
     hold = int(getattr(pol, "hold_ticks", 1))
     residual = None
     if getattr(pol, "residual", None):
-        from impact_env.policy.export import export_policy
-
         residual = export_policy(pol.residual, scene)
     n_steps = int(round(horizon / (scene.control_period * hold)))
     client.arm("host", seed, n_steps * hold, pol.observation, pol.history, hold, residual)
@@ -123,8 +123,6 @@ def _episode(client, mode: str, pol, seed: int, horizon: float, scene):
 
 
 def _observation(client, step: int, resend=None):
-    from impact_env.rig.transport import RigTimeout
-
     for _ in range(client.retries + 1):
         got = client.observation(step, client.timeout_s)
         if got is not None:
@@ -152,15 +150,11 @@ def _run(spec: str, logs: list, failures: list, wall: float) -> tuple[PolicyRun,
         if has_truth(log):
             m = exact_metrics(log)
         else:
-            from impact_env.rig.flight_energy import summarize as estimate
-
             m = estimate(log)
         for k in EPISODE_METRICS:
             if k in m and m[k] is not None:
                 metrics[k][j] = float(m[k])
         if has_truth(log):
-            from impact_env.plant.energy import catch_energy
-
             p = log.scene().plant
             e = catch_energy(log["true_x1_m"], log["true_v1_mps"], log["true_x2_m"], p.m1, p.c, p.gravity)
             e0 = float(log["impact_energy_J"][0])

@@ -27,6 +27,21 @@ from pathlib import Path
 import numpy as np
 
 from impact_env.config import ConfigError
+from impact_env.eval.compare import (
+    RolloutJob,
+    check_cluster_specs,
+    check_specs,
+    merge_runs,
+    run_job,
+    split_episodes,
+    summarize,
+    warm_up,
+)
+from impact_env.eval.labels import metric_label, policy_colors
+from impact_env.eval.parallel import prepare, run_tasks, session
+from impact_env.eval.sweep import parse_grid
+from impact_env.figstyle import save_figure
+from impact_env.scene import load_scene
 from impact_env.scene.randomize import LOG, RandomizeConfig
 
 FIELDS = tuple(f for f in RandomizeConfig.__dataclass_fields__)
@@ -58,7 +73,6 @@ METRICS = ("energy_integral_ms", "time_to_catch_median_s", "peak_force_N", "satu
 def parse_vary(text: str, rate: float) -> tuple[str, np.ndarray]:
     """``FIELD=LO:HI[:N]`` (N default 7; geometric for the log-uniform fields, whole control
     periods for the delays) -> (field, values)."""
-    from impact_env.eval.sweep import parse_grid
 
     name, sep, grid = str(text).partition("=")
     name = name.strip()
@@ -124,10 +138,6 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
     run on its workers, with the same results; ``workers`` then defaults to its worker threads."""
     import itertools
 
-    from impact_env.eval.compare import _validate_specs, check_cluster_specs
-    from impact_env.eval.parallel import session
-    from impact_env.scene import load_scene
-
     scene = load_scene(scene)
     if not 1 <= len(axes) <= 2:
         raise ConfigError("give one or two --vary FIELD=LO:HI[:N]")
@@ -140,9 +150,9 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
     points = [dict(zip([a[0] for a in axes], vals, strict=True))
               for vals in itertools.product(*[a[1] for a in axes])]
     scenes = [point_scene(scene, p) for p in points]  # every point checked before anything runs
-    _validate_specs(specs, scene)
+    check_specs(specs, scene)
     for s in scenes:
-        _validate_specs(specs, s)
+        check_specs(specs, s)
     if cluster is not None:
         check_cluster_specs(specs)
     with session(cluster, workers) as (cl, workers):
@@ -152,18 +162,15 @@ def robustness(scene, specs: list[str], axes: list[tuple[str, np.ndarray]], epis
 def _robustness(scene, scenes, points, specs, axes, episodes, seed, workers, progress, cl) -> Robustness:
     import time
 
-    from impact_env.eval.compare import RolloutJob, _chunks, _merge, _run_task, _warm_up, summarize
-    from impact_env.eval.parallel import prepare, run_tasks
-
     horizon = scene.episode.horizon
-    chunks = _chunks(episodes, max(1, math.ceil(workers / max(len(points) * len(specs), 1))))
+    chunks = split_episodes(episodes, max(1, math.ceil(workers / max(len(points) * len(specs), 1))))
     tasks = [(i, RolloutJob(spec, s, chunk, seed, horizon, 0.0))
              for i, s in enumerate(scenes) for spec in specs
              for chunk in chunks]
-    prepare(_warm_up, scene, horizon, workers=workers, cluster=cl)
+    prepare(warm_up, scene, horizon, workers=workers, cluster=cl)
     n_steps = int(round(horizon / scene.control_period))
     t0 = time.perf_counter()
-    outs = run_tasks(_run_task, [t for _i, t in tasks], workers, total=n_steps * len(tasks),
+    outs = run_tasks(run_job, [t for _i, t in tasks], workers, total=n_steps * len(tasks),
                      desc=f"robustness ({len(points)} points x {len(specs)} policies x {episodes} drops)",
                      progress=progress, cluster=cl)
     summaries = []
@@ -171,7 +178,7 @@ def _robustness(scene, scenes, points, specs, axes, episodes, seed, workers, pro
         row = {}
         for spec in specs:
             parts = [o for (j, t), o in zip(tasks, outs, strict=True) if j == i and t.spec == spec]
-            row[spec] = summarize(_merge(spec, parts, s))
+            row[spec] = summarize(merge_runs(spec, parts, s))
         summaries.append(row)
     return Robustness(scene.name, axes, list(specs), points, summaries,
                       {a[0]: nominal(scene, a[0]) for a in axes}, episodes, seed, horizon,
@@ -240,9 +247,6 @@ def plot(res: Robustness, path, labels: dict[str, str] | None = None) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from impact_env.eval.labels import metric_label, policy_colors
-    from impact_env.figstyle import save_figure
 
     colors = policy_colors(res.specs)
     if len(res.axes) == 1:

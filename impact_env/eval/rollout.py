@@ -47,21 +47,41 @@ from gymnasium.utils import seeding
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env._threads import check_threads, env_blocks, run_blocks
 from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.control.policy import CompiledPolicy, PolicyArrays, act
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, C, G
+from impact_env.policy.export import export_policy
 from impact_env.scene import Scene
 from impact_env.sim import records as R
-from impact_env.sim.metrics import A_ENERGY, EPISODE_METRICS, EpisodeMetrics, MetricArrays, update
+from impact_env.sim.metrics import AC, EPISODE_METRICS, ST, EpisodeMetrics, MetricArrays, update
 from impact_env.sim.simulator import Simulator
 from impact_env.sim.step import env_step
 
 __all__ = ["EPISODE_METRICS", "TRACE_KEYS", "RolloutResult", "rollout"]
 
-TRACE_KEYS = ("x1", "v1", "x2", "v2", "force_demand", "force_applied", "contact_force", "catch_energy",
-              "detected", "saturated")
+
+
+class TraceRow(NamedTuple):
+    """A trace sample's columns (SI): the state as ``ImpactCatch-v0``'s info gives it, then the
+    last tick's record and catch energy."""
+
+    x1: float
+    v1: float
+    x2: float
+    v2: float
+    force_demand: float
+    force_applied: float
+    contact_force: float
+    catch_energy: float
+    detected: float
+    saturated: float
+
+
+TR = positions(TraceRow)
+TRACE_KEYS = TraceRow._fields
 CHUNK = 200  # policy steps per progress report (and at most per compiled call)
 #: envs per block at least when the compiled loop runs in threads: a block runs a whole chunk
 #: (up to CHUNK steps, about 2.4 ms of work for 4 rig envs) per hand-off (50-90 us of a thread's
@@ -106,14 +126,14 @@ def _trace_env(row, i, Y, records, acc_energy, detected):
     info gives it (non-finite entries read 0) and the last tick's record."""
     for j in range(4):
         v = Y[i, j]
-        row[i, j] = v if np.isfinite(v) else 0.0
+        row[i, TR.x1 + j] = v if np.isfinite(v) else 0.0
     last = records[i, records.shape[1] - 1]
-    row[i, 4] = last[R.REC_F_DEMAND]
-    row[i, 5] = last[R.REC_F_APPLIED]
-    row[i, 6] = last[R.REC_CONTACT_FORCE]
-    row[i, 7] = acc_energy[i]
-    row[i, 8] = detected[i]
-    row[i, 9] = last[R.REC_SATURATED]
+    row[i, TR.force_demand] = last[R.REC.f_demand]
+    row[i, TR.force_applied] = last[R.REC.f_applied]
+    row[i, TR.contact_force] = last[R.REC.contact_force]
+    row[i, TR.catch_energy] = acc_energy[i]
+    row[i, TR.detected] = detected[i]
+    row[i, TR.saturated] = last[R.REC.saturated]
 
 
 @jit
@@ -173,10 +193,10 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
     records = s.records
     metrics, fails, traces = out.metrics, out.fails, out.traces
     acc, consts, settings = metrics.acc, metrics.consts, metrics.settings
-    energy = acc[:, A_ENERGY]
+    energy = acc[:, AC.energy]
     detected = s.fe.detected
     failed = fails.failed
-    period = settings[0]
+    period = settings[ST.period]
     hold = p.hold
     policy, memory = pol.arrays, pol.memory
     stride = steps.stride
@@ -208,7 +228,6 @@ def residual_law(policy, scene) -> CompiledPolicy | None:
     spec = getattr(policy, "residual", None)
     if spec is None:
         return None
-    from impact_env.policy.export import export_policy
 
     return export_policy(spec, scene)
 
@@ -266,10 +285,10 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     Y0 = sim.Y
     metrics = EpisodeMetrics(n, period, catch_fraction, min_flight_s)
     metrics.start(sim.t_touch, sim.hw.impact_speed, sim.impact_energy, Y0[:, 0] - Y0[:, 2] > 0.0)
-    metrics.acc[:, A_ENERGY] = _energies(sim.Y, sim.P, np.empty(n))  # the catch energy at the start
+    metrics.acc[:, AC.energy] = _energies(sim.Y, sim.P, np.empty(n))  # the catch energy at the start
     trace_t = np.arange(n_steps // stride + 1) * stride * step_s
     traces = np.zeros((len(trace_t), n, len(TRACE_KEYS)))
-    _trace_row(traces[0], sim.Y, sim.records, metrics.acc[:, A_ENERGY], sim.detected)
+    _trace_row(traces[0], sim.Y, sim.records, metrics.acc[:, AC.energy], sim.detected)
     fails = Failures(np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n, dtype=np.int64))
     failed, fail_t, fail_code = fails
     failures: list[dict] = []
@@ -328,16 +347,16 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             active = None if not failed.any() else ~failed
             sim.step(a, active)
             if commands is not None:  # every period's drive command (hold, residual law included)
-                u = sim.records[:, :, R.REC_U].T
+                u = sim.records[:, :, R.REC.u].T
                 commands[(k - 1) * hold:k * hold] = u if active is None else np.where(active, u, 0.0)
             metrics.step(sim.records, sim.P, active)
-            div = sim.records[:, -1, R.REC_STATUS] != 0.0
+            div = sim.records[:, -1, R.REC.status] != 0.0
             if active is not None:
                 div &= active
             if div.any():
                 fail(div, k * step_s, "simulation diverged")
             if k % stride == 0:
-                _trace_row(traces[k // stride], sim.Y, sim.records, metrics.acc[:, A_ENERGY], sim.detected)
+                _trace_row(traces[k // stride], sim.Y, sim.records, metrics.acc[:, AC.energy], sim.detected)
             if progress is not None and (k - reported >= CHUNK or k == n_steps):
                 progress(k - reported)
                 reported = k

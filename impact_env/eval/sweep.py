@@ -27,8 +27,13 @@ from typing import Any
 
 import numpy as np
 
+from impact_env.eval.compare import check_cluster_specs, warm_up
+from impact_env.eval.labels import metric_label
+from impact_env.eval.parallel import prepare, report, run_tasks, session
+from impact_env.eval.rollout import EPISODE_METRICS, rollout
 from impact_env.figstyle import save_figure
 from impact_env.policy.registry import policy_class
+from impact_env.scene import load_scene
 
 UNLIMITED_SCALE = 1.0e5  # N: command_scale when the force is not limited
 DEFAULT_AXES = {"thesis-rig": (("h01", "1e5:5e6:20"), ("h11", "1:1000:20"))}
@@ -105,9 +110,6 @@ class _Chunk:
 
 
 def _run_chunk(c: _Chunk):
-    from impact_env.eval.parallel import report
-    from impact_env.eval.rollout import rollout
-
     policy = policy_class(c.policy)(c.scene, **c.fixed, **{c.x_name: c.xs, c.y_name: c.ys})
     r = rollout(c.scene, policy, [c.seed] * len(c.xs), horizon=c.t_end, trace_rate=0.0, name=c.policy,
                 progress=report)
@@ -134,10 +136,6 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
     ``cluster``: a Dask scheduler's ``tcp://HOST:PORT`` (or a connected
     :class:`~impact_env.eval.parallel.Cluster`): the chunks run on its workers, with the same
     results; ``workers`` (the number of chunks) then defaults to the cluster's worker threads."""
-    from impact_env.eval.compare import check_cluster_specs
-    from impact_env.eval.parallel import session
-    from impact_env.eval.rollout import EPISODE_METRICS
-    from impact_env.scene import load_scene
 
     scene = load_scene(scene)
     cls = policy_class(policy)
@@ -161,9 +159,6 @@ def sweep(scene, policy: str = "thesis-rig", axes=None, fixed: dict | None = Non
 
 def _sweep(run_scene, policy, xn, xv, yn, yv, fixed, seed, t_end, limit, objective, force_limit, workers,
            progress, cl) -> SweepResult:
-    from impact_env.eval.compare import _warm_up
-    from impact_env.eval.parallel import prepare, run_tasks
-    from impact_env.eval.rollout import EPISODE_METRICS
 
     X, Y = np.meshgrid(np.asarray(xv, float), np.asarray(yv, float), indexing="ij")
     xs, ys = X.ravel(), Y.ravel()
@@ -171,7 +166,7 @@ def _sweep(run_scene, policy, xn, xv, yn, yv, fixed, seed, t_end, limit, objecti
     bounds = np.linspace(0, len(xs), k + 1).round().astype(int)
     chunks = [_Chunk(policy, run_scene, xn, yn, xs[a:b], ys[a:b], fixed, seed, t_end)
               for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
-    prepare(_warm_up, run_scene, t_end, workers=workers, cluster=cl)
+    prepare(warm_up, run_scene, t_end, workers=workers, cluster=cl)
     n_steps = int(round(t_end / run_scene.control_period))
     t0 = time.perf_counter()
     outs = run_tasks(_run_chunk, chunks, workers, total=n_steps * len(chunks),
@@ -200,8 +195,6 @@ def _sweep(run_scene, policy, xn, xv, yn, yv, fixed, seed, t_end, limit, objecti
 def write_csv(res: SweepResult, path: Path) -> Path:
     import csv
 
-    from impact_env.eval.rollout import EPISODE_METRICS
-
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow([res.x_name, res.y_name, *EPISODE_METRICS, "within_limit"])
@@ -219,8 +212,6 @@ def plot(res: SweepResult, path: Path, log: bool, title: str = "") -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from impact_env.eval.labels import metric_label
 
     m = res.metrics
     units = _param_units(res.policy)
@@ -265,8 +256,6 @@ def plot(res: SweepResult, path: Path, log: bool, title: str = "") -> Path:
 def _param_units(policy: str) -> dict[str, str]:
     """Units of the swept policy's parameters (empty if it cannot be looked up)."""
     try:
-        from impact_env.policy.registry import policy_class
-
         return {k: p.unit for k, p in policy_class(policy).PARAMS.items()}
     except Exception:  # noqa: BLE001  (labels only: a plot without units beats no plot)
         return {}

@@ -11,15 +11,13 @@ controller's front end after it; a virtual rig uses it alone.
 
 from __future__ import annotations
 
+import dataclasses
 import typing
 
 import numpy as np
 
-from impact_env.effects import delay as DL
 from impact_env.effects import registry
-from impact_env.effects import saturation as SA
 from impact_env.effects import sensors as SE
-from impact_env.effects import shaker as SH
 from impact_env.hardware import stage as HS
 from impact_env.hardware.arrays import (
     METHOD_CODES,
@@ -36,6 +34,13 @@ from impact_env.plant.restitution import zeta_table
 from impact_env.scene import Scene, load_scene
 
 NOISE_BLOCK = 256  # control ticks of noise drawn at once per env (at least; see Hardware)
+
+
+def _replace_dotted(config, key: str, value):
+    """The frozen dataclass ``config`` with its (dotted) field ``key`` set to ``value``."""
+    head, _, rest = key.partition(".")
+    return dataclasses.replace(config, **{head: _replace_dotted(getattr(config, head), rest, value)
+                                          if rest else value})
 
 
 class Hardware:
@@ -68,11 +73,9 @@ class Hardware:
         self.n = n = int(num_envs)
         fx = scene.effects
         self.period = scene.control_period
-        self.rate = rate = 1.0 / self.period
+        self.rate = 1.0 / self.period
         self.method = METHOD_CODES[scene.integrator.method]
-        self.flags = registry.flags(registry.HARDWARE, fx.active)
-        if fx.on("shaker") and fx.shaker.back_emf:
-            self.flags |= HS.F_BACK_EMF
+        self.flags = registry.flags(registry.HARDWARE, fx)
         rz = scene.randomize
         self.randomized = rz.any()
         self._zeta = None
@@ -81,24 +84,11 @@ class Hardware:
             if "restitution" in rz.ranged():
                 lo, hi = rz.restitution
                 self._zeta = zeta_table(lo, hi)
-        # delay lines sized for the longest delay the scene (or its ranges) can ask for
-        k_sens, k_act = fx.delay.samples(rate)
-        self.k_sens_max = max([k_sens] + [DL.delay_samples(v, rate) for v in rz.sensor_delay_s]) \
-            if fx.on("sensor_delay") else 0
-        self.k_act_max = max([k_act] + [DL.delay_samples(v, rate) for v in rz.actuator_delay_s]) \
-            if fx.on("actuator_delay") else 0
         base = self._env_arrays(scene, exact=True)
-        order = base["shaker_order"]
-        d_p, d_s = DL.block_sizes(self.k_act_max, 1)
-        s_p, s_s = DL.block_sizes(self.k_sens_max, SE.N_CHANNELS)
-        sh_p, sh_s = SH.block_sizes(order)
-        sa_p, sa_s = SA.block_sizes()
-        se_p, _ = SE.block_sizes()
-        params = {"drive": 1, "actuator_delay": d_p, "shaker": sh_p, "saturation": sa_p, "sensors": se_p,
-                  "sensor_delay": s_p}
-        state = {"actuator_delay": d_s, "shaker": sh_s, "saturation": sa_s, "sensor_delay": s_s}
+        params = {name: block.size for name, block in base["params"].items()}
         self.param_blocks = Blocks(HS.PARAM_BLOCKS, tuple(params[b] for b in HS.PARAM_BLOCKS))
-        self.state_blocks = Blocks(HS.STATE_BLOCKS, tuple(state[b] for b in HS.STATE_BLOCKS))
+        self.state_blocks = Blocks(HS.STATE_BLOCKS,
+                                   tuple(self._state_size(scene, b) for b in HS.STATE_BLOCKS))
         self.PR = np.zeros((n, self.param_blocks.size))
         self.ST = np.zeros((n, self.state_blocks.size))
         self.Y = np.zeros((n, L.N_STATE))
@@ -132,30 +122,43 @@ class Hardware:
     def _env_arrays(self, scene: Scene, exact: bool = False) -> dict:
         """One env's parameter blocks and start values for the fixed ``scene``."""
         fx = scene.effects
-        rate = self.rate
         p = plant_params(scene, None if exact or self._zeta is None else self._zeta)
         y0, t_touch = initial_state(scene)
         e0 = float(catch_energy(y0[0], y0[1], y0[2], p[L.M1], p[L.C], p[L.G]))
-        if fx.on("shaker"):
-            A, B, C, D, E = SH.discrete_emf_model(fx.shaker, rate)
-        else:
-            A, B, C, D, E = np.zeros((1, 1)), np.zeros(1), np.zeros(1), 0.0, np.zeros(1)
-        k_sens, k_act = fx.delay.samples(rate)
+        params = {"drive": np.array([fx.command_scale])}
+        params.update((e.name, self._pack(scene, e)[0]) for e in registry.side(registry.HARDWARE))
         return {
             "P": p, "scale": error_scale(scene, p), "y0": y0, "t_touch": t_touch,
-            "mode0": initial_mode(scene, y0, p), "impact_energy": max(e0, 1e-300),
-            "drive": np.array([fx.command_scale]),
-            "actuator_delay": DL.pack_params(k_act if fx.on("actuator_delay") else 0),
-            "shaker": SH.pack_params(A, B, C, D, E), "shaker_order": A.shape[0],
-            "saturation": SA.saturation_params(fx.saturation, rate),
-            "sensors": SE.pack_params(fx.sensors, fx.sensors.force.top_mass),
-            "sensor_delay": DL.pack_params(k_sens if fx.on("sensor_delay") else 0),
+            "mode0": initial_mode(scene, y0, p), "impact_energy": max(e0, 1e-300), "params": params,
         }
+
+    def _pack(self, scene: Scene, effect, section=None) -> tuple[np.ndarray, int]:
+        """``effect``'s parameter block and state size for the fixed ``scene`` (or for its
+        config ``section`` in that scene)."""
+        assert effect.pack is not None  # (every hardware effect has one: Effect checks it)
+        if section is None:
+            section = getattr(scene.effects, effect.section)
+        return effect.pack(section, self.rate, scene.effects.on(effect.name))
+
+    def _state_size(self, scene: Scene, name: str) -> int:
+        """The state block of effect ``name`` as the scene or any end of a range that varies its
+        section needs it (the longest delay line a randomised delay can ask for)."""
+        effect = registry.BY_NAME[name]
+        section = getattr(scene.effects, effect.section)
+        size = self._pack(scene, effect)[1]
+        rz = scene.randomize
+        head = f"effects.{effect.section}."
+        for field in rz.ranged():
+            if rz.target(field).startswith(head):
+                for end in getattr(rz, field):
+                    at_end = _replace_dotted(section, rz.target(field)[len(head):], end)
+                    size = max(size, self._pack(scene, effect, at_end)[1])
+        return size
 
     def _set_env(self, i: int, arrays: dict) -> None:
         for name in HS.PARAM_BLOCKS:
             block = self.param_block(name)[i]
-            value = arrays[name]
+            value = arrays["params"][name]
             if value.shape != block.shape:
                 raise ValueError(f"the {name} block of env {i} changed size ({value.shape} -> "
                                  f"{block.shape}): a randomised range changes the shaker's model order")

@@ -38,40 +38,36 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.effects import registry
-from impact_env.effects import saturation as _SA
-from impact_env.effects import sensors as _SE
-from impact_env.effects import shaker as _SH
-from impact_env.effects.delay import ACTUATOR_DELAY, SENSOR_DELAY, delay_packed
+from impact_env.effects.delay import delay_packed
 from impact_env.effects.saturation import saturate
 from impact_env.effects.sensors import read_packed, sense_packed
 from impact_env.effects.shaker import shaker_packed
-from impact_env.plant.dynamics import contact_force
+from impact_env.plant.dynamics import coefs, contact_force
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
-from impact_env.plant.layout import C2, K2, M2, X1, X2, B, C
+from impact_env.plant.layout import X1, X2
 
-# flag bits (the hardware's effects, as each declares itself: impact_env.effects.registry)
-F_ACT_DELAY = ACTUATOR_DELAY.flag
-F_SHAKER = _SH.EFFECT.flag
-F_SATURATION = _SA.EFFECT.flag
-F_SENSORS = _SE.EFFECT.flag
-F_SENS_DELAY = SENSOR_DELAY.flag
-F_BACK_EMF = 32  # the shaker's back-EMF input (effects.shaker.back_emf), with F_SHAKER
-assert not F_BACK_EMF & registry.flags(registry.HARDWARE, registry.NAMES)
+# flag bits (the hardware's effects, as the registry orders them: impact_env.effects.registry)
+F_ACT_DELAY = registry.flag("actuator_delay")
+F_SHAKER = registry.flag("shaker")
+F_SATURATION = registry.flag("saturation")
+F_SENSORS = registry.flag("sensors")
+F_SENS_DELAY = registry.flag("sensor_delay")
+F_BACK_EMF = registry.option_flag("shaker", "back_emf")  # the shaker's back-EMF input, with F_SHAKER
 
-# packed blocks, in signal order (the registry's hardware effects that have them; sizes from the
-# effect modules); a block is found by its name
-PARAM_BLOCKS = ("drive",) + tuple(e.name for e in registry.side(registry.HARDWARE) if e.params)
-STATE_BLOCKS = tuple(e.name for e in registry.side(registry.HARDWARE) if e.state)
+# packed blocks: the stage's own drive block, then every hardware effect's, in registry order
+# (sizes from each effect's packer, impact_env.hardware.batch); a block is found by its name
+PARAM_BLOCKS = ("drive",) + tuple(e.name for e in registry.side(registry.HARDWARE))
+STATE_BLOCKS = tuple(e.name for e in registry.side(registry.HARDWARE))
 PB_DRIVE = PARAM_BLOCKS.index("drive")
-PB_ACT_DELAY = PARAM_BLOCKS.index(ACTUATOR_DELAY.name)
-PB_SHAKER = PARAM_BLOCKS.index(_SH.EFFECT.name)
-PB_SATURATION = PARAM_BLOCKS.index(_SA.EFFECT.name)
-PB_SENSORS = PARAM_BLOCKS.index(_SE.EFFECT.name)
-PB_SENS_DELAY = PARAM_BLOCKS.index(SENSOR_DELAY.name)
-SB_ACT_DELAY = STATE_BLOCKS.index(ACTUATOR_DELAY.name)
-SB_SHAKER = STATE_BLOCKS.index(_SH.EFFECT.name)
-SB_SATURATION = STATE_BLOCKS.index(_SA.EFFECT.name)
-SB_SENS_DELAY = STATE_BLOCKS.index(SENSOR_DELAY.name)
+PB_ACT_DELAY = PARAM_BLOCKS.index("actuator_delay")
+PB_SHAKER = PARAM_BLOCKS.index("shaker")
+PB_SATURATION = PARAM_BLOCKS.index("saturation")
+PB_SENSORS = PARAM_BLOCKS.index("sensors")
+PB_SENS_DELAY = PARAM_BLOCKS.index("sensor_delay")
+SB_ACT_DELAY = STATE_BLOCKS.index("actuator_delay")
+SB_SHAKER = STATE_BLOCKS.index("shaker")
+SB_SATURATION = STATE_BLOCKS.index("saturation")
+SB_SENS_DELAY = STATE_BLOCKS.index("sensor_delay")
 
 # columns of the per-env info array
 INFO_F_DEMAND = 0  # N, demanded force (command * command scale)
@@ -168,6 +164,12 @@ def reset_env(s: HardwareState, i: int, y0: np.ndarray, mode0: int) -> None:
 
 
 @jit(inline="always")
+def block(row, offsets, j):
+    """Block ``j`` of a packed row (:mod:`impact_env.hardware.blocks`): a view."""
+    return row[offsets[j]:offsets[j + 1]]
+
+
+@jit(inline="always")
 def hardware_tick(i, u, p, s):
     """Advance env i by one control period under the drive command u (1 = the scene's
     command scale newtons upwards, before the drawn amplifier gain); ``p``: HardwareParams,
@@ -187,16 +189,14 @@ def hardware_tick(i, u, p, s):
     if flags & F_ACT_DELAY:
         cell = inf[INFO_F_APPLIED:INFO_F_APPLIED + 1]
         cell[0] = f
-        delay_packed(pr[po[PB_ACT_DELAY]:po[PB_ACT_DELAY + 1]], st[so[SB_ACT_DELAY]:so[SB_ACT_DELAY + 1]],
-                     cell, cell)
+        delay_packed(block(pr, po, PB_ACT_DELAY), block(st, so, SB_ACT_DELAY), cell, cell)
         f = cell[0]
     if flags & F_SHAKER:
-        f = shaker_packed(pr[po[PB_SHAKER]:po[PB_SHAKER + 1]], st[so[SB_SHAKER]:so[SB_SHAKER + 1]], f, y[3],
+        f = shaker_packed(block(pr, po, PB_SHAKER), block(st, so, SB_SHAKER), f, y[3],
                           (flags & F_BACK_EMF) != 0)
     sat = False
     if flags & F_SATURATION:
-        f, sat = saturate(f, st[so[SB_SATURATION]:so[SB_SATURATION + 1]],
-                          pr[po[PB_SATURATION]:po[PB_SATURATION + 1]])
+        f, sat = saturate(f, block(st, so, SB_SATURATION), block(pr, po, PB_SATURATION))
     inf[INFO_F_APPLIED] = f
     inf[INFO_SATURATED] = 1.0 if sat else 0.0
     peak = inf[INFO_PEAK_FORCE:INFO_PEAK_FORCE + 1]
@@ -208,12 +208,13 @@ def hardware_tick(i, u, p, s):
     inf[INFO_STATUS] = status
     # the true contact force and body 2's acceleration at the end of the period, by the same
     # expressions as plant.dynamics.deriv (one contact-force evaluation, not two)
-    phi, _fe = contact_force(y[0] - y[2], y[1] - y[3], mode, pp[C], pp[B])
-    a2 = (phi - f - pp[K2] * y[2] - pp[C2] * y[3]) * (1.0 / pp[M2])
+    pc = coefs(pp)
+    phi, _fe = contact_force(y[0] - y[2], y[1] - y[3], mode, pc.c, pc.b)
+    a2 = (phi - f - pc.k2 * y[2] - pc.c2 * y[3]) * pc.im2
     inf[INFO_CONTACT_FORCE] = phi
     inf[INFO_A2] = a2
     r = s.out.raw[i]
-    sens = pr[po[PB_SENSORS]:po[PB_SENSORS + 1]]
+    sens = block(pr, po, PB_SENSORS)
     read_packed(y[0], y[2], a2, phi, sens, r)
     if flags & F_SENSORS:  # each sensor stage reads channel j before writing it: in place
         z = s.noise.z
@@ -224,8 +225,7 @@ def hardware_tick(i, u, p, s):
         sense_packed(r, z[i, c], sens, r)
         cursor[i] = c + 1
     if flags & F_SENS_DELAY:
-        delay_packed(pr[po[PB_SENS_DELAY]:po[PB_SENS_DELAY + 1]], st[so[SB_SENS_DELAY]:so[SB_SENS_DELAY + 1]],
-                     r, r)
+        delay_packed(block(pr, po, PB_SENS_DELAY), block(st, so, SB_SENS_DELAY), r, r)
     ps.t[i] += cfg.period
 
 

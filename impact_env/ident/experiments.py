@@ -25,6 +25,7 @@ import tomllib
 
 from impact_env.config import ConfigError
 from impact_env.effects.sensors import CHANNELS
+from impact_env.rig.log import list_episodes, read_episode
 from impact_env.scene import Scene, scene_from_dict
 
 KINDS = ("quiet", "shaker", "ident_drop")
@@ -128,7 +129,6 @@ def from_log(log, path: str | None = None) -> Experiment:
 def load(paths, minimum: dict | None = None) -> list[Experiment]:
     """The experiments in the log files (and folders of them) ``paths``; ExperimentError naming
     the file and the cause for any that cannot serve, and for too few of a kind."""
-    from impact_env.rig.log import list_episodes, read_episode
 
     files: list[Path] = []
     for p in paths:

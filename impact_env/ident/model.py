@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from impact_env.config import with_overrides
 from impact_env.effects.sensors import CHANNELS
 from impact_env.hardware.batch import Hardware
 from impact_env.hardware.replay import replay
@@ -100,8 +101,6 @@ def model_base(scene: Scene, offsets: dict[str, float] | None = None) -> Scene:
 
 
 def _overrides(scene: Scene, ov: dict) -> Scene:
-    from impact_env.config import with_overrides
-
     return with_overrides(scene, ov, parse=False)
 
 

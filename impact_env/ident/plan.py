@@ -30,7 +30,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from impact_env.control.policy import CompiledPolicy
+from impact_env.rig import protocol as P
 from impact_env.rig.excitation import Excitation
+from impact_env.rig.log import write_episode
 
 
 @dataclass(frozen=True)
@@ -64,9 +67,6 @@ def run_plan(client, out_dir, plan: list[PlanEpisode] | None = None, seed: int =
              progress: bool = True) -> list[Path]:
     """Run ``plan`` on the target of ``client`` (:class:`impact_env.rig.host.RigClient`), each
     episode's log fetched and written to ``out_dir``; returns the files."""
-    from impact_env.control.policy import CompiledPolicy
-    from impact_env.rig import protocol as P
-    from impact_env.rig.log import write_episode
 
     plan = default_plan() if plan is None else plan
     scene = client.scene

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from impact_env.figstyle import figure_path, save_figure
 from impact_env.ident.fit import Fit
 from impact_env.ident.model import FIELD_MAP, FIELDS, NAMES, PARAMS
 
@@ -236,8 +237,6 @@ def plot(fit: Fit, exps, out_dir, fmt: str = "png") -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from impact_env.figstyle import figure_path, save_figure
 
     assert fit.model is not None
     out = []

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from impact_env.config import with_overrides
 from impact_env.scene import Scene, load_scene
 
 # the fields moved, and the largest value each may take (the restitution stays a restitution)
@@ -60,6 +61,5 @@ def perturbed_physics(base: Scene | str = "rig", seed: int = 0, spread: float = 
                 active.append(eff)
     ov["effects.active"] = active
     ov["name"] = f"{base.name}-perturbed-{seed}"
-    from impact_env.config import with_overrides
 
     return with_overrides(base, ov, parse=False), truth

@@ -20,9 +20,31 @@ flight is handled depends on the mode:
 from __future__ import annotations
 
 from math import sqrt
+from typing import NamedTuple
 
 from impact_env._jit import jit
-from impact_env.plant.layout import AUTO, CONTACT, FREE
+from impact_env.plant.layout import AUTO, C2, CONTACT, FREE, K2, M1, M2, B, C, G
+
+
+class Coefs(NamedTuple):
+    """The plant's parameters as its equations use them, for one env: read from its parameter
+    row once (:func:`coefs`) and passed whole to every kernel that evaluates the equations."""
+
+    m1: float  # body 1's mass, kg
+    m2: float  # body 2's mass, kg
+    im1: float  # 1 / m1 (1/kg): a multiplication keeps the RK stages' dependency chain free of divisions
+    im2: float  # 1 / m2 (1/kg)
+    c: float  # Hertz stiffness, N/m^1.5
+    b: float  # Tsuji damping coefficient, N s/m^1.25 (0: elastic Hertz)
+    g: float  # gravity on body 1, m/s^2
+    k2: float  # body 2's suspension stiffness, N/m
+    c2: float  # body 2's suspension damping, N s/m
+
+
+@jit(inline="always")
+def coefs(p):
+    """:class:`Coefs` of the parameter row ``p`` (float64[N_PARAM], :mod:`impact_env.plant.layout`)."""
+    return Coefs(p[M1], p[M2], 1.0 / p[M1], 1.0 / p[M2], p[C], p[B], p[G], p[K2], p[C2])
 
 
 @jit(inline="always")
@@ -85,20 +107,19 @@ def event_sign(x1, v1, x2, v2, c, b):
 
 
 @jit(inline="always")
-def deriv(x1, v1, x2, v2, mode, f2, im1, im2, c, b, g, k2, c2):
+def deriv(x1, v1, x2, v2, mode, f2, pc):
     """Time derivative of (x1, v1, x2, v2, W_ext, W_diss) under a shaker force f2 (N, upwards).
 
     W_ext' is the shaker's power into the system, W_diss' the power lost in the pad's damping
     (including elastic energy released while the damped force is clipped) and the suspension
     damper; with them the energy balance ``E + W_diss - W_ext = const`` holds exactly.
-    im1, im2 are the inverse masses (1/kg): a multiplication keeps the RK stages' dependency
-    chain free of divisions.
+    ``pc``: the plant's :class:`Coefs`.
     """
     d = x1 - x2
     dd = v1 - v2
-    f, fe = contact_force(d, dd, mode, c, b)
-    a1 = g - f * im1
-    a2 = (f - f2 - k2 * x2 - c2 * v2) * im2
+    f, fe = contact_force(d, dd, mode, pc.c, pc.b)
+    a1 = pc.g - f * pc.im1
+    a2 = (f - f2 - pc.k2 * x2 - pc.c2 * v2) * pc.im2
     pext = -f2 * v2
-    pdiss = (f - fe) * dd + c2 * v2 * v2
+    pdiss = (f - fe) * dd + pc.c2 * v2 * v2
     return v1, a1, v2, a2, pext, pdiss

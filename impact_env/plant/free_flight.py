@@ -19,6 +19,8 @@ Onset: the switching function of :func:`impact_env.plant.dynamics.event_value` i
 the exact motion, so the touch is found to round-off (no integration error in the located
 time).  A touch between two sub-step ends (penetration rate turning from + to - inside) is
 found from the interior maximum of the penetration.
+
+The kernels take the plant's constants as one :class:`impact_env.plant.dynamics.Coefs` (``pc``).
 """
 
 from __future__ import annotations
@@ -35,23 +37,23 @@ ROOT_TOL = 1e-14  # bracket width of a located touch, relative to the sub-step
 
 
 @jit(inline="always")
-def free_cap(im2, k2, c2):
+def free_cap(pc):
     """The longest sub-step (s) over which :func:`body2_after` converges fast, ``inf`` for a
     free body 2 with no suspension."""
-    rate = max(sqrt(k2 * im2), c2 * im2)
+    rate = max(sqrt(pc.k2 * pc.im2), pc.c2 * pc.im2)
     if rate > 0.0:
         return SERIES_REACH / rate
     return 1e300
 
 
 @jit(inline="always")
-def body2_after(x2, v2, h, f2, im2, k2, c2):
+def body2_after(x2, v2, h, f2, pc):
     """Body 2's position (m) and velocity (m/s) after h seconds (0 <= h <= :func:`free_cap`) on
     its suspension under the constant force f2 (N, upwards)."""
     sx = x2
     sv = v2
     tx = v2 * h
-    tv = (-f2 - k2 * x2 - c2 * v2) * im2 * h
+    tv = (-f2 - pc.k2 * x2 - pc.c2 * v2) * pc.im2 * h
     for n in range(2, MAX_TERMS + 2):
         nx = sx + tx
         nv = sv + tv
@@ -60,7 +62,7 @@ def body2_after(x2, v2, h, f2, im2, k2, c2):
         sx = nx
         sv = nv
         r = h / n
-        tx, tv = tv * r, -(k2 * tx + c2 * tv) * im2 * r
+        tx, tv = tv * r, -(pc.k2 * tx + pc.c2 * tv) * pc.im2 * r
     return sx, sv
 
 
@@ -71,22 +73,22 @@ def body1_after(x1, v1, h, g):
 
 
 @jit(inline="always")
-def gap_after(x1, v1, x2, v2, h, f2, g, im2, k2, c2):
+def gap_after(x1, v1, x2, v2, h, f2, pc):
     """Penetration (m) and its rate (m/s) after h seconds of free flight."""
-    a1, b1 = body1_after(x1, v1, h, g)
-    a2, b2 = body2_after(x2, v2, h, f2, im2, k2, c2)
+    a1, b1 = body1_after(x1, v1, h, pc.g)
+    a2, b2 = body2_after(x2, v2, h, f2, pc)
     return a1 - a2, b1 - b2
 
 
 @jit(inline="always")
-def _switch_after(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
-    a1, b1 = body1_after(x1, v1, h, g)
-    a2, b2 = body2_after(x2, v2, h, f2, im2, k2, c2)
-    return event_value(a1, b1, a2, b2, c, b)
+def _switch_after(x1, v1, x2, v2, h, f2, pc):
+    a1, b1 = body1_after(x1, v1, h, pc.g)
+    a2, b2 = body2_after(x2, v2, h, f2, pc)
+    return event_value(a1, b1, a2, b2, pc.c, pc.b)
 
 
 @jit(inline="always")
-def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
+def touch_time(x1, v1, x2, v2, h, f2, pc):
     """The time (s, in (0, h]) at which the switching function turns positive on the exact
     free motion, or -1 if it does not within h.  The returned time is the contact side of a
     bracket ``ROOT_TOL h`` wide (the state there is in contact, or exactly on the switch).
@@ -98,9 +100,9 @@ def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
     """
     d0 = x1 - x2
     hi = h
-    a1, b1 = body1_after(x1, v1, h, g)  # the sub-step's end, once: its switch and its rate
-    a2, b2 = body2_after(x2, v2, h, f2, im2, k2, c2)
-    ghi = event_value(a1, b1, a2, b2, c, b)
+    a1, b1 = body1_after(x1, v1, h, pc.g)  # the sub-step's end, once: its switch and its rate
+    a2, b2 = body2_after(x2, v2, h, f2, pc)
+    ghi = event_value(a1, b1, a2, b2, pc.c, pc.b)
     if not (ghi > 0.0):
         # an excursion into the pad between the sub-step's ends: the penetration's interior top
         s0 = v1 - v2
@@ -112,12 +114,12 @@ def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
             if up - lo <= ROOT_TOL * h:
                 break
             mid = 0.5 * (lo + up)
-            _d, sm = gap_after(x1, v1, x2, v2, mid, f2, g, im2, k2, c2)
+            _d, sm = gap_after(x1, v1, x2, v2, mid, f2, pc)
             if sm > 0.0:
                 lo = mid
             else:
                 up = mid
-        ghi = _switch_after(x1, v1, x2, v2, up, f2, g, im2, k2, c2, c, b)
+        ghi = _switch_after(x1, v1, x2, v2, up, f2, pc)
         if not (ghi > 0.0):
             return -1.0
         hi = up
@@ -126,7 +128,7 @@ def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
     if d0 <= 0.0:
         # Newton on the penetration, bracketed: d(lo) <= 0 < d(hi)
         t = hi
-        dt_, st = gap_after(x1, v1, x2, v2, t, f2, g, im2, k2, c2)
+        dt_, st = gap_after(x1, v1, x2, v2, t, f2, pc)
         for _ in range(MAX_ROOT_ITER):
             if dt_ > 0.0:
                 hi = t
@@ -138,11 +140,11 @@ def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
             if not (lo < tn < hi):
                 tn = 0.5 * (lo + hi)
             t = tn
-            dt_, st = gap_after(x1, v1, x2, v2, t, f2, g, im2, k2, c2)
+            dt_, st = gap_after(x1, v1, x2, v2, t, f2, pc)
         if dt_ == 0.0:
             return t
         return hi
-    glo = _switch_after(x1, v1, x2, v2, 0.0, f2, g, im2, k2, c2, c, b)
+    glo = _switch_after(x1, v1, x2, v2, 0.0, f2, pc)
     side = 0
     for _ in range(MAX_ROOT_ITER):
         if hi - lo <= tol:
@@ -151,7 +153,7 @@ def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
         w = hi - lo
         if not (lo + 0.01 * w < tm < hi - 0.01 * w):
             tm = min(max(tm, lo + 0.01 * w), hi - 0.01 * w)
-        gm = _switch_after(x1, v1, x2, v2, tm, f2, g, im2, k2, c2, c, b)
+        gm = _switch_after(x1, v1, x2, v2, tm, f2, pc)
         if gm >= 0.0:
             hi, ghi = tm, gm
             if side == 1:
@@ -166,7 +168,7 @@ def touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, c, b):
 
 
 @jit(inline="always")
-def gap_top(x1, v1, x2, v2, h, f2, g, im2, k2, c2):
+def gap_top(x1, v1, x2, v2, h, f2, pc):
     """The largest penetration (m; negative: the closest approach) on the exact free motion
     within a sub-step of h seconds over which the penetration rate turns from + (at 0) to <= 0
     (at h): Newton's method on the rate with its exact derivative ``g - x2''``, kept inside the
@@ -175,8 +177,8 @@ def gap_top(x1, v1, x2, v2, h, f2, g, im2, k2, c2):
     the top is exact to rounding, however shallow (no floor)."""
     lo, hi = 0.0, h
     t = h
-    a1, b1 = body1_after(x1, v1, t, g)
-    a2, b2 = body2_after(x2, v2, t, f2, im2, k2, c2)
+    a1, b1 = body1_after(x1, v1, t, pc.g)
+    a2, b2 = body2_after(x2, v2, t, f2, pc)
     s = b1 - b2
     for _ in range(MAX_ROOT_ITER):
         if s > 0.0:
@@ -185,12 +187,12 @@ def gap_top(x1, v1, x2, v2, h, f2, g, im2, k2, c2):
             hi = t
         if hi - lo <= ROOT_TOL * h or s == 0.0:
             break
-        ds = g - (-f2 - k2 * a2 - c2 * b2) * im2
+        ds = pc.g - (-f2 - pc.k2 * a2 - pc.c2 * b2) * pc.im2
         tn = t - s / ds if ds != 0.0 else -1.0
         if not (lo < tn < hi):
             tn = 0.5 * (lo + hi)
         t = tn
-        a1, b1 = body1_after(x1, v1, t, g)
-        a2, b2 = body2_after(x2, v2, t, f2, im2, k2, c2)
+        a1, b1 = body1_after(x1, v1, t, pc.g)
+        a2, b2 = body2_after(x2, v2, t, f2, pc)
         s = b1 - b2
     return a1 - a2

@@ -11,7 +11,10 @@ bracket (width <= ``EVENT_TOL`` times the step) is kept, the mode flips, and the
 step is taken in the new mode.  Fixed-step methods therefore keep their grid (the control
 sampling stays aligned) and the adaptive method keeps its error control.
 
-All kernels take plain float64 arrays and floats and keep no global state.
+All kernels take float64 arrays and floats, grouped in named tuples, and keep no global state:
+a span's :class:`PlantConsts` (``consts``) and :class:`PlantCarry` (``carry``); the equations'
+constants as one :class:`impact_env.plant.dynamics.Coefs` (``pc``), read from ``consts.p`` once
+per span; a state held in scalars as one tuple ``(x1, v1, x2, v2, W_ext, W_diss)``.
 """
 
 from __future__ import annotations
@@ -22,20 +25,16 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.plant.dynamics import contact_force, deriv, event_sign, event_value
+from impact_env.plant.dynamics import coefs, contact_force, deriv, event_sign, event_value
 from impact_env.plant.free_flight import body1_after, body2_after, free_cap, gap_top, touch_time
 from impact_env.plant.layout import (
     AUTO,
-    C2,
     CONTACT,
     DIVERGED,
     DOPRI5,
     EULER,
     EVENT_OVERFLOW,
     FREE,
-    K2,
-    M1,
-    M2,
     OK,
     RK4,
     SPLIT,
@@ -47,9 +46,6 @@ from impact_env.plant.layout import (
     W_EXT,
     X1,
     X2,
-    B,
-    C,
-    G,
 )
 
 
@@ -99,9 +95,11 @@ GRADE_POWER = 4.0
 
 
 @jit(inline="always")
-def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, im1, im2, c, b, g, k2, c2):
-    """One step of a fixed-step method; returns the new (x1, v1, x2, v2, W_ext, W_diss)."""
-    k1 = deriv(x1, v1, x2, v2, mode, f2, im1, im2, c, b, g, k2, c2)
+def _fixed_step(method, z, mode, f2, h, pc):
+    """One step of a fixed-step method from the state ``z`` = (x1, v1, x2, v2, W_ext, W_diss);
+    returns the new one."""
+    x1, v1, x2, v2, we, wd = z
+    k1 = deriv(x1, v1, x2, v2, mode, f2, pc)
     # W_ext' = -f2 v2 with f2 constant over the step, so every method's W_ext update is
     # exactly -f2 times its x2 update: computed that way, off the stages' dependency chain
     if method == EULER:
@@ -115,11 +113,11 @@ def _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, h, im1, im2, c, b, g, 
         return x1 + h * nv1, nv1, nx2, nv2, we - f2 * (nx2 - x2), wd + h * k1[5]
     hh = 0.5 * h
     k2_ = deriv(x1 + hh * k1[0], v1 + hh * k1[1], x2 + hh * k1[2], v2 + hh * k1[3],
-                mode, f2, im1, im2, c, b, g, k2, c2)
+                mode, f2, pc)
     k3 = deriv(x1 + hh * k2_[0], v1 + hh * k2_[1], x2 + hh * k2_[2], v2 + hh * k2_[3],
-               mode, f2, im1, im2, c, b, g, k2, c2)
+               mode, f2, pc)
     k4 = deriv(x1 + h * k3[0], v1 + h * k3[1], x2 + h * k3[2], v2 + h * k3[3],
-               mode, f2, im1, im2, c, b, g, k2, c2)
+               mode, f2, pc)
     h6 = h / 6.0
     nx2 = x2 + h6 * (k1[2] + 2.0 * (k2_[2] + k3[2]) + k4[2])
     return (x1 + h6 * (k1[0] + 2.0 * (k2_[0] + k3[0]) + k4[0]),
@@ -169,17 +167,17 @@ def _dense(y, k, h, theta, out):
 
 
 @jit(inline="always")
-def _force_rate(y, dy, c, b):
+def _force_rate(y, dy, pc):
     """Time derivative of the contact force (N/s) at state y (in contact, d > 0) whose time
     derivative is dy (the stage)."""
     d = y[X1] - y[X2]
     dd = y[V1] - y[V2]
     ddd = dy[V1] - dy[V2]
     sd = sqrt(d)
-    r = 1.5 * c * sd * dd
-    if b != 0.0:
+    r = 1.5 * pc.c * sd * dd
+    if pc.b != 0.0:
         q = sqrt(sd)
-        r += b * (0.25 * dd * dd / (sd * q) + q * ddd)
+        r += pc.b * (0.25 * dd * dd / (sd * q) + q * ddd)
     return r
 
 
@@ -188,27 +186,27 @@ TOP_FORCE = 1  # the root of the contact force's rate
 
 
 @jit(inline="always")
-def _rate(which, z, dz, c, b):
+def _rate(which, z, dz, pc):
     """The rate whose root :func:`_dense_top` finds, at state z with time derivative dz."""
     if which == TOP_FORCE:
-        return _force_rate(z, dz, c, b)
+        return _force_rate(z, dz, pc)
     return z[V1] - z[V2]
 
 
 @jit
-def _dense_top(which, y, k, h, tmp, mode, f2, im1, im2, c, b, g, k2, c2):
+def _dense_top(which, y, k, h, tmp, mode, f2, pc):
     """The extremum inside a Dormand-Prince step (from y, stages k, length h) over which a rate
     changes sign: ``which`` = TOP_PENETRATION, the largest penetration (m; the rate turns from +
     to -); TOP_FORCE, the contact force's extremum (N; in contact).  The rate's root on the
     continuous extension (Illinois regula falsi), and the value there.  Returns ``(value,
     theta)``, theta the fraction of the step; ``tmp``: float64[6] scratch."""
     lo, hi = 0.0, 1.0
-    flo = _rate(which, y, k[0], c, b)
+    flo = _rate(which, y, k[0], pc)
     _dense(y, k, h, 1.0, tmp)
     r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the state's derivative, which only the force's rate needs
     if which == TOP_FORCE:
-        r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, im1, im2, c, b, g, k2, c2)
-    fhi = _rate(which, tmp, r, c, b)
+        r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, pc)
+    fhi = _rate(which, tmp, r, pc)
     side = 0
     th = 1.0
     for _ in range(60):
@@ -219,8 +217,8 @@ def _dense_top(which, y, k, h, tmp, mode, f2, im1, im2, c, b, g, k2, c2):
         if which == TOP_FORCE:
             if not (tmp[X1] > tmp[X2]):
                 break
-            r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, im1, im2, c, b, g, k2, c2)
-        fm = _rate(which, tmp, r, c, b)
+            r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, pc)
+        fm = _rate(which, tmp, r, pc)
         if (fm > 0.0) == (flo > 0.0):
             lo, flo = th, fm
             if side == -1:
@@ -235,18 +233,18 @@ def _dense_top(which, y, k, h, tmp, mode, f2, im1, im2, c, b, g, k2, c2):
             break
     _dense(y, k, h, th, tmp)
     if which == TOP_FORCE:
-        f, _fe = contact_force(tmp[X1] - tmp[X2], tmp[V1] - tmp[V2], mode, c, b)
+        f, _fe = contact_force(tmp[X1] - tmp[X2], tmp[V1] - tmp[V2], mode, pc.c, pc.b)
         return f, th
     return tmp[X1] - tmp[X2], th
 
 
 @jit
-def _dopri_step(y, out, err, k, mode, f2, h, im1, im2, c, b, g, k2, c2):
+def _dopri_step(y, out, err, k, mode, f2, h, pc):
     """One Dormand-Prince step from y; writes the 5th-order result to ``out``, the embedded
     error estimate to ``err`` (both length 6) and the seven stages (the last one at ``out``)
     to ``k[:7]`` (k: float64[8, 6], its last row scratch), which the dense output
     (:func:`_dense`) needs."""
-    r = deriv(y[0], y[1], y[2], y[3], mode, f2, im1, im2, c, b, g, k2, c2)
+    r = deriv(y[0], y[1], y[2], y[3], mode, f2, pc)
     for j in range(6):
         k[0, j] = r[j]
     t = k[7]
@@ -268,7 +266,7 @@ def _dopri_step(y, out, err, k, mode, f2, h, im1, im2, c, b, g, k2, c2):
         if s == 6:
             for j in range(6):
                 out[j] = t[j]
-        r = deriv(t[0], t[1], t[2], t[3], mode, f2, im1, im2, c, b, g, k2, c2)
+        r = deriv(t[0], t[1], t[2], t[3], mode, f2, pc)
         for j in range(6):
             k[s, j] = r[j]
     for j in range(6):
@@ -277,13 +275,12 @@ def _dopri_step(y, out, err, k, mode, f2, h, im1, im2, c, b, g, k2, c2):
 
 
 @jit
-def _trial(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
+def _trial(method, y, out, scratch, mode, f2, h, pc):
     """Take one step of length h from y into out (no error control)."""
     if method == DOPRI5:
-        _dopri_step(y, out, scratch, np.empty((8, 6)), mode, f2, h, im1, im2, c, b, g, k2, c2)
+        _dopri_step(y, out, scratch, np.empty((8, 6)), mode, f2, h, pc)
     else:
-        r = _fixed_step(method, y[0], y[1], y[2], y[3], y[4], y[5], mode, f2, h,
-                        im1, im2, c, b, g, k2, c2)
+        r = _fixed_step(method, (y[0], y[1], y[2], y[3], y[4], y[5]), mode, f2, h, pc)
         for j in range(6):
             out[j] = r[j]
 
@@ -294,14 +291,14 @@ def _crossed(mode, gv):
 
 
 @jit
-def _locate(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
+def _locate(method, y, out, scratch, mode, f2, h, pc):
     """Find the step length in (0, h] that lands on the switch; writes the state at the far
     side of the final bracket into ``out`` and returns that step length."""
     lo = 0.0
-    glo = event_value(y[0], y[1], y[2], y[3], c, b)
+    glo = event_value(y[0], y[1], y[2], y[3], pc.c, pc.b)
     hi = h
-    _trial(method, y, out, scratch, mode, f2, hi, im1, im2, c, b, g, k2, c2)
-    ghi = event_value(out[0], out[1], out[2], out[3], c, b)
+    _trial(method, y, out, scratch, mode, f2, hi, pc)
+    ghi = event_value(out[0], out[1], out[2], out[3], pc.c, pc.b)
     trial = np.empty(6)
     side = 0
     tol = EVENT_TOL * h
@@ -316,8 +313,8 @@ def _locate(method, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2):
         w = hi - lo
         if not (lo + 0.01 * w < hm < hi - 0.01 * w):
             hm = min(max(hm, lo + 0.01 * w), hi - 0.01 * w)
-        _trial(method, y, trial, scratch, mode, f2, hm, im1, im2, c, b, g, k2, c2)
-        gm = event_value(trial[0], trial[1], trial[2], trial[3], c, b)
+        _trial(method, y, trial, scratch, mode, f2, hm, pc)
+        gm = event_value(trial[0], trial[1], trial[2], trial[3], pc.c, pc.b)
         if _crossed(mode, gm) or gm == 0.0:
             hi = hm
             ghi = gm
@@ -355,8 +352,8 @@ def _diverged(y):
 
 
 @jit
-def _force_now(y, mode, p):
-    f, _ = contact_force(y[X1] - y[X2], y[V1] - y[V2], mode, p[C], p[B])
+def _force_now(y, mode, pc):
+    f, _ = contact_force(y[X1] - y[X2], y[V1] - y[V2], mode, pc.c, pc.b)
     return f
 
 
@@ -394,7 +391,7 @@ def _penetration_peak(pkd, d0, s0, d1, s1, h):
 
 
 @jit(inline="always")
-def _advance_fixed(mode, f2, t0, span, c, s):
+def _advance_fixed(mode, f2, t0, span, consts, carry):
     """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
     at a contact switch and in the graded zone after a touch.
 
@@ -405,16 +402,10 @@ def _advance_fixed(mode, f2, t0, span, c, s):
     touch; a mesh graded towards the singular point), crossing grid points as needed: the grid
     itself is kept.  ``hstate[0]`` carries the time left in the zone from one call to the next.
     """
-    y, hstate, ev, evn, peak = s.y, s.h, s.events, s.n_events, s.peak
-    p, method, dt = c.p, c.method, c.dt
-    im1 = 1.0 / p[M1]  # inverse masses (1/kg)
-    im2 = 1.0 / p[M2]
-    c = p[C]
-    b = p[B]
-    g = p[G]
-    k2 = p[K2]
-    c2 = p[C2]
-    grade = method == RK4 and b != 0.0 and GRADE_STEPS > 0
+    y, hstate, ev, evn, peak = carry.y, carry.h, carry.events, carry.n_events, carry.peak
+    method, dt = consts.method, consts.dt
+    pc = coefs(consts.p)
+    grade = method == RK4 and pc.b != 0.0 and GRADE_STEPS > 0
     zone_len = GRADE_STEPS * dt
     zone = hstate[0] if grade and mode == CONTACT else 0.0  # time left in the graded zone, s
     x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
@@ -428,16 +419,16 @@ def _advance_fixed(mode, f2, t0, span, c, s):
         d0 = x1 - x2  # penetration and its rate at the step's start (for the extremum between steps)
         s0 = v1 - v2
         if zone <= 0.0:
-            r = _fixed_step(method, x1, v1, x2, v2, we, wd, mode, f2, dt, im1, im2, c, b, g, k2, c2)
+            r = _fixed_step(method, (x1, v1, x2, v2, we, wd), mode, f2, dt, pc)
             if mode != AUTO:
                 # the crossing test needs only the sign of event_value: for d > 0 that is the
                 # sign of the damped force f = c d^0.25 q, which the peak tracking needs anyway
                 side = r[0] - r[2]
                 if side > 0.0:
                     sd = sqrt(side)
-                    fnew = c * side * sd
-                    if b != 0.0:
-                        fnew += b * sqrt(sd) * (r[1] - r[3])
+                    fnew = pc.c * side * sd
+                    if pc.b != 0.0:
+                        fnew += pc.b * sqrt(sd) * (r[1] - r[3])
                     if fnew <= 0.0:
                         side = fnew
         else:
@@ -466,12 +457,12 @@ def _advance_fixed(mode, f2, t0, span, c, s):
                 if zone > 0.0:
                     piece = _graded_piece(zone_len - zone, zone_len, rem)
                 if not have:
-                    _trial(method, y, out, scratch, mode, f2, piece, im1, im2, c, b, g, k2, c2)
+                    _trial(method, y, out, scratch, mode, f2, piece, pc)
                 have = False
-                if _crossed(mode, event_value(out[0], out[1], out[2], out[3], c, b)):
+                if _crossed(mode, event_value(out[0], out[1], out[2], out[3], pc.c, pc.b)):
                     if n_ev == MAX_EVENTS_PER_STEP:
                         break
-                    hs = _locate(method, y, out, scratch, mode, f2, piece, im1, im2, c, b, g, k2, c2)
+                    hs = _locate(method, y, out, scratch, mode, f2, piece, pc)
                     for j in range(6):
                         y[j] = out[j]
                     tt += hs
@@ -499,10 +490,10 @@ def _advance_fixed(mode, f2, t0, span, c, s):
             x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
         # a diverging state stays non-finite, so a check every 64 steps and at the end suffices
         if (i & 63) == 63 or i == n - 1:
-            s = abs(x1) + abs(x2) + abs(v1) + abs(v2) + abs(we) + abs(wd)
+            size = abs(x1) + abs(x2) + abs(v1) + abs(v2) + abs(we) + abs(wd)
         else:
-            s = 0.0
-        if not (s < DIVERGENCE_BOUND):
+            size = 0.0
+        if not (size < DIVERGENCE_BOUND):
             y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
             hstate[0] = zone
             peak[0] = pk
@@ -513,7 +504,7 @@ def _advance_fixed(mode, f2, t0, span, c, s):
             if fnew >= 0.0 and mode == CONTACT:
                 f = fnew
             else:
-                f, _fe = contact_force(x1 - x2, v1 - v2, mode, c, b)
+                f, _fe = contact_force(x1 - x2, v1 - v2, mode, pc.c, pc.b)
             if f > pk:
                 pk = f
         if track:
@@ -527,21 +518,21 @@ def _advance_fixed(mode, f2, t0, span, c, s):
 
 
 @jit
-def advance(mode, f2, t0, span, c, s):
-    """Integrate ``s.y`` (in place) over ``span`` seconds from time t0 under the constant
+def advance(mode, f2, t0, span, consts, carry):
+    """Integrate ``carry.y`` (in place) over ``span`` seconds from time t0 under the constant
     shaker force f2 (N).
 
     mode: ``AUTO`` (no event location) or the current ``FREE``/``CONTACT`` mode.
-    c: :class:`PlantConsts` (parameters, method, step, tolerance); s: :class:`PlantCarry` (the
-    state, step size, event log and peaks, updated in place; ``s.peak[1]``, if present, is
+    consts: :class:`PlantConsts` (parameters, method, step, tolerance); carry: :class:`PlantCarry`
+    (the state, step size, event log and peaks, updated in place; ``carry.peak[1]``, if present, is
     raised to the largest penetration at every step, :func:`_penetration_peak`).
     Returns ``(status, mode)``.
     """
-    if c.method == SPLIT:
-        return _advance_split(mode, f2, t0, span, c, s)
-    if c.method != DOPRI5:
-        return _advance_fixed(mode, f2, t0, span, c, s)
-    status, mode, _n = dopri_run(mode, f2, t0, span, c, s,
+    if consts.method == SPLIT:
+        return _advance_split(mode, f2, t0, span, consts, carry)
+    if consts.method != DOPRI5:
+        return _advance_fixed(mode, f2, t0, span, consts, carry)
+    status, mode, _n = dopri_run(mode, f2, t0, span, consts, carry,
                                  Records(np.empty((0, 6)), np.empty(0, dtype=np.int64), np.empty(0), 0, 0))
     return status, mode
 
@@ -555,7 +546,7 @@ def _pad_energy(d, c):
 
 
 @jit(inline="always")
-def _contact_scale(y, im1, im2, c, e_min):
+def _contact_scale(y, pc, e_min):
     """The error scales of the contact in progress: ``(penetration m, speed m/s, energy J)``.
 
     From the energy of the relative motion, ``E_r = m u^2 / 2 + (2/5) c |d|^2.5`` (m the
@@ -569,19 +560,19 @@ def _contact_scale(y, im1, im2, c, e_min):
     speed from a zero scale."""
     ad = abs(y[X1] - y[X2])
     u = y[V1] - y[V2]
-    e = max(0.5 * u * u / (im1 + im2) + 0.4 * c * ad * ad * sqrt(ad), e_min)
-    return (2.5 * e / c) ** 0.4, sqrt(2.0 * e * (im1 + im2)), e
+    e = max(0.5 * u * u / (pc.im1 + pc.im2) + 0.4 * pc.c * ad * ad * sqrt(ad), e_min)
+    return (2.5 * e / pc.c) ** 0.4, sqrt(2.0 * e * (pc.im1 + pc.im2)), e
 
 
 @jit(inline="always")
-def _invariant(y, f2, m1, m2, c, g, k2):
+def _invariant(y, pc):
     """``E + W_diss - W_ext`` (J) in contact (elastic pad energy of the CONTACT mode's odd
     extension, ``(2/5) c |d|^2.5``): constant along the exact motion under a constant f2 (the
     shaker's work and the dampers' losses are in the ledger), so its change over a step is
     that step's energy error."""
     ad = abs(y[X1] - y[X2])
-    return (0.5 * m1 * y[V1] * y[V1] + 0.5 * m2 * y[V2] * y[V2] - m1 * g * y[X1]
-            + 0.5 * k2 * y[X2] * y[X2] + 0.4 * c * ad * ad * sqrt(ad) + y[W_DISS] - y[W_EXT])
+    return (0.5 * pc.m1 * y[V1] * y[V1] + 0.5 * pc.m2 * y[V2] * y[V2] - pc.m1 * pc.g * y[X1]
+            + 0.5 * pc.k2 * y[X2] * y[X2] + 0.4 * pc.c * ad * ad * sqrt(ad) + y[W_DISS] - y[W_EXT])
 
 
 # a projection larger than this many tolerances of the contact's speed scale is not an
@@ -590,7 +581,7 @@ MAX_PROJECTION = 1e3
 
 
 @jit(inline="always")
-def _project_energy(y, target, f2, m1, m2, c, g, k2, vs, rtol):
+def _project_energy(y, target, pc, vs, rtol):
     """Move the velocities of an elastic contact's state y (in place) onto the energy
     invariant's level ``target`` (:func:`_invariant`): the standard projection (Hairer, Lubich
     & Wanner, *Geometric Numerical Integration*, IV.4) along the gradient ``(m1 v1, m2 v2)`` in
@@ -598,9 +589,9 @@ def _project_energy(y, target, f2, m1, m2, c, g, k2, vs, rtol):
     own error is of order rtol^2).  Positions are not moved: the located switch stays where it
     is.  Projection keeps the method's order and removes its energy drift, which otherwise
     adds up bounce after bounce (dopri5 is not symplectic)."""
-    r = _invariant(y, f2, m1, m2, c, g, k2) - target
-    g1 = m1 * y[V1]
-    g2 = m2 * y[V2]
+    r = _invariant(y, pc) - target
+    g1 = pc.m1 * y[V1]
+    g2 = pc.m2 * y[V2]
     nn = g1 * g1 + g2 * g2
     if not (nn > 0.0):
         return
@@ -619,21 +610,14 @@ MAX_FREE_STEPS = 1 << 24  # sub-steps and phases of one split span before EVENT_
 
 
 @jit
-def _advance_split(mode, f2, t0, span, c, s):
+def _advance_split(mode, f2, t0, span, consts, carry):
     """The ``split`` method of :func:`advance`: free flight exactly
     (:mod:`impact_env.plant.free_flight`: the touch located on the exact motion), contact by
-    dopri5 at ``c.rtol`` with its separation located (:func:`_dopri_span`), alternately until
-    the span is done.  ``s.h`` carries dopri5's step between contacts and calls."""
-    y, ev, evn, peak = s.y, s.events, s.n_events, s.peak
-    p = c.p
-    m2 = p[M2]
-    im2 = 1.0 / m2
-    cc = p[C]
-    b = p[B]
-    g = p[G]
-    k2 = p[K2]
-    c2 = p[C2]
-    cap = free_cap(im2, k2, c2)
+    dopri5 at ``consts.rtol`` with its separation located (:func:`_dopri_span`), alternately
+    until the span is done.  ``carry.h`` carries dopri5's step between contacts and calls."""
+    y, ev, evn, peak = carry.y, carry.events, carry.n_events, carry.peak
+    pc = coefs(consts.p)
+    cap = free_cap(pc)
     track = peak.shape[0] > 1
     tol = 1e-12 * span
     work = np.empty((0, 6))  # dopri5's scratch, allocated at the first contact of the span
@@ -645,24 +629,24 @@ def _advance_split(mode, f2, t0, span, c, s):
             if work.shape[0] == 0:
                 work = np.empty((DOPRI_WORK, 6))
             # no records: empty views of the right types, not three allocations a period
-            status, mode, _r, t = _dopri_span(mode, f2, t0, t, span, c, s, Records(
+            status, mode, _r, t = _dopri_span(mode, f2, t0, t, span, consts, carry, Records(
                 work[:0], evn[:0], work[0, :0], 0, 0), True, work)
             if status != OK:
                 return status, mode
             continue
         x1, v1, x2, v2 = y[0], y[1], y[2], y[3]
         h = min(span - t, cap)
-        tau = touch_time(x1, v1, x2, v2, h, f2, g, im2, k2, c2, cc, b)
+        tau = touch_time(x1, v1, x2, v2, h, f2, pc)
         step = h if tau < 0.0 else tau
-        a1, b1 = body1_after(x1, v1, step, g)
-        a2, b2 = body2_after(x2, v2, step, f2, im2, k2, c2)
+        a1, b1 = body1_after(x1, v1, step, pc.g)
+        a2, b2 = body2_after(x2, v2, step, f2, pc)
         # the shaker's work; the damper took it less body 2's stored energy, and a pad let go
         # while still pressed (FREE with d > 0) releases its elastic energy as dissipated (as deriv)
         w = -f2 * (a2 - x2)
         y[0], y[1], y[2], y[3] = a1, b1, a2, b2
         y[4] += w
-        y[5] += (w - 0.5 * (m2 * (b2 - v2) * (b2 + v2) + k2 * (a2 - x2) * (a2 + x2))
-                 - _pad_energy(a1 - a2, cc) + _pad_energy(x1 - x2, cc))
+        y[5] += (w - 0.5 * (pc.m2 * (b2 - v2) * (b2 + v2) + pc.k2 * (a2 - x2) * (a2 + x2))
+                 - _pad_energy(a1 - a2, pc.c) + _pad_energy(x1 - x2, pc.c))
         t += step
         if _diverged(y):
             return DIVERGED, mode
@@ -671,7 +655,7 @@ def _advance_split(mode, f2, t0, span, c, s):
             # sub-step's end, and where the rate turned from + to - inside, the exact top
             top = a1 - a2
             if v1 - v2 > 0.0 and b1 - b2 <= 0.0:
-                top = max(top, gap_top(x1, v1, x2, v2, step, f2, g, im2, k2, c2))
+                top = max(top, gap_top(x1, v1, x2, v2, step, f2, pc))
             if top > peak[1]:
                 peak[1] = top
         if tau >= 0.0:
@@ -681,7 +665,7 @@ def _advance_split(mode, f2, t0, span, c, s):
 
 
 @jit
-def dopri_run(mode, f2, t0, span, c, s, rec):
+def dopri_run(mode, f2, t0, span, consts, carry, rec):
     """Adaptive Dormand-Prince 5(4) over ``span`` seconds from t0 under the constant force f2,
     optionally recording (:class:`Records` ``rec``): with ``rec.n > 0`` the state at
     ``t0 + r span / rec.n`` (r = 1 .. rec.n) goes to ``rec.y[rec.k0 + r - 1]`` (with the mode and
@@ -692,45 +676,37 @@ def dopri_run(mode, f2, t0, span, c, s, rec):
 
     Returns ``(status, mode, records written)``.
     """
-    status, mode, r, _t = _dopri_span(mode, f2, t0, 0.0, span, c, s, rec, False,
+    status, mode, r, _t = _dopri_span(mode, f2, t0, 0.0, span, consts, carry, rec, False,
                                       np.empty((DOPRI_WORK, 6)))
     return status, mode, r
 
 
 @jit
-def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
+def _dopri_span(mode, f2, t0, t, span, consts, carry, rec, stop_free, work):
     """:func:`dopri_run` from ``t`` (s after t0) to ``span``; with ``stop_free`` it returns at
     the first separation (the ``split`` integrator takes the free flight exactly).  Records
     (``rec.n > 0``) need ``t = 0``.  ``work``: float64[DOPRI_WORK, 6] scratch (one allocation
     per caller, not per step).  Returns ``(status, mode, records written, time reached)``."""
-    y, hstate, ev, evn, peak = s.y, s.h, s.events, s.n_events, s.peak
-    p, rtol, scale = c.p, c.rtol, c.scale
+    y, hstate, ev, evn, peak = carry.y, carry.h, carry.events, carry.n_events, carry.peak
+    rtol, scale = consts.rtol, consts.scale
+    pc = coefs(consts.p)
     out_y, out_mode, out_peak, k0, n_rec = rec.y, rec.mode, rec.peak, rec.k0, rec.n
-    im1 = 1.0 / p[M1]  # inverse masses (1/kg)
-    im2 = 1.0 / p[M2]
-    c = p[C]
-    b = p[B]
-    g = p[G]
-    k2 = p[K2]
-    c2 = p[C2]
     status = OK
     kst = work[0:8]
     out = work[8]
     scratch = work[9]
-    rec = work[10]
+    row = work[10]  # a record's state, or _dense_top's scratch
     err = work[11]
     rec_period = span / n_rec if n_rec > 0 else span
-    m1 = p[M1]
-    m2 = p[M2]
     # split's contact: error scales of this contact (_contact_scale), and on an elastic pad the
     # energy invariant at the start, onto which every step is projected (_project_energy)
-    project = stop_free and b == 0.0 and mode == CONTACT
-    level = _invariant(y, f2, m1, m2, c, g, k2) if project else 0.0
+    project = stop_free and pc.b == 0.0 and mode == CONTACT
+    level = _invariant(y, pc) if project else 0.0
     # the floor of the contact's energy scale: 1e-12 of body 1's static pad energy under its
     # weight (2.4e-17 J for 0.1 kg on c = 2e6; a graze d deep under a relative deceleration a
     # has m a d, 1e-14 J for 1e-14 m at 10 m/s^2: only a touch at exactly zero speed needs it)
-    dst = (m1 * abs(g) / c) ** (2.0 / 3.0)
-    e_min = max(1e-12 * 0.4 * c * dst * dst * sqrt(dst), 1e-300)
+    dst = (pc.m1 * abs(pc.g) / pc.c) ** (2.0 / 3.0)
+    e_min = max(1e-12 * 0.4 * pc.c * dst * dst * sqrt(dst), 1e-300)
     track = peak.shape[0] > 1
     r = 0  # records written
     pk = 0.0  # peak contact force since the last record
@@ -742,14 +718,14 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
         h_free = h  # the controller's step, before the span's end cuts it
         if h > span - t:
             h = span - t
-        _dopri_step(y, out, err, kst, mode, f2, h, im1, im2, c, b, g, k2, c2)
+        _dopri_step(y, out, err, kst, mode, f2, h, pc)
         en = 0.0
         if stop_free:
             # the contact's own scales, not the scene's first impact's: each component relative
             # to them and to itself, and the relative motion (penetration, its rate) to them
             # alone, since the bodies' common motion (on the suspension, mm) may dwarf the
             # contact's (um) and would otherwise set the tolerance of the penetration
-            ds, vs, es = _contact_scale(y, im1, im2, c, e_min)
+            ds, vs, es = _contact_scale(y, pc, e_min)
             for j in range(6):
                 sj = ds if j < 4 and (j & 1) == 0 else (vs if j < 4 else es)
                 sc = rtol * sj + rtol * max(abs(y[j]), abs(out[j]))
@@ -767,16 +743,16 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
         if en <= 1.0:
             d0 = y[X1] - y[X2]
             s0 = y[V1] - y[V2]
-            gv = event_sign(out[0], out[1], out[2], out[3], c, b)  # (only its sign is used here)
+            gv = event_sign(out[0], out[1], out[2], out[3], pc.c, pc.b)  # (only its sign is used here)
             step = h
             new_mode = mode
             if mode != AUTO and _crossed(mode, gv):
-                step = _locate(DOPRI5, y, out, scratch, mode, f2, h, im1, im2, c, b, g, k2, c2)
+                step = _locate(DOPRI5, y, out, scratch, mode, f2, h, pc)
                 new_mode = FREE if mode == CONTACT else CONTACT
                 if n_rec > 0 or (track and s0 > 0.0 and out[V1] - out[V2] <= 0.0):
                     # the stages of the step that ends on the switch, for the records and for the
                     # top of a graze that separates within it (the same step: the same ``out``)
-                    _dopri_step(y, out, err, kst, mode, f2, step, im1, im2, c, b, g, k2, c2)
+                    _dopri_step(y, out, err, kst, mode, f2, step, pc)
             elif mode == AUTO and ((y[X1] - y[X2] > 0.0) != (out[X1] - out[X2] > 0.0)):
                 _log_event(ev, evn, t0 + t + h, 1.0 if out[X1] - out[X2] > 0.0 else -1.0, out)
             t_new = t + step
@@ -784,14 +760,14 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
             if track and s0 > 0.0 and out[V1] - out[V2] <= 0.0:
                 # the penetration turned inside this step (a graze's top too, when the step ends
                 # on the separation): its top from the continuous extension
-                top, _th = _dense_top(TOP_PENETRATION, y, kst, step, rec, mode, f2, im1, im2, c, b, g, k2, c2)
+                top, _th = _dense_top(TOP_PENETRATION, y, kst, step, row, mode, f2, pc)
             if project:
-                _project_energy(out, level, f2, m1, m2, c, g, k2, vs, rtol)
+                _project_energy(out, level, pc, vs, rtol)
             ftop, fth = -1.0, 2.0
             if mode == CONTACT and new_mode == mode and y[X1] > y[X2] and out[X1] > out[X2]:
-                if (_force_rate(y, kst[0], c, b) > 0.0) != (_force_rate(out, kst[6], c, b) > 0.0):
+                if (_force_rate(y, kst[0], pc) > 0.0) != (_force_rate(out, kst[6], pc) > 0.0):
                     # the contact force peaked inside this step: its top from the continuous extension
-                    ftop, fth = _dense_top(TOP_FORCE, y, kst, step, rec, mode, f2, im1, im2, c, b, g, k2, c2)
+                    ftop, fth = _dense_top(TOP_FORCE, y, kst, step, row, mode, f2, pc)
             # records inside this step, from its continuous extension (the last at its end)
             while r < n_rec:
                 tr = (r + 1) * rec_period
@@ -799,16 +775,16 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
                     break
                 if tr >= t_new - 1e-12 * span:
                     for j in range(6):
-                        rec[j] = out[j]
+                        row[j] = out[j]
                 else:
-                    _dense(y, kst, step, (tr - t) / step, rec)
-                fr, _fe = contact_force(rec[X1] - rec[X2], rec[V1] - rec[V2], mode, c, b)
+                    _dense(y, kst, step, (tr - t) / step, row)
+                fr, _fe = contact_force(row[X1] - row[X2], row[V1] - row[V2], mode, pc.c, pc.b)
                 if ftop >= 0.0 and (tr - t) / step >= fth:  # the force's top falls in this record
                     pk = max(pk, ftop)
                     peak[0] = max(peak[0], ftop)
                     ftop = -1.0
                 for j in range(6):
-                    out_y[k0 + r, j] = rec[j]
+                    out_y[k0 + r, j] = row[j]
                 out_mode[k0 + r] = mode
                 out_peak[k0 + r] = max(pk, fr)
                 pk = fr
@@ -827,7 +803,7 @@ def _dopri_span(mode, f2, t0, t, span, c, s, rec, stop_free, work):
                     peak[1] = max(peak[1], top, y[X1] - y[X2])
                 else:
                     peak[1] = _penetration_peak(peak[1], d0, s0, y[X1] - y[X2], y[V1] - y[V2], step)
-            f = _force_now(y, mode, p)
+            f = _force_now(y, mode, pc)
             if ftop > f:
                 f = ftop
             if f > peak[0]:

@@ -23,13 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from impact_env.config import ConfigError
+from impact_env.control.observation import OBS_LIMIT
 from impact_env.control.policy import CompiledPolicy
+from impact_env.policy.registry import is_model_spec, make_policy
 from impact_env.scene import load_scene
 
 
 def export_policy(spec: str, scene) -> CompiledPolicy:
     """The compiled policy of ``spec`` on ``scene`` (see the module doc)."""
-    from impact_env.policy.registry import is_model_spec, make_policy
 
     scene = load_scene(scene)
     if spec.startswith("compiled:"):
@@ -131,8 +132,6 @@ def onnx_metadata(pol: CompiledPolicy) -> dict[str, str]:
     scale and rate, the hold and the residual law (whose output is added every tick, the sum
     clipped to [-1, 1]), and the policy file's sha256."""
     import json
-
-    from impact_env.control.observation import OBS_LIMIT
 
     lay = pol.layout
     names = list(lay.names)

@@ -7,11 +7,12 @@ for choice parameters), a saved stable-baselines3 model: ``PATH.zip``, ``ALGO:PA
 file: ``compiled:FILE`` (:mod:`impact_env.control.policy`; ``impact-env export`` writes one).
 Unknown names or parameters raise :class:`impact_env.config.ConfigError` listing the valid ones.
 
-Named policies are found through the entry-point group ``impact_env.policies`` (name ->
-``module:Class``; this project's ``pyproject.toml`` registers the classic laws of the top-level
-``baselines`` package there), so that :mod:`impact_env` never imports the packages that build on
-it, and a user's own package can add policies the same way.  A class takes ``(scene, **params)``
-and has ``observation``, ``PARAMS`` and SB3's ``predict``.
+Named policies: the classic laws (:data:`impact_env.policy.laws.LAW_POLICIES`, one per law of
+:mod:`impact_env.control.laws`), then the entry-point group ``impact_env.policies`` (name ->
+``module:Class``), where a user's own package adds policies without :mod:`impact_env` importing
+it (this project's ``pyproject.toml`` registers the oracle there, which needs the ``oracle``
+extra), then :func:`register_policy` (a class of this process; it wins over both).  A class
+takes ``(scene, **params)`` and has ``observation``, ``PARAMS`` and SB3's ``predict``.
 """
 
 from __future__ import annotations
@@ -21,6 +22,9 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from impact_env.config import ConfigError
+from impact_env.control.policy import CompiledPolicy
+from impact_env.policy.laws import LAW_POLICIES
+from impact_env.policy.sb3 import load_model_policy, model_settings, parse_model_spec, require_sb3
 from impact_env.scene import Scene, load_scene
 
 GROUP = "impact_env.policies"
@@ -30,7 +34,9 @@ REGISTERED: dict[str, type] = {}  # added at run time with register_policy (they
 
 
 @functools.cache
-def _entry_points() -> dict:
+def entry_point_policies() -> dict:
+    """The policies other packages register (entry-point group ``impact_env.policies``): name ->
+    entry point, loaded when first asked for."""
     out: dict = {}
     for ep in entry_points(group=GROUP):  # in the order each package declares them
         out.setdefault(ep.name, ep)
@@ -39,7 +45,7 @@ def _entry_points() -> dict:
 
 @functools.cache
 def _load(name: str) -> type:
-    ep = _entry_points()[name]
+    ep = entry_point_policies()[name]
     try:
         return ep.load()
     except Exception as exc:  # one broken plugin must not take the others down
@@ -48,12 +54,12 @@ def _load(name: str) -> type:
 
 
 def policy_names() -> list[str]:
-    return list(dict.fromkeys([*_entry_points(), *REGISTERED]))
+    return list(dict.fromkeys([*LAW_POLICIES, *entry_point_policies(), *REGISTERED]))
 
 
 def policy_classes() -> dict[str, Any]:
-    """Every named policy that loads: name -> class, from the entry points (each loaded when
-    first asked for) and :func:`register_policy`."""
+    """Every named policy that loads: name -> class, the classic laws, the entry points (each
+    loaded when first asked for) and :func:`register_policy`."""
     out = {}
     for name in policy_names():
         try:
@@ -72,7 +78,9 @@ def register_policy(cls: Any, name: str | None = None) -> None:
 def policy_class(name: str) -> Any:
     if name in REGISTERED:
         return REGISTERED[name]
-    if name in _entry_points():
+    if name in LAW_POLICIES:
+        return LAW_POLICIES[name]
+    if name in entry_point_policies():
         return _load(name)
     import difflib
 
@@ -112,14 +120,10 @@ def is_model_spec(spec: str) -> bool:
 def make_policy(spec: str, scene: Scene | str | dict):
     """A policy from its spec (see the module doc), built for ``scene``."""
     if spec.startswith("compiled:"):
-        from impact_env.control.policy import CompiledPolicy
-
         pol = CompiledPolicy.load(spec.partition(":")[2])
         pol.check_scene(load_scene(scene))
         return pol
     if is_model_spec(spec):
-        from impact_env.policy.sb3 import load_model_policy
-
         return load_model_policy(spec, scene)
     name, params = parse_spec(spec)
     return policy_class(name)(load_scene(scene), **params)
@@ -129,8 +133,6 @@ def check_spec(spec: str, scene) -> None:
     """Validate a spec without the cost of loading a model (models: syntax, file and settings,
     so that a model without its settings is one error before anything runs, not one per episode)."""
     if is_model_spec(spec) and not spec.startswith("compiled:"):
-        from impact_env.policy.sb3 import model_settings, parse_model_spec, require_sb3
-
         _algo, path, opts = parse_model_spec(spec)
         model_settings(path, opts, spec)
         require_sb3()

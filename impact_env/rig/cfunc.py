@@ -144,6 +144,31 @@ def call_clock_gettime(typingctx, addr, clock, ts):
     return types.int32(addr, clock, ts), codegen
 
 
+@intrinsic
+def call_poll(typingctx, addr, fds, nfds, timeout_ms):
+    """libc's ``int poll(struct pollfd *fds, nfds_t nfds, int timeout_ms)`` at ``addr`` (``fds``
+    an int32 array of (fd, events) pairs)."""
+    def codegen(context, builder, sig, args):
+        a, f, n, t = args
+        fnty = ir.FunctionType(_I32, [_I8P, _I64, _I32])
+        return builder.call(builder.inttoptr(a, fnty.as_pointer()),
+                            [_ptr(context, builder, sig.args[1], f), n, builder.trunc(t, _I32)])
+    return types.int32(addr, fds, nfds, timeout_ms), codegen
+
+
+@intrinsic
+def call_clock_nanosleep(typingctx, addr, clock, flags, ts):
+    """libc's ``int clock_nanosleep(clockid_t clock, int flags, const struct timespec *ts, NULL)``
+    at ``addr`` (``ts`` an int64[2] array: seconds, nanoseconds; flags 1: TIMER_ABSTIME)."""
+    def codegen(context, builder, sig, args):
+        a, c, f, t = args
+        fnty = ir.FunctionType(_I32, [_I32, _I32, _I8P, _I8P])
+        return builder.call(builder.inttoptr(a, fnty.as_pointer()),
+                            [builder.trunc(c, _I32), builder.trunc(f, _I32), _ptr(context, builder, sig.args[3], t),
+                             ir.Constant(_I8P, None)])
+    return types.int32(addr, clock, flags, ts), codegen
+
+
 def libcrypto_addresses() -> tuple[int, int]:
     """The addresses of OpenSSL's ``HMAC`` and of the ``EVP_MD`` that ``EVP_sha256()`` returns,
     from the libcrypto that Python's own ``hashlib`` is linked against (so the loop's tags are

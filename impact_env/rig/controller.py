@@ -30,6 +30,7 @@ import numpy as np
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.control.front_end import (
     FrontEnd,
     FrontEndParams,
@@ -63,11 +64,19 @@ from impact_env.rig import safety as SF
 from impact_env.rig.safety import SafetyConfig, safety_step
 from impact_env.sim import records as R
 
-# the controller's own state (float64[N_STATE]): the action and the command sent of the last
-# tick, the id of the host command in use and the tick it first acted at, the plausibility
-# check's status bits for this tick
-ST_ACTION, ST_COMMAND, ST_CMD_ID, ST_CMD_FIRST, ST_SENSOR = range(5)
-N_STATE = 5
+
+class OwnState(NamedTuple):
+    """The controller's own state (float64[N_STATE]), read by name: ``st[OWN.cmd_first]``."""
+
+    action: int  # the last tick's action
+    command: int  # the last tick's command sent
+    cmd_id: int  # the id of the host command in use
+    cmd_first: int  # the tick it first acted at
+    sensor: int  # the plausibility check's status bits for this tick
+
+
+OWN = positions(OwnState)
+N_STATE = len(OWN)
 # the safety bits after which the command sent is the safety layer's force, not the demand
 MODIFIED = SF.FORCE_ZEROED | SF.CLAMP_PEAK | SF.CLAMP_RMS | SF.LATCHING
 NAN4 = np.full(4, np.nan)
@@ -118,13 +127,13 @@ def observe_tick(m, raw, truth, p, s):
     hold = p.hold
     if m > 0:
         # issue 25: no reading reaches the filters unchecked (a bad one: the last good one, 0 N)
-        s.own[ST_SENSOR] = check_readings(m, raw, p.plaus, s.plaus, s.readings)
+        s.own[OWN.sensor] = check_readings(m, raw, p.plaus, s.plaus, s.readings)
         r = s.readings.reshape((1, s.readings.shape[0]))
         condition(0, r, p.fe, s.fe)
         if p.law.on:
             observe_residual(0, truth, s.fe, p.law, s.law)
         if m % hold == 0:
-            observe(0, True, s.own[ST_ACTION], truth, s.fe, p.obs, s.obs)
+            observe(0, True, s.own[OWN.action], truth, s.fe, p.obs, s.obs)
     return m % hold == 0
 
 
@@ -136,7 +145,7 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     Host mode: ``cmd`` (HostCommand) is the command the target chose for this tick (the newest
     accepted one for the current step, :class:`impact_env.rig.episode.Episode`), for policy step
     ``cmd.step`` (-1: none yet: 0 N, NO_COMMAND), ``cmd.id`` its serial number (the tick it
-    first acts at is kept in ``own[ST_CMD_FIRST]``, the id in ``own[ST_CMD_ID]``: so the caller
+    first acts at is kept in ``own[OWN.cmd_first]``, the id in ``own[OWN.cmd_id]``: so the caller
     sees whether it acted).  It acts from this tick on, whatever tick of its step that is; the
     watchdog's age counts from its step's first tick to ``ticks_armed`` (``ticks_armed - cmd.step
     H``), so a command is held for the rest of its step, repeated through the next one (REPEATED)
@@ -148,29 +157,29 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     hold = p.hold
     if p.onboard:
         if m % hold == 0:
-            st[ST_ACTION] = act(p.policy.ints, p.policy.floats, s.obs.obs[0], s.memory[0])
+            st[OWN.action] = act(p.policy.ints, p.policy.floats, s.obs.obs[0], s.memory[0])
         age = 0
         log_age = 0
         log_step = m // hold
     elif cmd.step < 0:
-        st[ST_ACTION] = 0.0
+        st[OWN.action] = 0.0
         age = -1
         log_age = -1
         log_step = -1
     else:
-        if st[ST_CMD_ID] != cmd.id:
-            st[ST_CMD_ID] = cmd.id
-            st[ST_CMD_FIRST] = m
-        st[ST_ACTION] = cmd.action
+        if st[OWN.cmd_id] != cmd.id:
+            st[OWN.cmd_id] = cmd.id
+            st[OWN.cmd_first] = m
+        st[OWN.action] = cmd.action
         age = ticks_armed - cmd.step * hold  # the clock's time since its step began (see below)
-        log_age = m - int(st[ST_CMD_FIRST])
+        log_age = m - int(st[OWN.cmd_first])
         log_step = cmd.step
-    u = st[ST_ACTION]
+    u = st[OWN.action]
     if p.law.on:
         u = add_residual(u, 0, p.law, s.law)
-    f, status = safety_step(u, age, ticks_armed, s.readings[POT], int(st[ST_SENSOR]), p.safety, s.safety)
+    f, status = safety_step(u, age, ticks_armed, s.readings[POT], int(st[OWN.sensor]), p.safety, s.safety)
     out = f / p.scale if status & MODIFIED else u
-    st[ST_COMMAND] = out
+    st[OWN.command] = out
     rows = s.log.rows
     i = LG.claim_row(rows, s.log.filled)
     if i >= 0:
@@ -274,8 +283,8 @@ class Controller:
             start_residual(idx, t, s.fe, self.params.law, s.law)
         s.memory[:] = 0.0
         s.own[:] = 0.0
-        s.own[ST_CMD_ID] = -1.0
-        s.own[ST_SENSOR] = bits
+        s.own[OWN.cmd_id] = -1.0
+        s.own[OWN.sensor] = bits
         self.safety.new_episode()
         self.log.reset()
 
@@ -302,11 +311,29 @@ class Controller:
 
 
 # -- for the compiled real-time loop (impact_env.rig.rtloop) ------------------------------------
-END_NONE, END_FIRST_COMMAND, END_SAFETY, END_FAULT, END_STOP, END_SENSOR_FAULT, END_OVERRUN = range(7)
-# the tick accounts (int64[3], kept across calls): ticks skipped not yet reported on a row, the
-# episode's skipped ticks, rows flagged OVERRUN
-ACCT_UNREPORTED, ACCT_SKIPPED, ACCT_OVERRUNS = range(3)
-N_ACCT = 3
+class EndCode(NamedTuple):
+    """How the compiled loop ended an episode (its return value's end code)."""
+
+    none: int  # at the horizon
+    first_command: int
+    safety: int
+    fault: int
+    stop: int  # asked to (a DISARM, a signal, a lost link)
+    sensor_fault: int
+    overrun: int
+
+
+END = positions(EndCode)
+class TickAccounts(NamedTuple):
+    """The loop's tick accounts (int64[N_ACCT], kept across calls)."""
+
+    unreported: int  # ticks skipped, not yet reported on a row
+    skipped: int  # the episode's skipped ticks
+    overruns: int  # rows flagged OVERRUN
+
+
+ACCT = positions(TickAccounts)
+N_ACCT = len(ACCT)
 
 
 class TruthColumns(NamedTuple):
@@ -356,18 +383,18 @@ class DropConstants(NamedTuple):
 
 
 @jit(inline="always")
-def _true_record(trec, m, Y, info, u, detected, ok, rate):
+def true_record(trec, m, Y, info, u, detected, ok, rate):
     """The virtual rig's true record of tick m (:mod:`impact_env.sim.records`)."""
     r = trec[m]
-    r[R.REC_T] = (m + 1.0) / rate
-    r[R.REC_X1] = Y[0, 0]
-    r[R.REC_V1] = Y[0, 1]
-    r[R.REC_X2] = Y[0, 2]
-    r[R.REC_V2] = Y[0, 3]
-    r[R.REC_U] = u
-    r[R.REC_F_DEMAND] = info[0, INFO_F_DEMAND]
-    r[R.REC_F_APPLIED] = info[0, INFO_F_APPLIED]
-    r[R.REC_SATURATED] = info[0, INFO_SATURATED]
-    r[R.REC_CONTACT_FORCE] = info[0, INFO_CONTACT_FORCE]
-    r[R.REC_DETECTED] = detected
-    r[R.REC_STATUS] = 0.0 if ok else 1.0
+    r[R.REC.t] = (m + 1.0) / rate
+    r[R.REC.x1] = Y[0, 0]
+    r[R.REC.v1] = Y[0, 1]
+    r[R.REC.x2] = Y[0, 2]
+    r[R.REC.v2] = Y[0, 3]
+    r[R.REC.u] = u
+    r[R.REC.f_demand] = info[0, INFO_F_DEMAND]
+    r[R.REC.f_applied] = info[0, INFO_F_APPLIED]
+    r[R.REC.saturated] = info[0, INFO_SATURATED]
+    r[R.REC.contact_force] = info[0, INFO_CONTACT_FORCE]
+    r[R.REC.detected] = detected
+    r[R.REC.status] = 0.0 if ok else 1.0

@@ -27,19 +27,22 @@ import time
 import numpy as np
 
 from impact_env.hardware import stage as HS
+from impact_env.rig import cfunc as CF
 from impact_env.rig import controller as CT
 from impact_env.rig import log as LG
 from impact_env.rig import protocol as P
 from impact_env.rig import ring as RG
+from impact_env.rig import rtloop as RL
 from impact_env.rig import safety as SF
 from impact_env.rig import wire as WR
+from impact_env.rig.cdriver import CDriver
 from impact_env.rig.clock import TickClock
 from impact_env.rig.cycles import cached_ns_per_cycle, cycles_now
 from impact_env.sim import records as R
 
-_END = {CT.END_FIRST_COMMAND: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END_SAFETY: P.EndReason.SAFETY,
-        CT.END_FAULT: P.EndReason.FAULT, CT.END_STOP: P.EndReason.DISARMED,
-        CT.END_SENSOR_FAULT: P.EndReason.SENSOR_FAULT, CT.END_OVERRUN: P.EndReason.OVERRUN}
+_END = {CT.END.first_command: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END.safety: P.EndReason.SAFETY,
+        CT.END.fault: P.EndReason.FAULT, CT.END.stop: P.EndReason.DISARMED,
+        CT.END.sensor_fault: P.EndReason.SENSOR_FAULT, CT.END.overrun: P.EndReason.OVERRUN}
 
 
 class Episode:
@@ -72,7 +75,7 @@ class Episode:
         self.status_or = 0
         self.m = 0
         self.obs_msg: P.Observation | None = None
-        self.end_code = CT.END_NONE
+        self.end_code = CT.END.none
         self._n0 = 0
         self.lateness = np.zeros(self.horizon + 1)
         # a virtual rig's true record of every tick (NaN: not known, e.g. skipped by the Python loop)
@@ -89,12 +92,12 @@ class Episode:
     def overruns(self) -> int:
         """Rows flagged OVERRUN this episode (a tick that started a period or more late, or
         after skipped ticks)."""
-        return int(self.acct[CT.ACCT_OVERRUNS])
+        return int(self.acct[CT.ACCT.overruns])
 
     @property
     def skipped_ticks(self) -> int:
         """Ticks of this episode that did not run (overruns), each reported on the next row."""
-        return int(self.acct[CT.ACCT_SKIPPED])
+        return int(self.acct[CT.ACCT.skipped])
 
     # -- messages ----------------------------------------------------------------------------------------
     def take(self, msg: P.Message) -> str | None:
@@ -199,7 +202,7 @@ class Episode:
 
     def note_acted(self) -> None:
         """Whether the command in use has acted on a tick yet (the controller keeps its id)."""
-        if not self.cmd_acted and int(self.ctl.st[CT.ST_CMD_ID]) == self.cmd_id:
+        if not self.cmd_acted and int(self.ctl.st[CT.OWN.cmd_id]) == self.cmd_id:
             self.cmd_acted = True
             self.cmd_counts["commands_acted"] += 1
 
@@ -209,9 +212,9 @@ class Episode:
         if hl is not None:  # the compiled loop kept them (impact_env.rig.rtloop, wire)
             cs, cc = hl.cs, hl.cc
             return {"commands_accepted": int(self.wire.c.commands[0]),
-                    "commands_acted": int(cc[RG.CC_ACTED]), "commands_superseded": int(cc[RG.CC_SUPERSEDED]),
-                    "commands_expired": int(cc[RG.CC_EXPIRED]),
-                    "commands_unused_at_end": int(cs[RG.CS_NEXT_STEP] >= 0) + int(cs[RG.CS_CUR_ACTED] == 0.0)}
+                    "commands_acted": int(cc[RG.CC.acted]), "commands_superseded": int(cc[RG.CC.superseded]),
+                    "commands_expired": int(cc[RG.CC.expired]),
+                    "commands_unused_at_end": int(cs[RG.CS.next_step] >= 0) + int(cs[RG.CS.cur_acted] == 0.0)}
         self.note_acted()
         out = dict(self.cmd_counts)
         out["commands_unused_at_end"] = (self.next_cmd is not None) + (not self.cmd_acted)
@@ -221,7 +224,7 @@ class Episode:
     def cmd_first(self) -> int:
         """The tick the command in use first acted at (-1: none, or it has not acted yet)."""
         self.note_acted()
-        return int(self.ctl.st[CT.ST_CMD_FIRST]) if self.cmd_acted and self.cmd_step >= 0 else -1
+        return int(self.ctl.st[CT.OWN.cmd_first]) if self.cmd_acted and self.cmd_step >= 0 else -1
 
     def send_observation(self) -> None:
         """The OBSERVATION of the step that starts at tick m (host mode), with a virtual rig's
@@ -248,7 +251,7 @@ class Episode:
         skipped just before it, if any, flagged on it).  ``stopped``: the row of the tick the
         loop stopped at (a stop, an overrun): 0 N, the readings of the last tick read."""
         if stopped:
-            skipped = int(self.acct[CT.ACCT_UNREPORTED])
+            skipped = int(self.acct[CT.ACCT.unreported])
             self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
                                 accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
                                 action=math.nan, step=self.m // self.hold, force_demand_N=0.0,
@@ -256,18 +259,18 @@ class Episode:
                                 command_age_ticks=-1, command_step=-1, skipped_ticks=skipped,
                                 status=SF.OVERRUN if skipped else 0)
             if skipped:
-                self.acct[CT.ACCT_UNREPORTED] = 0
-                self.acct[CT.ACCT_OVERRUNS] += 1
+                self.acct[CT.ACCT.unreported] = 0
+                self.acct[CT.ACCT.overruns] += 1
             return
-        skipped = int(self.acct[CT.ACCT_UNREPORTED])
+        skipped = int(self.acct[CT.ACCT.unreported])
         self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
                             accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
                             action=math.nan, step=self.m // self.hold,
                             contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1, command_step=-1,
                             skipped_ticks=skipped, status=SF.OVERRUN if skipped else 0)
         if skipped:
-            self.acct[CT.ACCT_UNREPORTED] = 0
-            self.acct[CT.ACCT_OVERRUNS] += 1
+            self.acct[CT.ACCT.unreported] = 0
+            self.acct[CT.ACCT.overruns] += 1
 
     # -- the compiled real-time core (rtloop): the virtual rig and C drivers ----------------------
     def run_compiled(self) -> P.EndReason:
@@ -279,10 +282,6 @@ class Episode:
         the socket itself), the link's watch, a stop.  A third thread streams the log to disk."""
         import os
         import threading
-
-        from impact_env.rig import cfunc as CF
-        from impact_env.rig import rtloop as RL
-        from impact_env.rig.cdriver import CDriver
 
         drv, ctl, tg = self.t.driver, self.ctl, self.t
         nspc = cached_ns_per_cycle()
@@ -316,7 +315,7 @@ class Episode:
         max_gap = int(round(tg.cfg.max_gap_s * tg.rate))
         wait = tg.command_wait_s * 1e9 / nspc if self.host and not self.lockstep else 0.0
         tm = RL.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap, wait,
-                       tg.cfg.resend_s * 1e9 / nspc)
+                       tg.cfg.resend_s * 1e9 / nspc, tg.placement.sleep_margin_s * 1e9 / nspc)
         result: list = []
 
         def loop():
@@ -324,7 +323,7 @@ class Episode:
             w = self.wire
             result.append(RL.run_episode(self.horizon, ctl.params, ctl.state, io, tm, self.acct, hl, w))
 
-        stream = tg.open_stream(self, hl.shared[RG.SH_ROWS:RG.SH_ROWS + 1])
+        stream = tg.open_stream(self, hl.shared[RG.SH.rows:RG.SH.rows + 1])
         tg.running_link = hl
         rt = threading.Thread(target=loop, name="rig-rt-loop", daemon=True)
         restore = tg.placement.python_thread()
@@ -343,14 +342,14 @@ class Episode:
             self._last_observation(hl)
         self.m, status, self.end_code = result[0]
         self.status_or |= status
-        self.stop_tick = int(hl.shared[RG.SH_TICK])
-        if self.end_code == CT.END_NONE:
+        self.stop_tick = int(hl.shared[RG.SH.tick])
+        if self.end_code == CT.END.none:
             self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read())
             end = P.EndReason.HORIZON
-        elif self.end_code == CT.END_STOP:
+        elif self.end_code == CT.END.stop:
             self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read(), stopped=True)
             end = P.EndReason[why or "DISARMED"]
-        elif self.end_code == RL.END_OVERRUN:
+        elif self.end_code == RL.END.overrun:
             self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read(), stopped=True)
             end = P.EndReason.OVERRUN
         else:
@@ -365,7 +364,7 @@ class Episode:
         sh = hl.shared
         why: str | None = None
         while True:
-            done = sh[RG.SH_DONE] != 0 or not rt.is_alive()
+            done = sh[RG.SH.done] != 0 or not rt.is_alive()
             if self.host:
                 why = self._take_queued(why)
             if done:
@@ -382,7 +381,7 @@ class Episode:
             if why is not None:
                 continue
             if not self.host:
-                step = int(sh[RG.SH_TICK]) // self.hold
+                step = int(sh[RG.SH.tick]) // self.hold
                 for msg in link.recv_all(episode=self.ep, step=step):
                     why = self.take(msg)
                     if why:
@@ -393,21 +392,21 @@ class Episode:
             if not why and tg.stopping:
                 why = "DISARMED"
             if why:
-                self.stop_asked_tick = int(sh[RG.SH_TICK])
-                sh[RG.SH_STOP] = 1
+                self.stop_asked_tick = int(sh[RG.SH.tick])
+                sh[RG.SH.stop] = 1
 
     def _take_queued(self, why: str | None) -> str | None:
         """The datagrams the loop handed over (:func:`impact_env.rig.wire.queued`) through the
         link's filter, each accepted one taken; returns the first end reason one of them gave."""
         link, sh = self.t.link, self.hl.shared
-        step = int(sh[RG.SH_TICK]) // self.hold
+        step = int(sh[RG.SH.tick]) // self.hold
         for data, addr in WR.queued(self.wire):
             msg = link.take(data, addr, self.ep, step)
             if msg is not None and why is None:
                 why = self.take(msg)
                 if why:
-                    self.stop_asked_tick = int(sh[RG.SH_TICK])
-                    sh[RG.SH_STOP] = 1
+                    self.stop_asked_tick = int(sh[RG.SH.tick])
+                    sh[RG.SH.stop] = 1
         return why
 
     def _last_observation(self, hl) -> None:
@@ -417,13 +416,13 @@ class Episode:
         if got is None:
             return
         meta, obs = got
-        m = int(meta[RG.OM_TICK])
-        telem = [float(meta[RG.OM_DEMAND]), float(meta[RG.OM_APPLIED]), float(meta[RG.OM_AGE])]
+        m = int(meta[RG.OM.tick])
+        telem = [float(meta[RG.OM.demand]), float(meta[RG.OM.applied]), float(meta[RG.OM.age])]
         if self.trec is not None and m >= self.hold:
             rec = self.trec[m - self.hold:m]
             if not np.isnan(rec).any():
                 telem += rec.ravel().tolist()
-        self.obs_msg = P.Observation(self.ep, int(meta[RG.OM_STEP]), int(meta[RG.OM_STATUS]) & P.U32, 4,
+        self.obs_msg = P.Observation(self.ep, int(meta[RG.OM.step]), int(meta[RG.OM.status]) & P.U32, 4,
                                      tuple(float(x) for x in obs[:self.ctl.layout.size]), tuple(telem))
 
     # -- any driver, tick by tick in Python ------------------------------------------------------------
@@ -441,7 +440,7 @@ class Episode:
             raw = drv.read()
             boundary = ctl.observe(self.m, raw, drv.truth()) if self.m > 0 else True
             if virtual and self.m > 0:  # a tick's detector bit is the one of the readings it produced
-                self.trec[self.m - 1, R.REC_DETECTED] = ctl.fe.detected[0]
+                self.trec[self.m - 1, R.REC.detected] = ctl.fe.detected[0]
             if boundary and self.host:
                 self.send_observation()
             if self.m >= self.horizon:
@@ -454,9 +453,9 @@ class Episode:
             if self.t.stopping:
                 return P.EndReason.DISARMED
             u, _f, status, row = ctl.act(self.m, self.cmd_value, self.cmd_step, self.cmd_id, self.m, raw)
-            if late_flag or self.acct[CT.ACCT_UNREPORTED] > 0:
+            if late_flag or self.acct[CT.ACCT.unreported] > 0:
                 status |= SF.OVERRUN
-                self.acct[CT.ACCT_OVERRUNS] += 1
+                self.acct[CT.ACCT.overruns] += 1
             f_applied = drv.apply(u)
             self.status_or |= status
             if row >= 0:
@@ -464,12 +463,12 @@ class Episode:
                 r[LG.FORCE_APPLIED] = f_applied
                 r[LG.STATUS] = status
                 r[LG.LATENESS_NS] = self.lateness[self.m]
-                r[LG.SKIPPED] = self.acct[CT.ACCT_UNREPORTED]
+                r[LG.SKIPPED] = self.acct[CT.ACCT.unreported]
                 r[c["command"]] = u
                 if virtual:
                     self._truth_row(r)
                 r[LG.COMPUTE_NS] = time.perf_counter_ns() - t_work
-            self.acct[CT.ACCT_UNREPORTED] = 0
+            self.acct[CT.ACCT.unreported] = 0
             if drv.error():
                 return P.EndReason.FAULT
             if status & SF.FIRST_COMMAND_TIMEOUT:
@@ -487,8 +486,8 @@ class Episode:
                 if k:  # the ticks that cannot run on time pass with the command held (the DAC holds it)
                     drv.apply(u, k)
                     self.m += k
-                    self.acct[CT.ACCT_UNREPORTED] += k
-                    self.acct[CT.ACCT_SKIPPED] += k
+                    self.acct[CT.ACCT.unreported] += k
+                    self.acct[CT.ACCT.skipped] += k
                 # a step's first tick is never skipped: it runs late, and the clock follows
                 clock.next_index = self.m + 1
                 late_ns = tick.start_ns - clock.deadline(self.m)
@@ -510,15 +509,15 @@ class Episode:
         r[c["t_touch_s"]] = hw.t_touch[0]
         r[c["true_t_s"]] = hw.t[0]
         t = self.trec[self.m]
-        t[R.REC_T] = hw.t[0]
-        t[R.REC_X1:R.REC_V2 + 1] = y[:4]
-        t[R.REC_U] = r[c["command"]]
-        t[R.REC_F_DEMAND] = info[HS.INFO_F_DEMAND]
-        t[R.REC_F_APPLIED] = info[HS.INFO_F_APPLIED]
-        t[R.REC_SATURATED] = info[HS.INFO_SATURATED]
-        t[R.REC_CONTACT_FORCE] = info[HS.INFO_CONTACT_FORCE]
-        t[R.REC_STATUS] = r[c["hw_status"]]
-        t[R.REC_DETECTED] = self.ctl.fe.detected[0]  # until the front end has seen its readings
+        t[R.REC.t] = hw.t[0]
+        t[R.REC.x1:R.REC.v2 + 1] = y[:4]
+        t[R.REC.u] = r[c["command"]]
+        t[R.REC.f_demand] = info[HS.INFO_F_DEMAND]
+        t[R.REC.f_applied] = info[HS.INFO_F_APPLIED]
+        t[R.REC.saturated] = info[HS.INFO_SATURATED]
+        t[R.REC.contact_force] = info[HS.INFO_CONTACT_FORCE]
+        t[R.REC.status] = r[c["hw_status"]]
+        t[R.REC.detected] = self.ctl.fe.detected[0]  # until the front end has seen its readings
 
 
 def _now() -> int:

@@ -15,7 +15,7 @@ class RigError(RuntimeError):
         if code is None:
             super().__init__(what)
             return
-        from impact_env.rig.protocol import ErrorCode
+        from impact_env.rig.protocol import ErrorCode  # protocol imports this module: a cycle at the top
 
         try:
             name = ErrorCode(code).name

@@ -37,6 +37,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from impact_env.config import ConfigError, check_choice, check_range
+from impact_env.control.policy import sequence_arrays
 
 FORMAT = "impact-env-excitation"
 VERSION = 1
@@ -213,8 +214,6 @@ class ExcitationPolicy:
     hold_ticks = 1
 
     def __init__(self, excitation: Excitation, commands: np.ndarray, obs_size: int, command_scale: float):
-        from impact_env.control.policy import sequence_arrays
-
         self.excitation = excitation
         self.name = f"excitation: {excitation.describe()}"
         self._arrays = sequence_arrays(commands, obs_size, command_scale)

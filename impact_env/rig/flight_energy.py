@@ -73,10 +73,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
+from impact_env._packed import positions
 from impact_env.plant import hertz
+from impact_env.rig.safety import CLAMP_PEAK, CLAMP_RMS
 
 
 def flight_energy(T, m1: float, g: float):
@@ -261,8 +264,21 @@ def crossing_delays(threshold_n: float, c: float, v_land: float, u_sep: float, d
     return late_on, (d_a - d_sep) / u_sep
 
 
+class Flight(NamedTuple):
+    """A row of the flights table (``EnergyEstimate.flights``), read by name: ``fl[k, FL.T]``."""
+
+    t_sep: int  # s: the separation
+    t_on: int  # s: the next touch
+    T: int  # s: the flight's length
+    v1: int  # m/s: body 1 at the separation (down positive)
+    e_sep: int  # J: body 1's energy at the separation
+    e_land: int  # J: and at the landing
+    resolved: int  # 1: both ends seen
+
+
+FL = positions(Flight)
 FLIGHT_COLUMNS = ("t_sep_s", "t_on_s", "T_s", "v1_sep_mps", "E_sep_J", "E_land_J", "resolved")
-F_TSEP, F_TON, F_T, F_V1, F_ESEP, F_ELAND, F_RESOLVED = range(7)
+assert len(FLIGHT_COLUMNS) == len(FL)
 
 
 def estimate_energy(t, contacts: Contacts, plant: Plant, x2=None) -> EnergyEstimate:
@@ -302,18 +318,18 @@ def estimate_energy(t, contacts: Contacts, plant: Plant, x2=None) -> EnergyEstim
     E[t < ton[0]] = e0
     for k in range(len(ton)):
         start = ton[k]
-        before = e0 if k == 0 else fl[k - 1, F_ELAND]
+        before = e0 if k == 0 else fl[k - 1, FL.e_land]
         stop = toff[k] if k < len(toff) else t[-1]
         contact |= (t >= start) & (t <= stop)
         if k < n_closed:  # between two flights (or the drop and a flight): interpolate
             seg = (t >= start) & (t <= stop)
-            E[seg] = before + (fl[k, F_ESEP] - before) * (t[seg] - start) / max(stop - start, 1e-300)
+            E[seg] = before + (fl[k, FL.e_sep] - before) * (t[seg] - start) / max(stop - start, 1e-300)
             fly = (t > stop) & (t < ton[k + 1])
-            E[fly] = fl[k, F_ESEP] + m1 * g * (pot(t[fly]) - pot(stop))
+            E[fly] = fl[k, FL.e_sep] + m1 * g * (pot(t[fly]) - pot(stop))
         elif k < len(toff):  # followed by a flight that does not end within the log: unknown
             E[t >= start] = np.nan
         else:  # the last contact, to the end: caught or at rest, down to 0 over a contact time
-            v_land = abs(fl[k - 1, F_V1] + g * fl[k - 1, F_T]) if k > 0 else plant.impact_speed
+            v_land = abs(fl[k - 1, FL.v1] + g * fl[k - 1, FL.T]) if k > 0 else plant.impact_speed
             settle = hertz_contact_time(v_land, plant.effective_mass, plant.c)
             seg = (t >= start) & (t <= start + settle)
             E[seg] = before * (1.0 - (t[seg] - start) / settle) if settle > 0 else 0.0
@@ -367,8 +383,6 @@ def summarize(log, source: str = "force", threshold_n: float | None = None, min_
     E0 with it.  Also returned: ``t_touch_s``, ``flights``, ``unresolved_flights``,
     ``energy_source``, ``energy_method``.
     """
-    from impact_env.rig.safety import CLAMP_PEAK, CLAMP_RMS
-
     scene = log.scene()
     plant = Plant.of(scene)
     contacts = contact_from_log(log, source, threshold_n, min_flight_s)
@@ -405,10 +419,10 @@ def summarize(log, source: str = "force", threshold_n: float | None = None, min_
     out["energy_integral_ms"] = float(np.sum(ratio) * period * 1e3)
     fl = est.flights
     first = fl[fl[:, 0] >= t_touch] if fl.size else fl
-    v_exit = -float(first[0, F_V1]) / plant.impact_speed if len(first) else 0.0  # upwards positive
+    v_exit = -float(first[0, FL.v1]) / plant.impact_speed if len(first) else 0.0  # upwards positive
     out["exit_speed_ratio"] = abs(v_exit)
     out["exit_velocity_ratio"] = v_exit if method == "ballistic" else math.nan
-    out["bounces"] = int(np.sum(fl[:, F_T] >= min_flight_s)) + int(contacts.open_flight)
+    out["bounces"] = int(np.sum(fl[:, FL.T] >= min_flight_s)) + int(contacts.open_flight)
     f = log["force_applied_N"]
     out["peak_force_N"] = float(np.max(np.abs(f))) if f.size else 0.0
     out["rms_force_N"] = float(np.sqrt(np.mean(f * f))) if f.size else 0.0
@@ -418,6 +432,6 @@ def summarize(log, source: str = "force", threshold_n: float | None = None, min_
     sat = (np.abs(np.nan_to_num(log["action"])) >= 1.0) | ((log["status"] & (CLAMP_PEAK | CLAMP_RMS)) != 0)
     out["saturation_time_s"] = float(np.sum(sat) * period)
     out["flights"] = int(len(fl))
-    out["unresolved_flights"] = int(np.sum(fl[:, F_RESOLVED] == 0)) if fl.size else 0
+    out["unresolved_flights"] = int(np.sum(fl[:, FL.resolved] == 0)) if fl.size else 0
     out["energy_method"] = method
     return out

@@ -30,6 +30,7 @@ Timing contract (host mode; H = ``hold_ticks``, T the control period):
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import hmac
 import math
@@ -42,14 +43,19 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from impact_env._jit import bound_call
+from impact_env._jit import bound_call, entry_point
 from impact_env.control.observation import OBS_LIMIT, make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.env import task_kernel as TK
 from impact_env.env.task import TaskConfig, check_actions, info_from_row, new_task_out, new_task_state
 from impact_env.hardware.batch import Hardware
+from impact_env.policy.export import export_policy
+from impact_env.rig import host_wire as HW
 from impact_env.rig import protocol as P
 from impact_env.rig import safety as SF
+from impact_env.rig import wire as WR
+from impact_env.rig.auth import key_from
+from impact_env.rig.log import read_episode
 from impact_env.rig.transport import Endpoint, Link, RigError, RigTimeout, fetch, parse_address, upload
 from impact_env.scene import scene_from_dict
 from impact_env.sim import records as R
@@ -60,7 +66,12 @@ SPIN_STEPS = 4  # a real-time host polls for the next OBSERVATION this many poli
 
 def status_names(status: int) -> list[str]:
     """The names of the status bits set in ``status`` (:data:`impact_env.rig.safety.STATUS_BITS`)."""
-    return [name for name, bit in SF.STATUS_BITS.items() if int(status) & bit]
+    return list(_status_names(int(status)))
+
+
+@functools.lru_cache(maxsize=256)
+def _status_names(status: int) -> tuple[str, ...]:
+    return tuple(name for name, bit in SF.STATUS_BITS.items() if status & bit)
 
 
 class RigClient:
@@ -71,8 +82,6 @@ class RigClient:
 
     def __init__(self, address: str, timeout_s: float = 0.05, retries: int = 10, key=None,
                  spin_s: float = 0.0):
-        from impact_env.rig.auth import key_from
-
         key = key_from(key, "key")
         host, port = parse_address(address)
         local = "udp://[::1]:0" if ":" in host else ("udp://127.0.0.1:0" if host in ("127.0.0.1", "localhost")
@@ -85,6 +94,11 @@ class RigClient:
         self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1, key=key)
         self.link.filter.peer = self.endpoint.peer  # only the target's replies count
         self.link.on_accept = self._seen
+        # the compiled path of a policy step (impact_env.rig.host_wire): its COMMAND out, the
+        # next OBSERVATION in
+        f = self.link.filter
+        self.wire = WR.make(self.endpoint.fileno(), f.key, 0, self.link.session or 0, 0, self.endpoint.peer,
+                            None, 0)
         try:
             info = self.hello()
             self.lockstep = bool(info.lockstep)
@@ -93,6 +107,12 @@ class RigClient:
             import tomllib
 
             self.scene = scene_from_dict(tomllib.loads(toml.decode()))
+            # compile (or load) the compiled path now, not in an episode's first step: one call
+            # that sends nothing and waits for nothing, then bound (numba's typing skipped after)
+            args = (self.wire, False, 0, 0, 0.0, 0, 1 << 31, 0, 0)
+            HW.exchange(*args)
+            self._exchange = entry_point(HW.exchange, args)
+            self._take_wire()
         except BaseException:
             self.endpoint.close()
             raise
@@ -124,6 +144,9 @@ class RigClient:
                 raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED, self._refused()) from None
             raise
         f.nonce = info.session_nonce
+        nb = np.frombuffer(int(f.nonce).to_bytes(8, "little"), np.uint8)
+        self.wire.rx[:WR.NONCE] = nb  # the compiled path's tags are under the session's nonce too
+        self.wire.tx[:WR.NONCE] = nb
         self.info = info
         return info
 
@@ -173,31 +196,70 @@ class RigClient:
         self.endpoint.send(P.command_datagram(self.episode, int(step), float(action), link.session or 0, seq,
                                               time.perf_counter_ns() & P.U64, 0, f.key, f.nonce))
 
-    def observation(self, step: int, timeout_s: float) -> P.Observation | P.EpisodeEnd | None:
+    def observation(self, step: int, timeout_s: float,
+                    send: tuple[int, float] | None = None) -> P.Observation | P.EpisodeEnd | None:
         """The newest OBSERVATION of the current episode that has come, of ``step`` or later (a
         host slower than the target's steps skips the older ones: in real time the newest is the
         one to answer), the EPISODE_END of the current episode if the target ended it before that
         step's observation (also kept in ``last_end``), or None after ``timeout_s``.  An episode
         that reached its horizon has a last OBSERVATION: its EPISODE_END is kept, and the wait goes
-        on for it."""
+        on for it.  ``send``: (step, action) of a COMMAND sent first, in the same compiled call
+        (:func:`impact_env.rig.host_wire.exchange`: the GIL released, the socket polled for
+        ``spin_s``, then slept on)."""
         end = self.last_end
         if end is not None and end.episode == self.episode and not self._has_last_obs(end, step):
             return end
         deadline = time.perf_counter() + timeout_s
-        got = None
-        while (left := deadline - time.perf_counter()) > 0:
-            msg = self.link.recv(0.0 if got is not None else left, spin_s=self.spin_s)
-            if msg is None:
-                return got
-            b = msg.body
-            if msg.type == P.MsgType.OBSERVATION and b.episode == self.episode and b.step >= step:
-                if got is None or b.step > got.step:
-                    got = b
-            elif msg.type == P.MsgType.EPISODE_END and b.episode == self.episode:
-                self.last_end = b
-                if got is None and not self._has_last_obs(b, step):
-                    return b
-        return got
+        while (left := deadline - time.perf_counter()) > 0 or send is not None:
+            cmd_step, action = send if send is not None else (0, 0.0)
+            seq = self.link.seq
+            if send is not None:
+                self.link.seq = (seq + 1) & P.U32
+            code = self._exchange(self.wire, send is not None, self.episode, int(cmd_step), float(action), seq,
+                                  int(step), int(self.spin_s * 1e9), int(max(left, 0.0) * 1e9))
+            send = None
+            self._take_wire()
+            if code == HW.OBSERVED:
+                return self._wire_observation()
+            end = self.last_end
+            if end is not None and end.episode == self.episode and not self._has_last_obs(end, step):
+                return end
+            if code == HW.TIMEOUT:
+                return None
+        return None
+
+    def _take_wire(self) -> None:
+        """The compiled path's datagrams for Python through the link's filter (an EPISODE_END is
+        kept by ``_seen``), and its counts into the filter's and the endpoint's."""
+        w = self.wire
+        if w.q_head[0] != w.q_tail[0]:
+            for data, addr in WR.queued(w):
+                self.link.take(data, addr)
+        c = w.c
+        f = self.link.filter
+        received, accepted, queued = c.received.item(), c.accepted.item(), c.queued.item()
+        if received != accepted + queued or c.send_dropped[0]:  # something was dropped: by reason
+            for reason in ("corrupt", "unauthenticated", "wrong_session", "duplicate", "out_of_order",
+                           "queue_full"):
+                v = getattr(c, reason)
+                f.counters[reason] += v.item()
+                v[0] = 0
+            self.endpoint.send_dropped += c.send_dropped.item()
+            c.send_dropped[0] = 0
+        f.counters["accepted"] += accepted
+        self.endpoint.received += received
+        self.endpoint.sent += c.sent.item()
+        c.received[0] = c.accepted[0] = c.queued[0] = c.sent[0] = 0
+
+    def _wire_observation(self) -> P.Observation:
+        """The OBSERVATION the compiled path took (its values copied out of the wire)."""
+        st, out = self.wire.st, self.wire.out
+        n, m = int(st.out_n[0]), int(st.out_m[0])
+        vals = out[:n + m].tolist()
+        obs = object.__new__(P.Observation)  # fields in range by construction, as protocol.decode's
+        obs.__dict__.update(episode=self.episode, step=int(st.out_step[0]), status=int(st.out_status[0]),
+                            dtype=int(st.out_dtype[0]), obs=tuple(vals[:n]), telemetry=tuple(vals[n:]))
+        return obs
 
     def _seen(self, msg: P.Message) -> None:
         """Every accepted message: an EPISODE_END is kept even when a request (a FETCH, an
@@ -227,8 +289,6 @@ class RigClient:
 
     def fetch_log(self, episode: int | None = None, sha256: bytes | None = None):
         """The episode's log (:class:`impact_env.rig.log.EpisodeLog`), fetched from the target."""
-        from impact_env.rig.log import read_episode
-
         ep = self.episode if episode is None else episode
         deadline = time.perf_counter() + 10.0
         while True:
@@ -323,8 +383,6 @@ class RigEnv(gym.Env):
             raise ValueError("observation must be 'sensors' on a rig: it measures no body-1 state")
         self.residual = None
         if config.residual is not None:
-            from impact_env.policy.export import export_policy
-
             self.residual = export_policy(config.residual, scene)
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, (self.layout.size,), np.float32)
@@ -371,13 +429,13 @@ class RigEnv(gym.Env):
 
         hw = self._hw
         hw.reset([seeding.np_random(ep_seed)[0]])
-        rows[0, TK.COL_TTOUCH] = hw.t_touch[0]
+        rows[0, TK.INFO.t_touch] = hw.t_touch[0]
         TK.task_reset_rows(np.zeros(1, np.int64), np.zeros((1, 1, R.N_REC)),
                            TK.Drop(hw.Y, hw.P, hw.impact_energy, hw.impact_speed), self.tp, state, rows)
 
     def _task_step(self, recs: np.ndarray, state: TK.TaskState, out: TK.TaskOut) -> None:
         hw = self._hw
-        self._y[:] = recs[:, -1, R.REC_X1:R.REC_V2 + 1]
+        self._y[:] = recs[:, -1, R.REC.x1:R.REC.v2 + 1]
         drop = TK.Drop(self._y, hw.P, hw.impact_energy, hw.impact_speed)
         args = (self._active, recs, drop, self.tp, state, out)
         if self._task_fn is None:  # the first call runs it and binds it (numba's typing skipped after)
@@ -393,10 +451,11 @@ class RigEnv(gym.Env):
         self._start_drop(0, state, out.rows)
         self._task_step(np.zeros((1, self.hold, R.N_REC)), state, out)
 
-    def _wait_obs(self, step: int, resend) -> P.Observation | P.EpisodeEnd:
+    def _wait_obs(self, step: int, resend, send: tuple[int, float] | None = None) -> P.Observation | P.EpisodeEnd:
         c = self.client
         for _ in range(c.retries + 1):
-            got = c.observation(step, c.timeout_s)
+            got = c.observation(step, c.timeout_s, send)
+            send = None
             if got is not None:
                 return got
             ended = c.last_end is not None and c.last_end.episode == c.episode
@@ -414,9 +473,8 @@ class RigEnv(gym.Env):
             raise RuntimeError("call reset() before step() (the episode has ended)")
         u = float(check_actions(action, 1, self.config.action_bounds, self.scene.effects.command_scale,
                                 self._a1)[0])
-        self.client.command(self._n, u)
         self._n += 1
-        got = self._wait_obs(self._n, resend=u)
+        got = self._wait_obs(self._n, resend=u, send=(self._n - 1, u))  # the COMMAND, then the next OBSERVATION
         if isinstance(got, P.EpisodeEnd):
             return self._ended(got)
         obs = got

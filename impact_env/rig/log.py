@@ -64,6 +64,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env.scene import scene_from_dict
 
 FORMAT = "impact_env.rig.episode"
 FORMAT_VERSION = 3  # 2: command_step and skipped_ticks columns; per-episode counters; 3: kind, excitation
@@ -277,16 +278,12 @@ class EpisodeLog:
         """The scene the episode ran on, from its TOML."""
         import tomllib
 
-        from impact_env.scene import scene_from_dict
-
         return scene_from_dict(tomllib.loads(self.meta.scene_toml))
 
     def physics(self):
         """The scene of the hardware that ran: a virtual rig's physics when it differed from its
         description (``physics_toml``), else :meth:`scene`."""
         import tomllib
-
-        from impact_env.scene import scene_from_dict
 
         if not self.meta.physics_toml:
             return self.scene()

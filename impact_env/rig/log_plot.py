@@ -6,6 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from impact_env.plant.energy import catch_energy
+from impact_env.rig.flight_energy import Plant, contact_from_log, estimate_energy
+
 
 def plot_log(log, path, estimate: dict | None = None) -> Path:
     """Three panels over time from the release: body 2's raw sensors (acceleration, transducer
@@ -18,8 +21,7 @@ def plot_log(log, path, estimate: dict | None = None) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from impact_env.figstyle import save_figure
-    from impact_env.rig.flight_energy import Plant, contact_from_log, estimate_energy
+    from impact_env.figstyle import save_figure  # matplotlib's: loaded to plot, not with the CLI
 
     t_ms = log["t_s"] * 1e3
     # as compare's force plot: a force that is zero throughout (a passive policy) is named in the
@@ -51,8 +53,6 @@ def plot_log(log, path, estimate: dict | None = None) -> Path:
     e_ax.semilogy(t_ms, np.maximum(est.energy_J / est.e0_J, 1e-6), lw=1,
                    label="estimated (thesis eq 4.5, ballistic)")
     if "true_x1_m" in log.columns:
-        from impact_env.plant.energy import catch_energy
-
         p = scene.plant
         e = catch_energy(log["true_x1_m"], log["true_v1_mps"], log["true_x2_m"], p.m1, p.c, p.gravity)
         e_ax.semilogy(t_ms, np.maximum(e / log["impact_energy_J"][0], 1e-6), lw=1,

@@ -630,8 +630,8 @@ class Observation(Body):
     def unpack(cls, payload, newer):
         _need(payload, cls.FMT.size, newer, exact=False)
         ep, step, status, dtype, n, m = cls.FMT.unpack_from(payload)
-        if dtype not in (4, 8) or m > MAX_VALUES:
-            raise CorruptDatagram("payload", f"OBSERVATION dtype {dtype} or telemetry size {m} invalid")
+        if dtype not in (4, 8) or m > MAX_VALUES or n > MAX_VALUES:
+            raise CorruptDatagram("payload", f"OBSERVATION dtype {dtype}, size {n} or telemetry size {m} invalid")
         _need(payload, cls.FMT.size + dtype * n + 8 * m, newer, exact=True)
         vals = struct.unpack_from(f"<{n}{'f' if dtype == 4 else 'd'}{m}d", payload, cls.FMT.size)
         # every field is in range by construction (struct): skip the checks of __post_init__, the

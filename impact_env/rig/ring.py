@@ -25,20 +25,66 @@ from typing import NamedTuple
 
 import numpy as np
 
+from impact_env._packed import positions
+
 N_OBS = 16  # observation slots
 
-# shared int64 words
-(SH_TICK, SH_ROWS, SH_OBS_HEAD, SH_STOP, SH_DONE) = range(5)
-N_SHARED = 5
-# the observation slot's metadata columns (float64)
-OM_STEP, OM_TICK, OM_STATUS, OM_DEMAND, OM_APPLIED, OM_AGE = range(6)
-N_OM = 6
-# the loop's command state (float64, kept in an array so Python reads it at the end)
-CS_NEXT_STEP, CS_NEXT_VAL, CS_CUR_STEP, CS_CUR_VAL, CS_CUR_ID, CS_CUR_ACTED, CS_N_CMD = range(7)
-N_CS = 7
-# what became of the commands (int64, written by the loop)
-CC_ACTED, CC_SUPERSEDED, CC_EXPIRED = range(3)
-N_CC = 3
+
+class Shared(NamedTuple):
+    """The shared int64 words: what the loop publishes, and the stop word Python sets."""
+
+    tick: int  # the tick the loop is at
+    rows: int  # log rows complete
+    obs_head: int  # observations published
+    stop: int  # set by Python: 0 N, the loop ends
+    done: int  # set by the loop at its end
+
+
+SH = positions(Shared)
+N_SHARED = len(SH)
+
+
+class ObsMeta(NamedTuple):
+    """An observation slot's metadata (float64 columns)."""
+
+    step: int
+    tick: int
+    status: int
+    demand: int  # N
+    applied: int  # N
+    age: int  # ticks since the command in use first acted (-1: none)
+
+
+OM = positions(ObsMeta)
+N_OM = len(OM)
+
+
+class CommandState(NamedTuple):
+    """The loop's command state (float64, kept in an array so Python reads it at the end)."""
+
+    next_step: int  # the newest accepted command not yet in use: its step (-1: none)
+    next_val: int
+    cur_step: int  # the command in use (-1: none)
+    cur_val: int
+    cur_id: int
+    cur_acted: int  # 1 once it has acted on a tick
+    n_cmd: int  # commands taken into use
+
+
+CS = positions(CommandState)
+N_CS = len(CS)
+
+
+class CommandCounts(NamedTuple):
+    """What became of the commands (int64, written by the loop)."""
+
+    acted: int
+    superseded: int
+    expired: int
+
+
+CC = positions(CommandCounts)
+N_CC = len(CC)
 
 
 class HostLink(NamedTuple):
@@ -65,22 +111,22 @@ def host_link(obs_size: int, write_addr: int = 0, wake_fd: int = -1, usleep_addr
 def reset(link: HostLink) -> None:
     link.shared[:] = 0
     link.cs[:] = 0.0
-    link.cs[CS_NEXT_STEP] = -1.0
-    link.cs[CS_CUR_STEP] = -1.0
-    link.cs[CS_CUR_ID] = -1.0
-    link.cs[CS_CUR_ACTED] = 1.0
+    link.cs[CS.next_step] = -1.0
+    link.cs[CS.cur_step] = -1.0
+    link.cs[CS.cur_id] = -1.0
+    link.cs[CS.cur_acted] = 1.0
     link.cc[:] = 0
 
 
 def newest_observation(link: HostLink, after: int) -> tuple[np.ndarray, np.ndarray] | None:
     """The newest observation published after the ``after``-th one (its metadata row and the
     observation, copies), or None; None too if the loop overwrote it while it was read."""
-    head = int(link.shared[SH_OBS_HEAD])
+    head = int(link.shared[SH.obs_head])
     if head <= after:
         return None
     j = (head - 1) % N_OBS
     meta = link.obs_meta[j].copy()
     obs = link.obs[j].copy()
-    if int(link.shared[SH_OBS_HEAD]) - head >= N_OBS - 1:  # lapped while copying: a newer one comes
+    if int(link.shared[SH.obs_head]) - head >= N_OBS - 1:  # lapped while copying: a newer one comes
         return None
     return meta, obs

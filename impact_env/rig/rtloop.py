@@ -20,7 +20,7 @@ The driver is one of two kinds, chosen by the type of ``io`` (numba compiles one
 Time is the clock's: a command's age and the first-command allowance count periods of the clock
 (the tick the clock is in), not ticks run, so they hold in seconds whatever the loop skipped.  A
 stretch of more than ``max_gap_ticks`` periods with no tick run (a preempted loop, a stalled
-driver) drives 0 N and ends the episode OVERRUN.  ``hl.shared[SH_STOP]`` set by another thread
+driver) drives 0 N and ends the episode OVERRUN.  ``hl.shared[SH.stop]`` set by another thread
 (DISARM, SIGTERM, a lost link) is read before every tick: 0 N at once and the loop ends.
 """
 
@@ -50,26 +50,16 @@ from impact_env.rig import safety as SF
 from impact_env.rig import wire as WR
 from impact_env.rig.cfunc import call_apply, call_read, call_usleep, call_write, fence
 from impact_env.rig.controller import (
-    ACCT_OVERRUNS,
-    ACCT_SKIPPED,
-    ACCT_UNREPORTED,
-    END_FAULT,
-    END_FIRST_COMMAND,
-    END_NONE,
-    END_OVERRUN,
-    END_SAFETY,
-    END_SENSOR_FAULT,
-    END_STOP,
-    ST_CMD_FIRST,
-    ST_CMD_ID,
-    ST_COMMAND,
+    ACCT,
+    END,
+    OWN,
     DropConstants,
     HostCommand,
     TruthColumns,
-    _true_record,
     act_tick,
     observe_tick,
     skip_allowed,
+    true_record,
 )
 from impact_env.rig.cycles import cycles
 from impact_env.sim import records as R
@@ -110,6 +100,9 @@ class Timing(NamedTuple):
     command_wait: float = 0.0
     # lock-step host mode: the OBSERVATION is sent again after this long without the command; cycles
     resend: float = 0.0
+    # real time: sleep (clock_nanosleep) until this long before each deadline, then spin (0: spin
+    # only); for a thread of a real-time policy, which may not spin for ever; cycles
+    sleep_margin: float = 0.0
 
 
 # -- the driver's operations, one implementation per kind ---------------------------------------------
@@ -180,7 +173,7 @@ def _ov_seen(io, m, detected):
     if _is(io, VirtualIO):
         def impl(io, m, detected):
             if m > 0:
-                io.records[m - 1, R.REC_DETECTED] = detected
+                io.records[m - 1, R.REC.detected] = detected
         return impl
     if _is(io, CIO):
         return lambda io, m, detected: None
@@ -213,7 +206,7 @@ def _ov_apply(io, m, out, f, row, rows, detected, rate):
                 r[tc.impact_speed] = io.drop.impact_speed
                 r[tc.t_touch] = io.drop.t_touch
                 r[io.t_col] = (m + 1.0) / rate
-            _true_record(io.records, m, Y, info, out, detected, ok, rate)
+            true_record(io.records, m, Y, info, out, detected, ok, rate)
             return 0 if ok else -1
         return impl
     if _is(io, CIO):
@@ -235,7 +228,7 @@ def _ov_skip(io, m, k, u, detected, rate):
             for i in range(k):
                 hardware_tick(0, u, io.hw, hw_s)
                 ok = state_ok(0, hw_s)
-                _true_record(io.records, m + i, hw_s.plant.y, hw_s.out.info, u, detected, ok, rate)
+                true_record(io.records, m + i, hw_s.plant.y, hw_s.out.info, u, detected, ok, rate)
         return impl
     if _is(io, CIO):
         return lambda io, m, k, u, detected, rate: None
@@ -261,13 +254,13 @@ def _offer(hl, step, val):
     """A command the wire accepted: the newest for the latest step waits to be used (latest wins);
     each one it replaces is superseded."""
     cs, cc = hl.cs, hl.cc
-    if cs[RG.CS_NEXT_STEP] < 0 or step >= cs[RG.CS_NEXT_STEP]:
-        if cs[RG.CS_NEXT_STEP] >= 0:
-            cc[RG.CC_SUPERSEDED] += 1
-        cs[RG.CS_NEXT_STEP] = step
-        cs[RG.CS_NEXT_VAL] = val
+    if cs[RG.CS.next_step] < 0 or step >= cs[RG.CS.next_step]:
+        if cs[RG.CS.next_step] >= 0:
+            cc[RG.CC.superseded] += 1
+        cs[RG.CS.next_step] = step
+        cs[RG.CS.next_val] = val
     else:
-        cc[RG.CC_SUPERSEDED] += 1
+        cc[RG.CC.superseded] += 1
 
 
 @jit(inline="always")
@@ -285,20 +278,20 @@ def _select_command(hl, step):
     """The waiting command for ``step`` becomes the one in use from this tick on; one whose step
     is over before a tick could run it expires."""
     cs, cc = hl.cs, hl.cc
-    nxt = cs[RG.CS_NEXT_STEP]
+    nxt = cs[RG.CS.next_step]
     if nxt < 0 or nxt > step:
         return
-    cs[RG.CS_NEXT_STEP] = -1.0
+    cs[RG.CS.next_step] = -1.0
     if nxt < step:
-        cc[RG.CC_EXPIRED] += 1
+        cc[RG.CC.expired] += 1
         return
-    if cs[RG.CS_CUR_ACTED] == 0.0:
-        cc[RG.CC_SUPERSEDED] += 1
-    cs[RG.CS_N_CMD] += 1.0
-    cs[RG.CS_CUR_STEP] = nxt
-    cs[RG.CS_CUR_VAL] = cs[RG.CS_NEXT_VAL]
-    cs[RG.CS_CUR_ID] = cs[RG.CS_N_CMD]
-    cs[RG.CS_CUR_ACTED] = 0.0
+    if cs[RG.CS.cur_acted] == 0.0:
+        cc[RG.CC.superseded] += 1
+    cs[RG.CS.n_cmd] += 1.0
+    cs[RG.CS.cur_step] = nxt
+    cs[RG.CS.cur_val] = cs[RG.CS.next_val]
+    cs[RG.CS.cur_id] = cs[RG.CS.n_cmd]
+    cs[RG.CS.cur_acted] = 0.0
 
 
 @jit(inline="always")
@@ -316,27 +309,27 @@ def _publish_observation(m, status_or, p, s, hl, w, records):
     meta = hl.obs_meta[j]
     n = s.log.filled[0]
     rows = s.log.rows
-    meta[RG.OM_STEP] = step
-    meta[RG.OM_TICK] = m
-    meta[RG.OM_STATUS] = status_or
-    meta[RG.OM_DEMAND] = rows[n - 1, LG.FORCE_DEMAND] if n > 0 else 0.0
-    meta[RG.OM_APPLIED] = rows[n - 1, LG.FORCE_APPLIED] if n > 0 else 0.0
+    meta[RG.OM.step] = step
+    meta[RG.OM.tick] = m
+    meta[RG.OM.status] = status_or
+    meta[RG.OM.demand] = rows[n - 1, LG.FORCE_DEMAND] if n > 0 else 0.0
+    meta[RG.OM.applied] = rows[n - 1, LG.FORCE_APPLIED] if n > 0 else 0.0
     cs = hl.cs
-    acted = cs[RG.CS_CUR_ACTED] != 0.0 and cs[RG.CS_CUR_STEP] >= 0
-    meta[RG.OM_AGE] = m - s.own[ST_CMD_FIRST] if acted else -1.0
+    acted = cs[RG.CS.cur_acted] != 0.0 and cs[RG.CS.cur_step] >= 0
+    meta[RG.OM.age] = m - s.own[OWN.cmd_first] if acted else -1.0
     obs = s.obs.obs[0]
     for i in range(obs.shape[0]):
         hl.obs[j, i] = obs[i]
     tel = hl.telem
-    tel[0] = meta[RG.OM_DEMAND]
-    tel[1] = meta[RG.OM_APPLIED]
-    tel[2] = meta[RG.OM_AGE]
+    tel[0] = meta[RG.OM.demand]
+    tel[1] = meta[RG.OM.applied]
+    tel[2] = meta[RG.OM.age]
     r0 = r1 = 0
     if m >= p.hold and records.shape[0] > 0:  # a virtual rig: the true records of the step's ticks
         r0, r1 = m - p.hold, m
     WR.send_observation(w, m, step, status_or, obs, tel, records, r0, r1)
     fence()
-    hl.shared[RG.SH_OBS_HEAD] = step + 1
+    hl.shared[RG.SH.obs_head] = step + 1
 
 
 # -- the loop -----------------------------------------------------------------------------------------------
@@ -352,7 +345,7 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
     controller's params and state (the front end has seen tick 0's readings); ``io``: VirtualIO or
     CIO; ``tm``: Timing; ``acct``: int64[N_ACCT] tick accounts; ``hl``: the rings (HostLink);
     ``w``: the wire (:mod:`impact_env.rig.wire`; host mode reads and sends its datagrams through it).
-    Returns (the tick reached, OR of the status bits, the end code: END_NONE at the horizon)."""
+    Returns (the tick reached, OR of the status bits, the end code: END.none at the horizon)."""
     p, s, io, tm, hl, w = borrow(p), borrow(s), borrow(io), borrow(tm), borrow(hl), borrow(w)
     margin = POLL_MARGIN_NS / tm.ns_per_cycle
     st = s.own
@@ -364,21 +357,25 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
     # tick 0 is due one period after the loop starts (plus ``tm.t0``, an offset in cycles for
     # tests): the set-up before it (threads, the log file) must not make the episode start late
     t0c = float(cycles()) + cpt + tm.t0
+    c_ref, n_ref = float(cycles()), float(WR.now_ns(w))  # the cycle counter against CLOCK_MONOTONIC
     sh, cs, cc = hl.shared, hl.cs, hl.cc
     status_or = 0
-    end = END_NONE
+    end = END.none
     m = 0
     prev = -1.0  # the start of the last tick run (none yet: no gap before the first)
     while True:
-        if sh[RG.SH_STOP] != 0:
+        if sh[RG.SH.stop] != 0:
             io_zero(io, m)
-            end = END_STOP
+            end = END.stop
             break
         late = 0.0
         clock_tick = m
         if realtime:
             dl = t0c + m * cpt
             now = float(cycles())
+            if tm.sleep_margin > 0.0 and dl - now > tm.sleep_margin:
+                WR.sleep_until_ns(w, np.int64(n_ref + (dl - tm.sleep_margin - c_ref) * nspc))
+                now = float(cycles())
             while now < dl:
                 if host and dl - now > margin:  # the host's datagrams, as they come
                     _poll(w, hl, m // hold)
@@ -387,26 +384,26 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
             if prev >= 0.0 and now - prev > (tm.max_gap_ticks + 1) * cpt:  # no tick for too long: 0 N, end
                 io_zero(io, m)
                 k = min(int(late // cpt), m1 - m)
-                acct[ACCT_UNREPORTED] += k
-                acct[ACCT_SKIPPED] += k
+                acct[ACCT.unreported] += k
+                acct[ACCT.skipped] += k
                 m += k
-                end = END_OVERRUN
+                end = END.overrun
                 break
             k = skip_allowed(m, int(late // cpt), hold, m1, p.onboard) if late >= cpt else 0
             if k > 0:
-                io_skip(io, m, k, st[ST_COMMAND], s.fe.detected[0], p.rate)
+                io_skip(io, m, k, st[OWN.command], s.fe.detected[0], p.rate)
                 m += k
-                acct[ACCT_UNREPORTED] += k
-                acct[ACCT_SKIPPED] += k
+                acct[ACCT.unreported] += k
+                acct[ACCT.skipped] += k
                 late = now - (t0c + m * cpt)
             prev = now
             clock_tick = max(m, int((now - t0c) // cpt))  # time in periods of the clock
         w0 = cycles()
-        sh[RG.SH_TICK] = m
+        sh[RG.SH.tick] = m
         if m > 0:
             if io_read(io, m) != 0:
                 io_zero(io, m)
-                end = END_FAULT
+                end = END.fault
                 break
             observe_tick(m, io_raw(io), io_truth(io), p, s)
             io_seen(io, m, s.fe.detected[0])
@@ -422,29 +419,29 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
                     break
             if tm.lockstep_host and boundary:  # lock-step: the step's command first
                 sent = float(cycles())
-                while cs[RG.CS_NEXT_STEP] < step and sh[RG.SH_STOP] == 0:
+                while cs[RG.CS.next_step] < step and sh[RG.SH.stop] == 0:
                     if _poll(w, hl, step) != WR.NONE:
                         continue
                     if tm.resend > 0.0 and float(cycles()) - sent >= tm.resend:  # lost? send it again
                         WR.resend_observation(w)
                         sent = float(cycles())
                     call_usleep(hl.wake[2], 20)
-                if sh[RG.SH_STOP] != 0:
+                if sh[RG.SH.stop] != 0:
                     continue
             _select_command(hl, step)
-            if realtime and tm.command_wait > 0.0 and cs[RG.CS_CUR_STEP] != step:
+            if realtime and tm.command_wait > 0.0 and cs[RG.CS.cur_step] != step:
                 # the step's command has not come: wait for it, up to command_wait into the period
                 until = t0c + m * cpt + tm.command_wait
-                while float(cycles()) < until and sh[RG.SH_STOP] == 0:
+                while float(cycles()) < until and sh[RG.SH.stop] == 0:
                     if _poll(w, hl, step) == WR.COMMAND:
                         _select_command(hl, step)
-                        if cs[RG.CS_CUR_STEP] == step:
+                        if cs[RG.CS.cur_step] == step:
                             break
-        cmd = HostCommand(cs[RG.CS_CUR_VAL], int(cs[RG.CS_CUR_STEP]), int(cs[RG.CS_CUR_ID]))
+        cmd = HostCommand(cs[RG.CS.cur_val], int(cs[RG.CS.cur_step]), int(cs[RG.CS.cur_id]))
         out, f, status, row = act_tick(m, clock_tick, cmd, p, s, io_raw(io))
         if realtime and late >= cpt:
             status |= SF.OVERRUN
-        if acct[ACCT_UNREPORTED] > 0:
+        if acct[ACCT.unreported] > 0:
             status |= SF.OVERRUN
         rc = io_apply(io, m, out, f, row, rows, s.fe.detected[0], p.rate)
         status_or |= status
@@ -452,33 +449,33 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
             r = rows[row]
             r[LG.STATUS] = status
             r[LG.LATENESS_NS] = late * nspc
-            r[LG.SKIPPED] = acct[ACCT_UNREPORTED]
+            r[LG.SKIPPED] = acct[ACCT.unreported]
         if status & SF.OVERRUN:
-            acct[ACCT_OVERRUNS] += 1
-        acct[ACCT_UNREPORTED] = 0
-        if host and cs[RG.CS_CUR_ACTED] == 0.0 and st[ST_CMD_ID] == cs[RG.CS_CUR_ID]:
-            cs[RG.CS_CUR_ACTED] = 1.0
-            cc[RG.CC_ACTED] += 1
+            acct[ACCT.overruns] += 1
+        acct[ACCT.unreported] = 0
+        if host and cs[RG.CS.cur_acted] == 0.0 and st[OWN.cmd_id] == cs[RG.CS.cur_id]:
+            cs[RG.CS.cur_acted] = 1.0
+            cc[RG.CC.acted] += 1
         if row >= 0:
             rows[row, LG.COMPUTE_NS] = (cycles() - w0) * nspc
         fence()
-        sh[RG.SH_ROWS] = s.log.filled[0]
+        sh[RG.SH.rows] = s.log.filled[0]
         m += 1
         if status & SF.FIRST_COMMAND_TIMEOUT:
-            end = END_FIRST_COMMAND
+            end = END.first_command
             break
         if status & SF.SENSOR_TIMEOUT:  # implausible readings outlasted the scene's limit
-            end = END_SENSOR_FAULT
+            end = END.sensor_fault
             break
         if status & SF.LATCHING:
-            end = END_SAFETY
+            end = END.safety
             break
         if rc != 0:
             io_zero(io, m)
-            end = END_FAULT
+            end = END.fault
             break
-    sh[RG.SH_TICK] = m
+    sh[RG.SH.tick] = m
     fence()
-    sh[RG.SH_DONE] = 1
+    sh[RG.SH.done] = 1
     _wake(hl)
     return m, status_or, end

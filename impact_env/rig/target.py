@@ -45,20 +45,35 @@ from pathlib import Path
 
 import numpy as np
 
+from impact_env.config import check_range
 from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
+from impact_env.policy.registry import make_policy  # noqa: F401  (the policy registry loaded before serving)
+from impact_env.rig import controller as CT
 from impact_env.rig import excitation as EX
 from impact_env.rig import log as LG
 from impact_env.rig import protocol as P
+from impact_env.rig import ring as RG
+from impact_env.rig import rtloop as RL
 from impact_env.rig import safety as SF
+from impact_env.rig import wire as WR
+from impact_env.rig.cdriver import CDriver
 from impact_env.rig.controller import TRUTH_COLUMNS, TRUTH_UNITS, Controller
+from impact_env.rig.cycles import cached_ns_per_cycle
 from impact_env.rig.driver import RigDriver, VirtualRig
 from impact_env.rig.episode import Episode
 from impact_env.rig.placement import Placement
+from impact_env.rig.ring import SH
 from impact_env.rig.safety import SafetyConfig
 from impact_env.rig.transport import Endpoint, Link, UploadAssembler, chunk_reply
+from impact_env.sim.records import N_REC
 
 N_TELEMETRY = len(P.TELEMETRY_FIELDS)
+# real-time host mode's default wait for a step's command, in control periods: the host's round
+# trip (about 50 us for ImpactCatchRig-v0 on a 2-core VM, scripts/bench_rig.py) must fit in it,
+# and the tick's own work after it (act, safety, apply, the log row: 3-6 us at p99) in the rest
+COMMAND_WAIT = 0.8
+RCVBUF = 4 << 20  # bytes asked for the target's socket's receive buffer
 
 
 @dataclass
@@ -93,8 +108,8 @@ class TargetConfig:
     # the log streamed to disk during the episode is flushed this often (s)
     log_flush_s: float = 0.05
     # real-time host mode: a tick whose step's command has not arrived waits for it this long
-    # after its deadline before it acts (s; None: 0.7 of the control period, leaving the tick's own
-    # work the rest).  A host that answers an OBSERVATION within it acts in the step it was asked
+    # after its deadline before it acts (s; None: COMMAND_WAIT of the control period, leaving the
+    # tick's own work the rest).  A host that answers an OBSERVATION within it acts in the step it was asked
     # for, 1 tick at hold 1 included; the force then changes that late in the tick (as a DAC
     # written then): the round trip is the host's sensor-to-actuator delay
     command_wait_s: float | None = None
@@ -102,10 +117,9 @@ class TargetConfig:
     # pinned) and its thread's nice value (0: unchanged): impact_env.rig.placement
     loop_cpu: int | None = None
     loop_nice: int = 0
+    loop_fifo: int = 0  # SCHED_FIFO priority of the loop's thread (0: none; placement.py)
 
     def __post_init__(self):
-        from impact_env.config import check_range
-
         if self.command_wait_s is not None:
             check_range("command_wait_s", self.command_wait_s, "s", 0.0, 1.0)
         check_range("max_gap_s", self.max_gap_s, "s", 0.0, 10.0, lo_open=True)
@@ -121,8 +135,6 @@ class Target:
                  config: TargetConfig | None = None):
         self.driver = driver
         self.cfg = config or TargetConfig()
-        from impact_env.rig.cdriver import CDriver
-
         #: whether episodes run in the compiled real-time core (impact_env.rig.rtloop)
         self.compiled = isinstance(driver, (VirtualRig, CDriver)) and not self.cfg.python_loop
         if not self.compiled and not self.cfg.lockstep:
@@ -139,12 +151,14 @@ class Target:
         self.rate = float(self.scene.control_rate)
         wait = self.cfg.command_wait_s
         #: real-time host mode's wait for a step's command (s): TargetConfig.command_wait_s
-        self.command_wait_s = 0.7 / self.rate if wait is None else float(wait)
+        self.command_wait_s = COMMAND_WAIT / self.rate if wait is None else float(wait)
         if self.command_wait_s * self.rate > 0.9:
             raise ValueError(f"command_wait_s = {self.command_wait_s:g} s is more than 0.9 of the control "
                              f"period ({1 / self.rate:g} s): the tick's own work needs the rest")
-        self.placement = Placement(self.cfg.loop_cpu, self.cfg.loop_nice)
-        self.endpoint = Endpoint(bind)
+        self.placement = Placement(self.cfg.loop_cpu, self.cfg.loop_nice, self.cfg.loop_fifo)
+        # a receive buffer for a flood to fill while the loop cannot read (the kernel caps it at
+        # net.core.rmem_max, 4 MB here): a stall of the machine then drops junk, not the host's commands
+        self.endpoint = Endpoint(bind, rcvbuf=RCVBUF)
         self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
         self.link.on_unauthenticated = self._unauthenticated
         self.link.on_handshake = self.handshake
@@ -172,8 +186,6 @@ class Target:
         """Compile (or load from the cache) the controller's kernels before serving, so that the
         first episode's first tick is not a compile: one tick of a throwaway controller on zero
         readings, driver untouched."""
-        from impact_env.policy.registry import make_policy  # noqa: F401  (load the policy registry now)
-
         layout = make_layout(self.scene, "sensors", 1)
         law = CompiledPolicy.from_law("passive", {}, {}, self.scene, "sensors")
         ctl = Controller(self.scene, layout, 1, 4, "onboard", law, law, self.cfg.safety,
@@ -192,13 +204,6 @@ class Target:
         throwaway controller in lock-step for one tick (a virtual rig's hardware on a throwaway
         drop; a C driver is not called: its addresses are replaced by a C function of the loop's
         own that reads zeros)."""
-        from impact_env.rig import controller as CT
-        from impact_env.rig import ring as RG
-        from impact_env.rig import rtloop as RL
-        from impact_env.rig.cdriver import CDriver
-        from impact_env.rig.cycles import cached_ns_per_cycle
-        from impact_env.sim.records import N_REC
-
         cached_ns_per_cycle(refresh=True)
         if isinstance(self.driver, CDriver):
             read, apply, ctx = self.driver.addresses
@@ -213,9 +218,7 @@ class Target:
             io = RL.VirtualIO(hw.params, hw.state, CT.truth_columns(ctl.log), CT.DropConstants(0.0, 0.0, 0.0),
                               np.zeros((4, N_REC)), ctl.log.col("true_t_s"))
             m1 = 1
-        tm = RL.Timing(False, False, 0.0, 1.0, 1.0, 10, 0.0, 0.0)
-        from impact_env.rig import wire as WR
-
+        tm = RL.Timing(False, False, 0.0, 1.0, 1.0, 10, 0.0, 0.0, 0.0)
         for onboard in (True, False):
             hl = RG.host_link(ctl.layout.size)
             RL.run_episode(m1, ctl.params._replace(onboard=onboard), ctl.state, io, tm,
@@ -231,9 +234,7 @@ class Target:
         self._stop.set()
         hl = self.running_link
         if hl is not None:
-            from impact_env.rig.ring import SH_STOP
-
-            hl.shared[SH_STOP] = 1
+            hl.shared[SH.stop] = 1
 
     def install_signal_handlers(self) -> None:
         """SIGTERM and SIGINT stop the serve loop, which zeroes the shaker on its way out."""

@@ -38,6 +38,7 @@ from impact_env._jit import jit
 from impact_env.rig import protocol as P
 from impact_env.rig.cfunc import (
     call_clock_gettime,
+    call_clock_nanosleep,
     call_hmac,
     call_recvfrom,
     call_sendto,
@@ -58,7 +59,7 @@ H_MAJOR, H_MINOR, H_TYPE, H_FLAGS, H_SESSION, H_SEQ, H_TICK, H_HOST_NS, H_TARGET
     4, 5, 6, 7, 8, 12, 16, 24, 32, 40)
 T_COMMAND = int(P.MsgType.COMMAND)
 T_OBSERVATION = int(P.MsgType.OBSERVATION)
-_MAGIC = np.frombuffer(P.MAGIC, np.uint8)
+MAGIC = np.frombuffer(P.MAGIC, np.uint8)
 _HALF = 1 << 31
 _U32 = 0xFFFFFFFF
 _WINDOW = 64  # DatagramFilter.WINDOW
@@ -73,6 +74,8 @@ class Calls(NamedTuple):
     hmac: int
     sha256: int  # the EVP_MD of EVP_sha256()
     clock_gettime: int
+    poll: int
+    clock_nanosleep: int
 
 
 class WireCounts(NamedTuple):
@@ -91,8 +94,8 @@ class WireCounts(NamedTuple):
     accepted: np.ndarray  # the filter's "accepted"
     commands: np.ndarray  # accepted COMMANDs of this episode ("commands_accepted")
     authentic: np.ndarray  # tag and session right (the link is alive), whatever came after
-    obs_sent: np.ndarray  # OBSERVATIONs sent (re-sends included)
-    send_dropped: np.ndarray  # OBSERVATIONs the socket refused
+    sent: np.ndarray  # datagrams sent (the target's OBSERVATIONs, re-sends included; the host's COMMANDs)
+    send_dropped: np.ndarray  # datagrams the socket refused
 
 
 class WireState(NamedTuple):
@@ -106,6 +109,13 @@ class WireState(NamedTuple):
     obs_len: np.ndarray  # bytes of the last OBSERVATION's frame in ``tx`` (0: none yet)
     cmd_step: np.ndarray  # the COMMAND :func:`read_one` just accepted: its step
     cmd_val: np.ndarray  # float64[1]: and its action
+    # the host's side (impact_env.rig.host_wire): the newest OBSERVATION taken, its fields
+    got: np.ndarray  # 1 once one is in ``Wire.out``
+    out_step: np.ndarray
+    out_status: np.ndarray
+    out_dtype: np.ndarray
+    out_n: np.ndarray  # observation values in ``Wire.out[:out_n]``
+    out_m: np.ndarray  # telemetry values after them
 
 
 class Wire(NamedTuple):
@@ -142,11 +152,13 @@ class Wire(NamedTuple):
     q_srclen: np.ndarray  # int64[N_Q]
     q_head: np.ndarray  # int64[1]: entries written (the loop)
     q_tail: np.ndarray  # int64[1]: entries read (the network thread)
+    out: np.ndarray  # float64[2 MAX_VALUES]: the host's newest OBSERVATION's values (host_wire)
+    pfd: np.ndarray  # int32[2]: a struct pollfd on ``fd`` (POLLIN), for poll()
 
 
 # -- bytes ---------------------------------------------------------------------------------------------
 @jit(inline="always")
-def _get_uint(buf, o, n):
+def get_uint(buf, o, n):
     v = 0
     for k in range(n - 1, -1, -1):
         v = (v << 8) | np.int64(buf[o + k])
@@ -154,37 +166,56 @@ def _get_uint(buf, o, n):
 
 
 @jit(inline="always")
-def _put_uint(buf, o, n, v):
+def put_uint(buf, o, n, v):
     for k in range(n):
         buf[o + k] = (v >> (8 * k)) & 0xFF
 
 
 @jit(inline="always")
-def _get_f64(buf, o, w):
+def get_f64(buf, o, w):
     for k in range(8):
         w.b8[k] = buf[o + k]
     return w.f8[0]
 
 
 @jit(inline="always")
-def _put_f64(buf, o, x, w):
+def put_f64(buf, o, x, w):
     w.f8[0] = x
     for k in range(8):
         buf[o + k] = w.b8[k]
 
 
 @jit(inline="always")
-def _put_f32(buf, o, x, w):
+def get_f32(buf, o, w):
+    for k in range(4):
+        w.b4[k] = buf[o + k]
+    return w.f4[0]
+
+
+@jit(inline="always")
+def put_f32(buf, o, x, w):
     w.f4[0] = x
     for k in range(4):
         buf[o + k] = w.b4[k]
 
 
 @jit(inline="always")
-def _tag(w, buf, n):
+def tag_of(w, buf, n):
     """HMAC-SHA256 of buf[0:n] (the nonce, then the frame) into w.md; False on failure."""
     w.mdlen[0] = 64
     return call_hmac(w.calls.hmac, w.calls.sha256, w.key, w.key_len, buf, n, w.md, w.mdlen) != 0
+
+
+@jit(inline="always")
+def tag_checks(w, end):
+    """Whether the tag after the frame of ``end`` bytes in ``w.rx`` is the frame's (under the key
+    and the nonce in front of it); compared in constant time."""
+    if not tag_of(w, w.rx, NONCE + end):
+        return False
+    diff = 0
+    for k in range(P.TAG_SIZE):
+        diff |= w.md[k] ^ w.rx[NONCE + end + k]
+    return diff == 0
 
 
 @jit(inline="always")
@@ -193,9 +224,17 @@ def now_ns(w):
     return w.ts[0] * 1_000_000_000 + w.ts[1]
 
 
+@jit(inline="always")
+def sleep_until_ns(w, t_ns):
+    """Sleep until CLOCK_MONOTONIC reads ``t_ns`` (clock_nanosleep, TIMER_ABSTIME)."""
+    w.ts[0] = t_ns // 1_000_000_000
+    w.ts[1] = t_ns % 1_000_000_000
+    call_clock_nanosleep(w.calls.clock_nanosleep, CLOCK_MONOTONIC, 1, w.ts)
+
+
 # -- receiving -----------------------------------------------------------------------------------------
 @jit(inline="always")
-def _from_peer(w):
+def from_peer(w):
     if w.srclen[0] != w.peer_len:
         return False
     for k in range(w.peer_len):
@@ -205,7 +244,7 @@ def _from_peer(w):
 
 
 @jit
-def _queue(w, n):
+def enqueue(w, n):
     """The datagram in w.rx for the network thread (dropped, counted, when its queue is full); the
     thread is woken when the queue was empty."""
     h = w.q_head[0]
@@ -229,7 +268,7 @@ def _queue(w, n):
 
 
 @jit
-def _fresh(w, seq):
+def fresh(w, seq):
     """The COMMAND stream's window (DatagramFilter._fresh): 1 new, 0 duplicate, -1 out of order."""
     st = w.st
     if st.known[0] == 0:
@@ -274,23 +313,16 @@ def classify(w, n, cur_step):
     c = w.c
     d = w.rx
     o = NONCE
-    if (n < P.OVERHEAD or not _from_peer(w) or d[o + H_TYPE] != T_COMMAND or d[o + H_MAJOR] != P.VERSION_MAJOR
-            or d[o] != _MAGIC[0] or d[o + 1] != _MAGIC[1] or d[o + 2] != _MAGIC[2] or d[o + 3] != _MAGIC[3]):
-        _queue(w, n)
+    if (n < P.OVERHEAD or not from_peer(w) or d[o + H_TYPE] != T_COMMAND or d[o + H_MAJOR] != P.VERSION_MAJOR
+            or d[o] != MAGIC[0] or d[o + 1] != MAGIC[1] or d[o + 2] != MAGIC[2] or d[o + 3] != MAGIC[3]):
+        enqueue(w, n)
         return READ
     # the host's COMMAND: the filter's checks, in its order
-    plen = _get_uint(d, o + H_PLEN, 2)
+    plen = get_uint(d, o + H_PLEN, 2)
     if P.HEADER_SIZE + plen + P.TAG_SIZE != n:
         c.corrupt[0] += 1
         return READ
-    end = P.HEADER_SIZE + plen
-    if not _tag(w, d, NONCE + end):
-        c.unauthenticated[0] += 1
-        return READ
-    diff = 0
-    for k in range(P.TAG_SIZE):
-        diff |= w.md[k] ^ d[o + end + k]
-    if diff != 0:
+    if not tag_checks(w, P.HEADER_SIZE + plen):
         c.unauthenticated[0] += 1
         return READ
     newer = d[o + H_MINOR] > P.VERSION_MINOR
@@ -298,50 +330,50 @@ def classify(w, n, cur_step):
     if plen < 10:
         c.corrupt[0] += 1
         return READ
-    n_act = _get_uint(d, pl + 8, 2)
+    n_act = get_uint(d, pl + 8, 2)
     need = 10 + 8 * n_act
     if n_act < 1 or n_act > P.MAX_VALUES or plen < need or (not newer and plen != need):
         c.corrupt[0] += 1
         return READ
-    if _get_uint(d, o + H_SESSION, 4) != w.session:
+    if get_uint(d, o + H_SESSION, 4) != w.session:
         c.wrong_session[0] += 1
         return READ
     c.authentic[0] += 1
-    fresh = _fresh(w, _get_uint(d, o + H_SEQ, 4))
-    if fresh == 0:
+    new = fresh(w, get_uint(d, o + H_SEQ, 4))
+    if new == 0:
         c.duplicate[0] += 1
         return READ
-    if fresh < 0:
+    if new < 0:
         c.out_of_order[0] += 1
         return READ
-    ep = _get_uint(d, pl, 4)
-    step = _get_uint(d, pl + 4, 4)
+    ep = get_uint(d, pl, 4)
+    step = get_uint(d, pl + 4, 4)
     if ep < w.episode or (ep == w.episode and step < cur_step):
         c.late[0] += 1
         return READ
     c.accepted[0] += 1
     if ep == w.episode:
         c.commands[0] += 1
-        w.st.host_ns[0] = _get_uint(d, o + H_HOST_NS, 8)
+        w.st.host_ns[0] = get_uint(d, o + H_HOST_NS, 8)
         w.st.cmd_step[0] = step
-        w.st.cmd_val[0] = _get_f64(d, pl + 10, w)
+        w.st.cmd_val[0] = get_f64(d, pl + 10, w)
         return COMMAND
     return READ
 
 
 # -- sending -------------------------------------------------------------------------------------------
 @jit
-def _send_frame(w, n):
+def send_frame(w, n):
     """Tag the frame of ``n`` bytes in w.tx (after the nonce) and send it to the host."""
     t = w.tx
-    if not _tag(w, t, NONCE + n):
+    if not tag_of(w, t, NONCE + n):
         w.c.send_dropped[0] += 1
         return
     for k in range(P.TAG_SIZE):
         t[NONCE + n + k] = w.md[k]
     sent = call_sendto(w.calls.sendto, w.fd, t, NONCE, n + P.TAG_SIZE, MSG_DONTWAIT, w.peer, w.peer_len)
     if sent == n + P.TAG_SIZE:
-        w.c.obs_sent[0] += 1
+        w.c.sent[0] += 1
     else:
         w.c.send_dropped[0] += 1
 
@@ -368,39 +400,39 @@ def send_observation(w, tick, step, status, obs, telem, records, r0, r1):
     m = telem.shape[0] + nrec
     plen = 17 + 4 * n_obs + 8 * m
     for k in range(4):
-        t[o + k] = _MAGIC[k]
+        t[o + k] = MAGIC[k]
     t[o + H_MAJOR] = P.VERSION_MAJOR
     t[o + H_MINOR] = P.VERSION_MINOR
     t[o + H_TYPE] = T_OBSERVATION
     t[o + H_FLAGS] = 0
-    _put_uint(t, o + H_SESSION, 4, w.session)
-    _put_uint(t, o + H_SEQ, 4, w.st.obs_seq[0] & _U32)
+    put_uint(t, o + H_SESSION, 4, w.session)
+    put_uint(t, o + H_SEQ, 4, w.st.obs_seq[0] & _U32)
     w.st.obs_seq[0] += 1
-    _put_uint(t, o + H_TICK, 8, tick)
-    _put_uint(t, o + H_HOST_NS, 8, w.st.host_ns[0])
-    _put_uint(t, o + H_TARGET_NS, 8, now_ns(w))
-    _put_uint(t, o + H_PLEN, 2, plen)
+    put_uint(t, o + H_TICK, 8, tick)
+    put_uint(t, o + H_HOST_NS, 8, w.st.host_ns[0])
+    put_uint(t, o + H_TARGET_NS, 8, now_ns(w))
+    put_uint(t, o + H_PLEN, 2, plen)
     p = o + P.HEADER_SIZE
-    _put_uint(t, p, 4, w.episode)
-    _put_uint(t, p + 4, 4, step)
-    _put_uint(t, p + 8, 4, status & _U32)
+    put_uint(t, p, 4, w.episode)
+    put_uint(t, p + 4, 4, step)
+    put_uint(t, p + 8, 4, status & _U32)
     t[p + 12] = 4
-    _put_uint(t, p + 13, 2, n_obs)
-    _put_uint(t, p + 15, 2, m)
+    put_uint(t, p + 13, 2, n_obs)
+    put_uint(t, p + 15, 2, m)
     q = p + 17
     for i in range(n_obs):
-        _put_f32(t, q, obs[i], w)
+        put_f32(t, q, obs[i], w)
         q += 4
     for i in range(telem.shape[0]):
-        _put_f64(t, q, telem[i], w)
+        put_f64(t, q, telem[i], w)
         q += 8
     if nrec:
         for i in range(r0, r1):
             for j in range(records.shape[1]):
-                _put_f64(t, q, records[i, j], w)
+                put_f64(t, q, records[i, j], w)
                 q += 8
     w.st.obs_len[0] = P.HEADER_SIZE + plen
-    _send_frame(w, P.HEADER_SIZE + plen)
+    send_frame(w, P.HEADER_SIZE + plen)
 
 
 @jit
@@ -409,10 +441,10 @@ def resend_observation(w):
     n = w.st.obs_len[0]
     if n == 0:
         return
-    _put_uint(w.tx, NONCE + H_SEQ, 4, w.st.obs_seq[0] & _U32)
+    put_uint(w.tx, NONCE + H_SEQ, 4, w.st.obs_seq[0] & _U32)
     w.st.obs_seq[0] += 1
-    _put_uint(w.tx, NONCE + H_TARGET_NS, 8, now_ns(w))
-    _send_frame(w, n)
+    put_uint(w.tx, NONCE + H_TARGET_NS, 8, now_ns(w))
+    send_frame(w, n)
 
 
 # -- the Python side --------------------------------------------------------------------------------
@@ -424,7 +456,8 @@ def calls() -> Calls:
     if not _CALLS:
         hmac_fn, sha256 = libcrypto_addresses()
         _CALLS.append(Calls(libc_address("recvfrom"), libc_address("sendto"), hmac_fn, sha256,
-                            libc_address("clock_gettime")))
+                            libc_address("clock_gettime"), libc_address("poll"),
+                            libc_address("clock_nanosleep")))
     return _CALLS[0]
 
 
@@ -483,7 +516,8 @@ def make(fd: int, key: bytes, nonce: int, session: int, episode: int, peer: tupl
     newest, m = stream if stream is not None else (0, 0)
     st = WireState(np.array([stream is not None], np.int64), np.array([newest], np.int64),
                    np.array([ctypes.c_int64(m & P.U64).value], np.int64), np.array([obs_seq], np.int64),
-                   np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1))
+                   np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1),
+                   *(np.zeros(1, np.int64) for _ in range(6)))
     return Wire(fd=int(fd), calls=functions or calls(), wake_fd=int(wake_fd),
                 wake_write=libc_address("write"),
                 byte=np.ones(1, np.uint8), key=k, key_len=len(key), peer=pr, peer_mask=pm, peer_len=len(raw),
@@ -492,7 +526,8 @@ def make(fd: int, key: bytes, nonce: int, session: int, episode: int, peer: tupl
                 ts=np.zeros(2, np.int64), f8=f8, b8=f8.view(np.uint8), f4=f4, b4=f4.view(np.uint8), c=counts,
                 st=st, q_data=np.zeros((N_Q, RX_MAX), np.uint8), q_len=np.zeros(N_Q, np.int64),
                 q_src=np.zeros((N_Q, SOCKADDR), np.uint8), q_srclen=np.zeros(N_Q, np.int64),
-                q_head=np.zeros(1, np.int64), q_tail=np.zeros(1, np.int64))
+                q_head=np.zeros(1, np.int64), q_tail=np.zeros(1, np.int64), out=np.zeros(2 * P.MAX_VALUES),
+                pfd=np.array([fd, 1], np.int32))
 
 
 def none(functions: Calls | None = None) -> Wire:
@@ -523,7 +558,7 @@ def merge(w: Wire, link) -> None:
         f.counters[reason] += int(getattr(c, reason)[0])
     f.authentic += int(c.authentic[0])
     link.endpoint.received += int(c.received[0])
-    link.endpoint.sent += int(c.obs_sent[0])
+    link.endpoint.sent += int(c.sent[0])
     link.endpoint.send_dropped += int(c.send_dropped[0])
     st = w.st
     if st.known[0] and f.session == w.session:

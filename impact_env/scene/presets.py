@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from impact_env.config import with_overrides
 from impact_env.scene.scene import Scene
 
 
@@ -15,7 +16,6 @@ def ideal() -> Scene:
       action in [-1, 1] needs a scale; the thesis's ideal law peaks at about 860 N (notes;
       ``docs/reproduction.md``: 848 N), so 2000 N leaves it unclipped with margin.
     """
-    from impact_env.config import with_overrides
 
     base = Scene(name="ideal", description="Thesis ch. 3: elastic Hertz contact, no suspension, "
                  "no effects, control at every 1 us integration step, 2000 N per unit action.")
@@ -49,7 +49,6 @@ def rig() -> Scene:
       The nominal drop (0.1 kg, 50 mm) is what ``impact-env drop``, ``scene show`` and the
       thesis reproduction use; ``rig-randomized`` adds the hardware's uncertainty on top.
     """
-    from impact_env.config import with_overrides
 
     base = Scene(name="rig", description="Thesis ch. 4: the shaker rig: pad restitution 0.8, "
                  "suspended body 2, shaker response, 200 N saturation, noisy 16-bit sensors, "
@@ -96,7 +95,6 @@ def rig_randomized() -> Scene:
       (0-1 period): converter, bus and computation latency, which the thesis does not quantify;
       the ``rig`` has none, so both delay effects are switched on here with a nominal 0 s.
     """
-    from impact_env.config import with_overrides
 
     base = rig()
     return with_overrides(base, {

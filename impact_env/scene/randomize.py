@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from impact_env.config import ConfigError
+from impact_env.effects.delay import delay_samples
 
 UNIFORM, LOG, SAMPLES = "uniform", "log-uniform", "samples"
 
@@ -133,6 +134,11 @@ class RandomizeConfig:
     def dist(name: str) -> str:
         return _FIELDS[name].metadata["dist"]
 
+    @staticmethod
+    def target(name: str) -> str:
+        """The dotted scene field that the range ``name`` varies."""
+        return _FIELDS[name].metadata["target"]
+
     # -- drawing ----------------------------------------------------------------------------
     def values_at(self, u: np.ndarray | float, rate: float) -> dict[str, float]:
         """The values of the ranged fields at quantiles ``u`` (one per ranged field, or one
@@ -195,7 +201,6 @@ def overrides_for(scene, values: dict[str, float]) -> dict[str, Any]:
 
 def check_scene_ranges(scene) -> None:
     """Cross-field checks of ``scene.randomize`` against the rest of the scene (ConfigError)."""
-    from impact_env.effects.delay import delay_samples
 
     rz = scene.randomize
     names = rz.ranged()

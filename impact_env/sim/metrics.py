@@ -38,6 +38,7 @@ import numpy as np
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, C, G
 from impact_env.sim import records as R
@@ -47,62 +48,104 @@ EPISODE_METRICS = ("impact_speed_mps", "time_to_catch_s", "residual_energy_10ms"
                    "residual_energy_100ms", "exit_speed_ratio", "exit_velocity_ratio", "bounces",
                    "peak_force_N", "rms_force_N", "peak_demand_N", "energy_integral_ms", "contact_fraction",
                    "saturation_time_s")
-# accumulator columns
-(A_TICKS, A_PEAK, A_PEAK_DEM, A_SUMSQ, A_SAT, A_CONTACT, A_AFTER, A_RATIO_SUM, A_LAST_ABOVE, A_MARK0, A_MARK1,
- A_MARK2, A_EXIT_VEL, A_WAS_CONTACT, A_T_SEP, A_BOUNCES, A_RATIO, A_ENERGY) = range(18)
-N_ACC = 18
-# per-env constants
-K_T_TOUCH, K_V0, K_E0 = range(3)
-# shared settings
-S_PERIOD, S_FRACTION, S_MIN_FLIGHT, S_MARK0, S_MARK1, S_MARK2 = range(6)
+
+
+class Accumulators(NamedTuple):
+    """An env's accumulator row (float64[N_ACC]), advanced by :func:`update`."""
+
+    ticks: float  # ticks taken
+    peak: float  # N, the largest |applied force|
+    peak_demand: float  # N, the largest |demand|
+    sum_sq: float  # N^2, the sum of the squared applied forces
+    saturated: float  # ticks at the force limit
+    contact: float  # ticks in contact after the first touch
+    after: float  # ticks after the first touch
+    ratio_sum: float  # the sum of the catch-energy ratios
+    last_above: float  # s, the last tick with the ratio at or above the catch fraction
+    mark0: float  # the ratio at the first residual mark (NaN until reached); mark1, mark2 follow
+    mark1: float
+    mark2: float
+    exit_velocity: float  # -v1 / v0 at the first separation (NaN until then)
+    was_contact: float  # 1 if the previous tick was in contact
+    t_separation: float  # s, the last separation (NaN while in contact)
+    bounces: float  # separations followed by a flight of at least min_flight
+    ratio: float  # the catch-energy ratio at the last tick
+    energy: float  # J, the catch energy at the last tick
+
+
+class EnvConstants(NamedTuple):
+    """An env's constants row (float64[N_CONST]), set at its episode start."""
+
+    t_touch: float  # s, the first touch
+    impact_speed: float  # m/s
+    impact_energy: float  # J
+
+
+class Settings(NamedTuple):
+    """The settings shared by every env (float64[N_SETTINGS])."""
+
+    period: float  # s, the control period
+    catch_fraction: float  # of the impact energy
+    min_flight: float  # s, the shortest flight that is a bounce
+    mark0: float  # s after the first touch, the residual marks (RESIDUAL_MARKS_S); mark1, mark2 follow
+    mark1: float
+    mark2: float
+
+
+AC = positions(Accumulators)
+EC = positions(EnvConstants)
+ST = positions(Settings)
+N_ACC = len(AC)
+N_CONST = len(EC)
+N_SETTINGS = len(ST)
 
 
 @jit(inline="always")
 def update(acc, rec, k_env, P_row, settings):
     """Advance one env's accumulator ``acc`` by the tick record ``rec`` (its constants
     ``k_env`` = t_touch s, impact speed m/s, impact energy J; its plant row ``P_row``)."""
-    acc[A_TICKS] += 1.0
-    t = acc[A_TICKS] * settings[S_PERIOD]
-    t_touch = k_env[K_T_TOUCH]
-    f = rec[R.REC_F_APPLIED]
+    acc[AC.ticks] += 1.0
+    t = acc[AC.ticks] * settings[ST.period]
+    t_touch = k_env[EC.t_touch]
+    f = rec[R.REC.f_applied]
     af = abs(f)
-    if af > acc[A_PEAK]:
-        acc[A_PEAK] = af
-    ad = abs(rec[R.REC_F_DEMAND])
-    if ad > acc[A_PEAK_DEM]:
-        acc[A_PEAK_DEM] = ad
-    acc[A_SUMSQ] += f * f
-    if rec[R.REC_SATURATED] > 0.5 or abs(rec[R.REC_U]) >= 1.0:
-        acc[A_SAT] += 1.0
+    if af > acc[AC.peak]:
+        acc[AC.peak] = af
+    ad = abs(rec[R.REC.f_demand])
+    if ad > acc[AC.peak_demand]:
+        acc[AC.peak_demand] = ad
+    acc[AC.sum_sq] += f * f
+    if rec[R.REC.saturated] > 0.5 or abs(rec[R.REC.u]) >= 1.0:
+        acc[AC.saturated] += 1.0
     after = t > t_touch
-    x1 = rec[R.REC_X1]
-    x2 = rec[R.REC_X2]
+    x1 = rec[R.REC.x1]
+    x2 = rec[R.REC.x2]
     contact = x1 - x2 > 0.0
     if after:
-        acc[A_AFTER] += 1.0
+        acc[AC.after] += 1.0
         if contact:
-            acc[A_CONTACT] += 1.0
-    e = catch_energy_at(x1, rec[R.REC_V1], x2, P_row[M1], P_row[C], P_row[G])
-    acc[A_ENERGY] = e
-    ratio = e / k_env[K_E0]
-    acc[A_RATIO] = ratio
-    acc[A_RATIO_SUM] += ratio
-    if ratio >= settings[S_FRACTION]:
-        acc[A_LAST_ABOVE] = t
+            acc[AC.contact] += 1.0
+    e = catch_energy_at(x1, rec[R.REC.v1], x2, P_row[M1], P_row[C], P_row[G])
+    acc[AC.energy] = e
+    ratio = e / k_env[EC.impact_energy]
+    acc[AC.ratio] = ratio
+    acc[AC.ratio_sum] += ratio
+    if ratio >= settings[ST.catch_fraction]:
+        acc[AC.last_above] = t
     since = t - t_touch
-    for m in range(3):
-        if np.isnan(acc[A_MARK0 + m]) and since >= settings[S_MARK0 + m] - 1e-12:
-            acc[A_MARK0 + m] = ratio
-    was = acc[A_WAS_CONTACT] > 0.5
+    for m in range(len(RESIDUAL_MARKS_S)):
+        if np.isnan(acc[AC.mark0 + m]) and since >= settings[ST.mark0 + m] - 1e-12:
+            acc[AC.mark0 + m] = ratio
+    was = acc[AC.was_contact] > 0.5
     if was and not contact and after:
-        if np.isnan(acc[A_EXIT_VEL]):
-            acc[A_EXIT_VEL] = -rec[R.REC_V1] / k_env[K_V0]
-        acc[A_T_SEP] = t
-    if not was and contact and not np.isnan(acc[A_T_SEP]):
-        if t - acc[A_T_SEP] >= settings[S_MIN_FLIGHT]:
-            acc[A_BOUNCES] += 1.0
-        acc[A_T_SEP] = np.nan
-    acc[A_WAS_CONTACT] = 1.0 if contact else 0.0
+        if np.isnan(acc[AC.exit_velocity]):
+            acc[AC.exit_velocity] = -rec[R.REC.v1] / k_env[EC.impact_speed]
+        acc[AC.t_separation] = t
+    if not was and contact and not np.isnan(acc[AC.t_separation]):
+        if t - acc[AC.t_separation] >= settings[ST.min_flight]:
+            acc[AC.bounces] += 1.0
+        acc[AC.t_separation] = np.nan
+    acc[AC.was_contact] = 1.0 if contact else 0.0
 
 
 @jit
@@ -120,8 +163,8 @@ class MetricArrays(NamedTuple):
     """The accumulators' arrays, as the compiled loops take them."""
 
     acc: np.ndarray  # float64[N, N_ACC]
-    consts: np.ndarray  # float64[N, 3]: columns K_*
-    settings: np.ndarray  # float64[6]: S_*
+    consts: np.ndarray  # float64[N, N_CONST]: columns EnvConstants
+    settings: np.ndarray  # float64[N_SETTINGS]: Settings
 
 
 class EpisodeMetrics:
@@ -132,21 +175,22 @@ class EpisodeMetrics:
     def __init__(self, n: int, period: float, catch_fraction: float = 0.01, min_flight_s: float = 1.0e-3):
         self.n = int(n)
         self.period = float(period)
-        self.settings = np.array([period, catch_fraction, min_flight_s, *RESIDUAL_MARKS_S], dtype=np.float64)
+        self.settings = np.array(Settings(period, catch_fraction, min_flight_s, *RESIDUAL_MARKS_S),
+                                 dtype=np.float64)
         self.acc = np.zeros((self.n, N_ACC))
-        self.consts = np.zeros((self.n, 3))
+        self.consts = np.zeros((self.n, N_CONST))
         self._all = np.ones(self.n, dtype=bool)
 
     def start(self, t_touch, impact_speed, impact_energy, contact) -> None:
         self.acc[:] = 0.0
-        self.acc[:, A_LAST_ABOVE] = -np.inf
-        self.acc[:, A_MARK0:A_MARK2 + 1] = np.nan
-        self.acc[:, A_EXIT_VEL] = np.nan
-        self.acc[:, A_T_SEP] = np.nan
-        self.acc[:, A_WAS_CONTACT] = np.asarray(contact, dtype=np.float64)
-        self.consts[:, K_T_TOUCH] = t_touch
-        self.consts[:, K_V0] = impact_speed
-        self.consts[:, K_E0] = impact_energy
+        self.acc[:, AC.last_above] = -np.inf
+        self.acc[:, AC.mark0:AC.mark2 + 1] = np.nan
+        self.acc[:, AC.exit_velocity] = np.nan
+        self.acc[:, AC.t_separation] = np.nan
+        self.acc[:, AC.was_contact] = np.asarray(contact, dtype=np.float64)
+        self.consts[:, EC.t_touch] = t_touch
+        self.consts[:, EC.impact_speed] = impact_speed
+        self.consts[:, EC.impact_energy] = impact_energy
 
     def step(self, records, P, active=None) -> None:
         active = self._all if active is None else active
@@ -159,36 +203,36 @@ class EpisodeMetrics:
     @property
     def ratio(self) -> np.ndarray:
         """Each env's catch-energy ratio at its last tick."""
-        return self.acc[:, A_RATIO]
+        return self.acc[:, AC.ratio]
 
     def finish(self, failed=None) -> dict[str, np.ndarray]:
         """The per-episode metrics (float64[N] each; NaN where ``failed``)."""
         a = self.acc
         period = self.period
-        ticks = np.maximum(a[:, A_TICKS], 1.0)
-        t_end = a[:, A_TICKS] * period
-        t_touch = self.consts[:, K_T_TOUCH]
-        t_sep = a[:, A_T_SEP]
-        bounces = a[:, A_BOUNCES] + (~np.isnan(t_sep) & (t_end - t_sep >= self.settings[S_MIN_FLIGHT]))
-        last = a[:, A_LAST_ABOVE]
+        ticks = np.maximum(a[:, AC.ticks], 1.0)
+        t_end = a[:, AC.ticks] * period
+        t_touch = self.consts[:, EC.t_touch]
+        t_sep = a[:, AC.t_separation]
+        bounces = a[:, AC.bounces] + (~np.isnan(t_sep) & (t_end - t_sep >= self.settings[ST.min_flight]))
+        last = a[:, AC.last_above]
         ttc = np.where(last >= t_end - 1e-12, np.inf, np.maximum(last + period, t_touch) - t_touch)
         ttc = np.where(last == -np.inf, 0.0, ttc)
-        exit_vel = a[:, A_EXIT_VEL]
+        exit_vel = a[:, AC.exit_velocity]
         m = {
-            "impact_speed_mps": self.consts[:, K_V0].copy(),
+            "impact_speed_mps": self.consts[:, EC.impact_speed].copy(),
             "time_to_catch_s": ttc,
-            "residual_energy_10ms": a[:, A_MARK0].copy(),
-            "residual_energy_50ms": a[:, A_MARK1].copy(),
-            "residual_energy_100ms": a[:, A_MARK2].copy(),
+            "residual_energy_10ms": a[:, AC.mark0].copy(),
+            "residual_energy_50ms": a[:, AC.mark1].copy(),
+            "residual_energy_100ms": a[:, AC.mark2].copy(),
             "exit_speed_ratio": np.where(np.isnan(exit_vel), 0.0, np.abs(exit_vel)),
             "exit_velocity_ratio": np.where(np.isnan(exit_vel), 0.0, exit_vel),
             "bounces": bounces,
-            "peak_force_N": a[:, A_PEAK].copy(),
-            "rms_force_N": np.sqrt(a[:, A_SUMSQ] / ticks),
-            "peak_demand_N": a[:, A_PEAK_DEM].copy(),
-            "energy_integral_ms": a[:, A_RATIO_SUM] * period * 1e3,
-            "contact_fraction": a[:, A_CONTACT] / np.maximum(a[:, A_AFTER], 1),
-            "saturation_time_s": a[:, A_SAT] * period,
+            "peak_force_N": a[:, AC.peak].copy(),
+            "rms_force_N": np.sqrt(a[:, AC.sum_sq] / ticks),
+            "peak_demand_N": a[:, AC.peak_demand].copy(),
+            "energy_integral_ms": a[:, AC.ratio_sum] * period * 1e3,
+            "contact_fraction": a[:, AC.contact] / np.maximum(a[:, AC.after], 1),
+            "saturation_time_s": a[:, AC.saturated] * period,
         }
         bad = np.zeros(self.n, dtype=bool) if failed is None else np.asarray(failed, dtype=bool)
         return {k: np.where(bad, math.nan, v.astype(np.float64)) for k, v in m.items()}

@@ -11,6 +11,29 @@ The task (reward, termination) and the episode metrics read them; they are what 
 the rig holds, plus the true state.
 """
 
-REC_T, REC_X1, REC_V1, REC_X2, REC_V2, REC_U, REC_F_DEMAND, REC_F_APPLIED, REC_SATURATED, \
-    REC_CONTACT_FORCE, REC_DETECTED, REC_STATUS = range(12)
-N_REC = 12
+
+from typing import NamedTuple
+
+from impact_env._packed import positions
+
+
+class Record(NamedTuple):
+    """A record's columns (float64[N_REC]), read by name: ``r[REC.x1]``."""
+
+    t: float
+    x1: float
+    v1: float
+    x2: float
+    v2: float
+    u: float
+    f_demand: float
+    f_applied: float
+    saturated: float
+    contact_force: float
+    detected: float
+    status: float
+
+
+REC = positions(Record)
+N_REC = len(REC)
+

@@ -82,16 +82,16 @@ def env_step(i, a, p, s):
             if ok and law_on:
                 observe_residual(i, Y[i], s.fe, p.law, s.law)
         r = s.records[i, k]
-        r[R.REC_T] = t[i]
+        r[R.REC.t] = t[i]
         for j in range(4):
-            r[R.REC_X1 + j] = Y[i, j]
-        r[R.REC_U] = u
-        r[R.REC_F_DEMAND] = info[i, INFO_F_DEMAND]
-        r[R.REC_F_APPLIED] = info[i, INFO_F_APPLIED]
-        r[R.REC_SATURATED] = info[i, INFO_SATURATED]
-        r[R.REC_CONTACT_FORCE] = info[i, INFO_CONTACT_FORCE]
-        r[R.REC_DETECTED] = detected[i]
-        r[R.REC_STATUS] = 0.0 if ok else 1.0
+            r[R.REC.x1 + j] = Y[i, j]
+        r[R.REC.u] = u
+        r[R.REC.f_demand] = info[i, INFO_F_DEMAND]
+        r[R.REC.f_applied] = info[i, INFO_F_APPLIED]
+        r[R.REC.saturated] = info[i, INFO_SATURATED]
+        r[R.REC.contact_force] = info[i, INFO_CONTACT_FORCE]
+        r[R.REC.detected] = detected[i]
+        r[R.REC.status] = 0.0 if ok else 1.0
     if ok:
         observe(i, True, a, Y[i], s.fe, p.obs, s.obs)
     return ok

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from impact_env.hardware.stability import accuracy_warnings
 from impact_env.plant import layout as L
 from impact_env.plant.dynamics import contact_forces
 from impact_env.plant.energy import catch_energy, energies, energy_above_rest
@@ -143,7 +144,6 @@ class Trajectory:
         integrator's settings where they are known to be inaccurate although the ledger may
         balance (:func:`impact_env.hardware.stability.accuracy_warnings`), an energy ledger that
         misses more than ``ENERGY_BALANCE_BOUND`` of the energy, events beyond the buffer."""
-        from impact_env.hardware.stability import accuracy_warnings
 
         out = accuracy_warnings(self.scene)
         err = self.energy_balance_error()
