@@ -40,12 +40,16 @@ def model_spec(model_path, meta: dict | None = None) -> str:
 
 
 def export_compiled(model_path, scene, out=None) -> str:
-    """Export the model (with its hold and residual) to a compiled policy file; its spec."""
+    """Export the model (with its hold and residual) to a compiled policy file; its spec.  An
+    asymmetric actor-critic (critic on the true state) is exported as its actor, the sensor
+    controller it deploys (:func:`agents.policies.deployable`)."""
+    from agents.policies import deployable
     from impact_env.policy.export import export_policy
 
     model_path = Path(model_path)
+    actor = deployable(model_path, model_meta(model_path) or None)
     out = Path(out) if out is not None else model_path.with_suffix(".policy.json")
-    export_policy(model_spec(model_path), scene).save(out)
+    export_policy(model_spec(actor, model_meta(model_path)), scene).save(out)
     return f"compiled:{out}"
 
 

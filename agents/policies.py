@@ -22,6 +22,7 @@ import torch as th
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import MlpExtractor
 from stable_baselines3.common.utils import get_device
+from stable_baselines3.sac.policies import SACPolicy
 from torch import nn
 
 
@@ -78,6 +79,52 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
         return data
 
 
+class IndexSelect(nn.Module):
+    """A features extractor that keeps ``indices`` of a flat observation (the actor's entries)."""
+
+    def __init__(self, observation_space, indices: list[int]):
+        super().__init__()
+        self._observation_space = observation_space
+        self.features_dim = len(indices)
+        self.register_buffer("actor_idx", th.as_tensor(indices, dtype=th.long))
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        return th.flatten(observations, start_dim=1).float().index_select(1, self.actor_idx)
+
+
+class AsymmetricSACPolicy(SACPolicy):
+    """SAC's policy with an actor that reads the sensor entries only (``IndexSelect``) and critics
+    that read everything, the true state included (``observation="both"``): the asymmetric
+    actor-critic of :class:`AsymmetricActorCriticPolicy` for SAC.
+
+    Why for SAC: its critic learns Q(o, a) by bootstrapping, and the sensor frame does not say
+    where body 1 is before the touch, nor how fast it comes: the same observation stands for
+    drops with very different futures, and the TD targets average them.  The true state removes
+    that aliasing from the critic, while the actor, the part that is deployed, stays a sensor
+    controller.  :func:`sensor_actor_model` turns a trained model into the plain sensor model
+    that is shipped, exported and compiled."""
+
+    def __init__(self, *args, frame_size: int, actor_frame_size: int, history: int = 1, **kwargs):
+        self._asym = (int(frame_size), int(actor_frame_size), int(history))
+        self._indices = actor_indices(*self._asym)
+        super().__init__(*args, **kwargs)
+        if self.observation_space.shape[0] <= max(self._indices):
+            raise ValueError(f"observation of {self.observation_space.shape[0]} entries is too small for "
+                             f"frame_size {frame_size} x history {history}")
+
+    def make_actor(self, features_extractor=None):
+        from stable_baselines3.sac.policies import Actor
+
+        fe = IndexSelect(self.observation_space, self._indices)
+        actor_kwargs = self._update_features_extractor(self.actor_kwargs, fe)
+        return Actor(**actor_kwargs).to(self.device)
+
+    def _get_constructor_parameters(self) -> dict:
+        data = super()._get_constructor_parameters()
+        data.update(frame_size=self._asym[0], actor_frame_size=self._asym[1], history=self._asym[2])
+        return data
+
+
 def init_sac_actor(model, log_std_init: float, mean_gain: float = 0.01) -> None:
     """Start an SB3 SAC actor as PPO's starts: the mean head orthogonal with gain ``mean_gain``
     and bias 0 (the action starts near 0: on a residual env, the classic law itself), and, without
@@ -101,3 +148,91 @@ def init_sac_actor(model, log_std_init: float, mean_gain: float = 0.01) -> None:
         if isinstance(actor.log_std, nn.Linear):  # without gSDE; with it, SB3 applies log_std_init itself
             actor.log_std.weight.zero_()
             actor.log_std.bias.fill_(float(log_std_init))
+
+
+def is_asymmetric(model) -> bool:
+    """Whether an SB3 model's actor reads a part of the observation only (the asymmetric
+    policies of this module)."""
+    return isinstance(model.policy, (AsymmetricActorCriticPolicy, AsymmetricSACPolicy))
+
+
+def sensor_actor_model(src, dst, settings: dict | None = None):
+    """The deployable sensor controller of an asymmetric model: a plain SB3 ``MlpPolicy`` model
+    of the same algorithm over the sensor observation (``observation="sensors"``, the same history)
+    whose actor holds the trained actor's weights, saved to ``dst`` (``.zip``) with its settings
+    file beside it (``dst`` with ``.json``: the source's settings with the observation changed and
+    ``converted_from``).  Returns ``dst``.
+
+    The actor of :class:`AsymmetricActorCriticPolicy` / :class:`AsymmetricSACPolicy` reads the
+    sensor entries of each frame and the past commands, in the order the sensor observation
+    holds them, so with the same weights it acts on the sensor observation exactly as it acted on
+    ``observation="both"`` (tested).  The critic is not carried over (the trained one read the
+    true state, which a deployed controller has not): the file is for acting (``compare``, the
+    export, the rig), not for training on.  ``settings`` default to ``src``'s settings file."""
+    import json
+    from pathlib import Path
+
+    import gymnasium
+    from stable_baselines3 import PPO, SAC
+
+    src, dst = Path(src), Path(dst)
+    meta = dict(settings) if settings is not None else json.loads(src.with_suffix(".json").read_text())
+    algo = meta["algo"]
+    cls = PPO if algo == "ppo" else SAC
+    model = cls.load(str(src), device="cpu")
+    if not is_asymmetric(model):
+        raise ValueError(f"{src} is not an asymmetric model (its policy is {type(model.policy).__name__})")
+    idx = model.policy._indices
+    low, high = model.observation_space.low[idx], model.observation_space.high[idx]
+    obs_space = gymnasium.spaces.Box(low, high, dtype=model.observation_space.dtype)
+    kwargs = {k: v for k, v in model.policy_kwargs.items()
+              if k not in ("frame_size", "actor_frame_size", "history")}
+    # built as SB3's load builds a model: without an env, from its spaces
+    plain = cls("MlpPolicy", None, policy_kwargs=kwargs, device="cpu", _init_setup_model=False,
+                **({"n_steps": model.n_steps, "batch_size": model.batch_size} if algo == "ppo" else
+                   {"buffer_size": 1, "target_entropy": float(model.target_entropy)}))
+    plain.observation_space, plain.action_space, plain.n_envs = obs_space, model.action_space, 1
+    plain._setup_model()
+    with th.no_grad():
+        if algo == "ppo":
+            plain.policy.mlp_extractor.policy_net.load_state_dict(model.policy.mlp_extractor.policy_net.state_dict())
+            plain.policy.action_net.load_state_dict(model.policy.action_net.state_dict())
+            plain.policy.log_std.copy_(model.policy.log_std)
+        else:
+            a, b = plain.policy.actor, model.policy.actor
+            for name in ("latent_pi", "mu", "log_std"):
+                getattr(a, name).load_state_dict(getattr(b, name).state_dict())
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    plain.save(dst)
+    env_kwargs = dict(meta.get("env_kwargs") or {}, observation="sensors")
+    out = {**meta, "observation": "sensors", "env_kwargs": env_kwargs, "policy": "MlpPolicy",
+           "converted_from": {"model": str(src), "observation": meta.get("observation"),
+                              "policy": meta.get("policy"),
+                              "note": "the actor of an asymmetric actor-critic; the critic is not "
+                                      "carried over (it read the true state)"}}
+    dst.with_suffix(".json").write_text(json.dumps(out, indent=2, default=str) + "\n")
+    return dst
+
+
+def deployable(model_path, settings: dict | None = None):
+    """The model file that acts as a trained model's controller: ``model_path`` itself, or, for an
+    asymmetric actor-critic, the plain sensor model of its actor (:func:`sensor_actor_model`),
+    written beside it as ``STEM.sensors.zip`` with its settings file.  ``settings`` default to the
+    model's settings file (``PATH.json``, else ``model.json`` beside it)."""
+    import json
+    from pathlib import Path
+
+    path = Path(model_path)
+    if settings is None:
+        for p in (path.with_suffix(".json"), path.parent / "model.json"):
+            if p.is_file():
+                settings = json.loads(p.read_text())
+                break
+    if not settings or settings.get("observation") != "both":  # only "both" feeds an asymmetric policy
+        return path
+    from stable_baselines3 import PPO, SAC
+
+    model = (PPO if settings.get("algo") == "ppo" else SAC).load(str(path), device="cpu")
+    if not is_asymmetric(model):
+        return path
+    return sensor_actor_model(path, path.with_name(path.stem + ".sensors.zip"), settings)

@@ -35,6 +35,8 @@ ENV_ID = "ImpactCatch-v0"
 ALGOS = ("ppo", "sac")
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 ASYMMETRIC = "agents.policies.AsymmetricActorCriticPolicy"
+ASYMMETRIC_SAC = "agents.policies.AsymmetricSACPolicy"
+POLICIES = {"ppo": ("MlpPolicy", ASYMMETRIC), "sac": ("MlpPolicy", ASYMMETRIC_SAC)}
 ZOO_KEYS = ("policy", "n_envs", "n_timesteps", "env_kwargs", "env_wrapper", "policy_kwargs", "normalize",
             "vec_env_wrapper")
 ACTION_LIMIT = "impact_env.env.sb3_vecenv.ActionLimit"
@@ -301,9 +303,9 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
     entry = dict(entry)
     policy = policy if policy is not None else entry.pop("policy", "MlpPolicy")
     entry.pop("policy", None)
-    if policy not in ("MlpPolicy", ASYMMETRIC) or (policy == ASYMMETRIC and algo != "ppo"):
+    if policy not in POLICIES[algo]:
         raise ConfigError(f"policy = {policy!r}: expected 'MlpPolicy' (the observation is a flat vector) or, "
-                          f"for ppo, {ASYMMETRIC!r}")
+                          f"for {algo}, {POLICIES[algo][1]!r} (the asymmetric actor-critic)")
     if entry.pop("normalize", False) not in (False, None):
         raise ConfigError("normalize: agents.train does not normalise (the observations are of order one and "
                           "model.zip must be the whole policy); remove the key or set it to false")
@@ -414,17 +416,16 @@ def check_env(cfg: RunConfig) -> None:
     from impact_env.control.observation import make_layout
 
     layout = make_layout(scene, cfg.observation, cfg.history)
-    if cfg.policy == ASYMMETRIC:
+    if cfg.policy in (ASYMMETRIC, ASYMMETRIC_SAC):
         if cfg.observation != "both":
-            raise ConfigError(f"policy {ASYMMETRIC} needs observation = 'both' (its critic reads the true "
+            raise ConfigError(f"policy {cfg.policy} needs observation = 'both' (its critic reads the true "
                               "state)")
         sensors = make_layout(scene, "sensors", 1)
         want = {"frame_size": layout.frame_size, "actor_frame_size": sensors.frame_size,
                 "history": cfg.history}
-        for key, value in want.items():
-            if cfg.policy_kwargs.setdefault(key, value) != value:
-                raise ConfigError(f"policy_kwargs {key} = {cfg.policy_kwargs[key]!r} does not match the "
-                                  f"observation layout ({value})")
+        # derived from the scene and the observation, so set here whatever the YAML says (it gives them
+        # for RL Zoo, which does not derive them; --history or --scene may have changed them since)
+        cfg.policy_kwargs.update(want)
     elif set(cfg.policy_kwargs) & {"frame_size", "actor_frame_size", "history"}:
-        raise ConfigError("policy_kwargs frame_size, actor_frame_size, history belong to "
-                          f"{ASYMMETRIC}; policy is {cfg.policy!r}")
+        raise ConfigError("policy_kwargs frame_size, actor_frame_size, history belong to the asymmetric "
+                          f"policies ({ASYMMETRIC}, {ASYMMETRIC_SAC}); policy is {cfg.policy!r}")

@@ -356,6 +356,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
         callbacks.append(CheckpointWithSettings(settings, save_freq=every, save_path=str(out / "checkpoints"),
                                                 name_prefix="model", save_replay_buffer=cfg.algo == "sac"))
     load0 = _load_average()
+    cpu0 = time.process_time()
     t0 = time.perf_counter()
     interrupted = False
     try:
@@ -368,6 +369,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             bar.pbar.close()
         sys.stderr.write(f"agents.train: interrupted at step {int(model.num_timesteps)} of {total}\n")
     wall = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0  # this process's CPU time: on a shared machine, what the run cost
     load = [load0, _load_average()]  # the machine's 1-minute load average at the start and the end
     done_steps = int(model.num_timesteps)
     ticks = (done_steps - start_step) * cfg.hold_ticks  # every policy step is hold_ticks ticks
@@ -411,7 +413,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
             "envs": cfg.n_envs, "seed": cfg.seed, "wall_time_s": round(wall_total, 2),
             "steps_per_s": round(seg_steps / wall, 1), "ticks_per_s": round(ticks / wall, 1),
             "env_time_s": round(timer.seconds, 4), "env_share": round(timer.seconds / max(wall, 1e-9), 4),
-            "torch_threads": torch_threads, "load_average": load,
+            "torch_threads": torch_threads, "load_average": load, "cpu_time_s": round(cpu, 2),
             "control_period_s": period, "policy_period_s": step_time,
             "hyperparameters": {**cfg.hyperparameters, **cfg.policy_kwargs}, "conf_file": cfg.conf_file,
             "policy": cfg.policy,

@@ -83,3 +83,49 @@ def test_sac_actor_starts_as_ppo_does_near_the_law_with_a_small_std(tmp_path):
     assert export_policy(f"sac:{path}", "rig").mlp["output"] == "squash"
     with pytest.raises(ValueError, match="log_std_init"):
         init_sac_actor(model, float("nan"))
+
+
+@pytest.mark.training
+@pytest.mark.parametrize("algo, hp, policy", [
+    ("sac", {"batch_size": 16, "net_arch": [8], "buffer_size": 1000}, "agents.policies.AsymmetricSACPolicy"),
+    ("ppo", {"n_steps": 32, "batch_size": 64, "n_epochs": 1, "net_arch": [8]},
+     "agents.policies.AsymmetricActorCriticPolicy")])
+def test_an_asymmetric_model_becomes_the_sensor_controller_it_deploys(tmp_path, algo, hp, policy):
+    """agents.train with an asymmetric policy (SAC's too: its critics read the true state, its
+    actor the sensors), then sensor_actor_model: a plain MlpPolicy model on the sensor observation
+    that acts exactly as the trained actor did, episode after episode, and exports as a sensor
+    policy."""
+    import json
+
+    from stable_baselines3 import PPO, SAC
+
+    from agents.policies import is_asymmetric, sensor_actor_model
+    from agents.train import Tooling, make_config, run
+    from impact_env.policy.export import export_policy
+
+    out = tmp_path / algo
+    cfg = make_config(algo, scene="rig", steps=64, envs=4, seed=1, observation="both", history=2,
+                      env_kwargs={"horizon": 0.005}, hyperparameters=hp, policy=policy)
+    run(cfg, out, Tooling(eval_every=None))
+    dst = sensor_actor_model(out / "model.zip", out / "actor" / "model.zip")
+    cls = PPO if algo == "ppo" else SAC
+    trained, plain = cls.load(out / "model.zip", device="cpu"), cls.load(dst, device="cpu")
+    assert is_asymmetric(trained) and not is_asymmetric(plain)
+    meta = json.loads(dst.with_suffix(".json").read_text())
+    assert (meta["observation"], meta["env_kwargs"]["observation"], meta["policy"]) == \
+        ("sensors", "sensors", "MlpPolicy")
+    kw = dict(monitor=False, history=2, hold_ticks=4, residual="pd-penetration")
+    both = make_sb3_vec_env("rig", 3, observation="both", **kw)
+    sensors = make_sb3_vec_env("rig", 3, observation="sensors", **kw)
+    both.seed(5)
+    sensors.seed(5)
+    ob, os_ = both.reset(), sensors.reset()
+    for _ in range(40):
+        x, _ = trained.predict(ob, deterministic=True)
+        y, _ = plain.predict(os_, deterministic=True)
+        np.testing.assert_array_equal(x, y)
+        ob, os_ = both.step(x)[0], sensors.step(y)[0]
+    pol = export_policy(f"{algo}:{dst}", "rig")
+    assert pol.observation == "sensors" and pol.history == 2
+    with pytest.raises(ValueError, match="not an asymmetric model"):
+        sensor_actor_model(dst, tmp_path / "again.zip")

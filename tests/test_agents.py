@@ -342,8 +342,12 @@ def test_the_action_limit_is_the_models_bound_in_predict_and_the_export(tmp_path
     obs = np.random.default_rng(0).normal(0, 3, (64, model.observation_space.shape[0])).astype(np.float32)
     a, _ = model.predict(obs, deterministic=True)
     assert np.all(np.abs(a) <= 0.25)
-    pol = export_policy(f"sac:{out / 'model.zip'}", "rig")
-    assert (pol.mlp["low"], pol.mlp["high"]) == (-0.25, 0.25)
+    from agents.policies import deployable
+
+    actor = deployable(out / "model.zip")  # sac.yml's critics read the true state: the sensor actor
+    assert actor != out / "model.zip"
+    pol = export_policy(f"sac:{actor}", "rig")
+    assert (pol.mlp["low"], pol.mlp["high"]) == (-0.25, 0.25) and pol.observation == "sensors"
 
 
 def test_quick_defaults_to_ppo_a_short_budget_and_a_free_folder(tmp_path, monkeypatch):
