@@ -54,14 +54,35 @@ DEFAULT_FIGURE = Path("docs/figures/agents_results.png")
 
 
 # -- runs ---------------------------------------------------------------------------------------------
+ASYMMETRIC = ("agents.policies.AsymmetricActorCriticPolicy", "agents.policies.AsymmetricSACPolicy")
+
+
 def run_info(d: Path) -> dict:
+    """A run folder of agents.train (or a shipped folder): its label, best model and settings.  The
+    label is ``ALGO-sSEED``, with ``-priv`` for a run on the privileged observation (the true state:
+    a yardstick, never shipped)."""
     meta = json.loads((d / "model.json").read_text())
     best = (meta.get("validation") or {}).get("best") or {}
     model = d / "best_model.zip" if (d / "best_model.zip").is_file() else d / "model.zip"
-    label = (meta.get("shipped_from") or {}).get("label") or f"{meta['algo']}-s{meta['seed']}"
+    priv = meta.get("observation") == "privileged"
+    label = (meta.get("shipped_from") or {}).get("label") or \
+        f"{meta['algo']}{'-priv' if priv else ''}-s{meta['seed']}"
     return {"dir": d, "label": label, "algo": meta["algo"], "seed": meta["seed"],
             "model": model, "meta": meta, "val_best": best.get("mean_reward", -math.inf),
-            "val_best_step": best.get("step")}
+            "val_best_step": best.get("step"), "privileged": priv}
+
+
+def deployable(info: dict) -> Path:
+    """The model file that acts as the run's controller: the best model itself, or for an
+    asymmetric actor-critic (its critic read the true state) the plain sensor model of its actor
+    (:func:`agents.policies.sensor_actor_model`, written beside it as ``*.sensors.zip``)."""
+    if info["meta"].get("policy") not in ASYMMETRIC:
+        return info["model"]
+    from agents.policies import deployable as actor
+
+    src = info["model"]
+    meta_src = src.with_suffix(".json")
+    return actor(src, json.loads((meta_src if meta_src.is_file() else info["dir"] / "model.json").read_text()))
 
 
 def export(info: dict, scene) -> str:
@@ -70,8 +91,9 @@ def export(info: dict, scene) -> str:
     shipped = sorted(info["dir"].glob("*.policy.json"))
     if info["model"].name == "model.zip" and shipped:  # a shipped folder: its own compiled policy
         return f"compiled:{shipped[0]}"
-    out = info["model"].with_suffix(".policy.json")
-    export_policy(f"{info['algo']}:{info['model']}", scene).save(out)
+    model = deployable(info)
+    out = model.with_suffix(".policy.json")
+    export_policy(f"{info['algo']}:{model}", scene).save(out)
     return f"compiled:{out}"
 
 
@@ -206,15 +228,26 @@ def scene_table(stats: dict) -> str:
     return "\n".join(rows)
 
 
+def _what(m: dict) -> str:
+    obs = m.get("observation", "sensors")
+    asym = m.get("policy") in ASYMMETRIC
+    return (f"{obs}{' (critic: + true state)' if asym else ''}, hold {m.get('hold_ticks', 1)}, "
+            f"{m.get('envs', '?')} envs")
+
+
 def training_table(infos: list[dict]) -> str:
-    rows = ["| run | scene | policy steps | control periods | wall s | steps/s | periods/s | best validation "
-            "(step) |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    rows = ["| run | actor reads, hold, envs | policy steps | wall s | steps/s | env share | first beats "
+            "pd-penetration on validation: step, s | best validation (step, s) | load |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for i in infos:
         m = i["meta"]
-        rows.append(f"| {i['label']} | {m['scene']} | {m['steps']:,} | {m['ticks']:,} | "
-                    f"{m['wall_time_s']:.0f} | "
-                    f"{m['steps'] / m['wall_time_s']:.0f} | {m['ticks'] / m['wall_time_s']:.0f} | "
-                    f"{i['val_best']:.2f} ({i['val_best_step'] or 0:,}) |")
+        first = m.get("first_beats_law")
+        beats = f"{first['step']:,}, {first['wall_s']:.0f}" if first else ("never" if m.get("law") else "")
+        at = f", {m['best_wall_s']:.0f}" if m.get("best_wall_s") is not None else ""
+        share = f"{100 * m['env_share']:.0f} %" if m.get("env_share") is not None else ""
+        rows.append(f"| {i['label']} | {_what(m)} | {m['steps']:,} | {m['wall_time_s']:.0f} | "
+                    f"{m['steps'] / m['wall_time_s']:.0f} | {share} | {beats} | "
+                    f"{i['val_best']:.2f} ({i['val_best_step'] or 0:,}{at}) | {m.get('load') or ''} |")
     return "\n".join(rows)
 
 
@@ -280,13 +313,24 @@ def ship(info: dict, dest: Path, stem: str = "best") -> dict:
     meta = json.loads((meta_src if meta_src.is_file() else info["dir"] / "model.json").read_text())
     if info["model"].resolve() == (dest / "model.zip").resolve():
         return meta  # the shipped agent itself, evaluated again: already there with its files
-    shutil.copyfile(info["model"], dest / "model.zip")
+    model = deployable(info)
+    if model != info["model"]:  # an asymmetric actor-critic: its actor as a sensor model
+        meta = json.loads(model.with_suffix(".json").read_text())
+        meta = {**json.loads((info["dir"] / "model.json").read_text()), **{
+            k: meta[k] for k in ("observation", "env_kwargs", "policy", "converted_from")}}
+    shutil.copyfile(model, dest / "model.zip")
     meta["shipped_from"] = {"run": str(info["dir"]), "model": info["model"].name, "label": info["label"]}
     (dest / "model.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
     pol = export_policy(f"{info['algo']}:{dest / 'model.zip'}", meta["scene"])
     pol.save(dest / f"{stem}.policy.json")
     write_onnx(pol, dest / f"{stem}.onnx")
     return meta
+
+
+def shipped_run(infos: list[dict]) -> dict:
+    """The run shipped: the best validation return among the runs on the sensors (a privileged run
+    is a yardstick: a rig has no true state to give it)."""
+    return max((i for i in infos if not i.get("privileged")), key=lambda i: i["val_best"])
 
 
 def write_doc(doc: Path, text: str) -> None:
@@ -298,7 +342,7 @@ def write_doc(doc: Path, text: str) -> None:
     doc.write_text(head + BEGIN + "\n" + text.strip() + "\n" + END + tail)
 
 
-def report_text(infos, all_stats, shipped, settings, walls) -> str:
+def report_text(infos, all_stats, shipped, settings, walls, data=None) -> str:
     """The results section, from the kept per-drop results alone (``settings``: the evaluation's
     settings and the command that made it, from ``RESULTS/report.json``)."""
     lines = [f"*Written by `python scripts/agents_report.py` from the per-drop results kept in "
@@ -316,7 +360,21 @@ def report_text(infos, all_stats, shipped, settings, walls) -> str:
                  else "No oracle in this evaluation (`--oracle none`)."),
               ""]
     lines += ["### Training runs", "", training_table(infos), "",
-              f"Best validation return among the runs: **{shipped}**.", ""]
+              "Wall times are each run's own (`model.json`: the training, evaluations excluded, until the "
+              "evaluation that first beat `pd-penetration`'s validation return and until the best one; "
+              "the env share is the time inside the vector env's reset and step), on the machine and at "
+              "the load (1-minute load average at the run's start and end) it ran at.", "",
+              f"Best validation return among the sensor runs: **{shipped}** (shipped).", ""]
+    diag = Path(settings.get("_dir", settings["results"])) / "diag26"
+    if diag.is_dir():
+        lines += ["### Issue 26's diagnostic runs", "",
+                  f"One change at a time, seed 0, `{settings['results']}/diag26/run.sh NAME \"OPTIONS\"` "
+                  f"(each run's figures kept in `{settings['results']}/diag26/NAME.json` by its `collect.py`, "
+                  "the raw log in `series.log`); validation: the 16 drops 900000-900015, on which "
+                  "`pd-penetration` scores -13.04 on `rig-randomized`.", "", diag_table(diag), ""]
+    goals = goal_lines(all_stats, infos, shipped)
+    if goals:
+        lines += ["### Issue 26's goals", ""] + goals + [""]
     for scene, st in all_stats.items():
         o = st["_oracle"]
         lines += [f"### `{scene}`, {o['episodes']} held-out drops", "", scene_table(st), ""]
@@ -327,6 +385,11 @@ def report_text(infos, all_stats, shipped, settings, walls) -> str:
                       f"{src} (a name other than `cma`: that policy's own recorded commands were the best "
                       "found).", ""]
         lines += [f"Evaluation wall time {walls[scene]:.0f} s.", ""]
+        if data is not None:
+            dec = decomposition(data[scene], st, infos, shipped,
+                                argparse.Namespace(resamples=settings["resamples"], boot_seed=settings["boot_seed"]))
+            if dec:
+                lines += [f"The gap to the oracle on `{scene}`, decomposed:", ""] + dec
         for label in [k for k in st if not k.startswith("_") and k not in BASELINES and k != "oracle"]:
             pd, ag = st["pd-penetration"], st[label]
             pe, pt = st["_paired"][label]["energy"], st["_paired"][label]["catch"]
@@ -352,28 +415,129 @@ def report_text(infos, all_stats, shipped, settings, walls) -> str:
     return "\n".join(lines)
 
 
+def diag_table(folder: Path) -> str:
+    """Issue 26's diagnostic runs (``RESULTS/diag26/NAME.json``, kept by its ``collect.py``): what each
+    changed (its options) and what it reached on the validation drops, how fast."""
+    rows = ["| run | options | validation return: first, best (step, training s), last | first beats "
+            "pd-penetration: step, s | steps/s | env share | load |",
+            "| --- | --- | --- | --- | --- | --- | --- |"]
+    for path in sorted(folder.glob("*.json"), key=lambda q: (json.loads(q.read_text())["algo"], q.stem)):
+        r = json.loads(path.read_text())
+        val = r.get("validation") or {}
+        hist, best = val.get("history") or [], val.get("best") or {}
+        if not hist:
+            continue
+        b = max(hist, key=lambda h: h["return"])
+        first = best.get("first_beats_law")
+        beats = f"{first['step']:,}, {first['wall_s']:.0f}" if first else "never"
+        la = r.get("load_average") or [None, None]
+        load = f"{la[0]:.1f}-{la[1]:.1f}" if None not in la else ""
+        opts = (r.get("options") or "").replace("--checkpoint-every 0 ", "")
+        rows.append(f"| {r['name']} | `{opts}` | {hist[0]['return']:.2f}, **{b['return']:.2f}** ({b['step']:,}, "
+                    f"{b['wall_s']:.0f}), {hist[-1]['return']:.2f} ({hist[-1]['step']:,}) | {beats} | "
+                    f"{r['steps_per_s']:.0f} | {100 * r['env_share']:.0f} % | {load} |")
+    return "\n".join(rows)
+
+
+GOALS = {"rig": 1.2, "rig-randomized": 1.3}  # issue 26: the shipped agent's energy integral / the oracle's
+
+
+def decomposition(d: dict, st: dict, infos: list[dict], shipped: str, args) -> list[str]:
+    """The gap to the oracle on one scene, decomposed: the oracle (open loop, privileged, per drop),
+    the best feedback policy on the true state (a privileged run), the shipped sensor policy; the
+    share of the sensor policy's gap that the privileged one closes is the information's share.
+    Intervals from the same bootstrap resamples as the tables."""
+    priv = [i for i in infos if i.get("privileged") and i["label"] in st]
+    if "oracle" not in st or shipped not in st:
+        return []
+    n = len(d["oracle|energy_integral_ms"])
+    idx = np.random.default_rng(args.boot_seed).integers(0, n, (args.resamples, n))
+    e = {k: d[f"{k}|energy_integral_ms"] for k in st if not k.startswith("_")}
+    mean = {k: v[idx].mean(axis=1) for k, v in e.items()}  # the resampled means
+
+    def ratio(k):
+        r = mean[k] / mean["oracle"]
+        lo, hi = np.percentile(r, [2.5, 97.5])
+        return f"{e[k].mean() / e['oracle'].mean():.2f} [{lo:.2f}, {hi:.2f}]"
+
+    rows = ["| policy | information | energy integral ms [95 % CI] | / oracle's [95 % CI] |",
+            "| --- | --- | --- | --- |"]
+    best_priv = max(priv, key=lambda i: i["val_best"])["label"] if priv else None
+    for k, what in (("oracle", "the drop (seed) before it starts: open loop, optimised per drop"),
+                    (best_priv, "the true state x1, v1, x2, v2 (and the sensors), feedback"),
+                    (shipped, "the sensors (shipped agent)"), ("pd-penetration", "the sensors (classic law)")):
+        if k is None:
+            continue
+        rows.append(f"| {k} | {what} | {st[k]['energy_ms']:.2f} {_ci(st[k]['energy_ci'], '{:.2f}')} | "
+                    f"{ratio(k)} |")
+    lines = rows + [""]
+    if best_priv is not None:
+        gap = mean[shipped] - mean["oracle"]
+        share = np.where(gap > 0, (mean[shipped] - mean[best_priv]) / np.where(gap > 0, gap, 1.0), np.nan)
+        lo, hi = np.nanpercentile(share, [2.5, 97.5])
+        point = (e[shipped].mean() - e[best_priv].mean()) / (e[shipped].mean() - e["oracle"].mean())
+        lines += [f"Of the shipped agent's gap to the oracle ({e[shipped].mean() - e['oracle'].mean():.2f} ms), "
+                  f"{100 * point:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] is closed by seeing the true state "
+                  f"({best_priv}): the information's share; the rest "
+                  f"({e[best_priv].mean() - e['oracle'].mean():.2f} ms) is between feedback on the true state "
+                  "and the per-drop open-loop optimum.", ""]
+    return lines
+
+
+def goal_lines(all_stats: dict, infos: list[dict], shipped: str) -> list[str]:
+    """Issue 26's goals, each with its measured figure and met or not."""
+    lines = []
+    sac = [i["label"] for i in infos if i["algo"] == "sac" and not i.get("privileged")]
+    for label in sac:
+        parts, ok = [], True
+        for scene, st in all_stats.items():
+            pe = st["_paired"].get(label, {}).get("energy")
+            if pe is None:
+                continue
+            ok &= bool(pe.a_better)
+            parts.append(f"{scene} {pe.difference:.2f} [{pe.low:.2f}, {pe.high:.2f}] ms")
+        lines.append(f"* {label} better than pd-penetration on the paired energy integral on every scene: "
+                     f"{'**met**' if ok else '**NOT met**'} ({'; '.join(parts)}).")
+    for scene, st in all_stats.items():
+        if "oracle" in st and shipped in st and scene in GOALS:
+            r = st[shipped]["energy_ms"] / st["oracle"]["energy_ms"]
+            lines.append(f"* The shipped agent ({shipped}) within {GOALS[scene]}x of the oracle's mean energy "
+                         f"integral on `{scene}`: {r:.2f}x ({st[shipped]['energy_ms']:.2f} against "
+                         f"{st['oracle']['energy_ms']:.2f} ms): {'**met**' if r <= GOALS[scene] else '**NOT met**'}.")
+    return lines
+
+
 def _run_record(info: dict) -> dict:
-    """What the report needs of a run, kept in RESULTS/report.json."""
+    """What the report needs of a run, kept in RESULTS/report.json (with the load average at its start
+    and end: wall times on a shared machine mean little without it)."""
     m = info["meta"]
+    best = (m.get("validation") or {}).get("best") or {}
+    rec = {k: m.get(k) for k in ("scene", "steps", "ticks", "wall_time_s", "observation", "policy", "hold_ticks",
+                                 "envs", "env_share", "steps_per_s", "torch_threads")}
+    rec.update(first_beats_law=best.get("first_beats_law"), best_wall_s=best.get("wall_s"),
+               law=best.get("residual_law_return"), history=(m.get("validation") or {}).get("history"))
+    la = m.get("load_average")
+    rec["load"] = f"{la[0]:.1f}-{la[1]:.1f}" if la and None not in la else None
     return {"label": info["label"], "algo": info["algo"], "seed": info["seed"], "dir": str(info["dir"]),
             "model": str(info["model"]), "val_best": info["val_best"], "val_best_step": info["val_best_step"],
-            "meta": {k: m[k] for k in ("scene", "steps", "ticks", "wall_time_s")}}
+            "privileged": info.get("privileged", False), "meta": rec}
 
 
 def build(results: Path, doc: Path, figure_path: Path, resamples_override=None) -> tuple[str, Path]:
     """The doc's results section and the figure, from RESULTS/report.json and RESULTS/SCENE.npz."""
     rep = json.loads((results / "report.json").read_text())
-    settings = rep["settings"]
+    settings = {**rep["settings"], "_dir": str(results)}
     args = argparse.Namespace(resamples=settings["resamples"], boot_seed=settings["boot_seed"])
     infos = rep["runs"]
-    all_stats, walls = {}, {}
+    all_stats, walls, data = {}, {}, {}
     for scene in settings["scenes"]:
         d = load(results / f"{scene}.npz")
         walls[scene] = d["wall_time_s"]
+        data[scene] = d
         all_stats[scene] = scene_stats(d, args)
-    best = max(infos, key=lambda i: i["val_best"])["label"]
+    best = shipped_run(infos)["label"]
     fig = figure(all_stats, figure_path, best)
-    text = report_text(infos, all_stats, best, settings, walls)
+    text = report_text(infos, all_stats, best, settings, walls, data)
     text += f"\n![results]({figure_path.relative_to(doc.parent)})\n"
     write_doc(doc, text)
     return best, fig
@@ -423,9 +587,8 @@ def main(argv=None) -> int:
                                                          "runs": [_run_record(i) for i in infos]},
                                                         indent=1) + "\n")
         if not args.no_ship:
-            best = max(infos, key=lambda i: i["val_best"])
-            ship(best, Path(args.ship))
-            sac = [i for i in infos if i["algo"] == "sac"]
+            ship(shipped_run(infos), Path(args.ship))
+            sac = [i for i in infos if i["algo"] == "sac" and not i.get("privileged")]
             if sac and args.ship_sac:
                 ship(max(sac, key=lambda i: i["val_best"]), Path(args.ship_sac), stem="sac")
     elif not (results / "report.json").is_file():
