@@ -367,3 +367,44 @@ def test_quick_defaults_to_ppo_a_short_budget_and_a_free_folder(tmp_path, monkey
     _, _, tooling, _ = _from_args(build_parser().parse_args(["--algo", "ppo", "--out", "x"]))
     assert tooling.eval_every == 100_000
     assert main(["--quick", "--resume", str(tmp_path / "runs" / "quick")]) == 2
+
+
+@pytest.mark.training
+def test_distill_a_privileged_teacher_into_a_sensor_student_with_history(tmp_path):
+    """agents.distill: a tiny privileged PPO teacher, two DAgger iterations into a student on the
+    sensors with history 2; the student is a plain PPO model with its settings, every evaluation
+    kept, and it runs as a model spec and compiled (history in the compiled observation); the
+    same seed gives the same student."""
+    from agents.distill import distill
+
+    teacher = tmp_path / "teacher"
+    train("ppo", "rig", steps=128, envs=4, seed=3, out=teacher, observation="privileged",
+          env_kwargs={"horizon": HORIZON, "hold_ticks": 2, "residual": "pd-penetration"},
+          hyperparameters=TINY_PPO, tooling=Tooling(eval_every=None))
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"student{k}"
+        meta = distill(teacher / "model.zip", out, history=2, iterations=2, envs=4, epochs=1, eval_episodes=2)
+        outs.append(out)
+    assert (meta["observation"], meta["history"], meta["hold_ticks"], meta["label"]) == \
+        ("sensors", 2, 2, "distill-h2-s0")
+    assert [h["beta"] for h in meta["validation"]["history"]] == [1.0, 0.5]
+    assert meta["validation"]["best"]["residual_law"] == "pd-penetration" and 0 < meta["env_share"] <= 1
+    from stable_baselines3 import PPO
+
+    a, b = (PPO.load(o / "best_model.zip", device="cpu") for o in outs)
+    for pa, pb in zip(a.policy.parameters(), b.policy.parameters(), strict=True):
+        assert np.array_equal(pa.detach().numpy(), pb.detach().numpy())
+    # the student reads the 2 sensor frames (4 entries each on rig), not its own past commands: their
+    # first-layer weights stay 0 through the fit (what keeps the C export's float32 build in bounds)
+    w = a.policy.mlp_extractor.policy_net[0].weight.detach().numpy()
+    assert w.shape[1] > 2 * 4 and np.all(w[:, 2 * 4:] == 0) and np.any(w[:, :2 * 4] != 0)
+    spec = f"ppo:{outs[0] / 'best_model.zip'}"
+    from agents.evaluate import export_compiled
+
+    compiled = export_compiled(outs[0] / "best_model.zip", "rig")
+    runs = compare("rig", [spec, compiled], episodes=2, seed=1000, horizon=HORIZON, workers=1, progress=False)
+    np.testing.assert_allclose(runs[spec].metrics["energy_integral_ms"],
+                               runs[compiled].metrics["energy_integral_ms"], rtol=1e-3)
+    with pytest.raises(ConfigError, match="privileged"):
+        distill(outs[0] / "best_model.zip", tmp_path / "bad", history=2, iterations=1, envs=2)

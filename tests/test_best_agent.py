@@ -1,7 +1,7 @@
-"""The shipped agents (agents/models/best: PPO; agents/models/sac: SAC, whose squashed output is
-bounded to +-0.25 by its action space): each one's compiled policy file and ONNX graph are its SB3
-model, and it joins ``impact-env compare`` as a model spec and as a compiled policy, with its hold
-and residual law.
+"""The shipped agents (agents/models/best: PPO on the sensors; agents/models/sac: SAC's actor as a
+plain sensor model, whose squashed output is bounded to +-0.25 by its action space): each one's
+compiled policy file and ONNX graph are its SB3 model, and it joins ``impact-env compare`` as a
+model spec and as a compiled policy, with its history, hold and residual law.
 
 Tolerance 1e-5 on the network's command, as tests/test_compiled_policy.py derives it (torch's
 float32 through two 64-wide layers against the float64 compiled MLP)."""
