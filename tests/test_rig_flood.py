@@ -24,13 +24,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rig_helpers import FLOOD, start_target, stop
+from test_rig_session import Recorder
 
 from impact_env.rig.auth import write_key
 from impact_env.rig.host import RigEnv
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from rig_helpers import FLOOD, start_target, stop  # noqa: E402
-from test_rig_session import Recorder  # noqa: E402
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(not Path("/proc/net/udp").exists(),
                                                     reason="reads the kernel's UDP drop counter (Linux)")]
