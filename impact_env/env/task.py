@@ -198,7 +198,7 @@ def new_task_out(n: int) -> TK.TaskOut:
 
 
 def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig,
-                    overrides=None, threads: int | None = None) -> CatchTask:
+                    overrides=None, threads: int | str | None = None) -> CatchTask:
     """The simulator of ``num_envs`` rigs of ``scene`` (with ``overrides``) that ``config`` asks
     for (observation layout, hold_ticks), stepping in ``threads`` threads (Simulator), and the
     catch task on it."""
