@@ -18,9 +18,10 @@ the caller after the call, in env order.
 
 **The shim.**  numba's parallel loop passes only arrays, scalars and *one* level of tuple into
 its threads, while the kernels take nested named tuples (docs/architecture.md).  A shim
-therefore takes each named-tuple argument as one flat tuple of its leaves (:func:`flatten`) and
-rebuilds it inside the loop (:func:`unflatten`, generated at compile time from the named tuple
-class's field annotations, so a field added to a state type needs no edit here).  A shim is a
+therefore takes each nested named-tuple argument as one flat tuple of its leaves
+(:func:`flatten`; one of arrays and scalars only goes in as it is) and rebuilds it inside the
+loop (:func:`unflatten`, generated at compile time from the named tuple class's field
+annotations, so a field added to a state type needs no edit here).  A shim is a
 few lines next to its kernel::
 
     @jit(nogil=True)
@@ -144,6 +145,12 @@ def _schema(cls) -> tuple:
         sub = hints.get(name)
         out.append(sub if _is_named_tuple_class(sub) else None)
     return tuple(out)
+
+
+def nested(cls) -> bool:
+    """Whether the named tuple class ``cls`` holds another named tuple (a shim takes it
+    flattened); one of arrays and scalars only passes through numba's parallel loop as it is."""
+    return any(sub is not None for sub in _schema(cls))
 
 
 def _flat_into(x, cls, out: list) -> None:
@@ -272,7 +279,7 @@ def _launch(call: Callable, threads: int, args: tuple):
 
 class BlockRunner:
     """Runs ``kernel(i0, i1, *args)`` over blocks of envs: one block, the kernel itself; several,
-    its parallel ``shim(bounds, ok, *args)`` (each named tuple of ``args`` flattened) in one
+    its parallel ``shim(bounds, ok, *args)`` (each nested named tuple of ``args`` flattened) in one
     compiled parallel region, or, where that cannot run, :func:`python_threads`.
 
     ``entry``: :func:`impact_env._jit.entry_point`, for a caller that keeps the arguments' types
@@ -293,7 +300,7 @@ class BlockRunner:
     def _flat_args(self, args: tuple) -> tuple:
         out = []
         for k, a in enumerate(args):
-            if isinstance(a, tuple) and hasattr(a, "_fields"):
+            if isinstance(a, tuple) and hasattr(a, "_fields") and nested(type(a)):
                 seen = self._flat.get(k)
                 if seen is None or seen[0] is not a:
                     seen = self._flat[k] = (a, flatten(a))

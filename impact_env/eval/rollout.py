@@ -222,11 +222,11 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
 
 
 @jit(nogil=True)
-def _compiled_block(i0, i1, fsteps, fpol, fp, fs, fout):
-    """:func:`_run_compiled` on envs ``i0 .. i1 - 1``, its named tuples rebuilt from their leaves
-    (:func:`impact_env._threads.flatten`); False if it raised."""
+def _compiled_block(i0, i1, steps, fpol, fp, fs, fout):
+    """:func:`_run_compiled` on envs ``i0 .. i1 - 1``, its nested named tuples rebuilt from their
+    leaves (:func:`impact_env._threads.flatten`); False if it raised."""
     try:
-        _run_compiled(i0, i1, unflatten(fsteps, Steps), unflatten(fpol, LoopPolicy), unflatten(fp, SimParams),
+        _run_compiled(i0, i1, steps, unflatten(fpol, LoopPolicy), unflatten(fp, SimParams),
                       unflatten(fs, SimState), unflatten(fout, LoopOut))
     except Exception:  # noqa: BLE001 - reported by the caller (impact_env._threads.BlockRunner)
         return False
@@ -234,11 +234,11 @@ def _compiled_block(i0, i1, fsteps, fpol, fp, fs, fout):
 
 
 @jit(nogil=True, parallel=True)
-def _compiled_blocks(bounds, ok, fsteps, fpol, fp, fs, fout):
+def _compiled_blocks(bounds, ok, steps, fpol, fp, fs, fout):
     """:func:`_run_compiled` on the blocks of envs ``bounds[b] .. bounds[b + 1] - 1`` in one
     compiled parallel region; ``ok[b]``: block b did not raise (:mod:`impact_env._threads`)."""
     for b in prange(bounds.shape[0] - 1):
-        ok[b] = _compiled_block(bounds[b], bounds[b + 1], fsteps, fpol, fp, fs, fout)
+        ok[b] = _compiled_block(bounds[b], bounds[b + 1], steps, fpol, fp, fs, fout)
 
 
 def residual_law(policy, scene) -> CompiledPolicy | None:

@@ -111,6 +111,18 @@ class Simulator:
     def step(self, actions, active=None) -> None:
         """One policy step (``hold_ticks`` ticks) of every env (or of those where ``active`` is
         true: the others are left exactly as they are) under float64[N] commands in [-1, 1]."""
+        self._run(self._blocks, self.step_args(actions, active))
+
+    @property
+    def blocks(self) -> list[tuple[int, int]]:
+        """The blocks of envs a step runs at once (one: the serial call)."""
+        return self._blocks
+
+    def step_args(self, actions, active=None) -> tuple:
+        """The arguments after ``(i0, i1)`` of :func:`~impact_env.sim.step.sim_step` for one step
+        (``actions, active, params, state``), the step's noise drawn: for a caller that runs the
+        step inside a kernel of its own, over :attr:`blocks` (the catch task's
+        :func:`~impact_env.env.task_kernel.catch_step`)."""
         n = self.n
         # the types the bound kernel was made for: writable C-contiguous float64[n] and bool[n]
         own = (type(actions) is np.ndarray and actions.dtype == np.float64 and actions.ndim == 1
@@ -118,7 +130,7 @@ class Simulator:
         a = actions if own else np.array(actions, dtype=np.float64).reshape(n)
         act = self._all if active is None else np.array(active, dtype=bool).reshape(n)
         self.hw.refill_noise(self.hold, None if active is None else act)
-        self._run(self._blocks, (a, act, self.params, self.state))
+        return a, act, self.params, self.state
 
     # -- what the rest of the project reads ---------------------------------------------------
     @property
