@@ -129,7 +129,7 @@ class Simulator:
                and actions.shape[0] == n and actions.flags.c_contiguous and actions.flags.writeable)
         a = actions if own else np.array(actions, dtype=np.float64).reshape(n)
         act = self._all if active is None else np.array(active, dtype=bool).reshape(n)
-        self.hw.refill_noise(self.hold, None if active is None else act)
+        self.hw.refill_noise(self.hold, None if active is None else act, self._blocks)
         return a, act, self.params, self.state
 
     # -- what the rest of the project reads ---------------------------------------------------
