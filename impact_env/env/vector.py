@@ -37,15 +37,16 @@ class ImpactCatchVectorEnv(VectorEnv):
     (:class:`~impact_env.env.catch_env.ImpactCatchEnv`: the task's options are
     :class:`~impact_env.env.task.TaskConfig`'s fields) plus ``num_envs``, ``autoreset_mode`` and
     ``threads``: the simulator steps its envs in this many threads at once, in blocks of at
-    least :data:`~impact_env.sim.simulator.MIN_BLOCK_ENVS` envs (None or 1: serially); the
-    results do not depend on it, bitwise (docs/env.md, "Threads")."""
+    least :data:`~impact_env.sim.simulator.MIN_BLOCK_ENVS` envs (None or 1: serially;
+    ``"auto"``: the CPUs this process may use, at most one per block); the results do not depend
+    on it, bitwise (docs/env.md, "Threads")."""
 
     def __init__(self, num_envs: int = 1, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, threads: int | None = None, **task: Any):
+                 render_mode: str | None = None, threads: int | str | None = None, **task: Any):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
-        threads = check_threads(threads)
+        threads = check_threads(threads)  # (an int, or "auto": the simulator resolves it for N)
         mode = AutoresetMode(autoreset_mode) if isinstance(autoreset_mode, str) else autoreset_mode
         if not isinstance(mode, AutoresetMode):
             raise ValueError(f"autoreset_mode = {autoreset_mode!r}; expected one of "
