@@ -236,7 +236,8 @@ def replace_dotted(obj, values: dict[str, Any]):
     others are kept as they are.  What :func:`with_overrides` gives for the same typed values
     without ``_override_clears_dotted``, at a small fraction of its cost (it rebuilds every
     field): for values that are drawn many times (a randomised scene's per-episode draws)."""
-    hints = _hints(type(obj))
+    cls: Any = type(obj)
+    hints = _hints(cls)
     changes: dict[str, Any] = {}
     nested: dict[str, dict[str, Any]] = {}
     for key, value in values.items():
