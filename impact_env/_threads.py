@@ -42,7 +42,9 @@ drops an exception raised inside a parallel loop silently, hence the guard: a bl
 raised is reported by :class:`BlockRunner` as a RuntimeError naming its envs (the serial call,
 ``threads=1``, gives the kernel's own message).
 
-**The threading layer's limits**, handled here: numba's thread count (``numba.set_num_threads``,
+**The threading layer's limits**, handled here: GNU OpenMP's idle threads sleep instead of
+spinning (:func:`_start_layer`: on a shared machine spinning made threads several times slower
+than one thread); numba's thread count (``numba.set_num_threads``,
 thread-local) is set for the call and restored after it, and capped at numba's pool size
 (``NUMBA_NUM_THREADS``, the CPU count by default: more blocks than threads is fine, a thread then
 runs several); the workqueue layer (numba's fallback where neither tbb nor OpenMP is installed)
@@ -255,6 +257,24 @@ def parallel_available() -> bool:
     return not (_STATE["no_parallel"] or getattr(numba_config, "DISABLE_JIT", False))
 
 
+def _start_layer() -> None:
+    """Start numba's threading layer (its first parallel launch in this process would), with
+    GNU OpenMP's idle threads told to sleep rather than spin (``OMP_WAIT_POLICY=PASSIVE``, unless
+    the variable is set): spinning threads that wait at the end of a region for a thread that
+    another process took the core from made a step 4 to 6 times slower on a shared machine
+    (scripts/bench_env.py, docs/env.md "Threads").  The runtime reads the variable once, as it
+    loads; it is unset again after, so other OpenMP runtimes loaded later (torch's) and child
+    processes see the environment as it was."""
+    unset = "OMP_WAIT_POLICY" not in os.environ
+    if unset:
+        os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    try:
+        numba.get_num_threads()  # (loads and starts the threading layer)
+    finally:
+        if unset:
+            os.environ.pop("OMP_WAIT_POLICY", None)
+
+
 def _launch(call: Callable, threads: int, args: tuple):
     """``call(*args)`` (a parallel shim) on ``threads`` of numba's threads; numba's thread count
     of the calling thread restored after it."""
@@ -263,6 +283,8 @@ def _launch(call: Callable, threads: int, args: tuple):
     if locked:
         _LAUNCH_LOCK.acquire()
     try:
+        if not _STATE["launched"]:
+            _start_layer()
         before = numba.get_num_threads()
         numba.set_num_threads(threads)
         try:

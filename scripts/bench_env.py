@@ -147,15 +147,15 @@ def _ratio(run, rounds: int) -> tuple[float, float, float, float]:
 def _rounds(runs: dict, rounds: int) -> dict:
     """Alternating rounds of every ``runs[key]()``; per key (min wall s, cores busy in that
     round: the process's CPU time over its wall time, which says whether the threads found
-    free cores)."""
+    free cores).  A run may time itself: it then returns (wall s, CPU s)."""
     best = {key: (np.inf, 0.0) for key in runs}
     for _ in range(rounds):
         for key, run in runs.items():
             t0, c0 = time.perf_counter(), time.process_time()
-            run()
-            wall = time.perf_counter() - t0
+            timed = run()
+            wall, cpu = timed if timed is not None else (time.perf_counter() - t0, time.process_time() - c0)
             if wall < best[key][0]:
-                best[key] = (wall, (time.process_time() - c0) / wall)
+                best[key] = (wall, cpu / wall)
     return best
 
 
@@ -168,17 +168,32 @@ def _former(run):
         keep = TH._STATE["no_parallel"]
         TH._STATE["no_parallel"] = True
         try:
-            run()
+            return run()
         finally:
             TH._STATE["no_parallel"] = keep
 
     return former
 
 
+def _episode_start(env, acts, steps: int, threads: int):
+    """The first ``steps`` steps after ``env.reset(seed=0)`` with ``threads`` threads: (wall s,
+    CPU s) of the steps alone.  Every round and thread count does the same work (the work of a
+    step changes along an episode: the impact, the bounces, the rest)."""
+    env.task.sim.threads = threads
+    env.reset(seed=0)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(steps):
+        env.step(acts)
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
 def vector_threads_table(quick: bool, sizes=(1024, 4096, 16384), holds=(1, 4)) -> None:
     """The issue's table: ``ImpactCatchVectorEnv(N, "rig", hold_ticks=h, threads=k)``, zero
-    actions, env-steps per second with 1, 2 and every CPU's thread, and with the former Python
-    threads beside (same process, alternating rounds, min)."""
+    actions, env-steps per second over the first steps of an episode with 1, 2 and every
+    CPU's thread, and with the former Python threads beside (same process, alternating rounds,
+    min)."""
+    import os
+
     import numba
 
     import impact_env._threads as TH
@@ -186,74 +201,64 @@ def vector_threads_table(quick: bool, sizes=(1024, 4096, 16384), holds=(1, 4)) -
 
     cpus = TH.machine_threads()
     counts = sorted({1, 2, cpus})
-    rounds = 3 if quick else 5
+    rounds = 5 if quick else 11
     print(f"\n## Threads: the vector env (rig, zero actions), env-steps/s (speed-up over 1 thread) "
-          f"[cores busy]\n\n(CPUs this process may use: {cpus}; load average before: {_loadavg()})\n")
+          f"[cores busy]\n\n(CPUs this process may use: {cpus}; OMP_WAIT_POLICY="
+          f"{os.environ.get('OMP_WAIT_POLICY', 'unset')}; load average before: {_loadavg()})\n")
     cols = [f"{k} thread{'s' if k > 1 else ''}" for k in counts] + [f"{k} former Python threads"
                                                                   for k in counts if k > 1]
-    print("| N | hold | " + " | ".join(cols) + " |")
-    print("|---|---|" + "---|" * len(cols))
-    model = None
+    print("| N | hold | steps after a reset | " + " | ".join(cols) + " |")
+    print("|---|---|---|" + "---|" * len(cols))
+    models = []
     for hold in holds:
         for n in sizes:
             env = ImpactCatchVectorEnv(n, "rig", hold_ticks=hold)
             acts = np.zeros((n, 1), np.float32)
             env.reset(seed=0)
             env.step(acts)  # (the serial kernels bound, the parallel ones compiled below)
-            sim = env.task.sim
-            steps = max(3, int((5e4 if quick else 2e5) / (n * hold)))
-
-            def run(k, env=env, sim=sim, acts=acts, steps=steps):
-                sim.threads = k
-                for _ in range(steps):
-                    env.step(acts)
-
-            runs = {k: functools.partial(run, k) for k in counts}
-            runs.update({("former", k): _former(functools.partial(run, k)) for k in counts if k > 1})
+            steps = max(4, int((4e4 if quick else 1e5) / (n * hold)))
+            runs = {k: functools.partial(_episode_start, env, acts, steps, k) for k in counts}
+            runs.update({("former", k): _former(functools.partial(_episode_start, env, acts, steps, k))
+                         for k in counts if k > 1})
             for r in runs.values():  # warm-up: compiles (or loads) the parallel shim
                 r()
             res = _rounds(runs, rounds)
             t1 = res[1][0]
             cells = [f"{n * steps / t:.3g} ({t1 / t:.2f}x) [{busy:.2f}]" for t, busy in res.values()]
-            print(f"| {n} | {hold} | " + " | ".join(cells) + " |")
-            if n == max(sizes) and hold == min(holds):
-                model = _scaling_model(env, acts, steps)
+            print(f"| {n} | {hold} | {steps} | " + " | ".join(cells) + " |")
+            if n in (min(sizes), max(sizes)):
+                models.append(_scaling_model(env, acts, steps))
     print(f"\n(numba's threading layer: {numba.threading_layer()}; load average after: {_loadavg()})")
-    if model is not None:
+    for model in models:
         print(model)
 
 
 def _scaling_model(env, acts, steps) -> str:
-    """Amdahl's model of the vector env's step from one-thread measurements: the threaded work
-    (the simulator's kernel), the serial rest (Python, the task kernel, the info arrays) and a
-    parallel call's fixed cost; the speed-up it predicts for 16 threads."""
-    sim = env.task.sim
-    n = sim.n
+    """Amdahl's model of the vector env's step from one-thread measurements over the same
+    steps as the table: the threaded work (the compiled step: the simulator's and the task's
+    kernels, and the sensor noise's top-up, which runs over the blocks in Python threads), the
+    serial rest (Python, the info arrays) and a parallel call's fixed cost; the speed-ups it
+    predicts."""
+    task = env.task
+    sim = task.sim
     sim.threads = 1
-
-    def whole():
-        for _ in range(steps):
-            env.step(acts)
-
-    a = np.zeros(n)
-
-    def kernel():
-        for _ in range(steps):
-            sim.step(a)
-
-    res = _rounds({"env": whole, "sim": kernel}, 3)
-    t_env, t_sim = res["env"][0] / steps, res["sim"][0] / steps
+    t_env, t_kernel = np.inf, np.inf
+    for _ in range(5):
+        t_env = min(t_env, _episode_start(env, acts, steps, 1)[0] / steps)
+        env.reset(seed=0)
+        a = np.zeros(sim.n)
+        t0 = time.perf_counter()
+        for _ in range(steps):  # the compiled step and the noise alone
+            task.step(a)
+        t_kernel = min(t_kernel, (time.perf_counter() - t0) / steps)
     fixed = _call_overhead()
-    serial = t_env - t_sim
-    lines = [f"\nScaling model at N = {n}, hold {sim.hold} (one thread): a step {1e6 * t_env:.0f} us, of "
-             f"which the simulator's kernel {1e6 * t_sim:.0f} us (threaded) and the rest "
-             f"{1e6 * serial:.0f} us "
-             f"(serial: Python, the task kernel, the info arrays); a parallel call's fixed cost "
-             f"{1e6 * fixed:.1f} us (2 blocks)."]
-    for k in (2, 4, 8, 16, 32):
-        pred = t_env / (serial + t_sim / k + fixed)
-        lines.append(f"  predicted speed-up with {k} threads (free cores, memory bandwidth not limiting): "
-                     f"{pred:.1f}x")
+    serial = max(t_env - t_kernel, 0.0)
+    lines = [f"\nScaling model at N = {sim.n}, hold {sim.hold}, the first {steps} steps (one thread): a step "
+             f"{1e6 * t_env:.0f} us, of which the compiled step and the noise (threaded) "
+             f"{1e6 * t_kernel:.0f} us and the rest {1e6 * serial:.0f} us (serial: Python, the info "
+             f"arrays); a parallel call's fixed cost {1e6 * fixed:.1f} us (2 blocks)."]
+    preds = [f"{k} threads {t_env / (serial + t_kernel / k + fixed):.1f}x" for k in (2, 4, 8, 16, 32)]
+    lines.append("  predicted speed-up (free cores, memory bandwidth not limiting): " + ", ".join(preds))
     return "\n".join(lines)
 
 

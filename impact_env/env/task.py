@@ -251,6 +251,7 @@ class CatchTask:
         # the simulator's step and the task's in one compiled call (or parallel region):
         # TK.catch_step, bound to these arrays' types from the first step on
         self._run = BlockRunner(TK.catch_step, TK.catch_blocks, entry_point)
+        self._no_cols = np.zeros((TK.N_COL, 0))  # catch_step's ``cols`` when no info columns are wanted
 
     @property
     def obs(self) -> np.ndarray:
@@ -273,20 +274,25 @@ class CatchTask:
                 return self._a1
         return check_actions(actions, self.n, self.config.action_bounds, self.command_scale, self._a1)
 
-    def step(self, a: np.ndarray, active=None):
+    def step(self, a: np.ndarray, active=None, cols: np.ndarray | None = None):
         """One policy step for every env (or those where ``active`` is true; the others are left
         as they are, with reward 0 and no flags) under float64[N] actions already checked.
         Returns (rewards float64[N], terminated bool[N], truncated bool[N]), arrays owned by the
-        task (copy them to keep them)."""
+        task (copy them to keep them).  ``cols``: a new float64[N_COL, N] that the step fills with
+        the info rows as columns, for :meth:`info_arrays` (the vector env's infos)."""
         sim = self.sim
-        self._run(sim.blocks, sim.step_args(a, active) + (self.drop, self.params, self.state, self.out))
+        self._run(sim.blocks, sim.step_args(a, active) + (self.drop, self.params, self.state, self.out,
+                                                         self._no_cols if cols is None else cols))
         return self.rewards, self.terminated, self.truncated
 
     # -- info ---------------------------------------------------------------------------------
-    def info_arrays(self) -> dict[str, np.ndarray]:
-        """Per-env diagnostics after the last step or reset (SI units), from the info rows."""
+    def info_arrays(self, cols: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Per-env diagnostics after the last step or reset (SI units), from the info rows; or
+        from ``cols``, the columns a step wrote (:meth:`step`; the arrays returned are views
+        of it, which the caller gives away)."""
         rows = self.rows
-        cols = np.ascontiguousarray(rows.T)  # one copy of the rows; each column a contiguous array in it
+        if cols is None:
+            cols = np.ascontiguousarray(rows.T)  # one copy of the rows; each column a contiguous array in it
         out = {}
         for j, key in enumerate(TK.INFO_KEYS[:TK.INFO.x1]):
             out[key] = cols[j] > 0.5 if key in TK.BOOL_KEYS else cols[j]

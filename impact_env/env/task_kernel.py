@@ -139,40 +139,46 @@ def task_step(active, records, d, p, s, out):
 
 
 @jit(nogil=True)
-def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out):
+def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out, cols):
     """The env's whole step for envs ``i0 .. i1 - 1``, env by env: the simulator's step
     (:func:`impact_env.sim.step.env_step`, as :func:`~impact_env.sim.step.sim_step` runs it) and
     then the task's (:func:`task_env`), in one call (``sp``, ``ss``: SimParams, SimState; the
     rest as :func:`task_step`'s).  Env i reads and writes only its own rows, so the results are
     those of the two calls one after the other, bitwise, and blocks of envs may run at once
-    (:func:`catch_blocks`)."""
+    (:func:`catch_blocks`).  ``cols``: float64[N_COL, N], every env's info row also written as a
+    column (the vector env's info arrays, without a transposing copy after the step), or
+    float64[N_COL, 0]: not written."""
     actions, active, sp, ss = borrow(actions), borrow(active), borrow(sp), borrow(ss)  # (impact_env._borrow)
-    d, p, s, out = borrow(d), borrow(p), borrow(s), borrow(out)
+    d, p, s, out, cols = borrow(d), borrow(p), borrow(s), borrow(out), borrow(cols)
     records = ss.records
+    rows = out.rows
     for i in range(i0, i1):
         on = active[i]
         if on:
             env_step(i, actions[i], sp, ss)
         task_env(i, on, records, d, p, s, out)
+        if cols.shape[1] > 0:
+            for j in range(cols.shape[0]):
+                cols[j, i] = rows[i, j]
 
 
 @jit(nogil=True)
-def _catch_block(i0, i1, actions, active, fsp, fss, d, p, s, out):
+def _catch_block(i0, i1, actions, active, fsp, fss, d, p, s, out, cols):
     """:func:`catch_step` with its SimParams and SimState rebuilt from their leaves
     (:func:`impact_env._threads.flatten`); False if it raised."""
     try:
-        catch_step(i0, i1, actions, active, unflatten(fsp, SimParams), unflatten(fss, SimState), d, p, s, out)
+        catch_step(i0, i1, actions, active, unflatten(fsp, SimParams), unflatten(fss, SimState), d, p, s, out, cols)
     except Exception:  # noqa: BLE001 - reported by the caller (impact_env._threads.BlockRunner)
         return False
     return True
 
 
 @jit(nogil=True, parallel=True)
-def catch_blocks(bounds, ok, actions, active, fsp, fss, d, p, s, out):
+def catch_blocks(bounds, ok, actions, active, fsp, fss, d, p, s, out, cols):
     """:func:`catch_step` on the blocks of envs ``bounds[b] .. bounds[b + 1] - 1`` in one compiled
     parallel region (:mod:`impact_env._threads`); ``ok[b]``: block b did not raise."""
     for b in prange(bounds.shape[0] - 1):
-        ok[b] = _catch_block(bounds[b], bounds[b + 1], actions, active, fsp, fss, d, p, s, out)
+        ok[b] = _catch_block(bounds[b], bounds[b + 1], actions, active, fsp, fss, d, p, s, out, cols)
 
 
 @jit
