@@ -229,6 +229,30 @@ def with_overrides(obj, overrides: dict[str, Any], parse: bool = True):
     return from_dict(type(obj), data)
 
 
+def replace_dotted(obj, values: dict[str, Any]):
+    """A copy of config ``obj`` with the dotted fields ``values`` set to typed values (coerced and
+    checked as :func:`from_dict` does), by ``dataclasses.replace`` along each path: the replaced
+    dataclasses and their parents are built again (their ``__post_init__`` validates them), the
+    others are kept as they are.  What :func:`with_overrides` gives for the same typed values
+    without ``_override_clears_dotted``, at a small fraction of its cost (it rebuilds every
+    field): for values that are drawn many times (a randomised scene's per-episode draws)."""
+    cls: Any = type(obj)
+    hints = _hints(cls)
+    changes: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {}
+    for key, value in values.items():
+        head, _, rest = key.partition(".")
+        if head not in hints:
+            raise _unknown_key("", head, [f.name for f in dataclasses.fields(obj)])
+        if rest:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            changes[head] = _coerce(hints[head], value, key)
+    for head, sub in nested.items():
+        changes[head] = replace_dotted(changes.get(head, getattr(obj, head)), sub)
+    return dataclasses.replace(obj, **changes)
+
+
 def _reset_dotted(data: dict, key: str) -> None:
     """Drop the dotted ``key`` from the plain dict ``data`` (it takes its default again)."""
     head, _, rest = key.partition(".")

@@ -25,6 +25,7 @@ Times are the minimum over repeats after a warm-up (numba compiled and cached fi
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 
 import gymnasium as gym
@@ -143,15 +144,160 @@ def _ratio(run, rounds: int) -> tuple[float, float, float, float]:
     return best[1], best[2], best[1] / best[2], busy
 
 
+def _rounds(runs: dict, rounds: int) -> dict:
+    """Alternating rounds of every ``runs[key]()``; per key (min wall s, cores busy in that
+    round: the process's CPU time over its wall time, which says whether the threads found
+    free cores).  A run may time itself: it then returns (wall s, CPU s)."""
+    best = {key: (np.inf, 0.0) for key in runs}
+    for _ in range(rounds):
+        for key, run in runs.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            timed = run()
+            wall, cpu = timed if timed is not None else (time.perf_counter() - t0, time.process_time() - c0)
+            if wall < best[key][0]:
+                best[key] = (wall, cpu / wall)
+    return best
+
+
+def _former(run):
+    """``run`` with the blocks in the former pool of Python threads (impact_env._threads's
+    fallback), as every threaded step ran before the compiled parallel region."""
+    import impact_env._threads as TH
+
+    def former():
+        keep = TH._STATE["no_parallel"]
+        TH._STATE["no_parallel"] = True
+        try:
+            return run()
+        finally:
+            TH._STATE["no_parallel"] = keep
+
+    return former
+
+
+def _episode_start(env, acts, steps: int, threads: int):
+    """The first ``steps`` steps after ``env.reset(seed=0)`` with ``threads`` threads: (wall s,
+    CPU s) of the steps alone.  Every round and thread count does the same work (the work of a
+    step changes along an episode: the impact, the bounces, the rest)."""
+    env.task.sim.threads = threads
+    env.reset(seed=0)
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(steps):
+        env.step(acts)
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
+def vector_threads_table(quick: bool, sizes=(1024, 4096, 16384), holds=(1, 4)) -> None:
+    """The issue's table: ``ImpactCatchVectorEnv(N, "rig", hold_ticks=h, threads=k)``, zero
+    actions, env-steps per second over the first steps of an episode with 1, 2 and every
+    CPU's thread, and with the former Python threads beside (same process, alternating rounds,
+    min)."""
+    import os
+
+    import numba
+
+    import impact_env._threads as TH
+    from impact_env.env.vector import ImpactCatchVectorEnv
+
+    cpus = TH.machine_threads()
+    counts = sorted({1, 2, cpus})
+    rounds = 5 if quick else 11
+    print(f"\n## Threads: the vector env (rig, zero actions), env-steps/s (speed-up over 1 thread) "
+          f"[cores busy]\n\n(CPUs this process may use: {cpus}; OMP_WAIT_POLICY="
+          f"{os.environ.get('OMP_WAIT_POLICY', 'unset')}; load average before: {_loadavg()})\n")
+    cols = [f"{k} thread{'s' if k > 1 else ''}" for k in counts] + [f"{k} former Python threads"
+                                                                  for k in counts if k > 1]
+    print("| N | hold | steps after a reset | " + " | ".join(cols) + " |")
+    print("|---|---|---|" + "---|" * len(cols))
+    models = []
+    for hold in holds:
+        for n in sizes:
+            env = ImpactCatchVectorEnv(n, "rig", hold_ticks=hold)
+            acts = np.zeros((n, 1), np.float32)
+            env.reset(seed=0)
+            env.step(acts)  # (the serial kernels bound, the parallel ones compiled below)
+            steps = max(4, int((4e4 if quick else 1e5) / (n * hold)))
+            runs = {k: functools.partial(_episode_start, env, acts, steps, k) for k in counts}
+            runs.update({("former", k): _former(functools.partial(_episode_start, env, acts, steps, k))
+                         for k in counts if k > 1})
+            for r in runs.values():  # warm-up: compiles (or loads) the parallel shim
+                r()
+            res = _rounds(runs, rounds)
+            t1 = res[1][0]
+            cells = [f"{n * steps / t:.3g} ({t1 / t:.2f}x) [{busy:.2f}]" for t, busy in res.values()]
+            print(f"| {n} | {hold} | {steps} | " + " | ".join(cells) + " |")
+            if n in (min(sizes), max(sizes)):
+                models.append(_scaling_model(env, acts, steps))
+    print(f"\n(numba's threading layer: {numba.threading_layer()}; load average after: {_loadavg()})")
+    for model in models:
+        print(model)
+
+
+def _scaling_model(env, acts, steps) -> str:
+    """Amdahl's model of the vector env's step from one-thread measurements over the same
+    steps as the table: the threaded work (the compiled step: the simulator's and the task's
+    kernels, and the sensor noise's top-up, which runs over the blocks in Python threads), the
+    serial rest (Python, the info arrays) and a parallel call's fixed cost; the speed-ups it
+    predicts."""
+    task = env.task
+    sim = task.sim
+    sim.threads = 1
+    t_env, t_kernel = np.inf, np.inf
+    for _ in range(5):
+        t_env = min(t_env, _episode_start(env, acts, steps, 1)[0] / steps)
+        env.reset(seed=0)
+        a = np.zeros(sim.n)
+        t0 = time.perf_counter()
+        for _ in range(steps):  # the compiled step and the noise alone
+            task.step(a)
+        t_kernel = min(t_kernel, (time.perf_counter() - t0) / steps)
+    fixed = _call_overhead()
+    serial = max(t_env - t_kernel, 0.0)
+    lines = [f"\nScaling model at N = {sim.n}, hold {sim.hold}, the first {steps} steps (one thread): a step "
+             f"{1e6 * t_env:.0f} us, of which the compiled step and the noise (threaded) "
+             f"{1e6 * t_kernel:.0f} us and the rest {1e6 * serial:.0f} us (serial: Python, the info "
+             f"arrays); a parallel call's fixed cost {1e6 * fixed:.1f} us (2 blocks)."]
+    preds = [f"{k} threads {t_env / (serial + t_kernel / k + fixed):.1f}x" for k in (2, 4, 8, 16, 32)]
+    lines.append("  predicted speed-up (free cores, memory bandwidth not limiting): " + ", ".join(preds))
+    return "\n".join(lines)
+
+
+def _call_overhead() -> float:
+    """A parallel call's fixed cost (s): the simulator's kernel on 2 inactive envs in 2 blocks
+    (one compiled region) less the same in one block (the serial call)."""
+    import impact_env.sim.simulator as S
+
+    keep = S.MIN_BLOCK_ENVS
+    S.MIN_BLOCK_ENVS = 1
+    try:
+        sim = S.Simulator("rig", 2)
+    finally:
+        S.MIN_BLOCK_ENVS = keep
+    sim.reset([np.random.default_rng(i) for i in range(2)])
+    a, off = np.zeros(2), np.zeros(2, dtype=bool)
+    sim.step(a)
+    one, two = [(0, 2)], [(0, 1), (1, 2)]
+    args = (a, off, sim.params, sim.state)
+    sim._run(two, args)
+    reps = 2000
+
+    def call(blocks):
+        for _ in range(reps):
+            sim._run(blocks, args)
+
+    res = _rounds({1: functools.partial(call, one), 2: functools.partial(call, two)}, 5)
+    return (res[2][0] - res[1][0]) / reps
+
+
 def threads_table(quick: bool) -> None:
     import os
 
-    from impact_env.env.vector import ImpactCatchVectorEnv
     from impact_env.eval.rollout import rollout
     from impact_env.policy.export import export_policy
     from impact_env.policy.registry import make_policy
     from impact_env.sim import simulator as S
 
+    vector_threads_table(quick)
     rounds = 3 if quick else 7
     print(f"\n## Threads: 2 against 1 (os.cpu_count() = {os.cpu_count()}; load average before: "
           f"{_loadavg()})\n")
@@ -161,7 +307,7 @@ def threads_table(quick: bool) -> None:
     keep = S.MIN_BLOCK_ENVS
     S.MIN_BLOCK_ENVS = 1
     try:
-        for n in (16, 32, 64, 128, 256, 1024):
+        for n in (4, 8, 16, 32, 64, 128, 256, 1024):
             sim = S.Simulator("rig", n)
             sim.reset([np.random.default_rng(i) for i in range(n)])
             z = np.zeros(n)
@@ -177,31 +323,17 @@ def threads_table(quick: bool) -> None:
             print(f"| {n} | {1e6 * t1 / reps:.1f} | {1e6 * t2 / reps:.1f} | {r:.2f} | {busy:.2f} |")
     finally:
         S.MIN_BLOCK_ENVS = keep
-    print(f"\n(threshold in use: MIN_BLOCK_ENVS = {S.MIN_BLOCK_ENVS} envs per block)\n")
+    print(f"\n(threshold in use: MIN_BLOCK_ENVS = {S.MIN_BLOCK_ENVS} envs per block; a parallel call's "
+          f"fixed cost {1e6 * _call_overhead():.1f} us)\n")
 
-    n = 1024
-    env = ImpactCatchVectorEnv(n, "rig")
-    acts = np.zeros((n, 1), np.float32)
-    env.reset(seed=0)
-    env.step(acts)
-    n_steps = 20 if quick else 60
-
-    def vec(th):
-        env.task.sim.threads = th
-        for _ in range(n_steps):
-            env.step(acts)
-
-    t1, t2, r, busy = _ratio(vec, rounds)
-    print("| workload | 1 thread | 2 threads | speed-up | cores busy with 2 |")
-    print("|---|---|---|---|---|")
-    print(f"| vector env rig N = {n}, env.step (infos on) | {n * n_steps / t1:.3g} env-steps/s | "
-          f"{n * n_steps / t2:.3g} env-steps/s | {r:.2f} | {busy:.2f} |")
     # a rollout's control period as compare runs it: the wall time between the rollout's first
     # progress report (after CHUNK steps) and its last, per step: the reset of a randomised scene
     # (every env draws and validates its scene in Python, about 2 ms per env) is left out
     scene = impact_env.load_scene("rig")
     n_steps = 400 if quick else 1000
     horizon = n_steps * scene.control_period
+    print("| workload | 1 thread | 2 threads | speed-up | cores busy with 2 |")
+    print("|---|---|---|---|---|")
     for spec in ("passive", "pd-penetration", "compiled pd-penetration"):
         # (the compiled loop at N = 8 too: two blocks of MIN_BLOCK_EPISODES = 4, its threshold)
         for n in (8, 256, 1024) if spec.startswith("compiled") else (256, 1024):
@@ -279,11 +411,14 @@ def period_table(quick: bool) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and repeats (a smoke run)")
-    ap.add_argument("--only", choices=("threads", "period"), help="run only this section")
+    ap.add_argument("--only", choices=("threads", "vector-threads", "period"), help="run only this section")
     args = ap.parse_args()
     impact_env.load_scene("rig")
     if args.only == "threads":
         threads_table(args.quick)
+        return
+    if args.only == "vector-threads":
+        vector_threads_table(args.quick)
         return
     if args.only == "period":
         period_table(args.quick)

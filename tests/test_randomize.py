@@ -17,7 +17,7 @@ from impact_env.hardware.arrays import plant_params
 from impact_env.plant import layout as L
 from impact_env.plant.restitution import zeta_for_restitution, zeta_table
 from impact_env.scene import load_scene
-from impact_env.scene.randomize import RandomizeConfig
+from impact_env.scene.randomize import RandomizeConfig, overrides_for
 from impact_env.sim import step as SS
 from impact_env.sim.drop import simulate
 from impact_env.sim.simulator import Simulator
@@ -149,6 +149,22 @@ def test_draws_follow_the_seed_policy_and_stay_in_range():
     assert np.array_equal(np.round(k), k) and set(np.round(k).astype(int)) == {0, 1, 2}
     assert abs(np.mean([x["m1"] for x in draws]) - 0.1) < 0.004  # uniform: mean at the centre
     assert abs(np.median([x["noise_scale"] for x in draws]) - 1.0) < 0.15  # log-uniform: geometric centre
+
+
+@pytest.mark.parametrize("name", ["rig", "rig-randomized"])
+def test_with_draws_is_the_scene_the_overrides_give(name):
+    """``with_draws`` replaces only the drawn fields (its cost is every reset's): the same scene
+    as the full rebuild through ``with_overrides``, for draws, both ends of every range and a
+    draw that clears no range of a scene given by impact speed."""
+    sc = load_scene(name)
+    rng = np.random.default_rng(5)
+    values = [sc.draw(rng) for _ in range(100)] + [sc.randomize.ends(default=e) for e in ("lo", "hi")]
+    for v in values:
+        assert sc.with_draws(v) == sc.with_overrides(overrides_for(sc, v)), v
+    assert not sc.with_draws(values[0]).randomized
+    fast = load_scene(name, {"initial.drop_height": None, "initial.impact_speed": 1.2})
+    v = fast.draw(rng)
+    assert fast.with_draws(v) == fast.with_overrides(overrides_for(fast, v))
 
 
 def test_simulator_env_equals_the_drawn_fixed_scene():

@@ -161,10 +161,7 @@ def test_rig_serve_says_at_start_whom_it_answers(tmp_path):
     with --key, that every datagram is authenticated (and not the loopback line)."""
     import os
     import select
-    import sys
-    from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from rig_helpers import start_target, stop
 
     def start_lines(*args: str) -> str:

@@ -6,20 +6,16 @@ bounded in steps and time; targets run in a thread of this process, or as a proc
 
 from __future__ import annotations
 
-import sys
 import threading
 from contextlib import contextmanager
-from pathlib import Path
 
 import numpy as np
 import pytest
+from rig_drivers import BlindRig
+from rig_helpers import start_target, stop
 
 from impact_env.env.catch_env import ImpactCatchEnv
 from impact_env.rig.host import RigClient, RigEnv
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from rig_drivers import BlindRig  # noqa: E402
-from rig_helpers import start_target, stop  # noqa: E402
 
 pytestmark = pytest.mark.slow
 

@@ -5,11 +5,13 @@ assert does not depend on the machine's load; each checks that the fault really 
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
 import numpy as np
 import pytest
+from rig_helpers import start_target, stop
 
 from impact_env.rig import controller as CT
 from impact_env.rig import log as LG
@@ -212,14 +214,6 @@ def _own_step_share(wait_ms: float) -> tuple[int, int, dict]:
     """A 2.5 kHz target (``rig serve --command-wait WAIT_MS``, its own process) and this process as
     its host at hold 1 for a 40 ms episode: (commands acting in their own step, commands sent,
     the episode's counters)."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import os
-
-    from rig_helpers import start_target, stop
-
     proc, addr = start_target("--scene", "rig", "--set", "control.rate=2500", "--command-wait", str(wait_ms))
     # the target's loop spins on the last CPU (impact_env.rig.placement); a host on the same machine
     # keeps off it (as docs/rig.md says: taskset), or the two share a core in scheduler slices of ms

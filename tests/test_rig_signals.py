@@ -17,14 +17,12 @@ import time
 
 import numpy as np
 import pytest
+from rig_helpers import start_target, stop
 
 from impact_env.rig import protocol as P
 from impact_env.rig.excitation import Excitation
 from impact_env.rig.host import RigClient
 from impact_env.rig.log import read_episode
-
-sys.path.insert(0, os.path.dirname(__file__))
-from rig_helpers import start_target, stop  # noqa: E402
 
 pytestmark = pytest.mark.slow
 PERIOD_TICKS_1MS = 10  # 1 ms at the rig scene's 10 kHz

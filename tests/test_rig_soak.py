@@ -21,14 +21,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rig_helpers import start_target, stop
 
 from impact_env.rig import safety as SF
 from impact_env.rig.auth import write_key
 from impact_env.rig.host import RigEnv
 from impact_env.rig.log import read_episode
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from rig_helpers import start_target, stop  # noqa: E402
 
 pytestmark = pytest.mark.slow
 

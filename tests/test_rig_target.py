@@ -16,14 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rig_helpers import LossyProxy, start_target, stop
 
 from impact_env.env.catch_env import ImpactCatchEnv
 from impact_env.rig.host import RigClient, RigEnv
 from impact_env.rig.log import read_episode
 from impact_env.rig.transport import RigTimeout, parse_address
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from rig_helpers import LossyProxy, start_target, stop  # noqa: E402
 
 pytestmark = pytest.mark.slow
 

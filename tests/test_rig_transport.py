@@ -13,6 +13,9 @@ from impact_env.rig import protocol as P
 from impact_env.rig import transport as T
 
 LOOP = "udp://127.0.0.1:0"
+# these calls return within their own timeouts (0.02-0.2 s); what the tests guard against is a
+# hang, so the bound is far above any scheduling delay of a loaded machine, not a speed figure
+HANG_S = 10.0
 
 
 @pytest.mark.parametrize("text,addr", [
@@ -53,11 +56,11 @@ def test_endpoint_send_recv_timeout_and_close():
         assert got is not None and got[0] == b"hello" and got[1] == b.local
         t0 = time.perf_counter()
         assert a.recv(0.02) is None  # nothing more: returns after its timeout
-        assert time.perf_counter() - t0 < 1.0
+        assert time.perf_counter() - t0 < HANG_S
         assert a.recv(0.0) is None
     t0 = time.perf_counter()
     a.close()  # idempotent
-    assert time.perf_counter() - t0 < 0.5
+    assert time.perf_counter() - t0 < HANG_S
     with pytest.raises(T.EndpointClosed, match="closed"):
         a.recv(0.1)
     with pytest.raises(T.EndpointClosed):
@@ -238,9 +241,9 @@ def test_rig_timeout_is_raised_within_its_bound(silent):
         t1 = time.perf_counter()
         host.endpoint.close()
         quiet.close()
-        assert time.perf_counter() - t1 < 0.5  # close() does not hang
+        assert time.perf_counter() - t1 < HANG_S  # close() does not hang
     e = info.value
-    assert e.tries == 4 and 0.2 <= e.waited_s and elapsed < 0.2 + 2.0
+    assert e.tries == 4 and 0.2 <= e.waited_s and elapsed < 0.2 + HANG_S
     assert addr in str(e) and "no INFO" in str(e) and "4 tries" in str(e)
 
 

@@ -1,5 +1,7 @@
 """Threads over blocks of envs (impact_env._threads): the vector env, rollouts and compare give
-bitwise the same results with any thread count, and a bad thread count is refused by name.
+bitwise the same results with any thread count as with the serial call, the blocks run in one
+compiled parallel region (numba's threads, the named tuples flattened through a shim), and a
+bad thread count is refused by name.
 
 The blocks' minimum size (the measured threshold below which a batch runs serially) is set to
 1 here, so that a handful of envs really runs in 2 and 3 threads."""
@@ -12,9 +14,18 @@ import threading
 import numpy as np
 import pytest
 
+import impact_env._threads as TH
 import impact_env.eval.rollout as RO
 import impact_env.sim.simulator as SIM
-from impact_env._threads import check_threads, env_blocks, run_blocks
+from impact_env._threads import (
+    check_threads,
+    env_blocks,
+    flatten,
+    machine_threads,
+    python_threads,
+    resolve_threads,
+    unflatten,
+)
 from impact_env.cli import main
 from impact_env.env.vector import ImpactCatchVectorEnv
 from impact_env.eval.compare import compare
@@ -32,6 +43,15 @@ THREADS = (1, 2, 3)  # 3: more threads than the test machine's cores is fine
 def small_blocks(monkeypatch):
     monkeypatch.setattr(SIM, "MIN_BLOCK_ENVS", 1)
     monkeypatch.setattr(RO, "MIN_BLOCK_EPISODES", 1)
+
+
+@pytest.fixture
+def compiled_region_only(monkeypatch):
+    """Blocks must run in the compiled parallel region: the Python-thread fallback fails."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("the blocks ran in Python threads, not in the compiled parallel region")
+
+    monkeypatch.setattr(TH, "python_threads", refuse)
 
 
 # -- the thread count -------------------------------------------------------------------------------
@@ -54,7 +74,11 @@ def test_a_bad_thread_count_is_refused_naming_the_parameter(bad):
 
 def test_cli_compare_bad_threads_exits_2(capsys):
     assert main(["compare", "--no-progress", "--threads", "0"]) == 2
-    assert "--threads 0 must be an integer >= 1" in capsys.readouterr().err
+    assert "--threads 0 must be an integer >= 1 or 'auto'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main(["compare", "--no-progress", "--threads", "many"])
+    assert exit_.value.code == 2
+    assert "'many' is neither an integer nor 'auto'" in capsys.readouterr().err
 
 
 def test_env_blocks_cover_the_envs_and_respect_the_minimum():
@@ -70,7 +94,86 @@ def test_env_blocks_cover_the_envs_and_respect_the_minimum():
         assert len(b) == 1 or min(i1 - i0 for i0, i1 in b) >= m
 
 
-def test_run_blocks_runs_every_block_and_raises_after_all_ended():
+def test_auto_picks_the_machines_cpus_at_most_one_per_block():
+    cpus = machine_threads()
+    assert cpus == len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else cpus >= 1
+    assert check_threads("auto") == "auto" and check_threads(" AUTO ") == "auto"
+    assert resolve_threads("auto", 10**6, 64) == cpus
+    assert resolve_threads("auto", 100, 64) == 1  # one block of 64 envs at most: serial
+    assert resolve_threads("auto", 128, 64) == min(cpus, 2)
+    assert resolve_threads(3, 10, 64) == 3  # an explicit count is kept (env_blocks applies the minimum)
+    sim = Simulator(RIG, 8, threads="auto")
+    assert sim.threads == 1  # 8 envs: fewer than one block of MIN_BLOCK_ENVS per thread
+
+
+def test_flatten_and_unflatten_walk_the_named_tuples_in_field_order():
+    from impact_env.sim.step import SimParams, SimState
+
+    sim = Simulator(RIG, 3)
+    for value, cls in ((sim.params, SimParams), (sim.state, SimState)):
+        flat = flatten(value)
+        assert all(not (isinstance(x, tuple) and hasattr(x, "_fields")) for x in flat)
+        back = unflatten(flat, cls)
+        assert type(back) is cls and type(back[1]) is type(value[1])
+        assert all(a is b for a, b in zip(flatten(back), flat, strict=True))
+
+
+def test_a_block_that_raises_is_reported(small_blocks):
+    """numba loses an exception raised inside a parallel loop: the shim's guard reports it."""
+    sim = Simulator(RIG, 4, threads=2)
+    sim.reset([np.random.default_rng(i) for i in range(4)])
+    sim.step(np.zeros(4))  # (binds the kernels)
+    sim.step(np.zeros(4))
+    sim.hw.cursor[2] = sim.hw.noise.shape[1]  # env 2's noise used up, the refill skipped
+    with pytest.raises(RuntimeError, match="envs 2 .. 3: the compiled kernel sim_step raised"):
+        sim._run(sim._blocks, (np.zeros(4), sim._all, sim.params, sim.state))
+    sim.threads = 1
+    sim.hw.cursor[2] = sim.hw.noise.shape[1]
+    with pytest.raises(IndexError, match="noise block used up"):  # the serial call: the kernel's own message
+        sim._run(sim._blocks, (np.zeros(4), sim._all, sim.params, sim.state))
+
+
+def _sim_run(threads, n=6, steps=40):
+    sim = Simulator(RIG, n, threads=threads)
+    sim.reset([np.random.default_rng(100 + i) for i in range(n)])
+    rng = np.random.default_rng(5)
+    for _ in range(steps):
+        sim.step(rng.uniform(-1.0, 1.0, n))
+    return [sim.Y.copy(), sim.records.copy(), sim.obs.copy(), sim.readings.copy(), sim.hw.ST.copy()]
+
+
+def test_the_simulator_step_is_one_compiled_region_bitwise_the_serial_one(small_blocks, compiled_region_only):
+    ref = _sim_run(1)
+    for threads in (2, 3, "auto"):
+        got = _sim_run(threads)
+        for j, (a, b) in enumerate(zip(ref, got, strict=True)):
+            assert np.array_equal(a, b, equal_nan=True), f"threads {threads}, #{j}"
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
+def test_a_child_forked_after_a_threaded_step_still_steps_in_threads(small_blocks):
+    """GNU OpenMP cannot run in a child forked from a process that used it (numba terminates
+    the child): such a child runs its blocks in Python threads, with the same results."""
+    ref = _sim_run(1)
+    _sim_run(2)  # this process has launched a parallel region now
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 only if its threaded run equals the serial one
+        code = 1
+        try:
+            os.close(r)
+            got = _sim_run(2)
+            same = all(np.array_equal(a, b, equal_nan=True) for a, b in zip(ref, got, strict=True))
+            code = 0 if same else 3
+        finally:
+            os._exit(code)
+    os.close(w)
+    _, status = os.waitpid(pid, 0)
+    os.close(r)
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0, status
+
+
+def test_python_threads_runs_every_block_and_raises_after_all_ended():
     out = np.zeros(10)
 
     def kernel(i0, i1, arr, boom):
@@ -78,11 +181,11 @@ def test_run_blocks_runs_every_block_and_raises_after_all_ended():
         if boom and i0 > 0:
             raise RuntimeError(f"block {i0}")
 
-    run_blocks(kernel, env_blocks(10, 3, 1), (out, False))
+    python_threads(kernel, env_blocks(10, 3, 1), (out, False))
     np.testing.assert_array_equal(out, [0, 0, 0, 3, 3, 3, 3, 7, 7, 7])
     out[:] = -1.0
     with pytest.raises(RuntimeError, match="block 3"):  # the first failing block, in block order
-        run_blocks(kernel, env_blocks(10, 3, 1), (out, True))
+        python_threads(kernel, env_blocks(10, 3, 1), (out, True))
     assert (out >= 0).all()  # every block ran to its end
 
 
@@ -95,15 +198,15 @@ def test_a_forked_child_gets_its_own_threads():
     def kernel(i0, i1, arr):
         arr[i0:i1] = 1.0
 
-    run_blocks(kernel, env_blocks(4, 2, 1), (out,))  # the parent's pool exists now
+    python_threads(kernel, env_blocks(4, 2, 1), (out,))  # the parent's pool exists now
     pid = os.fork()
     if pid == 0:  # the child: exit 0 only if its blocks ran
         code = 1
         try:
             arr = np.zeros(4)
             done = threading.Event()
-            t = threading.Thread(target=lambda: (run_blocks(kernel, env_blocks(4, 2, 1), (arr,)), done.set()),
-                                 daemon=True)
+            t = threading.Thread(daemon=True, target=lambda: (
+                python_threads(kernel, env_blocks(4, 2, 1), (arr,)), done.set()))
             t.start()
             code = 0 if done.wait(20.0) and arr.all() else 1
         finally:
@@ -137,7 +240,8 @@ def _vector_run(threads, scene, mode, task):
     ("rig", "NextStep", {}),
     ("rig-randomized", "SameStep", {"hold_ticks": 2, "residual": "pd-penetration", "history": 2}),
 ])
-def test_vector_env_steps_do_not_depend_on_the_thread_count(small_blocks, scene, mode, task):
+def test_vector_env_steps_do_not_depend_on_the_thread_count(small_blocks, compiled_region_only, scene, mode,
+                                                            task):
     ref = _vector_run(1, scene, mode, task)
     for threads in THREADS[1:]:
         got = _vector_run(threads, scene, mode, task)
@@ -158,7 +262,7 @@ def _same_rollouts(a, b):
 
 
 @pytest.mark.parametrize("spec", ["passive", "pd-penetration", "compiled pd-penetration"])
-def test_a_rollout_does_not_depend_on_the_thread_count(small_blocks, spec):
+def test_a_rollout_does_not_depend_on_the_thread_count(small_blocks, compiled_region_only, spec):
     """passive and pd-penetration: the Python loop (threads in the simulator's step); the
     compiled policy: the compiled loop (threads over blocks of episodes, whole chunks)."""
     def run(threads):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -40,10 +41,11 @@ def add_arguments(p) -> None:
     p.add_argument("--seed", type=int, default=0, help="episode j is seeded seed + j (default 0)")
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: episode.horizon)")
     add_workers_arguments(p)
-    p.add_argument("--threads", type=int, default=None,
+    p.add_argument("--threads", type=_threads_arg, default=None, metavar="K|auto",
                    help="threads per worker process: each runs its episodes in this many threads at once "
-                        "(default 1; the same results, bitwise).  The workers already fill the cores: "
-                        "use it with --workers 1 (or fewer workers than cores)")
+                        "(default 1; 'auto': the CPUs this process may use; the same results, bitwise).  "
+                        "The workers already fill the cores: use it with --workers 1 (or fewer workers "
+                        "than cores)")
     p.add_argument("--out", metavar="DIR", help="write summary.csv/json, episodes.csv and plots here")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by policy")
     add_format_argument(p, what="with --out, the plots'")
@@ -61,6 +63,16 @@ def add_arguments(p) -> None:
     p.set_defaults(func=cmd_compare)
 
 
+def _threads_arg(text: str) -> int | str:
+    """``--threads``: an integer (checked by cmd_compare, which names it) or ``auto``."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither an integer nor 'auto'") from None
+
+
 def cmd_compare(args) -> int:
     if args.list:
         print(describe_policies())
@@ -75,8 +87,8 @@ def cmd_compare(args) -> int:
         raise ConfigError("--allow-overruns goes with --rig udp://HOST:PORT")
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed} must be an integer >= 0 (episode j is seeded seed + j)")
-    if args.threads is not None and args.threads < 1:
-        raise ConfigError(f"--threads {args.threads} must be an integer >= 1")
+    if args.threads is not None and args.threads != "auto" and args.threads < 1:
+        raise ConfigError(f"--threads {args.threads} must be an integer >= 1 or 'auto'")
     cluster = cluster_from_args(args)
     if args.rig:
         if cluster is not None:

@@ -29,12 +29,14 @@ last finite one and the reward is ``-1 * T / t_unit``); ``truncated`` at the hor
 from __future__ import annotations
 
 import collections
+from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
-from impact_env._jit import bound_call
+from impact_env._jit import entry_point
+from impact_env._threads import BlockRunner
 from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.env import task_kernel as TK
@@ -169,12 +171,23 @@ def check_actions(actions, n: int, action_bounds: str, command_scale: float,
     return a
 
 
-def info_from_row(row: np.ndarray) -> dict:
-    """One env's info as Python scalars (and ``state`` as float64[4]) from its info row."""
-    vals = row.tolist()
-    out = {key: (vals[j] > 0.5 if flag else vals[j]) for key, j, flag in _INFO_SCALARS}
-    out["state"] = np.array(vals[TK.INFO.x1:TK.INFO.v2 + 1])
-    return out
+def _info_from_row_source() -> str:
+    """The source of :func:`info_from_row`: one dict display of the info row's columns (a flag
+    compared with 0.5, ``state`` a copy of x1 .. v2), generated from INFO_KEYS: a single env's
+    step builds this dict every step, and a display with constant keys is about twice as fast
+    as a loop over them."""
+    items = [f"{key!r}: v[{j}] > 0.5" if flag else f"{key!r}: v[{j}]" for key, j, flag in _INFO_SCALARS]
+    items.append(f"'state': row[{TK.INFO.x1}:{TK.INFO.v2 + 1}].copy()")
+    return "def info_from_row(row):\n    v = row.tolist()\n    return {" + ", ".join(items) + "}\n"
+
+
+_generated: dict = {}
+exec(_info_from_row_source(), _generated)
+#: ``info_from_row(row) -> dict``: one env's info as Python scalars (and ``state`` as
+#: float64[4]) from its info row (generated: :func:`_info_from_row_source`)
+info_from_row: Callable[[np.ndarray], dict] = _generated["info_from_row"]
+info_from_row.__module__ = __name__
+info_from_row.__doc__ = "One env's info as Python scalars (and ``state`` as float64[4]) from its info row."
 
 
 def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float, command_scale: float):
@@ -198,7 +211,7 @@ def new_task_out(n: int) -> TK.TaskOut:
 
 
 def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig,
-                    overrides=None, threads: int | None = None) -> CatchTask:
+                    overrides=None, threads: int | str | None = None) -> CatchTask:
     """The simulator of ``num_envs`` rigs of ``scene`` (with ``overrides``) that ``config`` asks
     for (observation layout, hold_ticks), stepping in ``threads`` threads (Simulator), and the
     catch task on it."""
@@ -235,8 +248,10 @@ class CatchTask:
         self.rewards, self.terminated, self.truncated, self.rows = self.out
         self.drop = TK.Drop(sim.Y, sim.P, sim.impact_energy, self.impact_speed)
         self._a1 = np.zeros(1)
-        self._all = np.ones(n, dtype=bool)
-        self._task_step = None  # TK.task_step bound to these arrays' types (first step)
+        # the simulator's step and the task's in one compiled call (or parallel region):
+        # TK.catch_step, bound to these arrays' types from the first step on
+        self._run = BlockRunner(TK.catch_step, TK.catch_blocks, entry_point)
+        self._no_cols = np.zeros((TK.N_COL, 0))  # catch_step's ``cols`` when no info columns are wanted
 
     @property
     def obs(self) -> np.ndarray:
@@ -259,33 +274,32 @@ class CatchTask:
                 return self._a1
         return check_actions(actions, self.n, self.config.action_bounds, self.command_scale, self._a1)
 
-    def step(self, a: np.ndarray, active=None):
+    def step(self, a: np.ndarray, active=None, cols: np.ndarray | None = None):
         """One policy step for every env (or those where ``active`` is true; the others are left
         as they are, with reward 0 and no flags) under float64[N] actions already checked.
         Returns (rewards float64[N], terminated bool[N], truncated bool[N]), arrays owned by the
-        task (copy them to keep them)."""
+        task (copy them to keep them).  ``cols``: a new float64[N_COL, N] that the step fills with
+        the info rows as columns, for :meth:`info_arrays` (the vector env's infos)."""
         sim = self.sim
-        # the types the bound kernel was made for: writable C-contiguous bool[n]
-        act = self._all if active is None else np.array(active, dtype=bool).reshape(self.n)
-        sim.step(a, None if active is None else act)  # None: every env, without a mask
-        args = (act, sim.records, self.drop, self.params, self.state, self.out)
-        if self._task_step is None:
-            self._task_step = bound_call(TK.task_step, args)
-        else:
-            self._task_step(*args)
+        self._run(sim.blocks, sim.step_args(a, active) + (self.drop, self.params, self.state, self.out,
+                                                         self._no_cols if cols is None else cols))
         return self.rewards, self.terminated, self.truncated
 
     # -- info ---------------------------------------------------------------------------------
-    def info_arrays(self) -> dict[str, np.ndarray]:
-        """Per-env diagnostics after the last step or reset (SI units), from the info rows."""
+    def info_arrays(self, cols: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Per-env diagnostics after the last step or reset (SI units), from the info rows; or
+        from ``cols``, the columns a step wrote (:meth:`step`; the arrays returned are views
+        of it, which the caller gives away)."""
         rows = self.rows
+        if cols is None:
+            cols = np.ascontiguousarray(rows.T)  # one copy of the rows; each column a contiguous array in it
         out = {}
         for j, key in enumerate(TK.INFO_KEYS[:TK.INFO.x1]):
-            out[key] = rows[:, j] > 0.5 if key in TK.BOOL_KEYS else rows[:, j].copy()
+            out[key] = cols[j] > 0.5 if key in TK.BOOL_KEYS else cols[j]
         out["state"] = rows[:, TK.INFO.x1:TK.INFO.v2 + 1].copy()
-        out["diverged"] = rows[:, TK.INFO.diverged] > 0.5
-        out["caught"] = rows[:, TK.INFO.caught] > 0.5
-        out["t_touch"] = rows[:, TK.INFO.t_touch].copy()
+        out["diverged"] = cols[TK.INFO.diverged] > 0.5
+        out["caught"] = cols[TK.INFO.caught] > 0.5
+        out["t_touch"] = cols[TK.INFO.t_touch]
         return out
 
     def info_dict(self, i: int) -> dict:

@@ -2,8 +2,11 @@
 row, in one call after the simulator's step, from the step's per-tick records
 (:mod:`impact_env.sim.records`).
 
-Kept apart from :mod:`impact_env.env.task` (the Python layer that owns the arrays) so that a
-step costs two compiled calls (simulator, task) and no per-env Python.
+Kept apart from :mod:`impact_env.env.task` (the Python layer that owns the arrays).  An env's
+step is one compiled call, :func:`catch_step`: the simulator's step and the task's, env by env
+(or one compiled parallel region over blocks of envs, :func:`catch_blocks`), and no per-env
+Python; :func:`task_step` is the task's part alone, after a step simulated elsewhere (the rig's
+host).
 """
 
 from __future__ import annotations
@@ -11,13 +14,16 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import prange
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env._packed import positions
+from impact_env._threads import unflatten
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, V1, X1, X2, C, G
 from impact_env.sim import records as R
+from impact_env.sim.step import SimParams, SimState, env_step
 
 
 class TaskState(NamedTuple):
@@ -78,6 +84,49 @@ BOOL_KEYS = ("contact", "saturated", "detected", "diverged", "caught")
 N_COL = len(INFO)
 
 
+@jit(inline="always")
+def task_env(i, on, records, d, p, s, out):
+    """Env i's reward, flags and info row after its step (``on``: it was stepped; else reward
+    0, no flags, its row kept): :func:`task_step`'s arithmetic for one env."""
+    rewards, terminated, truncated = out.rewards, out.terminated, out.truncated
+    steps, below, diverged, energy = s.steps, s.below, s.diverged, s.energy
+    P = d.P
+    if not on:
+        rewards[i] = 0.0
+        terminated[i] = False
+        truncated[i] = False
+        return
+    steps[i] += 1
+    e0 = d.impact_energy[i]
+    total = 0.0
+    bad = False
+    for k in range(records.shape[1]):
+        r = records[i, k]
+        if r[R.REC.status] != 0.0:
+            bad = True
+            diverged[i] = True
+            below[i] = 0
+            cost = 1.0
+        else:
+            e = catch_energy_at(r[R.REC.x1], r[R.REC.v1], r[R.REC.x2], P[i, M1], P[i, C], P[i, G])
+            energy[i] = e
+            ratio = e / e0
+            cost = ratio
+            if p.effort_weight != 0.0:
+                u = r[R.REC.f_applied] / p.command_scale
+                cost += p.effort_weight * u * u
+            if p.limit_weight != 0.0:
+                cost += p.limit_weight * r[R.REC.saturated]
+            below[i] = below[i] + 1 if ratio < p.catch_threshold else 0
+        total += cost
+    term = bad or (p.terminate_on_catch != 0.0 and below[i] >= p.hold)
+    rewards[i] = -total * p.step_weight
+    terminated[i] = term
+    truncated[i] = (steps[i] >= p.max_steps) and not term
+    last = records[i, records.shape[1] - 1]
+    fill_row(i, last, d, p, s, out.rows)
+
+
 @jit
 def task_step(active, records, d, p, s, out):
     """After the simulator's step: reward, flags and info row of every active env (an inactive
@@ -85,44 +134,51 @@ def task_step(active, records, d, p, s, out):
     options the kernel reads, by their names, and what the task derives from them:
     :mod:`impact_env.env.task`), ``s``: TaskState, ``out``: TaskOut."""
     active, records, d, p, s, out = borrow(active), borrow(records), borrow(d), borrow(p), borrow(s), borrow(out)
-    rewards, terminated, truncated = out.rewards, out.terminated, out.truncated
-    steps, below, diverged, energy = s.steps, s.below, s.diverged, s.energy
-    P = d.P
     for i in range(records.shape[0]):
-        if not active[i]:
-            rewards[i] = 0.0
-            terminated[i] = False
-            truncated[i] = False
-            continue
-        steps[i] += 1
-        e0 = d.impact_energy[i]
-        total = 0.0
-        bad = False
-        for k in range(records.shape[1]):
-            r = records[i, k]
-            if r[R.REC.status] != 0.0:
-                bad = True
-                diverged[i] = True
-                below[i] = 0
-                cost = 1.0
-            else:
-                e = catch_energy_at(r[R.REC.x1], r[R.REC.v1], r[R.REC.x2], P[i, M1], P[i, C], P[i, G])
-                energy[i] = e
-                ratio = e / e0
-                cost = ratio
-                if p.effort_weight != 0.0:
-                    u = r[R.REC.f_applied] / p.command_scale
-                    cost += p.effort_weight * u * u
-                if p.limit_weight != 0.0:
-                    cost += p.limit_weight * r[R.REC.saturated]
-                below[i] = below[i] + 1 if ratio < p.catch_threshold else 0
-            total += cost
-        term = bad or (p.terminate_on_catch != 0.0 and below[i] >= p.hold)
-        rewards[i] = -total * p.step_weight
-        terminated[i] = term
-        truncated[i] = (steps[i] >= p.max_steps) and not term
-        last = records[i, records.shape[1] - 1]
-        fill_row(i, last, d, p, s, out.rows)
+        task_env(i, active[i], records, d, p, s, out)
+
+
+@jit(nogil=True)
+def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out, cols):
+    """The env's whole step for envs ``i0 .. i1 - 1``, env by env: the simulator's step
+    (:func:`impact_env.sim.step.env_step`, as :func:`~impact_env.sim.step.sim_step` runs it) and
+    then the task's (:func:`task_env`), in one call (``sp``, ``ss``: SimParams, SimState; the
+    rest as :func:`task_step`'s).  Env i reads and writes only its own rows, so the results are
+    those of the two calls one after the other, bitwise, and blocks of envs may run at once
+    (:func:`catch_blocks`).  ``cols``: float64[N_COL, N], every env's info row also written as a
+    column (the vector env's info arrays, without a transposing copy after the step), or
+    float64[N_COL, 0]: not written."""
+    actions, active, sp, ss = borrow(actions), borrow(active), borrow(sp), borrow(ss)  # (impact_env._borrow)
+    d, p, s, out, cols = borrow(d), borrow(p), borrow(s), borrow(out), borrow(cols)
+    records = ss.records
+    rows = out.rows
+    for i in range(i0, i1):
+        on = active[i]
+        if on:
+            env_step(i, actions[i], sp, ss)
+        task_env(i, on, records, d, p, s, out)
+        if cols.shape[1] > 0:
+            for j in range(cols.shape[0]):
+                cols[j, i] = rows[i, j]
+
+
+@jit(nogil=True)
+def _catch_block(i0, i1, actions, active, fsp, fss, d, p, s, out, cols):
+    """:func:`catch_step` with its SimParams and SimState rebuilt from their leaves
+    (:func:`impact_env._threads.flatten`); False if it raised."""
+    try:
+        catch_step(i0, i1, actions, active, unflatten(fsp, SimParams), unflatten(fss, SimState), d, p, s, out, cols)
+    except Exception:  # noqa: BLE001 - reported by the caller (impact_env._threads.BlockRunner)
+        return False
+    return True
+
+
+@jit(nogil=True, parallel=True)
+def catch_blocks(bounds, ok, actions, active, fsp, fss, d, p, s, out, cols):
+    """:func:`catch_step` on the blocks of envs ``bounds[b] .. bounds[b + 1] - 1`` in one compiled
+    parallel region (:mod:`impact_env._threads`); ``ok[b]``: block b did not raise."""
+    for b in prange(bounds.shape[0] - 1):
+        ok[b] = _catch_block(bounds[b], bounds[b + 1], actions, active, fsp, fss, d, p, s, out, cols)
 
 
 @jit

@@ -28,6 +28,7 @@ from gymnasium.vector.utils import batch_space
 
 from impact_env._threads import check_threads
 from impact_env.control.observation import OBS_LIMIT
+from impact_env.env import task_kernel as TK
 from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, make_catch_task
 from impact_env.scene import Scene
 
@@ -37,15 +38,16 @@ class ImpactCatchVectorEnv(VectorEnv):
     (:class:`~impact_env.env.catch_env.ImpactCatchEnv`: the task's options are
     :class:`~impact_env.env.task.TaskConfig`'s fields) plus ``num_envs``, ``autoreset_mode`` and
     ``threads``: the simulator steps its envs in this many threads at once, in blocks of at
-    least :data:`~impact_env.sim.simulator.MIN_BLOCK_ENVS` envs (None or 1: serially); the
-    results do not depend on it, bitwise (docs/env.md, "Threads")."""
+    least :data:`~impact_env.sim.simulator.MIN_BLOCK_ENVS` envs (None or 1: serially;
+    ``"auto"``: the CPUs this process may use, at most one per block); the results do not depend
+    on it, bitwise (docs/env.md, "Threads")."""
 
     def __init__(self, num_envs: int = 1, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, threads: int | None = None, **task: Any):
+                 render_mode: str | None = None, threads: int | str | None = None, **task: Any):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs = {num_envs!r} must be an integer >= 1")
-        threads = check_threads(threads)
+        threads = check_threads(threads)  # (an int, or "auto": the simulator resolves it for N)
         mode = AutoresetMode(autoreset_mode) if isinstance(autoreset_mode, str) else autoreset_mode
         if not isinstance(mode, AutoresetMode):
             raise ValueError(f"autoreset_mode = {autoreset_mode!r}; expected one of "
@@ -119,14 +121,16 @@ class ImpactCatchVectorEnv(VectorEnv):
             # sit this step out (their action is ignored, reward 0, no flags)
             task.reset(self._rngs, self._done)
             active = ~self._done
-        rewards, terminated, truncated = (x.copy() for x in task.step(a, active))
+        # the step writes the info rows as columns too: the info arrays without a transposing copy
+        cols = np.empty((TK.N_COL, self.num_envs)) if infos or mode == AutoresetMode.SAME_STEP else None
+        rewards, terminated, truncated = (x.copy() for x in task.step(a, active, cols))
         ended = terminated | truncated
         out: dict[str, Any] = {}
         if mode == AutoresetMode.SAME_STEP and ended.any():
             final_obs = np.full(self.num_envs, None, dtype=object)
             for i in np.nonzero(ended)[0]:
                 final_obs[i] = task.obs[i].copy()
-            final_info = self._infos()
+            final_info = self._infos(cols)
             task.reset(self._rngs, ended)
             if infos:
                 out = self._infos()  # the new episodes' first infos where envs were reset
@@ -135,14 +139,14 @@ class ImpactCatchVectorEnv(VectorEnv):
             out["final_info"] = final_info
             out["_final_info"] = ended.copy()
         elif infos:
-            out = self._infos()
+            out = self._infos(cols)
         self._done = ended
         return task.obs.copy(), rewards, terminated, truncated, out
 
-    def _infos(self) -> dict[str, Any]:
+    def _infos(self, cols: np.ndarray | None = None) -> dict[str, Any]:
         infos: dict[str, Any] = {}
         every = np.ones(self.num_envs, dtype=bool)
-        for k, v in self.task.info_arrays().items():
+        for k, v in self.task.info_arrays(cols).items():
             infos[k] = v
             infos["_" + k] = every
         return infos

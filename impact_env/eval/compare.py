@@ -102,7 +102,7 @@ class RolloutJob:
     trace_rate: float
     record: bool = False  # keep the commands (an oracle is in the comparison)
     warm_starts: dict | None = None  # other policies' commands on these episodes (for an oracle)
-    threads: int = 1  # the rollout's threads (rollout(threads=...)), in the worker that runs it
+    threads: int | str = 1  # the rollout's threads (rollout(threads=...); "auto"), in the worker that runs it
 
 
 @dataclass
@@ -155,7 +155,7 @@ def run_job(task: RolloutJob):
 def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon: float | None = None,
             workers: int | None = None, progress: bool = True,
             trace_rate: float = 1.0e4, cluster: str | Cluster | None = None,
-            threads: int | None = None) -> dict[str, PolicyRun]:
+            threads: int | str | None = None) -> dict[str, PolicyRun]:
     """Run every policy spec on ``episodes`` seeded drops of ``scene``; returns spec -> PolicyRun
     (with ``summary`` filled in).  Policies are validated before anything runs.
 
@@ -164,7 +164,8 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     processes, with the same results; ``workers`` then defaults to the cluster's worker threads.
 
     ``threads``: each task's rollout runs its episodes in this many threads
-    (:func:`~impact_env.eval.rollout.rollout`; None: 1); the results do not depend on it,
+    (:func:`~impact_env.eval.rollout.rollout`; None: 1; ``"auto"``: the CPUs the worker may use,
+    one per few episodes at most); the results do not depend on it,
     bitwise.  The workers already fill the cores, so it pays with ``workers=1`` (one process,
     its episodes over the cores, no fork) or fewer workers than cores."""
 

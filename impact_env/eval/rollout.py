@@ -44,11 +44,12 @@ from typing import NamedTuple
 
 import numpy as np
 from gymnasium.utils import seeding
+from numba import prange
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env._packed import positions
-from impact_env._threads import check_threads, env_blocks, run_blocks
+from impact_env._threads import BlockRunner, check_threads, env_blocks, resolve_threads, unflatten
 from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.control.policy import CompiledPolicy, PolicyArrays, act
 from impact_env.plant.energy import catch_energy_at
@@ -58,7 +59,7 @@ from impact_env.scene import Scene
 from impact_env.sim import records as R
 from impact_env.sim.metrics import AC, EPISODE_METRICS, ST, EpisodeMetrics, MetricArrays, update
 from impact_env.sim.simulator import Simulator
-from impact_env.sim.step import env_step
+from impact_env.sim.step import SimParams, SimState, env_step
 
 __all__ = ["EPISODE_METRICS", "TRACE_KEYS", "RolloutResult", "rollout"]
 
@@ -220,6 +221,26 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
                 _trace_env(traces[k // stride], i, Y, records, energy, detected)
 
 
+@jit(nogil=True)
+def _compiled_block(i0, i1, steps, fpol, fp, fs, fout):
+    """:func:`_run_compiled` on envs ``i0 .. i1 - 1``, its nested named tuples rebuilt from their
+    leaves (:func:`impact_env._threads.flatten`); False if it raised."""
+    try:
+        _run_compiled(i0, i1, steps, unflatten(fpol, LoopPolicy), unflatten(fp, SimParams),
+                      unflatten(fs, SimState), unflatten(fout, LoopOut))
+    except Exception:  # noqa: BLE001 - reported by the caller (impact_env._threads.BlockRunner)
+        return False
+    return True
+
+
+@jit(nogil=True, parallel=True)
+def _compiled_blocks(bounds, ok, steps, fpol, fp, fs, fout):
+    """:func:`_run_compiled` on the blocks of envs ``bounds[b] .. bounds[b + 1] - 1`` in one
+    compiled parallel region; ``ok[b]``: block b did not raise (:mod:`impact_env._threads`)."""
+    for b in prange(bounds.shape[0] - 1):
+        ok[b] = _compiled_block(bounds[b], bounds[b + 1], steps, fpol, fp, fs, fout)
+
+
 def residual_law(policy, scene) -> CompiledPolicy | None:
     """The classic law a policy's actions add to, every tick (its ``residual``: a spec, or the
     law inside a compiled policy), or None."""
@@ -236,7 +257,7 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             trace_rate: float = 1.0e4, catch_fraction: float = 0.01, min_flight_s: float = 1.0e-3,
             name: str = "", progress: Callable[[int], None] | None = None,
             compiled: bool | None = None, warm_starts: dict[str, np.ndarray] | None = None,
-            record_commands: bool = False, threads: int | None = None) -> RolloutResult:
+            record_commands: bool = False, threads: int | str | None = None) -> RolloutResult:
     """Run ``policy`` (SB3 ``predict`` with attributes ``observation`` and optionally ``history``,
     ``hold_ticks`` and ``residual``, or a CompiledPolicy) on one episode per entry of ``seeds`` (ints) for
     ``horizon`` s (default ``scene.episode.horizon``).  ``episodes`` labels them in failure
@@ -309,13 +330,14 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         pi, pf, m = policy.arrays()
         mem = policy.new_memory(n)
         chunk = max(1, min(CHUNK, sim.hw.noise_block // hold))  # a chunk's noise fits one block
-        blocks = env_blocks(n, threads, MIN_BLOCK_EPISODES)
+        blocks = env_blocks(n, resolve_threads(threads, n, MIN_BLOCK_EPISODES), MIN_BLOCK_EPISODES)
+        run = BlockRunner(_run_compiled, _compiled_blocks)
+        loop_policy, loop_out = LoopPolicy(PolicyArrays(pi, pf), mem), LoopOut(metrics.arrays, fails, traces)
         k = 0
         while k < n_steps:
             k1 = min(k + chunk, n_steps)
             sim.hw.refill_noise(hold * (k1 - k))  # the whole chunk's noise at once
-            run_blocks(_run_compiled, blocks, (Steps(k, k1, stride), LoopPolicy(PolicyArrays(pi, pf), mem),
-                                               sim.params, sim.state, LoopOut(metrics.arrays, fails, traces)))
+            run(blocks, (Steps(k, k1, stride), loop_policy, sim.params, sim.state, loop_out))
             if progress is not None:
                 progress(k1 - k)
             k = k1

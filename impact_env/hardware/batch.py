@@ -16,6 +16,7 @@ import typing
 
 import numpy as np
 
+from impact_env._threads import python_threads
 from impact_env.effects import registry
 from impact_env.effects import sensors as SE
 from impact_env.hardware import stage as HS
@@ -246,11 +247,14 @@ class Hardware:
         self.noise_block = nb
         self._refill_in = 0
 
-    def refill_noise(self, ticks: int, active=None) -> None:
+    def refill_noise(self, ticks: int, active=None, blocks: list[tuple[int, int]] | None = None) -> None:
         """Make sure every (active) env has ``ticks`` unread noise samples: an env short of them
         keeps its unread ones and tops its block up from its Generator.  Drawing in pieces gives
         the same stream as drawing at once, so the noise an env meets does not depend on how
-        many ticks a step holds."""
+        many ticks a step holds.  ``blocks`` (the caller's blocks of envs, several: it steps in
+        threads): the blocks' envs are topped up in as many Python threads at once (numpy's
+        Generators release the GIL while they draw; each env draws from its own), the same
+        numbers as in one thread."""
         if not self.flags & HS.F_SENSORS:
             return
         if self._refill_in >= ticks:
@@ -262,17 +266,28 @@ class Hardware:
         short = self.cursor > nb - ticks
         if active is not None:
             short &= active
-        for i in np.nonzero(short)[0]:
+        idx = np.nonzero(short)[0]
+        if blocks is not None and len(blocks) > 1 and len(idx) >= 2 * len(blocks):
+            cut = np.searchsorted(idx, [b[0] for b in blocks[1:]])
+            parts = np.split(idx, cut)
+            python_threads(lambda b0, b1: self._top_up(parts[b0]), [(b, b + 1) for b in range(len(parts))], ())
+        else:
+            self._top_up(idx)
+        # inactive envs were not topped up: check every env again at the next step
+        self._refill_in = 0 if active is not None else int(nb - self.cursor.max()) - ticks
+
+    def _top_up(self, idx) -> None:
+        """Envs ``idx``: unread noise samples moved to the front, the rest of the block drawn."""
+        nb = self.noise_block
+        for i in idx:
             c = self.cursor[i]
             left = nb - c
             if left:
                 self.noise[i, :left] = self.noise[i, c:]
-            # every env is reset (seeded) before it steps
+            # every env is reset (seeded) before it steps; drawn in place (the same numbers)
             rng = typing.cast(np.random.Generator, self.rngs[i])
-            self.noise[i, left:] = rng.standard_normal((nb - left, SE.N_CHANNELS))
+            rng.standard_normal(out=self.noise[i, left:])
             self.cursor[i] = 0
-        # inactive envs were not topped up: check every env again at the next step
-        self._refill_in = 0 if active is not None else int(nb - self.cursor.max()) - ticks
 
     @property
     def params(self) -> HS.HardwareParams:

@@ -47,7 +47,14 @@ from impact_env._jit import bound_call, entry_point
 from impact_env.control.observation import OBS_LIMIT, make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.env import task_kernel as TK
-from impact_env.env.task import TaskConfig, check_actions, info_from_row, new_task_out, new_task_state
+from impact_env.env.task import (
+    TaskConfig,
+    check_actions,
+    info_from_row,
+    new_task_out,
+    new_task_state,
+    options_doc,
+)
 from impact_env.hardware.batch import Hardware
 from impact_env.policy.export import export_policy
 from impact_env.rig import host_wire as HW
@@ -338,10 +345,12 @@ class RigEnv(gym.Env):
     """``ImpactCatchRig-v0``: ``ImpactCatch-v0``'s interface on a rig behind a target (see the
     module doc for the timing contract).
 
-    Arguments as ``ImpactCatch-v0``'s where they apply (``observation`` "sensors" only: a rig
-    measures no body-1 state; ``history``, ``hold_ticks``, ``residual``, ``horizon``,
-    ``catch_threshold``, ``catch_hold``, ``terminate_on_catch``, ``effort_weight``,
-    ``limit_weight``, ``action_bounds``), plus ``address`` (``udp://HOST:PORT``), ``timeout_s``
+    The task's options, as ``ImpactCatch-v0``'s (``observation`` "sensors" only: a rig measures
+    no body-1 state; this list is written from :class:`~impact_env.env.task.TaskConfig`):
+
+TASK_OPTIONS_DOC
+
+    plus ``address`` (``udp://HOST:PORT``), ``timeout_s``
     (per try; a step waits at most ``(retries + 1) timeout_s`` in all, then raises RigTimeout),
     ``retries``, ``key`` (the path of the key file the target was started with, ``rig serve
     --key FILE``, or the key's bytes; None: no key, for a target without one on loopback) and
@@ -541,3 +550,5 @@ class RigEnv(gym.Env):
         self.client.close()
         self._running = False
 
+
+RigEnv.__doc__ = (RigEnv.__doc__ or "").replace("TASK_OPTIONS_DOC", options_doc("    "))

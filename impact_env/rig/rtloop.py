@@ -1,14 +1,16 @@
 """The target's real-time core: a whole episode in ONE compiled call that releases the GIL, for
 every driver and both modes (:class:`impact_env.rig.episode.Episode` runs it in its own thread).
 
-Each tick m: (real time) spin on the CPU's cycle counter to the tick's absolute deadline; let
-the ticks that cannot run on time pass (:func:`impact_env.rig.controller.skip_allowed`); read
-the driver; the front end (:func:`~impact_env.rig.controller.observe_tick`); host mode, at a
-step boundary: publish the step's observation to the observation ring and wake the network
-thread; take every host command the network thread put in the command ring since the last
-tick (:mod:`impact_env.rig.ring`) and choose the one in use; the onboard policy or that
-command, the residual law and the safety layer (:func:`~impact_env.rig.controller.act_tick`);
-apply; the log row, then the row count published for the log's writer thread.
+Each tick m: (real time) spin on the CPU's cycle counter to the tick's absolute deadline (host
+mode: reading the host's datagrams meanwhile, :mod:`impact_env.rig.wire`; a SCHED_FIFO loop
+sleeps first where the kernel throttles real-time threads); let the ticks that cannot run on
+time pass (:func:`impact_env.rig.controller.skip_allowed`); read the driver; the front end
+(:func:`~impact_env.rig.controller.observe_tick`); host mode, at a step boundary: the step's
+observation into the observation ring (:mod:`impact_env.rig.ring`) and, as an OBSERVATION, to
+the host; the host's newest accepted command for the step becomes the one in use, the tick
+waiting for it up to ``Timing.command_wait``; the onboard policy or that command, the residual
+law and the safety layer (:func:`~impact_env.rig.controller.act_tick`); apply; the log row,
+then the row count published for the log's writer thread.
 
 The driver is one of two kinds, chosen by the type of ``io`` (numba compiles one loop for each):
 

@@ -157,8 +157,9 @@ class Target:
                              f"period ({1 / self.rate:g} s): the tick's own work needs the rest")
         self.placement = Placement(self.cfg.loop_cpu, self.cfg.loop_nice, self.cfg.loop_fifo)
         # a receive buffer for a flood to fill while the loop cannot read (the kernel caps it at
-        # net.core.rmem_max, 4 MB here): a stall of the machine then drops junk, not the host's commands
-        self.endpoint = Endpoint(bind, rcvbuf=RCVBUF)
+        # net.core.rmem_max: 4 MB here, 208 kB on a stock kernel); the session's host gets a lane
+        # of its own (Endpoint.open_lane), so that a flood fills this buffer, not the host's
+        self.endpoint = Endpoint(bind, rcvbuf=RCVBUF, lanes=True)
         self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
         self.link.on_unauthenticated = self._unauthenticated
         self.link.on_handshake = self.handshake

@@ -29,6 +29,7 @@ import ipaddress
 import os
 import select
 import socket
+import sys
 import time
 from collections.abc import Callable
 
@@ -112,7 +113,29 @@ def _resolve(addr: Address) -> tuple[int, tuple]:
 
 
 # -- endpoint ------------------------------------------------------------------------------------------
+def _proc_drops(sock: socket.socket) -> int:
+    """The kernel's drop count of ``sock`` (Linux's /proc/net/udp{,6}, found by the socket's
+    inode); -1 where there is none."""
+    try:
+        ino = str(os.fstat(sock.fileno()).st_ino)
+    except OSError:
+        return -1
+    for name in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(name) as fh:
+                for line in fh.read().splitlines()[1:]:
+                    f = line.split()
+                    if len(f) >= 13 and f[9] == ino:
+                        return int(f[12])
+        except (OSError, ValueError):
+            continue
+    return -1
+
+
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: the kernel's drop count with each datagram
+# Linux delivers a datagram to the connected socket of a SO_REUSEPORT group whose peer sent it,
+# ahead of the group's unconnected one (net/ipv4/udp.c's scoring): what a lane relies on
+LANES = sys.platform.startswith("linux") and hasattr(socket, "SO_REUSEPORT")
 
 
 class Endpoint:
@@ -124,18 +147,34 @@ class Endpoint:
     """
 
     def __init__(self, bind: str | Address = "udp://127.0.0.1:0", peer: str | Address | None = None,
-                 rcvbuf: int = 1 << 20):
+                 rcvbuf: int = 1 << 20, lanes: bool = False):
         b = _as_address(bind, allow_port_zero=True)
         family, sockaddr = _resolve(b)
         self._sock = socket.socket(family, socket.SOCK_DGRAM)
         try:
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, int(rcvbuf))
+            # bound first without SO_REUSEPORT, so that a second program binding the same
+            # address is refused as before; the flag afterwards only admits this endpoint's lanes
             self._sock.bind(sockaddr)
             self._sock.setblocking(False)
         except OSError as exc:
             self._sock.close()
             raise OSError(f"cannot bind {format_address(b)}: {exc}") from exc
         self._family = family
+        self._rcvbuf = int(rcvbuf)
+        self._lanes = bool(lanes) and LANES
+        if self._lanes:
+            try:
+                self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            except OSError:
+                self._lanes = False
+        self._lane: socket.socket | None = None
+        self._lane_peer: tuple | None = None
+        #: True while another reader (the target's real-time loop) owns the lane: recv and
+        #: recv_many then read the endpoint's own socket only
+        self.lane_busy = False
+        self._pending: list[tuple[bytes, tuple]] = []  # what a replaced lane still held
+        self._lane_drops_before = 0  # kernel drops of lanes already closed
         local = self._sock.getsockname()
         self.local: Address = (local[0], local[1])
         self.peer: tuple | None = None
@@ -180,6 +219,10 @@ class Endpoint:
         self.sent += 1
         return True
 
+    def _readers(self) -> list[socket.socket]:
+        """The sockets this endpoint reads now: the lane (unless the loop owns it), then its own."""
+        return [self._lane, self._sock] if self._lane is not None and not self.lane_busy else [self._sock]
+
     def recv(self, timeout: float = 0.0, spin_s: float = 0.0) -> tuple[bytes, tuple] | None:
         """The next datagram and its sender, waiting at most ``timeout`` s (0: just poll);
         None if none came.  ``spin_s``: the first part of the wait, up to that long, polls the
@@ -190,81 +233,132 @@ class Endpoint:
         deadline = now + max(float(timeout), 0.0)
         spin_until = now + min(max(float(spin_s), 0.0), max(float(timeout), 0.0))
         while True:
-            try:
-                data, addr = self._sock.recvfrom(P.MAX_DATAGRAM + 1)
+            if self._pending:
                 self.received += 1
-                return data, addr
-            except (BlockingIOError, InterruptedError):
-                pass
-            except ConnectionRefusedError:  # an ICMP error from an earlier send: not a datagram
-                continue
-            except OSError:
-                if self._closed:
-                    raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
-                raise
-            now = time.perf_counter()
-            remaining = deadline - now
-            if remaining <= 0:
-                return None
-            if now < spin_until:
-                continue
-            try:
-                select.select([self._sock], [], [], remaining)
-            except (OSError, ValueError):
-                if self._closed:
-                    raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
-                raise
+                return self._pending.pop(0)
+            socks = self._readers()
+            for sock in socks:
+                try:
+                    data, addr = sock.recvfrom(P.MAX_DATAGRAM + 1)
+                    self.received += 1
+                    return data, addr
+                except (BlockingIOError, InterruptedError):
+                    pass
+                except ConnectionRefusedError:  # an ICMP error from an earlier send: not a datagram
+                    break
+                except OSError:
+                    if self._closed:
+                        raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
+                    raise
+            else:
+                now = time.perf_counter()
+                remaining = deadline - now
+                if remaining <= 0:
+                    return None
+                if now < spin_until:
+                    continue
+                try:
+                    select.select(socks, [], [], remaining)
+                except (OSError, ValueError):
+                    if self._closed:
+                        raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
+                    raise
 
     def recv_many(self, limit: int = 4096) -> list[tuple[bytes, tuple]]:
-        """Every datagram waiting on the socket now (at most ``limit``), without waiting: a
+        """Every datagram waiting now (at most ``limit``), the lane's first, without waiting: a
         reader that drains the queue at each wake-up, so that junk never queues ahead of the host.
         Reads the kernel's drop counter (``kernel_dropped``) from each datagram's ancillary data."""
         self._check()
-        out = []
+        out = self._pending[:limit]
+        del self._pending[:limit]
+        self.received += len(out)
         anc = socket.CMSG_SPACE(4) if self.kernel_dropped is not None else 0
-        while len(out) < limit:
-            try:
-                data, ancdata, _flags, addr = self._sock.recvmsg(P.MAX_DATAGRAM + 1, anc)
-            except (BlockingIOError, InterruptedError):
-                break
-            except ConnectionRefusedError:
-                continue
-            except OSError:
-                if self._closed:
-                    raise EndpointClosed(f"endpoint {self.address} was closed while reading") from None
-                raise
-            self.received += 1
-            for level, kind, value in ancdata:
-                if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
-                    # the socket's drops since it opened (it is this endpoint's own socket)
-                    self.kernel_dropped = int.from_bytes(value[:4], "little")
-            out.append((data, addr))
+        for sock in self._readers():
+            while len(out) < limit:
+                try:
+                    data, ancdata, _flags, addr = sock.recvmsg(P.MAX_DATAGRAM + 1, anc)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except ConnectionRefusedError:
+                    continue
+                except OSError:
+                    if self._closed:
+                        raise EndpointClosed(f"endpoint {self.address} was closed while reading") from None
+                    raise
+                self.received += 1
+                for level, kind, value in ancdata:
+                    if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4 \
+                            and sock is self._sock:
+                        # the socket's drops since it opened (a lane's are read from /proc)
+                        self.kernel_dropped = int.from_bytes(value[:4], "little")
+                out.append((data, addr))
         return out
 
+    def open_lane(self, peer: tuple) -> int:
+        """A socket of its own for ``peer``'s datagrams: a second socket bound to this endpoint's
+        address (``SO_REUSEPORT``) and connected to ``peer``, so that the kernel puts ``peer``'s
+        datagrams in the lane's buffer and everyone else's in the endpoint's.  A flood from any
+        other sender then fills the endpoint's buffer, never the lane's: the target gives its
+        session's host one (:mod:`impact_env.rig.wire`).  Returns the lane's file descriptor, or
+        -1 where there is none (an endpoint made without ``lanes``, a platform other than Linux:
+        ``peer``'s datagrams stay on the endpoint's socket).  The lane stays open for ``peer``; a
+        lane for another peer replaces it, what the old one held read first.  :meth:`recv` and
+        :meth:`recv_many` read the lane too (not while ``lane_busy``)."""
+        self._check()
+        if not self._lanes:
+            return -1
+        if self._lane is not None and self._lane_peer == peer:
+            return self._lane.fileno()
+        self._close_lane()
+        lane = socket.socket(self._family, socket.SOCK_DGRAM)
+        try:
+            lane.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self._rcvbuf)
+            lane.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            lane.bind(self._sock.getsockname())
+            lane.connect(peer)
+            lane.setblocking(False)
+        except OSError:
+            lane.close()
+            return -1
+        self._lane, self._lane_peer = lane, peer
+        return lane.fileno()
+
+    def _close_lane(self) -> None:
+        lane, self._lane = self._lane, None
+        if lane is None:
+            return
+        while True:  # what it holds, read before it closes (the kernel would discard it)
+            try:
+                self._pending.append(lane.recvfrom(P.MAX_DATAGRAM + 1))
+            except (BlockingIOError, InterruptedError, ConnectionRefusedError):
+                break
+            except OSError:
+                break
+        self._lane_drops_before += _proc_drops(lane)
+        lane.close()
+
     def kernel_drops(self) -> int:
-        """Datagrams the kernel dropped for this socket since it opened (its receive buffer
-        full): Linux's per-socket counter in /proc/net/udp (read now, so drops after the last
-        datagram count too), else the last SO_RXQ_OVFL value seen, else 0."""
+        """Datagrams the kernel dropped for this endpoint's sockets (its own and its lanes')
+        since it opened (a receive buffer full): Linux's per-socket counter in /proc/net/udp (read
+        now, so drops after the last datagram count too), else the last SO_RXQ_OVFL value seen,
+        else 0."""
         if self._closed:  # the last count read (a closed socket has left /proc)
             return self.kernel_dropped or 0
-        ino = str(os.fstat(self._sock.fileno()).st_ino)
-        for name in ("/proc/net/udp", "/proc/net/udp6"):
-            try:
-                with open(name) as fh:
-                    for line in fh.read().splitlines()[1:]:
-                        f = line.split()
-                        if len(f) >= 13 and f[9] == ino:
-                            self.kernel_dropped = int(f[12])
-                            return self.kernel_dropped
-            except (OSError, ValueError):
-                continue
-        return self.kernel_dropped or 0
+        own = _proc_drops(self._sock)
+        if own < 0:
+            return self.kernel_dropped or 0
+        lane = _proc_drops(self._lane) if self._lane is not None else 0
+        self.kernel_dropped = own + max(lane, 0) + self._lane_drops_before
+        return self.kernel_dropped
 
     def wait_readable(self, timeout: float, *others) -> list:
-        """select() on the socket and ``others`` (file descriptors) for at most ``timeout`` s."""
+        """select() on the sockets read now (:meth:`recv`) and ``others`` (file descriptors) for
+        at most ``timeout`` s."""
         self._check()
+        if self._pending:
+            return [self._sock]
         try:
-            return select.select([self._sock, *others], [], [], max(float(timeout), 0.0))[0]
+            return select.select([*self._readers(), *others], [], [], max(float(timeout), 0.0))[0]
         except (OSError, ValueError):
             if self._closed:
                 raise EndpointClosed(f"endpoint {self.address} was closed while waiting") from None
@@ -276,7 +370,9 @@ class Endpoint:
     def close(self) -> None:
         """Close the socket (idempotent, never blocks)."""
         if not self._closed:
+            self.kernel_drops()
             self._closed = True
+            self._close_lane()
             self._sock.close()
 
     def __enter__(self):

@@ -2,7 +2,9 @@
 step's OBSERVATION made, tagged and sent, by the compiled loop itself (:mod:`impact_env.rig.rtloop`),
 so that no Python thread stands between the host and the tick.
 
-While an episode runs the loop owns the target's socket.  Whenever it waits (spinning to a
+While an episode runs the loop owns the session host's lane (its own socket at the target:
+:meth:`impact_env.rig.transport.Endpoint.open_lane`; where there is none, the target's socket).
+Whenever it waits (spinning to a
 tick's deadline, or for a step's command) it reads every datagram waiting (``recvfrom`` with
 ``MSG_DONTWAIT``, called by address: :mod:`impact_env.rig.cfunc`):
 

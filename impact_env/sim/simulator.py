@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from impact_env._jit import bound_call
-from impact_env._threads import check_threads, env_blocks, run_blocks
+from impact_env._jit import entry_point
+from impact_env._threads import BlockRunner, check_threads, env_blocks, resolve_threads
 from impact_env.config import check_hold_ticks
 from impact_env.control.front_end import FrontEnd
 from impact_env.control.observation import ObservationLayout, make_layout
@@ -24,7 +24,7 @@ from impact_env.control.residual import residual_arrays, start_residual
 from impact_env.hardware.batch import NOISE_BLOCK, Hardware
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.records import N_REC
-from impact_env.sim.step import SimParams, SimState, sim_step
+from impact_env.sim.step import SimParams, SimState, sim_blocks, sim_step
 
 #: envs per block at least when a step runs in threads (measured: scripts/bench_env.py, section
 #: "threads", rig on 2 cores: 2 blocks of 32 envs 0.99x and 1.27x in two runs with a free second
@@ -47,15 +47,16 @@ class Simulator:
     ``residual``: a compiled classic law evaluated every tick on its own observation frame; the
     command of a tick is ``clip(action + law, -1, 1)`` (:mod:`impact_env.sim.step`).
 
-    ``threads``: a step runs its envs in this many threads at once, in blocks of at least
-    :data:`MIN_BLOCK_ENVS` envs (a smaller batch runs serially); None or 1: serially, in the
-    calling thread.  The results do not depend on it, bitwise (:mod:`impact_env._threads`).
-    It may be changed between steps (:attr:`threads`).
+    ``threads``: a step runs its envs in this many threads at once (one compiled parallel region
+    over blocks of at least :data:`MIN_BLOCK_ENVS` envs; a smaller batch runs serially);
+    ``"auto"``: the CPUs this process may use, at most one per :data:`MIN_BLOCK_ENVS` envs;
+    None or 1: serially, in the calling thread.  The results do not depend on it, bitwise
+    (:mod:`impact_env._threads`).  It may be changed between steps (:attr:`threads`).
     """
 
     def __init__(self, scene: Scene | str, num_envs: int = 1, layout: ObservationLayout | None = None,
                  hold_ticks: int = 1, residual: CompiledPolicy | None = None, events_per_env: int = 64,
-                 threads: int | None = None):
+                 threads: int | str | None = None):
         scene = load_scene(scene)
         self.hold = check_hold_ticks(hold_ticks)
         threads = check_threads(threads)
@@ -68,7 +69,9 @@ class Simulator:
         self.fe = FrontEnd(scene, self.layout, self.n)
         self.records = np.zeros((self.n, self.hold, N_REC))
         self._all = np.ones(self.n, dtype=bool)
-        self._step = None  # sim_step bound to this simulator's argument types (first step)
+        # sim_step serially, or its parallel shim over blocks, bound to this simulator's argument
+        # types (float64[::1] actions, bool[::1] active) from the first step on
+        self._run = BlockRunner(sim_step, sim_blocks, entry_point)
         self.residual = residual
         if residual is not None:
             if residual.mlp is not None or residual.history != 1:
@@ -85,12 +88,13 @@ class Simulator:
 
     @property
     def threads(self) -> int:
-        """How many threads a step runs its envs in (1: serially); may be set between steps."""
+        """How many threads a step runs its envs in (1: serially; ``"auto"`` resolved:
+        :func:`impact_env._threads.resolve_threads`); may be set between steps."""
         return self._threads
 
     @threads.setter
-    def threads(self, threads: int | None) -> None:
-        self._threads = check_threads(threads)
+    def threads(self, threads: int | str | None) -> None:
+        self._threads = resolve_threads(check_threads(threads), self.n, MIN_BLOCK_ENVS)
         self._blocks = env_blocks(self.n, self._threads, MIN_BLOCK_ENVS)
 
     # -- episodes ------------------------------------------------------------------------------
@@ -107,18 +111,26 @@ class Simulator:
     def step(self, actions, active=None) -> None:
         """One policy step (``hold_ticks`` ticks) of every env (or of those where ``active`` is
         true: the others are left exactly as they are) under float64[N] commands in [-1, 1]."""
+        self._run(self._blocks, self.step_args(actions, active))
+
+    @property
+    def blocks(self) -> list[tuple[int, int]]:
+        """The blocks of envs a step runs at once (one: the serial call)."""
+        return self._blocks
+
+    def step_args(self, actions, active=None) -> tuple:
+        """The arguments after ``(i0, i1)`` of :func:`~impact_env.sim.step.sim_step` for one step
+        (``actions, active, params, state``), the step's noise drawn: for a caller that runs the
+        step inside a kernel of its own, over :attr:`blocks` (the catch task's
+        :func:`~impact_env.env.task_kernel.catch_step`)."""
         n = self.n
         # the types the bound kernel was made for: writable C-contiguous float64[n] and bool[n]
         own = (type(actions) is np.ndarray and actions.dtype == np.float64 and actions.ndim == 1
                and actions.shape[0] == n and actions.flags.c_contiguous and actions.flags.writeable)
         a = actions if own else np.array(actions, dtype=np.float64).reshape(n)
         act = self._all if active is None else np.array(active, dtype=bool).reshape(n)
-        self.hw.refill_noise(self.hold, None if active is None else act)
-        args = (a, act, self.params, self.state)
-        if self._step is None:  # its argument types are fixed from here on: float64[::1], bool[::1]
-            self._step = bound_call(sim_step, (0, n) + args)  # (this first step: serially)
-        else:
-            run_blocks(self._step, self._blocks, args)
+        self.hw.refill_noise(self.hold, None if active is None else act, self._blocks)
+        return a, act, self.params, self.state
 
     # -- what the rest of the project reads ---------------------------------------------------
     @property
