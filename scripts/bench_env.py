@@ -9,7 +9,11 @@
 4. The batched control period as ``compare`` runs it (``rollout`` of ``rig`` at N = 400 episodes,
    ``passive`` and ``pd-penetration``, one thread), per env per period, with the default
    integrator and with the former default (RK4 at 1 us) in the same run.  Goal: <= 0.3 us.
-5. Threads (``threads=`` of the Simulator, the vector env, rollout and compare): the speed-up of
+5. Threads (``threads=`` of the Simulator, the vector env, rollout and compare): first the
+   issue's table, ``ImpactCatchVectorEnv(N, "rig", hold_ticks=h, threads=k)`` at N = 1024,
+   4096, 16384, hold 1 and 4, with 1, 2 and every CPU's thread and the former Python threads
+   beside (the first steps after a reset, the same work in every round), a scaling model and a
+   parallel call's fixed cost (``--only vector-threads`` alone); then the speed-up of
    2 threads over 1, measured in alternating rounds on the same objects: the simulator's step on
    ``rig`` at N = 16 .. 1024 (where a block of envs starts to pay: the threshold
    ``MIN_BLOCK_ENVS``), the vector env at N = 1024, and a rollout as ``compare`` runs it (``rig``,
@@ -17,9 +21,13 @@
    through the compiled loop) at N = 256 and 1024.  The load average is printed beside it: on a
    shared machine other jobs take the second core.
 
+6. One step of the single env part by part, and a vector env's reset per env (``--only step``).
+
+``--only ratios`` runs 1 and 2 alone (the step and vector ratios).
+
 Times are the minimum over repeats after a warm-up (numba compiled and cached first).
 
-    python scripts/bench_env.py [--quick] [--only threads]
+    python scripts/bench_env.py [--quick] [--only ratios|threads|vector-threads|period|step]
 """
 
 from __future__ import annotations
@@ -382,7 +390,8 @@ def _period_us(scene, spec: str, n: int, n_steps: int, repeats: int, compiled: b
             done[0] += k
             marks.append((time.perf_counter(), done[0]))
 
-        rollout(scene, pol, range(n), horizon=n_steps * scene.control_period, trace_rate=1e4, progress=progress)
+        rollout(scene, pol, range(n), horizon=n_steps * scene.control_period, trace_rate=1e4,
+                progress=progress)
         (t_a, k_a), (t_b, k_b) = marks[0], marks[-1]
         best = min(best, (t_b - t_a) / (k_b - k_a) / n)
     return best * 1e6
@@ -396,22 +405,101 @@ def period_table(quick: bool) -> None:
     repeats = 1 if quick else 3
     rig = impact_env.load_scene("rig")
     old = with_overrides(rig, {"integrator.method": "rk4", "integrator.dt": 1e-6})
-    print(f"\n## The batched control period (rollout of rig, N = {n}, {n_steps} periods, one thread)\n")
-    print("| policy (loop) | default integrator ({}) us per env per period | RK4 at 1 us | ratio |".format(
-        rig.integrator.method))
+    print(f"\n## The batched control period (rollout of rig, N = {n}, {n_steps} periods, one thread)\n\n"
+          f"(load average before: {_loadavg()})\n")
+    print(f"| policy (loop) | default integrator ({rig.integrator.method}) us per env per period | "
+          "RK4 at 1 us | ratio |")
     print("|---|---|---|---|")
     for spec, compiled in (("passive", False), ("pd-penetration", False), ("pd-penetration", True)):
         new_us = _period_us(rig, spec, n, n_steps, repeats, compiled)
         old_us = _period_us(old, spec, n, n_steps, repeats, compiled)
         loop = "compiled loop" if compiled else "Python loop"
         print(f"| {spec} ({loop}) | {new_us:.2f} | {old_us:.2f} | {old_us / new_us:.2f}x faster |")
-    print("\ngoal: <= 0.3 us per env per period")
+    print(f"\ngoal: <= 0.3 us per env per period (load average after: {_loadavg()})")
+
+
+def step_breakdown(repeats: int = 7) -> None:
+    """Where one step of ``gymnasium.make("ImpactCatch-v0", scene="rig")`` goes, each part timed
+    alone (min over repeats), beside ``MountainCarContinuous-v0``'s whole step; and a vector
+    env's reset per env (every episode of ``rig`` draws its drop).  The parts that advance the
+    env (the whole step, the compiled step's work) are timed over the first 3000 steps after
+    ``reset(seed=0)`` in every repeat (the same work: a step's cost changes along an episode).
+    The last row is the whole step less the parts, each timed alone: on a busy machine (or with
+    ``--quick``'s few repeats) it can come out negative."""
+    from impact_env.env.task import info_from_row
+    from impact_env.env.vector import ImpactCatchVectorEnv
+
+    def us(f, reps=20000, before=None):
+        best = np.inf
+        for _ in range(repeats):
+            if before is not None:
+                before()
+            t0 = time.perf_counter()
+            for _ in range(reps):
+                f()
+            best = min(best, (time.perf_counter() - t0) / reps)
+        return 1e6 * best
+
+    load = _loadavg()
+    a32 = np.array([0.1], np.float32)
+    mc = gym.make("MountainCarContinuous-v0")
+    mc.reset(seed=0)
+    env = gym.make("ImpactCatch-v0", scene="rig")
+    env.reset(seed=0)
+    task = env.unwrapped.task
+    sim = task.sim
+    rows = [("MountainCarContinuous-v0: a whole step (gymnasium.make)", us(lambda: mc.step(a32)))]
+    def fresh():
+        env.reset(seed=0)
+
+    whole = us(lambda: env.step(a32), 3000, fresh)
+    inner = us(lambda: env.unwrapped.step(a32), 3000, fresh)
+    fresh()
+    a = task.check_actions(a32)
+    args = sim.step_args(a) + (task.drop, task.params, task.state, task.out, task._no_cols)
+    off = (a, np.zeros(1, dtype=bool)) + args[2:]
+
+    def kernel():
+        sim.hw.refill_noise(1)
+        task._run._serial(0, 1, *args)
+
+    call = us(lambda: task._run._serial(0, 1, *off))
+    tick = us(kernel, 3000, fresh) - call
+    rows += [("ImpactCatch-v0 rig: a whole step (gymnasium.make)", whole),
+             ("  the wrappers (gymnasium.make's checker, order enforcing)", whole - inner),
+             ("  the compiled step's work (one control period of one env: plant, effects, front "
+              "end, records, task)", tick),
+             ("  the compiled step's call (its ~50 arrays and ~25 scalars unboxed), on an inactive env",
+              call),
+             ("  the info dict (info_from_row)", us(lambda: info_from_row(task.rows[0]))),
+             ("  the observation's copy", us(lambda: task.obs[0].copy())),
+             ("  the action's check", us(lambda: task.check_actions(a32))),
+             ("  Simulator.step_args (arrays' checks, the noise's top-up check)",
+              us(lambda: sim.step_args(a)))]
+    rest = inner - sum(x for _, x in rows[3:])
+    rows.append(("  the rest of ImpactCatchEnv.step's Python (BlockRunner, conversions)", rest))
+    print(f"\n## One step of the single env, part by part (us, min over repeats)\n\n(load average "
+          f"before: {load}, after: {_loadavg()})\n")
+    print("| part | us |")
+    print("|---|---|")
+    for name, x in rows:
+        print(f"| {name} | {x:.2f} |")
+    n = 1024
+    venv = ImpactCatchVectorEnv(n, "rig")
+    venv.reset(seed=0)
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        venv.reset()
+        best = min(best, time.perf_counter() - t0)
+    print(f"\nvector env reset on rig (every env draws its drop), N = {n}: {1e6 * best / n:.0f} us per env")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and repeats (a smoke run)")
-    ap.add_argument("--only", choices=("threads", "vector-threads", "period"), help="run only this section")
+    ap.add_argument("--only", choices=("ratios", "threads", "vector-threads", "period", "step"),
+                    help="run only this section")
     args = ap.parse_args()
     impact_env.load_scene("rig")
     if args.only == "threads":
@@ -420,13 +508,22 @@ def main() -> None:
     if args.only == "vector-threads":
         vector_threads_table(args.quick)
         return
+    if args.only == "step":
+        step_breakdown()
+        return
     if args.only == "period":
         period_table(args.quick)
         return
     n_steps, repeats = (500, 2) if args.quick else (3000, 5)
+    print(f"(load average before: {_loadavg()})")
     single_env_table(n_steps, repeats)
+    if args.only != "ratios":
+        step_breakdown(3 if args.quick else 7)
     vector_table((1, 64, 1024) if args.quick else (1, 64, 1024, 4096), 20 if args.quick else 100,
                  2 if args.quick else 3)
+    if args.only == "ratios":
+        print(f"\n(load average after: {_loadavg()})")
+        return
     ppo_share(8192 if args.quick else 32768)
     period_table(args.quick)
     threads_table(args.quick)
