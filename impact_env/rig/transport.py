@@ -134,8 +134,10 @@ def _proc_drops(sock: socket.socket) -> int:
 
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: the kernel's drop count with each datagram
 # Linux delivers a datagram to the connected socket of a SO_REUSEPORT group whose peer sent it,
-# ahead of the group's unconnected one (net/ipv4/udp.c's scoring): what a lane relies on
-LANES = sys.platform.startswith("linux") and hasattr(socket, "SO_REUSEPORT")
+# ahead of the group's unconnected one (net/ipv4/udp.c's scoring): what a lane relies on.
+# IMPACT_ENV_RIG_LANES=0 turns lanes off (an A/B of them: docs/rig.md)
+LANES = sys.platform.startswith("linux") and hasattr(socket, "SO_REUSEPORT") \
+    and os.environ.get("IMPACT_ENV_RIG_LANES", "1") != "0"
 
 
 class Endpoint:
