@@ -58,8 +58,11 @@ class AsymmetricMlpExtractor(MlpExtractor):
         return self.policy_net(features.index_select(1, self.actor_idx))
 
 
-class AsymmetricActorCriticPolicy(ActorCriticPolicy):
-    """ActorCriticPolicy (one shared flatten extractor) with an :class:`AsymmetricMlpExtractor`."""
+class SensorActor:
+    """What the asymmetric policies share: the actor's entries of the observation (``_indices``,
+    from ``frame_size``, ``actor_frame_size`` and ``history``: :func:`actor_indices`), checked
+    against the observation space, and kept among the constructor's parameters (a saved model
+    loads with them)."""
 
     def __init__(self, *args, frame_size: int, actor_frame_size: int, history: int = 1, **kwargs):
         self._asym = (int(frame_size), int(actor_frame_size), int(history))
@@ -69,14 +72,18 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
             raise ValueError(f"observation of {self.observation_space.shape[0]} entries is too small for "
                              f"frame_size {frame_size} x history {history}")
 
-    def _build_mlp_extractor(self) -> None:
-        self.mlp_extractor = AsymmetricMlpExtractor(self.features_dim, self._indices, self.net_arch,
-                                                    self.activation_fn, self.device)
-
     def _get_constructor_parameters(self) -> dict:
         data = super()._get_constructor_parameters()
         data.update(frame_size=self._asym[0], actor_frame_size=self._asym[1], history=self._asym[2])
         return data
+
+
+class AsymmetricActorCriticPolicy(SensorActor, ActorCriticPolicy):
+    """ActorCriticPolicy (one shared flatten extractor) with an :class:`AsymmetricMlpExtractor`."""
+
+    def _build_mlp_extractor(self) -> None:
+        self.mlp_extractor = AsymmetricMlpExtractor(self.features_dim, self._indices, self.net_arch,
+                                                    self.activation_fn, self.device)
 
 
 class IndexSelect(nn.Module):
@@ -92,7 +99,7 @@ class IndexSelect(nn.Module):
         return th.flatten(observations, start_dim=1).float().index_select(1, self.actor_idx)
 
 
-class AsymmetricSACPolicy(SACPolicy):
+class AsymmetricSACPolicy(SensorActor, SACPolicy):
     """SAC's policy with an actor that reads the sensor entries only (``IndexSelect``) and critics
     that read everything, the true state included (``observation="both"``): the asymmetric
     actor-critic of :class:`AsymmetricActorCriticPolicy` for SAC.
@@ -104,25 +111,12 @@ class AsymmetricSACPolicy(SACPolicy):
     controller.  :func:`sensor_actor_model` turns a trained model into the plain sensor model
     that is shipped, exported and compiled."""
 
-    def __init__(self, *args, frame_size: int, actor_frame_size: int, history: int = 1, **kwargs):
-        self._asym = (int(frame_size), int(actor_frame_size), int(history))
-        self._indices = actor_indices(*self._asym)
-        super().__init__(*args, **kwargs)
-        if self.observation_space.shape[0] <= max(self._indices):
-            raise ValueError(f"observation of {self.observation_space.shape[0]} entries is too small for "
-                             f"frame_size {frame_size} x history {history}")
-
     def make_actor(self, features_extractor=None):
         from stable_baselines3.sac.policies import Actor
 
         fe = IndexSelect(self.observation_space, self._indices)
         actor_kwargs = self._update_features_extractor(self.actor_kwargs, fe)
         return Actor(**actor_kwargs).to(self.device)
-
-    def _get_constructor_parameters(self) -> dict:
-        data = super()._get_constructor_parameters()
-        data.update(frame_size=self._asym[0], actor_frame_size=self._asym[1], history=self._asym[2])
-        return data
 
 
 def init_sac_actor(model, log_std_init: float, mean_gain: float = 0.01) -> None:
