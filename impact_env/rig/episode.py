@@ -84,7 +84,6 @@ class Episode:
         self.cols = {name: log.col(name) for name in log.names}
         self.hl = None  # the compiled loop's rings (impact_env.rig.ring), while it runs
         self.wire: WR.Wire | None = None  # host mode: the loop's wire (impact_env.rig.wire)
-        self.lane = False  # host mode: the loop reads the host's lane, the network thread the socket
         self.stream = None  # the log streamed to disk (impact_env.rig.log.LogStream), if any
         self.stop_asked_tick = -1  # the tick the loop was at when it was asked to stop
         self.stop_tick = -1  # the tick it stopped at
@@ -309,10 +308,9 @@ class Episode:
         link, f = tg.link, tg.link.filter
         if self.host:  # the loop owns the host's lane (else the socket) for the episode
             fd = link.endpoint.open_lane(link.last_sender) if link.last_sender is not None else -1
-            self.lane = fd >= 0
-            link.endpoint.lane_busy = self.lane
-            self.wire = WR.make(fd if self.lane else link.endpoint.fileno(), f.key, f.nonce, f.session or 0, self.ep,
-                                link.last_sender,
+            link.endpoint.lane_busy = fd >= 0  # the loop reads the lane, the network thread the socket
+            self.wire = WR.make(fd if fd >= 0 else link.endpoint.fileno(), f.key, f.nonce, f.session or 0,
+                                self.ep, link.last_sender,
                                 f.stream(f.session or 0, P.MsgType.COMMAND), link.seq, wake_fd=wake_w)
         else:
             self.wire = WR.none()
@@ -368,13 +366,14 @@ class Episode:
         tg, link = self.t, self.t.link
         sh = hl.shared
         why: str | None = None
+        lane = link.endpoint.lane_busy
         while True:
             done = sh[RG.SH.done] != 0 or not rt.is_alive()
             if self.host:
                 why = self._take_queued(why)
             if done:
                 return why
-            if self.host and not self.lane:  # the loop reads the socket
+            if self.host and not lane:  # the loop reads the socket
                 ready = select.select([wake_r], [], [], 0.005)[0]
             else:  # the loop reads the host's lane (or nothing): the rest is the socket's
                 ready = link.endpoint.wait_readable(0.005 if self.host else 0.02, wake_r)
@@ -385,7 +384,7 @@ class Episode:
                     pass
             if why is not None:
                 continue
-            if not self.host or self.lane:
+            if not self.host or lane:
                 step = int(sh[RG.SH.tick]) // self.hold
                 for msg in link.recv_all(episode=self.ep, step=step):
                     why = self.take(msg)
