@@ -43,6 +43,7 @@ from impact_env.control.front_end import F_DETECTOR, F_FILTERS, FrontEnd
 from impact_env.control.observation import OBS_LIMIT
 from impact_env.control.policy import CompiledPolicy
 from impact_env.effects import detector as DT
+from impact_env.effects.filters import tpt_sections
 from impact_env.rig import safety as SF
 
 HEADER_NAME = "impact_policy.h"
@@ -263,7 +264,8 @@ typedef struct {{
      * ticks in a row, the SENSOR_TIMEOUT latch, whether a reading was seen this episode */
     double pl_good[IMPACT_N_READINGS], pl_last[IMPACT_N_READINGS];
     double pl_run, pl_latch, pl_primed;
-    /* front end: SOS filter memory (transposed direct form II), detector, conditioned readings */
+    /* front end: filter memory per section (double: transposed direct form II; float32: the
+     * trapezoidal SVF's two integrators), detector, conditioned readings */
     impact_real filt[IMPACT_N_READINGS][{self.nsec}][2];
     impact_real det_prev_s, det_latch;           /* eq 4.4 signal (N) at the last tick, contact bit */
     impact_real cond[IMPACT_N_READINGS];
@@ -402,15 +404,32 @@ static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_R
                                          for k in range(sos.shape[1]))
             chan_rows.append(f"    {{ /* {CHANNELS[c]} */\n        {secs}\n    }}")
         sos_txt = ",\n".join(chan_rows)
+        tpt = tpt_sections(sos)
+        tpt_rows = []
+        for c in range(tpt.shape[0]):
+            secs = ",\n        ".join("{" + ", ".join(_r(x) for x in tpt[c, k]) + "}"
+                                         for k in range(tpt.shape[1]))
+            tpt_rows.append(f"    {{ /* {CHANNELS[c]} */\n        {secs}\n    }}")
+        tpt_txt = ",\n".join(tpt_rows)
         filt_code = """
     for (int c = 0; c < IMPACT_N_READINGS; c++) {
         impact_real v = s->cond[c];
         for (int k = 0; k < N_SECTIONS; k++) {
+#ifdef IMPACT_FLOAT32
+            const impact_real *t = TPT[c][k];  /* c1 c2 c3 m0 m1 m2; filt: the two integrators */
+            impact_real v3 = v - s->filt[c][k][1];
+            impact_real v1 = t[0] * s->filt[c][k][0] + t[1] * v3;
+            impact_real v2 = s->filt[c][k][1] + t[1] * s->filt[c][k][0] + t[2] * v3;
+            s->filt[c][k][0] = 2.0f * v1 - s->filt[c][k][0];
+            s->filt[c][k][1] = 2.0f * v2 - s->filt[c][k][1];
+            v = t[3] * v + t[4] * v1 + t[5] * v2;
+#else
             const impact_real *b = SOS[c][k];
             impact_real y = b[0] * v + s->filt[c][k][0];
             s->filt[c][k][0] = b[1] * v - b[4] * y + s->filt[c][k][1];
             s->filt[c][k][1] = b[2] * v - b[5] * y;
             v = y;
+#endif
         }
         s->cond[c] = v;
     }""" if filters else "\n    /* the scene has no filters effect: the readings pass as they are */"
@@ -435,11 +454,21 @@ static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_R
         return f"""/* ---- front end: the scene's filters and the contact detector (impact_env.control.front_end) ---- */
 
 #define N_SECTIONS {sos.shape[1]}
+#ifndef IMPACT_FLOAT32
 /* Butterworth second-order sections per channel (b0 b1 b2 a0 a1 a2; scipy's sos layout; identity
- * sections pad short cascades), from the scene's effects.filters at {self.pol.control_rate:g} Hz */
+ * sections pad short cascades), from the scene's effects.filters at {self.pol.control_rate:g} Hz,
+ * run in transposed direct form II as the simulator's filters (bitwise the same) */
 static const impact_real SOS[IMPACT_N_READINGS][N_SECTIONS][6] = {{
 {sos_txt}
 }};
+#else
+/* float32: the same sections as trapezoidal state-variable filters (c1 c2 c3 m0 m1 m2;
+ * impact_env.effects.filters.tpt_sections): the same transfer functions, but a high-pass section
+ * near z = 1 in direct form amplifies float32 rounding about 100x more (docs/rig.md) */
+static const impact_real TPT[IMPACT_N_READINGS][N_SECTIONS][6] = {{
+{tpt_txt}
+}};
+#endif
 /* the contact detector (effects.detector): m2' (kg), threshold (N), derivative threshold (N/s), rate */
 static const impact_real DET_TOP_MASS_KG = {_r(dp[DT.DP.top_mass])};
 static const impact_real DET_THRESHOLD_N = {_r(dp[DT.DP.threshold])};
