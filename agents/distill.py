@@ -226,7 +226,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     steps = iterations * steps_per_episode * envs
     hold = int(kw.get("hold_ticks", 1))
     env_kwargs = {**kw, "observation": "sensors", "history": history}
-    meta = {"algo": "ppo", "label": f"distill-h{history}-s{seed}", "observation": "sensors",
+    meta = {"algo": "ppo", "label": f"distill-h{history}{'pc' if past_commands else ''}-s{seed}", "observation": "sensors",
             "history": history,
             "scene": scene_name, "overrides": meta_t.get("overrides") or {}, "env_kwargs": env_kwargs,
             "hold_ticks": hold, "residual": kw.get("residual"), "steps": steps, "ticks": steps * hold,

@@ -283,6 +283,8 @@ def _what(m: dict) -> str:
     asym = m.get("policy") in ASYMMETRIC
     hist = f" x {m['history']}" if (m.get("history") or 1) > 1 else ""
     how = " (DAgger from the true-state run)" if m.get("distilled_from") else ""
+    if m.get("past_commands"):
+        hist += " + its past commands"
     return (f"{obs}{hist}{' (critic: + true state)' if asym else ''}{how}, hold {m.get('hold_ticks', 1)}, "
             f"{m.get('envs', '?')} envs")
 
@@ -678,6 +680,7 @@ def _run_record(info: dict) -> dict:
     rec = {k: m.get(k) for k in ("scene", "steps", "ticks", "wall_time_s", "observation", "policy",
                                  "hold_ticks", "envs", "env_share", "steps_per_s", "torch_threads",
                                  "cpu_time_s", "history", "distilled_from")}
+    rec["past_commands"] = bool((m.get("hyperparameters") or {}).get("past_commands"))
     rec.update(first_beats_law=best.get("first_beats_law"), best_wall_s=best.get("wall_s"),
                law=best.get("residual_law_return"),
                validation_history=(m.get("validation") or {}).get("history"))
