@@ -231,6 +231,20 @@ def test_float32_build_within_its_bound(spec, tmp_path):
         assert np.any(du > 0.0) or spec == "thesis-rig"  # float32 is really in use (thesis-rig: saturated)
 
 
+
+@pytest.mark.parametrize("without", ["filters", "detector"])
+def test_a_scene_without_a_front_end_effect(without, tmp_path):
+    """A scene without the filters (or the detector) exports and builds (no table left unused
+    under -Werror), the double build bitwise the numba target, the float32 build within its bound."""
+    base = load_scene("rig")
+    scene = load_scene("rig", {"effects.active": [e for e in base.effects.active if e != without]})
+    pol = export_policy("pd-penetration", scene)
+    rec = PA.record(pol, scene, 0, 1500)
+    for f32 in (False, True):
+        got = PA.replay(_build(pol, scene, tmp_path, float32=f32), rec)
+        du = np.abs(got.command - rec.command)
+        assert (du.max() == 0.0) if not f32 else (du.max() <= F32_BOUND), (f32, du.max())
+
 # the float32 closed loop against the double one, over the whole horizon (see the test's doc)
 ENSEMBLE = 8  # double closed loops with random command errors of the float32 build's size
 ENVELOPE_FACTOR = 2.0

@@ -404,7 +404,7 @@ static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_R
                                          for k in range(sos.shape[1]))
             chan_rows.append(f"    {{ /* {CHANNELS[c]} */\n        {secs}\n    }}")
         sos_txt = ",\n".join(chan_rows)
-        tpt = tpt_sections(sos)
+        tpt = tpt_sections(sos) if filters else sos  # (no filters: no tables are written)
         tpt_rows = []
         for c in range(tpt.shape[0]):
             secs = ",\n        ".join("{" + ", ".join(_r(x) for x in tpt[c, k]) + "}"
@@ -451,9 +451,7 @@ static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_R
     else if (ds < -DET_DTHRESHOLD_N_PER_S) s->det_latch = 0.0;
     s->det_prev_s = sig;
     s->detected = (s->det_latch != 0.0) ? 1.0 : 0.0;"""
-        return f"""/* ---- front end: the scene's filters and the contact detector (impact_env.control.front_end) ---- */
-
-#define N_SECTIONS {sos.shape[1]}
+        tables = f"""#define N_SECTIONS {sos.shape[1]}
 #ifndef IMPACT_FLOAT32
 /* Butterworth second-order sections per channel (b0 b1 b2 a0 a1 a2; scipy's sos layout; identity
  * sections pad short cascades), from the scene's effects.filters at {self.pol.control_rate:g} Hz,
@@ -469,7 +467,10 @@ static const impact_real TPT[IMPACT_N_READINGS][N_SECTIONS][6] = {{
 {tpt_txt}
 }};
 #endif
-/* the contact detector (effects.detector): m2' (kg), threshold (N), derivative threshold (N/s), rate */
+""" if filters else "/* the scene has no filters effect: no filter tables */\n"
+        return f"""/* ---- front end: the scene's filters and the contact detector (impact_env.control.front_end) ---- */
+
+{tables}/* the contact detector (effects.detector): m2' (kg), threshold (N), derivative threshold (N/s), rate */
 static const impact_real DET_TOP_MASS_KG = {_r(dp[DT.DP.top_mass])};
 static const impact_real DET_THRESHOLD_N = {_r(dp[DT.DP.threshold])};
 static const impact_real DET_DTHRESHOLD_N_PER_S = {_r(dp[DT.DP.derivative_threshold])};
