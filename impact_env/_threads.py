@@ -307,17 +307,20 @@ class BlockRunner:
     ``entry``: :func:`impact_env._jit.entry_point`, for a caller that keeps the arguments' types
     fixed from call to call (as :func:`~impact_env._jit.bound_call` requires): after its first
     call each compiled function is called through its entry point, without numba's typing of
-    the arguments.  The flattening of a named tuple is reused while the caller passes the same
+    the arguments.  ``bind`` (with ``entry``): :func:`impact_env._bind.bind`: a serial call whose
+    named tuples are the objects of the call before runs bound, without unboxing them.  The flattening of a named tuple is reused while the caller passes the same
     object."""
 
-    def __init__(self, kernel, shim, entry: Callable | None = None):
+    def __init__(self, kernel, shim, entry: Callable | None = None, bind: Callable | None = None):
         self.kernel = kernel
         self.shim = shim
         self.entry = entry
+        self.bind = bind
         self._serial = None
         self._par = None
         self._flat: dict[int, tuple] = {}  # argument position -> (the named tuple, its leaves)
         self._bounds: tuple | None = None  # (blocks, bounds, ok) of the last parallel call
+        self._bound: typing.Any = None  # the serial call bound by ``bind`` (None: not yet; False: cannot be)
 
     def _flat_args(self, args: tuple) -> tuple:
         out = []
@@ -334,12 +337,21 @@ class BlockRunner:
     def __call__(self, blocks: list[tuple[int, int]], args: tuple) -> None:
         if len(blocks) == 1:
             i0, i1 = blocks[0]
+            full = (i0, i1) + args
+            bound = self._bound
+            if bound and bound.fits(full):
+                bound(full)
+                return
             if self._serial is not None:
-                self._serial(i0, i1, *args)
+                self._serial(*full)
             else:
-                self.kernel(i0, i1, *args)
-                if self.entry is not None:
-                    self._serial = self.entry(self.kernel, (i0, i1) + args)
+                self.kernel(*full)
+                if self.entry is None:
+                    return
+                self._serial = self.entry(self.kernel, full)
+            # bound for the next calls with these named tuples (False: they cannot be; not tried again)
+            if bound is not False and self.bind is not None:
+                self._bound = self.bind(self.kernel, full) or False
             return
         if not parallel_available():
             python_threads(self._serial or self.kernel, blocks, args)

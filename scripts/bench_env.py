@@ -459,25 +459,28 @@ def step_breakdown(repeats: int = 7) -> None:
     args = sim.step_args(a) + (task.drop, task.params, task.state, task.out, task._no_cols)
     off = (a, np.zeros(1, dtype=bool)) + args[2:]
 
+    run = task._run  # the BlockRunner, as the step calls it (bound unless IMPACT_ENV_BIND=0)
+
     def kernel():
         sim.hw.refill_noise(1)
-        task._run._serial(0, 1, *args)
+        run(sim.blocks, args)
 
-    call = us(lambda: task._run._serial(0, 1, *off))
+    call = us(lambda: run(sim.blocks, off))
     tick = us(kernel, 3000, fresh) - call
     rows += [("ImpactCatch-v0 rig: a whole step (gymnasium.make)", whole),
              ("  the wrappers (gymnasium.make's checker, order enforcing)", whole - inner),
              ("  the compiled step's work (one control period of one env: plant, effects, front "
               "end, records, task)", tick),
-             ("  the compiled step's call (its ~50 arrays and ~25 scalars unboxed), on an inactive env",
-              call),
+             ("  the compiled step's call through its BlockRunner, on an inactive env ("
+              + ("bound: its named tuples written once, impact_env._bind" if run._bound else
+                 "its ~50 arrays and ~25 scalars unboxed") + ")", call),
              ("  the info dict (info_from_row)", us(lambda: info_from_row(task.rows[0]))),
              ("  the observation's copy", us(lambda: task.obs[0].copy())),
              ("  the action's check", us(lambda: task.check_actions(a32))),
              ("  Simulator.step_args (arrays' checks, the noise's top-up check)",
               us(lambda: sim.step_args(a)))]
     rest = inner - sum(x for _, x in rows[3:])
-    rows.append(("  the rest of ImpactCatchEnv.step's Python (BlockRunner, conversions)", rest))
+    rows.append(("  the rest of ImpactCatchEnv.step's Python (conversions, the task's arguments)", rest))
     print(f"\n## One step of the single env, part by part (us, min over repeats)\n\n(load average "
           f"before: {load}, after: {_loadavg()})\n")
     print("| part | us |")

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from impact_env._bind import bind
 from impact_env._jit import entry_point
 from impact_env._threads import BlockRunner
 from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
@@ -250,7 +251,7 @@ class CatchTask:
         self._a1 = np.zeros(1)
         # the simulator's step and the task's in one compiled call (or parallel region):
         # TK.catch_step, bound to these arrays' types from the first step on
-        self._run = BlockRunner(TK.catch_step, TK.catch_blocks, entry_point)
+        self._run = BlockRunner(TK.catch_step, TK.catch_blocks, entry_point, bind)
         self._no_cols = np.zeros((TK.N_COL, 0))  # catch_step's ``cols`` when no info columns are wanted
 
     @property

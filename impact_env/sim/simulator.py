@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from impact_env._bind import bind
 from impact_env._jit import entry_point
 from impact_env._threads import BlockRunner, check_threads, env_blocks, resolve_threads
 from impact_env.config import check_hold_ticks
@@ -71,7 +72,7 @@ class Simulator:
         self._all = np.ones(self.n, dtype=bool)
         # sim_step serially, or its parallel shim over blocks, bound to this simulator's argument
         # types (float64[::1] actions, bool[::1] active) from the first step on
-        self._run = BlockRunner(sim_step, sim_blocks, entry_point)
+        self._run = BlockRunner(sim_step, sim_blocks, entry_point, bind)
         self.residual = residual
         if residual is not None:
             if residual.mlp is not None or residual.history != 1:

@@ -1,0 +1,223 @@
+"""Kernel calls whose named tuples are bound once: the single env's step without unboxing them.
+
+A compiled kernel's entry point unboxes every array of its arguments on every call (about 45 ns
+each: ``python scripts/bench_call.py``); the env's step hands its kernel ~50 arrays in nested
+named tuples, 2.6 us of a 7.7 us step (docs/env.md).  Those named tuples are the same objects
+from call to call, so their arrays' addresses, shapes and scalars can be written once into three
+small arrays; a *shim* generated for the kernel's argument types takes those three arrays (and
+the call's own arrays, which may change), rebuilds every array with ``numba.carray`` and every
+named tuple with its constructor, and calls the kernel with them: the kernel's own compiled code
+for the same types, so the results are bitwise those of the direct call (``tests/test_bind.py``).
+
+The shim's source is written to a file (``NUMBA_CACHE_DIR/impact_env_bind``, else the user's
+cache folder, else the temporary one) named by a hash of its text and of the project's sources
+(:data:`impact_env._jit._STAMP`), so numba caches it like any kernel and a change to the project
+gives a new shim.  :class:`Bound` keeps the named tuples it was made from (their arrays stay
+alive) and is used only while the caller passes the very same objects (:meth:`Bound.fits`).
+Anything the shim cannot rebuild (a non-contiguous or read-only array, a scalar type other than
+int64, float64 and bool) leaves the call as it was: :func:`bind` returns None.
+
+``IMPACT_ENV_BIND=0`` turns binding off; so does ``NUMBA_DISABLE_JIT=1``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import operator
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numba
+import numpy as np
+from numba.core import config as numba_config
+from numba.core import types as nt
+from numba.extending import intrinsic
+
+from impact_env import _jit
+
+ENABLED = os.environ.get("IMPACT_ENV_BIND", "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def _pointer(nbtype):
+    @intrinsic
+    def as_pointer(typingctx, addr):
+        sig = nt.CPointer(nbtype)(addr)
+
+        def codegen(context, builder, signature, args):
+            return builder.inttoptr(args[0], context.get_value_type(nt.CPointer(nbtype)))
+
+        return sig, codegen
+
+    return as_pointer
+
+
+# the dtypes a bound array may have: an int64 address as a pointer to its first element
+P_float64 = _pointer(nt.float64)
+P_int64 = _pointer(nt.int64)
+P_bool = _pointer(nt.boolean)
+P_float32 = _pointer(nt.float32)
+_POINTERS = {np.dtype(np.float64): "P_float64", np.dtype(np.int64): "P_int64", np.dtype(np.bool_): "P_bool",
+             np.dtype(np.float32): "P_float32"}
+_SCALARS = {nt.int64: "np.int64({})", nt.float64: "{}", nt.boolean: "({} != 0.0)"}
+
+
+class _Unsupported(Exception):
+    pass
+
+
+class _Writer:
+    """Walks the bound arguments: the source that rebuilds each, and the values to bind."""
+
+    def __init__(self):
+        self.imports: dict[str, str] = {}  # alias -> "module:qualname"
+        self.ptrs: list[int] = []
+        self.shapes: list[int] = []
+        self.scal: list[float] = []
+
+    def _class(self, cls) -> str:
+        if "<locals>" in cls.__qualname__ or "." in cls.__qualname__:
+            raise _Unsupported(f"{cls.__qualname__}: not importable by name")
+        key = f"{cls.__module__}:{cls.__qualname__}"
+        for alias, k in self.imports.items():
+            if k == key:
+                return alias
+        alias = f"C{len(self.imports)}"
+        self.imports[alias] = key
+        return alias
+
+    def expr(self, x) -> str:
+        if isinstance(x, tuple) and hasattr(x, "_fields"):
+            return f"{self._class(type(x))}({', '.join(self.expr(v) for v in x)})"
+        if isinstance(x, np.ndarray):
+            if x.dtype not in _POINTERS or not x.flags.c_contiguous or not x.flags.writeable or x.ndim == 0:
+                raise _Unsupported(f"array {x.dtype} {x.shape}")
+            k, s0 = len(self.ptrs), len(self.shapes)
+            self.ptrs.append(int(x.__array_interface__["data"][0]))
+            self.shapes.extend(int(n) for n in x.shape)
+            shape = ", ".join(f"shapes[{s0 + j}]" for j in range(x.ndim))
+            return f"carray({_POINTERS[x.dtype]}(ptrs[{k}]), ({shape},))"
+        t = numba.typeof(x)
+        if t not in _SCALARS:
+            raise _Unsupported(f"scalar {t}")
+        k = len(self.scal)
+        self.scal.append(float(x))
+        if float(self.scal[k]) != x:
+            raise _Unsupported(f"scalar {x!r} not exact in float64")
+        return _SCALARS[t].format(f"scal[{k}]")
+
+
+def _folder() -> Path:
+    for base in (os.environ.get("NUMBA_CACHE_DIR"), os.environ.get("XDG_CACHE_HOME") or
+                 (os.path.expanduser("~/.cache") if os.path.expanduser("~") != "~" else None),
+                 tempfile.gettempdir()):
+        if not base:
+            continue
+        d = Path(base) / "impact_env_bind"
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            probe = d / f".probe{os.getpid()}"
+            probe.write_text("")
+            probe.unlink()
+            return d
+        except OSError:
+            continue
+    raise _Unsupported("no writable folder for the shim")
+
+
+def _module(source: str):
+    """The module of ``source``, written once under its hash (atomically: several processes)."""
+    name = "impact_env_bind_" + hashlib.sha256((_jit._STAMP + source).encode()).hexdigest()[:20]
+    mod = sys.modules.get(name)
+    if mod is not None:
+        return mod
+    path = _folder() / f"{name}.py"
+    if not path.is_file() or path.read_text() != source:
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(source)
+        os.replace(tmp, path)
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise _Unsupported(f"{path}: not importable")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+class Bound:
+    """``kernel(*args)`` with the named tuples and scalars of ``args`` bound: called with the
+    whole ``args`` again, it passes on only the arrays at :attr:`live`."""
+
+    def __init__(self, shim, live: tuple[int, ...], fixed: dict[int, object], ptrs, shapes, scal):
+        self.live = live
+        self._entry = shim
+        self._bound = (ptrs, shapes, scal)
+        objs = {k: v for k, v in fixed.items() if isinstance(v, tuple)}
+        self._scalars = tuple((k, v) for k, v in fixed.items() if not isinstance(v, tuple))
+        self._objs = tuple(objs.values())
+        self._get_objs = operator.itemgetter(*objs) if len(objs) > 1 else (lambda a, k=next(iter(objs), 0): (a[k],))
+        self._get_live = operator.itemgetter(*live) if len(live) > 1 else (lambda a, k=(live or (0,))[0]: (a[k],))
+        self._keep = fixed  # the named tuples keep the bound arrays alive
+
+    def fits(self, args: tuple) -> bool:
+        """Whether ``args`` are those this was bound to: the same named tuple objects and equal
+        scalars (the arrays at :attr:`live` are passed at each call)."""
+        for k, v in self._scalars:
+            if args[k] != v:
+                return False
+        return all(map(operator.is_, self._get_objs(args), self._objs))
+
+    def __call__(self, args: tuple):
+        return self._entry(*self._bound, *self._get_live(args))
+
+    # A copy of the caller (copy.deepcopy of an env, a pickle) has arrays of its own: a copied
+    # Bound would still point at these.  It copies as None: the copy binds its own on its next call.
+    def __deepcopy__(self, memo):
+        return None
+
+    def __reduce__(self):
+        return (_nothing, ())
+
+
+def _nothing():
+    return None
+
+
+def bind(kernel, args: tuple) -> Bound | None:
+    """A :class:`Bound` for ``kernel(*args)`` (a project kernel that has been called with such
+    arguments), or None where binding is off or the arguments cannot be bound."""
+    if not ENABLED or getattr(numba_config, "DISABLE_JIT", False):
+        return None
+    w = _Writer()
+    live, fixed, exprs = [], {}, []
+    try:
+        for k, a in enumerate(args):
+            if isinstance(a, np.ndarray):
+                live.append(k)
+                exprs.append(f"live{len(live) - 1}")
+            else:
+                fixed[k] = a
+                exprs.append(w.expr(a))
+        kmod, kname = kernel.py_func.__module__, kernel.py_func.__qualname__
+        if "." in kname:
+            raise _Unsupported("kernel not importable by name")
+        lines = ['"""Generated by impact_env._bind: a bound call of ' f'{kmod}.{kname}."""',
+                 "import numpy as np", "from numba import carray",
+                 "from impact_env._jit import jit", "from impact_env._bind import P_bool, P_float32, P_float64, P_int64",
+                 f"from {kmod} import {kname} as KERNEL"]
+        lines += [f"from {key.split(':')[0]} import {key.split(':')[1]} as {alias}" for alias, key in w.imports.items()]
+        params = ", ".join(["ptrs", "shapes", "scal"] + [f"live{j}" for j in range(len(live))])
+        lines += ["", "", "@jit(nogil=True)", f"def bound({params}):",
+                  f"    return KERNEL({', '.join(exprs)})", ""]
+        mod = _module("\n".join(lines))
+    except _Unsupported:
+        return None
+    ptrs = np.array(w.ptrs or [0], dtype=np.int64)
+    shapes = np.array(w.shapes or [0], dtype=np.int64)
+    scal = np.array(w.scal or [0.0], dtype=np.float64)
+    sig = tuple(numba.typeof(a) for a in (ptrs, shapes, scal) + tuple(args[k] for k in live))
+    mod.bound.compile(sig)  # (or loads it from the cache; runs nothing: the caller's call ran)
+    return Bound(mod.bound.overloads[sig].entry_point, tuple(live), fixed, ptrs, shapes, scal)
