@@ -10,7 +10,9 @@ named tuple with its constructor, and calls the kernel with them: the kernel's o
 for the same types, so the results are bitwise those of the direct call (``tests/test_bind.py``).
 
 The shim's source is written to a file (``NUMBA_CACHE_DIR/impact_env_bind``, else the user's
-cache folder, else the temporary one) named by a hash of its text and of the project's sources
+cache folder's, else a 0700 folder of the user's in the temporary one; a folder that others may
+write to is not used: the shim is imported from it) named by a hash of its text and of the
+project's sources
 (:data:`impact_env._jit._STAMP`), so numba caches it like any kernel and a change to the project
 gives a new shim.  :class:`Bound` keeps the named tuples it was made from (their arrays stay
 alive) and is used only while the caller passes the very same objects (:meth:`Bound.fits`).
@@ -109,22 +111,37 @@ class _Writer:
         return _SCALARS[t].format(f"scal[{k}]")
 
 
+def _private(d: Path) -> bool:
+    """``d`` exists, is a folder of this user's and nobody else may write in it (the shim is
+    imported from it: a folder others can write to would let them choose the code)."""
+    getuid = getattr(os, "getuid", None)  # (POSIX; elsewhere no folder is trusted: no binding)
+    st = d.stat()
+    return (getuid is not None and d.is_dir() and not d.is_symlink() and st.st_uid == getuid()
+            and not st.st_mode & 0o022)
+
+
 def _folder() -> Path:
-    for base in (os.environ.get("NUMBA_CACHE_DIR"), os.environ.get("XDG_CACHE_HOME") or
-                 (os.path.expanduser("~/.cache") if os.path.expanduser("~") != "~" else None),
-                 tempfile.gettempdir()):
+    """Where the shims are written: ``NUMBA_CACHE_DIR/impact_env_bind``, else the user's cache
+    folder's, else a folder of this user's own in the temporary folder (mode 0700)."""
+    home = os.path.expanduser("~")
+    user = os.environ.get("XDG_CACHE_HOME") or (os.path.join(home, ".cache") if home != "~" else None)
+    tmp = os.path.join(tempfile.gettempdir(), f"impact_env_bind-{getattr(os, 'getuid', lambda: 'x')()}")
+    for base, name in ((os.environ.get("NUMBA_CACHE_DIR"), "impact_env_bind"), (user, "impact_env_bind"),
+                       (tmp, "")):
         if not base:
             continue
-        d = Path(base) / "impact_env_bind"
+        d = Path(base) / name if name else Path(base)
         try:
-            d.mkdir(parents=True, exist_ok=True)
+            d.mkdir(mode=0o700, parents=True, exist_ok=True)
+            if not _private(d):
+                continue
             probe = d / f".probe{os.getpid()}"
             probe.write_text("")
             probe.unlink()
             return d
         except OSError:
             continue
-    raise _Unsupported("no writable folder for the shim")
+    raise _Unsupported("no private writable folder for the shim")
 
 
 def _module(source: str):
@@ -213,7 +230,7 @@ def bind(kernel, args: tuple) -> Bound | None:
         lines += ["", "", "@jit(nogil=True)", f"def bound({params}):",
                   f"    return KERNEL({', '.join(exprs)})", ""]
         mod = _module("\n".join(lines))
-    except _Unsupported:
+    except (_Unsupported, OSError, ImportError):
         return None
     ptrs = np.array(w.ptrs or [0], dtype=np.int64)
     shapes = np.array(w.shapes or [0], dtype=np.int64)

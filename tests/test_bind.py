@@ -95,3 +95,12 @@ def test_what_it_cannot_bind_is_left_to_the_direct_call():
     strided = task.out._replace(rewards=np.zeros(4)[::2])  # not contiguous: carray cannot rebuild it
     assert _bind.bind(TK.catch_step, args[:9] + (strided,) + args[10:]) is None
     assert isinstance(_bind.bind(TK.catch_step, args), _bind.Bound)
+
+
+def test_a_folder_others_may_write_to_is_not_used(tmp_path):
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o777)  # a shim imported from here could be someone else's code
+    assert not _bind._private(shared)
+    shared.chmod(0o700)
+    assert _bind._private(shared)
