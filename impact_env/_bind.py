@@ -172,20 +172,22 @@ class Bound:
         self.live = live
         self._entry = shim
         self._bound = (ptrs, shapes, scal)
-        objs = {k: v for k, v in fixed.items() if isinstance(v, tuple)}
-        self._scalars = tuple((k, v) for k, v in fixed.items() if not isinstance(v, tuple))
-        self._objs = tuple(objs.values())
-        self._get_objs = operator.itemgetter(*objs) if len(objs) > 1 else (lambda a, k=next(iter(objs), 0): (a[k],))
+        # fits(args): one generated expression (chained ``is`` and ``==`` on locals), the fastest
+        # check Python has for it: it runs before every bound call
+        terms, defaults = [], {}
+        for j, (k, v) in enumerate(fixed.items()):
+            defaults[f"o{j}"] = v
+            if isinstance(v, tuple):
+                terms.append(f"a[{k}] is o{j}")  # the same named tuple object
+            else:  # an equal scalar of the same type (1 and 1.0 would be typed differently)
+                defaults[f"t{j}"] = type(v)
+                terms.append(f"type(a[{k}]) is t{j} and a[{k}] == o{j}")
+        ns: dict = {}
+        exec(f"def fits(a, {', '.join(f'{n}={n}' for n in defaults)}):\n"
+             f"    return {' and '.join(terms) or 'True'}\n", dict(defaults), ns)
+        self.fits = ns["fits"]
         self._get_live = operator.itemgetter(*live) if len(live) > 1 else (lambda a, k=(live or (0,))[0]: (a[k],))
         self._keep = fixed  # the named tuples keep the bound arrays alive
-
-    def fits(self, args: tuple) -> bool:
-        """Whether ``args`` are those this was bound to: the same named tuple objects and equal
-        scalars (the arrays at :attr:`live` are passed at each call)."""
-        for k, v in self._scalars:
-            if args[k] != v:
-                return False
-        return all(map(operator.is_, self._get_objs(args), self._objs))
 
     def __call__(self, args: tuple):
         return self._entry(*self._bound, *self._get_live(args))
