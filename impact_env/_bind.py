@@ -74,7 +74,7 @@ class _Writer:
     """Walks the bound arguments: the source that rebuilds each, and the values to bind."""
 
     def __init__(self):
-        self.imports: dict[str, str] = {}  # alias -> "module:qualname"
+        self.imports: dict[str, str] = {}  # "module:qualname" -> its alias in the shim
         self.ptrs: list[int] = []
         self.shapes: list[int] = []
         self.scal: list[float] = []
@@ -82,13 +82,7 @@ class _Writer:
     def _class(self, cls) -> str:
         if "<locals>" in cls.__qualname__ or "." in cls.__qualname__:
             raise _Unsupported(f"{cls.__qualname__}: not importable by name")
-        key = f"{cls.__module__}:{cls.__qualname__}"
-        for alias, k in self.imports.items():
-            if k == key:
-                return alias
-        alias = f"C{len(self.imports)}"
-        self.imports[alias] = key
-        return alias
+        return self.imports.setdefault(f"{cls.__module__}:{cls.__qualname__}", f"C{len(self.imports)}")
 
     def expr(self, x) -> str:
         if isinstance(x, tuple) and hasattr(x, "_fields"):
@@ -227,7 +221,7 @@ def bind(kernel, args: tuple) -> Bound | None:
                  "import numpy as np", "from numba import carray",
                  "from impact_env._jit import jit", "from impact_env._bind import P_bool, P_float32, P_float64, P_int64",
                  f"from {kmod} import {kname} as KERNEL"]
-        lines += [f"from {key.split(':')[0]} import {key.split(':')[1]} as {alias}" for alias, key in w.imports.items()]
+        lines += [f"from {key.split(':')[0]} import {key.split(':')[1]} as {alias}" for key, alias in w.imports.items()]
         params = ", ".join(["ptrs", "shapes", "scal"] + [f"live{j}" for j in range(len(live))])
         lines += ["", "", "@jit(nogil=True)", f"def bound({params}):",
                   f"    return KERNEL({', '.join(exprs)})", ""]
@@ -237,6 +231,6 @@ def bind(kernel, args: tuple) -> Bound | None:
     ptrs = np.array(w.ptrs or [0], dtype=np.int64)
     shapes = np.array(w.shapes or [0], dtype=np.int64)
     scal = np.array(w.scal or [0.0], dtype=np.float64)
-    sig = tuple(numba.typeof(a) for a in (ptrs, shapes, scal) + tuple(args[k] for k in live))
-    mod.bound.compile(sig)  # (or loads it from the cache; runs nothing: the caller's call ran)
-    return Bound(mod.bound.overloads[sig].entry_point, tuple(live), fixed, ptrs, shapes, scal)
+    call = (ptrs, shapes, scal) + tuple(args[k] for k in live)
+    mod.bound.compile(tuple(numba.typeof(a) for a in call))  # (or loads it; runs nothing: the caller's call ran)
+    return Bound(_jit.entry_point(mod.bound, call), tuple(live), fixed, ptrs, shapes, scal)

@@ -308,8 +308,8 @@ class BlockRunner:
     fixed from call to call (as :func:`~impact_env._jit.bound_call` requires): after its first
     call each compiled function is called through its entry point, without numba's typing of
     the arguments.  ``bind`` (with ``entry``): :func:`impact_env._bind.bind`: a serial call whose
-    named tuples are the objects of the call before runs bound, without unboxing them.  The flattening of a named tuple is reused while the caller passes the same
-    object."""
+    named tuples are the objects of the call before runs bound, without unboxing them.  The
+    flattening of a named tuple is reused while the caller passes the same object."""
 
     def __init__(self, kernel, shim, entry: Callable | None = None, bind: Callable | None = None):
         self.kernel = kernel

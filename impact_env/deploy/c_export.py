@@ -60,6 +60,17 @@ def _r(x: float) -> str:
     return s if ("e" in s or "." in s) else s + ".0"
 
 
+def _section_table(sections) -> str:
+    """The C initialiser rows of float64[channel, section, 6] (a table per channel, a brace per
+    section), each channel named."""
+    rows = []
+    for c in range(sections.shape[0]):
+        secs = ",\n        ".join("{" + ", ".join(_r(x) for x in sections[c, k]) + "}"
+                                     for k in range(sections.shape[1]))
+        rows.append(f"    {{ /* {CHANNELS[c]} */\n        {secs}\n    }}")
+    return ",\n".join(rows)
+
+
 def _arr(values, per_line: int = 4) -> str:
     vals = [_r(v) for v in np.asarray(values, dtype=np.float64).ravel()]
     lines = [", ".join(vals[i:i + per_line]) for i in range(0, len(vals), per_line)]
@@ -398,19 +409,8 @@ static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_R
         filters = bool(fe.flags & F_FILTERS)
         detector = bool(fe.flags & F_DETECTOR)
         sos = fe.sos
-        chan_rows = []
-        for c in range(sos.shape[0]):
-            secs = ",\n        ".join("{" + ", ".join(_r(x) for x in sos[c, k]) + "}"
-                                         for k in range(sos.shape[1]))
-            chan_rows.append(f"    {{ /* {CHANNELS[c]} */\n        {secs}\n    }}")
-        sos_txt = ",\n".join(chan_rows)
-        tpt = tpt_sections(sos) if filters else sos  # (no filters: no tables are written)
-        tpt_rows = []
-        for c in range(tpt.shape[0]):
-            secs = ",\n        ".join("{" + ", ".join(_r(x) for x in tpt[c, k]) + "}"
-                                         for k in range(tpt.shape[1]))
-            tpt_rows.append(f"    {{ /* {CHANNELS[c]} */\n        {secs}\n    }}")
-        tpt_txt = ",\n".join(tpt_rows)
+        sos_txt = _section_table(sos) if filters else ""
+        tpt_txt = _section_table(tpt_sections(sos)) if filters else ""
         filt_code = """
     for (int c = 0; c < IMPACT_N_READINGS; c++) {
         impact_real v = s->cond[c];
