@@ -24,6 +24,7 @@ int64, float64 and bool) leaves the call as it was: :func:`bind` returns None.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import operator
@@ -185,6 +186,12 @@ class Bound:
 
     def __call__(self, args: tuple):
         return self._entry(*self._bound, *self._get_live(args))
+
+    def prepared(self, args: tuple) -> functools.partial:
+        """The bound call of ``args`` (which fit) as a call of no arguments, its live arrays
+        bound too: for a caller that passes these very arrays (changed in place) at every call.
+        The caller keeps this Bound (the named tuples' arrays) alive while it uses the call."""
+        return functools.partial(self._entry, *self._bound, *self._get_live(args))
 
     # A copy of the caller (copy.deepcopy of an env, a pickle) has arrays of its own: a copied
     # Bound would still point at these.  It copies as None: the copy binds its own on its next call.

@@ -334,6 +334,16 @@ class BlockRunner:
                 out.append(a)
         return tuple(out)
 
+    def prepared(self, blocks: list[tuple[int, int]], args: tuple) -> Callable[[], None] | None:
+        """The serial call of ``args`` as a call of no arguments (:meth:`Bound.prepared
+        <impact_env._bind.Bound.prepared>`), once a call with these very objects has bound it;
+        None otherwise (several blocks, binding off, or no bound call yet)."""
+        if len(blocks) != 1:
+            return None
+        full = tuple(blocks[0]) + args
+        bound = self._bound
+        return bound.prepared(full) if bound and bound.fits(full) else None
+
     def __call__(self, blocks: list[tuple[int, int]], args: tuple) -> None:
         if len(blocks) == 1:
             i0, i1 = blocks[0]

@@ -465,22 +465,40 @@ def step_breakdown(repeats: int = 7) -> None:
         sim.hw.refill_noise(1)
         run(sim.blocks, args)
 
-    call = us(lambda: run(sim.blocks, off))
-    tick = us(kernel, 3000, fresh) - call
+    tick = us(kernel, 3000, fresh) - us(lambda: run(sim.blocks, off))
     rows += [("ImpactCatch-v0 rig: a whole step (gymnasium.make)", whole),
              ("  the wrappers (gymnasium.make's checker, order enforcing)", whole - inner),
              ("  the compiled step's work (one control period of one env: plant, effects, front "
-              "end, records, task)", tick),
-             ("  the compiled step's call through its BlockRunner, on an inactive env ("
-              + ("bound: its named tuples written once, impact_env._bind" if run._bound else
-                 "its ~50 arrays and ~25 scalars unboxed") + ")", call),
-             ("  the info dict (info_from_row)", us(lambda: info_from_row(task.rows[0]))),
-             ("  the observation's copy", us(lambda: task.obs[0].copy())),
-             ("  the action's check", us(lambda: task.check_actions(a32))),
-             ("  Simulator.step_args (arrays' checks, the noise's top-up check)",
-              us(lambda: sim.step_args(a)))]
+              "end, records, task)", tick)]
+    fresh()
+    env.step(a32)
+    prepared = env.unwrapped._prepared
+    if prepared is not None:  # the step's path: its arguments bound once (impact_env.env.task.PreparedStep)
+        from impact_env.env import task_kernel as TK
+        from impact_env.env.task import info_from_values
+
+        call_off = run.prepared(sim.blocks, off)
+        row, state, obs0 = task.rows[0], task.rows[0, TK.INFO.x1:TK.INFO.v2 + 1], task.obs[0]
+        rew, term, trunc = task.rewards, task.terminated, task.truncated
+        rows += [("  the compiled step's call, every argument bound (impact_env._bind), on an inactive env",
+                  us(call_off)),
+                 ("  the info dict (info_from_values)", us(lambda: info_from_values(row.tolist(), state))),
+                 ("  the observation's copy", us(obs0.copy)),
+                 ("  the action's check", us(lambda: type(a32) is np.ndarray and a32.shape == (1,)
+                                             and -1.0 <= float(a32[0]) <= 1.0)),
+                 ("  the noise's top-up check", us(lambda: sim.refill_noise(1))),
+                 ("  the reward's and flags' conversions", us(lambda: (float(rew[0]), bool(term[0]),
+                                                                       bool(trunc[0]))))]
+    else:  # IMPACT_ENV_BIND=0: the general path, the named tuples unboxed at every call
+        rows += [("  the compiled step's call through its BlockRunner, on an inactive env (its ~50 arrays "
+                  "and ~25 scalars unboxed)", us(lambda: run(sim.blocks, off))),
+                 ("  the info dict (info_from_row)", us(lambda: info_from_row(task.rows[0]))),
+                 ("  the observation's copy", us(lambda: task.obs[0].copy())),
+                 ("  the action's check", us(lambda: task.check_actions(a32))),
+                 ("  Simulator.step_args (arrays' checks, the noise's top-up check)",
+                  us(lambda: sim.step_args(a)))]
     rest = inner - sum(x for _, x in rows[3:])
-    rows.append(("  the rest of ImpactCatchEnv.step's Python (conversions, the task's arguments)", rest))
+    rows.append(("  the rest of ImpactCatchEnv.step's Python (its calls, the tuple)", rest))
     print(f"\n## One step of the single env, part by part (us, min over repeats)\n\n(load average "
           f"before: {load}, after: {_loadavg()})\n")
     print("| part | us |")

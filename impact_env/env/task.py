@@ -172,23 +172,29 @@ def check_actions(actions, n: int, action_bounds: str, command_scale: float,
     return a
 
 
-def _info_from_row_source() -> str:
-    """The source of :func:`info_from_row`: one dict display of the info row's columns (a flag
-    compared with 0.5, ``state`` a copy of x1 .. v2), generated from INFO_KEYS: a single env's
-    step builds this dict every step, and a display with constant keys is about twice as fast
-    as a loop over them."""
+def _info_source() -> str:
+    """The source of :func:`info_from_row` and :func:`info_from_values`: one dict display of the
+    info row's columns (a flag compared with 0.5, ``state`` a copy of x1 .. v2), generated from
+    INFO_KEYS: a single env's step builds this dict every step, and a display with constant keys
+    is about twice as fast as a loop over them."""
     items = [f"{key!r}: v[{j}] > 0.5" if flag else f"{key!r}: v[{j}]" for key, j, flag in _INFO_SCALARS]
-    items.append(f"'state': row[{TK.INFO.x1}:{TK.INFO.v2 + 1}].copy()")
-    return "def info_from_row(row):\n    v = row.tolist()\n    return {" + ", ".join(items) + "}\n"
+    display = "{" + ", ".join(items + ["'state': state.copy()"]) + "}"
+    return (f"def info_from_values(v, state):\n    return {display}\n\n\n"
+            f"def info_from_row(row):\n    v = row.tolist()\n    state = row[{TK.INFO.x1}:{TK.INFO.v2 + 1}]\n"
+            f"    return {display}\n")
 
 
 _generated: dict = {}
-exec(_info_from_row_source(), _generated)
+exec(_info_source(), _generated)
 #: ``info_from_row(row) -> dict``: one env's info as Python scalars (and ``state`` as
-#: float64[4]) from its info row (generated: :func:`_info_from_row_source`)
+#: float64[4]) from its info row (generated: :func:`_info_source`)
 info_from_row: Callable[[np.ndarray], dict] = _generated["info_from_row"]
-info_from_row.__module__ = __name__
-info_from_row.__doc__ = "One env's info as Python scalars (and ``state`` as float64[4]) from its info row."
+#: ``info_from_values(row.tolist(), row[x1:v2 + 1]) -> dict``: the same from the row as a list
+#: and a view of its state columns (a caller that keeps the view saves slicing the row)
+info_from_values: Callable[[list, np.ndarray], dict] = _generated["info_from_values"]
+for _f, _doc in ((info_from_row, "One env's info as Python scalars (and ``state`` as float64[4]) from its info row."),
+                 (info_from_values, "info_from_row(row) from row.tolist() and a view of the row's state columns.")):
+    _f.__module__, _f.__doc__ = __name__, _doc
 
 
 def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float, command_scale: float):
@@ -286,6 +292,17 @@ class CatchTask:
                                                          self._no_cols if cols is None else cols))
         return self.rewards, self.terminated, self.truncated
 
+    def prepared_step(self) -> PreparedStep | None:
+        """A single env's step with every argument bound (:class:`PreparedStep`), once a
+        :meth:`step` with this task's own action array has bound the call; None for a batch or
+        where the call is not bound (``IMPACT_ENV_BIND=0``)."""
+        if self.n != 1:
+            return None
+        sim = self.sim
+        call = self._run.prepared(sim.blocks, sim.call_args(self._a1) + (self.drop, self.params, self.state,
+                                                                         self.out, self._no_cols))
+        return None if call is None else PreparedStep(self, call)
+
     # -- info ---------------------------------------------------------------------------------
     def info_arrays(self, cols: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Per-env diagnostics after the last step or reset (SI units), from the info rows; or
@@ -306,3 +323,39 @@ class CatchTask:
     def info_dict(self, i: int) -> dict:
         """Env i's info as Python scalars (and ``state`` as float64[4])."""
         return info_from_row(self.rows[i])
+
+
+class PreparedStep:
+    """A single env's step with all of its arguments bound (:meth:`CatchTask.prepared_step`):
+    ``prepared(x)``, for a command x already in [-1, 1], is :meth:`CatchTask.step` of ``[x]``
+    and returns what the single env's step returns (obs, reward, terminated, truncated, info),
+    the same values bitwise (``tests/test_bind.py``), for about half of the Python (docs/env.md).
+    It holds views of the task's arrays; copied (``copy.deepcopy``, a pickle) it is None, so
+    that a copied env prepares its own."""
+
+    __slots__ = ("_a1", "_call", "_refill", "_hold", "_obs", "_rewards", "_terminated", "_truncated", "_row",
+                 "_state", "_task")
+
+    def __init__(self, task: CatchTask, call: Callable[[], None]):
+        self._task = task  # (keeps the bound arrays alive)
+        self._a1, self._call, self._refill, self._hold = task._a1, call, task.sim.refill_noise, task.hold_ticks
+        self._obs, self._row = task.obs[0], task.rows[0]
+        self._rewards, self._terminated, self._truncated = task.rewards, task.terminated, task.truncated
+        self._state = self._row[TK.INFO.x1:TK.INFO.v2 + 1]
+
+    def __call__(self, x: float) -> tuple:
+        self._a1[0] = x
+        self._refill(self._hold)
+        self._call()
+        return (self._obs.copy(), float(self._rewards[0]), bool(self._terminated[0]), bool(self._truncated[0]),
+                info_from_values(self._row.tolist(), self._state))
+
+    def __deepcopy__(self, memo):
+        return None
+
+    def __reduce__(self):
+        return (_none, ())
+
+
+def _none():
+    return None

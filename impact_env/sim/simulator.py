@@ -124,14 +124,27 @@ class Simulator:
         (``actions, active, params, state``), the step's noise drawn: for a caller that runs the
         step inside a kernel of its own, over :attr:`blocks` (the catch task's
         :func:`~impact_env.env.task_kernel.catch_step`)."""
+        args = self.call_args(actions, active)
+        self.hw.refill_noise(self.hold, None if active is None else args[1], self._blocks)
+        return args
+
+    def call_args(self, actions, active=None) -> tuple:
+        """:meth:`step_args` without drawing the noise: for a caller that binds them once
+        (:meth:`impact_env.env.task.CatchTask.prepared_step`) and tops the noise up itself
+        (:meth:`refill_noise`) before every step."""
         n = self.n
         # the types the bound kernel was made for: writable C-contiguous float64[n] and bool[n]
         own = (type(actions) is np.ndarray and actions.dtype == np.float64 and actions.ndim == 1
                and actions.shape[0] == n and actions.flags.c_contiguous and actions.flags.writeable)
         a = actions if own else np.array(actions, dtype=np.float64).reshape(n)
         act = self._all if active is None else np.array(active, dtype=bool).reshape(n)
-        self.hw.refill_noise(self.hold, None if active is None else act, self._blocks)
         return a, act, self.params, self.state
+
+    @property
+    def refill_noise(self):
+        """``refill_noise(ticks)``: every env's noise topped up for a step of ``ticks`` ticks (the
+        hardware's :meth:`~impact_env.hardware.batch.Hardware.refill_noise`, all envs, serially)."""
+        return self.hw.refill_noise
 
     # -- what the rest of the project reads ---------------------------------------------------
     @property
