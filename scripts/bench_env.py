@@ -244,9 +244,11 @@ def vector_threads_table(quick: bool, sizes=(1024, 4096, 16384), holds=(1, 4)) -
 def _scaling_model(env, acts, steps) -> str:
     """Amdahl's model of the vector env's step from one-thread measurements over the same
     steps as the table: the threaded work (the compiled step: the simulator's and the task's
-    kernels, and the sensor noise's top-up, which runs over the blocks in Python threads), the
-    serial rest (Python, the info arrays) and a parallel call's fixed cost; the speed-ups it
-    predicts."""
+    kernels, the info columns they write included, and the sensor noise's top-up, which runs
+    over the blocks in Python threads), the serial rest (Python, the info arrays) and a
+    parallel call's fixed cost; the speed-ups it predicts."""
+    from impact_env.env import task_kernel as TK
+
     task = env.task
     sim = task.sim
     sim.threads = 1
@@ -256,8 +258,8 @@ def _scaling_model(env, acts, steps) -> str:
         env.reset(seed=0)
         a = np.zeros(sim.n)
         t0 = time.perf_counter()
-        for _ in range(steps):  # the compiled step and the noise alone
-            task.step(a)
+        for _ in range(steps):  # the compiled step (writing the info columns, as the env's) and the noise
+            task.step(a, None, np.empty((TK.N_COL, sim.n)))
         t_kernel = min(t_kernel, (time.perf_counter() - t0) / steps)
     fixed = _call_overhead()
     serial = max(t_env - t_kernel, 0.0)
@@ -473,7 +475,7 @@ def step_breakdown(repeats: int = 7) -> None:
     fresh()
     env.step(a32)
     prepared = env.unwrapped._prepared
-    if prepared is not None:  # the step's path: its arguments bound once (impact_env.env.task.PreparedStep)
+    if prepared:  # the step's path: its arguments bound once (impact_env.env.task.PreparedStep)
         from impact_env.env import task_kernel as TK
         from impact_env.env.task import info_from_values
 
