@@ -159,7 +159,25 @@ def _module(source: str):
     return mod
 
 
-class Bound:
+def _nothing():
+    return None
+
+
+class NotCopied:
+    """What holds addresses of its owner's arrays (a :class:`Bound`, a prepared call): a copy of
+    the owner (``copy.deepcopy`` of an env, a pickle) has arrays of its own, and a copied holder
+    would still point at these, so it copies as None: the copy binds its own on its next call."""
+
+    __slots__ = ()
+
+    def __deepcopy__(self, memo):
+        return None
+
+    def __reduce__(self):
+        return (_nothing, ())
+
+
+class Bound(NotCopied):
     """``kernel(*args)`` with the named tuples and scalars of ``args`` bound: called with the
     whole ``args`` again, it passes on only the arrays at :attr:`live`."""
 
@@ -192,18 +210,6 @@ class Bound:
         bound too: for a caller that passes these very arrays (changed in place) at every call.
         The caller keeps this Bound (the named tuples' arrays) alive while it uses the call."""
         return functools.partial(self._entry, *self._bound, *self._get_live(args))
-
-    # A copy of the caller (copy.deepcopy of an env, a pickle) has arrays of its own: a copied
-    # Bound would still point at these.  It copies as None: the copy binds its own on its next call.
-    def __deepcopy__(self, memo):
-        return None
-
-    def __reduce__(self):
-        return (_nothing, ())
-
-
-def _nothing():
-    return None
 
 
 def bind(kernel, args: tuple) -> Bound | None:

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from impact_env._bind import bind
+from impact_env._bind import NotCopied, bind
 from impact_env._jit import entry_point
 from impact_env._threads import BlockRunner
 from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
@@ -192,9 +192,9 @@ info_from_row: Callable[[np.ndarray], dict] = _generated["info_from_row"]
 #: ``info_from_values(row.tolist(), row[x1:v2 + 1]) -> dict``: the same from the row as a list
 #: and a view of its state columns (a caller that keeps the view saves slicing the row)
 info_from_values: Callable[[list, np.ndarray], dict] = _generated["info_from_values"]
-for _f, _doc in ((info_from_row, "One env's info as Python scalars (and ``state`` as float64[4]) from its info row."),
-                 (info_from_values, "info_from_row(row) from row.tolist() and a view of the row's state columns.")):
-    _f.__module__, _f.__doc__ = __name__, _doc
+info_from_row.__doc__ = "One env's info as Python scalars (and ``state`` as float64[4]) from its info row."
+info_from_values.__doc__ = "info_from_row(row) from row.tolist() and a view of the row's state columns."
+info_from_row.__module__ = info_from_values.__module__ = __name__
 
 
 def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float, command_scale: float):
@@ -325,20 +325,22 @@ class CatchTask:
         return info_from_row(self.rows[i])
 
 
-class PreparedStep:
+class PreparedStep(NotCopied):
     """A single env's step with all of its arguments bound (:meth:`CatchTask.prepared_step`):
     ``prepared(x)``, for a command x already in [-1, 1], is :meth:`CatchTask.step` of ``[x]``
     and returns what the single env's step returns (obs, reward, terminated, truncated, info),
     the same values bitwise (``tests/test_bind.py``), for about half of the Python (docs/env.md).
-    It holds views of the task's arrays; copied (``copy.deepcopy``, a pickle) it is None, so
-    that a copied env prepares its own."""
+    It holds the task's arrays' addresses, valid because the task never replaces its arrays
+    (they are changed in place); copied (``copy.deepcopy``, a pickle) it is None
+    (:class:`~impact_env._bind.NotCopied`), so that a copied env prepares its own."""
 
     __slots__ = ("_a1", "_call", "_refill", "_hold", "_obs", "_rewards", "_terminated", "_truncated", "_row",
                  "_state", "_task")
 
     def __init__(self, task: CatchTask, call: Callable[[], None]):
         self._task = task  # (keeps the bound arrays alive)
-        self._a1, self._call, self._refill, self._hold = task._a1, call, task.sim.refill_noise, task.hold_ticks
+        self._a1, self._call, self._hold = task._a1, call, task.hold_ticks
+        self._refill = task.sim.refill_noise
         self._obs, self._row = task.obs[0], task.rows[0]
         self._rewards, self._terminated, self._truncated = task.rewards, task.terminated, task.truncated
         self._state = self._row[TK.INFO.x1:TK.INFO.v2 + 1]
@@ -347,15 +349,5 @@ class PreparedStep:
         self._a1[0] = x
         self._refill(self._hold)
         self._call()
-        return (self._obs.copy(), float(self._rewards[0]), bool(self._terminated[0]), bool(self._truncated[0]),
-                info_from_values(self._row.tolist(), self._state))
-
-    def __deepcopy__(self, memo):
-        return None
-
-    def __reduce__(self):
-        return (_none, ())
-
-
-def _none():
-    return None
+        return (self._obs.copy(), float(self._rewards[0]), bool(self._terminated[0]),
+                bool(self._truncated[0]), info_from_values(self._row.tolist(), self._state))
