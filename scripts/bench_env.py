@@ -9,6 +9,8 @@
 4. The batched control period as ``compare`` runs it (``rollout`` of ``rig`` at N = 400 episodes,
    ``passive`` and ``pd-penetration``, one thread), per env per period, with the default
    integrator and with the former default (RK4 at 1 us) in the same run.  Goal: <= 0.3 us.
+   Then what it is made of: the scene's effects switched on one at a time, then the policy
+   (``--only period-parts`` alone).
 5. Threads (``threads=`` of the Simulator, the vector env, rollout and compare): first the
    issue's table, ``ImpactCatchVectorEnv(N, "rig", hold_ticks=h, threads=k)`` at N = 1024,
    4096, 16384, hold 1 and 4, with 1, 2 and every CPU's thread and the former Python threads
@@ -27,7 +29,7 @@
 
 Times are the minimum over repeats after a warm-up (numba compiled and cached first).
 
-    python scripts/bench_env.py [--quick] [--only ratios|threads|vector-threads|period|step]
+    python scripts/bench_env.py [--quick] [--only ratios|threads|vector-threads|period|period-parts|step]
 """
 
 from __future__ import annotations
@@ -420,6 +422,34 @@ def period_table(quick: bool) -> None:
     print(f"\ngoal: <= 0.3 us per env per period (load average after: {_loadavg()})")
 
 
+def period_parts(quick: bool) -> None:
+    """What the batched control period is made of: compare's rollout of ``passive`` on ``rig``
+    with the scene's effects switched on one at a time (``effects.active``, in the order they
+    act), then ``pd-penetration`` compiled and in Python: each row's cost less the row above it
+    is that part's.  The first row is the plant with the rollout's own work (records, metrics,
+    the loop)."""
+    from impact_env.config import with_overrides
+
+    n, n_steps, repeats = (100, 500, 1) if quick else (400, 4000, 3)
+    rig = impact_env.load_scene("rig")
+    stages = rig.effects.active
+    print(f"\n## What the control period is made of (rollout of rig, N = {n}, {n_steps} periods, one thread)"
+          f"\n\n(load average before: {_loadavg()})\n")
+    print("| what runs | us per env per period | this part |")
+    print("|---|---|---|")
+    rows = [(f"passive, effects: {', '.join(stages[:k]) or 'none (the plant, records, metrics, the loop)'}",
+             with_overrides(rig, {"effects.active": list(stages[:k])}), "passive", False)
+            for k in range(len(stages) + 1)]
+    rows += [("pd-penetration, compiled loop (+ the law)", rig, "pd-penetration", True),
+             ("pd-penetration, Python loop (+ a Python call per period)", rig, "pd-penetration", False)]
+    before = 0.0
+    for name, scene, spec, compiled in rows:
+        us = _period_us(scene, spec, n, n_steps, repeats, compiled)
+        print(f"| {name} | {us:.3f} | {us - before:+.3f} |")
+        before = us if compiled or spec == "passive" else before
+    print(f"\n(load average after: {_loadavg()})")
+
+
 def step_breakdown(repeats: int = 7) -> None:
     """Where one step of ``gymnasium.make("ImpactCatch-v0", scene="rig")`` goes, each part timed
     alone (min over repeats), beside ``MountainCarContinuous-v0``'s whole step; and a vector
@@ -521,7 +551,7 @@ def step_breakdown(repeats: int = 7) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and repeats (a smoke run)")
-    ap.add_argument("--only", choices=("ratios", "threads", "vector-threads", "period", "step"),
+    ap.add_argument("--only", choices=("ratios", "threads", "vector-threads", "period", "period-parts", "step"),
                     help="run only this section")
     args = ap.parse_args()
     impact_env.load_scene("rig")
@@ -537,6 +567,9 @@ def main() -> None:
     if args.only == "period":
         period_table(args.quick)
         return
+    if args.only == "period-parts":
+        period_parts(args.quick)
+        return
     n_steps, repeats = (500, 2) if args.quick else (3000, 5)
     print(f"(load average before: {_loadavg()})")
     single_env_table(n_steps, repeats)
@@ -549,6 +582,7 @@ def main() -> None:
         return
     ppo_share(8192 if args.quick else 32768)
     period_table(args.quick)
+    period_parts(args.quick)
     threads_table(args.quick)
 
 
