@@ -42,7 +42,9 @@ drops an exception raised inside a parallel loop silently, hence the guard: a bl
 raised is reported by :class:`BlockRunner` as a RuntimeError naming its envs (the serial call,
 ``threads=1``, gives the kernel's own message).
 
-**The threading layer's limits**, handled here: GNU OpenMP's idle threads sleep instead of
+**The threading layer**: numba takes TBB where it loads (``pip install "impact-env[tbb]"``:
+:func:`_pip_tbb` makes pip's copy loadable), else GNU OpenMP; TBB hands a region to its threads
+several times faster.  **Its limits**, handled here: GNU OpenMP's idle threads sleep instead of
 spinning (:func:`_start_layer`: on a shared machine spinning made threads several times slower
 than one thread); numba's thread count (``numba.set_num_threads``,
 thread-local) is set for the call and restored after it, and capped at numba's pool size
@@ -64,8 +66,10 @@ so a small batch runs serially, in the calling thread, whatever ``threads`` says
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import os
+import sys
 import threading
 import typing
 from collections.abc import Callable
@@ -257,6 +261,25 @@ def parallel_available() -> bool:
     return not (_STATE["no_parallel"] or getattr(numba_config, "DISABLE_JIT", False))
 
 
+def _pip_tbb() -> None:
+    """Make a TBB that pip installed into this environment (``pip install "impact-env[tbb]"``)
+    loadable by numba: pip puts ``libtbb.so.12`` in the environment's ``lib`` folder, which the
+    dynamic loader does not search (numba/numba#6108), so numba would fall back to GNU OpenMP.
+    Loaded here by its path (RTLD_GLOBAL), numba's TBB layer links to it.  TBB hands a
+    parallel region to its threads for about a fifth of what OpenMP's sleeping threads cost
+    (docs/env.md, "Threads").  Nothing is done where ``NUMBA_THREADING_LAYER`` names a layer
+    other than TBB or the file is not there."""
+    if not sys.platform.startswith("linux") or str(numba_config.THREADING_LAYER) not in (
+            "default", "tbb", "safe", "threadsafe", "forksafe"):
+        return
+    path = os.path.join(sys.prefix, "lib", "libtbb.so.12")
+    if os.path.isfile(path):
+        try:
+            ctypes.CDLL(path, mode=ctypes.RTLD_GLOBAL)
+        except OSError:
+            pass  # (numba then takes the next layer, as without it)
+
+
 def _start_layer() -> None:
     """Start numba's threading layer (its first parallel launch in this process would), with
     GNU OpenMP's idle threads told to sleep rather than spin (``OMP_WAIT_POLICY=PASSIVE``, unless
@@ -265,6 +288,7 @@ def _start_layer() -> None:
     (scripts/bench_env.py, docs/env.md "Threads").  The runtime reads the variable once, as it
     loads; it is unset again after, so other OpenMP runtimes loaded later (torch's) and child
     processes see the environment as it was."""
+    _pip_tbb()
     unset = "OMP_WAIT_POLICY" not in os.environ
     if unset:
         os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
