@@ -269,8 +269,8 @@ def _pip_tbb() -> None:
     parallel region to its threads for about a fifth of what OpenMP's sleeping threads cost
     (docs/env.md, "Threads").  Nothing is done where ``NUMBA_THREADING_LAYER`` names a layer
     other than TBB or the file is not there."""
-    if not sys.platform.startswith("linux") or str(numba_config.THREADING_LAYER) not in (
-            "default", "tbb", "safe", "threadsafe", "forksafe"):
+    layer = str(getattr(numba_config, "THREADING_LAYER", "default"))
+    if not sys.platform.startswith("linux") or layer not in ("default", "tbb", "safe", "threadsafe", "forksafe"):
         return
     path = os.path.join(sys.prefix, "lib", "libtbb.so.12")
     if os.path.isfile(path):
