@@ -295,31 +295,18 @@ def _tbb_installed() -> bool:
     return True
 
 
-@pytest.mark.skipif(not _tbb_installed(), reason="TBB not installed (pip install 'impact-env[tbb]')")
+@pytest.mark.skipif(not _tbb_installed(), reason="TBB not installed (pip install 'impact-env[tbb]'); "
+                    ".ci/run runs tests/tbb_layer_check.py in its core venv with the extra")
 def test_pips_tbb_is_the_layer_and_gives_the_serial_results():
     """With pip's TBB in the environment (whose libtbb the loader does not find by itself:
     impact_env._threads._pip_tbb loads it), the blocks run on numba's TBB layer, bitwise the
-    serial step.  In a fresh process: the layer is chosen once per process."""
+    serial step (tests/tbb_layer_check.py, in a fresh process: the layer is chosen once per
+    process)."""
     import subprocess
     import sys
+    from pathlib import Path
 
-    code = """if True:
-        import numba, numpy as np
-        from impact_env.env.vector import ImpactCatchVectorEnv
-        def run(threads):
-            env = ImpactCatchVectorEnv(256, "rig-randomized", hold_ticks=4, threads=threads)
-            obs, _ = env.reset(seed=3)
-            rng = np.random.default_rng(0)
-            out = [obs]
-            for _ in range(60):
-                obs, r, te, tr, _ = env.step(rng.uniform(-1, 1, (256, 1)))
-                out += [obs, r, te, tr]
-            return out
-        ref, got = run(1), run(2)
-        assert numba.threading_layer() == "tbb", numba.threading_layer()
-        assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(ref, got, strict=True))
-        print("OK")
-    """
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_THREADING_LAYER", "LD_LIBRARY_PATH")}
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    proc = subprocess.run([sys.executable, str(Path(__file__).with_name("tbb_layer_check.py"))],
+                          capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0 and proc.stdout.strip().endswith("OK"), proc.stderr[-2000:]
