@@ -518,7 +518,7 @@ def step_breakdown(repeats: int = 7) -> None:
                  ("  the observation's copy", us(obs0.copy)),
                  ("  the action's check", us(lambda: type(a32) is np.ndarray and a32.shape == (1,)
                                              and -1.0 <= float(a32[0]) <= 1.0)),
-                 ("  the noise's top-up check", us(lambda: sim.refill_noise(1))),
+                 ("  the noise's top-up check", us(lambda: sim.hw.refill_noise(1))),
                  ("  the reward's and flags' conversions", us(lambda: (float(rew[0]), bool(term[0]),
                                                                        bool(trunc[0]))))]
     else:  # IMPACT_ENV_BIND=0: the general path, the named tuples unboxed at every call

@@ -340,7 +340,7 @@ class PreparedStep(NotCopied):
     def __init__(self, task: CatchTask, call: Callable[[], None]):
         self._task = task  # (keeps the bound arrays alive)
         self._a1, self._call, self._hold = task._a1, call, task.hold_ticks
-        self._refill = task.sim.refill_noise
+        self._refill = task.sim.hw.refill_noise
         self._obs, self._row = task.obs[0], task.rows[0]
         self._rewards, self._terminated, self._truncated = task.rewards, task.terminated, task.truncated
         self._state = self._row[TK.INFO.x1:TK.INFO.v2 + 1]

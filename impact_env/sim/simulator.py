@@ -131,7 +131,7 @@ class Simulator:
     def call_args(self, actions, active=None) -> tuple:
         """:meth:`step_args` without drawing the noise: for a caller that binds them once
         (:meth:`impact_env.env.task.CatchTask.prepared_step`) and tops the noise up itself
-        (:meth:`refill_noise`) before every step."""
+        (``hw.refill_noise``) before every step."""
         n = self.n
         # the types the bound kernel was made for: writable C-contiguous float64[n] and bool[n]
         own = (type(actions) is np.ndarray and actions.dtype == np.float64 and actions.ndim == 1
@@ -139,12 +139,6 @@ class Simulator:
         a = actions if own else np.array(actions, dtype=np.float64).reshape(n)
         act = self._all if active is None else np.array(active, dtype=bool).reshape(n)
         return a, act, self.params, self.state
-
-    @property
-    def refill_noise(self):
-        """``refill_noise(ticks)``: every env's noise topped up for a step of ``ticks`` ticks (the
-        hardware's :meth:`~impact_env.hardware.batch.Hardware.refill_noise`, all envs, serially)."""
-        return self.hw.refill_noise
 
     # -- what the rest of the project reads ---------------------------------------------------
     @property
