@@ -180,6 +180,19 @@ def drop_case(name: str, loosen: float = 1.0) -> dict[str, np.ndarray]:
     return out
 
 
+def float32_policy_array(name: str, key: str) -> bool:
+    """Whether array ``key`` of case ``name`` comes from a policy network that computes in
+    float32 (an SB3 model through torch): its command is then a float32 number, which another
+    instruction set may round one ulp apart (torch picks its matrix kernels by CPU: measured,
+    a peak demand 1.19e-5 N apart on 167 N, one float32 ulp of the action times 200 N, between a
+    Zen 3 and an AVX-512 Rocket Lake, where no loosening of the integrator moves it)."""
+    if name not in COMPARE_CASES or not key.startswith("p"):
+        return False
+    j = int(key[1:].partition("/")[0])
+    spec = COMPARE_CASES[name][2][j]
+    return ".zip" in spec and not spec.startswith("compiled:")
+
+
 CASES = {**{k: episode_case for k in EPISODE_CASES}, **{k: vector_case for k in VECTOR_CASES},
          **{k: compare_case for k in COMPARE_CASES}, **{k: drop_case for k in DROP_CASES}}
 
