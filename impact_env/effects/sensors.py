@@ -273,24 +273,30 @@ def true_readings(x1, x2, a2, phi, top_mass, out):
 
 
 @jit(inline="always")
+def _channel(p, j, truth, z):
+    """One channel's reading from its parameters ``p[j + CP.*]`` (a flat row): gain, offset and
+    noise, then the ADC's rounding and clipping; 0 if the channel is disabled."""
+    if p[j + CP.enabled] == 0.0:
+        return 0.0
+    y = p[j + CP.gain] * truth + p[j + CP.offset] + p[j + CP.noise_std] * z
+    q = p[j + CP.adc_step]
+    if q > 0.0:
+        y = q * np.floor(y / q + 0.5)
+        if y < p[j + CP.lo]:
+            y = p[j + CP.lo]
+        elif y > p[j + CP.hi]:
+            y = p[j + CP.hi]
+    return y
+
+
+@jit(inline="always")
 def sense(truth, z, params, out):
     """Measure: ``out[i] = ADC(gain*truth[i] + offset + noise_std*z[i])`` per channel; 0 if disabled.
 
     truth, z, out: float64[N_CHANNELS]; params from :func:`sensor_params`.  Returns ``out``.
     """
     for i in range(truth.shape[0]):
-        if params[i, CP.enabled] == 0.0:
-            out[i] = 0.0
-            continue
-        y = params[i, CP.gain] * truth[i] + params[i, CP.offset] + params[i, CP.noise_std] * z[i]
-        q = params[i, CP.adc_step]
-        if q > 0.0:
-            y = q * np.floor(y / q + 0.5)
-            if y < params[i, CP.lo]:
-                y = params[i, CP.lo]
-            elif y > params[i, CP.hi]:
-                y = params[i, CP.hi]
-        out[i] = y
+        out[i] = _channel(params[i], 0, truth[i], z[i])
     return out
 
 
@@ -327,7 +333,10 @@ def read_packed(x1, x2, a2, phi, p, out):
 @jit(inline="always")
 def sense_packed(truth, z, p, out):
     """:func:`sense` on a packed block (``truth`` and ``out`` may be the same array)."""
-    return sense(truth, z, p[1:].reshape((N_CHANNELS, N_PARAM)), out)
+    # (indexed in place: a reshape of the row would cost a call into numba's helper every tick)
+    for i in range(truth.shape[0]):
+        out[i] = _channel(p, 1 + i * N_PARAM, truth[i], z[i])
+    return out
 
 
 def _pack(cfg: SensorsConfig, rate: float, on: bool) -> tuple[np.ndarray, int]:

@@ -90,7 +90,16 @@ def _switch_after(x1, v1, x2, v2, h, f2, pc):
 @jit(inline="always")
 def touch_time(x1, v1, x2, v2, h, f2, pc):
     """The time (s, in (0, h]) at which the switching function turns positive on the exact
-    free motion, or -1 if it does not within h.  The returned time is the contact side of a
+    free motion, or -1 if it does not within h (:func:`touch_and_end`'s first value)."""
+    return touch_and_end(x1, v1, x2, v2, h, f2, pc)[0]
+
+
+@jit(inline="always")
+def touch_and_end(x1, v1, x2, v2, h, f2, pc):
+    """``(tau, x1(h), v1(h), x2(h), v2(h))``: the time (s, in (0, h]) at which the switching function turns
+    positive on the exact free motion, or -1 if it does not within h; and the state at h, which
+    the search evaluates anyway (the caller's next state when there is no touch: the series of
+    :func:`body2_after` summed once, not twice).  The returned time is the contact side of a
     bracket ``ROOT_TOL h`` wide (the state there is in contact, or exactly on the switch).
 
     The usual touch (penetration from <= 0 to > 0) is found by Newton's method on the
@@ -108,7 +117,7 @@ def touch_time(x1, v1, x2, v2, h, f2, pc):
         s0 = v1 - v2
         s1 = b1 - b2
         if not (s0 > 0.0 and s1 < 0.0):
-            return -1.0
+            return -1.0, a1, b1, a2, b2
         lo, up = 0.0, h
         for _ in range(MAX_ROOT_ITER):  # the rate's root, by bisection (a rate is monotone here)
             if up - lo <= ROOT_TOL * h:
@@ -121,7 +130,7 @@ def touch_time(x1, v1, x2, v2, h, f2, pc):
                 up = mid
         ghi = _switch_after(x1, v1, x2, v2, up, f2, pc)
         if not (ghi > 0.0):
-            return -1.0
+            return -1.0, a1, b1, a2, b2
         hi = up
     tol = ROOT_TOL * h
     lo = 0.0
@@ -142,8 +151,8 @@ def touch_time(x1, v1, x2, v2, h, f2, pc):
             t = tn
             dt_, st = gap_after(x1, v1, x2, v2, t, f2, pc)
         if dt_ == 0.0:
-            return t
-        return hi
+            return t, a1, b1, a2, b2
+        return hi, a1, b1, a2, b2
     glo = _switch_after(x1, v1, x2, v2, 0.0, f2, pc)
     side = 0
     for _ in range(MAX_ROOT_ITER):
@@ -164,7 +173,7 @@ def touch_time(x1, v1, x2, v2, h, f2, pc):
             if side == -1:
                 ghi *= 0.5
             side = -1
-    return hi
+    return hi, a1, b1, a2, b2
 
 
 @jit(inline="always")

@@ -24,9 +24,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.plant.dynamics import coefs, contact_force, deriv, event_sign, event_value
-from impact_env.plant.free_flight import body1_after, body2_after, free_cap, gap_top, touch_time
+from impact_env.plant.free_flight import body1_after, body2_after, free_cap, gap_top, touch_and_end
 from impact_env.plant.layout import (
     AUTO,
     CONTACT,
@@ -620,26 +621,28 @@ def _advance_split(mode, f2, t0, span, consts, carry):
     cap = free_cap(pc)
     track = peak.shape[0] > 1
     tol = 1e-12 * span
-    work = np.empty((0, 6))  # dopri5's scratch, allocated at the first contact of the span
     t = 0.0
     for _ in range(MAX_FREE_STEPS):
         if span - t <= tol:
             return OK, mode
         if mode == CONTACT:
-            if work.shape[0] == 0:
-                work = np.empty((DOPRI_WORK, 6))
-            # no records: empty views of the right types, not three allocations a period
+            work = np.empty((DOPRI_WORK, 6))  # (alive to the end of the call below)
+            # no records: empty views of the right types, not three allocations a period, and
+            # borrowed (impact_env._borrow): a view of an owned array costs two atomic instructions
+            bw = borrow(work)
             status, mode, _r, t = _dopri_span(mode, f2, t0, t, span, consts, carry, Records(
-                work[:0], evn[:0], work[0, :0], 0, 0), True, work)
+                bw[:0], evn[:0], bw[0, :0], 0, 0), True, work)
             if status != OK:
                 return status, mode
             continue
         x1, v1, x2, v2 = y[0], y[1], y[2], y[3]
         h = min(span - t, cap)
-        tau = touch_time(x1, v1, x2, v2, h, f2, pc)
-        step = h if tau < 0.0 else tau
-        a1, b1 = body1_after(x1, v1, step, pc.g)
-        a2, b2 = body2_after(x2, v2, step, f2, pc)
+        tau, a1, b1, a2, b2 = touch_and_end(x1, v1, x2, v2, h, f2, pc)
+        step = h
+        if tau >= 0.0:
+            step = tau
+            a1, b1 = body1_after(x1, v1, step, pc.g)
+            a2, b2 = body2_after(x2, v2, step, f2, pc)
         # the shaker's work; the damper took it less body 2's stored energy, and a pad let go
         # while still pressed (FREE with d > 0) releases its elastic energy as dissipated (as deriv)
         w = -f2 * (a2 - x2)
@@ -690,6 +693,9 @@ def _dopri_span(mode, f2, t0, t, span, consts, carry, rec, stop_free, work):
     y, hstate, ev, evn, peak = carry.y, carry.h, carry.events, carry.n_events, carry.peak
     rtol, scale = consts.rtol, consts.scale
     pc = coefs(consts.p)
+    # the caller owns work for the whole call: its five views below need no reference counts
+    # (two atomic instructions each, per contact period: impact_env._borrow)
+    work = borrow(work)
     out_y, out_mode, out_peak, k0, n_rec = rec.y, rec.mode, rec.peak, rec.k0, rec.n
     status = OK
     kst = work[0:8]
