@@ -89,16 +89,24 @@ def reset_delay_state(buf: np.ndarray, head: np.ndarray, fill=0.0) -> None:
 @jit(inline="always")
 def delay_step(buf, head, x, out):
     """Push ``x`` (float64[n_ch]) and write the input of k steps ago into ``out``; returns ``out``."""
-    k = buf.shape[0]
+    return _push(buf.reshape(buf.size), 0, buf.shape[0], head, x, out)  # (a view: buf is contiguous)
+
+
+@jit(inline="always")
+def _push(line, base, k, head, x, out):
+    """:func:`delay_step` on a line of k rows held flat, row h at ``line[base + h n]`` (n =
+    x's channels): the packed block's row is used as it is, where a reshape would cost a call
+    into numba's helper every tick."""
+    n = x.shape[0]
     if k == 0:
-        for c in range(x.shape[0]):
+        for c in range(n):
             out[c] = x[c]
         return out
     h = int(head[0])
-    for c in range(x.shape[0]):
+    for c in range(n):
         v = x[c]
-        out[c] = buf[h, c]
-        buf[h, c] = v
+        out[c] = line[base + h * n + c]
+        line[base + h * n + c] = v
     h += 1
     head[0] = 0.0 if h == k else float(h)
     return out
@@ -131,9 +139,7 @@ def pack_params(k: int) -> np.ndarray:
 def delay_packed(p, st, x, out):
     """:func:`delay_step` on a packed block: ``p`` = [k], ``st`` = [head, buffer]; x, out
     float64[n_ch] (they may be the same array)."""
-    k = int(p[P_K])
-    n = x.shape[0]
-    return delay_step(st[1:1 + k * n].reshape((k, n)), st[0:1], x, out)
+    return _push(st, 1, int(p[P_K]), st[0:1], x, out)
 
 
 def _packer(path: int, n_channels: int):

@@ -263,6 +263,13 @@ def shaker_step(A, B, C, D, x, u):
 @jit(inline="always")
 def shaker_step_into(A, B, C, D, x, u, scratch):
     """:func:`shaker_step` with a caller-owned scratch array (float64[n]) instead of an allocation."""
+    return _shaker_step_flat(A.ravel(), 0, B, C, D, x, u, scratch)
+
+
+@jit(inline="always")
+def _shaker_step_flat(p, a0, B, C, D, x, u, scratch):
+    """The step, with A read row-major from ``p[a0:]``: the packed block's row is used as it
+    is, where a reshape would cost a call into numba's helper every tick."""
     n = x.shape[0]
     y = D * u
     for i in range(n):
@@ -270,7 +277,7 @@ def shaker_step_into(A, B, C, D, x, u, scratch):
     for i in range(n):
         acc = B[i] * u
         for j in range(n):
-            acc += A[i, j] * x[j]
+            acc += p[a0 + i * n + j] * x[j]
         scratch[i] = acc
     for i in range(n):
         x[i] = scratch[i]
@@ -302,7 +309,7 @@ def shaker_packed(p, st, u, v2, back_emf):
     ns = st.shape[0] // 2
     x = st[:ns]
     o = P_D + 1 + ns * ns
-    f = shaker_step_into(p[1:o].reshape((ns, ns)), p[o:o + ns], p[o + ns:o + 2 * ns], p[P_D], x, u, st[ns:])
+    f = _shaker_step_flat(p, 1, p[o:o + ns], p[o + ns:o + 2 * ns], p[P_D], x, u, st[ns:])
     if back_emf:
         for j in range(ns):
             x[j] += p[o + 2 * ns + j] * v2
