@@ -67,7 +67,8 @@ while True:
 def _need(tool: str) -> str:
     path = shutil.which(tool)
     if path is None:
-        print(f"perf_kernels: {tool!r} not found on PATH (Debian: apt-get install linux-perf gdb)", file=sys.stderr)
+        print(f"perf_kernels: {tool!r} not found on PATH (Debian: apt-get install linux-perf gdb)",
+              file=sys.stderr)
         sys.exit(2)
     return path
 
@@ -95,7 +96,7 @@ def _name_jit(gdb: str, pid: int, addrs: list[str]) -> dict[str, str]:
     os.unlink(f.name)
     names = [ln for ln in out.splitlines() if " in section " in ln or ln.startswith("No symbol matches")]
     result = {}
-    for a, ln in zip(addrs, names):
+    for a, ln in zip(addrs, names, strict=False):  # (gdb answers each line once)
         name = ln.split(" in section ")[0] if " in section " in ln else "(unnamed JIT code)"
         name = re.sub(r" \+ \d+$", "", name)
         name = name.split("[abi")[0]
