@@ -31,7 +31,8 @@ def test_one_version_everywhere(capsys):
 
 def test_licence_matches_pyproject_and_the_heavy_deps_are_optional():
     meta = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    assert meta["license"]["text"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
+    assert meta["license"] == "MIT" and meta["license-files"] == ["LICENSE"]  # PEP 639: an SPDX expression
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
     core = " ".join(meta["dependencies"])
     assert "torch" not in core and "stable-baselines3" not in core
     assert any("stable-baselines3" in d for d in meta["optional-dependencies"]["sb3"])
