@@ -73,17 +73,46 @@ def _need(tool: str) -> str:
     return path
 
 
-def _samples(perf: str, data: Path) -> collections.Counter:
-    """Samples per (object, symbol or address) from ``perf report``."""
-    out = subprocess.run([perf, "report", "-i", str(data), "--no-children", "--sort", "dso,symbol",
-                          "--stdio", "-F", "sample,dso,symbol"], capture_output=True, text=True).stdout
+REPORT_LINE = re.compile(r"\s*(\d+)\s+(\[JIT\] tid \d+|\S+)\s+\[[.k]\]\s+(.+?)(?:\s{2,}.*)?$")
+
+
+def parse_report(text: str) -> collections.Counter:
+    """Samples per (object, symbol or address) from the text of ``perf report --stdio -F
+    sample,dso,symbol``: lines "  COUNT  DSO  [.] SYMBOL   -   -", where the symbol ends at the
+    two spaces that start the IPC columns (a C++ symbol may hold single spaces)."""
     counts: collections.Counter = collections.Counter()
-    for line in out.splitlines():
-        # "  COUNT  DSO  [.] SYMBOL   -   -": the symbol ends where two spaces start the IPC columns
-        m = re.match(r"\s*(\d+)\s+(\[JIT\] tid \d+|\S+)\s+\[[.k]\]\s+(.+?)(?:\s{2,}.*)?$", line)
+    for line in text.splitlines():
+        m = REPORT_LINE.match(line)
         if m:
             counts[(m.group(2), m.group(3))] += int(m.group(1))
     return counts
+
+
+def function_name(info_symbol: str) -> str:
+    """The function in one answer of gdb's ``info symbol ADDR``: "NAME + OFFSET in section S of
+    ...", NAME a numba function's mangled name (``_ZN`` and the length-prefixed parts of its
+    Python path, then numba's ABI tags) or a plain symbol; numba's path comes back joined by
+    "::".  An address gdb cannot name: "(unnamed JIT code)"."""
+    if " in section " not in info_symbol:
+        return "(unnamed JIT code)"
+    name = re.sub(r" \+ \d+$", "", info_symbol.split(" in section ")[0])
+    name = name.split("[abi")[0]
+    if name.startswith("_ZN"):
+        parts, rest = [], name[3:]
+        while rest and rest[0].isdigit():
+            digits = re.match(r"\d+", rest).group(0)  # type: ignore[union-attr]
+            n = int(digits)
+            rest = rest[len(digits):]
+            parts.append(rest[:n])
+            rest = rest[n:]
+        name = "::".join(parts) or name
+    return name
+
+
+def _samples(perf: str, data: Path) -> collections.Counter:
+    out = subprocess.run([perf, "report", "-i", str(data), "--no-children", "--sort", "dso,symbol",
+                          "--stdio", "-F", "sample,dso,symbol"], capture_output=True, text=True).stdout
+    return parse_report(out)
 
 
 def _name_jit(gdb: str, pid: int, addrs: list[str]) -> dict[str, str]:
@@ -94,22 +123,8 @@ def _name_jit(gdb: str, pid: int, addrs: list[str]) -> dict[str, str]:
     out = subprocess.run([gdb, "-p", str(pid), "-batch", "-x", f.name], capture_output=True, text=True,
                          timeout=300).stdout
     os.unlink(f.name)
-    names = [ln for ln in out.splitlines() if " in section " in ln or ln.startswith("No symbol matches")]
-    result = {}
-    for a, ln in zip(addrs, names, strict=False):  # (gdb answers each line once)
-        name = ln.split(" in section ")[0] if " in section " in ln else "(unnamed JIT code)"
-        name = re.sub(r" \+ \d+$", "", name)
-        name = name.split("[abi")[0]
-        if name.startswith("_ZN"):  # a mangled numba name: the Python path in its length-prefixed parts
-            parts, rest = [], name[3:]
-            while rest and rest[0].isdigit():
-                n = int(re.match(r"\d+", rest).group(0))
-                rest = rest[len(str(n)):]
-                parts.append(rest[:n])
-                rest = rest[n:]
-            name = "::".join(parts) or name
-        result[a] = name
-    return result
+    answers = [ln for ln in out.splitlines() if " in section " in ln or ln.startswith("No symbol matches")]
+    return {a: function_name(ln) for a, ln in zip(addrs, answers, strict=False)}  # (one answer per line)
 
 
 def main() -> int:
