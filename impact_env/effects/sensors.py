@@ -335,7 +335,7 @@ def sense_packed(truth, z, p, out):
     """:func:`sense` on a packed block (``truth`` and ``out`` may be the same array)."""
     # (indexed in place: a reshape of the row would cost a call into numba's helper every tick)
     for i in range(truth.shape[0]):
-        out[i] = _channel(p, 1 + i * N_PARAM, truth[i], z[i])
+        out[i] = _channel(p, P_TOP_MASS + 1 + i * N_PARAM, truth[i], z[i])
     return out
 
 

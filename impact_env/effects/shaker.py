@@ -309,7 +309,7 @@ def shaker_packed(p, st, u, v2, back_emf):
     ns = st.shape[0] // 2
     x = st[:ns]
     o = P_D + 1 + ns * ns
-    f = _shaker_step_flat(p, 1, p[o:o + ns], p[o + ns:o + 2 * ns], p[P_D], x, u, st[ns:])
+    f = _shaker_step_flat(p, P_D + 1, p[o:o + ns], p[o + ns:o + 2 * ns], p[P_D], x, u, st[ns:])
     if back_emf:
         for j in range(ns):
             x[j] += p[o + 2 * ns + j] * v2
