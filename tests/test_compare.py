@@ -52,6 +52,32 @@ def test_episode_j_is_the_env_seeded_seed_plus_j():
         np.testing.assert_array_equal(v[2], one.metrics[key][0], err_msg=key)
 
 
+@pytest.mark.parametrize("compiled", [False, True])
+def test_kept_traces_are_the_full_runs_columns(compiled):
+    """``trace_rows`` keeps some episodes' traces (compare keeps episode 0's): those columns are
+    the full run's, bitwise, in the order asked, in the Python and the compiled loop; every
+    episode's catch energy is kept either way; a bad row is refused before anything runs."""
+    from impact_env.policy.export import export_policy
+
+    def pol():
+        spec = "pd-penetration"
+        return export_policy(spec, RIG) if compiled else registry.make_policy(spec, RIG)
+
+    full = rollout(RIG, pol(), [5, 6, 7], horizon=SHORT, trace_rate=2e4)
+    some = rollout(RIG, pol(), [5, 6, 7], horizon=SHORT, trace_rate=2e4, trace_rows=[2, 0])
+    for key, v in full.traces.items():
+        assert np.array_equal(some.traces[key], v[:, [2, 0]], equal_nan=True), key
+    assert np.array_equal(some.energy_trace, full.traces["catch_energy"])
+    assert np.array_equal(full.energy_trace, full.traces["catch_energy"])
+    assert some.traces["x1"].shape == (len(full.trace_t), 2) and some.trace_rows.tolist() == [2, 0]
+    assert np.ptp(full.traces["contact_force"]) > 1.0  # the traces hold a contact
+    none = rollout(RIG, pol(), [5, 6], horizon=SHORT, trace_rows=[])
+    assert none.traces["x1"].shape[1] == 0 and none.energy_trace.shape[1] == 2
+    for bad in ([3], [0, 0], [-1]):
+        with pytest.raises(ValueError, match="trace_rows"):
+            rollout(RIG, pol(), [5, 6, 7], horizon=SHORT, trace_rows=bad)
+
+
 class _Broken(Policy):
     """Raises at the 20th call; returns NaN for env 1 from the 10th."""
 

@@ -137,12 +137,14 @@ def run_job(task: RolloutJob):
         n_steps = int(round(task.horizon / task.scene.control_period))
         report(n_steps)
         return {"error": f"{type(exc).__name__}: {exc}", "episodes": task.episodes, "seeds": seeds}
+    # the plots need episode 0's traces and every episode's energy: only those are kept
+    keep0 = 0 in task.episodes
     r = rollout(task.scene, policy, seeds, horizon=task.horizon, episodes=task.episodes,
                 trace_rate=task.trace_rate, name=task.spec, progress=report,
-                warm_starts=task.warm_starts, record_commands=task.record, threads=task.threads)
+                warm_starts=task.warm_starts, record_commands=task.record, threads=task.threads,
+                trace_rows=[list(task.episodes).index(0)] if keep0 else [])
     stride = max(1, int(round(task.trace_rate / ENERGY_CURVE_RATE)))
-    ratio = r.traces["catch_energy"][::stride] / r.impact_energy[None, :]
-    keep0 = 0 in task.episodes
+    ratio = r.energy_trace[::stride] / r.impact_energy[None, :]
     return {"metrics": r.metrics, "failures": r.failures, "trace_t": r.trace_t,
             "trace0": {k: v[:, 0].copy() for k, v in r.traces.items()} if keep0 else None,
             "t_touch0": float(r.t_touch[0]), "impact_energy0": float(r.impact_energy[0]),

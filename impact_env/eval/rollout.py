@@ -96,8 +96,10 @@ class RolloutResult:
     """What a rollout returns: per-episode metrics, failures and decimated traces.
 
     ``metrics[name]``: float64[N] (:mod:`impact_env.sim.metrics`; NaN for failed episodes).
-    ``traces[key]``: float64[T, N] sampled every ``trace_period`` s, ``trace_t``: float64[T]
-    (s since the episode start); ``t_touch``: float64[N] (s, first touch).
+    ``traces[key]``: float64[T, M] sampled every ``trace_period`` s for the M traced episodes
+    (``trace_rows``, positions in the seeds: all N by default), ``energy_trace``: float64[T, N],
+    every episode's catch energy (J) at the same samples, ``trace_t``: float64[T] (s since the
+    episode start); ``t_touch``: float64[N] (s, first touch).
     """
 
     policy: str
@@ -107,6 +109,8 @@ class RolloutResult:
     failures: list[dict]
     trace_t: np.ndarray
     traces: dict[str, np.ndarray]
+    energy_trace: np.ndarray
+    trace_rows: np.ndarray
     t_touch: np.ndarray
     impact_energy: np.ndarray
     control_period: float
@@ -122,27 +126,34 @@ def _energies(Y, P, out):
 
 
 @jit(inline="always")
-def _trace_env(row, i, Y, records, acc_energy, detected):
-    """Env i's trace sample (columns TRACE_KEYS) in ``row[i]``: the state as ``ImpactCatch-v0``'s
-    info gives it (non-finite entries read 0) and the last tick's record."""
+def _trace_env(row, energy_row, slot, i, Y, records, acc_energy, detected):
+    """Env i's trace sample: its catch energy in ``energy_row[i]``, and, where it has a slot
+    (``slot[i] >= 0``: it is one of the traced episodes), every column of TRACE_KEYS in
+    ``row[slot[i]]``: the state as ``ImpactCatch-v0``'s info gives it (non-finite entries read 0)
+    and the last tick's record."""
+    energy_row[i] = acc_energy[i]
+    r = slot[i]
+    if r < 0:
+        return
     for j in range(4):
         v = Y[i, j]
-        row[i, TR.x1 + j] = v if np.isfinite(v) else 0.0
+        row[r, TR.x1 + j] = v if np.isfinite(v) else 0.0
     last = records[i, records.shape[1] - 1]
-    row[i, TR.force_demand] = last[R.REC.f_demand]
-    row[i, TR.force_applied] = last[R.REC.f_applied]
-    row[i, TR.contact_force] = last[R.REC.contact_force]
-    row[i, TR.catch_energy] = acc_energy[i]
-    row[i, TR.detected] = detected[i]
-    row[i, TR.saturated] = last[R.REC.saturated]
+    row[r, TR.force_demand] = last[R.REC.f_demand]
+    row[r, TR.force_applied] = last[R.REC.f_applied]
+    row[r, TR.contact_force] = last[R.REC.contact_force]
+    row[r, TR.catch_energy] = acc_energy[i]
+    row[r, TR.detected] = detected[i]
+    row[r, TR.saturated] = last[R.REC.saturated]
 
 
 @jit
-def _trace_row(row, Y, records, acc_energy, detected):
+def _trace_row(row, energy_row, slot, Y, records, acc_energy, detected):
     """One trace sample of every env (:func:`_trace_env`)."""
-    row, Y, records, acc_energy, detected = borrow(row), borrow(Y), borrow(records), borrow(acc_energy), borrow(detected)
+    row, energy_row, slot = borrow(row), borrow(energy_row), borrow(slot)
+    Y, records, acc_energy, detected = borrow(Y), borrow(records), borrow(acc_energy), borrow(detected)
     for i in range(Y.shape[0]):
-        _trace_env(row, i, Y, records, acc_energy, detected)
+        _trace_env(row, energy_row, slot, i, Y, records, acc_energy, detected)
 
 
 class Failures(NamedTuple):
@@ -171,11 +182,15 @@ class LoopPolicy(NamedTuple):
 
 class LoopOut(NamedTuple):
     """Where the compiled loop writes: the metrics' (acc, consts, settings), the failure marks,
-    the traces (float64[samples, N, len(TRACE_KEYS)])."""
+    the traces (float64[samples, traced episodes, len(TRACE_KEYS)]), every episode's catch
+    energy at the trace samples (float64[samples, N]) and each env's row in the traces
+    (int64[N], -1: not traced)."""
 
     metrics: MetricArrays
     fails: Failures
     traces: np.ndarray
+    energy: np.ndarray
+    slot: np.ndarray
 
 
 @jit(nogil=True)
@@ -192,7 +207,7 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
     P = p.hw.plant.p
     obs = s.obs.obs
     records = s.records
-    metrics, fails, traces = out.metrics, out.fails, out.traces
+    metrics, fails, traces, etrace, slot = out.metrics, out.fails, out.traces, out.energy, out.slot
     acc, consts, settings = metrics.acc, metrics.consts, metrics.settings
     energy = acc[:, AC.energy]
     detected = s.fe.detected
@@ -218,7 +233,8 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
                         fails.t[i] = k * period
                         fails.code[i] = FAIL_DIVERGED
             if k % stride == 0:  # (a failed env's sample too: its last state, as before)
-                _trace_env(traces[k // stride], i, Y, records, energy, detected)
+                _trace_env(traces[k // stride], etrace[k // stride], slot, i, Y, records, energy,
+                           detected)
 
 
 @jit(nogil=True)
@@ -257,7 +273,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             trace_rate: float = 1.0e4, catch_fraction: float = 0.01, min_flight_s: float = 1.0e-3,
             name: str = "", progress: Callable[[int], None] | None = None,
             compiled: bool | None = None, warm_starts: dict[str, np.ndarray] | None = None,
-            record_commands: bool = False, threads: int | str | None = None) -> RolloutResult:
+            record_commands: bool = False, threads: int | str | None = None,
+            trace_rows=None) -> RolloutResult:
     """Run ``policy`` (SB3 ``predict`` with attributes ``observation`` and optionally ``history``,
     ``hold_ticks`` and ``residual``, or a CompiledPolicy) on one episode per entry of ``seeds`` (ints) for
     ``horizon`` s (default ``scene.episode.horizon``).  ``episodes`` labels them in failure
@@ -269,7 +286,11 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     run in this many threads at once (in the compiled loop, blocks of at least
     :data:`MIN_BLOCK_EPISODES` episodes, a chunk of steps per hand-off; in the Python loop, the
     simulator's step, :class:`~impact_env.sim.simulator.Simulator`); None or 1: serially.  The
-    results do not depend on it, bitwise."""
+    results do not depend on it, bitwise.  ``trace_rows``: the episodes (positions in ``seeds``)
+    whose traces are kept, in that order (default: all); every episode's catch energy is kept
+    at the trace samples whatever it says (``energy_trace``).  compare keeps one episode's
+    traces: all of them are 128 MB at N = 400 and 0.4 s, whose first touch costs the kernel's
+    page faults (0.03-0.07 us per env per period of compare's rollout: docs/env.md)."""
     threads = check_threads(threads)
     seeds = np.asarray(list(seeds), dtype=np.int64)
     n = len(seeds)
@@ -278,6 +299,12 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     episodes = np.arange(n) if episodes is None else np.asarray(list(episodes), dtype=np.int64)
     if len(episodes) != n:
         raise ValueError(f"episodes has {len(episodes)} labels for {n} seeds")
+    rows = np.arange(n) if trace_rows is None else np.asarray(list(trace_rows), dtype=np.int64).reshape(-1)
+    if rows.size and (rows.min() < 0 or rows.max() >= n or len(set(rows.tolist())) != rows.size):
+        raise ValueError(f"trace_rows must be distinct positions in 0..{n - 1} (one per seed), "
+                         f"got {rows.tolist()}")
+    slot = np.full(n, -1, dtype=np.int64)
+    slot[rows] = np.arange(rows.size)
     horizon = scene.episode.horizon if horizon is None else float(horizon)
     if not (horizon > 0 and math.isfinite(horizon)):
         raise ValueError(f"horizon = {horizon!r} s must be a finite time > 0 s")
@@ -308,8 +335,9 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     metrics.start(sim.t_touch, sim.hw.impact_speed, sim.impact_energy, Y0[:, 0] - Y0[:, 2] > 0.0)
     metrics.acc[:, AC.energy] = _energies(sim.Y, sim.P, np.empty(n))  # the catch energy at the start
     trace_t = np.arange(n_steps // stride + 1) * stride * step_s
-    traces = np.zeros((len(trace_t), n, len(TRACE_KEYS)))
-    _trace_row(traces[0], sim.Y, sim.records, metrics.acc[:, AC.energy], sim.detected)
+    traces = np.zeros((len(trace_t), rows.size, len(TRACE_KEYS)))
+    etrace = np.zeros((len(trace_t), n))
+    _trace_row(traces[0], etrace[0], slot, sim.Y, sim.records, metrics.acc[:, AC.energy], sim.detected)
     fails = Failures(np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n, dtype=np.int64))
     failed, fail_t, fail_code = fails
     failures: list[dict] = []
@@ -332,7 +360,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
         chunk = max(1, min(CHUNK, sim.hw.noise_block // hold))  # a chunk's noise fits one block
         blocks = env_blocks(n, resolve_threads(threads, n, MIN_BLOCK_EPISODES), MIN_BLOCK_EPISODES)
         run = BlockRunner(_run_compiled, _compiled_blocks)
-        loop_policy, loop_out = LoopPolicy(PolicyArrays(pi, pf), mem), LoopOut(metrics.arrays, fails, traces)
+        loop_policy = LoopPolicy(PolicyArrays(pi, pf), mem)
+        loop_out = LoopOut(metrics.arrays, fails, traces, etrace, slot)
         k = 0
         while k < n_steps:
             k1 = min(k + chunk, n_steps)
@@ -378,13 +407,15 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             if div.any():
                 fail(div, k * step_s, "simulation diverged")
             if k % stride == 0:
-                _trace_row(traces[k // stride], sim.Y, sim.records, metrics.acc[:, AC.energy], sim.detected)
+                _trace_row(traces[k // stride], etrace[k // stride], slot, sim.Y, sim.records,
+                           metrics.acc[:, AC.energy], sim.detected)
             if progress is not None and (k - reported >= CHUNK or k == n_steps):
                 progress(k - reported)
                 reported = k
     return RolloutResult(policy=name, episodes=episodes, seeds=seeds, metrics=metrics.finish(failed),
                          failures=failures, trace_t=trace_t,
                          traces={key: traces[:, :, j] for j, key in enumerate(TRACE_KEYS)},
+                         energy_trace=etrace, trace_rows=rows,
                          t_touch=sim.t_touch.copy(), impact_energy=sim.impact_energy.copy(),
                          control_period=period, wall_time_s=time.perf_counter() - t_wall,
                          extras=extras if commands is None else {**extras, "commands": commands})
