@@ -188,9 +188,10 @@ def float32_policy_array(name: str, key: str) -> bool:
     Zen 3 and an AVX-512 Rocket Lake, where no loosening of the integrator moves it)."""
     if name not in COMPARE_CASES or not key.startswith("p"):
         return False
+    from impact_env.policy.registry import is_model_spec
+
     j = int(key[1:].partition("/")[0])
-    spec = COMPARE_CASES[name][2][j]
-    return ".zip" in spec and not spec.startswith("compiled:")
+    return is_model_spec(COMPARE_CASES[name][2][j])
 
 
 CASES = {**{k: episode_case for k in EPISODE_CASES}, **{k: vector_case for k in VECTOR_CASES},

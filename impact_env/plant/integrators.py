@@ -693,8 +693,8 @@ def _dopri_span(mode, f2, t0, t, span, consts, carry, rec, stop_free, work):
     y, hstate, ev, evn, peak = carry.y, carry.h, carry.events, carry.n_events, carry.peak
     rtol, scale = consts.rtol, consts.scale
     pc = coefs(consts.p)
-    # the caller owns work for the whole call: its five views below need no reference counts
-    # (two atomic instructions each, per contact period: impact_env._borrow)
+    # the caller owns work for the whole call: the views of it taken here (and inside the
+    # calls below) need no reference counts (two atomic instructions each: impact_env._borrow)
     work = borrow(work)
     out_y, out_mode, out_peak, k0, n_rec = rec.y, rec.mode, rec.peak, rec.k0, rec.n
     status = OK
