@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 register_envs()
 
 __all__ = ["ENV_ID", "Scene", "SimulationDiverged", "Trajectory", "load_scene", "simulate"]
-__version__ = "0.2.0"  # the package's version, read by pyproject.toml, --version and CITATION.cff
+__version__ = "0.3.0"  # the package's version, read by pyproject.toml, --version and CITATION.cff
 
 # the public names that live in heavier modules (numba, scipy): imported when first asked for
 _LAZY = {"Scene": "impact_env.scene", "load_scene": "impact_env.scene", "simulate": "impact_env.sim.drop",
