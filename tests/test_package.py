@@ -26,7 +26,10 @@ def test_one_version_everywhere(capsys):
     cff = (ROOT / "CITATION.cff").read_text()
     assert re.search(rf'^version: "{re.escape(impact_env.__version__)}"', cff, re.M)
     assert "Controlling a one degree of motion impact" in cff and "Nyström" in cff
-    assert f"## {impact_env.__version__}" in (ROOT / "CHANGELOG.md").read_text()
+    # Keep a Changelog: a section per release, "## [X.Y.Z] - date", and one for what is unreleased
+    changelog = (ROOT / "CHANGELOG.md").read_text()
+    assert re.search(rf"^## \[{re.escape(impact_env.__version__)}\] - \d{{4}}-\d\d-\d\d$", changelog, re.M)
+    assert "## [Unreleased]" in changelog
 
 
 def test_licence_matches_pyproject_and_the_heavy_deps_are_optional():
@@ -91,3 +94,26 @@ def test_version_and_help_import_neither_numba_nor_scipy():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "heavy []" in out.stdout and f"impact-env {impact_env.__version__}" in out.stdout, out.stdout
+
+
+def test_the_wheel_holds_impact_env_alone_with_all_its_data_files():
+    """The wheel installs ``impact_env`` only (``agents`` and ``baselines`` are generic names that
+    would collide in site-packages; they run from the repository), with every data file the
+    package reads (C sources of the export, py.typed).  .ci/run builds the wheel and installs it
+    in a fresh venv (tests/wheel_install_check.py); this is the cheap half of that check."""
+    import fnmatch
+    import subprocess
+
+    tool = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert tool["packages"]["find"]["include"] == ["impact_env*"]
+    globs = tool["package-data"]["impact_env"]
+    tracked = subprocess.run(["git", "ls-files", "impact_env"], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout.split()
+    data = [f.removeprefix("impact_env/") for f in tracked if not f.endswith(".py")]
+    assert data, "git ls-files found no data files in impact_env"
+    missing = [f for f in data if not any(fnmatch.fnmatch(f, g) for g in globs)]
+    assert not missing, f"data files the wheel would leave out (add them to package-data): {missing}"
+    # nothing in the package imports the repository's agents/ or baselines/
+    users = [str(f.relative_to(ROOT)) for f in (ROOT / "impact_env").rglob("*.py")
+             if re.search(r"^\s*(from|import) (agents|baselines)\b", f.read_text(), re.M)]
+    assert users == [], f"impact_env imports a package the wheel does not install: {users}"
