@@ -21,10 +21,10 @@ Environment variables
     debuggers see the code).
 
 While project kernels compile (the cache for the current source stamp is cold, or caching is
-off), a progress line on stderr says which kernel and how far (:class:`_CompileProgress`:
-"compiling numba kernels (first run of this code; cached afterwards): 7/23
-plant.integrators._advance_split, 41 s"), and a last line how many and how long; a warm cache
-prints nothing, and nothing is printed at import.
+off), a progress line on stderr says which kernel, its number and how long so far
+(:class:`_CompileProgress`: "compiling numba kernels (first run of this code; cached
+afterwards): kernel 7, plant.integrators._advance_split, 41 s"), and a last line how many and how
+long; a warm cache prints nothing, and nothing is printed at import.
 
 Fewer specialisations: a kernel called from another kernel with a constant argument (``_trial(DOPRI5,
 ...)``) would be compiled once per constant value (numba types the constant as a literal); the
@@ -101,65 +101,25 @@ def _kernel_name(func) -> str:
     return f"{mod}.{func.__qualname__}" if mod else func.__qualname__
 
 
-def _callees(func) -> list:
-    """The project kernels ``func``'s code refers to by name (``f(...)`` or ``module.f(...)``)."""
-    code = getattr(func, "__code__", None)
-    if code is None:
-        return []
-    names: set[str] = set(code.co_names)
-    for const in code.co_consts:  # nested functions and comprehensions
-        if hasattr(const, "co_names"):
-            names.update(const.co_names)
-    g = getattr(func, "__globals__", {})
-    out = []
-    for name in names:
-        obj = g.get(name)
-        if obj is None:
-            continue
-        if type(obj).__name__ == "module":
-            out += [getattr(obj, n) for n in names if id(getattr(getattr(obj, n, None), "py_func", None))
-                    in _KERNELS]
-        elif id(getattr(obj, "py_func", None)) in _KERNELS:
-            out.append(obj)
-    return out
-
-
-def _to_compile(dispatcher) -> set[int]:
-    """The kernels a compile of ``dispatcher`` will compile with it: itself and every project
-    kernel it reaches that has no machine code in this process yet (inlined ones are compiled
-    into their callers, so not counted).  An estimate: a kernel may need a second signature."""
-    seen: set[int] = set()
-    out: set[int] = set()
-    todo = [dispatcher]
-    while todo:
-        d = todo.pop()
-        key = id(d.py_func)
-        if key in seen:
-            continue
-        seen.add(key)
-        if d.targetoptions.get("inline", "never") == "never" and not d.overloads:
-            out.add(key)
-        todo += _callees(d.py_func)
-    return out
-
-
 class _CompileProgress(event.Listener):
     """The compile progress line on stderr (module doc).
 
     numba broadcasts ``numba:compile`` only on a cache miss (a kernel loaded from the on-disk
     cache is not compiled), so the line appears exactly when kernels are compiled, never at
-    import.  The total is counted when a kernel that no other kernel's compile asked for starts
-    compiling: itself and the project kernels it reaches that are not compiled yet.  One kernel
-    can take minutes (typing a large one on a loaded machine), so while kernels compile a
-    daemon thread renews the line's seconds (every second on a terminal, every
-    :data:`LOG_EVERY_S` s in a log); numba's typing and LLVM let it run."""
+    import.  Each kernel gets its number once, when its first compile starts (a second signature
+    of it keeps its number), so the count only climbs by one.  There is no "of N": numba compiles
+    a kernel when Python first calls it, so what a run will compile is known only at its end (an
+    earlier total, counted from the kernels each call reaches, jumped from 1/1 to 8/19 to 20/20
+    on the first run of compare); the last line gives the total.  One kernel can take minutes
+    (typing a large one on a loaded machine), so while kernels compile a daemon thread renews the
+    line's seconds (every second on a terminal, every :data:`LOG_EVERY_S` s in a log); numba's
+    typing and LLVM let it run."""
 
     def __init__(self, stream=None):
         self.stream = stream
         self.depth = 0  # project kernels compiling now (nested: a caller types its callees)
-        self.started = 0
+        self.numbered: dict[int, int] = {}  # id(py_func) -> its number, in the order compiles started
         self.done = 0
-        self.counted: set[int] = set()
         self.t0: float | None = None
         self.last = -1e300
         self.width = 0
@@ -175,10 +135,10 @@ class _CompileProgress(event.Listener):
         if self.t0 is None or not self.names:
             return
         now = time.perf_counter()
-        total = max(len(self.counted), self.started)
         where = "" if CACHE else "; caching is off: IMPACT_ENV_NUMBA_CACHE=0"
         busy = self.busy + now - self.entered  # s of compiling so far
-        line = f"{PROGRESS_HEAD}{where}: {self.started}/{total} {self.names[-1]}, {busy:.0f} s"
+        name, number = self.names[-1]
+        line = f"{PROGRESS_HEAD}{where}: kernel {number}, {name}, {busy:.0f} s"
         out = self._out()
         if out.isatty():
             print("\r" + line.ljust(self.width), end="", file=out, flush=True)
@@ -206,12 +166,12 @@ class _CompileProgress(event.Listener):
             thread.start()
             self.beat = (os.getpid(), thread)
         if self.depth == 0:
-            self.counted |= _to_compile(d)
             self.entered = time.perf_counter()
         self.depth += 1
-        self.started += 1
-        self.names.append(_kernel_name(func))
-        self._show(force=self.started == 1)
+        first = id(func) not in self.numbered
+        number = self.numbered.setdefault(id(func), len(self.numbered) + 1)
+        self.names.append((_kernel_name(func), number))
+        self._show(force=first and number == 1)
 
     def on_end(self, ev):
         func = getattr(ev.data.get("dispatcher"), "py_func", None)
@@ -231,7 +191,7 @@ class _CompileProgress(event.Listener):
     def summary(self):
         if self.t0 is None or self.done == 0:
             return
-        print(f"impact_env: compiled {self.done} numba kernels in {self.busy:.0f} s"
+        print(f"impact_env: compiled {len(self.numbered)} numba kernels in {self.busy:.0f} s"
               + ("; later runs load them from the cache" if CACHE else " (caching is off)"),
               file=self._out(), flush=True)
         self.t0 = None

@@ -42,6 +42,10 @@ def cmd_export(args) -> int:
     for path in (args.out, args.onnx, args.c_dir):
         if path and not Path(path).resolve().parent.is_dir():
             raise ConfigError(f"cannot write {path!r}: its folder does not exist")
+    if args.c_dir and Path(args.c_dir).exists() and not Path(args.c_dir).is_dir():
+        # --force overwrites a folder's files; it never replaces a file with a folder
+        raise ConfigError(f"--c {args.c_dir}: exists and is not a folder; give a folder for the C files "
+                          "(made if absent)")
     if args.c_dir and Path(args.c_dir).exists() and not args.force:
         raise ConfigError(f"--c {args.c_dir}: the folder exists; pass --force to overwrite its files")
     pol = export_policy(args.spec, scene)

@@ -102,7 +102,8 @@ TASK_OPTIONS_DOC
 
     def __init__(self, scene: Scene | str | dict = "rig", overrides: dict | None = None, *,
                  render_mode: str | None = None, **task: Any):
-        cfg = TaskConfig.from_options(task)  # the task's options: impact_env.env.task.TaskConfig
+        # the task's options (impact_env.env.task.TaskConfig); an unknown name lists this env's own too
+        cfg = TaskConfig.from_options(task, type(self).__init__)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r}; expected one of "
                              f"{self.metadata['render_modes']} or None")

@@ -29,6 +29,8 @@ last finite one and the reward is ``-1 * T / t_unit``); ``truncated`` at the hor
 from __future__ import annotations
 
 import collections
+import difflib
+import inspect
 from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
@@ -101,12 +103,23 @@ class TaskConfig:
             raise ConfigError(f"terminate_on_catch must be true or false, got {self.terminate_on_catch!r}")
 
     @classmethod
-    def from_options(cls, options: dict) -> TaskConfig:
-        """The config of the keyword options an env was given (TypeError naming an unknown one)."""
+    def from_options(cls, options: dict, env_init: Callable | None = None) -> TaskConfig:
+        """The config of the keyword options an env was given.  An unknown one is a TypeError that
+        names it, the closest known name, and every argument the env takes: its own (from
+        ``env_init``'s signature, e.g. ``scene``) and the task's options."""
         unknown = sorted(set(options) - set(TASK_OPTIONS))
         if unknown:
-            raise TypeError(f"unknown task option(s) {', '.join(map(repr, unknown))}; the catch task takes "
-                            f"{', '.join(TASK_OPTIONS)}")
+            own = [] if env_init is None else [
+                name for name, param in inspect.signature(env_init).parameters.items()
+                if name != "self" and param.kind not in (param.VAR_KEYWORD, param.VAR_POSITIONAL)]
+            known = [*own, *TASK_OPTIONS]
+            hints = []
+            for name in unknown:
+                close = difflib.get_close_matches(name, known, 1)
+                hints.append(f"{name!r} (did you mean {close[0]!r}?)" if close else repr(name))
+            takes = f"{', '.join(own)} and " if own else ""
+            raise TypeError(f"unknown keyword argument(s) {', '.join(hints)}; the env takes {takes}the catch "
+                            f"task's options {', '.join(TASK_OPTIONS)}")
         return cls(**options)
 
     def horizon_on(self, scene: Scene) -> float:

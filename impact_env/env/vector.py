@@ -52,7 +52,7 @@ class ImpactCatchVectorEnv(VectorEnv):
         if not isinstance(mode, AutoresetMode):
             raise ValueError(f"autoreset_mode = {autoreset_mode!r}; expected one of "
                              f"{[m.value for m in AutoresetMode]}")
-        cfg = TaskConfig.from_options(task)
+        cfg = TaskConfig.from_options(task, type(self).__init__)
         self.task = make_catch_task(scene, int(num_envs), cfg, overrides, threads=threads)
         self.scene = self.task.scene
         self.layout = self.task.layout
