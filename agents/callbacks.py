@@ -205,15 +205,32 @@ class SettingsBeside(BaseCallback):
 
 
 class CheckpointWithSettings(CheckpointCallback):
-    """SB3's CheckpointCallback, each checkpoint with its settings file beside it."""
+    """SB3's CheckpointCallback, each checkpoint with its settings file beside it, keeping the
+    newest ``keep`` checkpoints (None: all)."""
 
-    def __init__(self, settings: dict, **kwargs):
+    def __init__(self, settings: dict, keep: int | None = None, **kwargs):
         super().__init__(**kwargs)
         self.settings = settings
+        self.keep = keep
 
     def _on_step(self) -> bool:
         ok = super()._on_step()
         if self.n_calls % self.save_freq == 0:
             write_settings(Path(self._checkpoint_path(extension="zip")), self.settings,
                            steps=int(self.model.num_timesteps))
+            prune_checkpoints(Path(self.save_path), self.keep)
         return ok
+
+
+def prune_checkpoints(folder: Path, keep: int | None) -> None:
+    """Remove all but the newest ``keep`` checkpoints of ``folder`` (each one's model, settings
+    file and SAC replay buffer); None keeps all.  --resume needs only the newest, and a run that
+    checkpoints every 100k steps would otherwise leave two files per 100k."""
+    if keep is None:
+        return
+    steps = sorted({int(p.stem.split("_")[1]) for p in folder.glob("model_*_steps.zip")
+                    if p.stem.split("_")[1].isdigit()})
+    for old in steps[:-keep]:
+        for name in (f"model_{old}_steps.zip", f"model_{old}_steps.json",
+                     f"model_replay_buffer_{old}_steps.pkl"):
+            (folder / name).unlink(missing_ok=True)

@@ -351,9 +351,17 @@ def resolve(algo: str, entry: dict, *, seed: int = 0, n_timesteps: int | None = 
         if n_steps * n_envs < 2:
             raise ConfigError(f"n_steps x n_envs = {n_steps * n_envs} must be > 1 (PPO's advantage "
                               "normalisation)")
-        if hp.get("batch_size", 64) > n_steps * n_envs:
+        rollout, batch = n_steps * n_envs, hp.get("batch_size", 64)
+        if batch > rollout:
             raise ConfigError(f"hyperparameter batch_size = {hp['batch_size']}: expected at most "
-                              f"n_steps x n_envs = {n_steps * n_envs} (one rollout)")
+                              f"n_steps x n_envs = {rollout} (one rollout)")
+        if rollout % batch:
+            # SB3 would train on a truncated last mini-batch (and warn on every run)
+            fits = [b for b in range(1, rollout + 1) if rollout % b == 0]
+            near = sorted(fits, key=lambda b: abs(b - batch))[:2]
+            raise ConfigError(f"hyperparameter batch_size = {batch}: must divide one rollout, n_steps x "
+                              f"n_envs = {n_steps} x {n_envs} = {rollout}; e.g. batch_size = "
+                              f"{' or '.join(map(str, sorted(near)))}")
     if policy_kwargs.get("squash_output") and not hp.get("use_sde"):
         raise ConfigError("squash_output = true needs use_sde = true (stable-baselines3)")
 

@@ -112,6 +112,7 @@ class TrainResult:
     interrupted: bool = False
     checkpoint: Path | None = None  # written on Ctrl-C: what --resume continues from
     env_time_s: float = 0.0  # wall time inside the training env (reset and step)
+    scene: str = "rig"  # the training scene: the next command's comparison runs on it
 
     def summary(self) -> str:
         s = self.stats
@@ -149,7 +150,15 @@ class TrainResult:
             lines.append(f"interrupted (Ctrl-C) at step {self.steps}: the model so far is saved, and "
                          f"checkpoint {self.checkpoint}; continue with python -m agents.train --resume "
                          f"{self.model_path.parent} [--steps N]")
-        lines.append(f"saved {self.model_path} and {self.meta_path}")
+        best = self.model_path.parent / "best_model.zip"
+        if self.interrupted or not best.is_file():
+            lines.append(f"saved {self.model_path} (the last model) and {self.meta_path}")
+            return "\n".join(lines)
+        law = (self.best or {}).get("residual_law") or "pd-penetration"
+        lines.append(f"saved {self.model_path} (the last model); the model to evaluate is the best on the "
+                     f"validation drops, {best}")
+        lines.append(f"next: impact-env compare --scene {self.scene} --policies {law},{self.algo}:{best} "
+                     f"--episodes 100 --seed {TEST_SEED} --out {self.model_path.parent / 'compare'}")
         return "\n".join(lines)
 
 
@@ -159,12 +168,14 @@ class Tooling:
 
     tensorboard: str | None = None
     checkpoint_every: int | None = None  # policy steps; None: no checkpoints
+    keep_checkpoints: int | None = 1  # the newest checkpoints kept (what --resume needs); None: all
     eval_every: int | None = 100_000  # policy steps; None: no evaluation callback
     eval_episodes: int = 16
     eval_seed: int = EVAL_SEED
 
     def check(self, cfg: RunConfig, resumes: int = 0) -> None:
         for name, v, lo in (("checkpoint_every", self.checkpoint_every, 1),
+                            ("keep_checkpoints", self.keep_checkpoints, 1),
                             ("eval_every", self.eval_every, 1), ("eval_episodes", self.eval_episodes, 1),
                             ("eval_seed", self.eval_seed, 0)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < lo):
@@ -184,8 +195,8 @@ class Tooling:
 
     def to_dict(self) -> dict:
         return {"tensorboard": self.tensorboard, "checkpoint_every": self.checkpoint_every,
-                "eval_every": self.eval_every, "eval_episodes": self.eval_episodes,
-                "eval_seed": self.eval_seed}
+                "keep_checkpoints": self.keep_checkpoints, "eval_every": self.eval_every,
+                "eval_episodes": self.eval_episodes, "eval_seed": self.eval_seed}
 
 
 # -- building -----------------------------------------------------------------------------------
@@ -354,7 +365,8 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     if tooling.checkpoint_every is not None:
         every = max(tooling.checkpoint_every // cfg.n_envs, 1)
         callbacks.append(CheckpointWithSettings(settings, save_freq=every, save_path=str(out / "checkpoints"),
-                                                name_prefix="model", save_replay_buffer=cfg.algo == "sac"))
+                                                name_prefix="model", save_replay_buffer=cfg.algo == "sac",
+                                                keep=tooling.keep_checkpoints))
     load0 = _load_average()
     cpu0 = time.process_time()
     t0 = time.perf_counter()
@@ -381,7 +393,8 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
         # in this folder is refused: without this checkpoint an early Ctrl-C left a folder that
         # neither could use.  Written on Ctrl-C whatever --checkpoint-every says, and at the end of a
         # run with checkpoints (a budget below --checkpoint-every left checkpoints/ empty).
-        checkpoint = _save_checkpoint(model, out, settings, replay_buffer=cfg.algo == "sac")
+        checkpoint = _save_checkpoint(model, out, settings, replay_buffer=cfg.algo == "sac",
+                                      keep=tooling.keep_checkpoints)
     venv.close()
 
     step_time, period = _period_per_step(cfg)
@@ -428,7 +441,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
                                                         default=str) + "\n")
     return TrainResult(out / "model.zip", meta_path, cfg.algo, done_steps, wall, seg_steps / max(wall, 1e-9),
                        len(stats.returns), train_stats, ticks=ticks, best=best, interrupted=interrupted,
-                       checkpoint=checkpoint, env_time_s=timer.seconds)
+                       checkpoint=checkpoint, env_time_s=timer.seconds, scene=cfg.scene)
 
 
 def _load_average() -> float | None:
@@ -442,10 +455,11 @@ def _load_average() -> float | None:
         return None
 
 
-def _save_checkpoint(model, out: Path, settings: dict, replay_buffer: bool) -> Path:
+def _save_checkpoint(model, out: Path, settings: dict, replay_buffer: bool, keep: int | None = None) -> Path:
     """``checkpoints/model_<steps>_steps.zip`` with its settings file (and SAC's replay buffer),
-    named as SB3's CheckpointCallback names them, so that :func:`_latest_checkpoint` finds it."""
-    from agents.callbacks import write_settings
+    named as SB3's CheckpointCallback names them, so that :func:`_latest_checkpoint` finds it;
+    then the older checkpoints beyond the newest ``keep`` are removed."""
+    from agents.callbacks import prune_checkpoints, write_settings
 
     steps = int(model.num_timesteps)
     folder = out / "checkpoints"
@@ -455,6 +469,7 @@ def _save_checkpoint(model, out: Path, settings: dict, replay_buffer: bool) -> P
     write_settings(path, settings, steps=steps)
     if replay_buffer:
         model.save_replay_buffer(folder / f"model_replay_buffer_{steps}_steps.pkl")
+    prune_checkpoints(folder, keep)
     return path
 
 
@@ -646,6 +661,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=int, default=CHECKPOINT_EVERY, metavar="N",
                    help=f"save a checkpoint (and its settings file) every N policy steps, what --resume "
                         f"continues from (default {CHECKPOINT_EVERY}; 0: never)")
+    p.add_argument("--keep-checkpoints", type=int, default=1, metavar="K",
+                   help="keep the newest K checkpoints, removing older ones (default 1: what --resume "
+                        "needs; 0: keep all)")
     p.add_argument("--eval-every", type=int, default=None, metavar="N",
                    help="evaluate on the validation drops every N policy steps, keep the best (0: never; "
                         "default 100000, with --quick the quick budget's)")
@@ -709,7 +727,10 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
                       seed=args.seed, observation=args.observation, history=args.history,
                       env_kwargs=env_kwargs, hyperparameters=_pairs(args.hp, "--hp"), policy=args.policy,
                       action_limit=args.action_limit)
+    if args.keep_checkpoints < 0:
+        raise ConfigError(f"--keep-checkpoints {args.keep_checkpoints} must be >= 0 (0: keep all)")
     tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every or None,
+                      keep_checkpoints=args.keep_checkpoints or None,
                       eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
                       eval_seed=args.eval_seed)
     return cfg, Path(args.out), tooling, False

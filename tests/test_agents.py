@@ -51,7 +51,8 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     args = ["--algo", "ppo", "--out", str(out), "--steps", "256", "--envs", "4", "--seed", "2",
             "--horizon", str(HORIZON), "--tensorboard", str(tb), "--checkpoint-every", "128",
             "--eval-every", "128", "--eval-episodes", "2", "--env-kwargs", "hold_ticks=2",
-            "--env-kwargs", "residual=pd-penetration", "--env-kwargs", "effort_weight=0.1"]
+            "--env-kwargs", "residual=pd-penetration", "--env-kwargs", "effort_weight=0.1",
+            "--keep-checkpoints", "0"]  # 0: keep every checkpoint (the default keeps the newest)
     for key, value in TINY_PPO.items():
         args += ["--hp", f"{key}={value}"]
     assert main(args) == 0
@@ -163,6 +164,10 @@ def test_schedules_and_sac_entropy_follow_rl_zoo_conventions():
         check_hyperparameter("ppo", "clip_range", "lin_x")
     with pytest.raises(ConfigError, match="batch_size"):
         resolve("ppo", {"n_timesteps": 10, "n_envs": 2, "n_steps": 8, "batch_size": 64})
+    # a batch that does not divide the rollout: SB3 would truncate the last mini-batch (and warn)
+    with pytest.raises(ConfigError, match=r"batch_size = 4096: must divide one rollout.*= 64000; e.g. "
+                                          r"batch_size = 3200 or 4000"):
+        resolve("ppo", {"n_timesteps": 10, "n_envs": 64, "n_steps": 1000, "batch_size": 4096})
     with pytest.raises(ConfigError, match="env_wrapper"):
         resolve("ppo", {"n_timesteps": 10, "env_wrapper": ["gymnasium.wrappers.ClipAction"]})
     with pytest.raises(ConfigError, match="residual"):
@@ -295,6 +300,11 @@ def test_a_short_run_says_its_budget_and_ends_with_an_evaluation_and_a_checkpoin
     assert hist[0]["return"] == pytest.approx(best["mean_reward"], abs=1e-4)
     assert 0 <= hist[0]["env_s"] <= hist[0]["wall_s"] <= meta["wall_time_s"] + 0.01  # rounded to 10 ms
     assert best["drops"] == [900000, 900001] and "the env" in out_text
+    # the last lines name the model to evaluate (the best, not the last) and the command that does it
+    *_, saved, last = out_text.strip().splitlines()
+    assert f"the model to evaluate is the best on the validation drops, {out / 'best_model.zip'}" in saved
+    assert last == (f"next: impact-env compare --scene {meta['scene']} --policies pd-penetration,"
+                    f"{algo}:{out / 'best_model.zip'} --episodes 100 --seed 1000 --out {out / 'compare'}")
 
 
 @pytest.mark.training
@@ -312,7 +322,9 @@ def test_progress_bar_and_a_budget_that_needs_no_rounding(tmp_path, capsys):
     assert "training 128 policy steps" in err and "rounded" not in err and "eval: step" not in err
     assert json.loads((out / "model.json").read_text())["steps"] == 128
     assert list(np.load(out / "eval" / "evaluations.npz")["timesteps"]) == [64, 128]  # none added at the end
-    assert (out / "checkpoints" / "model_64_steps.json").is_file()
+    # two checkpoints crossed; the default keeps the newest (what --resume needs), not one per 64 steps
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["model_128_steps.json",
+                                                                      "model_128_steps.zip"]
     from agents.train import CHECKPOINT_EVERY, build_parser
 
     assert build_parser().parse_args(["--algo", "ppo"]).checkpoint_every == CHECKPOINT_EVERY
