@@ -725,7 +725,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", nargs="+", default=None,
                    help="run folders of agents.train to evaluate (without: rebuild the doc from --results)")
-    p.add_argument("--results", default="docs/agents_results",
+    p.add_argument("--results", default="docs/results/agents",
                    help="where the per-drop results are kept (SCENE.npz, report.json; in the repository)")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=1000)

@@ -1,7 +1,7 @@
 """``compare`` on a Dask cluster against the local process pool, on this machine (docs/cluster.md).
 
     python scripts/bench_cluster.py [--rounds 3] [--episodes 100] [--oracle-drops 8] \\
-        [--out docs/cluster_bench.json]
+        [--out docs/results/cluster_bench.json]
 
 Starts a real cluster on loopback (tests/local_cluster.py: ``python -m dask scheduler`` and
 ``python -m dask worker --nworkers 2 --nthreads 1``, a worker process per core), connects once,

@@ -11,7 +11,7 @@ simulation and the rest, and, with ``--gap``, compare's energy integral per poli
 the same seeds.  The rig keeps ``rig``'s benchmark drops (0.08-0.12 kg from 30-70 mm) for the
 comparison; identification drops release its own body from the nominal height.
 
-    python scripts/identify_virtual.py --seeds 21 22 --gap --out docs/identification
+    python scripts/identify_virtual.py --seeds 21 22 --gap --out docs/results/identification
 """
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="the quick plan")
     ap.add_argument("--gap", action="store_true", help="also compare on the rig, before and after")
     ap.add_argument("--episodes", type=int, default=30, help="drops per policy for --gap (default 30)")
-    ap.add_argument("--out", default="docs/identification")
+    ap.add_argument("--out", default="docs/results/identification")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

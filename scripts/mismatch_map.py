@@ -2,13 +2,14 @@
 same drops of ``rig`` while one hardware parameter at a time departs from the scene
 (``impact-env robustness``), over the parameters a real rig is most likely to get wrong.
 
-    python scripts/mismatch_map.py --episodes 50 --identified docs/identification/seed21/identification.json
+    python scripts/mismatch_map.py --episodes 50 \
+        --identified docs/results/identification/seed21/identification.json
 
 ``--cluster tcp://HOST:PORT`` runs the points on a Dask cluster's workers, with the same results
 (docs/cluster.md; the shipped agent's file is then named by its absolute path, which every worker
 must see).
 
-Writes ``docs/figures/mismatch_<field>.png``, ``docs/mismatch.json`` and the tables of
+Writes ``docs/figures/mismatch_<field>.png``, ``docs/results/mismatch.json`` and the tables of
 ``docs/mismatch.md`` between its markers.
 """
 
@@ -64,7 +65,7 @@ def main(argv=None) -> int:
                          "rows": [{p: row[spec] for spec, p in zip(specs, POLICIES, strict=True)}
                                   for row in res.summaries]}
         print(f"{name}: {res.wall_s:.0f} s", file=sys.stderr, flush=True)
-    out = ROOT / "docs" / "mismatch.json"
+    out = ROOT / "docs" / "results" / "mismatch.json"
     old = json.loads(out.read_text()) if out.exists() and args.only else {}
     old.update(results)
     out.write_text(json.dumps(old, indent=1, default=_json) + "\n")

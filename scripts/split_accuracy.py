@@ -17,7 +17,7 @@ Cost: the plant's compiled loop alone on the
 ``--repeats`` runs after a compiling one), in us per control period.
 
     .venv/bin/python scripts/split_accuracy.py            # a few minutes
-    .venv/bin/python scripts/split_accuracy.py --json docs/split_accuracy.json
+    .venv/bin/python scripts/split_accuracy.py --json docs/results/split_accuracy.json
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ the repeats after a warm-up call that compiles):
                        c = 2e8) on a 1000 t body 2 that barely moves; reference: 0 (conservative).
 
 Each run records once, at its end, so that records do not cut dopri5's steps (the peak force
-is then the largest at step ends, as the plant tracks it).  Writes ``docs/work_precision.csv``
+is then the largest at step ends, as the plant tracks it).  Writes ``docs/results/work_precision.csv``
 and ``docs/work_precision.png`` (``--format pdf|svg``: that file type instead) and prints a
 summary table.
 
@@ -311,7 +311,8 @@ def main(argv=None) -> int:
                 rows.append(dict(series=label, method=method, event_location=events, knob=knob, value=v, **r))
             print(f"  {label:18s} {knob} {v:.0e} done ({time.perf_counter() - t_start:.0f} s)", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    csv_path = args.out / "work_precision.csv"
+    (args.out / "results").mkdir(exist_ok=True)  # the record; the figure goes to args.out
+    csv_path = args.out / "results" / "work_precision.csv"
     with open(csv_path, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=["series", "method", "event_location", "knob", "value", "metric",
                                            "error", "wall_s", "note"])

@@ -1,5 +1,5 @@
 """scripts/agents_report.py rebuilds docs/agents.md's results section and its figure from the
-per-drop results kept in the repository (docs/agents_results), exactly: no hand edits, no run
+per-drop results kept in the repository (docs/results/agents), exactly: no hand edits, no run
 folders needed."""
 
 import importlib.util
@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "docs" / "agents_results"
+RESULTS = ROOT / "docs" / "results" / "agents"
 
 
 def _report():

@@ -77,7 +77,7 @@ def test_agents_report_says_better_from_the_paired_difference(monkeypatch):
     st = AR.scene_stats(d, args)
     assert st["_paired"]["ppo-s0"]["energy"].a_better and not st["_paired"]["ppo-s0"]["catch"].a_better
     infos = [_run_info("ppo-s0", "ppo", 0), _run_info("ppo-s1", "ppo", 1), _run_info("sac-s0", "sac", 0)]
-    settings = {"results": "docs/agents_results", "command": "--runs runs/x", "seed": 1000, "episodes": n,
+    settings = {"results": "docs/results/agents", "command": "--runs runs/x", "seed": 1000, "episodes": n,
                 "oracle": "oracle", "resamples": 2000, "boot_seed": 7}
     text = AR.report_text(infos, {"rig": st}, "ppo-s0", settings, {"rig": 1.0})
     verdict = next(line for line in text.splitlines() if line.startswith("* ppo-s0 against"))

@@ -2,7 +2,7 @@
 diagnostic runs (runs/x/NAME, made by run.sh): for each run, its model.json without the bulky keys,
 with the command-line options and the load average (uptime before and after) of run.sh's log.
 
-    python docs/agents_results/diag26/collect.py runs/x          # writes docs/agents_results/diag26/NAME.json
+    python docs/results/agents/diag26/collect.py runs/x          # writes docs/results/agents/diag26/NAME.json
 """
 
 import json
