@@ -21,10 +21,10 @@ Environment variables
     debuggers see the code).
 
 While project kernels compile (the cache for the current source stamp is cold, or caching is
-off), a progress line on stderr says which kernel, its number and how long so far
+off), a progress line on stderr says how many kernels so far, which one now, and how long
 (:class:`_CompileProgress`: "compiling numba kernels (first run of this code; cached
-afterwards): kernel 7, plant.integrators._advance_split, 41 s"), and a last line how many and how
-long; a warm cache prints nothing, and nothing is printed at import.
+afterwards): 7 so far, now plant.integrators._advance_split, 41 s"), and a last line how many
+and how long; a warm cache prints nothing, and nothing is printed at import.
 
 Fewer specialisations: a kernel called from another kernel with a constant argument (``_trial(DOPRI5,
 ...)``) would be compiled once per constant value (numba types the constant as a literal); the
@@ -106,8 +106,8 @@ class _CompileProgress(event.Listener):
 
     numba broadcasts ``numba:compile`` only on a cache miss (a kernel loaded from the on-disk
     cache is not compiled), so the line appears exactly when kernels are compiled, never at
-    import.  Each kernel gets its number once, when its first compile starts (a second signature
-    of it keeps its number), so the count only climbs by one.  There is no "of N": numba compiles
+    import.  Each kernel is counted once, when its first compile starts (a second signature of it
+    is not counted again), so the count only climbs, by one.  There is no "of N": numba compiles
     a kernel when Python first calls it, so what a run will compile is known only at its end (an
     earlier total, counted from the kernels each call reaches, jumped from 1/1 to 8/19 to 20/20
     on the first run of compare); the last line gives the total.  One kernel can take minutes
@@ -137,8 +137,7 @@ class _CompileProgress(event.Listener):
         now = time.perf_counter()
         where = "" if CACHE else "; caching is off: IMPACT_ENV_NUMBA_CACHE=0"
         busy = self.busy + now - self.entered  # s of compiling so far
-        name, number = self.names[-1]
-        line = f"{PROGRESS_HEAD}{where}: kernel {number}, {name}, {busy:.0f} s"
+        line = f"{PROGRESS_HEAD}{where}: {len(self.numbered)} so far, now {self.names[-1]}, {busy:.0f} s"
         out = self._out()
         if out.isatty():
             print("\r" + line.ljust(self.width), end="", file=out, flush=True)
@@ -168,10 +167,10 @@ class _CompileProgress(event.Listener):
         if self.depth == 0:
             self.entered = time.perf_counter()
         self.depth += 1
-        first = id(func) not in self.numbered
-        number = self.numbered.setdefault(id(func), len(self.numbered) + 1)
-        self.names.append((_kernel_name(func), number))
-        self._show(force=first and number == 1)
+        first = not self.numbered
+        self.numbered.setdefault(id(func), len(self.numbered) + 1)
+        self.names.append(_kernel_name(func))
+        self._show(force=first)
 
     def on_end(self, ev):
         func = getattr(ev.data.get("dispatcher"), "py_func", None)
