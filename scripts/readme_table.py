@@ -37,7 +37,8 @@ def main_command(readme: str) -> list[str]:
     for line in block.group(1).splitlines():
         for part in line.split("&&"):
             words = shlex.split(part.strip())
-            if words[:2] == ["impact-env", "compare"]:
+            # impact-env, or the venv's own .venv/bin/impact-env (a new shell needs no activation)
+            if len(words) >= 2 and Path(words[0]).name == "impact-env" and words[1] == "compare":
                 return words[1:]
     raise SystemExit("no `impact-env compare` command in the README's first bash block")
 
