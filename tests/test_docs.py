@@ -87,7 +87,12 @@ def test_tutorial_benchmark_your_policy(tmp_path):
 
 @pytest.mark.slow
 def test_tutorial_deploy(tmp_path):
-    out = run_page(DOCS / "tutorials" / "deploy.md", tmp_path)
+    try:
+        out = run_page(DOCS / "tutorials" / "deploy.md", tmp_path)
+    finally:  # a block that failed before the page's own kill must not leave the target running
+        pid_file = tmp_path / "rig.pid"
+        if pid_file.is_file():
+            subprocess.run(["kill", pid_file.read_text().strip()], capture_output=True)
     text = "\n".join(out)
     assert "listening on" in text and "compiled:pd.policy.json" in text
     assert "PASS" in text and "FAIL" not in text
