@@ -331,7 +331,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     sim = Simulator(scene, n, layout, hold, residual_law(policy, scene), threads=threads)
     sim.reset([seeding.np_random(int(s))[0] for s in seeds])
     Y0 = sim.Y
-    metrics = EpisodeMetrics(n, period, catch_fraction, min_flight_s)
+    metrics = EpisodeMetrics(n, period, catch_fraction, min_flight_s, horizon_s=n_steps * step_s,
+                             plant_records=True)
     metrics.start(sim.t_touch, sim.hw.impact_speed, sim.impact_energy, Y0[:, 0] - Y0[:, 2] > 0.0)
     metrics.acc[:, AC.energy] = _energies(sim.Y, sim.P, np.empty(n))  # the catch energy at the start
     trace_t = np.arange(n_steps // stride + 1) * stride * step_s

@@ -9,6 +9,13 @@ saturation), ``saturated``, ``contact_force`` (N, true, at the end of the tick),
 reported no failure; once not, it stays so for the rest of the step, whose ticks are not run).
 The task (reward, termination) and the episode metrics read them; they are what a tick log of
 the rig holds, plus the true state.
+
+Then what only the simulated plant knows, from inside its integrator: ``catch_integral`` (J s,
+the time integral of body 1's catch energy over the tick, along the simulated motion) and the
+first contact separation the plant located within the tick, ``t_separation`` (s since the
+episode start) and body 1's velocity there, ``v1_separation`` (m/s; both NaN when the tick has
+none).  A rig's tick log has none of them (its writers leave them 0): the metrics use them only
+when told that the records come from the simulator (:mod:`impact_env.sim.metrics`).
 """
 
 
@@ -32,6 +39,9 @@ class Record(NamedTuple):
     contact_force: float
     detected: float
     status: float
+    catch_integral: float
+    t_separation: float
+    v1_separation: float
 
 
 REC = positions(Record)
