@@ -156,8 +156,6 @@ def _records(x1, v1, x2, v2):
     r = np.zeros((1, len(x1), R.N_REC))
     r[0, :, R.REC.t] = (np.arange(len(x1)) + 1) * PERIOD
     r[0, :, R.REC.x1], r[0, :, R.REC.v1], r[0, :, R.REC.x2], r[0, :, R.REC.v2] = x1, v1, x2, v2
-    r[0, :, R.REC.t_separation] = np.nan
-    r[0, :, R.REC.v1_separation] = np.nan
     return r
 
 
@@ -230,21 +228,22 @@ def test_a_bounce_after_a_quiet_spell_moves_the_catch_to_its_landing():
 
 @pytest.mark.parametrize("plant_records", [False, True])
 def test_a_rig_log_keeps_the_tick_definitions(plant_records):
-    """Records without the plant's columns (a rig's tick log: left 0) give the tick sum and the
-    exit speed at the first tick without contact; the simulator's give the plant's."""
+    """Records alone (a rig's tick log) give the tick sum and the exit speed at the first tick
+    without contact; with the simulator's plant records, the plant's integral and separation."""
     n = 100
     x1 = np.full(n, DS)
     x1[50:] = -1e-3  # leaves at tick 51
     v1 = np.where(np.arange(n) >= 50, -0.5, 0.0)
     rec = _records(x1, v1, np.zeros(n), np.zeros(n))
-    rec[0, :, R.REC.catch_integral] = 2.0 * E0 * PERIOD  # the plant's (made up here) integral
-    rec[0, 49, R.REC.t_separation] = 49.5 * PERIOD
-    rec[0, 49, R.REC.v1_separation] = -0.6
+    prec = np.full((1, n, R.N_PLANT_REC), np.nan)
+    prec[0, :, R.PREC.catch_integral] = 2.0 * E0 * PERIOD  # the plant's (made up here) integral
+    prec[0, 49, R.PREC.t_separation] = 49.5 * PERIOD
+    prec[0, 49, R.PREC.v1_separation] = -0.6
     P = np.zeros((1, L.N_PARAM))
     P[0, L.M1], P[0, L.C], P[0, L.G] = M1, C_PAD, G
     em = EpisodeMetrics(1, PERIOD, plant_records=plant_records)
     em.start(np.zeros(1), np.ones(1), np.full(1, E0), np.ones(1, dtype=bool))
-    em.step(rec, P)
+    em.step(rec, P, plant_records=prec if plant_records else None)
     m = {k: v[0] for k, v in em.finish().items()}
     if plant_records:
         np.testing.assert_allclose(m["energy_integral_ms"], 2.0 * n * PERIOD * 1e3, rtol=1e-12)

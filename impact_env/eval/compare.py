@@ -360,7 +360,7 @@ def summarize(run: PolicyRun) -> dict:
                 "caught_fraction")
         out.update(dict.fromkeys(keys, math.nan))
     for key, v in m.items():
-        if key == "time_to_catch_s":
+        if key.startswith("time_to_catch"):  # (times with inf: the quantiles above, not a mean)
             continue
         vals = v[ok & ~np.isnan(v)]
         out[key] = float(np.mean(vals)) if vals.size else math.nan

@@ -7,6 +7,7 @@ from __future__ import annotations
 METRIC_LABELS = {
     "impact_speed_mps": "impact speed, m/s",
     "time_to_catch_s": "catch time (body 1 at rest on the pad: relative energy below 1 %, no bounce), s",
+    "time_to_catch_absolute_s": "time until body 1's absolute catch energy stays below 1 %, s",
     "residual_vibration_mps": "body 2's RMS velocity over the last 50 ms, m/s",
     "residual_energy_10ms": "catch energy 10 ms after the touch / impact energy",
     "residual_energy_50ms": "catch energy 50 ms after the touch / impact energy",

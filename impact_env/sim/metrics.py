@@ -34,10 +34,16 @@ Definitions (tick k ends at ``t = k T``, T the control period, H the horizon):
   is the fraction of episodes with a finite catch time.  *Changed*: it was judged on the
   absolute ``E1`` (the name stays); a law that stops body 1 on a body 2 that keeps vibrating on
   sensor noise counted as never catching, so doing nothing (passive) outranked the thesis law.
-  The vibration is now its own column, ``residual_vibration_mps``.  The relative energy is the
+  The vibration is now its own column, ``residual_vibration_mps``, and the old figure is kept
+  as ``time_to_catch_absolute_s``.  The relative energy is the
   rest test of the thesis's ch. 4.4, which separates the falling body's energy from the
   resonance of the body 2 / shaker setup.  (The env's ``caught`` and its termination keep the
   absolute ``E1``: :class:`impact_env.env.task.TaskConfig`.)
+* ``time_to_catch_absolute_s``: the former ``time_to_catch_s``, unchanged: the time from the
+  first touch after which the absolute ``E1 / E0`` stays below ``catch_fraction`` at every tick
+  (no bounce rule, no hold); ``inf`` if above at the last tick, 0 if never above.  Kept for
+  what still estimates that figure (a blind rig's flight-energy estimate,
+  :mod:`impact_env.rig.flight_energy`) and for continuity; not a catch (see above).
 * ``residual_vibration_mps``: body 2 still humming: the RMS of body 2's velocity v2 (m/s) over
   the last ``VIBRATION_WINDOW_S`` (50 ms) of the episode (the whole episode if shorter), sampled
   at every tick.  NaN when the horizon is not given (a rig's tick log).  *New*.
@@ -57,13 +63,15 @@ Definitions (tick k ends at ``t = k T``, T the control period, H the horizon):
 * ``peak_force_N``, ``rms_force_N``: largest |force| and RMS force applied to body 2 over the
   episode's ticks (after shaker and saturation); ``peak_demand_N``: largest |demand|.
 * ``energy_integral_ms``: ``int_0^H E1 dt / E0`` in ms, exact along the simulated trajectory:
-  the plant integrates E1 inside its integrator over every span it takes (the record's
-  ``catch_integral``): in free flight in closed form (body 1's ``m1 v1^2/2 - m1 g x1`` is
-  constant, body 2's position integrates term by term in its exponential series), in contact by
-  the corrected trapezoidal rule on each accepted dopri5 step (error ``h^5 max|E1''''| / 720``
-  per step, below the step's own error), and with a fixed-step method by the trapezoidal rule
-  on its own grid (``dt^2 max|E1''| / 12`` per unit time).  So it does not depend on the control
-  rate (tested: 2.5, 10 and 40 kHz agree to 1e-4, the integrator's own tolerance).  *Changed*:
+  the plant integrates E1 inside its integrator over every span it takes (the plant record's
+  ``catch_integral``, :mod:`impact_env.sim.records`): in free flight in closed form (body 1's
+  ``m1 v1^2/2 - m1 g x1`` is constant, body 2's position integrates term by term in its
+  exponential series), in contact by the corrected trapezoidal rule on each accepted dopri5
+  step (error ``h^5 max|E1''''| / 720`` per step, below the step's own error), and with a
+  fixed-step method by the trapezoidal rule on its own grid (``dt^2 max|E1''| / 12`` per unit
+  time).  So it does not depend on the control rate: passive on ``rig``, seeds 95000-95007,
+  reads 78.520344 ms at 2.5, 10 and 40 kHz (tested to 1e-4), and one drop agrees with a
+  solve_ivp reference to 3e-10 (``tests/test_metric_definitions.py``).  *Changed*:
   it was the right-endpoint sum over ticks, kept as ``energy_integral_ticks_ms``; on a rig's
   tick log, which has no plant integral, ``energy_integral_ms`` is still that sum.
 * ``energy_integral_ticks_ms``: ``T sum_k E1(t_k) / E0`` in ms, the right-endpoint sum over the
@@ -91,9 +99,10 @@ from impact_env.sim import records as R
 
 RESIDUAL_MARKS_S = (0.010, 0.050, 0.100)
 VIBRATION_WINDOW_S = 0.050  # s, the end of the episode over which residual_vibration_mps is taken
-EPISODE_METRICS = ("impact_speed_mps", "time_to_catch_s", "residual_vibration_mps", "residual_energy_10ms",
-                   "residual_energy_50ms", "residual_energy_100ms", "exit_speed_ratio", "exit_velocity_ratio",
-                   "bounces", "peak_force_N", "rms_force_N", "peak_demand_N", "energy_integral_ms",
+EPISODE_METRICS = ("impact_speed_mps", "time_to_catch_s", "time_to_catch_absolute_s",
+                   "residual_vibration_mps", "residual_energy_10ms", "residual_energy_50ms",
+                   "residual_energy_100ms", "exit_speed_ratio", "exit_velocity_ratio", "bounces",
+                   "peak_force_N", "rms_force_N", "peak_demand_N", "energy_integral_ms",
                    "energy_integral_ticks_ms", "contact_fraction", "saturation_time_s")
 
 
@@ -108,8 +117,9 @@ class Accumulators(NamedTuple):
     contact: float  # ticks in contact after the first touch
     after: float  # ticks after the first touch
     ratio_sum: float  # the sum of the catch-energy ratios
-    integral: float  # J s, the plant's integral of the catch energy (records' catch_integral)
+    integral: float  # J s, the plant's integral of the catch energy (plant records' catch_integral)
     last_above: float  # s, the last tick not caught (relative ratio at or above the fraction, or flying)
+    last_above_abs: float  # s, the last tick with the (absolute) catch-energy ratio at or above the fraction
     mark0: float  # the ratio at the first residual mark (NaN until reached); mark1, mark2 follow
     mark1: float
     mark2: float
@@ -137,7 +147,7 @@ class Settings(NamedTuple):
     period: float  # s, the control period
     catch_fraction: float  # of the impact energy
     min_flight: float  # s, the shortest flight that is a bounce
-    plant_records: float  # 1: the records carry the plant's integral and located separations
+    plant_records: float  # 1: plant records (the plant's integral, located separations) are read
     vib_from: float  # the first tick (count, from 1) of the vibration window; inf: none
     mark0: float  # s after the first touch, the residual marks (RESIDUAL_MARKS_S); mark1, mark2 follow
     mark1: float
@@ -153,9 +163,10 @@ N_SETTINGS = len(ST)
 
 
 @jit(inline="always")
-def update(acc, rec, k_env, P_row, settings):
-    """Advance one env's accumulator ``acc`` by the tick record ``rec`` (its constants
-    ``k_env`` = t_touch s, impact speed m/s, impact energy J; its plant row ``P_row``)."""
+def update(acc, rec, prec, k_env, P_row, settings):
+    """Advance one env's accumulator ``acc`` by the tick record ``rec`` and its plant record
+    ``prec`` (read only with ``settings``' plant_records; its constants ``k_env`` = t_touch s,
+    impact speed m/s, impact energy J; its plant row ``P_row``)."""
     acc[AC.ticks] += 1.0
     period = settings[ST.period]
     t = acc[AC.ticks] * period
@@ -188,8 +199,10 @@ def update(acc, rec, k_env, P_row, settings):
     ratio = e / e0
     acc[AC.ratio] = ratio
     acc[AC.ratio_sum] += ratio
+    if ratio >= settings[ST.catch_fraction]:
+        acc[AC.last_above_abs] = t
     if plant:
-        acc[AC.integral] += rec[R.REC.catch_integral]
+        acc[AC.integral] += prec[R.PREC.catch_integral]
     # the relative catch energy, m1 (v1 - v2)^2 / 2 + U(d), from the absolute one
     if e + 0.5 * m1 * v2 * (v2 - 2.0 * v1) >= settings[ST.catch_fraction] * e0:
         acc[AC.last_above] = t
@@ -201,8 +214,8 @@ def update(acc, rec, k_env, P_row, settings):
         acc[AC.vib_sum] += v2 * v2
         acc[AC.vib_ticks] += 1.0
     if plant:
-        if np.isnan(acc[AC.exit_velocity]) and rec[R.REC.t_separation] > t_touch:
-            acc[AC.exit_velocity] = -rec[R.REC.v1_separation] / k_env[EC.impact_speed]
+        if np.isnan(acc[AC.exit_velocity]) and prec[R.PREC.t_separation] > t_touch:
+            acc[AC.exit_velocity] = -prec[R.PREC.v1_separation] / k_env[EC.impact_speed]
     was = acc[AC.was_contact] > 0.5
     if was and not contact and after:
         if np.isnan(acc[AC.exit_velocity]) and not plant:
@@ -219,14 +232,15 @@ def update(acc, rec, k_env, P_row, settings):
 
 
 @jit
-def update_batch(active, records, consts, P, settings, acc):
-    """:func:`update` with every tick of the last step's records, for every active env."""
-    active, records, consts, P, settings, acc = (borrow(active), borrow(records), borrow(consts), borrow(P),
-                                                 borrow(settings), borrow(acc))  # (impact_env._borrow)
+def update_batch(active, records, plant_records, consts, P, settings, acc):
+    """:func:`update` with every tick of the last step's records (and plant records), for every
+    active env."""
+    active, records, plant_records = borrow(active), borrow(records), borrow(plant_records)
+    consts, P, settings, acc = borrow(consts), borrow(P), borrow(settings), borrow(acc)  # (_borrow)
     for i in range(records.shape[0]):
         if active[i]:
             for k in range(records.shape[1]):
-                update(acc[i], records[i, k], consts[i], P[i], settings)
+                update(acc[i], records[i, k], plant_records[i, k], consts[i], P[i], settings)
 
 
 class MetricArrays(NamedTuple):
@@ -244,10 +258,10 @@ class EpisodeMetrics:
 
     ``horizon_s``: the episode's length (s), which places the vibration window (None: no
     ``residual_vibration_mps``, NaN).  ``catch_hold_s``: how long (s) a catch must have held
-    before the episode's end to count.  ``plant_records``: the records come from the simulator and
-    carry the plant's energy integral and located separations (:mod:`impact_env.sim.records`);
-    False for a rig's tick log, whose ``energy_integral_ms`` and exit speed are then taken at the
-    ticks."""
+    before the episode's end to count.  ``plant_records``: every step comes with the simulator's
+    plant records (the plant's energy integral and located separations,
+    :mod:`impact_env.sim.records`); False for a rig's tick log, whose ``energy_integral_ms`` and
+    exit speed are then taken at the ticks."""
 
     def __init__(self, n: int, period: float, catch_fraction: float = 0.01, min_flight_s: float = 1.0e-3,
                  horizon_s: float | None = None, plant_records: bool = False, catch_hold_s: float = 0.010):
@@ -268,6 +282,7 @@ class EpisodeMetrics:
     def start(self, t_touch, impact_speed, impact_energy, contact) -> None:
         self.acc[:] = 0.0
         self.acc[:, AC.last_above] = -np.inf
+        self.acc[:, AC.last_above_abs] = -np.inf
         self.acc[:, AC.mark0:AC.mark2 + 1] = np.nan
         self.acc[:, AC.exit_velocity] = np.nan
         self.acc[:, AC.t_separation] = np.nan
@@ -276,9 +291,15 @@ class EpisodeMetrics:
         self.consts[:, EC.impact_speed] = impact_speed
         self.consts[:, EC.impact_energy] = impact_energy
 
-    def step(self, records, P, active=None) -> None:
+    def step(self, records, P, active=None, plant_records=None) -> None:
+        """:func:`update` with every tick of ``records`` (float64[N, ticks, N_REC]) and, with
+        ``plant_records`` set at construction, ``plant_records`` (float64[N, ticks, N_PLANT_REC])."""
         active = self._all if active is None else active
-        update_batch(active, records, self.consts, P, self.settings, self.acc)
+        if plant_records is None:
+            if self.plant_records:
+                raise ValueError("EpisodeMetrics(plant_records=True) needs the plant records of every step")
+            plant_records = np.zeros(records.shape[:2] + (R.N_PLANT_REC,))
+        update_batch(active, records, plant_records, self.consts, P, self.settings, self.acc)
 
     @property
     def arrays(self) -> MetricArrays:
@@ -304,6 +325,10 @@ class EpisodeMetrics:
         ttc = np.where(last == -np.inf, 0.0, np.maximum(last + period, t_touch) - t_touch)
         held = t_end - (t_touch + ttc) >= self.catch_hold - 1e-12
         ttc = np.where(held & ~flying, ttc, np.inf)
+        last_abs = a[:, AC.last_above_abs]
+        ttc_abs = np.where(last_abs >= t_end - 1e-12, np.inf,
+                           np.maximum(last_abs + period, t_touch) - t_touch)
+        ttc_abs = np.where(last_abs == -np.inf, 0.0, ttc_abs)
         exit_vel = a[:, AC.exit_velocity]
         ticks_ms = a[:, AC.ratio_sum] * period * 1e3
         vib_ticks = a[:, AC.vib_ticks]
@@ -311,6 +336,7 @@ class EpisodeMetrics:
         m = {
             "impact_speed_mps": self.consts[:, EC.impact_speed].copy(),
             "time_to_catch_s": ttc,
+            "time_to_catch_absolute_s": ttc_abs,
             "residual_vibration_mps": vib,
             "residual_energy_10ms": a[:, AC.mark0].copy(),
             "residual_energy_50ms": a[:, AC.mark1].copy(),

@@ -63,19 +63,20 @@ class SimState(NamedTuple):
     obs: ObsState  # the policy's observation buffers
     law: ResidualState
     records: np.ndarray  # float64[N, hold, N_REC]: the last step's per-tick records
+    plant_records: np.ndarray  # float64[N, hold, N_PLANT_REC]: their plant records (sim.records)
 
 
 @jit(inline="always")
-def _first_separation(r, events, n0, n1, t_start):
-    """The record's ``t_separation`` / ``v1_separation``: the first separation (kind -1) among
-    the events ``n0 .. n1 - 1`` of the plant's log (those of this tick, whose times count from
-    the tick's start ``t_start``), or NaN (none, or beyond the log's size)."""
-    r[R.REC.t_separation] = np.nan
-    r[R.REC.v1_separation] = np.nan
+def _first_separation(pr, events, n0, n1, t_start):
+    """The plant record's ``t_separation`` / ``v1_separation``: the first separation (kind -1)
+    among the events ``n0 .. n1 - 1`` of the plant's log (those of this tick, whose times count
+    from the tick's start ``t_start``), or NaN (none, or beyond the log's size)."""
+    pr[R.PREC.t_separation] = np.nan
+    pr[R.PREC.v1_separation] = np.nan
     for e in range(n0, min(n1, events.shape[0])):
         if events[e, 1] < 0.0:
-            r[R.REC.t_separation] = t_start + events[e, 0]
-            r[R.REC.v1_separation] = events[e, 3]
+            pr[R.PREC.t_separation] = t_start + events[e, 0]
+            pr[R.PREC.v1_separation] = events[e, 3]
             return
 
 
@@ -114,8 +115,9 @@ def env_step(i, a, p, s):
         r[R.REC.contact_force] = info[i, INFO_CONTACT_FORCE]
         r[R.REC.detected] = detected[i]
         r[R.REC.status] = 0.0 if ok else 1.0
-        r[R.REC.catch_integral] = info[i, INFO_CATCH_INTEGRAL]
-        _first_separation(r, events[i], n0, n_events[i, 0], t[i] - period)
+        pr = s.plant_records[i, k]
+        pr[R.PREC.catch_integral] = info[i, INFO_CATCH_INTEGRAL]
+        _first_separation(pr, events[i], n0, n_events[i, 0], t[i] - period)
     if ok:
         observe(i, True, a, Y[i], s.fe, p.obs, s.obs)
     return ok
