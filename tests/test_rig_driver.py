@@ -96,7 +96,9 @@ def test_compare_rig_onboard_estimates_the_metrics_from_the_log():
         assert not r.failures
         for key in ("time_to_catch_s", "energy_integral_ms", "bounces"):
             assert np.all(np.isfinite(r.metrics[key])), (spec, key, r.metrics[key])
-    got, want = runs["passive"].metrics["time_to_catch_s"], sim["passive"].metrics["time_to_catch_s"]
+    # the blind estimate is of body 1's absolute catch energy (impact_env.rig.flight_energy): the
+    # simulation's figure of that definition is time_to_catch_absolute_s (impact_env.sim.metrics)
+    got, want = runs["passive"].metrics["time_to_catch_s"], sim["passive"].metrics["time_to_catch_absolute_s"]
     assert np.all(np.abs(got - want) <= 2e-3), (got, want)
     assert runs["passive"].trace_t is None  # no truth: no true traces are made up
 

@@ -65,10 +65,10 @@ if TYPE_CHECKING:
     from impact_env.scene import Scene
 
 SUMMARY_KEYS = ("time_to_catch_median_s", "time_to_catch_q25_s", "time_to_catch_q75_s", "time_to_catch_iqr_s",
-                "caught_fraction", "residual_energy_10ms", "residual_energy_50ms", "residual_energy_100ms",
-                "exit_speed_ratio", "exit_velocity_ratio", "bounces", "peak_force_N", "rms_force_N",
-                "peak_demand_N", "energy_integral_ms", "contact_fraction", "saturation_time_s",
-                "impact_speed_mps")
+                "caught_fraction", "residual_vibration_mps", "residual_energy_10ms", "residual_energy_50ms",
+                "residual_energy_100ms", "exit_speed_ratio", "exit_velocity_ratio", "bounces", "peak_force_N",
+                "rms_force_N", "peak_demand_N", "energy_integral_ms", "energy_integral_ticks_ms",
+                "contact_fraction", "saturation_time_s", "impact_speed_mps")
 ENERGY_CURVE_RATE = 2000.0  # Hz, samples of the catch-energy curves kept for every episode
 ORACLE_KEYS = ("gap_to_oracle_ms", "gap_to_oracle_min_ms", "oracle_improvement_ms", "oracle_seconds_per_drop")
 
@@ -360,7 +360,7 @@ def summarize(run: PolicyRun) -> dict:
                 "caught_fraction")
         out.update(dict.fromkeys(keys, math.nan))
     for key, v in m.items():
-        if key == "time_to_catch_s":
+        if key.startswith("time_to_catch"):  # (times with inf: the quantiles above, not a mean)
             continue
         vals = v[ok & ~np.isnan(v)]
         out[key] = float(np.mean(vals)) if vals.size else math.nan
@@ -377,11 +377,11 @@ def _fmt_time(x: float, horizon: float) -> str:
 
 
 def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
-    cols = ("policy", "catch s: median (IQR)", "caught", "E 10ms", "E 50ms", "E 100ms", "int E ms",
-            "exit v/v0", "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
+    cols = ("policy", "catch s: median (IQR)", "caught", "vib mm/s", "E 10ms", "E 50ms", "E 100ms",
+            "int E ms", "exit v/v0", "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
     gaps = any("gap_to_oracle_ms" in run.summary for run in runs.values())
     if gaps:
-        cols = (*cols[:7], "gap to oracle", *cols[7:])  # type: ignore[assignment]  # one more column
+        cols = (*cols[:8], "gap to oracle", *cols[8:])  # type: ignore[assignment]  # one more column
     rows = []
     for spec, run in runs.items():
         s = run.summary
@@ -389,6 +389,7 @@ def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
         iqr_s = "inf" if math.isinf(iqr) else ("n/a" if math.isnan(iqr) else f"{iqr:.3f}")
         rows.append((spec, f"{_fmt_time(s['time_to_catch_median_s'], horizon)} ({iqr_s})",
                      f"{s['caught_fraction']:.0%}" if not math.isnan(s["caught_fraction"]) else "n/a",
+                     f"{1e3 * s['residual_vibration_mps']:.2f}",
                      *(f"{s[k]:.4f}" for k in ("residual_energy_10ms", "residual_energy_50ms",
                                                "residual_energy_100ms")),
                      f"{s['energy_integral_ms']:.2f}",

@@ -6,7 +6,9 @@ from __future__ import annotations
 # per-episode metrics of impact_env.eval.rollout, as an axis label: quantity, unit
 METRIC_LABELS = {
     "impact_speed_mps": "impact speed, m/s",
-    "time_to_catch_s": "catch time (catch energy below 1 % for good), s",
+    "time_to_catch_s": "catch time (body 1 at rest on the pad: relative energy below 1 %, no bounce), s",
+    "time_to_catch_absolute_s": "time until body 1's absolute catch energy stays below 1 %, s",
+    "residual_vibration_mps": "body 2's RMS velocity over the last 50 ms, m/s",
     "residual_energy_10ms": "catch energy 10 ms after the touch / impact energy",
     "residual_energy_50ms": "catch energy 50 ms after the touch / impact energy",
     "residual_energy_100ms": "catch energy 100 ms after the touch / impact energy",
@@ -17,6 +19,7 @@ METRIC_LABELS = {
     "rms_force_N": "RMS force on body 2, N",
     "peak_demand_N": "peak force demand, N",
     "energy_integral_ms": "time integral of catch energy / impact energy, ms",
+    "energy_integral_ticks_ms": "catch energy / impact energy summed over the ticks x period, ms",
     "contact_fraction": "fraction of the episode in contact",
     "saturation_time_s": "time at the force limit, s",
 }

@@ -207,6 +207,7 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
     P = p.hw.plant.p
     obs = s.obs.obs
     records = s.records
+    plant_records = s.plant_records
     metrics, fails, traces, etrace, slot = out.metrics, out.fails, out.traces, out.energy, out.slot
     acc, consts, settings = metrics.acc, metrics.consts, metrics.settings
     energy = acc[:, AC.energy]
@@ -227,7 +228,7 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
                 else:
                     ok = env_step(i, u, p, s)
                     for j in range(hold):
-                        update(acc[i], records[i, j], consts[i], P[i], settings)
+                        update(acc[i], records[i, j], plant_records[i, j], consts[i], P[i], settings)
                     if not ok:
                         failed[i] = True
                         fails.t[i] = k * period
@@ -331,7 +332,8 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
     sim = Simulator(scene, n, layout, hold, residual_law(policy, scene), threads=threads)
     sim.reset([seeding.np_random(int(s))[0] for s in seeds])
     Y0 = sim.Y
-    metrics = EpisodeMetrics(n, period, catch_fraction, min_flight_s)
+    metrics = EpisodeMetrics(n, period, catch_fraction, min_flight_s, horizon_s=n_steps * step_s,
+                             plant_records=True)
     metrics.start(sim.t_touch, sim.hw.impact_speed, sim.impact_energy, Y0[:, 0] - Y0[:, 2] > 0.0)
     metrics.acc[:, AC.energy] = _energies(sim.Y, sim.P, np.empty(n))  # the catch energy at the start
     trace_t = np.arange(n_steps // stride + 1) * stride * step_s
@@ -400,7 +402,7 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             if commands is not None:  # every period's drive command (hold, residual law included)
                 u = sim.records[:, :, R.REC.u].T
                 commands[(k - 1) * hold:k * hold] = u if active is None else np.where(active, u, 0.0)
-            metrics.step(sim.records, sim.P, active)
+            metrics.step(sim.records, sim.P, active, sim.plant_records)
             div = sim.records[:, -1, R.REC.status] != 0.0
             if active is not None:
                 div &= active

@@ -77,7 +77,8 @@ INFO_CONTACT_FORCE = 3  # N, true contact force at the end of the period
 INFO_PEAK_FORCE = 4  # N, largest contact force within the period
 INFO_A2 = 5  # m/s^2, true acceleration of body 2 at the end of the period
 INFO_STATUS = 6  # the plant kernel's status (0 ok)
-N_INFO = 7
+INFO_CATCH_INTEGRAL = 7  # J s, the time integral of body 1's catch energy over the period (the plant's)
+N_INFO = 8
 
 
 class StageConfig(NamedTuple):
@@ -201,9 +202,11 @@ def hardware_tick(i, u, p, s):
     inf[INFO_SATURATED] = 1.0 if sat else 0.0
     peak = inf[INFO_PEAK_FORCE:INFO_PEAK_FORCE + 1]
     peak[0] = 0.0
+    integral = inf[INFO_CATCH_INTEGRAL:INFO_CATCH_INTEGRAL + 1]
+    integral[0] = 0.0
     status, mode = advance(ps.mode[i], f, 0.0, cfg.period,
                            PlantConsts(pp, p.plant.scale[i], cfg.method, cfg.dt, cfg.rtol),
-                           PlantCarry(y, ps.h[i], ps.events[i], ps.n_events[i], peak))
+                           PlantCarry(y, ps.h[i], ps.events[i], ps.n_events[i], peak, integral))
     ps.mode[i] = mode
     inf[INFO_STATUS] = status
     # the true contact force and body 2's acceleration at the end of the period, by the same

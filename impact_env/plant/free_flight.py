@@ -205,3 +205,22 @@ def gap_top(x1, v1, x2, v2, h, f2, pc):
         a2, b2 = body2_after(x2, v2, t, f2, pc)
         s = b1 - b2
     return a1 - a2
+
+
+@jit(inline="always")
+def body2_position_integral(x2, v2, h, f2, pc):
+    """The time integral of body 2's position over h seconds (m s; 0 <= h <= :func:`free_cap`)
+    of the motion :func:`body2_after` propagates: the same series integrated term by term,
+    ``int z = z h + sum_n h^(n+1) / (n+1)! A^(n-1) (A z + u)``, summed until neither the sum nor
+    the next term's seed changes it (round-off accuracy, as the motion itself)."""
+    s = x2 * h
+    tx = v2 * h  # the terms of body2_after's series for x2 and v2
+    tv = (-f2 - pc.k2 * x2 - pc.c2 * v2) * pc.im2 * h
+    for n in range(1, MAX_TERMS + 1):
+        ns = s + tx * h / (n + 1)
+        if ns == s and s + tv * h * h / ((n + 1) * (n + 2)) == s:
+            break
+        s = ns
+        r = h / (n + 1)
+        tx, tv = tv * r, -(pc.k2 * tx + pc.c2 * tv) * pc.im2 * r
+    return s

@@ -27,7 +27,15 @@ import numpy as np
 from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.plant.dynamics import coefs, contact_force, deriv, event_sign, event_value
-from impact_env.plant.free_flight import body1_after, body2_after, free_cap, gap_top, touch_and_end
+from impact_env.plant.free_flight import (
+    body1_after,
+    body2_after,
+    body2_position_integral,
+    free_cap,
+    gap_after,
+    gap_top,
+    touch_and_end,
+)
 from impact_env.plant.layout import (
     AUTO,
     CONTACT,
@@ -36,6 +44,7 @@ from impact_env.plant.layout import (
     EULER,
     EVENT_OVERFLOW,
     FREE,
+    M1,
     OK,
     RK4,
     SPLIT,
@@ -47,6 +56,8 @@ from impact_env.plant.layout import (
     W_EXT,
     X1,
     X2,
+    C,
+    G,
 )
 
 
@@ -70,6 +81,10 @@ class PlantCarry(NamedTuple):
     n_events: np.ndarray  # int64[1]: its fill count (events past its size are counted)
     peak: np.ndarray  # float64[1]: raised to the largest contact force at step ends and events;
     #                   or float64[2], whose peak[1] is raised to the largest penetration (m)
+    # float64[1]: the time integral of body 1's catch energy over the span (J s) is added to
+    # integral[0] (the metrics' energy integral, impact_env.sim.metrics).  The default, a shared
+    # scratch cell, serves callers that do not read it (a drop, the benchmarks)
+    integral: np.ndarray = np.zeros(1)
 
 
 class Records(NamedTuple):
@@ -392,6 +407,43 @@ def _penetration_peak(pkd, d0, s0, d1, s1, h):
 
 
 @jit(inline="always")
+def _catch_part(x1, v1, x2, pc):
+    """Body 1's catch energy (:func:`impact_env.plant.energy.catch_energy_at`) less its constant
+    ``(3/5) m1 g d_s`` (J), which :func:`advance` adds once per span: the integrand of the
+    energy integral, without a power per evaluation."""
+    d = x1 - x2
+    e = 0.5 * pc.m1 * v1 * v1 - pc.m1 * pc.g * d
+    if d > 0.0:
+        e += 0.4 * pc.c * d * d * sqrt(d)
+    return e
+
+
+@jit(inline="always")
+def _catch_rate(x1, v1, x2, v2, mode, pc):
+    """``(e, de/dt)``: :func:`_catch_part` (J) and its time derivative (W) at a state under the
+    contact force F of ``mode``: ``m1 g v2 - F v1 + c d_+^1.5 (v1 - v2)`` (body 1's power
+    ``m1 v1 (g - F / m1)``, the gravity term's ``-m1 g d'`` and the pad energy's rate)."""
+    d = x1 - x2
+    dd = v1 - v2
+    f, _fe = contact_force(d, dd, mode, pc.c, pc.b)
+    e = 0.5 * pc.m1 * v1 * v1 - pc.m1 * pc.g * d
+    r = pc.m1 * pc.g * v2 - f * v1
+    if d > 0.0:
+        sd = sqrt(d)
+        e += 0.4 * pc.c * d * d * sd
+        r += pc.c * d * sd * dd
+    return e, r
+
+
+@jit(inline="always")
+def _hermite(h, ea, ra, eb, rb):
+    """The integral over a step of h seconds of a function with values ``ea``, ``eb`` and
+    derivatives ``ra``, ``rb`` at its ends: the corrected trapezoidal rule (the cubic Hermite
+    interpolant's integral), error ``h^5 max|e(4)| / 720``."""
+    return 0.5 * h * (ea + eb) + h * h * (ra - rb) / 12.0
+
+
+@jit(inline="always")
 def _advance_fixed(mode, f2, t0, span, consts, carry):
     """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
     at a contact switch and in the graded zone after a touch.
@@ -402,6 +454,10 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
     end at the nodes ``Z (k / GRADE_PIECES)^GRADE_POWER`` (Z = GRADE_STEPS dt, time from the
     touch; a mesh graded towards the singular point), crossing grid points as needed: the grid
     itself is kept.  ``hstate[0]`` carries the time left in the zone from one call to the next.
+
+    Energy integral (``carry.integral``): the trapezoidal rule on every step and piece, the
+    method's own grid (so the integral does not depend on the control rate), error
+    ``dt^2 max|e''| / 12`` per unit time: second order.
     """
     y, hstate, ev, evn, peak = carry.y, carry.h, carry.events, carry.n_events, carry.peak
     method, dt = consts.method, consts.dt
@@ -413,10 +469,13 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
     pk = peak[0]
     track = peak.shape[0] > 1  # peak[1]: the largest penetration, tracked when the caller asks
     pkd = peak[1] if track else 0.0
+    e_prev = _catch_part(x1, v1, x2, pc)  # the integrand at the step's start
+    q = 0.0  # the integral over the span, J s
     n = int(round(span / dt))
     for i in range(n):
         fnew = -1.0  # contact force at the new state, when it is computed for the crossing test
         side = 0.0
+        pieces = False  # the step taken piece by piece
         d0 = x1 - x2  # penetration and its rate at the step's start (for the extremum between steps)
         s0 = v1 - v2
         if zone <= 0.0:
@@ -444,6 +503,7 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
         else:
             # a switch within this step, or a step in the graded zone: piece by piece
             fnew = -1.0
+            pieces = True
             y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
             out = np.empty(6)  # allocated only here: a switch is rare, a step is not
             scratch = np.empty(6)
@@ -464,6 +524,8 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
                     if n_ev == MAX_EVENTS_PER_STEP:
                         break
                     hs = _locate(method, y, out, scratch, mode, f2, piece, pc)
+                    q += 0.5 * hs * (_catch_part(y[0], y[1], y[2], pc)
+                                     + _catch_part(out[0], out[1], out[2], pc))
                     for j in range(6):
                         y[j] = out[j]
                     tt += hs
@@ -473,6 +535,8 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
                     zone = zone_len if grade and mode == CONTACT else 0.0
                     n_ev += 1
                 else:
+                    q += 0.5 * piece * (_catch_part(y[0], y[1], y[2], pc)
+                                        + _catch_part(out[0], out[1], out[2], pc))
                     for j in range(6):
                         y[j] = out[j]
                     rem -= piece
@@ -487,8 +551,14 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
                 peak[0] = pk
                 if track:
                     peak[1] = pkd
+                carry.integral[0] += q
                 return EVENT_OVERFLOW, mode
             x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
+            e_prev = _catch_part(x1, v1, x2, pc)  # (the pieces' integral is in q)
+        if not pieces:
+            e_new = _catch_part(x1, v1, x2, pc)
+            q += 0.5 * dt * (e_prev + e_new)
+            e_prev = e_new
         # a diverging state stays non-finite, so a check every 64 steps and at the end suffices
         if (i & 63) == 63 or i == n - 1:
             size = abs(x1) + abs(x2) + abs(v1) + abs(v2) + abs(we) + abs(wd)
@@ -500,6 +570,7 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
             peak[0] = pk
             if track:
                 peak[1] = pkd
+            carry.integral[0] += q
             return DIVERGED, mode
         if mode != FREE and x1 > x2:
             if fnew >= 0.0 and mode == CONTACT:
@@ -515,6 +586,7 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
     peak[0] = pk
     if track:
         peak[1] = pkd
+    carry.integral[0] += q
     return OK, mode
 
 
@@ -529,6 +601,10 @@ def advance(mode, f2, t0, span, consts, carry):
     raised to the largest penetration at every step, :func:`_penetration_peak`).
     Returns ``(status, mode)``.
     """
+    # the catch energy's constant part, (3/5) m1 g d_s, integrated here once; the methods add
+    # the rest (_catch_part)
+    p = consts.p
+    carry.integral[0] += 0.6 * p[M1] * p[G] * (p[M1] * p[G] / p[C]) ** (2.0 / 3.0) * span
     if consts.method == SPLIT:
         return _advance_split(mode, f2, t0, span, consts, carry)
     if consts.method != DOPRI5:
@@ -544,6 +620,50 @@ def _pad_energy(d, c):
     if d > 0.0:
         return 0.4 * c * d * d * sqrt(d)
     return 0.0
+
+
+@jit(inline="always")
+def _pad_rate(d, dd, c):
+    """The time derivative of :func:`_pad_energy` (W) at penetration d (m) and rate dd (m/s)."""
+    if d > 0.0:
+        return c * d * sqrt(d) * dd
+    return 0.0
+
+
+PAD_PIECES = 8  # pieces of the corrected trapezoidal rule over a free pad's release (_free_pad_integral)
+
+
+@jit
+def _free_pad_integral(x1, v1, x2, v2, h, f2, pc):
+    """The time integral (J s) of the pad's elastic energy ``(2/5) c d_+^2.5`` over a free
+    sub-step of h seconds that starts with d > 0 (a damped pad let go while still pressed): on
+    the exact free motion, over [0, t0], t0 the time d returns to 0 (bisection to ``1e-14 h``)
+    or h, by the corrected trapezoidal rule on PAD_PIECES equal pieces.  The release lasts a few
+    microseconds and the energy there is small; one rule over a whole sub-step (a control
+    period) instead of [0, t0] would make the integral depend on the control rate."""
+    t0 = h
+    d_end, _s = gap_after(x1, v1, x2, v2, h, f2, pc)
+    if not (d_end > 0.0):
+        lo, hi = 0.0, h
+        for _ in range(100):
+            if hi - lo <= 1e-14 * h:
+                break
+            mid = 0.5 * (lo + hi)
+            dm, _s = gap_after(x1, v1, x2, v2, mid, f2, pc)
+            if dm > 0.0:
+                lo = mid
+            else:
+                hi = mid
+        t0 = hi
+    piece = t0 / PAD_PIECES
+    q = 0.0
+    da, ra = x1 - x2, v1 - v2
+    for k in range(1, PAD_PIECES + 1):
+        db, rb = gap_after(x1, v1, x2, v2, k * piece, f2, pc)
+        q += _hermite(piece, _pad_energy(da, pc.c), _pad_rate(da, ra, pc.c), _pad_energy(db, pc.c),
+                      _pad_rate(db, rb, pc.c))
+        da, ra = db, rb
+    return q
 
 
 @jit(inline="always")
@@ -643,6 +763,14 @@ def _advance_split(mode, f2, t0, span, consts, carry):
             step = tau
             a1, b1 = body1_after(x1, v1, step, pc.g)
             a2, b2 = body2_after(x2, v2, step, f2, pc)
+        # the energy integral, exact: body 1's free fall keeps m1 v1^2 / 2 - m1 g x1, body 2's
+        # position integrates term by term, and a pad let go while still pressed (FREE with
+        # d > 0) adds its elastic energy while d > 0 (_free_pad_integral)
+        q = (0.5 * pc.m1 * v1 * v1 - pc.m1 * pc.g * x1) * step + pc.m1 * pc.g * body2_position_integral(
+            x2, v2, step, f2, pc)
+        if x1 - x2 > 0.0:
+            q += _free_pad_integral(x1, v1, x2, v2, step, f2, pc)
+        carry.integral[0] += q
         # the shaker's work; the damper took it less body 2's stored energy, and a pad let go
         # while still pressed (FREE with d > 0) releases its elastic energy as dissipated (as deriv)
         w = -f2 * (a2 - x2)
@@ -691,6 +819,9 @@ def _dopri_span(mode, f2, t0, t, span, consts, carry, rec, stop_free, work):
     (``rec.n > 0``) need ``t = 0``.  ``work``: float64[DOPRI_WORK, 6] scratch (one allocation
     per caller, not per step).  Returns ``(status, mode, records written, time reached)``."""
     y, hstate, ev, evn, peak = carry.y, carry.h, carry.events, carry.n_events, carry.peak
+    integral = carry.integral
+    have_start = False  # e_a, r_a hold the energy integrand and its rate at y (_catch_rate)
+    e_a, r_a = 0.0, 0.0
     rtol, scale = consts.rtol, consts.scale
     pc = coefs(consts.p)
     # the caller owns work for the whole call: the views of it taken here (and inside the
@@ -769,6 +900,15 @@ def _dopri_span(mode, f2, t0, t, span, consts, carry, rec, stop_free, work):
                 top, _th = _dense_top(TOP_PENETRATION, y, kst, step, row, mode, f2, pc)
             if project:
                 _project_energy(out, level, pc, vs, rtol)
+            # the energy integral over the accepted step (corrected trapezoidal rule, the error
+            # O(step^5) per step as dopri5's own); the step's start values come from the last
+            # step's end when the mode did not change
+            if not have_start:
+                e_a, r_a = _catch_rate(y[0], y[1], y[2], y[3], mode, pc)
+            e_b, r_b = _catch_rate(out[0], out[1], out[2], out[3], mode, pc)
+            integral[0] += _hermite(step, e_a, r_a, e_b, r_b)
+            e_a, r_a = e_b, r_b
+            have_start = new_mode == mode
             ftop, fth = -1.0, 2.0
             if mode == CONTACT and new_mode == mode and y[X1] > y[X2] and out[X1] > out[X2]:
                 if (_force_rate(y, kst[0], pc) > 0.0) != (_force_rate(out, kst[6], pc) > 0.0):

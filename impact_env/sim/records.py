@@ -9,6 +9,14 @@ saturation), ``saturated``, ``contact_force`` (N, true, at the end of the tick),
 reported no failure; once not, it stays so for the rest of the step, whose ticks are not run).
 The task (reward, termination) and the episode metrics read them; they are what a tick log of
 the rig holds, plus the true state.
+
+What only the simulated plant knows, from inside its integrator, is kept apart, one
+:class:`PlantRecord` per tick (float64[N, hold_ticks, N_PLANT_REC]), so that the records stay
+what a rig's tick log and its telemetry carry: ``catch_integral`` (J s, the time integral of
+body 1's catch energy over the tick, along the simulated motion) and the first contact
+separation the plant located within the tick, ``t_separation`` (s since the episode start) and
+body 1's velocity there, ``v1_separation`` (m/s; both NaN when the tick has none).  The episode
+metrics read them when they are given (:mod:`impact_env.sim.metrics`).
 """
 
 
@@ -34,6 +42,16 @@ class Record(NamedTuple):
     status: float
 
 
+class PlantRecord(NamedTuple):
+    """A plant record's columns (float64[N_PLANT_REC]): ``p[PREC.catch_integral]``."""
+
+    catch_integral: float  # J s
+    t_separation: float  # s, NaN: none in the tick
+    v1_separation: float  # m/s
+
+
 REC = positions(Record)
 N_REC = len(REC)
+PREC = positions(PlantRecord)
+N_PLANT_REC = len(PREC)
 

@@ -24,7 +24,7 @@ from impact_env.control.policy import CompiledPolicy
 from impact_env.control.residual import residual_arrays, start_residual
 from impact_env.hardware.batch import NOISE_BLOCK, Hardware
 from impact_env.scene import Scene, load_scene
-from impact_env.sim.records import N_REC
+from impact_env.sim.records import N_PLANT_REC, N_REC
 from impact_env.sim.step import SimParams, SimState, sim_blocks, sim_step
 
 #: envs per block at least when a step runs in threads (measured: scripts/bench_env.py, section
@@ -42,8 +42,9 @@ class Simulator:
     :class:`~impact_env.hardware.batch.Hardware`); ``step(actions, active)`` advances the active
     envs by one policy step.  After either: ``obs`` (float32[N, layout.size]), ``readings``
     (float64[N, 4]: the conditioned readings), ``detected``, ``records`` (float64[N, hold_ticks,
-    N_REC], :mod:`impact_env.sim.records`), and the hardware's arrays (``Y``, ``P``, ``t``,
-    ``info``, ``impact_energy``, ``t_touch``, ``drawn``) through :attr:`hw`.
+    N_REC], :mod:`impact_env.sim.records`) and ``plant_records`` (float64[N, hold_ticks,
+    N_PLANT_REC]: the plant's integral and located separations), and the hardware's arrays
+    (``Y``, ``P``, ``t``, ``info``, ``impact_energy``, ``t_touch``, ``drawn``) through :attr:`hw`.
 
     ``residual``: a compiled classic law evaluated every tick on its own observation frame; the
     command of a tick is ``clip(action + law, -1, 1)`` (:mod:`impact_env.sim.step`).
@@ -69,6 +70,7 @@ class Simulator:
         self.layout = layout if layout is not None else make_layout(scene)
         self.fe = FrontEnd(scene, self.layout, self.n)
         self.records = np.zeros((self.n, self.hold, N_REC))
+        self.plant_records = np.zeros((self.n, self.hold, N_PLANT_REC))
         self._all = np.ones(self.n, dtype=bool)
         # sim_step serially, or its parallel shim over blocks, bound to this simulator's argument
         # types (float64[::1] actions, bool[::1] active) from the first step on
@@ -83,7 +85,7 @@ class Simulator:
         fe = self.fe
         #: the compiled step's parameters and state (named tuples over the arrays of hw and fe)
         self.params = SimParams(self.hold, hw.params, fe.params, fe.obs_params, law_p)
-        self.state = SimState(hw.state, fe.state, fe.obs_state, law_s, self.records)
+        self.state = SimState(hw.state, fe.state, fe.obs_state, law_s, self.records, self.plant_records)
         self._blocks: list[tuple[int, int]] = []
         self.threads = threads
 
@@ -107,6 +109,7 @@ class Simulator:
             start_residual(np.asarray(idx, dtype=np.int64), self.hw.Y, self.fe.state, self.params.law,
                            self.state.law)
         self.records[idx] = 0.0
+        self.plant_records[idx] = 0.0
         return idx
 
     def step(self, actions, active=None) -> None:

@@ -36,6 +36,7 @@ from impact_env.control.front_end import (
 )
 from impact_env.control.residual import ResidualParams, ResidualState, add_residual, observe_residual
 from impact_env.hardware.stage import (
+    INFO_CATCH_INTEGRAL,
     INFO_CONTACT_FORCE,
     INFO_F_APPLIED,
     INFO_F_DEMAND,
@@ -62,6 +63,21 @@ class SimState(NamedTuple):
     obs: ObsState  # the policy's observation buffers
     law: ResidualState
     records: np.ndarray  # float64[N, hold, N_REC]: the last step's per-tick records
+    plant_records: np.ndarray  # float64[N, hold, N_PLANT_REC]: their plant records (sim.records)
+
+
+@jit(inline="always")
+def _first_separation(pr, events, n0, n1, t_start):
+    """The plant record's ``t_separation`` / ``v1_separation``: the first separation (kind -1)
+    among the events ``n0 .. n1 - 1`` of the plant's log (those of this tick, whose times count
+    from the tick's start ``t_start``), or NaN (none, or beyond the log's size)."""
+    pr[R.PREC.t_separation] = np.nan
+    pr[R.PREC.v1_separation] = np.nan
+    for e in range(n0, min(n1, events.shape[0])):
+        if events[e, 1] < 0.0:
+            pr[R.PREC.t_separation] = t_start + events[e, 0]
+            pr[R.PREC.v1_separation] = events[e, 3]
+            return
 
 
 @jit(inline="always")
@@ -70,12 +86,16 @@ def env_step(i, a, p, s):
     observation.  Returns False if the plant failed (its observation is then left as it was)."""
     Y = s.hw.plant.y
     t = s.hw.plant.t
+    n_events = s.hw.plant.n_events
+    events = s.hw.plant.events
+    period = p.hw.cfg.period
     info = s.hw.out.info
     detected = s.fe.detected
     law_on = p.law.on
     ok = True
     u = a
     for k in range(p.hold):
+        n0 = n_events[i, 0]
         if ok:
             if law_on:
                 u = add_residual(a, i, p.law, s.law)
@@ -95,6 +115,9 @@ def env_step(i, a, p, s):
         r[R.REC.contact_force] = info[i, INFO_CONTACT_FORCE]
         r[R.REC.detected] = detected[i]
         r[R.REC.status] = 0.0 if ok else 1.0
+        pr = s.plant_records[i, k]
+        pr[R.PREC.catch_integral] = info[i, INFO_CATCH_INTEGRAL]
+        _first_separation(pr, events[i], n0, n_events[i, 0], t[i] - period)
     if ok:
         observe(i, True, a, Y[i], s.fe, p.obs, s.obs)
     return ok
