@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -186,6 +187,7 @@ def bootstrap(statistic, *samples, strata=None, confidence: float = CONFIDENCE, 
     rng = np.random.default_rng([int(seed), BOOTSTRAP_STREAM])  # (the generator _indices starts too)
     # resamples in blocks of at most CHUNK_ELEMENTS drops: memory stays bounded for any N
     block = max(1, CHUNK_ELEMENTS // groups.size)
+    blocks: Iterable[np.ndarray]
     if block >= resamples:  # one block: the same indices for every interval over these drops
         blocks = [_indices(tuple(groups.tolist()), resamples, int(seed))]
     else:
@@ -193,5 +195,6 @@ def bootstrap(statistic, *samples, strata=None, confidence: float = CONFIDENCE, 
                   for start in range(0, resamples, block))
     values = np.concatenate([statistic(*(x[idx] for x in arrays), axis=-1) for idx in blocks])
     tail = 50.0 * (1.0 - confidence)
-    low, high = np.percentile(values, [tail, 100.0 - tail])
+    with np.errstate(invalid="ignore"):  # inf - inf between two infinite resamples (a median catch time)
+        low, high = np.percentile(values, [tail, 100.0 - tail])
     return Interval(float(statistic(*arrays, axis=-1)), float(low), float(high))

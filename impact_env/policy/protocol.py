@@ -84,8 +84,8 @@ class StepPolicy:
             self._fresh = False
             self._started = np.zeros(n, dtype=bool)
         elif episode_start is not None:
-            for i in np.flatnonzero(np.asarray(episode_start, dtype=bool).reshape(-1) & self._started):
-                self._objects[i].reset(None)
+            for row in np.flatnonzero(np.asarray(episode_start, dtype=bool).reshape(-1) & self._started):
+                self._objects[row].reset(None)
         self._started = np.ones(n, dtype=bool)
         actions = np.empty((n, 1), dtype=np.float64)
         for i, obj in enumerate(self._objects):
