@@ -97,6 +97,7 @@ def test_a_third_party_policy_runs_by_name_through_its_entry_point(third_party, 
     from impact_env.cli.main import main
 
     assert "yield" in RG.policy_names()
+    assert "yield (sensors observation, module yieldpolicies, reset/act protocol)" in RG.describe_policies()
     assert RG.policy_class("yield").__module__ == "yieldpolicies"
     code = main(["compare", "--scene", "rig", "--policies", "yield:gain=0.2,passive", "--episodes", "2",
                  "--horizon", str(H), "--workers", "1", "--no-progress", "--reference", "none",

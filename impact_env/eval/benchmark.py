@@ -262,8 +262,18 @@ def write_record(record: dict, out_dir: Path, fmt: str = "png") -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     name = record["suite"]["name"]
     p = out_dir / f"{name}.json"
-    p.write_text(json.dumps(record, indent=1) + "\n")
+    p.write_text(dumps_record(record))
     return [p, plot_profiles(record, out_dir / f"{name}_profile.{fmt}")]
+
+
+def dumps_record(record: dict) -> str:
+    """The record as indented JSON with every list of numbers on one line (a drop per entry)."""
+    import re
+
+    text = json.dumps(record, indent=1)
+    numbers = re.compile(r"\[\s*((?:-?[0-9.eE+-]+|null|Infinity|-Infinity|NaN)(?:,\s*(?:-?[0-9.eE+-]+|null|"
+                         r"Infinity|-Infinity|NaN))*)\s*\]")
+    return numbers.sub(lambda m: "[" + ", ".join(x.strip() for x in m.group(1).split(",")) + "]", text) + "\n"
 
 
 def format_overall(record: dict) -> str:

@@ -180,8 +180,10 @@ def describe_policies() -> str:
     """One block per named policy: name, observation, parameters with defaults and units."""
     lines = []
     for name, cls in policy_classes().items():
-        lines.append(f"{name} ({cls.observation} observation, module {cls.__module__})")
-        for key, p in cls.PARAMS.items():
+        kind = "" if hasattr(cls, "predict") else ", reset/act protocol"
+        observation = getattr(cls, "observation", "sensors")
+        lines.append(f"{name} ({observation} observation, module {cls.__module__}{kind})")
+        for key, p in getattr(cls, "PARAMS", {}).items():
             default = "scene" if p.default is None else p.default
             lines.append(f"    {key} = {default} {p.unit}  {p.doc}")
     return "\n".join(lines)
