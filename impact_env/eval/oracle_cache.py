@@ -110,7 +110,8 @@ class OracleCache:
         if lost:
             raise ConfigError(f"the oracle's cache {self.folder} lacks {len(lost)} of these drops (seeds "
                               f"{lost[:5]}{' ...' if len(lost) > 5 else ''}): compute them with --oracle")
-        cols, stats = [], {}
+        cols: list[np.ndarray] = []
+        stats: dict[str, list[float]] = {}
         for s in seeds:
             with np.load(self.path(s)) as z:
                 cols.append(z["commands"])
