@@ -4,8 +4,10 @@ Finds the ``impact-env compare ...`` command in the README's first ``bash`` bloc
 job), runs it (as ``python -m impact_env.cli.main compare ...``, in this checkout; ``--out``
 into a temporary folder unless the command names one), and replaces everything between the
 markers ``<!-- compare-table:start -->`` and ``<!-- compare-table:end -->`` in README.md with
-what it printed (the table and its legend line; not the first line, which holds the wall time)
-and the command itself.  The catch-time
+what it printed (the primary score's table with its intervals, the metrics' table and their
+legend lines; not the first line, which holds the wall time) and the command itself.  Unless the
+command says ``--oracle``, it runs with ``--no-oracle``: the table's columns do not depend on
+what this machine's oracle cache holds.  The catch-time
 figure the command writes is copied to ``docs/catch_time.png``, the README's figure.
 
     python scripts/readme_table.py            # run and rewrite README.md (about 15-60 s)
@@ -46,6 +48,8 @@ def main_command(readme: str) -> list[str]:
 def run(args: list[str], out_dir: Path) -> str:
     """Run the compare command; returns what it printed (without the 'written:' line)."""
     args = list(args)
+    if "--oracle" not in args and "--no-oracle" not in args:
+        args.append("--no-oracle")  # the oracle's rows only when the command asks: not from a local cache
     if "--out" in args:
         args[args.index("--out") + 1] = str(out_dir)
     else:

@@ -108,7 +108,7 @@ def test_physics_scene_moves_the_bodies_bitwise_as_the_full_scene():
     for i, seed in enumerate(SEEDS):
         phys = O.physics_scene(RIG, seed)
         assert set(phys.effects.active) == {"shaker", "saturation"}
-        r = rollout(phys, O._Replay(U[:, i:i + 1]), [seed], horizon=SHORT)
+        r = rollout(phys, O.Replay(U[:, i:i + 1]), [seed], horizon=SHORT)
         for k in STATE:
             np.testing.assert_array_equal(r.traces[k][:, 0], full.traces[k][:, i], err_msg=k)
         J, end = O._Rig(phys, 3).run(seed, np.repeat(U[:, i:i + 1], 3, axis=1))
@@ -153,7 +153,7 @@ def test_randomised_draws_are_consumed_as_the_simulator_does():
         assert not phys.randomized
         assert phys == scene.with_draws(sim.drawn[0]).with_overrides(
             {"effects.active": ["shaker", "saturation", "actuator_delay"]})
-        r = rollout(phys, O._Replay(U[:, i:i + 1]), [seed], horizon=SHORT)
+        r = rollout(phys, O.Replay(U[:, i:i + 1]), [seed], horizon=SHORT)
         for k in STATE:
             np.testing.assert_array_equal(r.traces[k][:, 0], full.traces[k][:, i], err_msg=k)
 

@@ -116,12 +116,24 @@ def output_file(path: str | Path, option: str) -> Path:
 def add_workers_arguments(p: argparse.ArgumentParser) -> None:
     """``--workers N`` and ``--cluster tcp://HOST:PORT``, the same on every command that runs
     independent tasks (compare, sweep, robustness; :mod:`impact_env.eval.parallel`)."""
-    p.add_argument("--workers", type=int, default=None,
-                   help="processes (default: the available cores); with --cluster, how many parts the work "
-                        "is cut into (default: the cluster's worker threads)")
+    p.add_argument("--workers", type=workers_arg, default=None,
+                   help="processes, >= 1 (default: the available cores); with --cluster, how many parts the "
+                        "work is cut into (default: the cluster's worker threads)")
     p.add_argument("--cluster", metavar="tcp://HOST:PORT", default=None,
                    help="run the tasks on the workers of this Dask scheduler instead of local processes, "
                         "with the same results (needs pip install 'impact-env[cluster]'; docs/cluster.md)")
+
+
+def workers_arg(text: str) -> int:
+    """``--workers``: an integer >= 1 (argparse's error, naming the option, otherwise)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer (processes, >= 1)") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{n} must be an integer >= 1 (processes; the default is the "
+                                         "available cores)")
+    return n
 
 
 def cluster_from_args(args) -> str | None:

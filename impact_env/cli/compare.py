@@ -17,7 +17,15 @@ from impact_env.cli.args import (
 )
 from impact_env.config import ConfigError
 from impact_env.eval import rig_compare as RC  # (called through the module: the rig tests stand in for it)
-from impact_env.eval.compare import compare, format_table, split_policies, summary_json, write_outputs
+from impact_env.eval.compare import (
+    compare,
+    format_statistics,
+    format_table,
+    split_policies,
+    statistics_legend,
+    summary_json,
+    write_outputs,
+)
 from impact_env.policy.export import export_policy
 from impact_env.policy.registry import describe_policies, is_model_spec
 from impact_env.rig import protocol as P
@@ -38,6 +46,7 @@ def add_arguments(p) -> None:
                         "model (PATH.zip, ppo:PATH.zip) or a compiled policy file "
                         "(compiled:FILE.policy.json, from impact-env export); repeatable")
     p.add_argument("--episodes", type=int, default=100, help="episodes per policy (default 100)")
+    add_statistics_arguments(p)
     p.add_argument("--seed", type=int, default=0, help="episode j is seeded seed + j (default 0)")
     p.add_argument("--horizon", type=float, default=None, help="episode length, s (default: episode.horizon)")
     add_workers_arguments(p)
@@ -61,6 +70,30 @@ def add_arguments(p) -> None:
                    help="with --rig and --scene: report the sim-to-rig gap even when more than 1 %% of a "
                         "policy's ticks were skipped by overruns (by default that is refused: exit 1)")
     p.set_defaults(func=cmd_compare)
+
+
+def add_statistics_arguments(p) -> None:
+    """``--reference``, ``--oracle``/``--no-oracle``, ``--oracle-cache`` and ``--allow-long``
+    (compare and benchmark)."""
+    p.add_argument("--reference", default=None, metavar="SPEC",
+                   help="the policy the paired difference and the probability of improvement are taken "
+                        f"against (default {DEFAULT_REFERENCE} when listed; a reference named here is added "
+                        "to the run when not listed; 'none': no paired statistics)")
+    oracle = p.add_mutually_exclusive_group()
+    oracle.add_argument("--oracle", action="store_const", const="compute", dest="oracle", default="auto",
+                        help="search the per-drop oracle on the drops the cache lacks (CMA-ES, about 3 s of "
+                             "CPU per drop; needs pip install 'impact-env[oracle]'), then report its row and "
+                             "every row's oracle-normalised score (by default both appear when the cache "
+                             "holds every drop)")
+    oracle.add_argument("--no-oracle", action="store_const", const="off", dest="oracle",
+                        help="neither search nor read the oracle's cache: no oracle row, no score")
+    p.add_argument("--oracle-cache", metavar="DIR", default=None,
+                   help="the oracle's cache folder (default $IMPACT_ENV_CACHE, else ~/.cache/impact_env)")
+    p.add_argument("--allow-long", action="store_true",
+                   help="run a request estimated to take more than a day (refused by default)")
+
+
+DEFAULT_REFERENCE = "thesis-rig"
 
 
 def _threads_arg(text: str) -> int | str:
@@ -96,9 +129,11 @@ def cmd_compare(args) -> int:
                               "episodes)")
         return _compare_rig(args, specs)
     scene = scene_from_args(args, scene=args.scene or "rig")
+    reference = reference_from_args(args, specs)
     runs = compare(scene, specs, episodes=args.episodes, seed=args.seed, horizon=args.horizon,
                    workers=args.workers, progress=not args.no_progress and not args.json, cluster=cluster,
-                   threads=args.threads)
+                   threads=args.threads, reference=reference, oracle=args.oracle,
+                   oracle_cache=args.oracle_cache, allow_long=args.allow_long)
     horizon = scene.episode.horizon if args.horizon is None else args.horizon
     if args.json:
         print(json.dumps(summary_json(runs)))
@@ -108,6 +143,9 @@ def cmd_compare(args) -> int:
               f"(episode j seeded {args.seed} + j), impact speed {scene.impact_speed:.3g} m/s"
               f"{' (nominal; drawn per episode)' if scene.randomized else ''}, "
               f"{len(specs)} policies in {wall:.1f} s")
+        print(statistics_legend(runs))
+        print(format_statistics(runs))
+        print()
         print("E: body 1's catch energy over its impact value (mean); exit v/v0: body 1's speed at the first "
               "separation over the impact speed (mean); catch: catch energy below 1 % for good")
         print(format_table(runs, horizon))
@@ -123,6 +161,15 @@ def cmd_compare(args) -> int:
         if not args.json:
             print("written: " + ", ".join(str(p) for p in paths))
     return all_failed(runs)
+
+
+def reference_from_args(args, specs) -> str | None:
+    """``--reference``: None for 'none'; by default thesis-rig when it is listed (the rows are
+    the ones asked for), else none; a reference named explicitly joins the run."""
+    ref = args.reference
+    if ref is None:
+        return DEFAULT_REFERENCE if DEFAULT_REFERENCE in specs else None
+    return None if ref.strip().lower() == "none" else ref
 
 
 def all_failed(runs) -> int:

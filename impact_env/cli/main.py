@@ -1,5 +1,5 @@
-"""Command line: ``impact-env drop | scenes | scene show | compare | sweep | export | rig | identify |
-robustness``.
+"""Command line: ``impact-env drop | scenes | scene show | compare | benchmark | sweep | export | rig |
+identify | robustness``.
 
 Every command takes ``--set KEY=VALUE`` (repeatable) through
 :func:`impact_env.cli.args.add_scene_arguments` and builds its scene with
@@ -23,8 +23,11 @@ DESCRIPTION = ("Catching a falling body with a shaker: simulate drops, compare c
                "seeded drops, export a policy, run it on a rig.")
 EPILOG = """examples:
   impact-env compare --scene rig --policies passive,thesis-rig,pd-penetration,thesis-ideal \\
-      --episodes 100 --seed 0 --out results      README's main job: a table, CSV/JSON and plots
+      --episodes 100 --seed 5000000 --out results
+                                                 README's main job: a table, CSV/JSON and plots
   impact-env compare --list                      the named policies and their parameters
+  impact-env benchmark pd-penetration --out bench
+                                                 a policy on the frozen suite catch-v1 (a record)
   impact-env drop --scene rig --plot drop.png    one uncontrolled drop, summarised and plotted
   impact-env scenes                              the preset scenes
   impact-env scene show rig                      a scene as TOML (a scene file: base = "rig" + changes)
@@ -49,6 +52,9 @@ COMMANDS = {
     "scene": ("impact_env.cli.drop:add_scene_tools", "scene tools"),
     "compare": ("impact_env.cli.compare:add_arguments",
                 "run policies on the same seeded drops and tabulate catch metrics"),
+    "benchmark": ("impact_env.cli.benchmark:add_arguments",
+                  "run policies on a frozen suite of held-out drops and keep a record (score, intervals, "
+                  "profile)"),
     "sweep": ("impact_env.cli.sweep:add_arguments",
               "sweep a baseline's two gains over a grid (thesis fig 4.4)"),
     "export": ("impact_env.cli.export:add_arguments",

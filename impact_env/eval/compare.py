@@ -31,6 +31,22 @@ starts (so no policy of the comparison can beat it on any drop).  Every row then
 oracle's on the same episode (and ``gap_to_oracle_min_ms``, the smallest, which is >= 0), and the
 oracle's row ``oracle_improvement_ms`` (median over drops of its gain on its best warm start)
 and ``oracle_seconds_per_drop`` (mean CPU time of its optimisation per drop, one core each).
+
+Statistics (:mod:`impact_env.eval.scores`; the primary score is the energy integral): every
+row has its mean's 95 % bootstrap interval (``energy_integral_ms_ci95``, and ``<metric>_ci95``
+for every other metric), the IQM with its interval, and with ``reference`` (a policy of the
+comparison, added to it when absent) the paired difference and the probability of improvement
+against it, each with its interval; the bootstrap's generator is seeded from ``seed``.
+
+The cached oracle (``oracle="compute"`` or ``"auto"``, :mod:`impact_env.eval.oracle_cache`):
+its per-drop commands, searched once per drop without the comparison's warm starts and kept on
+disk, are replayed as the row ``oracle`` (``passive`` is added when absent), and every row gets
+``score``, the oracle-normalised score (0 = passive, 100 = the oracle), with its interval.
+``"auto"`` uses the cache when it holds every drop; ``"compute"`` searches the drops it lacks
+first.  A listed ``oracle`` policy (warm-started by the comparison) serves as the ceiling instead.
+
+Limits: ``workers`` must be >= 1, and a request whose memory or time is out of proportion is
+refused before anything runs, with an estimate (:mod:`impact_env.eval.limits`).
 """
 
 from __future__ import annotations
@@ -47,8 +63,11 @@ import numpy as np
 from impact_env._threads import check_threads
 from impact_env.config import ConfigError
 from impact_env.eval.compare_plots import plot_catch_time, plot_energy, plot_force, plot_motion
+from impact_env.eval.limits import check_cost, estimate, is_small
+from impact_env.eval.oracle_cache import OracleCache
 from impact_env.eval.parallel import prepare, report, run_tasks, session
 from impact_env.eval.rollout import EPISODE_METRICS, rollout
+from impact_env.eval.scores import PRIMARY, comparison_statistics, interval_text
 from impact_env.policy.registry import (
     REGISTERED,
     check_spec,
@@ -71,6 +90,13 @@ SUMMARY_KEYS = ("time_to_catch_median_s", "time_to_catch_q25_s", "time_to_catch_
                 "contact_fraction", "saturation_time_s", "impact_speed_mps")
 ENERGY_CURVE_RATE = 2000.0  # Hz, samples of the catch-energy curves kept for every episode
 ORACLE_KEYS = ("gap_to_oracle_ms", "gap_to_oracle_min_ms", "oracle_improvement_ms", "oracle_seconds_per_drop")
+ORACLE_ROW = "oracle"  # the cached oracle's row (and the name of the oracle policy)
+ORACLE_MODES = ("off", "auto", "compute")
+# summary.csv's statistics columns (an interval as two columns, _low and _high)
+STAT_KEYS = (f"{PRIMARY}_ci95", f"{PRIMARY}_iqm", f"{PRIMARY}_iqm_ci95", f"{PRIMARY}_diff",
+             f"{PRIMARY}_diff_ci95", "prob_improvement", "prob_improvement_ci95", "score", "score_ci95",
+             "score_iqm", "score_iqm_ci95",
+             "caught_fraction_ci95", "time_to_catch_median_s_ci95")
 
 
 # -- policy lists ---------------------------------------------------------------------------------
@@ -103,6 +129,7 @@ class RolloutJob:
     record: bool = False  # keep the commands (an oracle is in the comparison)
     warm_starts: dict | None = None  # other policies' commands on these episodes (for an oracle)
     threads: int | str = 1  # the rollout's threads (rollout(threads=...); "auto"), in the worker that runs it
+    open_loop: Any = None  # float64[n_steps, len(episodes)]: replay these commands (the cached oracle)
 
 
 @dataclass
@@ -132,7 +159,12 @@ def run_job(task: RolloutJob):
     kept its policy from being built."""
     seeds = [task.seed + j for j in task.episodes]
     try:
-        policy = make_policy(task.spec, task.scene)
+        if task.open_loop is not None:
+            from impact_env.eval.oracle import Replay
+
+            policy = Replay(task.open_loop)
+        else:
+            policy = make_policy(task.spec, task.scene)
     except Exception as exc:  # a policy that cannot be built fails its episodes, not the run
         n_steps = int(round(task.horizon / task.scene.control_period))
         report(n_steps)
@@ -157,9 +189,18 @@ def run_job(task: RolloutJob):
 def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon: float | None = None,
             workers: int | None = None, progress: bool = True,
             trace_rate: float = 1.0e4, cluster: str | Cluster | None = None,
-            threads: int | str | None = None) -> dict[str, PolicyRun]:
+            threads: int | str | None = None, reference: str | None = None, oracle: str = "off",
+            oracle_cache: str | Path | None = None, oracle_params: dict | None = None,
+            allow_long: bool = False) -> dict[str, PolicyRun]:
     """Run every policy spec on ``episodes`` seeded drops of ``scene``; returns spec -> PolicyRun
     (with ``summary`` filled in).  Policies are validated before anything runs.
+
+    ``reference``: the policy the paired statistics are taken against (added when not listed;
+    None: none).  ``oracle``: "off", "auto" (the cached oracle's row and the score when the
+    cache holds every drop) or "compute" (search the drops it lacks first); ``oracle_cache``:
+    the cache's root folder (:mod:`impact_env.eval.oracle_cache`), ``oracle_params`` the cached
+    oracle's budget (default: the oracle's defaults).  ``allow_long``: run a request
+    estimated above a day (:mod:`impact_env.eval.limits`).
 
     ``cluster``: a Dask scheduler's ``tcp://HOST:PORT`` (or a connected
     :class:`~impact_env.eval.parallel.Cluster`) runs the tasks on its workers instead of local
@@ -184,21 +225,71 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
         raise ValueError("no policy given (e.g. --policies passive,thesis-rig)")
     if len(set(specs)) != len(specs):
         raise ValueError(f"policy listed twice: {specs}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers = {workers!r} must be an integer >= 1 (processes; the default: the "
+                         "available cores)")
+    if oracle not in ORACLE_MODES:
+        raise ValueError(f"oracle = {oracle!r} must be one of {', '.join(ORACLE_MODES)}")
+    specs = list(specs)
+    listed_oracle = any(_is_oracle(s) for s in specs if not is_model_spec(s))
+    if oracle == "compute" and listed_oracle:
+        raise ConfigError("--oracle replays the cached oracle as the row 'oracle'; the listed oracle policy "
+                          "already gives the score's ceiling: give one of the two")
+    if reference is not None and reference not in specs:
+        specs.append(reference)
     check_specs(specs, scene)
     if cluster is not None:
         check_cluster_specs(specs)
+    seeds = [seed + j for j in range(episodes)]
+    cache = None
+    if oracle != "off" and not listed_oracle:
+        cache = OracleCache.of(scene, horizon, oracle_params, root=oracle_cache)
+        if oracle == "auto" and cache.missing(seeds):
+            cache = None
+    n_rows = len(specs) + (cache is not None) + (cache is not None and "passive" not in specs)
     with session(cluster, workers) as (cl, workers):
-        return _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rate, cl, threads)
+        if not is_small(scene, horizon, episodes, n_rows):
+            check_cost(estimate(scene, horizon, episodes, n_rows, workers, trace_rate,
+                                record_commands=listed_oracle),
+                       f"{n_rows} policies x {episodes} episodes of {horizon:g} s", allow_long)
+        commands, cache_stats = None, None
+        if cache is not None:
+            if "passive" not in specs:
+                specs.insert(0, "passive")
+            cache.fill(seeds, workers=workers, progress=progress, cluster=cl)
+            commands, cache_stats = cache.load(seeds)
+            specs.append(ORACLE_ROW)
+        runs = _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rate, cl, threads,
+                        oracle_commands=commands)
+    if cache_stats is not None:
+        add_oracle_gaps(runs, ORACLE_ROW)
+        runs[ORACLE_ROW].summary["oracle_seconds_per_drop"] = float(np.mean(cache_stats["cpu_seconds"]))
+        runs[ORACLE_ROW].summary["oracle_improvement_ms"] = float(np.median(cache_stats["improvement_ms"]))
+    add_statistics(runs, seed, reference)
+    return runs
+
+
+def add_statistics(runs: dict[str, PolicyRun], seed: int, reference: str | None) -> None:
+    """Every row's statistics (:mod:`impact_env.eval.scores`) into its summary: intervals, IQM,
+    against ``reference``, and the score when the comparison has ``passive`` and an oracle."""
+    ceiling = next((s for s in runs if s == ORACLE_ROW or (not is_model_spec(s) and _is_oracle(s))), None)
+    floor = "passive" if "passive" in runs else None
+    stats = comparison_statistics({s: r.metrics for s, r in runs.items()}, seed=seed, reference=reference,
+                                  passive=floor, oracle=ceiling)
+    for spec, run in runs.items():
+        run.summary.update(stats[spec])
 
 
 def _compare(scene, specs, episodes, seed, horizon, workers, progress, trace_rate,
-             cl, threads=1) -> dict[str, PolicyRun]:
+             cl, threads=1, oracle_commands=None) -> dict[str, PolicyRun]:
 
-    oracles = [s for s in specs if _is_oracle(s)]
+    replayed = ORACLE_ROW if oracle_commands is not None else None  # the cached oracle: a replay
+    oracles = [s for s in specs if s != replayed and _is_oracle(s)]
     others = [s for s in specs if s not in oracles]
     # chunks of episodes so that every worker has work; results do not depend on the chunking
     per_policy = max(1, math.ceil(workers / max(len(others), 1))) if workers > 1 else 1
-    tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles), threads=threads)
+    tasks = [RolloutJob(spec, scene, chunk, seed, horizon, trace_rate, record=bool(oracles), threads=threads,
+                        open_loop=oracle_commands[:, chunk[0]:chunk[-1] + 1] if spec == replayed else None)
              for spec in others for chunk in split_episodes(episodes, per_policy)]
     prepare(warm_up, scene, horizon, workers=workers, cluster=cl)
     n_steps = int(round(horizon / scene.control_period))
@@ -378,7 +469,7 @@ def _fmt_time(x: float, horizon: float) -> str:
 
 def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
     cols = ("policy", "catch s: median (IQR)", "caught", "vib mm/s", "E 10ms", "E 50ms", "E 100ms",
-            "int E ms", "exit v/v0", "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
+            "int E ms*", "exit v/v0", "bounces", "peak N", "RMS N", "contact", "sat ms", "failed")
     gaps = any("gap_to_oracle_ms" in run.summary for run in runs.values())
     if gaps:
         cols = (*cols[:8], "gap to oracle", *cols[8:])  # type: ignore[assignment]  # one more column
@@ -398,15 +489,62 @@ def format_table(runs: dict[str, PolicyRun], horizon: float) -> str:
                      f"{s['peak_force_N']:.1f}",
                      f"{s['rms_force_N']:.1f}", f"{s['contact_fraction']:.3f}",
                      f"{1e3 * s['saturation_time_s']:.2f}", f"{s['failed_episodes']}/{s['episodes']}"))
+    return _columns(cols, rows)
+
+
+def _columns(cols, rows) -> str:
     widths = [max(len(c), *(len(r[i]) for r in rows)) for i, c in enumerate(cols)]
-    line = lambda r: "  ".join(x.ljust(w) if i == 0 else x.rjust(w)
+    line = lambda r: "  ".join(x.ljust(w) if i == 0 else x.rjust(w)  # noqa: E731
                                for i, (x, w) in enumerate(zip(r, widths, strict=True)))
     return "\n".join([line(cols), line(tuple("-" * w for w in widths))] + [line(r) for r in rows])
+
+
+def format_statistics(runs: dict[str, PolicyRun]) -> str:
+    """The primary score's table: per policy its mean and IQM with 95 % bootstrap intervals, the
+    oracle-normalised score (when the oracle's values are available) and, against the reference,
+    the paired difference and the probability of improvement (:mod:`impact_env.eval.scores`)."""
+    first = next(iter(runs.values())).summary
+    reference = first.get("reference")
+    scored = any(run.summary.get("score") is not None for run in runs.values())
+    cols = ["policy", "int E ms* [95 % CI]", "IQM [95 % CI]"]
+    if scored:
+        cols.append("score [95 % CI]")
+    if reference is not None:
+        cols += [f"- {reference} [95 % CI]", f"P(better than {reference}) [95 % CI]"]
+    rows = []
+    for spec, run in runs.items():
+        s = run.summary
+        row = [spec + (" (reference)" if spec == reference else ""),
+               interval_text(s.get(PRIMARY), s.get(f"{PRIMARY}_ci95")),
+               interval_text(s.get(f"{PRIMARY}_iqm"), s.get(f"{PRIMARY}_iqm_ci95"))]
+        if scored:
+            row.append(interval_text(s.get("score"), s.get("score_ci95"), "{:.1f}"))
+        if reference is not None:
+            row += [interval_text(s.get(f"{PRIMARY}_diff"), s.get(f"{PRIMARY}_diff_ci95"), "{:+.2f}"),
+                    interval_text(s.get("prob_improvement"), s.get("prob_improvement_ci95"))]
+        rows.append(tuple(row))
+    return _columns(tuple(cols), rows)
+
+
+def statistics_legend(runs: dict[str, PolicyRun]) -> str:
+    """The lines that say what :func:`format_statistics` shows."""
+    first = next(iter(runs.values())).summary
+    lines = ["* primary score: the energy integral (ms, lower is better); intervals: 95 % percentile "
+             "bootstrap over the drops, paired (the same resampled drops for every policy)"]
+    if any(run.summary.get("score") is not None for run in runs.values()):
+        lines.append("score: 100 (passive - policy) / (passive - oracle) per drop, mean over drops "
+                     "(0 = passive, 100 = the per-drop oracle)")
+    if first.get("reference") is not None:
+        lines.append(f"- {first['reference']}: mean over drops of the policy's energy integral minus the "
+                     f"reference's; P(better): the share of drops on which it is lower (ties count half)")
+    return "\n".join(lines)
 
 
 def _json_value(v):
     if isinstance(v, float) and not math.isfinite(v):
         return None
+    if isinstance(v, list):
+        return [_json_value(x) for x in v]
     return v
 
 
@@ -440,13 +578,19 @@ def write_outputs(runs: dict[str, PolicyRun], out_dir: Path, scene, seed: int, h
     with open(p, "w", newline="") as fh:
         w = csv.writer(fh)
         keys = ["episodes", "failed_episodes", *SUMMARY_KEYS, "wall_time_s"]
-        keys += [k for k in ORACLE_KEYS if any(k in run.summary for run in runs.values())]
-        w.writerow(["policy", *keys])
+        keys += [k for k in (*ORACLE_KEYS, *STAT_KEYS) if any(k in run.summary for run in runs.values())]
+        header = [c for k in keys for c in ((f"{k}_low", f"{k}_high") if k.endswith("_ci95") else (k,))]
+        w.writerow(["policy", *header, "reference"])
         for spec, run in runs.items():
-            w.writerow([spec, *(_csv_value(run.summary.get(k)) for k in keys)])
+            cells = []
+            for k in keys:
+                v = run.summary.get(k)
+                pair = k.endswith("_ci95")
+                cells += [_csv_value(x) for x in (v or [None, None])] if pair else [_csv_value(v)]
+            w.writerow([spec, *cells, _csv_value(run.summary.get("reference"))])
     paths.append(p)
     p = out_dir / "summary.json"
-    p.write_text(json.dumps({"scene": scene.name, "seed": seed, "horizon_s": horizon,
+    p.write_text(json.dumps({"scene": scene.name, "seed": seed, "horizon_s": horizon, "primary": PRIMARY,
                              "policies": summary_json(runs)}, indent=2))
     paths.append(p)
     p = out_dir / "episodes.csv"

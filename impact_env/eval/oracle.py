@@ -422,7 +422,7 @@ def search_drop(scene: Scene, seed: int, warm: dict[str, np.ndarray], n_steps: i
 
 
 # -- full-horizon rollouts of given sequences ----------------------------------------------------------
-class _Replay:
+class Replay:
     """Commands replayed open loop by :func:`impact_env.eval.rollout.rollout`."""
 
     observation = "privileged"
@@ -441,7 +441,7 @@ def replay(scene: Scene, seeds, commands: np.ndarray, horizon: float):
     """Roll out ``commands`` (float64[n_steps, N]) open loop on the drops ``seeds`` (N ints) of
     the full scene; returns the :class:`~impact_env.eval.rollout.RolloutResult`."""
 
-    return rollout(scene, _Replay(np.asarray(commands, dtype=np.float64)), list(seeds), horizon=horizon,
+    return rollout(scene, Replay(np.asarray(commands, dtype=np.float64)), list(seeds), horizon=horizon,
                    trace_rate=0.0, name="replay")
 
 
