@@ -29,14 +29,11 @@ last finite one and the reward is ``-1 * T / t_unit``); ``truncated`` at the hor
 from __future__ import annotations
 
 import collections
-from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
-from impact_env._bind import NotCopied, bind
-from impact_env._jit import entry_point
 from impact_env._threads import BlockRunner
 from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
@@ -149,9 +146,9 @@ def check_actions(actions, n: int, action_bounds: str, command_scale: float,
                   scratch: np.ndarray | None = None) -> np.ndarray:
     """float64[n] actions from what the caller gave; NaN or a wrong shape raises ValueError;
     values outside [-1, 1] are clipped (``action_bounds = "clip"``) or raise.  ``scratch``
-    (float64[1]) holds a single env's action without numpy reductions."""
+    (float64[1]): a single env's action in [-1, 1] is written there, without numpy's reductions."""
     if n == 1 and scratch is not None and type(actions) is np.ndarray and actions.shape == (1,):
-        x = float(actions[0])  # the common single-env case, without numpy reductions
+        x = float(actions[0])
         if -1.0 <= x <= 1.0:
             scratch[0] = x
             return scratch
@@ -172,29 +169,13 @@ def check_actions(actions, n: int, action_bounds: str, command_scale: float,
     return a
 
 
-def _info_source() -> str:
-    """The source of :func:`info_from_row` and :func:`info_from_values`: one dict display of the
-    info row's columns (a flag compared with 0.5, ``state`` a copy of x1 .. v2), generated from
-    INFO_KEYS: a single env's step builds this dict every step, and a display with constant keys
-    is about twice as fast as a loop over them."""
-    items = [f"{key!r}: v[{j}] > 0.5" if flag else f"{key!r}: v[{j}]" for key, j, flag in _INFO_SCALARS]
-    display = "{" + ", ".join(items + ["'state': state.copy()"]) + "}"
-    return (f"def info_from_values(v, state):\n    return {display}\n\n\n"
-            f"def info_from_row(row):\n    v = row.tolist()\n    state = row[{TK.INFO.x1}:{TK.INFO.v2 + 1}]\n"
-            f"    return {display}\n")
-
-
-_generated: dict = {}
-exec(_info_source(), _generated)
-#: ``info_from_row(row) -> dict``: one env's info as Python scalars (and ``state`` as
-#: float64[4]) from its info row (generated: :func:`_info_source`)
-info_from_row: Callable[[np.ndarray], dict] = _generated["info_from_row"]
-#: ``info_from_values(row.tolist(), row[x1:v2 + 1]) -> dict``: the same from the row as a list
-#: and a view of its state columns (a caller that keeps the view saves slicing the row)
-info_from_values: Callable[[list, np.ndarray], dict] = _generated["info_from_values"]
-info_from_row.__doc__ = "One env's info as Python scalars (and ``state`` as float64[4]) from its info row."
-info_from_values.__doc__ = "info_from_row(row) from row.tolist() and a view of the row's state columns."
-info_from_row.__module__ = info_from_values.__module__ = __name__
+def info_from_row(row: np.ndarray) -> dict:
+    """One env's info from its info row: every column of INFO_KEYS but the state as a Python
+    float (a flag as a bool), and ``state`` (x1, v1, x2, v2) as a float64[4] copy."""
+    values = row.tolist()
+    info: dict = {key: values[j] > 0.5 if flag else values[j] for key, j, flag in _INFO_SCALARS}
+    info["state"] = row[TK.INFO.x1:TK.INFO.v2 + 1].copy()
+    return info
 
 
 def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float, command_scale: float):
@@ -254,10 +235,9 @@ class CatchTask:
         self.out = new_task_out(n)
         self.rewards, self.terminated, self.truncated, self.rows = self.out
         self.drop = TK.Drop(sim.Y, sim.P, sim.impact_energy, self.impact_speed)
-        self._a1 = np.zeros(1)
-        # the simulator's step and the task's in one compiled call (or parallel region):
-        # TK.catch_step, bound to these arrays' types from the first step on
-        self._run = BlockRunner(TK.catch_step, TK.catch_blocks, entry_point, bind)
+        self._a1 = np.zeros(1)  # a single env's checked action
+        # the simulator's step and the task's in one compiled call, over the simulator's blocks of envs
+        self._run = BlockRunner(TK.catch_step)
         self._no_cols = np.zeros((TK.N_COL, 0))  # catch_step's ``cols`` when no info columns are wanted
 
     @property
@@ -274,11 +254,6 @@ class CatchTask:
 
     def check_actions(self, actions) -> np.ndarray:
         """:func:`check_actions` for this batch and config."""
-        if self.n == 1 and type(actions) is np.ndarray and actions.shape == (1,):
-            x = float(actions[0])  # the common single-env case, one Python call fewer
-            if -1.0 <= x <= 1.0:
-                self._a1[0] = x
-                return self._a1
         return check_actions(actions, self.n, self.config.action_bounds, self.command_scale, self._a1)
 
     def step(self, a: np.ndarray, active=None, cols: np.ndarray | None = None):
@@ -291,17 +266,6 @@ class CatchTask:
         self._run(sim.blocks, sim.step_args(a, active) + (self.drop, self.params, self.state, self.out,
                                                          self._no_cols if cols is None else cols))
         return self.rewards, self.terminated, self.truncated
-
-    def prepared_step(self) -> PreparedStep | None:
-        """A single env's step with every argument bound (:class:`PreparedStep`), once a
-        :meth:`step` with this task's own action array has bound the call; None for a batch or
-        where the call is not bound (``IMPACT_ENV_BIND=0``)."""
-        if self.n != 1:
-            return None
-        sim = self.sim
-        call = self._run.prepared(sim.blocks, sim.call_args(self._a1) + (self.drop, self.params, self.state,
-                                                                         self.out, self._no_cols))
-        return None if call is None else PreparedStep(self, call)
 
     # -- info ---------------------------------------------------------------------------------
     def info_arrays(self, cols: np.ndarray | None = None) -> dict[str, np.ndarray]:
@@ -323,31 +287,3 @@ class CatchTask:
     def info_dict(self, i: int) -> dict:
         """Env i's info as Python scalars (and ``state`` as float64[4])."""
         return info_from_row(self.rows[i])
-
-
-class PreparedStep(NotCopied):
-    """A single env's step with all of its arguments bound (:meth:`CatchTask.prepared_step`):
-    ``prepared(x)``, for a command x already in [-1, 1], is :meth:`CatchTask.step` of ``[x]``
-    and returns what the single env's step returns (obs, reward, terminated, truncated, info),
-    the same values bitwise (``tests/test_bind.py``), for about half of the Python (docs/env.md).
-    It holds the task's arrays' addresses, valid because the task never replaces its arrays
-    (they are changed in place); copied (``copy.deepcopy``, a pickle) it is None
-    (:class:`~impact_env._bind.NotCopied`), so that a copied env prepares its own."""
-
-    __slots__ = ("_a1", "_call", "_refill", "_hold", "_obs", "_rewards", "_terminated", "_truncated", "_row",
-                 "_state", "_task")
-
-    def __init__(self, task: CatchTask, call: Callable[[], None]):
-        self._task = task  # (keeps the bound arrays alive)
-        self._a1, self._call, self._hold = task._a1, call, task.hold_ticks
-        self._refill = task.sim.hw.refill_noise
-        self._obs, self._row = task.obs[0], task.rows[0]
-        self._rewards, self._terminated, self._truncated = task.rewards, task.terminated, task.truncated
-        self._state = self._row[TK.INFO.x1:TK.INFO.v2 + 1]
-
-    def __call__(self, x: float) -> tuple:
-        self._a1[0] = x
-        self._refill(self._hold)
-        self._call()
-        return (self._obs.copy(), float(self._rewards[0]), bool(self._terminated[0]),
-                bool(self._truncated[0]), info_from_values(self._row.tolist(), self._state))

@@ -4,8 +4,8 @@ row, in one call after the simulator's step, from the step's per-tick records
 
 Kept apart from :mod:`impact_env.env.task` (the Python layer that owns the arrays).  An env's
 step is one compiled call, :func:`catch_step`: the simulator's step and the task's, env by env
-(or one compiled parallel region over blocks of envs, :func:`catch_blocks`), and no per-env
-Python; :func:`task_step` is the task's part alone, after a step simulated elsewhere (the rig's
+(or one call per block of envs, the blocks at once: :class:`impact_env._threads.BlockRunner`),
+and no per-env Python; :func:`task_step` is the task's part alone, after a step simulated elsewhere (the rig's
 host).
 """
 
@@ -14,16 +14,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import prange
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env._packed import positions
-from impact_env._threads import unflatten
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, V1, X1, X2, C, G
 from impact_env.sim import records as R
-from impact_env.sim.step import SimParams, SimState, env_step
+from impact_env.sim.step import env_step
 
 
 class TaskState(NamedTuple):
@@ -145,9 +143,9 @@ def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out, cols):
     then the task's (:func:`task_env`), in one call (``sp``, ``ss``: SimParams, SimState; the
     rest as :func:`task_step`'s).  Env i reads and writes only its own rows, so the results are
     those of the two calls one after the other, bitwise, and blocks of envs may run at once
-    (:func:`catch_blocks`).  ``cols``: float64[N_COL, N], every env's info row also written as a
-    column (the vector env's info arrays, without a transposing copy after the step), or
-    float64[N_COL, 0]: not written."""
+    (:class:`impact_env._threads.BlockRunner`).  ``cols``: float64[N_COL, N], every env's info
+    row also written as a column (the vector env's info arrays, without a transposing copy after
+    the step), or float64[N_COL, 0]: not written."""
     actions, active, sp, ss = borrow(actions), borrow(active), borrow(sp), borrow(ss)  # (impact_env._borrow)
     d, p, s, out, cols = borrow(d), borrow(p), borrow(s), borrow(out), borrow(cols)
     records = ss.records
@@ -160,25 +158,6 @@ def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out, cols):
         if cols.shape[1] > 0:
             for j in range(cols.shape[0]):
                 cols[j, i] = rows[i, j]
-
-
-@jit(nogil=True)
-def _catch_block(i0, i1, actions, active, fsp, fss, d, p, s, out, cols):
-    """:func:`catch_step` with its SimParams and SimState rebuilt from their leaves
-    (:func:`impact_env._threads.flatten`); False if it raised."""
-    try:
-        catch_step(i0, i1, actions, active, unflatten(fsp, SimParams), unflatten(fss, SimState), d, p, s, out, cols)
-    except Exception:  # noqa: BLE001 - reported by the caller (impact_env._threads.BlockRunner)
-        return False
-    return True
-
-
-@jit(nogil=True, parallel=True)
-def catch_blocks(bounds, ok, actions, active, fsp, fss, d, p, s, out, cols):
-    """:func:`catch_step` on the blocks of envs ``bounds[b] .. bounds[b + 1] - 1`` in one compiled
-    parallel region (:mod:`impact_env._threads`); ``ok[b]``: block b did not raise."""
-    for b in prange(bounds.shape[0] - 1):
-        ok[b] = _catch_block(bounds[b], bounds[b + 1], actions, active, fsp, fss, d, p, s, out, cols)
 
 
 @jit

@@ -1,8 +1,7 @@
 """The simulator's compiled step: for every active env, ``hold`` ticks of the hardware stage
 under the held command, each followed by the front end's conditioning; then, unless the plant
 failed, the observation.  One call per step for the whole batch, or, when the simulator has
-threads, one compiled parallel region over blocks of envs (:func:`sim_blocks`,
-:mod:`impact_env._threads`).
+threads, one call per block of envs, the blocks at once (:class:`impact_env._threads.BlockRunner`).
 
 The order inside a tick is the rig's: the command for the tick is the policy's held action,
 plus, with a residual law, that law's command from the readings of the tick before (its own
@@ -21,11 +20,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import prange
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
-from impact_env._threads import unflatten
 from impact_env.control.front_end import (
     FrontEndParams,
     FrontEndState,
@@ -109,24 +106,3 @@ def sim_step(i0, i1, actions, active, p, s):
     for i in range(i0, i1):
         if active[i]:
             env_step(i, actions[i], p, s)
-
-
-@jit(nogil=True)
-def _sim_block(i0, i1, actions, active, fp, fs):
-    """:func:`sim_step` on envs ``i0 .. i1 - 1``, its SimParams and SimState rebuilt from their
-    leaves (``fp``, ``fs``: :func:`impact_env._threads.flatten`); False if it raised (numba
-    loses an exception raised inside a parallel loop)."""
-    try:
-        sim_step(i0, i1, actions, active, unflatten(fp, SimParams), unflatten(fs, SimState))
-    except Exception:  # noqa: BLE001 - reported by the caller (impact_env._threads.BlockRunner)
-        return False
-    return True
-
-
-@jit(nogil=True, parallel=True)
-def sim_blocks(bounds, ok, actions, active, fp, fs):
-    """:func:`sim_step` on the blocks of envs ``bounds[b] .. bounds[b + 1] - 1``, all in one
-    compiled parallel region (numba's threads); ``ok[b]``: block b did not raise.  The shim of
-    :mod:`impact_env._threads`."""
-    for b in prange(bounds.shape[0] - 1):
-        ok[b] = _sim_block(bounds[b], bounds[b + 1], actions, active, fp, fs)
