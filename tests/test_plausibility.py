@@ -14,10 +14,10 @@ from rig_drivers import BlindRig
 
 from impact_env.config import ConfigError
 from impact_env.control import plausibility
-from impact_env.deploy import parity as PA
+from impact_env.deploy import parity
 from impact_env.deploy.c_export import write_c
 from impact_env.policy.export import export_policy
-from impact_env.rig import safety as SF
+from impact_env.rig import safety
 from impact_env.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -92,10 +92,10 @@ def clean(tmp_path_factory):
     the C double build."""
     scene = load_scene("rig")
     pol = export_policy("pd-penetration", scene)
-    rec = PA.record(pol, scene, 0, 2500)
+    rec = parity.record(pol, scene, 0, 2500)
     d = tmp_path_factory.mktemp("plaus") / "c"
     write_c(pol, scene, d)
-    cp = PA.CPolicy(PA.build_shared(d, d / "lib.so"))
+    cp = parity.CPolicy(parity.build_shared(d, d / "lib.so"))
     return scene, pol, rec, cp
 
 
@@ -132,8 +132,8 @@ def test_one_bad_sample_never_becomes_a_force(ch, kind, clean):
     scene, pol, rec, cp = clean
     k = _fault_tick(rec)
     bad = _inject(rec.readings, k, ch, kind)
-    want = PA.numba_sequence(pol, scene, [bad], [])[0]
-    got = PA.c_sequence(cp, [bad], [])[0]
+    want = parity.numba_sequence(pol, scene, [bad], [])[0]
+    got = parity.c_sequence(cp, [bad], [])[0]
     assert _bits_equal(got.command, want.command) and _bits_equal(got.force, want.force)
     assert np.array_equal(got.status, want.status)
     # the fault happened, on this tick and this channel only, and drove 0 N
@@ -144,8 +144,8 @@ def test_one_bad_sample_never_becomes_a_force(ch, kind, clean):
     assert want.force[k] == 0.0 and rec.force[k] != 0.0
     held = rec.readings.copy()
     held[k, ch] = rec.readings[k - 1, ch]
-    ref = PA.numba_sequence(pol, scene, [held], [])[0]
-    assert not np.any(ref.status & SF.CLAMP_RMS)  # (so tick k's 0 N cannot change a later clamp)
+    ref = parity.numba_sequence(pol, scene, [held], [])[0]
+    assert not np.any(ref.status & safety.CLAMP_RMS)  # (so tick k's 0 N cannot change a later clamp)
     others = np.arange(len(bad)) != k
     assert _bits_equal(want.command[others], ref.command[others])
     assert np.abs(want.force).max() <= np.abs(rec.force).max()
@@ -162,8 +162,8 @@ def test_a_fault_beyond_the_limit_latches_zero_force(ch, clean):
     n = int(plausibility.plausibility_params(scene).limit_ticks)
     bad = rec.readings.copy()
     bad[k:k + n + 5, ch] = np.nan
-    want = PA.numba_sequence(pol, scene, [bad], [])[0]
-    got = PA.c_sequence(cp, [bad], [])[0]
+    want = parity.numba_sequence(pol, scene, [bad], [])[0]
+    got = parity.c_sequence(cp, [bad], [])[0]
     assert _bits_equal(got.command, want.command) and np.array_equal(got.status, want.status)
     st = want.status
     assert np.all(st[k:k + n + 5] & CHANNEL_BITS[ch])
@@ -179,8 +179,8 @@ def test_a_nan_body1_reading_changes_nothing_when_the_channel_is_off(clean):
     scene, pol, rec, cp = clean
     r = rec.readings.copy()
     r[:, 3] = np.nan
-    want = PA.numba_sequence(pol, scene, [r], [])[0]
-    got = PA.c_sequence(cp, [r], [])[0]
+    want = parity.numba_sequence(pol, scene, [r], [])[0]
+    got = parity.c_sequence(cp, [r], [])[0]
     assert _bits_equal(want.command, rec.command) and np.array_equal(want.status, rec.status)
     assert _bits_equal(got.command, rec.command)
 
@@ -198,7 +198,7 @@ def test_defaults_never_flag_a_real_episode():
         for spec in ("passive", "pd-penetration", "thesis-rig", AGENT):
             pol = export_policy(spec, scene)
             for seed in (0, 1):
-                rec = PA.record(pol, scene, seed, 4000)
+                rec = parity.record(pol, scene, seed, 4000)
                 assert not np.any(rec.status & plausibility.SENSOR_BITS), (name, spec, seed)
                 worst = np.maximum(worst, np.abs(np.diff(rec.readings[:, :3], axis=0)).max(axis=0))
         print(f"{name}: largest change per tick {worst.tolist()}, allowed {allowed[:3].tolist()}")

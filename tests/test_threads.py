@@ -173,7 +173,8 @@ def _sim_run(threads, n=6, steps=40):
     rng = np.random.default_rng(5)
     for _ in range(steps):
         sim.step(rng.uniform(-1.0, 1.0, n))
-    return [sim.Y.copy(), sim.records.copy(), sim.obs.copy(), sim.readings.copy(), sim.hw.ST.copy()]
+    return [sim.plant_state.copy(), sim.records.copy(), sim.obs.copy(), sim.readings.copy(),
+            sim.hw.effect_state.copy()]
 
 
 def test_the_simulator_step_in_threads_is_bitwise_the_serial_one(small_blocks):
@@ -266,7 +267,7 @@ def _vector_run(threads, scene, mode, task):
             else:
                 out.append(v)
     sim = env.task.sim
-    out += [sim.Y, sim.records, sim.readings, sim.hw.ST, sim.fe.state.filt]
+    out += [sim.plant_state, sim.records, sim.readings, sim.hw.effect_state, sim.fe.state.filt]
     return out
 
 

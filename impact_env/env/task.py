@@ -37,14 +37,14 @@ import numpy as np
 from impact_env._threads import BlockRunner
 from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
-from impact_env.env import task_kernel as TK
+from impact_env.env import task_kernel
 from impact_env.policy.export import export_policy
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.simulator import Simulator
 
 # info_dict's scalar entries in INFO_KEYS order: (key, column, is a flag); the state goes as one array
-_INFO_SCALARS = tuple((key, j, key in TK.BOOL_KEYS) for j, key in enumerate(TK.INFO_KEYS)
-                      if not TK.INFO.x1 <= j <= TK.INFO.v2)
+_INFO_SCALARS = tuple((key, j, key in task_kernel.BOOL_KEYS) for j, key in enumerate(task_kernel.INFO_KEYS)
+                      if not task_kernel.INFO.x1 <= j <= task_kernel.INFO.v2)
 
 REWARD_TIME_UNIT = 1e-3  # s
 
@@ -174,7 +174,7 @@ def info_from_row(row: np.ndarray) -> dict:
     float (a flag as a bool), and ``state`` (x1, v1, x2, v2) as a float64[4] copy."""
     values = row.tolist()
     info: dict = {key: values[j] > 0.5 if flag else values[j] for key, j, flag in _INFO_SCALARS}
-    info["state"] = row[TK.INFO.x1:TK.INFO.v2 + 1].copy()
+    info["state"] = row[task_kernel.INFO.x1:task_kernel.INFO.v2 + 1].copy()
     return info
 
 
@@ -189,13 +189,14 @@ def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: flo
                       command_scale=float(command_scale), max_steps=float(max_steps))
 
 
-def new_task_state(n: int) -> TK.TaskState:
-    return TK.TaskState(np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool),
-                        np.zeros(n))
+def new_task_state(n: int) -> task_kernel.TaskState:
+    return task_kernel.TaskState(np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                                 np.zeros(n, dtype=bool), np.zeros(n))
 
 
-def new_task_out(n: int) -> TK.TaskOut:
-    return TK.TaskOut(np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), np.zeros((n, TK.N_COL)))
+def new_task_out(n: int) -> task_kernel.TaskOut:
+    return task_kernel.TaskOut(np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool),
+                               np.zeros((n, task_kernel.N_COL)))
 
 
 def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig,
@@ -234,11 +235,13 @@ class CatchTask:
         self.impact_speed = sim.hw.impact_speed
         self.out = new_task_out(n)
         self.rewards, self.terminated, self.truncated, self.rows = self.out
-        self.drop = TK.Drop(sim.Y, sim.P, sim.impact_energy, self.impact_speed)
+        self.drop = task_kernel.Drop(sim.plant_state, sim.plant_parameters, sim.impact_energy,
+                                     self.impact_speed)
         self._a1 = np.zeros(1)  # a single env's checked action
         # the simulator's step and the task's in one compiled call, over the simulator's blocks of envs
-        self._run = BlockRunner(TK.catch_step)
-        self._no_cols = np.zeros((TK.N_COL, 0))  # catch_step's ``cols`` when no info columns are wanted
+        self._run = BlockRunner(task_kernel.catch_step)
+        self._no_cols = np.zeros((task_kernel.N_COL,
+                                  0))  # catch_step's ``cols`` when no info columns are wanted
 
     @property
     def obs(self) -> np.ndarray:
@@ -249,8 +252,9 @@ class CatchTask:
     def reset(self, rngs, mask=None) -> None:
         sim = self.sim
         idx = sim.reset(rngs, mask)
-        self.rows[idx, TK.INFO.t_touch] = sim.t_touch[idx]  # kept by the kernels, which skip this column
-        TK.task_reset_rows(idx, sim.records, self.drop, self.params, self.state, self.rows)
+        self.rows[idx,
+                  task_kernel.INFO.t_touch] = sim.t_touch[idx]  # kept by the kernels, which skip this column
+        task_kernel.task_reset_rows(idx, sim.records, self.drop, self.params, self.state, self.rows)
 
     def check_actions(self, actions) -> np.ndarray:
         """:func:`check_actions` for this batch and config."""
@@ -276,12 +280,12 @@ class CatchTask:
         if cols is None:
             cols = np.ascontiguousarray(rows.T)  # one copy of the rows; each column a contiguous array in it
         out = {}
-        for j, key in enumerate(TK.INFO_KEYS[:TK.INFO.x1]):
-            out[key] = cols[j] > 0.5 if key in TK.BOOL_KEYS else cols[j]
-        out["state"] = rows[:, TK.INFO.x1:TK.INFO.v2 + 1].copy()
-        out["diverged"] = cols[TK.INFO.diverged] > 0.5
-        out["caught"] = cols[TK.INFO.caught] > 0.5
-        out["t_touch"] = cols[TK.INFO.t_touch]
+        for j, key in enumerate(task_kernel.INFO_KEYS[:task_kernel.INFO.x1]):
+            out[key] = cols[j] > 0.5 if key in task_kernel.BOOL_KEYS else cols[j]
+        out["state"] = rows[:, task_kernel.INFO.x1:task_kernel.INFO.v2 + 1].copy()
+        out["diverged"] = cols[task_kernel.INFO.diverged] > 0.5
+        out["caught"] = cols[task_kernel.INFO.caught] > 0.5
+        out["t_touch"] = cols[task_kernel.INFO.t_touch]
         return out
 
     def info_dict(self, i: int) -> dict:

@@ -40,7 +40,8 @@ class Simulator:
     :class:`~impact_env.hardware.batch.Hardware`); ``step(actions, active)`` advances the active
     envs by one policy step.  After either: ``obs`` (float32[N, layout.size]), ``readings``
     (float64[N, 4]: the conditioned readings), ``detected``, ``records`` (float64[N, hold_ticks,
-    N_REC], :mod:`impact_env.sim.records`), and the hardware's arrays (``Y``, ``P``, ``t``,
+    N_REC], :mod:`impact_env.sim.records`), and the hardware's arrays (``plant_state``, ``plant_parameters``,
+                                                                       ``t``,
     ``info``, ``impact_energy``, ``t_touch``, ``drawn``) through :attr:`hw`.
 
     ``residual``: a compiled classic law evaluated every tick on its own observation frame; the
@@ -99,9 +100,10 @@ class Simulator:
     def reset(self, rngs, mask=None) -> np.ndarray:
         """Start new drops where ``mask`` is true (all if None); returns their indices."""
         idx = self.hw.reset(rngs, mask)
-        self.fe.start(idx, self.hw.raw, self.hw.Y)
+        self.fe.start(idx, self.hw.raw, self.hw.plant_state)
         if self.residual is not None:  # the law's memory and first frame, from the same readings
-            start_residual(np.asarray(idx, dtype=np.int64), self.hw.Y, self.fe.state, self.params.law,
+            start_residual(np.asarray(idx, dtype=np.int64), self.hw.plant_state, self.fe.state,
+                           self.params.law,
                            self.state.law)
         self.records[idx] = 0.0
         return idx
@@ -142,12 +144,21 @@ class Simulator:
         return self.fe.detected
 
     @property
+    def plant_state(self) -> np.ndarray:
+        return self.hw.plant_state
+
+    @property
+    def plant_parameters(self) -> np.ndarray:
+        return self.hw.plant_parameters
+
+    # the old names of plant_state and plant_parameters (eval/ and rig/ read them)
+    @property
     def Y(self) -> np.ndarray:
-        return self.hw.Y
+        return self.hw.plant_state
 
     @property
     def P(self) -> np.ndarray:
-        return self.hw.P
+        return self.hw.plant_parameters
 
     @property
     def t(self) -> np.ndarray:

@@ -33,16 +33,14 @@ from impact_env.control.front_end import (
 )
 from impact_env.control.residual import ResidualParams, ResidualState, add_residual, observe_residual
 from impact_env.hardware.stage import (
-    INFO_CONTACT_FORCE,
-    INFO_F_APPLIED,
-    INFO_F_DEMAND,
-    INFO_SATURATED,
+    HW_INFO,
     HardwareParams,
     HardwareState,
     hardware_tick,
     state_ok,
 )
-from impact_env.sim import records as R
+from impact_env.plant.layout import STATE
+from impact_env.sim.records import REC
 
 
 class SimParams(NamedTuple):
@@ -82,16 +80,18 @@ def env_step(i, a, p, s):
             if ok and law_on:
                 observe_residual(i, Y[i], s.fe, p.law, s.law)
         r = s.records[i, k]
-        r[R.REC.t] = t[i]
-        for j in range(4):
-            r[R.REC.x1 + j] = Y[i, j]
-        r[R.REC.u] = u
-        r[R.REC.f_demand] = info[i, INFO_F_DEMAND]
-        r[R.REC.f_applied] = info[i, INFO_F_APPLIED]
-        r[R.REC.saturated] = info[i, INFO_SATURATED]
-        r[R.REC.contact_force] = info[i, INFO_CONTACT_FORCE]
-        r[R.REC.detected] = detected[i]
-        r[R.REC.status] = 0.0 if ok else 1.0
+        r[REC.t] = t[i]
+        r[REC.x1] = Y[i, STATE.x1]
+        r[REC.v1] = Y[i, STATE.v1]
+        r[REC.x2] = Y[i, STATE.x2]
+        r[REC.v2] = Y[i, STATE.v2]
+        r[REC.u] = u
+        r[REC.f_demand] = info[i, HW_INFO.f_demand]
+        r[REC.f_applied] = info[i, HW_INFO.f_applied]
+        r[REC.saturated] = info[i, HW_INFO.saturated]
+        r[REC.contact_force] = info[i, HW_INFO.contact_force]
+        r[REC.detected] = detected[i]
+        r[REC.status] = 0.0 if ok else 1.0
     if ok:
         observe(i, True, a, Y[i], s.fe, p.obs, s.obs)
     return ok
