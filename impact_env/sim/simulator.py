@@ -125,8 +125,8 @@ class Simulator:
         :func:`~impact_env.env.task_kernel.catch_step`)."""
         n = self.n
         # C-contiguous and writeable, as the compiled kernels were compiled for (a copy otherwise)
-        a = np.require(actions, np.float64, "CW").reshape(n)
-        act = self._all if active is None else np.require(active, bool, "CW").reshape(n)
+        a = np.require(actions, np.float64, ("C", "W")).reshape(n)
+        act = self._all if active is None else np.require(active, bool, ("C", "W")).reshape(n)
         self.hw.refill_noise(self.hold, None if active is None else act, self._blocks)
         return a, act, self.params, self.state
 
