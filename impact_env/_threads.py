@@ -1,67 +1,35 @@
 """Threads over blocks of envs: how the batched kernels use more than one core.
 
-A batched kernel takes a range of envs (``kernel(i0, i1, ...)``: envs ``i0 .. i1 - 1``).  With
-``threads`` = k > 1 its envs are cut into k contiguous blocks (:func:`env_blocks`) and the
-blocks run in **one compiled parallel region**: the kernel's *parallel shim*, a numba
-``prange`` over the blocks, compiled once (and cached) per kernel, on numba's own pool of native
-threads (its threading layer: tbb, omp or workqueue).  The arguments are unboxed once, in the
-calling thread, which runs a block itself; no Python and no GIL are involved while the blocks
-run, so the cost of a hand-off is the threading layer's wake-up (a few us), not a Python
-thread's (tens of us, and the arguments' unboxing under the GIL in every thread, which is what
-kept the former pool of Python threads from scaling past two cores).
+A batched kernel takes a range of envs (``kernel(i0, i1, ...)``: envs ``i0 .. i1 - 1``), touches
+only their rows and releases the GIL (``nogil=True``).  :class:`BlockRunner` is the one facade: with
+``threads`` = k > 1 it cuts the envs into k contiguous blocks (:func:`env_blocks`) and runs the
+kernel on every block at once, the first block in the calling thread and the others in a pool of
+Python threads (:func:`python_threads`); with one block it is the kernel's plain call.  A
+kernel's author writes the kernel and nothing else.
 
 Env i's arithmetic is the same compiled code on the same data whichever block holds it (no
-fastmath: the compiler may not reorder floating-point operations), and every env touches only
-its own rows, so the results are bitwise independent of the thread count (tested:
+fastmath), so the results are bitwise independent of the thread count (tested:
 ``tests/test_threads.py``, against the serial call); anything summed across envs is summed by
 the caller after the call, in env order.
 
-**The shim.**  numba's parallel loop passes only arrays, scalars and *one* level of tuple into
-its threads, while the kernels take nested named tuples (docs/architecture.md).  A shim
-therefore takes each nested named-tuple argument as one flat tuple of its leaves
-(:func:`flatten`; one of arrays and scalars only goes in as it is) and rebuilds it inside the
-loop (:func:`unflatten`, generated at compile time from the named tuple class's field
-annotations, so a field added to a state type needs no edit here).  A shim is a
-few lines next to its kernel::
-
-    @jit(nogil=True)
-    def _sim_block(i0, i1, actions, active, fp, fs):  # the guard: False if the kernel raised
-        try:
-            sim_step(i0, i1, actions, active, unflatten(fp, SimParams), unflatten(fs, SimState))
-        except Exception:
-            return False
-        return True
-
-    @jit(nogil=True, parallel=True)
-    def sim_blocks(bounds, ok, actions, active, fp, fs):
-        for b in prange(bounds.shape[0] - 1):
-            ok[b] = _sim_block(bounds[b], bounds[b + 1], actions, active, fp, fs)
-
-and :class:`BlockRunner` calls the kernel serially (one block) or the shim (several).  numba
-drops an exception raised inside a parallel loop silently, hence the guard: a block whose kernel
-raised is reported by :class:`BlockRunner` as a RuntimeError naming its envs (the serial call,
-``threads=1``, gives the kernel's own message).
-
-**The threading layer**: numba takes TBB where it loads (``pip install "impact-env[tbb]"``:
-:func:`_pip_tbb` makes pip's copy loadable), else GNU OpenMP; TBB hands a region to its threads
-several times faster.  **Its limits**, handled here: GNU OpenMP's idle threads sleep instead of
-spinning (:func:`_start_layer`: on a shared machine spinning made threads several times slower
-than one thread); numba's thread count (``numba.set_num_threads``,
-thread-local) is set for the call and restored after it, and capped at numba's pool size
-(``NUMBA_NUM_THREADS``, the CPU count by default: more blocks than threads is fine, a thread then
-runs several); the workqueue layer (numba's fallback where neither tbb nor OpenMP is installed)
-aborts the process if two threads launch parallel regions at once, so launches take a lock
-there; GNU OpenMP cannot run in a process forked from one that used it (numba terminates the
-child), so in such a child (``compare``'s forked workers, when their parent ran a threaded
-step) the blocks run in a pool of Python threads instead (the former way: the same results,
-slower); and with ``NUMBA_DISABLE_JIT=1`` too.
+**A compiled parallel region** (numba's ``prange`` over the blocks, on numba's own threads)
+runs instead where the caller gives a *shim* beside its kernel (``compare``'s compiled loop,
+``impact_env/eval/rollout.py``): numba's parallel loop passes only arrays, scalars and one level
+of tuple into its threads, so a shim takes each nested named tuple flattened (:func:`flatten`)
+and rebuilds it inside (:func:`unflatten`, generated at compile time from the class's
+annotations), and returns False where its kernel raised (numba drops an exception raised inside
+a parallel loop; :class:`BlockRunner` reports the block).  For the env's step the region measured
+no faster than Python threads (2 threads, N = 1024 and 16384, A/B in one process), so the env's
+kernels have no shim.  The threading layer: TBB where it loads (``pip install
+"impact-env[tbb]"``, :func:`_pip_tbb`), else GNU OpenMP with its idle threads sleeping
+(:func:`_start_layer`); numba's thread count is set for the call and restored; the workqueue
+layer's launches take a lock; in a child forked from a process that used GNU OpenMP, and with
+``NUMBA_DISABLE_JIT=1``, the blocks run in Python threads instead (the same results).
 
 ``threads="auto"``: as many threads as this process may run on (``os.sched_getaffinity``), at
-most one per ``min_envs`` envs (:func:`resolve_threads`).
-
-A block has at least ``min_envs`` envs (the caller's measured threshold): below it a block's
-work is less than what waking a thread and sharing the cache lines at the block's edges cost,
-so a small batch runs serially, in the calling thread, whatever ``threads`` says.
+most one per ``min_envs`` envs (:func:`resolve_threads`).  A block has at least ``min_envs`` envs
+(the caller's measured threshold): below it a block's work is less than what handing it to a
+thread costs, so a small batch runs serially, in the calling thread, whatever ``threads`` says.
 """
 
 from __future__ import annotations
@@ -79,6 +47,8 @@ import numba
 import numpy as np
 from numba.core import config as numba_config
 from numba.extending import overload
+
+from impact_env._jit import entry_point
 
 AUTO = "auto"
 
@@ -324,27 +294,25 @@ def _launch(call: Callable, threads: int, args: tuple):
 
 
 class BlockRunner:
-    """Runs ``kernel(i0, i1, *args)`` over blocks of envs: one block, the kernel itself; several,
-    its parallel ``shim(bounds, ok, *args)`` (each nested named tuple of ``args`` flattened) in one
-    compiled parallel region, or, where that cannot run, :func:`python_threads`.
+    """The one facade over blocks of envs: ``runner(blocks, args)`` runs ``kernel(i0, i1, *args)``
+    for every block (i0, i1) of ``blocks`` (:func:`env_blocks`).  One block is the kernel's
+    plain call in the calling thread (the reference every other way is tested against, bitwise);
+    several run at once in :func:`python_threads`, or, given a parallel ``shim(bounds, ok,
+    *args)`` (module doc), in one compiled parallel region where that can run.
 
-    ``entry``: :func:`impact_env._jit.entry_point`, for a caller that keeps the arguments' types
-    fixed from call to call (as :func:`~impact_env._jit.bound_call` requires): after its first
-    call each compiled function is called through its entry point, without numba's typing of
-    the arguments.  ``bind`` (with ``entry``): :func:`impact_env._bind.bind`: a serial call whose
-    named tuples are the objects of the call before runs bound, without unboxing them.  The
-    flattening of a named tuple is reused while the caller passes the same object."""
+    After the first call the kernel is called through its compiled entry point for the first
+    call's argument types (:func:`impact_env._jit.entry_point`): numba's dispatcher would type
+    the ~50 arrays of the env's nested named tuples again at every call, about 100 us of a
+    single env's step on a loaded 2-core machine against 15 us through the entry point.  The
+    caller therefore keeps its arguments' types fixed (dtypes, dimensions, C-contiguous and
+    writeable arrays: :meth:`impact_env.sim.simulator.Simulator.step_args` converts)."""
 
-    def __init__(self, kernel, shim, entry: Callable | None = None, bind: Callable | None = None):
+    def __init__(self, kernel, shim=None):
         self.kernel = kernel
         self.shim = shim
-        self.entry = entry
-        self.bind = bind
-        self._serial = None
-        self._par = None
+        self._entry = None  # the kernel's compiled entry point, from the first call's types
         self._flat: dict[int, tuple] = {}  # argument position -> (the named tuple, its leaves)
         self._bounds: tuple | None = None  # (blocks, bounds, ok) of the last parallel call
-        self._bound: typing.Any = None  # the serial call bound by ``bind`` (None: not yet; False: cannot be)
 
     def _flat_args(self, args: tuple) -> tuple:
         out = []
@@ -358,49 +326,25 @@ class BlockRunner:
                 out.append(a)
         return tuple(out)
 
-    def prepared(self, blocks: list[tuple[int, int]], args: tuple) -> Callable[[], None] | None:
-        """The serial call of ``args`` as a call of no arguments (:meth:`Bound.prepared
-        <impact_env._bind.Bound.prepared>`), once a call with these very objects has bound it;
-        None otherwise (several blocks, binding off, or no bound call yet)."""
-        if len(blocks) != 1:
-            return None
-        full = tuple(blocks[0]) + args
-        bound = self._bound
-        return bound.prepared(full) if bound and bound.fits(full) else None
+    def _call(self, i0: int, i1: int, *args) -> None:
+        if self._entry is not None:
+            self._entry(i0, i1, *args)
+        else:  # the first call: numba types the arguments (and compiles or loads the kernel)
+            self.kernel(i0, i1, *args)
+            self._entry = entry_point(self.kernel, (i0, i1) + args)
 
     def __call__(self, blocks: list[tuple[int, int]], args: tuple) -> None:
         if len(blocks) == 1:
-            i0, i1 = blocks[0]
-            full = (i0, i1) + args
-            bound = self._bound
-            if bound and bound.fits(full):
-                bound(full)
-                return
-            if self._serial is not None:
-                self._serial(*full)
-            else:
-                self.kernel(*full)
-                if self.entry is None:
-                    return
-                self._serial = self.entry(self.kernel, full)
-            # bound for the next calls with these named tuples (False: they cannot be; not tried again)
-            if bound is not False and self.bind is not None:
-                self._bound = self.bind(self.kernel, full) or False
+            self._call(blocks[0][0], blocks[0][1], *args)
             return
-        if not parallel_available():
-            python_threads(self._serial or self.kernel, blocks, args)
+        if self.shim is None or not parallel_available():
+            python_threads(self._entry or self.kernel, blocks, args)
             return
         if self._bounds is None or self._bounds[0] is not blocks:
             edges = np.array([b[0] for b in blocks] + [blocks[-1][1]], dtype=np.int64)
             self._bounds = (blocks, edges, np.zeros(len(blocks), dtype=np.bool_))
         _, edges, ok = self._bounds
-        pargs = (edges, ok) + self._flat_args(args)
-        if self._par is not None:
-            _launch(self._par, len(blocks), pargs)
-        else:
-            _launch(self.shim, len(blocks), pargs)
-            if self.entry is not None:
-                self._par = self.entry(self.shim, pargs)
+        _launch(self.shim, len(blocks), (edges, ok) + self._flat_args(args))
         if not ok.all():
             b = int(np.argmin(ok))
             raise RuntimeError(f"envs {blocks[b][0]} .. {blocks[b][1] - 1}: the compiled kernel "

@@ -104,13 +104,13 @@ def c_float32_check(info: dict, scenes: list[str], drops: int = F32_DROPS) -> di
     import tempfile
 
     from impact_env.config import ConfigError
-    from impact_env.deploy import parity as PA
+    from impact_env.deploy import parity
     from impact_env.deploy.c_export import write_c
     from impact_env.policy.export import export_policy
     from impact_env.scene import load_scene
 
     try:
-        PA.find_cc()
+        parity.find_cc()
     except ConfigError:
         return None
     model = deployable(info)
@@ -120,13 +120,13 @@ def c_float32_check(info: dict, scenes: list[str], drops: int = F32_DROPS) -> di
         pol = export_policy(f"{info['algo']}:{model}", scene)
         with tempfile.TemporaryDirectory(prefix="agents-report-c-") as tmp:
             write_c(pol, scene, Path(tmp), force=True)
-            reports = PA.check(pol, scene, Path(tmp), seeds=range(drops), ticks=F32_TICKS, float32=True)
+            reports = parity.check(pol, scene, Path(tmp), seeds=range(drops), ticks=F32_TICKS, float32=True)
         for seed, r in enumerate(reports):
             n += 1
             worst = max(worst, r.max_abs_same)
             if not r.verdict(True)[0]:
                 failed.append(f"{name}:{seed}")
-    return {"bound": PA.F32_BOUND, "drops": n, "failed": failed, "max_same": worst}
+    return {"bound": parity.F32_BOUND, "drops": n, "failed": failed, "max_same": worst}
 
 
 def c_ok(info: dict) -> bool:

@@ -25,17 +25,17 @@ import time
 
 import numpy as np
 from numba import carray, cfunc, njit
-from numba.core import types as nt
+from numba.core import types as numba_types
 from numba.extending import intrinsic
 
 
 @intrinsic
 def _as_f64_pointer(typingctx, addr):
     """An int64 address as a float64 pointer (for ``carray``)."""
-    sig = nt.CPointer(nt.float64)(addr)
+    sig = numba_types.CPointer(numba_types.float64)(addr)
 
     def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], context.get_value_type(nt.CPointer(nt.float64)))
+        return builder.inttoptr(args[0], context.get_value_type(numba_types.CPointer(numba_types.float64)))
 
     return sig, codegen
 
@@ -50,7 +50,8 @@ def _kernels(n: int):
     body += [f"    a{i} = carray(_p(p[{i}]), (s[{i}],))" for i in range(n)]
     body += [f"    return flat({', '.join(names)})"]
     exec("\n".join(body) + "\n", ns)
-    shim = cfunc(nt.float64(nt.CPointer(nt.int64), nt.CPointer(nt.int64)))(ns["shim"])
+    int_pointer = numba_types.CPointer(numba_types.int64)
+    shim = cfunc(numba_types.float64(int_pointer, int_pointer))(ns["shim"])
     return flat, shim, names
 
 

@@ -90,14 +90,14 @@ def _pipeline_runner(sim: Simulator, n: int):
         for a, v in zip(sim.fe.state, fe_start, strict=True):
             a[...] = v
         pipeline_loop(n, hw.params, hw_s, sim.fe.params, sim.fe.state)
-        return hw.Y[0].copy()
+        return hw.plant_state[0].copy()
     return run
 
 
 def _bare_runner(sim: Simulator, n: int):
-    y0, mode0 = sim.Y[0].copy(), int(sim.hw.modes[0])
+    y0, mode0 = sim.plant_state[0].copy(), int(sim.hw.modes[0])
     y = np.empty_like(y0)
-    ev = np.zeros_like(sim.hw.EV[0])
+    ev = np.zeros_like(sim.hw.events[0])
     evn = np.zeros(1, dtype=np.int64)
     hstate = np.zeros(1)
 
@@ -105,7 +105,8 @@ def _bare_runner(sim: Simulator, n: int):
         y[:] = y0
         evn[0] = 0
         hstate[0] = 0.0
-        bare_loop(n, y, mode0, 0.0, sim.period, sim.P[0], sim.hw.method, sim.scene.integrator.dt,
+        bare_loop(n, y, mode0, 0.0, sim.period, sim.plant_parameters[0], sim.hw.method,
+                  sim.scene.integrator.dt,
                   sim.scene.integrator.rtol, sim.hw.scale[0], hstate, ev, evn)
         return y.copy()
     return run

@@ -172,15 +172,15 @@ def _rounds(runs: dict, rounds: int) -> dict:
 def _former(run):
     """``run`` with the blocks in the former pool of Python threads (impact_env._threads's
     fallback), as every threaded step ran before the compiled parallel region."""
-    import impact_env._threads as TH
+    import impact_env._threads as threads_module
 
     def former():
-        keep = TH._STATE["no_parallel"]
-        TH._STATE["no_parallel"] = True
+        keep = threads_module._STATE["no_parallel"]
+        threads_module._STATE["no_parallel"] = True
         try:
             return run()
         finally:
-            TH._STATE["no_parallel"] = keep
+            threads_module._STATE["no_parallel"] = keep
 
     return former
 
@@ -206,10 +206,10 @@ def vector_threads_table(quick: bool, sizes=(1024, 4096, 16384), holds=(1, 4)) -
 
     import numba
 
-    import impact_env._threads as TH
+    import impact_env._threads as threads_module
     from impact_env.env.vector import ImpactCatchVectorEnv
 
-    cpus = TH.machine_threads()
+    cpus = threads_module.machine_threads()
     counts = sorted({1, 2, cpus})
     rounds = 5 if quick else 11
     print(f"\n## Threads: the vector env (rig, zero actions), env-steps/s (speed-up over 1 thread) "
@@ -249,7 +249,7 @@ def _scaling_model(env, acts, steps) -> str:
     kernels, the info columns they write included, and the sensor noise's top-up, which runs
     over the blocks in Python threads), the serial rest (Python, the info arrays) and a
     parallel call's fixed cost; the speed-ups it predicts."""
-    from impact_env.env import task_kernel as TK
+    from impact_env.env import task_kernel
 
     task = env.task
     sim = task.sim
@@ -261,7 +261,7 @@ def _scaling_model(env, acts, steps) -> str:
         a = np.zeros(sim.n)
         t0 = time.perf_counter()
         for _ in range(steps):  # the compiled step (writing the info columns, as the env's) and the noise
-            task.step(a, None, np.empty((TK.N_COL, sim.n)))
+            task.step(a, None, np.empty((task_kernel.N_COL, sim.n)))
         t_kernel = min(t_kernel, (time.perf_counter() - t0) / steps)
     fixed = _call_overhead()
     serial = max(t_env - t_kernel, 0.0)
@@ -277,14 +277,14 @@ def _scaling_model(env, acts, steps) -> str:
 def _call_overhead() -> float:
     """A parallel call's fixed cost (s): the simulator's kernel on 2 inactive envs in 2 blocks
     (one compiled region) less the same in one block (the serial call)."""
-    import impact_env.sim.simulator as S
+    import impact_env.sim.simulator as simulator_module
 
-    keep = S.MIN_BLOCK_ENVS
-    S.MIN_BLOCK_ENVS = 1
+    keep = simulator_module.MIN_BLOCK_ENVS
+    simulator_module.MIN_BLOCK_ENVS = 1
     try:
-        sim = S.Simulator("rig", 2)
+        sim = simulator_module.Simulator("rig", 2)
     finally:
-        S.MIN_BLOCK_ENVS = keep
+        simulator_module.MIN_BLOCK_ENVS = keep
     sim.reset([np.random.default_rng(i) for i in range(2)])
     a, off = np.zeros(2), np.zeros(2, dtype=bool)
     sim.step(a)
@@ -307,7 +307,7 @@ def threads_table(quick: bool) -> None:
     from impact_env.eval.rollout import rollout
     from impact_env.policy.export import export_policy
     from impact_env.policy.registry import make_policy
-    from impact_env.sim import simulator as S
+    from impact_env.sim import simulator as simulator_module
 
     vector_threads_table(quick)
     rounds = 3 if quick else 7
@@ -316,11 +316,11 @@ def threads_table(quick: bool) -> None:
     print("Simulator.step on rig, every block split (threshold off), per step:\n")
     print("| N | 1 thread us | 2 threads us | speed-up | cores busy with 2 |")
     print("|---|---|---|---|---|")
-    keep = S.MIN_BLOCK_ENVS
-    S.MIN_BLOCK_ENVS = 1
+    keep = simulator_module.MIN_BLOCK_ENVS
+    simulator_module.MIN_BLOCK_ENVS = 1
     try:
         for n in (4, 8, 16, 32, 64, 128, 256, 1024):
-            sim = S.Simulator("rig", n)
+            sim = simulator_module.Simulator("rig", n)
             sim.reset([np.random.default_rng(i) for i in range(n)])
             z = np.zeros(n)
             sim.step(z)
@@ -334,9 +334,9 @@ def threads_table(quick: bool) -> None:
             t1, t2, r, busy = _ratio(run, rounds)
             print(f"| {n} | {1e6 * t1 / reps:.1f} | {1e6 * t2 / reps:.1f} | {r:.2f} | {busy:.2f} |")
     finally:
-        S.MIN_BLOCK_ENVS = keep
-    print(f"\n(threshold in use: MIN_BLOCK_ENVS = {S.MIN_BLOCK_ENVS} envs per block; a parallel call's "
-          f"fixed cost {1e6 * _call_overhead():.1f} us)\n")
+        simulator_module.MIN_BLOCK_ENVS = keep
+    print(f"\n(threshold in use: MIN_BLOCK_ENVS = {simulator_module.MIN_BLOCK_ENVS} envs per block; a "
+          f"parallel call's fixed cost {1e6 * _call_overhead():.1f} us)\n")
 
     # a rollout's control period as compare runs it: the wall time between the rollout's first
     # progress report (after CHUNK steps) and its last, per step: the reset of a randomised scene
@@ -492,7 +492,7 @@ def step_breakdown(repeats: int = 7) -> None:
     args = sim.step_args(a) + (task.drop, task.params, task.state, task.out, task._no_cols)
     off = (a, np.zeros(1, dtype=bool)) + args[2:]
 
-    run = task._run  # the BlockRunner, as the step calls it (bound unless IMPACT_ENV_BIND=0)
+    run = task._run  # the BlockRunner, as the step calls it
 
     def kernel():
         sim.hw.refill_noise(1)
@@ -502,34 +502,14 @@ def step_breakdown(repeats: int = 7) -> None:
     rows += [("ImpactCatch-v0 rig: a whole step (gymnasium.make)", whole),
              ("  the wrappers (gymnasium.make's checker, order enforcing)", whole - inner),
              ("  the compiled step's work (one control period of one env: plant, effects, front "
-              "end, records, task)", tick)]
-    fresh()
-    env.step(a32)
-    prepared = env.unwrapped._prepared
-    if prepared:  # the step's path: its arguments bound once (impact_env.env.task.PreparedStep)
-        from impact_env.env import task_kernel as TK
-        from impact_env.env.task import info_from_values
-
-        call_off = run.prepared(sim.blocks, off)
-        row, state, obs0 = task.rows[0], task.rows[0, TK.INFO.x1:TK.INFO.v2 + 1], task.obs[0]
-        rew, term, trunc = task.rewards, task.terminated, task.truncated
-        rows += [("  the compiled step's call, every argument bound (impact_env._bind), on an inactive env",
-                  us(call_off)),
-                 ("  the info dict (info_from_values)", us(lambda: info_from_values(row.tolist(), state))),
-                 ("  the observation's copy", us(obs0.copy)),
-                 ("  the action's check", us(lambda: type(a32) is np.ndarray and a32.shape == (1,)
-                                             and -1.0 <= float(a32[0]) <= 1.0)),
-                 ("  the noise's top-up check", us(lambda: sim.hw.refill_noise(1))),
-                 ("  the reward's and flags' conversions", us(lambda: (float(rew[0]), bool(term[0]),
-                                                                       bool(trunc[0]))))]
-    else:  # IMPACT_ENV_BIND=0: the general path, the named tuples unboxed at every call
-        rows += [("  the compiled step's call through its BlockRunner, on an inactive env (its ~50 arrays "
-                  "and ~25 scalars unboxed)", us(lambda: run(sim.blocks, off))),
-                 ("  the info dict (info_from_row)", us(lambda: info_from_row(task.rows[0]))),
-                 ("  the observation's copy", us(lambda: task.obs[0].copy())),
-                 ("  the action's check", us(lambda: task.check_actions(a32))),
-                 ("  Simulator.step_args (arrays' checks, the noise's top-up check)",
-                  us(lambda: sim.step_args(a)))]
+              "end, records, task)", tick),
+             ("  the compiled step's call through its BlockRunner, on an inactive env (its ~50 arrays "
+              "and ~25 scalars unboxed)", us(lambda: run(sim.blocks, off))),
+             ("  the info dict (info_from_row)", us(lambda: info_from_row(task.rows[0]))),
+             ("  the observation's copy", us(lambda: task.obs[0].copy())),
+             ("  the action's check", us(lambda: task.check_actions(a32))),
+             ("  Simulator.step_args (arrays' checks, the noise's top-up check)",
+              us(lambda: sim.step_args(a)))]
     rest = inner - sum(x for _, x in rows[3:])
     rows.append(("  the rest of ImpactCatchEnv.step's Python (its calls, the tuple)", rest))
     print(f"\n## One step of the single env, part by part (us, min over repeats)\n\n(load average "
@@ -552,7 +532,8 @@ def step_breakdown(repeats: int = 7) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer steps and repeats (a smoke run)")
-    ap.add_argument("--only", choices=("ratios", "threads", "vector-threads", "period", "period-parts", "step"),
+    ap.add_argument("--only", choices=("ratios", "threads", "vector-threads", "period", "period-parts",
+                                       "step"),
                     help="run only this section")
     args = ap.parse_args()
     impact_env.load_scene("rig")

@@ -1,14 +1,23 @@
-"""A/B of the env's speed between this checkout and another one (e.g. a revision before a
-refactor), in alternating fresh processes on the same machine, each process measuring its own
-reference env too: the ratios are what compares, the microseconds move with the machine's load.
+"""A/B of what users feel of the env's speed, between this checkout and another one (e.g. the
+revision before a refactor), in alternating fresh processes on the same machine: the ratios
+between the two sides are what compares; the absolute figures move with the machine's load.
 
-    git worktree add /tmp/before 91a44ce      # the revision to compare with
-    python scripts/bench_env_ab.py --other /tmp/before [--rounds 5]
+    mkdir /tmp/before && git archive REV | tar -x -C /tmp/before   # the revision to compare with
+    python scripts/bench_env_ab.py --other /tmp/before [--rounds 3] [--threads 1]
 
-Per process: one ``step`` of ``gymnasium.make("ImpactCatch-v0", scene="rig")`` against
-``MountainCarContinuous-v0`` (min over repeats), and the native vector env at N = 1024 against
-Gymnasium's ``CartPoleVectorEnv`` (env-steps/s), every env on the nominal drop.  Reported: the
-median over rounds of each ratio, the minimum step time and the maximum vector rate, per checkout.
+Per process (``PYTHONPATH`` = the checkout), the figures a user feels:
+
+* ``ppo_single``: SB3 PPO's training steps/s on one ``ImpactCatch-v0`` (rig), SB3's default
+  PPO settings but ``n_steps`` 1024, one torch thread, 2048 steps (collection and updates);
+* ``ppo_vector``: the same on the native vector env through its SB3 adapter (64 envs, ``n_steps``
+  32, batch 1024), 4096 steps;
+* ``compare_s``: ``compare``'s wall time on 100 drops x 4 policies (rig, one worker);
+* ``vec_1024``, ``vec_16384``: the native vector env's env-steps/s at N = 1024 and 16384 (rig,
+  every env on the nominal drop, random actions; best of a few repeats);
+* ``step_us``: one single-env step (min over repeats), for reference.
+
+Reported: per checkout, the median over rounds of every figure, and the ratio this / other.
+``--threads`` is the vector env's ``threads`` (1: serial, the default of the env).
 """
 
 from __future__ import annotations
@@ -22,57 +31,67 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# run in the other checkout's package (PYTHONPATH); bench_env's timer comes from this checkout's
-# scripts/ (given as argv[1]), which imports whichever impact_env is first on the path
 PROBE = r'''
 import json, sys, time
-import gymnasium as gym, numpy as np
+import gymnasium as gym, numpy as np, torch
 import impact_env
-sys.path.insert(1, sys.argv[1])
-from bench_env import per_step_us as per_step
+threads = int(sys.argv[1])
+torch.set_num_threads(1)
+out = {"package": impact_env.__file__}
 
-def vec_rate(env, n, steps, reps):
-    rng = np.random.default_rng(0)
-    space = env.single_action_space
-    acts = rng.uniform(-1, 1, (steps, n) + space.shape).astype(space.dtype)
-    if space.dtype.kind == "i":
-        acts = rng.integers(0, 2, (steps, n))
-    env.reset(seed=0)
-    env.step(acts[0])
+def vec_rate(n, steps, reps):
+    venv = gym.make_vec("ImpactCatch-v0", num_envs=n, vectorization_mode="vector_entry_point", scene="rig",
+                        overrides={"randomize.m1": [], "randomize.drop_height": []}, threads=threads)
+    acts = np.random.default_rng(0).uniform(-1, 1, (steps, n, 1)).astype(np.float32)
+    venv.reset(seed=0)
+    venv.step(acts[0])
     best = np.inf
     for _ in range(reps):
         t0 = time.perf_counter()
         for a in acts:
-            env.step(a)
+            venv.step(a)
         best = min(best, time.perf_counter() - t0)
     return n * steps / best
 
-rng = np.random.default_rng(0)
-a = rng.uniform(-1, 1, (2000, 1)).astype(np.float32)
-mc = gym.make("MountainCarContinuous-v0")
-rig = gym.make("ImpactCatch-v0", scene="rig")
-per_step(rig, a[:200], 1)
-m = min(per_step(mc, a, 3) for _ in range(3))
-r = min(per_step(rig, a, 3) for _ in range(3))
-from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
-cp = vec_rate(CartPoleVectorEnv(num_envs=1024), 1024, 100, 5)
-# the nominal drop in every env: the same work on both sides (a checkout whose rig draws drops per
-# episode takes the overrides; an older one, whose rig had one drop, refuses them and needs none)
-try:
-    venv = gym.make_vec("ImpactCatch-v0", num_envs=1024, vectorization_mode="vector_entry_point", scene="rig",
-                        overrides={"randomize.m1": [], "randomize.drop_height": []})
-except Exception:
-    venv = gym.make_vec("ImpactCatch-v0", num_envs=1024, vectorization_mode="vector_entry_point", scene="rig")
-v = vec_rate(venv, 1024, 100, 5)
-print(json.dumps({"package": impact_env.__file__, "mc_us": m, "rig_us": r, "step_ratio": r / m,
-                  "vec_rate": v, "cartpole_rate": cp, "vec_ratio": v / cp}))
+env = gym.make("ImpactCatch-v0", scene="rig")
+acts = np.random.default_rng(0).uniform(-1, 1, (2000, 1)).astype(np.float32)
+best = np.inf
+for _ in range(4):
+    env.reset(seed=0)
+    t0 = time.perf_counter()
+    for a in acts:
+        _, _, te, tr, _ = env.step(a)
+        if te or tr:
+            env.reset()
+    best = min(best, time.perf_counter() - t0)
+out["step_us"] = best / len(acts) * 1e6
+out["vec_1024"] = vec_rate(1024, 100, 3)
+out["vec_16384"] = vec_rate(16384, 10, 2)
+
+from stable_baselines3 import PPO
+from impact_env.env.sb3_vecenv import make_sb3_vec_env
+model = PPO("MlpPolicy", gym.make("ImpactCatch-v0", scene="rig"), n_steps=1024, device="cpu", seed=0)
+t0 = time.perf_counter(); model.learn(2048); out["ppo_single"] = 2048 / (time.perf_counter() - t0)
+model = PPO("MlpPolicy", make_sb3_vec_env("rig", num_envs=64), n_steps=32, batch_size=1024, device="cpu",
+            seed=0)
+t0 = time.perf_counter(); model.learn(4096); out["ppo_vector"] = 4096 / (time.perf_counter() - t0)
+
+from impact_env.eval.compare import compare
+from impact_env.scene import load_scene
+t0 = time.perf_counter()
+compare(load_scene("rig"), ["passive", "thesis-rig", "pd-penetration", "thesis-ideal"], episodes=100, seed=0,
+        workers=1, progress=False)
+out["compare_s"] = time.perf_counter() - t0
+print(json.dumps(out))
 '''
 
+FIGURES = ("ppo_single", "ppo_vector", "compare_s", "vec_1024", "vec_16384", "step_us")
 
-def probe(checkout: Path) -> dict:
+
+def probe(checkout: Path, threads: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(checkout))
-    out = subprocess.run([sys.executable, "-c", PROBE, str(ROOT / "scripts")], cwd=checkout, env=env,
-                         capture_output=True, text=True, timeout=900)
+    out = subprocess.run([sys.executable, "-c", PROBE, str(threads)], cwd=checkout, env=env,
+                         capture_output=True, text=True, timeout=1800)
     if out.returncode != 0:
         raise SystemExit(f"probe in {checkout} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -85,23 +104,25 @@ def _median(rows: list[dict], key: str) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--other", required=True, type=Path, help="another checkout of the project")
-    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=1, help="the vector env's threads")
+    ap.add_argument("--json", type=Path, help="also write every round's figures here")
     args = ap.parse_args()
     sides = {"this": ROOT, "other": args.other.resolve()}
-    rows = {k: [] for k in sides}
+    rows: dict[str, list[dict]] = {k: [] for k in sides}
     order = list(sides)
     for r in range(args.rounds):
-        # which side runs first alternates: run for run, the first of a pair came out a few per
-        # cent slower here whichever checkout it was (both orders of two checkouts, 7 rounds each)
+        # which side runs first alternates: the first of a pair may run on a colder machine
         for k in order if r % 2 == 0 else order[::-1]:
-            rows[k].append(probe(sides[k]))
-    print("| checkout | rig step us (min) | step / MountainCarContinuous (median) | "
-          "vector N=1024 env-steps/s (max) | vector / CartPoleVectorEnv (median) |")
-    print("|---|---|---|---|---|")
-    for k, d in sides.items():
-        r = rows[k]
-        print(f"| {k} ({d}) | {min(x['rig_us'] for x in r):.2f} | {_median(r, 'step_ratio'):.2f} | "
-              f"{max(x['vec_rate'] for x in r):.3g} | {_median(r, 'vec_ratio'):.3f} |")
+            rows[k].append(probe(sides[k], args.threads))
+            print(k, json.dumps(rows[k][-1]), file=sys.stderr, flush=True)
+    if args.json:
+        args.json.write_text(json.dumps({"command": sys.argv, "rounds": rows}, indent=1) + "\n")
+    print("| figure | " + " | ".join(f"{k} ({d})" for k, d in sides.items()) + " | this / other |")
+    print("|---|---|---|---|")
+    for f in FIGURES:
+        a, b = _median(rows["this"], f), _median(rows["other"], f)
+        print(f"| {f} | {a:.4g} | {b:.4g} | {a / b:.3f} |")
     return 0
 
 

@@ -37,9 +37,9 @@ from naive import Params, free_fall_start, reference_drop, sim_overrides  # noqa
 
 import impact_env  # noqa: E402
 from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params  # noqa: E402
-from impact_env.plant import layout as L  # noqa: E402
 from impact_env.plant.hertz import contact_time  # noqa: E402
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance  # noqa: E402
+from impact_env.plant.layout import AUTO, FREE, N_EVENT_COLS, OK  # noqa: E402
 
 FIXED = [("euler", True), ("euler", False), ("symplectic-euler", True), ("symplectic-euler", False),
          ("rk4", True), ("rk4", False)]
@@ -66,17 +66,17 @@ def throughput(t_sim: float, dt: float, repeats: int) -> list[dict]:
     for method, events in FIXED:
         code = METHOD_CODES[method]
 
-        ev = np.zeros((10_000, L.N_EVENT_COLS))
+        ev = np.zeros((10_000, N_EVENT_COLS))
         evn = np.zeros(1, dtype=np.int64)
         scale, hstate, peak = np.ones(6), np.zeros(1), np.zeros(1)
 
         def direct(code=code, events=events, ev=ev, evn=evn, scale=scale, hstate=hstate, peak=peak):
             y = y0.copy()
             evn[0] = 0
-            mode = L.FREE if events else L.AUTO
+            mode = FREE if events else AUTO
             status, _ = advance(mode, 0.0, 0.0, n_steps * dt, PlantConsts(p, scale, code, dt, 1e-9),
                                 PlantCarry(y, hstate, ev, evn, peak))
-            assert status == L.OK, status
+            assert status == OK, status
             return int(evn[0])
 
         t_direct, n_ev = best_of(direct, repeats)
@@ -173,10 +173,10 @@ def minimal_rk4_rate(n: int, repeats: int) -> float:
         x1, v1, x2, v2 = y[0], y[1], y[2], y[3]
         hh, h6 = 0.5 * h, h / 6.0
         for _ in range(n):
-            a = deriv(x1, v1, x2, v2, L.AUTO, 0.0, pc)
-            q = deriv(x1 + hh * a[0], v1 + hh * a[1], x2 + hh * a[2], v2 + hh * a[3], L.AUTO, 0.0, pc)
-            r = deriv(x1 + hh * q[0], v1 + hh * q[1], x2 + hh * q[2], v2 + hh * q[3], L.AUTO, 0.0, pc)
-            s = deriv(x1 + h * r[0], v1 + h * r[1], x2 + h * r[2], v2 + h * r[3], L.AUTO, 0.0, pc)
+            a = deriv(x1, v1, x2, v2, AUTO, 0.0, pc)
+            q = deriv(x1 + hh * a[0], v1 + hh * a[1], x2 + hh * a[2], v2 + hh * a[3], AUTO, 0.0, pc)
+            r = deriv(x1 + hh * q[0], v1 + hh * q[1], x2 + hh * q[2], v2 + hh * q[3], AUTO, 0.0, pc)
+            s = deriv(x1 + h * r[0], v1 + h * r[1], x2 + h * r[2], v2 + h * r[3], AUTO, 0.0, pc)
             x1 += h6 * (a[0] + 2.0 * (q[0] + r[0]) + s[0])
             v1 += h6 * (a[1] + 2.0 * (q[1] + r[1]) + s[1])
             x2 += h6 * (a[2] + 2.0 * (q[2] + r[2]) + s[2])

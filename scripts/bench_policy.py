@@ -236,7 +236,7 @@ def c_step(scene, quick: bool) -> None:
     import subprocess
     import tempfile
 
-    from impact_env.deploy import parity as PA
+    from impact_env.deploy import parity
     from impact_env.deploy.c_export import write_c
 
     print()
@@ -254,20 +254,20 @@ def c_step(scene, quick: bool) -> None:
             d = tmp / name.split()[0]
             write_c(pol, scene, d)
             (d / "bench.c").write_text(C_BENCH)
-            rec = PA.record(pol, scene, 0, 4000)
+            rec = parity.record(pol, scene, 0, 4000)
             rec.readings.astype("<f8").tofile(d / "r.f64")
             sizes = []
             for f32 in (False, True):
                 try:
-                    arm = PA.build_arm(d, d / f"arm{int(f32)}.o", f32)["text"]
+                    arm = parity.build_arm(d, d / f"arm{int(f32)}.o", f32)["text"]
                 except Exception as exc:  # no cross-compiler here: say so in the table
                     arm = f"n/a ({str(exc).splitlines()[0][:40]})"
-                lib = PA.CPolicy(PA.build_shared(d, d / f"lib{int(f32)}.so", f32), f32)
+                lib = parity.CPolicy(parity.build_shared(d, d / f"lib{int(f32)}.so", f32), f32)
                 sizes.append((arm, int(lib.lib.impact_state_bytes())))
             counts.append((name, *op_count(pol), sizes))
             for f32 in (False, True):
                 exe = d / ("bench32" if f32 else "bench64")
-                subprocess.run([PA.find_cc(), *PA.CFLAGS, *(["-DIMPACT_FLOAT32"] if f32 else []), f"-I{d}",
+                subprocess.run([parity.find_cc(), *parity.CFLAGS, *(["-DIMPACT_FLOAT32"] if f32 else []), f"-I{d}",
                                 "-o", str(exe), str(d / "bench.c"), str(d / "impact_policy.c"), "-lm"], check=True)
                 out = subprocess.run([str(exe), str(d / "r.f64"), "3" if quick else "25"], capture_output=True,
                                      text=True, check=True).stdout.split()

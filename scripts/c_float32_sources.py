@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from impact_env.deploy import parity as PA
+from impact_env.deploy import parity
 from impact_env.deploy.c_export import write_c
 from impact_env.policy.export import export_policy
 from impact_env.scene import load_scene
@@ -30,19 +30,20 @@ def mlp_in_double(source: str) -> str:
     b = source.index("/* ----", a + 10)
     part = source[a:b]
     for old, new in (("impact_real x[", "double x["), ("static const impact_real W", "static const double W"),
-                     ("static const impact_real B", "static const double B"), ("impact_real c = ", "double c = "),
+                     ("static const impact_real B", "static const double B"), ("impact_real c = ",
+                                                                               "double c = "),
                      ("impact_real a = ", "double a = "), ("R_TANH(", "tanh("), ("RL(", "(double)(")):
         part = part.replace(old, new)
     return source[:a] + part + source[b:]
 
 
 def worst(pol, scene, c_dir: Path, drops: int) -> list[float]:
-    cp = PA.CPolicy(PA.build_shared(c_dir, c_dir / "lib.so", True), True)
+    cp = parity.CPolicy(parity.build_shared(c_dir, c_dir / "lib.so", True), True)
     out = []
     for seed in range(drops):
-        rec = PA.record(pol, scene, seed, TICKS)
-        got = PA.replay(cp, rec)
-        same = ~PA.decisions_differ(rec, got, pol.hold_ticks)
+        rec = parity.record(pol, scene, seed, TICKS)
+        got = parity.replay(cp, rec)
+        same = ~parity.decisions_differ(rec, got, pol.hold_ticks)
         out.append(float(np.abs(got.command - rec.command)[same].max()))
     return out
 
@@ -58,7 +59,7 @@ def main() -> None:
     if pol.mlp is None:
         raise SystemExit(f"{args.policy} has no MLP: nothing to compare")
     print(f"{args.policy} on {args.scene}, drops 0..{args.drops - 1}: the largest command difference "
-          f"where the builds decide alike, full scale (bound {PA.F32_BOUND:g})")
+          f"where the builds decide alike, full scale (bound {parity.F32_BOUND:g})")
     for name, edit in (("float32 build", None), ("float32 build, MLP in double", mlp_in_double)):
         with tempfile.TemporaryDirectory(prefix="c-f32-") as tmp:
             d = Path(tmp)

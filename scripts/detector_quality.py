@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from impact_env.cli import add_scene_arguments, scene_from_args  # noqa: E402
 from impact_env.effects.detector import score_detection  # noqa: E402
-from impact_env.hardware.stage import INFO_CONTACT_FORCE  # noqa: E402
+from impact_env.hardware.stage import HW_INFO  # noqa: E402
 from impact_env.sim.simulator import Simulator  # noqa: E402
 
 
@@ -48,7 +48,7 @@ def run(scene, seeds, n_steps, drive_n=0.0, drive_hz=50.0):
     for k in range(n_steps):
         f = drive_n * math.sin(2 * math.pi * drive_hz * k * sim.period)
         sim.step(np.full(sim.n, f) / scale)
-        phi[:, k] = sim.info[:, INFO_CONTACT_FORCE]
+        phi[:, k] = sim.info[:, HW_INFO.contact_force]
         det[:, k] = sim.detected > 0.5
     true[:] = phi > 0.0
     return true, det, phi

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from impact_env.eval import oracle as O
+from impact_env.eval import oracle
 from impact_env.scene import load_scene
 
 
@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     p.add_argument("--horizon", type=float, default=None, help="s (default: the scene's)")
     p.add_argument("--generations", default="25,50,100,200,400", help="budgets to report (comma-separated)")
     for key in ("popsize", "basis", "window", "first_knot", "sigma"):
-        p.add_argument("--" + key.replace("_", "-"), type=float, default=None, help=O.PARAMS[key].doc)
+        p.add_argument("--" + key.replace("_", "-"), type=float, default=None, help=oracle.PARAMS[key].doc)
     p.add_argument("--json", metavar="OUT", help="write the figures here")
     args = p.parse_args(argv)
     scene = load_scene(args.scene)
@@ -42,19 +42,19 @@ def main(argv=None) -> int:
     gens = sorted({int(g) for g in args.generations.split(",")})
     params = {k: getattr(args, k) for k in ("popsize", "basis", "window", "first_knot", "sigma")
               if getattr(args, k) is not None}
-    budget = O.Budget.from_params(generations=max(gens), **params)
+    budget = oracle.Budget.from_params(generations=max(gens), **params)
     seeds = list(range(args.seed, args.seed + args.drops))
 
     t0 = time.perf_counter()
-    warm = O.classic_warm_starts(scene, seeds, horizon)
+    warm = oracle.classic_warm_starts(scene, seeds, horizon)
     names = list(warm)
-    ref = O.replay(scene, [s for s in seeds for _ in names],
+    ref = oracle.replay(scene, [s for s in seeds for _ in names],
                    np.stack([warm[k][:, i] for i in range(len(seeds)) for k in names], axis=1), horizon)
     warm_ei = ref.metrics["energy_integral_ms"].reshape(len(seeds), len(names))
     best_warm = warm_ei.min(axis=1)
     cols, cpu, objective = [], np.zeros((len(seeds), len(gens))), np.zeros(len(seeds))
     for i, seed in enumerate(seeds):
-        s = O.search_drop(scene, seed, {k: v[:, i] for k, v in warm.items()}, n_steps, budget,
+        s = oracle.search_drop(scene, seed, {k: v[:, i] for k, v in warm.items()}, n_steps, budget,
                           checkpoints=gens)
         for j, g in enumerate(gens):
             u, c = s.checkpoints.get(g, s.checkpoints[max(s.checkpoints)])
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
         print(f"drop {seed}: best warm {names[int(np.argmin(warm_ei[i]))]} {best_warm[i]:.3f} ms, "
               f"window objective {s.objective:.3f} ms, {s.cpu_seconds:.1f} s CPU", file=sys.stderr,
               flush=True)
-    r = O.replay(scene, [s for s in seeds for _ in gens], np.stack(cols, axis=1), horizon)
+    r = oracle.replay(scene, [s for s in seeds for _ in gens], np.stack(cols, axis=1), horizon)
     ei = r.metrics["energy_integral_ms"].reshape(len(seeds), len(gens))
     chosen = np.minimum(ei, best_warm[:, None])
     rows = []

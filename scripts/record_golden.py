@@ -3,7 +3,7 @@
     python scripts/record_golden.py [CASE ...]      # default: every case
 
 Writes ``tests/golden/CASE.npz`` (the case's arrays) and ``tests/golden/fingerprint.json`` (the
-machine and library versions bitwise equality is defined on; see ``tests/golden_cases.py``).
+machine and library versions bitwise equality is defined on; see ``scripts/golden_cases.py``).
 Re-record only on purpose: when a change is meant to alter simulated numbers, say which and why
 in the commit.
 """
@@ -15,11 +15,10 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
+import numpy as np
+from golden_cases import CASES, fingerprint, run_case
 
-import numpy as np  # noqa: E402
-from golden_cases import CASES, fingerprint, run_case  # noqa: E402
+ROOT = Path(__file__).resolve().parent.parent
 
 GOLDEN = ROOT / "tests" / "golden"
 

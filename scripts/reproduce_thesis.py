@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import thesis_figures as F  # noqa: E402
+import thesis_figures as thesis_figures  # noqa: E402
 
 from impact_env.eval.compare import compare  # noqa: E402
 from impact_env.eval.sweep import parse_grid, plot, sweep, write_csv  # noqa: E402
@@ -96,10 +96,10 @@ def main(argv=None) -> int:
     ideal = load_scene("ideal", IDEAL_SET)
     runs = compare(ideal, ["passive", "thesis-ideal"], episodes=1, horizon=0.1, trace_rate=1e5)
     off, on = runs["passive"], runs["thesis-ideal"]
-    F.fig_3_1(off, on, ideal, out / f"fig3_1.{fmt}")
-    F.fig_3_2(on, ideal, out / f"fig3_2.{fmt}")
-    t = F.t_ms(on)
-    e = F.body_energies(on, ideal)
+    thesis_figures.fig_3_1(off, on, ideal, out / f"fig3_1.{fmt}")
+    thesis_figures.fig_3_2(on, ideal, out / f"fig3_2.{fmt}")
+    t = thesis_figures.t_ms(on)
+    e = thesis_figures.body_energies(on, ideal)
     after = t >= 0
     peak_el = e["elastic"][after].max()
     el_2ms = at(t, e["elastic"], 2.0) / peak_el
@@ -110,7 +110,7 @@ def main(argv=None) -> int:
     v0 = ideal.impact_speed
     v50, v100 = (abs(at(t, on.trace0["v1"], ms)) / v0 for ms in (50, 100))
     s = on.summary
-    f, amp = F.force_spectrum(on.trace0["force_applied"], float(on.trace_t[1] - on.trace_t[0]))
+    f, amp = thesis_figures.force_spectrum(on.trace0["force_applied"], float(on.trace_t[1] - on.trace_t[0]))
     band = float(np.sum(amp[(f >= 20) & (f <= 1000)] ** 2) / np.sum(amp[1:] ** 2))
     peak_f = float(np.abs(on.trace0["force_applied"]).max())
     t_peak_f = float(t[np.argmax(np.abs(on.trace0["force_applied"]))])
@@ -141,17 +141,18 @@ def main(argv=None) -> int:
     rig = load_scene("rig", NOMINAL)
     n = args.episodes
     rr = compare(rig, RIG_POLICIES, episodes=n)
-    F.fig_4_8({"control off (passive)": rr["passive"], "thesis-rig (2.3e6, 18)": rr["thesis-rig"],
+    thesis_figures.fig_4_8({"control off (passive)": rr["passive"],
+                            "thesis-rig (2.3e6, 18)": rr["thesis-rig"],
                "pd-penetration": rr["pd-penetration"]}, rig, out / f"fig4_8.{fmt}")
     rig_cmd = RIG_CMD.format(n=n)
     totals = {}
     for spec in ("passive", "thesis-rig", "pd-penetration"):
         run = rr[spec]
-        eb = F.body_energies(run, rig)
+        eb = thesis_figures.body_energies(run, rig)
         # the whole system's energy above rest (body 1's catch energy, body 2's kinetic energy, the
         # suspension's about its loaded rest) over body 1's impact energy, as drop's time_to_1pct
         tot = eb["above_rest"] / eb["catch"][0]
-        totals[spec] = time_below_for_good(F.t_ms(run) / 1e3, tot, 0.01)
+        totals[spec] = time_below_for_good(thesis_figures.t_ms(run) / 1e3, tot, 0.01)
     sp, st, sd = rr["passive"].summary, rr["thesis-rig"].summary, rr["pd-penetration"].summary
 
     def ttc(x):
@@ -182,9 +183,9 @@ def main(argv=None) -> int:
     # -- 3. rig without force limit: the bounce sequences ----------------------------------------------
     unlim = load_scene("rig", UNLIM_SET)
     ru = compare(unlim, UNLIM_POLICIES, episodes=1)
-    F.fig_bounces({"h01 = 2.3e6": ru["thesis-rig"]}, unlim, out / f"fig4_6.{fmt}",
+    thesis_figures.fig_bounces({"h01 = 2.3e6": ru["thesis-rig"]}, unlim, out / f"fig4_6.{fmt}",
                   "Fig 4.6 (ours): thesis-rig h01 = 2.3e6, h11 = 18, rig without force limit")
-    F.fig_bounces({"h01 = 1.2e6": ru["thesis-rig:h01=1.2e6"]}, unlim, out / f"fig4_7.{fmt}",
+    thesis_figures.fig_bounces({"h01 = 1.2e6": ru["thesis-rig:h01=1.2e6"]}, unlim, out / f"fig4_7.{fmt}",
                   "Fig 4.7 (ours): thesis-rig h01 = 1.2e6, h11 = 18, rig without force limit")
     v0r = rig.impact_speed
     seqs = {}

@@ -39,7 +39,7 @@ from scipy.optimize import brentq  # noqa: E402
 import impact_env  # noqa: E402
 from impact_env.hardware.arrays import initial_state  # noqa: E402
 from impact_env.plant import hertz  # noqa: E402
-from impact_env.plant import layout as L  # noqa: E402
+from impact_env.plant.layout import PARAM  # noqa: E402
 
 # unseen parameters: none of them is a preset's, a test's or a tuning's value
 CASES = [
@@ -144,7 +144,7 @@ def _body2(t, f2, m2, k2, c2):
 def exact_top(y0, f2: float, p) -> tuple[float, float]:
     """The largest penetration (m) of the free motion from y0 (body 2 at rest at 0) under the
     constant force f2, and its time (s): brentq on the rate of the exact gap (expm for body 2)."""
-    g, m2, k2, c2 = p[L.G], p[L.M2], p[L.K2], p[L.C2]
+    g, m2, k2, c2 = p[PARAM.g], p[PARAM.m2], p[PARAM.k2], p[PARAM.c2]
     def rate(t):
         return y0[1] + g * t - _body2(t, f2, m2, k2, c2)[1]
     hi = 1e-6
@@ -164,8 +164,8 @@ def grazes(method: str, knob: dict) -> list[dict]:
     rows = []
     for target in GRAZES:
         def miss(a, target=target):
-            return exact_top(y0, -p[L.M2] * (p[L.G] + a), p)[0] - target
-        f2 = -p[L.M2] * (p[L.G] + brentq(miss, 30.0, 1e3, xtol=1e-14, rtol=1e-15))
+            return exact_top(y0, -p[PARAM.m2] * (p[PARAM.g] + a), p)[0] - target
+        f2 = -p[PARAM.m2] * (p[PARAM.g] + brentq(miss, 30.0, 1e3, xtol=1e-14, rtol=1e-15))
         top, ts = exact_top(y0, f2, p)
         t_end = np.ceil((2 * ts + 1e-3) * RATE) / RATE
         tr = impact_env.simulate(sc, controller=lambda t, y, f2=f2: f2, t_end=t_end, record_rate=RATE)

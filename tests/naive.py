@@ -40,10 +40,10 @@ class Params:
     @classmethod
     def from_array(cls, p) -> Params:
         """From the plant's parameter array (``Trajectory.params``)."""
-        from impact_env.plant import layout as L
+        from impact_env.plant.layout import PARAM
 
-        return cls(m1=float(p[L.M1]), m2=float(p[L.M2]), c=float(p[L.C]), b=float(p[L.B]),
-                   g=float(p[L.G]), k2=float(p[L.K2]), c2=float(p[L.C2]))
+        return cls(m1=float(p[PARAM.m1]), m2=float(p[PARAM.m2]), c=float(p[PARAM.c]), b=float(p[PARAM.b]),
+                   g=float(p[PARAM.g]), k2=float(p[PARAM.k2]), c2=float(p[PARAM.c2]))
 
 
 # --------------------------------------------------------------------------------------------

@@ -9,7 +9,7 @@ from scipy import signal
 from baselines import POLICIES, PDPenetration, ThesisIdeal, ThesisRig, make_policy, parse_spec
 from impact_env import simulate
 from impact_env.config import ConfigError
-from impact_env.control import laws as LW
+from impact_env.control import laws
 from impact_env.control.observation import make_layout
 from impact_env.policy.sb3 import parse_model_spec
 from impact_env.scene import load_scene
@@ -22,7 +22,7 @@ IDEAL = load_scene("ideal")
 # -- registry and interface ---------------------------------------------------------------------
 
 def test_registry_names_and_params():
-    assert set(POLICIES) == set(LW.LAWS) and {"thesis-rig", "thesis-ideal"} <= set(POLICIES)
+    assert set(POLICIES) == set(laws.LAWS) and {"thesis-rig", "thesis-ideal"} <= set(POLICIES)
     p = make_policy("thesis-rig:h01=1.2e6,h11=18", RIG)
     assert isinstance(p, ThesisRig) and p.params["h01"] == 1.2e6 and p.params["h11"] == 18.0
     assert make_policy("thesis-rig", RIG).params["h01"] == 2.3e6
@@ -41,23 +41,23 @@ def test_every_law_module_is_registered_and_dispatched():
     from impact_env.control.laws.law import Law
 
     declared = []
-    for mod in pkgutil.iter_modules(LW.__path__):
-        m = importlib.import_module(f"{LW.__name__}.{mod.name}")
+    for mod in pkgutil.iter_modules(laws.__path__):
+        m = importlib.import_module(f"{laws.__name__}.{mod.name}")
         declared += [v for v in vars(m).values() if isinstance(v, Law)]
-    assert set(declared) == set(LW.REGISTRY)
+    assert set(declared) == set(laws.REGISTRY)
     rng = np.random.default_rng(5)
-    for law in LW.REGISTRY:
-        m = importlib.import_module(f"{LW.__name__}.{law.name.replace('-', '_')}")
+    for law in laws.REGISTRY:
+        m = importlib.import_module(f"{laws.__name__}.{law.name.replace('-', '_')}")
         names = tuple(law.reads._fields)
-        slots = LW.law_slots(law.name, names)
+        slots = laws.law_slots(law.name, names)
         k = rng.uniform(0.5, 2.0, (16, len(law.constants._fields)))
         v = rng.uniform(-1.0, 1.0, (16, len(names)))
-        want = np.array([m.force.py_func(slots, k[i], v[i], np.zeros(LW.MEMORY)) for i in range(16)])
-        got = LW.law_forces(LW.KIND[law.name], slots, k, v, np.zeros((16, LW.MEMORY)), np.empty(16))
+        want = np.array([m.force.py_func(slots, k[i], v[i], np.zeros(laws.MEMORY)) for i in range(16)])
+        got = laws.law_forces(laws.KIND[law.name], slots, k, v, np.zeros((16, laws.MEMORY)), np.empty(16))
         np.testing.assert_allclose(got, want, rtol=1e-12, err_msg=law.name)
         assert POLICIES[law.name].law is law
     docs = (Path(__file__).resolve().parents[1] / "docs" / "baselines.md").read_text()
-    assert LW.markdown_table() in docs, "docs/baselines.md: stale laws table (scripts/docs_tables.py)"
+    assert laws.markdown_table() in docs, "docs/baselines.md: stale laws table (scripts/docs_tables.py)"
 
 
 @pytest.mark.parametrize("spec,match", [

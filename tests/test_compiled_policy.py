@@ -20,7 +20,7 @@ import pytest
 from gymnasium.vector import AutoresetMode
 
 from baselines import make_policy
-from impact_env.control import laws as LW
+from impact_env.control import laws
 from impact_env.control.policy import CompiledPolicy, act_batch
 from impact_env.env.vector import ImpactCatchVectorEnv
 from impact_env.policy.export import export_policy, write_onnx
@@ -49,7 +49,7 @@ def episodes_obs(observation: str, driver: str, n_envs: int = 8, steps: int = 12
     return np.array(out), np.array(st)
 
 
-@pytest.mark.parametrize("law, observation", [*((law.name, law.observation) for law in LW.REGISTRY),
+@pytest.mark.parametrize("law, observation", [*((law.name, law.observation) for law in laws.REGISTRY),
                                               ("pd-penetration:kp=1e5,kd=900,dref=1e-5", "sensors")])
 def test_compiled_law_equals_the_baseline(law, observation):
     obs, starts = episodes_obs(observation, "pd-penetration" if observation == "sensors" else "thesis-ideal")

@@ -21,7 +21,7 @@ import pytest
 
 import impact_env  # noqa: F401  (registers ImpactCatch-v0)
 from impact_env.config import ConfigError
-from impact_env.control import plausibility as PL
+from impact_env.control import plausibility
 from impact_env.scene import Scene, load_scene
 from impact_env.scene.effects import EFFECTS
 
@@ -133,21 +133,21 @@ def _plausibility_probe(scene: Scene) -> np.ndarray:
     probe readings: on each channel a jump across 0 of each of a ladder of sizes 5 % apart (a
     largest step changed by 25 % moves the verdict of some rung), then a run of faulty ticks
     (the tick that latches SENSOR_TIMEOUT moves with the fault limit)."""
-    p = PL.plausibility_params(scene)
+    p = plausibility.plausibility_params(scene)
     out = np.zeros(4)
     verdicts = []
     for c in range(4):
         for x in np.geomspace(1e-8, 1e4, 567):
-            s = PL.reset_state(PL.make_state())
+            s = plausibility.reset_state(plausibility.make_state())
             raw = np.zeros(4)
             raw[c] = -0.5 * x  # a jump of x across 0: up to twice a converter's half range
-            verdicts.append(PL.check_readings(0, raw, p, s, out))
+            verdicts.append(plausibility.check_readings(0, raw, p, s, out))
             raw[c] = 0.5 * x
-            verdicts.append(PL.check_readings(1, raw, p, s, out))
-    s = PL.reset_state(PL.make_state())
-    PL.check_readings(0, np.zeros(4), p, s, out)
+            verdicts.append(plausibility.check_readings(1, raw, p, s, out))
+    s = plausibility.reset_state(plausibility.make_state())
+    plausibility.check_readings(0, np.zeros(4), p, s, out)
     for m in range(1, 40):
-        verdicts.append(PL.check_readings(m, np.array([np.nan, 0.0, 0.0, 0.0]), p, s, out))
+        verdicts.append(plausibility.check_readings(m, np.array([np.nan, 0.0, 0.0, 0.0]), p, s, out))
     return np.asarray(verdicts, dtype=np.float64)
 
 

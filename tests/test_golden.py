@@ -1,5 +1,5 @@
 """Golden outputs: the simulator, the env and compare give today the numbers they gave when the
-files were recorded (``scripts/record_golden.py``; cases in ``golden_cases.py``).  The test runs
+files were recorded (``scripts/record_golden.py``; cases in ``scripts/golden_cases.py``).  The test runs
 on every machine, never skipped:
 
 * **On the machine of the recording** (same CPU features, numpy, scipy and numba: the

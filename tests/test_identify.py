@@ -30,7 +30,7 @@ from impact_env.ident.fit import identify
 from impact_env.ident.model import FIELDS, shift, shift_readings
 from impact_env.ident.plan import PlanEpisode, default_plan, run_plan
 from impact_env.ident.virtual import perturbed_physics
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.driver import VirtualRig
 from impact_env.rig.excitation import Excitation
 from impact_env.rig.host import RigClient
@@ -114,22 +114,22 @@ def test_the_targets_identification_episodes(tmp_path):
     client = RigClient(target.address)
     try:
         ex = Excitation("sweep", 20.0, 20.0, 2000.0)
-        client.arm("onboard", 4, 2000, kind=P.EpisodeKind.SHAKER, excitation=ex)
+        client.arm("onboard", 4, 2000, kind=protocol.EpisodeKind.SHAKER, excitation=ex)
         log = client.fetch_log(client.wait_end(30).episode)
         assert log.meta.kind == "shaker" and json.loads(log.meta.excitation)["signal"] == "sweep"
         # the commands played are the excitation's, tick by tick; body 1 never moved
         assert np.array_equal(log["command"][:-1], ex.commands(1e4, 2000, 200.0))
         # (the last row: no tick)
         assert np.ptp(log["true_x1_m"][:-1]) == 0.0 and np.max(np.abs(log["true_x2_m"])) > 1e-5
-        client.arm("onboard", 5, 1000, kind=P.EpisodeKind.QUIET)
+        client.arm("onboard", 5, 1000, kind=protocol.EpisodeKind.QUIET)
         log = client.fetch_log(client.wait_end(30).episode)
         assert (log.meta.kind == "quiet" and np.all(log["command"] == 0.0)
                 and np.ptp(log["true_x2_m"][:-1]) == 0.0)
         # refused, naming why: a shaker episode in host mode, a quiet one with a signal, a peak over the limit
-        for kw, match in ((dict(mode="host", kind=P.EpisodeKind.SHAKER, excitation=ex), "onboard"),
-                          (dict(kind=P.EpisodeKind.QUIET, excitation=ex), "quiet"),
-                          (dict(kind=P.EpisodeKind.SHAKER, excitation=Excitation("sweep", 199.0, 10.0, 100.0),
-                                horizon=20000), "continuous")):
+        for kw, match in ((dict(mode="host", kind=protocol.EpisodeKind.SHAKER, excitation=ex), "onboard"),
+                          (dict(kind=protocol.EpisodeKind.QUIET, excitation=ex), "quiet"),
+                          (dict(kind=protocol.EpisodeKind.SHAKER, horizon=20000,
+                                excitation=Excitation("sweep", 199.0, 10.0, 100.0)), "continuous")):
             mode = kw.pop("mode", "onboard")
             horizon = kw.pop("horizon", 500)
             with pytest.raises(Exception, match=match):

@@ -55,7 +55,7 @@ def test_agents_report_says_better_from_the_paired_difference(monkeypatch):
     so 'better'; its catch times are drawn like pd-penetration's, so 'NOT shown better'.  The figure
     keys every colour it draws (the shipped agent, other PPO runs, SAC runs, classic laws, the
     oracle) and labels every x axis."""
-    import agents_report as AR
+    import agents_report
     from matplotlib.colors import to_rgba
 
     base, better = _drops()
@@ -74,12 +74,12 @@ def test_agents_report_says_better_from_the_paired_difference(monkeypatch):
         d[f"{label}|failed"] = 0
     args = SimpleNamespace(resamples=2000, boot_seed=7, argv=["--runs", "runs/x"], seed=1000, episodes=n,
                            oracle="oracle", ship="agents/models/best")
-    st = AR.scene_stats(d, args)
+    st = agents_report.scene_stats(d, args)
     assert st["_paired"]["ppo-s0"]["energy"].a_better and not st["_paired"]["ppo-s0"]["catch"].a_better
     infos = [_run_info("ppo-s0", "ppo", 0), _run_info("ppo-s1", "ppo", 1), _run_info("sac-s0", "sac", 0)]
     settings = {"results": "docs/results/agents", "command": "--runs runs/x", "seed": 1000, "episodes": n,
                 "oracle": "oracle", "resamples": 2000, "boot_seed": 7}
-    text = AR.report_text(infos, {"rig": st}, "ppo-s0", settings, {"rig": 1.0})
+    text = agents_report.report_text(infos, {"rig": st}, "ppo-s0", settings, {"rig": 1.0})
     verdict = next(line for line in text.splitlines() if line.startswith("* ppo-s0 against"))
     catch, energy = verdict.split("; energy integral ")
     assert "paired difference" in catch and catch.rstrip(")").endswith(": NOT shown better")
@@ -90,7 +90,7 @@ def test_agents_report_says_better_from_the_paired_difference(monkeypatch):
     from PIL import Image
 
     seen = {}
-    real = AR.save_figure
+    real = agents_report.save_figure
 
     def keep(fig, path):
         drawn = {to_rgba(c) for a in fig.axes for coll in a.collections for c in coll.get_facecolors()}
@@ -99,8 +99,8 @@ def test_agents_report_says_better_from_the_paired_difference(monkeypatch):
                     key_text=[t.get_text() for leg in fig.legends for t in leg.get_texts()])
         return real(fig, path)
 
-    monkeypatch.setattr(AR, "save_figure", keep)
-    fig = AR.figure({"rig": st}, ROOT / ".pytest_fig.png", "ppo-s0")
+    monkeypatch.setattr(agents_report, "save_figure", keep)
+    fig = agents_report.figure({"rig": st}, ROOT / ".pytest_fig.png", "ppo-s0")
     try:
         assert Image.open(fig).info["dpi"][0] >= 149
     finally:

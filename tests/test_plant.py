@@ -24,8 +24,18 @@ from naive import Params, hertz_drop, reference_drop, sim_overrides
 import impact_env
 from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params
 from impact_env.plant import hertz
-from impact_env.plant import layout as L
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
+from impact_env.plant.layout import (
+    AUTO,
+    DIVERGED,
+    FREE,
+    N_EVENT_COLS,
+    N_PARAM,
+    OK,
+    PARAM,
+    STATE,
+    STEP_UNDERFLOW,
+)
 
 G = 9.81
 
@@ -127,17 +137,18 @@ def test_advance_matches_naive_stepper(method):
     over one long span: end state, the logged switches and the peak force match the naive
     stepper (rtol 1e-12; measured ~1e-14)."""
     p = Params(m1=0.05, m2=0.7, c=3e6, b=40.0, g=G, k2=2e3, c2=3.0)
-    parr = np.zeros(L.N_PARAM)
-    parr[[L.M1, L.M2, L.C, L.B, L.G, L.K2, L.C2]] = [p.m1, p.m2, p.c, p.b, p.g, p.k2, p.c2]
+    parr = np.zeros(N_PARAM)
+    parr[[PARAM.m1, PARAM.m2, PARAM.c, PARAM.b, PARAM.g, PARAM.k2, PARAM.c2]] = [p.m1, p.m2, p.c, p.b, p.g,
+                                                                                 p.k2, p.c2]
     dt, n, f2 = 1e-6, 6000, 12.0
     y0 = naive.free_fall_start(0.8, G, 2e-4) + [0.0, 0.0]
     y = np.array(y0)
-    ev = np.zeros((16, L.N_EVENT_COLS))
+    ev = np.zeros((16, N_EVENT_COLS))
     evn = np.zeros(1, dtype=np.int64)
     peak = np.zeros(1)
     consts = PlantConsts(parr, np.ones(6), METHOD_CODES[method], dt, 1e-9)
-    status, mode = advance(L.AUTO, f2, 0.0, n * dt, consts, PlantCarry(y, np.zeros(1), ev, evn, peak))
-    assert status == L.OK and mode == L.AUTO
+    status, mode = advance(AUTO, f2, 0.0, n * dt, consts, PlantCarry(y, np.zeros(1), ev, evn, peak))
+    assert status == OK and mode == AUTO
     ref = naive.run_fixed(y0, p, dt, n, method, f2=f2)
     scale = np.abs(ref).max(axis=0)
     assert np.all(np.abs(y - ref[-1]) <= 1e-12 * scale)
@@ -159,16 +170,16 @@ def test_free_flight_is_exact(method):
     accelerations are constant, which RK4 and DOPRI5 integrate exactly and the Euler methods
     with a known O(dt) offset.  Checked against the closed form."""
     dt, n, f2 = 1e-5, 2000, -3.0  # body 2 pulled down, away from body 1
-    p = np.zeros(L.N_PARAM)
-    p[[L.M1, L.M2, L.C, L.G]] = [0.1, 1.0, 2e6, G]
+    p = np.zeros(N_PARAM)
+    p[[PARAM.m1, PARAM.m2, PARAM.c, PARAM.g]] = [0.1, 1.0, 2e6, G]
     y0 = np.array([-0.5, 0.1, 0.0, 0.0, 0.0, 0.0])  # 0.5 m above body 2
     y = y0.copy()
-    ev = np.zeros((4, L.N_EVENT_COLS))
+    ev = np.zeros((4, N_EVENT_COLS))
     evn = np.zeros(1, dtype=np.int64)
     t = n * dt
     consts = PlantConsts(p, np.array([1e-3, 1.0, 1e-3, 1.0, 1e-3, 1e-3]), METHOD_CODES[method], dt, 1e-10)
-    status, mode = advance(L.FREE, f2, 0.0, t, consts, PlantCarry(y, np.zeros(1), ev, evn, np.zeros(1)))
-    assert status == L.OK and mode == L.FREE and evn[0] == 0
+    status, mode = advance(FREE, f2, 0.0, t, consts, PlantCarry(y, np.zeros(1), ev, evn, np.zeros(1)))
+    assert status == OK and mode == FREE and evn[0] == 0
     a2 = -f2 / 1.0
     exact = np.array([-0.5 + 0.1 * t + 0.5 * G * t * t, 0.1 + G * t, 0.5 * a2 * t * t, a2 * t,
                       -f2 * 0.5 * a2 * t * t, 0.0])
@@ -239,9 +250,9 @@ def test_three_bounces_match_solve_ivp(three_bounce_refs, method, knob):
         err = np.abs(y[:4] - ref.y_end[:4]) / scale
         assert np.all(err <= tol), (e, err, tol)
         assert np.abs(tr.events[:, 0] - ref.events[:, 0]).max() < tol.max() * 0.025
-        est_w = budget.richardson(y[L.W_DISS] / e0, yf[L.W_DISS] / e0, 4 if method == "rk4" else None)
+        est_w = budget.richardson(y[STATE.w_diss] / e0, yf[STATE.w_diss] / e0, 4 if method == "rk4" else None)
         tol_w = budget.bound(est_w, ref, t_end / (knob if method == "rk4" else 1e-7))
-        assert abs(y[L.W_DISS] - ref.y_end[L.W_DISS]) / e0 <= max(tol_w, tol.max())
+        assert abs(y[STATE.w_diss] - ref.y_end[STATE.w_diss]) / e0 <= max(tol_w, tol.max())
 
 
 # --------------------------------------------------------------------------------------------
@@ -397,14 +408,14 @@ def test_simulate_refuses_a_scene_with_effects_naming_what_runs_them():
 
 def test_kernel_reports_nan_state_as_divergence():
     """A NaN in the state handed to the kernel is reported, not propagated silently."""
-    p = np.zeros(L.N_PARAM)
-    p[[L.M1, L.M2, L.C, L.G]] = [0.1, 1.0, 2e6, G]
+    p = np.zeros(N_PARAM)
+    p[[PARAM.m1, PARAM.m2, PARAM.c, PARAM.g]] = [0.1, 1.0, 2e6, G]
     for method in ("euler", "rk4", "dopri5"):
         y = np.array([-1e-3, float("nan"), 0.0, 0.0, 0.0, 0.0])
         consts = PlantConsts(p, np.ones(6), METHOD_CODES[method], 1e-6, 1e-9)
-        status, _ = advance(L.FREE, 0.0, 0.0, 1e-4, consts,
+        status, _ = advance(FREE, 0.0, 0.0, 1e-4, consts,
                             PlantCarry(y, np.zeros(1), np.zeros((4, 6)), np.zeros(1, dtype=np.int64),
                                        np.zeros(1)))
         # fixed-step: DIVERGED; dopri5 rejects the NaN error estimate until its step
         # underflows and reports STEP_UNDERFLOW (simulate raises SimulationDiverged for both)
-        assert status in ((L.DIVERGED, L.STEP_UNDERFLOW) if method == "dopri5" else (L.DIVERGED,))
+        assert status in ((DIVERGED, STEP_UNDERFLOW) if method == "dopri5" else (DIVERGED,))

@@ -13,29 +13,29 @@ import pytest
 from rig_drivers import BlindRig
 
 from impact_env.config import ConfigError
-from impact_env.control import plausibility as PL
-from impact_env.deploy import parity as PA
+from impact_env.control import plausibility
+from impact_env.deploy import parity
 from impact_env.deploy.c_export import write_c
 from impact_env.policy.export import export_policy
-from impact_env.rig import safety as SF
+from impact_env.rig import safety
 from impact_env.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 AGENT = f"compiled:{ROOT / 'agents/models/best/best.policy.json'}"
-CHANNEL_BITS = dict(enumerate(PL.CHANNEL_BITS))
+CHANNEL_BITS = dict(enumerate(plausibility.CHANNEL_BITS))
 
 
 # -- the check alone --------------------------------------------------------------------------------------
 def _check(p, s, m, raw):
     out = np.zeros(4)
-    bits = PL.check_readings(m, np.asarray(raw, dtype=np.float64), p, s, out)
+    bits = plausibility.check_readings(m, np.asarray(raw, dtype=np.float64), p, s, out)
     return int(bits), out
 
 
 def test_range_jump_hold_and_the_limit():
     scene = load_scene("rig")
-    p = PL.plausibility_params(scene)
-    s = PL.reset_state(PL.make_state())
+    p = plausibility.plausibility_params(scene)
+    s = plausibility.reset_state(plausibility.make_state())
     limit = int(p.limit_ticks)
     assert limit == 10  # 1 ms at 10 kHz (effects.sensors.fault_limit_s)
     good = [1.0, 2.0, 1e-4, np.nan]  # the body-1 channel is disabled on the rig: NaN is its reading
@@ -44,31 +44,33 @@ def test_range_jump_hold_and_the_limit():
         raw = list(good)
         raw[ch] = bad
         bits, out = _check(p, s, m, raw)
-        assert bits == PL.SENSOR_FAULT | CHANNEL_BITS[ch], (m, hex(bits))
+        assert bits == plausibility.SENSOR_FAULT | CHANNEL_BITS[ch], (m, hex(bits))
         assert out[ch] == good[ch]  # the last plausible reading, held
     # a jump inside the converter's range, beyond what the physics allows in the ticks since the
     # last good reading (0.35 mm a tick, plus 0.11 mm for the noise): the potentiometer's was
     # tick 4's, so tick 6 may be 0.81 mm away, tick 7 0.46 mm from tick 6's
     x = 1e-4 + 0.75e-3
     assert _check(p, s, 6, [1.0, 2.0, x, 0.0])[0] == 0
-    assert _check(p, s, 7, [1.0, 2.0, x + 0.6e-3, 0.0])[0] == PL.SENSOR_FAULT | PL.SENSOR_POTENTIOMETER
+    assert _check(p, s, 7, [1.0, 2.0, x + 0.6e-3,
+                            0.0])[0] == plausibility.SENSOR_FAULT | plausibility.SENSOR_POTENTIOMETER
     assert _check(p, s, 8, [1.0, 2.0, x, 0.0])[0] == 0  # a good tick ends the run of faults
     # limit faulty ticks in a row are allowed; the next one latches SENSOR_TIMEOUT, for good
     for k in range(limit + 1):
         bits, _ = _check(p, s, 10 + k, [np.nan, 2.0, x, 0.0])
-        assert bool(bits & PL.SENSOR_TIMEOUT) == (k == limit), k
+        assert bool(bits & plausibility.SENSOR_TIMEOUT) == (k == limit), k
     bits, _ = _check(p, s, 30, [1.0, 2.0, x, 0.0])
-    assert bits == PL.SENSOR_TIMEOUT
-    PL.reset_state(s)  # the next episode
+    assert bits == plausibility.SENSOR_TIMEOUT
+    plausibility.reset_state(s)  # the next episode
     assert _check(p, s, 0, good)[0] == 0
 
 
 def test_an_enabled_body1_channel_is_checked():
     scene = load_scene("rig", {"effects.sensors.body1_displacement.enabled": True})
-    p = PL.plausibility_params(scene)
-    s = PL.make_state()
+    p = plausibility.plausibility_params(scene)
+    s = plausibility.make_state()
     assert _check(p, s, 0, [0.0, 0.0, 0.0, 0.05])[0] == 0
-    assert _check(p, s, 1, [0.0, 0.0, 0.0, np.nan])[0] == PL.SENSOR_FAULT | PL.SENSOR_BODY1
+    assert _check(p, s, 1, [0.0, 0.0, 0.0,
+                            np.nan])[0] == plausibility.SENSOR_FAULT | plausibility.SENSOR_BODY1
 
 
 @pytest.mark.parametrize("key,value,match", [
@@ -90,10 +92,10 @@ def clean(tmp_path_factory):
     the C double build."""
     scene = load_scene("rig")
     pol = export_policy("pd-penetration", scene)
-    rec = PA.record(pol, scene, 0, 2500)
+    rec = parity.record(pol, scene, 0, 2500)
     d = tmp_path_factory.mktemp("plaus") / "c"
     write_c(pol, scene, d)
-    cp = PA.CPolicy(PA.build_shared(d, d / "lib.so"))
+    cp = parity.CPolicy(parity.build_shared(d, d / "lib.so"))
     return scene, pol, rec, cp
 
 
@@ -130,19 +132,20 @@ def test_one_bad_sample_never_becomes_a_force(ch, kind, clean):
     scene, pol, rec, cp = clean
     k = _fault_tick(rec)
     bad = _inject(rec.readings, k, ch, kind)
-    want = PA.numba_sequence(pol, scene, [bad], [])[0]
-    got = PA.c_sequence(cp, [bad], [])[0]
+    want = parity.numba_sequence(pol, scene, [bad], [])[0]
+    got = parity.c_sequence(cp, [bad], [])[0]
     assert _bits_equal(got.command, want.command) and _bits_equal(got.force, want.force)
     assert np.array_equal(got.status, want.status)
     # the fault happened, on this tick and this channel only, and drove 0 N
-    assert want.status[k] & PL.SENSOR_FAULT and want.status[k] & CHANNEL_BITS[ch], hex(want.status[k])
+    assert want.status[k] & plausibility.SENSOR_FAULT and want.status[k] & CHANNEL_BITS[ch], \
+        hex(want.status[k])
     assert not any(want.status[k] & b for c, b in CHANNEL_BITS.items() if c != ch)
-    assert np.flatnonzero(want.status & PL.SENSOR_FAULT).tolist() == [k]
+    assert np.flatnonzero(want.status & plausibility.SENSOR_FAULT).tolist() == [k]
     assert want.force[k] == 0.0 and rec.force[k] != 0.0
     held = rec.readings.copy()
     held[k, ch] = rec.readings[k - 1, ch]
-    ref = PA.numba_sequence(pol, scene, [held], [])[0]
-    assert not np.any(ref.status & SF.CLAMP_RMS)  # (so tick k's 0 N cannot change a later clamp)
+    ref = parity.numba_sequence(pol, scene, [held], [])[0]
+    assert not np.any(ref.status & safety.CLAMP_RMS)  # (so tick k's 0 N cannot change a later clamp)
     others = np.arange(len(bad)) != k
     assert _bits_equal(want.command[others], ref.command[others])
     assert np.abs(want.force).max() <= np.abs(rec.force).max()
@@ -156,15 +159,16 @@ def test_a_fault_beyond_the_limit_latches_zero_force(ch, clean):
     force stays 0 after the readings are good again; C bit for bit."""
     scene, pol, rec, cp = clean
     k = _fault_tick(rec)
-    n = int(PL.plausibility_params(scene).limit_ticks)
+    n = int(plausibility.plausibility_params(scene).limit_ticks)
     bad = rec.readings.copy()
     bad[k:k + n + 5, ch] = np.nan
-    want = PA.numba_sequence(pol, scene, [bad], [])[0]
-    got = PA.c_sequence(cp, [bad], [])[0]
+    want = parity.numba_sequence(pol, scene, [bad], [])[0]
+    got = parity.c_sequence(cp, [bad], [])[0]
     assert _bits_equal(got.command, want.command) and np.array_equal(got.status, want.status)
     st = want.status
     assert np.all(st[k:k + n + 5] & CHANNEL_BITS[ch])
-    assert not np.any(st[:k + n] & PL.SENSOR_TIMEOUT) and np.all(st[k + n:] & PL.SENSOR_TIMEOUT)
+    timeout = plausibility.SENSOR_TIMEOUT
+    assert not np.any(st[:k + n] & timeout) and np.all(st[k + n:] & timeout)
     assert np.all(want.force[k:] == 0.0) and np.any(rec.force[k + n + 5:] != 0.0)
 
 
@@ -175,8 +179,8 @@ def test_a_nan_body1_reading_changes_nothing_when_the_channel_is_off(clean):
     scene, pol, rec, cp = clean
     r = rec.readings.copy()
     r[:, 3] = np.nan
-    want = PA.numba_sequence(pol, scene, [r], [])[0]
-    got = PA.c_sequence(cp, [r], [])[0]
+    want = parity.numba_sequence(pol, scene, [r], [])[0]
+    got = parity.c_sequence(cp, [r], [])[0]
     assert _bits_equal(want.command, rec.command) and np.array_equal(want.status, rec.status)
     assert _bits_equal(got.command, rec.command)
 
@@ -188,14 +192,14 @@ def test_defaults_never_flag_a_real_episode():
     change between two ticks well inside the allowance (pytest -s prints the figures)."""
     for name in ("rig", "rig-randomized"):
         scene = load_scene(name)
-        p = PL.plausibility_params(scene)
-        allowed = p.ch[:, PL.CC.max_jump] + p.ch[:, PL.CC.tol]
+        p = plausibility.plausibility_params(scene)
+        allowed = p.ch[:, plausibility.CC.max_jump] + p.ch[:, plausibility.CC.tol]
         worst = np.zeros(3)
         for spec in ("passive", "pd-penetration", "thesis-rig", AGENT):
             pol = export_policy(spec, scene)
             for seed in (0, 1):
-                rec = PA.record(pol, scene, seed, 4000)
-                assert not np.any(rec.status & PL.SENSOR_BITS), (name, spec, seed)
+                rec = parity.record(pol, scene, seed, 4000)
+                assert not np.any(rec.status & plausibility.SENSOR_BITS), (name, spec, seed)
                 worst = np.maximum(worst, np.abs(np.diff(rec.readings[:, :3], axis=0)).max(axis=0))
         print(f"{name}: largest change per tick {worst.tolist()}, allowed {allowed[:3].tolist()}")
         assert np.all(worst <= 0.5 * allowed[:3]), (name, worst, allowed)
@@ -253,12 +257,13 @@ def test_target_episode_with_a_faulty_force_transducer(length, end):
     assert log.meta.end_reason == end
     tick, st, f = log["tick"], log["status"].astype(np.int64), log["force_demand_N"]
     i0 = int(np.flatnonzero(tick == 1500)[0])
-    assert np.isnan(log["force_N"][i0]) and st[i0] & PL.SENSOR_FAULT and st[i0] & PL.SENSOR_FORCE
+    assert np.isnan(log["force_N"][i0])
+    assert st[i0] & plausibility.SENSOR_FAULT and st[i0] & plausibility.SENSOR_FORCE
     assert f[i0] == 0.0 and np.any(f[:i0] != 0.0)
     assert log.meta.counters["sensor_fault_ticks"] == min(length, 11)
     if end == "SENSOR_FAULT":
-        limit = int(PL.plausibility_params(scene).limit_ticks)
-        assert tick[-1] == 1500 + limit and st[-1] & PL.SENSOR_TIMEOUT
+        limit = int(plausibility.plausibility_params(scene).limit_ticks)
+        assert tick[-1] == 1500 + limit and st[-1] & plausibility.SENSOR_TIMEOUT
         assert np.all(f[i0:] == 0.0) and ep_end.reason == 8
     else:
-        assert np.flatnonzero(st & PL.SENSOR_FAULT).tolist() == [i0] and tick[-1] == 2500
+        assert np.flatnonzero(st & plausibility.SENSOR_FAULT).tolist() == [i0] and tick[-1] == 2500

@@ -9,16 +9,16 @@ import pytest
 from scipy import signal
 
 from impact_env.config import ConfigError
-from impact_env.effects import shaker as SH
+from impact_env.effects import shaker
 from impact_env.effects.detector import score_detection
 from impact_env.effects.sensors import N_CHANNELS, N_PARAM
-from impact_env.hardware import stage as HS
+from impact_env.hardware import stage
 from impact_env.hardware.arrays import plant_params
-from impact_env.plant import layout as L
+from impact_env.plant.layout import PARAM, STATE
 from impact_env.plant.restitution import zeta_for_restitution, zeta_table
 from impact_env.scene import load_scene
 from impact_env.scene.randomize import RandomizeConfig, overrides_for
-from impact_env.sim import step as SS
+from impact_env.sim import step as sim_step_module
 from impact_env.sim.drop import simulate
 from impact_env.sim.simulator import Simulator
 
@@ -30,7 +30,7 @@ def _run(sim, actions, n):
     ys, rd, info = [], [], []
     for _ in range(n):
         sim.step(actions if np.ndim(actions) else np.full(sim.n, float(actions)))
-        ys.append(sim.Y.copy())
+        ys.append(sim.plant_state.copy())
         rd.append(sim.readings.copy())
         info.append(np.column_stack([sim.info, sim.detected]))  # the detector's bit last
     return np.array(ys), np.array(rd), np.array(info)
@@ -69,7 +69,7 @@ def test_one_kernel_specialisation_for_every_scene():
         sim = Simulator(sc, 2)
         sim.reset([np.random.default_rng(1), np.random.default_rng(2)])
         sim.step(np.array([0.1, -0.1]))
-    assert len(SS.sim_step.signatures) == 1
+    assert len(sim_step_module.sim_step.signatures) == 1
     # and the headless path: one recording-loop specialisation for every scene and method
     from impact_env.plant.run import run_periods
 
@@ -184,13 +184,14 @@ def test_simulator_env_equals_the_drawn_fixed_scene():
         for name in sim.hw.param_blocks.names:  # every effect's parameters
             assert np.array_equal(sim.hw.param_block(name)[i], ref.hw.param_block(name)[0]), name
         assert np.array_equal(sim.fe.det_params, ref.fe.det_params)
-        assert np.array_equal(np.delete(sim.P[i], L.B), np.delete(ref.P[0], L.B))
-        assert sim.P[i, L.B] == pytest.approx(ref.P[0, L.B], rel=1e-9)
-        assert np.array_equal(sim.Y[i], ref.Y[0])
+        assert np.array_equal(np.delete(sim.plant_parameters[i], PARAM.b), np.delete(ref.plant_parameters[0],
+                                                                                     PARAM.b))
+        assert sim.plant_parameters[i, PARAM.b] == pytest.approx(ref.plant_parameters[0, PARAM.b], rel=1e-9)
+        assert np.array_equal(sim.plant_state[i], ref.plant_state[0])
     # the drawn values reach the plant, the noise and the delays
     d = sim.drawn[1]
-    assert sim.P[1, L.M1] == d["m1"] and sim.P[1, L.C] == d["c"]
-    assert sim.P[1, L.K2] == d["suspension_stiffness"]
+    assert sim.plant_parameters[1, PARAM.m1] == d["m1"] and sim.plant_parameters[1, PARAM.c] == d["c"]
+    assert sim.plant_parameters[1, PARAM.k2] == d["suspension_stiffness"]
     base = load_scene("rig").effects.sensors.force.noise_std
     sens = sim.hw.param_block("sensors")[:, 1:].reshape(sim.n, N_CHANNELS, N_PARAM)
     assert sens[1, 1, 3] == base * d["noise_scale"]
@@ -228,7 +229,7 @@ def test_simulate_draws_with_rng_like_the_simulator():
     sim = Simulator(sc, 1)
     sim.reset([np.random.default_rng(4)])
     assert tr.scene == sc.with_draws(sim.drawn[0])
-    assert np.array_equal(tr.params, sim.P[0])
+    assert np.array_equal(tr.params, sim.plant_parameters[0])
     assert simulate(sc, t_end=1e-3, plant_only=True).scene == sc  # no rng: the nominal values
 
 
@@ -260,8 +261,8 @@ def test_zeta_table_matches_the_exact_solve():
     with pytest.raises(ValueError):
         table(0.95)
     fixed = load_scene("rig", {"plant.restitution": 0.7512345})
-    b_exact = plant_params(fixed)[L.B]
-    assert plant_params(fixed, table)[L.B] == pytest.approx(b_exact, rel=1e-9)
+    b_exact = plant_params(fixed)[PARAM.b]
+    assert plant_params(fixed, table)[PARAM.b] == pytest.approx(b_exact, rel=1e-9)
 
 
 # -- the shaker model against scipy, back-EMF -----------------------------------------------------
@@ -270,7 +271,7 @@ def _step_model(A, B, C, D, u, E=None, w=None):
     x = np.zeros(A.shape[0])
     y = np.empty(u.size)
     for k in range(u.size):
-        y[k] = SH.shaker_step(A, B, C, D, x, u[k])
+        y[k] = shaker.shaker_step(A, B, C, D, x, u[k])
         if E is not None:
             x += E * w[k]
     return y
@@ -282,13 +283,13 @@ def test_shaker_response_equals_scipy_lsim(ov):
     """The discretised model's output at the samples equals scipy's exact simulation of the
     continuous transfer function under the same zero-order-held command (and its frequency
     response equals the ZOH transfer function's)."""
-    cfg = SH.ShakerConfig(**ov)
-    A, B, C, D = SH.discrete_model(cfg, RATE)
+    cfg = shaker.ShakerConfig(**ov)
+    A, B, C, D = shaker.discrete_model(cfg, RATE)
     u = np.random.default_rng(1).standard_normal(2000) * 50.0
     y = _step_model(A, B, C, D, u)
-    num, den = SH.continuous_tf(cfg)
+    num, den = shaker.continuous_tf(cfg)
     if cfg.inverse_filter:
-        ni, di = SH.inverse_tf(cfg)
+        ni, di = shaker.inverse_tf(cfg)
         bi, ai = signal.bilinear(ni, di, fs=RATE)
         u = signal.lfilter(bi, ai, u)
     t = np.arange(u.size) / RATE
@@ -304,26 +305,26 @@ def test_shaker_response_equals_scipy_lsim(ov):
 
 
 def test_back_emf_model_equals_scipy_lsim_and_damps_body_2():
-    cfg = SH.ShakerConfig(back_emf=True)
-    A, B, C, D, E = SH.discrete_emf_model(cfg, RATE)
+    cfg = shaker.ShakerConfig(back_emf=True)
+    A, B, C, D, E = shaker.discrete_emf_model(cfg, RATE)
     rng = np.random.default_rng(2)
     u, v2 = rng.standard_normal(1500) * 50.0, rng.standard_normal(1500) * 0.1
     y = _step_model(A, B, C, D, u, E, v2)
     t = np.arange(u.size) / RATE
-    _, ref, _ = signal.lsim(SH.continuous_emf_model(cfg), np.column_stack([u, v2]), t, interp=False)
+    _, ref, _ = signal.lsim(shaker.continuous_emf_model(cfg), np.column_stack([u, v2]), t, interp=False)
     assert np.max(np.abs(y - ref)) <= 1e-6 * np.max(np.abs(ref))
     # in mid band the coupling is the damper Bl^2/R on body 2's velocity
     assert cfg.emf_damping == pytest.approx(196.0)
     # without back_emf the model is the plain one, E = 0
-    A0, B0, C0, D0, E0 = SH.discrete_emf_model(SH.ShakerConfig(), RATE)
-    assert np.array_equal(A0, SH.discrete_model(SH.ShakerConfig(), RATE)[0]) and not E0.any()
+    A0, B0, C0, D0, E0 = shaker.discrete_emf_model(shaker.ShakerConfig(), RATE)
+    assert np.array_equal(A0, shaker.discrete_model(shaker.ShakerConfig(), RATE)[0]) and not E0.any()
     # in the pipeline, uncontrolled: the shaker only takes energy out (its work is negative)
     sc = load_scene("rig", {"effects.active": ["shaker"], "effects.shaker.back_emf": True})
     sim = Simulator(sc, 1)
     sim.reset([np.random.default_rng(0)])
     ys, _rd, info = _run(sim, 0.0, 400)
-    assert np.abs(info[:, 0, HS.INFO_F_APPLIED]).max() > 5.0
-    assert ys[-1, 0, L.W_EXT] < 0.0 and np.all(ys[:, 0, L.W_EXT] <= 1e-12)
+    assert np.abs(info[:, 0, stage.HW_INFO.f_applied]).max() > 5.0
+    assert ys[-1, 0, STATE.w_ext] < 0.0 and np.all(ys[:, 0, STATE.w_ext] <= 1e-12)
 
 
 @pytest.mark.parametrize("ov, match", [
@@ -344,7 +345,7 @@ def detector_run(scene, seed: int, n_steps: int, action: float = 0.0):
     sim = Simulator(scene, 1)
     sim.reset([np.random.default_rng(seed)])
     _ys, _rd, info = _run(sim, action, n_steps)
-    phi = info[:, 0, HS.INFO_CONTACT_FORCE]
+    phi = info[:, 0, stage.HW_INFO.contact_force]
     return phi > 0.0, info[:, 0, -1] > 0.5, phi
 
 

@@ -18,6 +18,7 @@ from impact_env.control.laws.law import Law
 from impact_env.effects import registry
 from impact_env.effects.effect import Effect
 from impact_env.env import task, task_kernel
+from impact_env.hardware import stage
 
 
 def _recipes(root) -> dict[str, list[str]]:
@@ -46,8 +47,9 @@ def _declared(package, cls) -> list:
 def test_the_recipes_name_the_files_that_hold_each_thing(root):
     r = _recipes(root)
     assert set(r) == {"An effect", "A classic law", "A task option"}, r
-    assert all(len(v) == 3 for v in r.values()), r
-    new_effect, effect_registry, effect_test = r["An effect"]
+    assert [len(r[k]) for k in ("An effect", "A classic law", "A task option")] == [4, 3, 3], r
+    new_effect, effect_registry, effect_stage, effect_test = r["An effect"]
+    assert effect_stage == _path(root, stage)
     assert (root / new_effect).parent == root / _path(root, effects_pkg).rsplit("/", 1)[0]
     assert effect_registry == _path(root, registry) and (root / effect_test).exists()
     new_law, law_registry, law_test = r["A classic law"]

@@ -29,10 +29,10 @@ from scipy.optimize import brentq
 import impact_env
 from impact_env.config import ConfigError
 from impact_env.hardware.arrays import initial_state, plant_params
-from impact_env.plant import layout as L
 from impact_env.plant.dynamics import Coefs
 from impact_env.plant.free_flight import MAX_TERMS, ROOT_TOL, body2_after, free_cap, touch_time
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
+from impact_env.plant.layout import FREE, N_EVENT_COLS, N_PARAM, OK, PARAM, SPLIT
 
 EPS = float(np.finfo(float).eps)
 G_ACC = 9.81
@@ -278,7 +278,7 @@ def test_graze_and_closest_approach_are_exact(target):
     sc = impact_env.load_scene("ideal", GRAZE)
     p = plant_params(sc)
     y0, _ = initial_state(sc)
-    g, m2, k2, c2 = p[L.G], p[L.M2], p[L.K2], p[L.C2]
+    g, m2, k2, c2 = p[PARAM.g], p[PARAM.m2], p[PARAM.k2], p[PARAM.c2]
 
     def top_of(f2):
         def rate(t):
@@ -297,9 +297,9 @@ def test_graze_and_closest_approach_are_exact(target):
     x_at = abs(y0[0]) + abs(_body2_exact(ts, f2, m2, k2, c2)[0])
     tol = 64 * EPS * x_at
     if target > 0:
-        meff = p[L.M1] * m2 / (p[L.M1] + m2)
+        meff = p[PARAM.m1] * m2 / (p[PARAM.m1] + m2)
         t_c = 2 * math.sqrt(2 * top / acc)
-        tol += p[L.C] * top**1.5 * t_c**2 / meff
+        tol += p[PARAM.c] * top**1.5 * t_c**2 / meff
     assert abs(mt["max_penetration_m"] - top) <= tol, (mt["max_penetration_m"], top, tol)
 
 
@@ -326,17 +326,17 @@ def test_split_contact_scale_is_the_contacts_own():
     """The contact's error scale comes from the contact (its energy of relative motion), not
     from the scene's first impact: the kernel given the scale array of a 1 m/s impact and of a
     0.01 m/s one returns the same state, bitwise, for an impact at 0.01 m/s."""
-    p = np.zeros(L.N_PARAM)
-    p[[L.M1, L.M2, L.C, L.G, L.K2, L.C2]] = [0.1, 1.0, 2e6, G_ACC, 1e4, 10.0]
+    p = np.zeros(N_PARAM)
+    p[[PARAM.m1, PARAM.m2, PARAM.c, PARAM.g, PARAM.k2, PARAM.c2]] = [0.1, 1.0, 2e6, G_ACC, 1e4, 10.0]
     outs = []
     for v in (1.0, 0.01):
         d = (5 * (0.1 / 1.1) * v * v / (4 * 2e6)) ** 0.4
         y = np.array([-1e-6, 0.01, 0.0, 0.0, 0.0, 0.0])
-        consts = PlantConsts(p, np.array([d, v, d, v, 0.05 * v * v, 0.05 * v * v]), L.SPLIT, 1e-6, 1e-12)
-        ev = np.zeros((8, L.N_EVENT_COLS))
+        consts = PlantConsts(p, np.array([d, v, d, v, 0.05 * v * v, 0.05 * v * v]), SPLIT, 1e-6, 1e-12)
+        ev = np.zeros((8, N_EVENT_COLS))
         evn = np.zeros(1, dtype=np.int64)
         carry = PlantCarry(y, np.zeros(1), ev, evn, np.zeros(2))
-        status, _mode = advance(L.FREE, 0.0, 0.0, 2e-3, consts, carry)
-        assert status == L.OK and evn[0] >= 1
+        status, _mode = advance(FREE, 0.0, 0.0, 2e-3, consts, carry)
+        assert status == OK and evn[0] >= 1
         outs.append(y.copy())
     assert np.array_equal(outs[0], outs[1])

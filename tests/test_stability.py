@@ -1,5 +1,6 @@
 """The up-front checks of a fixed step (impact_env/hardware/stability.py) and the graded zone after
-a touch on a damped pad (impact_env/plant/integrators.py).
+a touch on a damped pad (impact_env/plant/integrators.py), with the restitution error that
+scripts/steps_per_contact.py measures.
 
 Oracles: the stability polynomial's real-axis limit (a root found by numpy), the closed-form
 undamped limits, and simulations just inside and outside the limits the checks report.
@@ -15,7 +16,7 @@ from steps_per_contact import restitution_error
 
 import impact_env
 from impact_env.config import ConfigError
-from impact_env.hardware import stability as S
+from impact_env.hardware import stability
 from impact_env.scene import load_scene
 from impact_env.sim.simulator import Simulator
 
@@ -34,15 +35,16 @@ def test_rk4_limits_match_the_stability_polynomial():
     undamped oscillation up to omega h = 2 sqrt 2: the one-step matrices reproduce both."""
     x = rk4_real_limit()
     assert x == pytest.approx(-2.785293563405282, rel=1e-12)
-    A = S.linear_matrix(1.0, 1.0, 0.0, 0.0, 0.0, 1.0)  # v2' = -v2: lambda = -1
-    assert S.stable("rk4", -0.999 * x * A) and not S.stable("rk4", -1.001 * x * A)
+    A = stability.linear_matrix(1.0, 1.0, 0.0, 0.0, 0.0, 1.0)  # v2' = -v2: lambda = -1
+    assert stability.stable("rk4", -0.999 * x * A) and not stability.stable("rk4", -1.001 * x * A)
     w = 2.0
-    A = S.linear_matrix(1.0, 1.0, 0.0, 0.0, w * w, 0.0)  # body 2 on a spring: omega = 2
-    lim = S.STABILITY_LIMIT["rk4"] / w
-    assert S.stable("rk4", 0.999 * lim * A) and not S.stable("rk4", 1.001 * lim * A)
+    A = stability.linear_matrix(1.0, 1.0, 0.0, 0.0, w * w, 0.0)  # body 2 on a spring: omega = 2
+    lim = stability.STABILITY_LIMIT["rk4"] / w
+    assert stability.stable("rk4", 0.999 * lim * A) and not stability.stable("rk4", 1.001 * lim * A)
     for method in ("symplectic-euler", "euler"):
-        lim = S.STABILITY_LIMIT[method] / w
-        assert S.stable(method, 0.999 * lim * A) and not S.stable(method, 1.001 * lim * A), method
+        lim = stability.STABILITY_LIMIT[method] / w
+        assert stability.stable(method, 0.999 * lim * A) and not stability.stable(method,
+                                                                                  1.001 * lim * A), method
 
 
 def test_the_issue_case_is_refused_naming_dt():

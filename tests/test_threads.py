@@ -1,7 +1,8 @@
 """Threads over blocks of envs (impact_env._threads): the vector env, rollouts and compare give
-bitwise the same results with any thread count as with the serial call, the blocks run in one
-compiled parallel region (numba's threads, the named tuples flattened through a shim), and a
-bad thread count is refused by name.
+bitwise the same results with any thread count as with the serial call (the env's blocks in
+Python threads; compare's compiled loop in one compiled parallel region, its named tuples
+flattened through its shim), a block that raises is reported, and a bad thread count is refused
+by name.
 
 The blocks' minimum size (the measured threshold below which a batch runs serially) is set to
 1 here, so that a handful of envs really runs in 2 and 3 threads."""
@@ -13,10 +14,12 @@ import threading
 
 import numpy as np
 import pytest
+from numba import prange
 
-import impact_env._threads as TH
-import impact_env.eval.rollout as RO
+import impact_env._threads as threads_module
+import impact_env.eval.rollout as rollout_module
 import impact_env.sim.simulator as SIM
+from impact_env._jit import jit
 from impact_env._threads import (
     check_threads,
     env_blocks,
@@ -42,16 +45,15 @@ THREADS = (1, 2, 3)  # 3: more threads than the test machine's cores is fine
 @pytest.fixture
 def small_blocks(monkeypatch):
     monkeypatch.setattr(SIM, "MIN_BLOCK_ENVS", 1)
-    monkeypatch.setattr(RO, "MIN_BLOCK_EPISODES", 1)
+    monkeypatch.setattr(rollout_module, "MIN_BLOCK_EPISODES", 1)
 
 
-@pytest.fixture
 def compiled_region_only(monkeypatch):
     """Blocks must run in the compiled parallel region: the Python-thread fallback fails."""
     def refuse(*args, **kwargs):
         raise AssertionError("the blocks ran in Python threads, not in the compiled parallel region")
 
-    monkeypatch.setattr(TH, "python_threads", refuse)
+    monkeypatch.setattr(threads_module, "python_threads", refuse)
 
 
 # -- the thread count -------------------------------------------------------------------------------
@@ -119,18 +121,50 @@ def test_flatten_and_unflatten_walk_the_named_tuples_in_field_order():
 
 
 def test_a_block_that_raises_is_reported(small_blocks):
-    """numba loses an exception raised inside a parallel loop: the shim's guard reports it."""
+    """A block's kernel that raises: in threads and serially, its own message."""
     sim = Simulator(RIG, 4, threads=2)
     sim.reset([np.random.default_rng(i) for i in range(4)])
-    sim.step(np.zeros(4))  # (binds the kernels)
     sim.step(np.zeros(4))
-    sim.hw.cursor[2] = sim.hw.noise.shape[1]  # env 2's noise used up, the refill skipped
-    with pytest.raises(RuntimeError, match="envs 2 .. 3: the compiled kernel sim_step raised"):
-        sim._run(sim._blocks, (np.zeros(4), sim._all, sim.params, sim.state))
-    sim.threads = 1
-    sim.hw.cursor[2] = sim.hw.noise.shape[1]
-    with pytest.raises(IndexError, match="noise block used up"):  # the serial call: the kernel's own message
-        sim._run(sim._blocks, (np.zeros(4), sim._all, sim.params, sim.state))
+    for threads in (2, 1):
+        sim.threads = threads
+        sim.hw.cursor[2] = sim.hw.noise.shape[1]  # env 2's noise used up, the refill skipped
+        with pytest.raises(IndexError, match="noise block used up"):
+            sim._run(sim._blocks, (np.zeros(4), sim._all, sim.params, sim.state))
+
+
+@jit(nogil=True)
+def _negative_raises(i0, i1, arr):
+    for i in range(i0, i1):
+        if arr[i] < 0.0:
+            raise ValueError("negative")
+        arr[i] += 1.0
+
+
+@jit(nogil=True)
+def _guarded(i0, i1, arr):
+    try:
+        _negative_raises(i0, i1, arr)
+    except Exception:  # noqa: BLE001 - reported by BlockRunner
+        return False
+    return True
+
+
+@jit(nogil=True, parallel=True)
+def _negative_blocks(bounds, ok, arr):
+    for b in prange(bounds.shape[0] - 1):
+        ok[b] = _guarded(bounds[b], bounds[b + 1], arr)
+
+
+def test_a_shim_block_that_raises_is_reported():
+    """numba loses an exception raised inside a parallel loop: the shim's guard reports it."""
+    run = threads_module.BlockRunner(_negative_raises, _negative_blocks)
+    arr = np.zeros(6)
+    run(env_blocks(6, 2, 1), (arr,))
+    assert (arr == 1.0).all()
+    arr[4] = -1.0
+    if threads_module.parallel_available():
+        with pytest.raises(RuntimeError, match="envs 3 .. 5: the compiled kernel _negative_raises raised"):
+            run(env_blocks(6, 2, 1), (arr,))
 
 
 def _sim_run(threads, n=6, steps=40):
@@ -139,10 +173,11 @@ def _sim_run(threads, n=6, steps=40):
     rng = np.random.default_rng(5)
     for _ in range(steps):
         sim.step(rng.uniform(-1.0, 1.0, n))
-    return [sim.Y.copy(), sim.records.copy(), sim.obs.copy(), sim.readings.copy(), sim.hw.ST.copy()]
+    return [sim.plant_state.copy(), sim.records.copy(), sim.obs.copy(), sim.readings.copy(),
+            sim.hw.effect_state.copy()]
 
 
-def test_the_simulator_step_is_one_compiled_region_bitwise_the_serial_one(small_blocks, compiled_region_only):
+def test_the_simulator_step_in_threads_is_bitwise_the_serial_one(small_blocks):
     ref = _sim_run(1)
     for threads in (2, 3, "auto"):
         got = _sim_run(threads)
@@ -152,10 +187,10 @@ def test_the_simulator_step_is_one_compiled_region_bitwise_the_serial_one(small_
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork on this platform")
 def test_a_child_forked_after_a_threaded_step_still_steps_in_threads(small_blocks):
-    """GNU OpenMP cannot run in a child forked from a process that used it (numba terminates
-    the child): such a child runs its blocks in Python threads, with the same results."""
+    """A child forked after a threaded step (compare's process pool) runs its blocks in threads
+    of its own, with the same results."""
     ref = _sim_run(1)
-    _sim_run(2)  # this process has launched a parallel region now
+    _sim_run(2)  # this process has its pool of threads now
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:  # the child: exit 0 only if its threaded run equals the serial one
@@ -232,7 +267,7 @@ def _vector_run(threads, scene, mode, task):
             else:
                 out.append(v)
     sim = env.task.sim
-    out += [sim.Y, sim.records, sim.readings, sim.hw.ST, sim.fe.state.filt]
+    out += [sim.plant_state, sim.records, sim.readings, sim.hw.effect_state, sim.fe.state.filt]
     return out
 
 
@@ -240,8 +275,7 @@ def _vector_run(threads, scene, mode, task):
     ("rig", "NextStep", {}),
     ("rig-randomized", "SameStep", {"hold_ticks": 2, "residual": "pd-penetration", "history": 2}),
 ])
-def test_vector_env_steps_do_not_depend_on_the_thread_count(small_blocks, compiled_region_only, scene, mode,
-                                                            task):
+def test_vector_env_steps_do_not_depend_on_the_thread_count(small_blocks, scene, mode, task):
     ref = _vector_run(1, scene, mode, task)
     for threads in THREADS[1:]:
         got = _vector_run(threads, scene, mode, task)
@@ -262,9 +296,13 @@ def _same_rollouts(a, b):
 
 
 @pytest.mark.parametrize("spec", ["passive", "pd-penetration", "compiled pd-penetration"])
-def test_a_rollout_does_not_depend_on_the_thread_count(small_blocks, compiled_region_only, spec):
+def test_a_rollout_does_not_depend_on_the_thread_count(small_blocks, monkeypatch, spec):
     """passive and pd-penetration: the Python loop (threads in the simulator's step); the
-    compiled policy: the compiled loop (threads over blocks of episodes, whole chunks)."""
+    compiled policy: the compiled loop (one compiled parallel region over blocks of episodes,
+    whole chunks)."""
+    if spec.startswith("compiled"):
+        compiled_region_only(monkeypatch)
+
     def run(threads):
         name = spec.split()[-1]
         policy = export_policy(name, RIG) if spec.startswith("compiled") else make_policy(name, RIG)

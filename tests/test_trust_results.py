@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from impact_env.hardware import stability as ST
+from impact_env.hardware import stability
 from impact_env.plant import hertz
 from impact_env.scene import load_scene
 from impact_env.sim.drop import simulate
@@ -49,12 +49,15 @@ def test_dopri_tolerance_warning_matches_its_measured_error():
     penetration (against rtol 1e-12): measured here at rtol 1e-7, within a factor 3 of the
     constant the warning quotes; at rtol 1e-6 the run now says so, at the default it does not."""
     scene = load_scene("rig")
-    d_max = ST.contact_scales(ST.Drop.of(scene))["d_max"]
-    ref = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-12}, plant_only=True)
-    tr = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-7}, plant_only=True)
+    d_max = stability.contact_scales(stability.Drop.of(scene))["d_max"]
+    ref = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-12},
+                   plant_only=True)
+    tr = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-7},
+                  plant_only=True)
     err = np.max(np.abs((tr.x1 - tr.x2) - (ref.x1 - ref.x2))) / d_max
-    assert ST.DOPRI_ERROR_PER_RTOL * 1e-7 / 3 <= err <= 3 * ST.DOPRI_ERROR_PER_RTOL * 1e-7, err
-    loose = simulate(scene, t_end=0.01, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-6}, plant_only=True)
+    assert stability.DOPRI_ERROR_PER_RTOL * 1e-7 / 3 <= err <= 3 * stability.DOPRI_ERROR_PER_RTOL * 1e-7, err
+    loose = simulate(scene, t_end=0.01, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-6},
+                     plant_only=True)
     assert any("integrator.rtol" in w for w in loose.warnings())
     assert not any("integrator.rtol" in w for w in ref.warnings())
 
@@ -63,8 +66,10 @@ def test_no_event_location_on_a_damped_pad_is_reported():
     """RK4 without event location at 35 steps per contact was silent: contact time 9 % off,
     restitution 5e-3 off against the located reference, energy ledger 4e-5 (under its bound)."""
     scene = load_scene("rig")
-    ref = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-12}, plant_only=True)
-    tr = simulate(scene, t_end=0.05, overrides={"integrator.method": "rk4", "integrator.event_location": False,
+    ref = simulate(scene, t_end=0.05, overrides={"integrator.method": "dopri5", "integrator.rtol": 1e-12},
+                   plant_only=True)
+    tr = simulate(scene, t_end=0.05, overrides={"integrator.method": "rk4",
+                                                "integrator.event_location": False,
                                                 "integrator.dt": 1e-4,
                                                 "integrator.min_steps_per_contact": 0}, plant_only=True)
     assert abs(tr.first_contact_duration() / ref.first_contact_duration() - 1.0) > 0.05  # the fault is real
@@ -182,7 +187,8 @@ def test_the_stability_refusal_suggests_a_step_every_check_accepts():
     with pytest.raises(ConfigError) as info:
         simulate("rig", t_end=1e-4, overrides={"plant.m2": 1e-9, "integrator.method": "rk4"}, plant_only=True)
     dt = float(str(info.value).split("every check of this scene: integrator.dt = ")[1].split()[0])
-    tr = simulate("rig", t_end=1e-4, overrides={"plant.m2": 1e-9, "integrator.dt": dt, "integrator.method": "rk4"},
+    tr = simulate("rig", t_end=1e-4, overrides={"plant.m2": 1e-9, "integrator.dt": dt,
+                                                "integrator.method": "rk4"},
                   plant_only=True)
     assert tr.t[-1] == pytest.approx(1e-4)
 

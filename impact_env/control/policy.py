@@ -35,7 +35,7 @@ import numpy as np
 from impact_env._jit import jit
 from impact_env._packed import positions
 from impact_env.config import ConfigError, check_hold_ticks
-from impact_env.control import laws as LW
+from impact_env.control import laws
 from impact_env.control import mlp as MLP
 from impact_env.control.observation import OBSERVATIONS, ObservationLayout, References, make_layout
 
@@ -73,7 +73,7 @@ class FloatsHead(NamedTuple):
 PI = positions(IntsHead)
 PF = positions(FloatsHead)
 PI_SLOTS = len(PI)  # where the law's slots start in pi
-PI_LAYERS = PI_SLOTS + LW.N_SLOTS  # ... and the layer table
+PI_LAYERS = PI_SLOTS + laws.N_SLOTS  # ... and the layer table
 PF_SCALES = len(PF)  # where the frame's scales start in pf
 
 
@@ -101,10 +101,10 @@ def act(pi, pf, obs, mem):
         layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
         out = MLP.mlp_forward(layers, pf[body:], obs, mem)
         return MLP.output_transform(pi[PI.output], out[0], pf[PF.low], pf[PF.high])
-    v = mem[LW.MEMORY:LW.MEMORY + F]
+    v = mem[laws.MEMORY:laws.MEMORY + F]
     for j in range(F):
         v[j] = float(obs[j]) * pf[PF_SCALES + j]
-    f = LW.law_force(kind, pi[PI_SLOTS:PI_LAYERS], pf[body:], v, mem[:LW.MEMORY])
+    f = laws.law_force(kind, pi[PI_SLOTS:PI_LAYERS], pf[body:], v, mem[:laws.MEMORY])
     u = f / pf[PF.command_scale]
     if u < -1.0:
         return -1.0
@@ -121,14 +121,15 @@ def act_batch(pi, pf, obs, mem, out):
     return out
 
 
-def sequence_arrays(commands: np.ndarray, obs_size: int, command_scale: float) -> tuple[np.ndarray, np.ndarray, int]:
+def sequence_arrays(commands: np.ndarray, obs_size: int, command_scale: float) -> tuple[np.ndarray,
+                                                                                        np.ndarray, int]:
     """(pi, pf, memory size) for :func:`act` of an open-loop sequence: call k returns
     ``commands[k]`` (dimensionless, 1 = ``command_scale`` N up), then 0 once they run out."""
     c = np.asarray(commands, dtype=np.float64).ravel()
     if not np.all(np.isfinite(c)) or np.any(np.abs(c) > 1.0):
         raise ConfigError("an open-loop command sequence must be finite and within [-1, 1]")
     head = IntsHead(kind=KIND_SEQUENCE, obs_size=int(obs_size), frame=0, memory=1, n_layers=0, output=0)
-    pi = np.concatenate([np.array(head, dtype=np.int64), np.full(LW.N_SLOTS, -1, dtype=np.int64)])
+    pi = np.concatenate([np.array(head, dtype=np.int64), np.full(laws.N_SLOTS, -1, dtype=np.int64)])
     return pi, np.concatenate([FloatsHead(float(command_scale), -1.0, 1.0), c]), 1
 
 
@@ -232,10 +233,10 @@ class CompiledPolicy:
         lay = self.layout
         F = lay.frame_size
         head_f = [*FloatsHead(self.command_scale, -1.0, 1.0), *(float(s) for s in lay.scales)]
-        slots = np.full(LW.N_SLOTS, -1, dtype=np.int64)
+        slots = np.full(laws.N_SLOTS, -1, dtype=np.int64)
         if self.law is not None:
-            kind, slots, consts = LW.pack_law(self.law["name"], self.law["constants"], lay.names)
-            n_layers, out, table, body, mem = 0, 0, np.zeros(0, np.int64), consts, LW.MEMORY + F
+            kind, slots, consts = laws.pack_law(self.law["name"], self.law["constants"], lay.names)
+            n_layers, out, table, body, mem = 0, 0, np.zeros(0, np.int64), consts, laws.MEMORY + F
         else:
             mlp = typing.cast(dict, self.mlp)  # exactly one of law and mlp (__post_init__)
             table2, body, widest = MLP.pack_mlp(mlp["layers"])

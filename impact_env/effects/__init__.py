@@ -1,9 +1,12 @@
 """Effects: what stands between the policy and the plant on the rig.
 
-One documented signal path, run once per control period (default rate on the rig: 10 kHz)::
+One signal path, run once per control period (default rate on the rig: 10 kHz), in the order
+of its code (the hardware stage's ``hardware_tick``, then the controller's front end's
+``condition``; ``tests/test_signal_path.py`` holds this text to it)::
 
-    action -> command scaling -> shaker -> force saturation -> plant
-           -> sensors (gain, offset, noise, ADC quantisation) -> filters -> delay -> observation
+    action -> command scaling -> actuator delay -> shaker -> saturation -> plant
+           -> sensors (gain, offset, noise, ADC quantisation) -> sensor delay   (the hardware: raw readings)
+           -> filters -> detector -> observation                              (the controller)
 
 Each effect is a small module with
 
@@ -14,7 +17,7 @@ Each effect is a small module with
 * numba kernels (``impact_env._jit.jit``, compiled lazily) that take plain arrays and floats,
   update the state in place and return the output.
 
-Modules (in signal order):
+Modules:
 
 * :mod:`impact_env.effects.shaker`: amplifier + exciter response (force demand -> force).
 * :mod:`impact_env.effects.saturation`: peak limit, RMS (thermal) budget, slew-rate limit.

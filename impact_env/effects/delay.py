@@ -2,8 +2,9 @@
 
 Two paths, each given in **seconds** (the thesis does not quantify either; both default to 0):
 
-* ``sensor_s``: from the filtered readings to the observation (converter latency, bus, ...);
-* ``actuator_s``: from the (saturated) force command to the force reaching the plant
+* ``sensor_s``: from the sensors' readings to the raw readings the controller gets (converter
+  latency, bus, ...): the controller's filters see the delayed readings;
+* ``actuator_s``: from the force demand (the command times its scale) to the shaker's input
   (computation and output latency).
 
 Rule for turning seconds into samples at the control rate ``rate`` (Hz)::
@@ -41,8 +42,8 @@ _f = doc_field
 class DelayConfig:
     """Transport delays of the sensor path and the actuator path (whole control periods)."""
 
-    sensor_s: float = _f(0.0, "s", "readings -> observation (ASSUMED 0: thesis gives no figure)")
-    actuator_s: float = _f(0.0, "s", "force command -> plant (ASSUMED 0: thesis gives no figure)")
+    sensor_s: float = _f(0.0, "s", "sensor readings -> controller (ASSUMED 0: thesis gives no figure)")
+    actuator_s: float = _f(0.0, "s", "force demand -> shaker (ASSUMED 0: thesis gives no figure)")
 
     def __post_init__(self):
         check_range("effects.delay.sensor_s", self.sensor_s, "s", 0.0, 10.0)

@@ -19,8 +19,8 @@ Packer = Callable[[Any, float, bool], tuple[np.ndarray, int]]
 
 @dataclass(frozen=True)
 class Effect:
-    """What an effect is.  Its flag bit in its side's flag word is its place among that side's
-    effects in the registry (:func:`impact_env.effects.registry.flag`)."""
+    """What an effect is.  Its flag bit in its side's flag word is given in its registry line
+    (:data:`impact_env.effects.registry.REGISTRY`)."""
 
     name: str  # in the scene's effects.active
     side: str  # HARDWARE or CONTROLLER
@@ -30,7 +30,7 @@ class Effect:
     readings_only: bool  # it computes readings only: the bodies move the same without it
     pack: Packer | None = None  # HARDWARE: its blocks in the hardware stage's packed rows
     options: tuple[str, ...] = ()  # bool fields of its section that switch a branch of its kernel:
-    #                                each gets a bit of its side's flag word after the effects' bits
+    #                                each gets a bit of its side's flag word in its registry line
 
     def __post_init__(self):
         if self.side not in (HARDWARE, CONTROLLER):

@@ -116,7 +116,6 @@ TASK_OPTIONS_DOC
         self.reward_time_unit = REWARD_TIME_UNIT
         self._started = False
         self._viewer = None
-        self._prepared = None  # the task's PreparedStep, from the first step on (None: not yet; False: none)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -125,18 +124,10 @@ TASK_OPTIONS_DOC
         return self.task.obs[0].copy(), self._info()
 
     def step(self, action):
-        prepared = self._prepared
-        if prepared and type(action) is np.ndarray and action.shape == (1,):
-            x = float(action[0])  # the common case, as task.check_actions takes it
-            if -1.0 <= x <= 1.0:
-                return prepared(x)
         if not self._started:
             raise RuntimeError("call reset() before step()")
         task = self.task
-        a = task.check_actions(action)
-        rewards, terminated, truncated = task.step(a)
-        if prepared is None:  # the next steps through the bound call, all arguments bound (False: cannot be)
-            self._prepared = task.prepared_step() or False
+        rewards, terminated, truncated = task.step(task.check_actions(action))
         return (task.obs[0].copy(), float(rewards[0]), bool(terminated[0]), bool(truncated[0]),
                 info_from_row(task.rows[0]))
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from impact_env.hardware import stage as HS
-from impact_env.plant import layout as L
+from impact_env.hardware import stage
+from impact_env.plant.layout import STATE
 
 WIDTH, HEIGHT = 320, 240
 SURFACE_Y = 150  # pixel row of body 2's top surface at x2 = 0
@@ -33,19 +33,20 @@ def _rect(img, x0, x1, y0, y1, colour):
 def draw_frame(task, i: int = 0) -> np.ndarray:
     """uint8[HEIGHT, WIDTH, 3] picture of env ``i`` of a :class:`~impact_env.env.task.CatchTask`."""
     sim = task.sim
-    y = np.nan_to_num(sim.Y[i], nan=0.0)
+    y = np.nan_to_num(sim.plant_state[i], nan=0.0)
     px = PX_PER_DREF / task.layout.refs.length
     img = np.full((HEIGHT, WIDTH, 3), 255, dtype=np.uint8)
-    top2 = SURFACE_Y + y[L.X2] * px
+    top2 = SURFACE_Y + y[STATE.x2] * px
     pad = 8
     _rect(img, 60, 200, top2 + pad, HEIGHT, GREY)
     _rect(img, 60, 200, top2, top2 + pad, GREEN)
-    bottom1 = SURFACE_Y + y[L.X1] * px
+    bottom1 = SURFACE_Y + y[STATE.x1] * px
     _rect(img, 100, 160, bottom1 - 50, bottom1, BLUE)
     _rect(img, 0, WIDTH, SURFACE_Y, SURFACE_Y + 1, BLACK)  # rest level of the surface
     mid, half = HEIGHT // 2, HEIGHT // 2 - 10
     scale = task.command_scale
-    bars = ((240, sim.info[i, HS.INFO_F_APPLIED], ORANGE), (280, sim.info[i, HS.INFO_CONTACT_FORCE], RED))
+    cols = stage.HW_INFO
+    bars = ((240, sim.info[i, cols.f_applied], ORANGE), (280, sim.info[i, cols.contact_force], RED))
     for x, value, colour in bars:
         h = float(np.clip(np.nan_to_num(value) / scale, -1.0, 1.0)) * half
         _rect(img, x, x + 20, mid, mid - h, colour)

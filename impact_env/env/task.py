@@ -37,19 +37,17 @@ from typing import Any
 
 import numpy as np
 
-from impact_env._bind import NotCopied, bind
-from impact_env._jit import entry_point
 from impact_env._threads import BlockRunner
 from impact_env.config import ConfigError, check_choice, check_hold_ticks, check_range
 from impact_env.control.observation import ObservationLayout, make_layout
-from impact_env.env import task_kernel as TK
+from impact_env.env import task_kernel
 from impact_env.policy.export import export_policy
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.simulator import Simulator
 
 # info_dict's scalar entries in INFO_KEYS order: (key, column, is a flag); the state goes as one array
-_INFO_SCALARS = tuple((key, j, key in TK.BOOL_KEYS) for j, key in enumerate(TK.INFO_KEYS)
-                      if not TK.INFO.x1 <= j <= TK.INFO.v2)
+_INFO_SCALARS = tuple((key, j, key in task_kernel.BOOL_KEYS) for j, key in enumerate(task_kernel.INFO_KEYS)
+                      if not task_kernel.INFO.x1 <= j <= task_kernel.INFO.v2)
 
 REWARD_TIME_UNIT = 1e-3  # s
 
@@ -162,9 +160,9 @@ def check_actions(actions, n: int, action_bounds: str, command_scale: float,
                   scratch: np.ndarray | None = None) -> np.ndarray:
     """float64[n] actions from what the caller gave; NaN or a wrong shape raises ValueError;
     values outside [-1, 1] are clipped (``action_bounds = "clip"``) or raise.  ``scratch``
-    (float64[1]) holds a single env's action without numpy reductions."""
+    (float64[1]): a single env's action in [-1, 1] is written there, without numpy's reductions."""
     if n == 1 and scratch is not None and type(actions) is np.ndarray and actions.shape == (1,):
-        x = float(actions[0])  # the common single-env case, without numpy reductions
+        x = float(actions[0])
         if -1.0 <= x <= 1.0:
             scratch[0] = x
             return scratch
@@ -185,29 +183,13 @@ def check_actions(actions, n: int, action_bounds: str, command_scale: float,
     return a
 
 
-def _info_source() -> str:
-    """The source of :func:`info_from_row` and :func:`info_from_values`: one dict display of the
-    info row's columns (a flag compared with 0.5, ``state`` a copy of x1 .. v2), generated from
-    INFO_KEYS: a single env's step builds this dict every step, and a display with constant keys
-    is about twice as fast as a loop over them."""
-    items = [f"{key!r}: v[{j}] > 0.5" if flag else f"{key!r}: v[{j}]" for key, j, flag in _INFO_SCALARS]
-    display = "{" + ", ".join(items + ["'state': state.copy()"]) + "}"
-    return (f"def info_from_values(v, state):\n    return {display}\n\n\n"
-            f"def info_from_row(row):\n    v = row.tolist()\n    state = row[{TK.INFO.x1}:{TK.INFO.v2 + 1}]\n"
-            f"    return {display}\n")
-
-
-_generated: dict = {}
-exec(_info_source(), _generated)
-#: ``info_from_row(row) -> dict``: one env's info as Python scalars (and ``state`` as
-#: float64[4]) from its info row (generated: :func:`_info_source`)
-info_from_row: Callable[[np.ndarray], dict] = _generated["info_from_row"]
-#: ``info_from_values(row.tolist(), row[x1:v2 + 1]) -> dict``: the same from the row as a list
-#: and a view of its state columns (a caller that keeps the view saves slicing the row)
-info_from_values: Callable[[list, np.ndarray], dict] = _generated["info_from_values"]
-info_from_row.__doc__ = "One env's info as Python scalars (and ``state`` as float64[4]) from its info row."
-info_from_values.__doc__ = "info_from_row(row) from row.tolist() and a view of the row's state columns."
-info_from_row.__module__ = info_from_values.__module__ = __name__
+def info_from_row(row: np.ndarray) -> dict:
+    """One env's info from its info row: every column of INFO_KEYS but the state as a Python
+    float (a flag as a bool), and ``state`` (x1, v1, x2, v2) as a float64[4] copy."""
+    values = row.tolist()
+    info: dict = {key: values[j] > 0.5 if flag else values[j] for key, j, flag in _INFO_SCALARS}
+    info["state"] = row[task_kernel.INFO.x1:task_kernel.INFO.v2 + 1].copy()
+    return info
 
 
 def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: float, command_scale: float):
@@ -221,13 +203,14 @@ def task_params(config: TaskConfig, period: float, hold_ticks: int, horizon: flo
                       command_scale=float(command_scale), max_steps=float(max_steps))
 
 
-def new_task_state(n: int) -> TK.TaskState:
-    return TK.TaskState(np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool),
-                        np.zeros(n))
+def new_task_state(n: int) -> task_kernel.TaskState:
+    return task_kernel.TaskState(np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                                 np.zeros(n, dtype=bool), np.zeros(n))
 
 
-def new_task_out(n: int) -> TK.TaskOut:
-    return TK.TaskOut(np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), np.zeros((n, TK.N_COL)))
+def new_task_out(n: int) -> task_kernel.TaskOut:
+    return task_kernel.TaskOut(np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool),
+                               np.zeros((n, task_kernel.N_COL)))
 
 
 def make_catch_task(scene: Scene | str | dict, num_envs: int, config: TaskConfig,
@@ -266,12 +249,13 @@ class CatchTask:
         self.impact_speed = sim.hw.impact_speed
         self.out = new_task_out(n)
         self.rewards, self.terminated, self.truncated, self.rows = self.out
-        self.drop = TK.Drop(sim.Y, sim.P, sim.impact_energy, self.impact_speed)
-        self._a1 = np.zeros(1)
-        # the simulator's step and the task's in one compiled call (or parallel region):
-        # TK.catch_step, bound to these arrays' types from the first step on
-        self._run = BlockRunner(TK.catch_step, TK.catch_blocks, entry_point, bind)
-        self._no_cols = np.zeros((TK.N_COL, 0))  # catch_step's ``cols`` when no info columns are wanted
+        self.drop = task_kernel.Drop(sim.plant_state, sim.plant_parameters, sim.impact_energy,
+                                     self.impact_speed)
+        self._a1 = np.zeros(1)  # a single env's checked action
+        # the simulator's step and the task's in one compiled call, over the simulator's blocks of envs
+        self._run = BlockRunner(task_kernel.catch_step)
+        self._no_cols = np.zeros((task_kernel.N_COL,
+                                  0))  # catch_step's ``cols`` when no info columns are wanted
 
     @property
     def obs(self) -> np.ndarray:
@@ -282,16 +266,12 @@ class CatchTask:
     def reset(self, rngs, mask=None) -> None:
         sim = self.sim
         idx = sim.reset(rngs, mask)
-        self.rows[idx, TK.INFO.t_touch] = sim.t_touch[idx]  # kept by the kernels, which skip this column
-        TK.task_reset_rows(idx, sim.records, self.drop, self.params, self.state, self.rows)
+        self.rows[idx,
+                  task_kernel.INFO.t_touch] = sim.t_touch[idx]  # kept by the kernels, which skip this column
+        task_kernel.task_reset_rows(idx, sim.records, self.drop, self.params, self.state, self.rows)
 
     def check_actions(self, actions) -> np.ndarray:
         """:func:`check_actions` for this batch and config."""
-        if self.n == 1 and type(actions) is np.ndarray and actions.shape == (1,):
-            x = float(actions[0])  # the common single-env case, one Python call fewer
-            if -1.0 <= x <= 1.0:
-                self._a1[0] = x
-                return self._a1
         return check_actions(actions, self.n, self.config.action_bounds, self.command_scale, self._a1)
 
     def step(self, a: np.ndarray, active=None, cols: np.ndarray | None = None):
@@ -305,17 +285,6 @@ class CatchTask:
                                                          self._no_cols if cols is None else cols))
         return self.rewards, self.terminated, self.truncated
 
-    def prepared_step(self) -> PreparedStep | None:
-        """A single env's step with every argument bound (:class:`PreparedStep`), once a
-        :meth:`step` with this task's own action array has bound the call; None for a batch or
-        where the call is not bound (``IMPACT_ENV_BIND=0``)."""
-        if self.n != 1:
-            return None
-        sim = self.sim
-        call = self._run.prepared(sim.blocks, sim.call_args(self._a1) + (self.drop, self.params, self.state,
-                                                                         self.out, self._no_cols))
-        return None if call is None else PreparedStep(self, call)
-
     # -- info ---------------------------------------------------------------------------------
     def info_arrays(self, cols: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Per-env diagnostics after the last step or reset (SI units), from the info rows; or
@@ -325,42 +294,14 @@ class CatchTask:
         if cols is None:
             cols = np.ascontiguousarray(rows.T)  # one copy of the rows; each column a contiguous array in it
         out = {}
-        for j, key in enumerate(TK.INFO_KEYS[:TK.INFO.x1]):
-            out[key] = cols[j] > 0.5 if key in TK.BOOL_KEYS else cols[j]
-        out["state"] = rows[:, TK.INFO.x1:TK.INFO.v2 + 1].copy()
-        out["diverged"] = cols[TK.INFO.diverged] > 0.5
-        out["caught"] = cols[TK.INFO.caught] > 0.5
-        out["t_touch"] = cols[TK.INFO.t_touch]
+        for j, key in enumerate(task_kernel.INFO_KEYS[:task_kernel.INFO.x1]):
+            out[key] = cols[j] > 0.5 if key in task_kernel.BOOL_KEYS else cols[j]
+        out["state"] = rows[:, task_kernel.INFO.x1:task_kernel.INFO.v2 + 1].copy()
+        out["diverged"] = cols[task_kernel.INFO.diverged] > 0.5
+        out["caught"] = cols[task_kernel.INFO.caught] > 0.5
+        out["t_touch"] = cols[task_kernel.INFO.t_touch]
         return out
 
     def info_dict(self, i: int) -> dict:
         """Env i's info as Python scalars (and ``state`` as float64[4])."""
         return info_from_row(self.rows[i])
-
-
-class PreparedStep(NotCopied):
-    """A single env's step with all of its arguments bound (:meth:`CatchTask.prepared_step`):
-    ``prepared(x)``, for a command x already in [-1, 1], is :meth:`CatchTask.step` of ``[x]``
-    and returns what the single env's step returns (obs, reward, terminated, truncated, info),
-    the same values bitwise (``tests/test_bind.py``), for about half of the Python (docs/env.md).
-    It holds the task's arrays' addresses, valid because the task never replaces its arrays
-    (they are changed in place); copied (``copy.deepcopy``, a pickle) it is None
-    (:class:`~impact_env._bind.NotCopied`), so that a copied env prepares its own."""
-
-    __slots__ = ("_a1", "_call", "_refill", "_hold", "_obs", "_rewards", "_terminated", "_truncated", "_row",
-                 "_state", "_task")
-
-    def __init__(self, task: CatchTask, call: Callable[[], None]):
-        self._task = task  # (keeps the bound arrays alive)
-        self._a1, self._call, self._hold = task._a1, call, task.hold_ticks
-        self._refill = task.sim.hw.refill_noise
-        self._obs, self._row = task.obs[0], task.rows[0]
-        self._rewards, self._terminated, self._truncated = task.rewards, task.terminated, task.truncated
-        self._state = self._row[TK.INFO.x1:TK.INFO.v2 + 1]
-
-    def __call__(self, x: float) -> tuple:
-        self._a1[0] = x
-        self._refill(self._hold)
-        self._call()
-        return (self._obs.copy(), float(self._rewards[0]), bool(self._terminated[0]),
-                bool(self._truncated[0]), info_from_values(self._row.tolist(), self._state))

@@ -4,8 +4,8 @@ row, in one call after the simulator's step, from the step's per-tick records
 
 Kept apart from :mod:`impact_env.env.task` (the Python layer that owns the arrays).  An env's
 step is one compiled call, :func:`catch_step`: the simulator's step and the task's, env by env
-(or one compiled parallel region over blocks of envs, :func:`catch_blocks`), and no per-env
-Python; :func:`task_step` is the task's part alone, after a step simulated elsewhere (the rig's
+(or one call per block of envs, the blocks at once: :class:`impact_env._threads.BlockRunner`),
+and no per-env Python; :func:`task_step` is the task's part alone, after a step simulated elsewhere (the rig's
 host).
 """
 
@@ -14,16 +14,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import prange
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env._packed import positions
-from impact_env._threads import unflatten
 from impact_env.plant.energy import catch_energy_at
-from impact_env.plant.layout import M1, V1, X1, X2, C, G
-from impact_env.sim import records as R
-from impact_env.sim.step import SimParams, SimState, env_step
+from impact_env.plant.layout import PARAM, STATE
+from impact_env.sim.records import REC
+from impact_env.sim.step import env_step
 
 
 class TaskState(NamedTuple):
@@ -38,8 +36,8 @@ class TaskState(NamedTuple):
 class Drop(NamedTuple):
     """What the task reads of the simulated drop."""
 
-    Y: np.ndarray  # float64[N, >=4]: the state (x1, v1, x2, v2, ...)
-    P: np.ndarray  # float64[N, N_PARAM]: plant parameters
+    plant_state: np.ndarray  # float64[N, N_STATE] (impact_env.plant.layout.STATE)
+    plant_parameters: np.ndarray  # float64[N, N_PARAM] (impact_env.plant.layout.PARAM)
     impact_energy: np.ndarray  # float64[N], J
     impact_speed: np.ndarray  # float64[N], m/s
 
@@ -90,7 +88,7 @@ def task_env(i, on, records, d, p, s, out):
     0, no flags, its row kept): :func:`task_step`'s arithmetic for one env."""
     rewards, terminated, truncated = out.rewards, out.terminated, out.truncated
     steps, below, diverged, energy = s.steps, s.below, s.diverged, s.energy
-    P = d.P
+    P = d.plant_parameters
     if not on:
         rewards[i] = 0.0
         terminated[i] = False
@@ -102,21 +100,21 @@ def task_env(i, on, records, d, p, s, out):
     bad = False
     for k in range(records.shape[1]):
         r = records[i, k]
-        if r[R.REC.status] != 0.0:
+        if r[REC.status] != 0.0:
             bad = True
             diverged[i] = True
             below[i] = 0
             cost = 1.0
         else:
-            e = catch_energy_at(r[R.REC.x1], r[R.REC.v1], r[R.REC.x2], P[i, M1], P[i, C], P[i, G])
+            e = catch_energy_at(r[REC.x1], r[REC.v1], r[REC.x2], P[i, PARAM.m1], P[i, PARAM.c], P[i, PARAM.g])
             energy[i] = e
             ratio = e / e0
             cost = ratio
             if p.effort_weight != 0.0:
-                u = r[R.REC.f_applied] / p.command_scale
+                u = r[REC.f_applied] / p.command_scale
                 cost += p.effort_weight * u * u
             if p.limit_weight != 0.0:
-                cost += p.limit_weight * r[R.REC.saturated]
+                cost += p.limit_weight * r[REC.saturated]
             below[i] = below[i] + 1 if ratio < p.catch_threshold else 0
         total += cost
     term = bad or (p.terminate_on_catch != 0.0 and below[i] >= p.hold)
@@ -145,9 +143,9 @@ def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out, cols):
     then the task's (:func:`task_env`), in one call (``sp``, ``ss``: SimParams, SimState; the
     rest as :func:`task_step`'s).  Env i reads and writes only its own rows, so the results are
     those of the two calls one after the other, bitwise, and blocks of envs may run at once
-    (:func:`catch_blocks`).  ``cols``: float64[N_COL, N], every env's info row also written as a
-    column (the vector env's info arrays, without a transposing copy after the step), or
-    float64[N_COL, 0]: not written."""
+    (:class:`impact_env._threads.BlockRunner`).  ``cols``: float64[N_COL, N], every env's info
+    row also written as a column (the vector env's info arrays, without a transposing copy after
+    the step), or float64[N_COL, 0]: not written."""
     actions, active, sp, ss = borrow(actions), borrow(active), borrow(sp), borrow(ss)  # (impact_env._borrow)
     d, p, s, out, cols = borrow(d), borrow(p), borrow(s), borrow(out), borrow(cols)
     records = ss.records
@@ -162,44 +160,25 @@ def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out, cols):
                 cols[j, i] = rows[i, j]
 
 
-@jit(nogil=True)
-def _catch_block(i0, i1, actions, active, fsp, fss, d, p, s, out, cols):
-    """:func:`catch_step` with its SimParams and SimState rebuilt from their leaves
-    (:func:`impact_env._threads.flatten`); False if it raised."""
-    try:
-        catch_step(i0, i1, actions, active, unflatten(fsp, SimParams), unflatten(fss, SimState), d, p, s, out, cols)
-    except Exception:  # noqa: BLE001 - reported by the caller (impact_env._threads.BlockRunner)
-        return False
-    return True
-
-
-@jit(nogil=True, parallel=True)
-def catch_blocks(bounds, ok, actions, active, fsp, fss, d, p, s, out, cols):
-    """:func:`catch_step` on the blocks of envs ``bounds[b] .. bounds[b + 1] - 1`` in one compiled
-    parallel region (:mod:`impact_env._threads`); ``ok[b]``: block b did not raise."""
-    for b in prange(bounds.shape[0] - 1):
-        ok[b] = _catch_block(bounds[b], bounds[b + 1], actions, active, fsp, fss, d, p, s, out, cols)
-
-
 @jit
 def fill_row(i, last, d, p, s, rows):
     """Env i's info row (columns INFO_KEYS, SI units; booleans as 0/1; the state of a
     diverged env reads 0 where it is not finite) from its state and its last tick's record."""
     r = rows[i]
-    r[INFO.t] = last[R.REC.t]
+    r[INFO.t] = last[REC.t]
     r[INFO.catch_energy] = s.energy[i]
     r[INFO.impact_energy] = d.impact_energy[i]
     r[INFO.catch_energy_ratio] = s.energy[i] / d.impact_energy[i]
     r[INFO.impact_speed] = d.impact_speed[i]
-    for k in range(4):
-        v = d.Y[i, k]
-        r[INFO.x1 + k] = v if np.isfinite(v) else 0.0
+    for slot, col in ((STATE.x1, INFO.x1), (STATE.v1, INFO.v1), (STATE.x2, INFO.x2), (STATE.v2, INFO.v2)):
+        v = d.plant_state[i, slot]
+        r[col] = v if np.isfinite(v) else 0.0
     r[INFO.contact] = 1.0 if r[INFO.x1] - r[INFO.x2] > 0.0 else 0.0
-    r[INFO.contact_force] = last[R.REC.contact_force]
-    r[INFO.force_demand] = last[R.REC.f_demand]
-    r[INFO.force_applied] = last[R.REC.f_applied]
-    r[INFO.saturated] = last[R.REC.saturated]
-    r[INFO.detected] = last[R.REC.detected]
+    r[INFO.contact_force] = last[REC.contact_force]
+    r[INFO.force_demand] = last[REC.f_demand]
+    r[INFO.force_applied] = last[REC.f_applied]
+    r[INFO.saturated] = last[REC.saturated]
+    r[INFO.detected] = last[REC.detected]
     r[INFO.diverged] = 1.0 if s.diverged[i] else 0.0
     r[INFO.caught] = 1.0 if s.below[i] >= p.hold else 0.0
 
@@ -210,14 +189,16 @@ def reset_task(s, i, d):
     s.steps[i] = 0
     s.below[i] = 0
     s.diverged[i] = False
-    Y, P = d.Y, d.P
-    s.energy[i] = catch_energy_at(Y[i, X1], Y[i, V1], Y[i, X2], P[i, M1], P[i, C], P[i, G])
+    Y, P = d.plant_state, d.plant_parameters
+    s.energy[i] = catch_energy_at(Y[i, STATE.x1], Y[i, STATE.v1], Y[i, STATE.x2], P[i, PARAM.m1], P[i,
+                                                                                                    PARAM.c],
+                                  P[i, PARAM.g])
 
 
 @jit
 def task_reset_rows(idx, records, d, p, s, rows):
     """Episode start for envs ``idx``: reset the task state and write the first info row
-    (d.Y and d.impact_energy are the simulator's reset values, the records are zero)."""
+    (d.plant_state and d.impact_energy are the simulator's reset values, the records are zero)."""
     for m in range(idx.shape[0]):
         i = idx[m]
         reset_task(s, i, d)

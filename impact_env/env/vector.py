@@ -28,7 +28,7 @@ from gymnasium.vector.utils import batch_space
 
 from impact_env._threads import check_threads
 from impact_env.control.observation import OBS_LIMIT
-from impact_env.env import task_kernel as TK
+from impact_env.env import task_kernel
 from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, make_catch_task
 from impact_env.scene import Scene
 
@@ -122,7 +122,8 @@ class ImpactCatchVectorEnv(VectorEnv):
             task.reset(self._rngs, self._done)
             active = ~self._done
         # the step writes the info rows as columns too: the info arrays without a transposing copy
-        cols = np.empty((TK.N_COL, self.num_envs)) if infos or mode == AutoresetMode.SAME_STEP else None
+        cols = np.empty((task_kernel.N_COL,
+                         self.num_envs)) if infos or mode == AutoresetMode.SAME_STEP else None
         rewards, terminated, truncated = (x.copy() for x in task.step(a, active, cols))
         ended = terminated | truncated
         out: dict[str, Any] = {}

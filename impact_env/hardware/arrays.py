@@ -11,14 +11,27 @@ from collections.abc import Callable
 import numpy as np
 
 from impact_env.hardware.stability import check_step
-from impact_env.plant import layout as L
 from impact_env.plant.dynamics import event_value
 from impact_env.plant.hertz import max_penetration
+from impact_env.plant.layout import (
+    AUTO,
+    CONTACT,
+    DOPRI5,
+    EULER,
+    FREE,
+    N_PARAM,
+    N_STATE,
+    PARAM,
+    RK4,
+    SPLIT,
+    STATE,
+    SYMPLECTIC_EULER,
+)
 from impact_env.plant.restitution import tsuji_damping
 from impact_env.scene import Scene
 
-METHOD_CODES = {"euler": L.EULER, "symplectic-euler": L.SYMPLECTIC_EULER, "rk4": L.RK4, "dopri5": L.DOPRI5,
-                "split": L.SPLIT}
+METHOD_CODES = {"euler": EULER, "symplectic-euler": SYMPLECTIC_EULER, "rk4": RK4, "dopri5": DOPRI5,
+                "split": SPLIT}
 
 
 def plant_params(scene: Scene, zeta_of: Callable[[float], float] | None = None) -> np.ndarray:
@@ -29,15 +42,15 @@ def plant_params(scene: Scene, zeta_of: Callable[[float], float] | None = None) 
     :class:`~impact_env.plant.restitution.ZetaTable` for drawn restitutions).
     """
     pl = scene.plant
-    p = np.zeros(L.N_PARAM)
-    p[L.M1], p[L.M2], p[L.C], p[L.G] = pl.m1, pl.m2, pl.c, pl.gravity
+    p = np.zeros(N_PARAM)
+    p[PARAM.m1], p[PARAM.m2], p[PARAM.c], p[PARAM.g] = pl.m1, pl.m2, pl.c, pl.gravity
     if pl.restitution >= 1.0:
-        p[L.B] = 0.0
+        p[PARAM.b] = 0.0
     elif zeta_of is None:
-        p[L.B] = tsuji_damping(pl.restitution, pl.m1, pl.m2, pl.c)
+        p[PARAM.b] = tsuji_damping(pl.restitution, pl.m1, pl.m2, pl.c)
     else:
-        p[L.B] = zeta_of(pl.restitution) * math.sqrt(pl.effective_mass * pl.c)
-    p[L.K2], p[L.C2] = pl.suspension_stiffness, pl.suspension_damping
+        p[PARAM.b] = zeta_of(pl.restitution) * math.sqrt(pl.effective_mass * pl.c)
+    p[PARAM.k2], p[PARAM.c2] = pl.suspension_stiffness, pl.suspension_damping
     return p
 
 
@@ -54,9 +67,9 @@ def free_fall_state(v: float, g: float, tau: float) -> tuple[np.ndarray, float]:
     """:func:`initial_state` from the impact speed v (m/s), gravity g and pre-contact time tau."""
     if g > 0:  # a body released from rest has fallen for v/g only
         tau = min(tau, v / g)
-    y = np.zeros(L.N_STATE)
-    y[L.X1] = -(v * tau - 0.5 * g * tau * tau)
-    y[L.V1] = v - g * tau
+    y = np.zeros(N_STATE)
+    y[STATE.x1] = -(v * tau - 0.5 * g * tau * tau)
+    y[STATE.v1] = v - g * tau
     return y, tau
 
 
@@ -70,15 +83,16 @@ def initial_mode(scene: Scene, y0: np.ndarray, p: np.ndarray) -> int:
     """The contact mode to start in: FREE or CONTACT from the initial state when contact events
     are located, AUTO (the force switches inside the right-hand side) when they are not."""
     if not scene.integrator.event_location:
-        return L.AUTO
-    return L.CONTACT if event_value(y0[0], y0[1], y0[2], y0[3], p[L.C], p[L.B]) > 0 else L.FREE
+        return AUTO
+    return CONTACT if event_value(y0[STATE.x1], y0[STATE.v1], y0[STATE.x2], y0[STATE.v2], p[PARAM.c],
+                                  p[PARAM.b]) > 0 else FREE
 
 
 def error_scale(scene: Scene, p: np.ndarray) -> np.ndarray:
     """Per-component scale for dopri5's absolute tolerance (rtol * scale)."""
     v = max(scene.impact_speed, 1e-3)
     m = scene.plant.effective_mass
-    d = max(max_penetration(m, p[L.C], v), scene.plant.static_penetration)
+    d = max(max_penetration(m, p[PARAM.c], v), scene.plant.static_penetration)
     e = 0.5 * scene.plant.m1 * v * v
     return np.array([d, v, d, v, e, e])
 

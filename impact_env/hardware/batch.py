@@ -17,9 +17,8 @@ import typing
 import numpy as np
 
 from impact_env._threads import python_threads
-from impact_env.effects import registry
-from impact_env.effects import sensors as SE
-from impact_env.hardware import stage as HS
+from impact_env.effects import registry, sensors
+from impact_env.hardware import stage
 from impact_env.hardware.arrays import (
     METHOD_CODES,
     check_stability,
@@ -29,8 +28,8 @@ from impact_env.hardware.arrays import (
     plant_params,
 )
 from impact_env.hardware.blocks import Blocks
-from impact_env.plant import layout as L
 from impact_env.plant.energy import catch_energy
+from impact_env.plant.layout import AUTO, FREE, N_EVENT_COLS, N_PARAM, N_STATE, OK, PARAM, STATE
 from impact_env.plant.restitution import zeta_table
 from impact_env.scene import Scene, load_scene
 
@@ -48,13 +47,19 @@ class Hardware:
     """N copies of a scene's rig hardware.  ``reset(rngs, mask)`` starts drops; the stage kernel
     advances them (:attr:`params` and :attr:`state` are its two arguments).
 
-    Arrays over envs (SI): ``Y`` (x1, v1, x2, v2, W_ext, W_diss), ``modes``, ``P`` (plant
-    parameters), ``t`` (s since the episode start), ``raw`` (float64[N, 4]: the raw readings),
+    Arrays over envs (SI): ``plant_state`` (float64[N, N_STATE]: x1, v1, x2, v2, W_ext, W_diss,
+    :data:`~impact_env.plant.layout.STATE`), ``modes``, ``plant_parameters`` (float64[N, N_PARAM],
+    :data:`~impact_env.plant.layout.PARAM`), ``step_size`` (dopri5's, s), ``events`` and
+    ``event_count`` (the plant's event log), ``t`` (s since the episode start), ``raw``
+    (float64[N, 4]: the raw readings),
     ``info`` (float64[N, N_INFO], columns in :mod:`impact_env.hardware.stage`), ``y0``,
     ``mode0``, ``t_touch`` (s, the first touch after the start), ``impact_energy`` (J),
     ``impact_speed`` (m/s, from the free fall),
-    ``drawn`` (each env's randomised values).  ``PR``/``ST`` hold the effects' packed parameters
-    and state (:meth:`param_block` / :meth:`state_block` give a named block as a view over envs).
+    ``drawn`` (each env's randomised values).  ``effect_params``/``effect_state`` hold the
+    effects' packed parameters and state (:meth:`param_block` / :meth:`state_block` give a named
+    block as a view over envs).  ``Y``, ``P``, ``EV`` and ``EVN`` are the old names of
+    ``plant_state``, ``plant_parameters``, ``events`` and ``event_count`` (read by rig/, eval/
+    and deploy/, which move to the new ones with their own rework).
 
     Randomised scenes (``scene.randomize``): at each reset env i draws its values from
     ``rngs[i]`` (the seed policy of :mod:`impact_env.scene.randomize`) and gets exactly the
@@ -87,28 +92,28 @@ class Hardware:
                 self._zeta = zeta_table(lo, hi)
         base = self._env_arrays(scene, exact=True)
         params = {name: block.size for name, block in base["params"].items()}
-        self.param_blocks = Blocks(HS.PARAM_BLOCKS, tuple(params[b] for b in HS.PARAM_BLOCKS))
-        self.state_blocks = Blocks(HS.STATE_BLOCKS,
-                                   tuple(self._state_size(scene, b) for b in HS.STATE_BLOCKS))
-        self.PR = np.zeros((n, self.param_blocks.size))
-        self.ST = np.zeros((n, self.state_blocks.size))
-        self.Y = np.zeros((n, L.N_STATE))
+        self.param_blocks = Blocks(stage.PARAM_BLOCKS, tuple(params[b] for b in stage.PARAM_BLOCKS))
+        self.state_blocks = Blocks(stage.STATE_BLOCKS,
+                                   tuple(self._state_size(scene, b) for b in stage.STATE_BLOCKS))
+        self.effect_params = np.zeros((n, self.param_blocks.size))
+        self.effect_state = np.zeros((n, self.state_blocks.size))
+        self.plant_state = np.zeros((n, N_STATE))
         self.modes = np.zeros(n, dtype=np.int64)
-        self.P = np.zeros((n, L.N_PARAM))
+        self.plant_parameters = np.zeros((n, N_PARAM))
         self.scale = np.zeros((n, 6))
-        self.H = np.zeros((n, 1))
-        self.EV = np.zeros((n, events_per_env, L.N_EVENT_COLS))
-        self.EVN = np.zeros((n, 1), dtype=np.int64)
+        self.step_size = np.zeros((n, 1))
+        self.events = np.zeros((n, events_per_env, N_EVENT_COLS))
+        self.event_count = np.zeros((n, 1), dtype=np.int64)
         self.t = np.zeros(n)
-        self.y0 = np.zeros((n, L.N_STATE))
+        self.y0 = np.zeros((n, N_STATE))
         self.mode0 = np.zeros(n, dtype=np.int64)
         self.t_touch = np.zeros(n)
         self.impact_energy = np.zeros(n)
         self.impact_speed = np.zeros(n)  # m/s, body 1 relative to body 2 at the first touch
-        self.raw = np.zeros((n, SE.N_CHANNELS))
-        self.info = np.zeros((n, HS.N_INFO))
+        self.raw = np.zeros((n, sensors.N_CHANNELS))
+        self.info = np.zeros((n, stage.N_INFO))
         self.noise_block = nb = max(int(noise_block), 1)
-        self.noise = np.zeros((n, nb, SE.N_CHANNELS))
+        self.noise = np.zeros((n, nb, sensors.N_CHANNELS))
         self.cursor = np.full(n, nb, dtype=np.int64)
         self._refill_in = 0  # ticks that every env can still run on its noise block
         self.drawn: list[dict[str, float]] = [{} for _ in range(n)]
@@ -116,7 +121,7 @@ class Hardware:
         self._gravity = np.zeros(n)  # each env's gravity on body 1 (a held body 1 has none)
         for i in range(n):
             self._set_env(i, base)
-        self._cfg = HS.StageConfig(np.int64(self.flags), np.int64(self.method), float(scene.integrator.dt),
+        self._cfg = stage.StageConfig(np.int64(self.flags), np.int64(self.method), float(scene.integrator.dt),
                                    float(scene.integrator.rtol), float(self.period))
 
     # -- arrays from a scene ----------------------------------------------------------------
@@ -125,7 +130,8 @@ class Hardware:
         fx = scene.effects
         p = plant_params(scene, None if exact or self._zeta is None else self._zeta)
         y0, t_touch = initial_state(scene)
-        e0 = float(catch_energy(y0[0], y0[1], y0[2], p[L.M1], p[L.C], p[L.G]))
+        e0 = float(catch_energy(y0[STATE.x1], y0[STATE.v1], y0[STATE.x2], p[PARAM.m1], p[PARAM.c],
+                                p[PARAM.g]))
         params = {"drive": np.array([fx.command_scale])}
         params.update((e.name, self._pack(scene, e)[0]) for e in registry.side(registry.HARDWARE))
         return {
@@ -157,15 +163,15 @@ class Hardware:
         return size
 
     def _set_env(self, i: int, arrays: dict) -> None:
-        for name in HS.PARAM_BLOCKS:
+        for name in stage.PARAM_BLOCKS:
             block = self.param_block(name)[i]
             value = arrays["params"][name]
             if value.shape != block.shape:
                 raise ValueError(f"the {name} block of env {i} changed size ({value.shape} -> "
                                  f"{block.shape}): a randomised range changes the shaker's model order")
             block[:] = value
-        self.P[i] = arrays["P"]
-        self._gravity[i] = arrays["P"][L.G]
+        self.plant_parameters[i] = arrays["P"]
+        self._gravity[i] = arrays["P"][PARAM.g]
         self.scale[i] = arrays["scale"]
         self.y0[i] = arrays["y0"]
         self.t_touch[i] = arrays["t_touch"]
@@ -181,11 +187,17 @@ class Hardware:
 
     def param_block(self, name: str) -> np.ndarray:
         """The parameter block ``name`` of every env (a view: float64[N, size])."""
-        return self.param_blocks.view(self.PR, name)
+        return self.param_blocks.view(self.effect_params, name)
 
     def state_block(self, name: str) -> np.ndarray:
         """The state block ``name`` of every env (a view: float64[N, size])."""
-        return self.state_blocks.view(self.ST, name)
+        return self.state_blocks.view(self.effect_state, name)
+
+    # the old names (module doc)
+    Y = property(lambda self: self.plant_state)
+    P = property(lambda self: self.plant_parameters)
+    EV = property(lambda self: self.events)
+    EVN = property(lambda self: self.event_count)
 
     @property
     def command_scale(self) -> np.ndarray:
@@ -206,12 +218,12 @@ class Hardware:
             if self.randomized:  # (a fixed scene's rows were filled once, in __init__)
                 self.drawn[i] = values = self.scene.draw(rng)
                 self._set_env(int(i), self._env_arrays(self.scene.with_draws(values)))
-            self.P[i, L.G] = self._gravity[i]  # (after a held episode)
-            HS.reset_env(state, int(i), self.y0[i], self.mode0[i])
-        y = self.Y[idx]
-        gap = np.maximum(y[:, L.X2] - y[:, L.X1], 0.0)
-        self.impact_speed[idx] = np.sqrt(np.maximum(y[:, L.V1] - y[:, L.V2], 0.0) ** 2
-                                         + 2.0 * self.P[idx, L.G] * gap)
+            self.plant_parameters[i, PARAM.g] = self._gravity[i]  # (after a held episode)
+            stage.reset_env(state, int(i), self.y0[i], self.mode0[i])
+        y = self.plant_state[idx]
+        gap = np.maximum(y[:, STATE.x2] - y[:, STATE.x1], 0.0)
+        self.impact_speed[idx] = np.sqrt(np.maximum(y[:, STATE.v1] - y[:, STATE.v2], 0.0) ** 2
+                                         + 2.0 * self.plant_parameters[idx, PARAM.g] * gap)
         self._refill_in = 0
         return idx
 
@@ -224,12 +236,12 @@ class Hardware:
         gap = float(h) if h else 0.05
         for i in np.atleast_1d(idx):
             d = self.drawn[i].get("drop_height", gap)
-            y = self.Y[i]
+            y = self.plant_state[i]
             y[:] = 0.0
-            y[L.X1] = -max(float(d), 0.01)
-            self.P[i, L.G] = 0.0
-            self.modes[i] = L.AUTO if self.modes[i] == L.AUTO else L.FREE
-            self.raw[i] = (0.0, 0.0, y[L.X2], y[L.X1])
+            y[STATE.x1] = -max(float(d), 0.01)
+            self.plant_parameters[i, PARAM.g] = 0.0
+            self.modes[i] = AUTO if self.modes[i] == AUTO else FREE
+            self.raw[i] = (0.0, 0.0, y[STATE.x2], y[STATE.x1])
 
     def set_noise_block(self, ticks: int) -> None:
         """Hold ``ticks`` ticks of noise per env (e.g. a whole episode, drawn before it starts);
@@ -240,7 +252,7 @@ class Hardware:
         left = [self.noise[i, self.cursor[i]:self.noise_block].copy() for i in range(self.n)]
         if max(len(x) for x in left) > nb:
             raise ValueError(f"the new noise block ({nb} ticks) cannot hold the unread samples")
-        self.noise = np.zeros((self.n, nb, SE.N_CHANNELS))
+        self.noise = np.zeros((self.n, nb, sensors.N_CHANNELS))
         for i, x in enumerate(left):
             self.noise[i, nb - len(x):] = x
             self.cursor[i] = nb - len(x)
@@ -255,7 +267,7 @@ class Hardware:
         threads): the blocks' envs are topped up in as many Python threads at once (numpy's
         Generators release the GIL while they draw; each env draws from its own), the same
         numbers as in one thread."""
-        if not self.flags & HS.F_SENSORS:
+        if not self.flags & stage.F_SENSORS:
             return
         if self._refill_in >= ticks:
             self._refill_in -= ticks
@@ -270,7 +282,8 @@ class Hardware:
         if blocks is not None and len(blocks) > 1 and len(idx) >= 2 * len(blocks):
             cut = np.searchsorted(idx, [b[0] for b in blocks[1:]])
             parts = np.split(idx, cut)
-            python_threads(lambda b0, b1: self._top_up(parts[b0]), [(b, b + 1) for b in range(len(parts))], ())
+            python_threads(lambda b0, b1: self._top_up(parts[b0]), [(b, b + 1) for b in range(len(parts))],
+                           ())
         else:
             self._top_up(idx)
         # inactive envs were not topped up: check every env again at the next step
@@ -290,29 +303,32 @@ class Hardware:
             self.cursor[i] = 0
 
     @property
-    def params(self) -> HS.HardwareParams:
+    def params(self) -> stage.HardwareParams:
         """The stage kernel's parameters (views of this batch's arrays)."""
-        fx = HS.EffectParams(self.PR, self.param_blocks.offsets, self.state_blocks.offsets)
-        return HS.HardwareParams(self._cfg, HS.PlantParams(self.P, self.scale), fx)
+        fx = stage.EffectParams(self.effect_params, self.param_blocks.offsets, self.state_blocks.offsets)
+        return stage.HardwareParams(self._cfg, stage.PlantParams(self.plant_parameters, self.scale), fx)
 
     @property
-    def state(self) -> HS.HardwareState:
+    def state(self) -> stage.HardwareState:
         """The stage kernel's state (views of this batch's arrays; the noise block is the current
         one: take it again after :meth:`set_noise_block`)."""
-        return HS.HardwareState(HS.PlantState(self.Y, self.modes, self.H, self.EV, self.EVN, self.t), self.ST,
-                                HS.Noise(self.noise, self.cursor), HS.Readings(self.raw, self.info))
+        plant = stage.PlantState(self.plant_state, self.modes, self.step_size, self.events, self.event_count,
+                                 self.t)
+        return stage.HardwareState(plant, self.effect_state,
+                                stage.Noise(self.noise, self.cursor), stage.Readings(self.raw, self.info))
 
     def step(self, commands) -> None:
         """One tick of every env under float64[N] drive commands (what a virtual rig does)."""
         u = np.ascontiguousarray(commands, dtype=np.float64).reshape(self.n)
         self.refill_noise(1)
-        HS.hardware_step(u, self.params, self.state)
+        stage.hardware_step(u, self.params, self.state)
 
     # -- derived readings -----------------------------------------------------------------------
     def catch_energy(self) -> np.ndarray:
         """Body 1's catch energy per env (J)."""
-        P, Y = self.P, self.Y
-        return catch_energy(Y[:, L.X1], Y[:, L.V1], Y[:, L.X2], P[:, L.M1], P[:, L.C], P[:, L.G])
+        P, Y = self.plant_parameters, self.plant_state
+        return catch_energy(Y[:, STATE.x1], Y[:, STATE.v1], Y[:, STATE.x2], P[:, PARAM.m1], P[:, PARAM.c],
+                            P[:, PARAM.g])
 
     def diverged(self) -> np.ndarray:
-        return (self.info[:, HS.INFO_STATUS] != L.OK) | ~np.all(np.isfinite(self.Y), axis=1)
+        return (self.info[:, stage.HW_INFO.status] != OK) | ~np.all(np.isfinite(self.plant_state), axis=1)

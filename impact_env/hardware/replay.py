@@ -16,7 +16,7 @@ import numpy as np
 from impact_env._borrow import borrow
 from impact_env._jit import jit
 from impact_env.hardware.stage import (
-    INFO_STATUS,
+    HW_INFO,
     EffectParams,
     HardwareParams,
     HardwareState,
@@ -67,7 +67,7 @@ def _replay_env(i, U, p, s, R):
         R[i, 0, c] = raw[i, c]
     for m in range(n - 1):
         hardware_tick(i, U[i, m], p, s)
-        ok = info[i, INFO_STATUS] == 0.0
+        ok = info[i, HW_INFO.status] == 0.0
         for k in range(4):
             if not np.isfinite(Y[i, k]):
                 ok = False

@@ -37,6 +37,7 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.effects import registry
 from impact_env.effects.delay import delay_packed
 from impact_env.effects.saturation import saturate
@@ -44,7 +45,7 @@ from impact_env.effects.sensors import read_packed, sense_packed
 from impact_env.effects.shaker import shaker_packed
 from impact_env.plant.dynamics import coefs, contact_force
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
-from impact_env.plant.layout import X1, X2
+from impact_env.plant.layout import STATE
 
 # flag bits (the hardware's effects, as the registry orders them: impact_env.effects.registry)
 F_ACT_DELAY = registry.flag("actuator_delay")
@@ -55,30 +56,35 @@ F_SENS_DELAY = registry.flag("sensor_delay")
 F_BACK_EMF = registry.option_flag("shaker", "back_emf")  # the shaker's back-EMF input, with F_SHAKER
 
 # packed blocks: the stage's own drive block, then every hardware effect's, in registry order
-# (sizes from each effect's packer, impact_env.hardware.batch); a block is found by its name
+# (sizes from each effect's packer, impact_env.hardware.batch); a block is found by its name,
+# ``PB.shaker``: the fields of a NamedTuple made from the registry, numbered by position
 PARAM_BLOCKS = ("drive",) + tuple(e.name for e in registry.side(registry.HARDWARE))
 STATE_BLOCKS = tuple(e.name for e in registry.side(registry.HARDWARE))
-PB_DRIVE = PARAM_BLOCKS.index("drive")
-PB_ACT_DELAY = PARAM_BLOCKS.index("actuator_delay")
-PB_SHAKER = PARAM_BLOCKS.index("shaker")
-PB_SATURATION = PARAM_BLOCKS.index("saturation")
-PB_SENSORS = PARAM_BLOCKS.index("sensors")
-PB_SENS_DELAY = PARAM_BLOCKS.index("sensor_delay")
-SB_ACT_DELAY = STATE_BLOCKS.index("actuator_delay")
-SB_SHAKER = STATE_BLOCKS.index("shaker")
-SB_SATURATION = STATE_BLOCKS.index("saturation")
-SB_SENS_DELAY = STATE_BLOCKS.index("sensor_delay")
+ParamBlocks = NamedTuple("ParamBlocks", [(name, int) for name in PARAM_BLOCKS])  # type: ignore[misc]
+StateBlocks = NamedTuple("StateBlocks", [(name, int) for name in STATE_BLOCKS])  # type: ignore[misc]
+PB = positions(ParamBlocks)
+SB = positions(StateBlocks)
 
-# columns of the per-env info array
-INFO_F_DEMAND = 0  # N, demanded force (command * command scale)
-INFO_F_APPLIED = 1  # N, force on body 2 after shaker and saturation
-INFO_SATURATED = 2  # 1 if saturation changed the force
-INFO_CONTACT_FORCE = 3  # N, true contact force at the end of the period
-INFO_PEAK_FORCE = 4  # N, largest contact force within the period
-INFO_A2 = 5  # m/s^2, true acceleration of body 2 at the end of the period
-INFO_STATUS = 6  # the plant kernel's status (0 ok)
-INFO_CATCH_INTEGRAL = 7  # J s, the time integral of body 1's catch energy over the period (the plant's)
-N_INFO = 8
+
+class HardwareInfo(NamedTuple):
+    """The columns of the per-env info array (float64[N, N_INFO]), read by name:
+    ``info[i, HW_INFO.f_applied]``."""
+
+    f_demand: float  # N, demanded force (command * command scale)
+    f_applied: float  # N, force on body 2 after shaker and saturation
+    saturated: float  # 1 if saturation changed the force
+    contact_force: float  # N, true contact force at the end of the period
+    peak_force: float  # N, largest contact force within the period
+    a2: float  # m/s^2, true acceleration of body 2 at the end of the period
+    status: float  # the plant kernel's status (0 ok)
+    catch_integral: float  # J s, the time integral of body 1's catch energy over the period (the plant's)
+
+
+HW_INFO = positions(HardwareInfo)
+N_INFO = len(HW_INFO)
+# the same columns as plain ints, for rig/, eval/ and deploy/, which still read them so
+(INFO_F_DEMAND, INFO_F_APPLIED, INFO_SATURATED, INFO_CONTACT_FORCE, INFO_PEAK_FORCE, INFO_A2,
+ INFO_STATUS, INFO_CATCH_INTEGRAL) = HW_INFO
 
 
 class StageConfig(NamedTuple):
@@ -161,7 +167,7 @@ def reset_env(s: HardwareState, i: int, y0: np.ndarray, mode0: int) -> None:
     s.noise.cursor[i] = s.noise.z.shape[1]
     s.out.info[i] = 0.0
     y = ps.y[i]
-    s.out.raw[i] = (0.0, 0.0, y[X2], y[X1])
+    s.out.raw[i] = (0.0, 0.0, y[STATE.x2], y[STATE.x1])
 
 
 @jit(inline="always")
@@ -180,45 +186,45 @@ def hardware_tick(i, u, p, s):
     ps = s.plant
     po = p.effects.offsets
     so = p.effects.state_offsets
-    pr = p.effects.rows[i]
-    st = s.effects[i]
-    inf = s.out.info[i]
-    f = u * pr[po[PB_DRIVE]]
-    inf[INFO_F_DEMAND] = f
+    params = p.effects.rows[i]
+    state = s.effects[i]
+    info = s.out.info[i]
+    f = u * params[po[PB.drive]]
+    info[HW_INFO.f_demand] = f
     y = ps.y[i]
-    pp = p.plant.p[i]
+    plant_params = p.plant.p[i]
     if flags & F_ACT_DELAY:
-        cell = inf[INFO_F_APPLIED:INFO_F_APPLIED + 1]
+        cell = info[HW_INFO.f_applied:HW_INFO.f_applied + 1]
         cell[0] = f
-        delay_packed(block(pr, po, PB_ACT_DELAY), block(st, so, SB_ACT_DELAY), cell, cell)
+        delay_packed(block(params, po, PB.actuator_delay), block(state, so, SB.actuator_delay), cell, cell)
         f = cell[0]
     if flags & F_SHAKER:
-        f = shaker_packed(block(pr, po, PB_SHAKER), block(st, so, SB_SHAKER), f, y[3],
+        f = shaker_packed(block(params, po, PB.shaker), block(state, so, SB.shaker), f, y[STATE.v2],
                           (flags & F_BACK_EMF) != 0)
     sat = False
     if flags & F_SATURATION:
-        f, sat = saturate(f, block(st, so, SB_SATURATION), block(pr, po, PB_SATURATION))
-    inf[INFO_F_APPLIED] = f
-    inf[INFO_SATURATED] = 1.0 if sat else 0.0
-    peak = inf[INFO_PEAK_FORCE:INFO_PEAK_FORCE + 1]
+        f, sat = saturate(f, block(state, so, SB.saturation), block(params, po, PB.saturation))
+    info[HW_INFO.f_applied] = f
+    info[HW_INFO.saturated] = 1.0 if sat else 0.0
+    peak = info[HW_INFO.peak_force:HW_INFO.peak_force + 1]
     peak[0] = 0.0
-    integral = inf[INFO_CATCH_INTEGRAL:INFO_CATCH_INTEGRAL + 1]
+    integral = info[HW_INFO.catch_integral:HW_INFO.catch_integral + 1]
     integral[0] = 0.0
     status, mode = advance(ps.mode[i], f, 0.0, cfg.period,
-                           PlantConsts(pp, p.plant.scale[i], cfg.method, cfg.dt, cfg.rtol),
+                           PlantConsts(plant_params, p.plant.scale[i], cfg.method, cfg.dt, cfg.rtol),
                            PlantCarry(y, ps.h[i], ps.events[i], ps.n_events[i], peak, integral))
     ps.mode[i] = mode
-    inf[INFO_STATUS] = status
+    info[HW_INFO.status] = status
     # the true contact force and body 2's acceleration at the end of the period, by the same
     # expressions as plant.dynamics.deriv (one contact-force evaluation, not two)
-    pc = coefs(pp)
-    phi, _fe = contact_force(y[0] - y[2], y[1] - y[3], mode, pc.c, pc.b)
-    a2 = (phi - f - pc.k2 * y[2] - pc.c2 * y[3]) * pc.im2
-    inf[INFO_CONTACT_FORCE] = phi
-    inf[INFO_A2] = a2
+    pc = coefs(plant_params)
+    phi, _fe = contact_force(y[STATE.x1] - y[STATE.x2], y[STATE.v1] - y[STATE.v2], mode, pc.c, pc.b)
+    a2 = (phi - f - pc.k2 * y[STATE.x2] - pc.c2 * y[STATE.v2]) * pc.im2
+    info[HW_INFO.contact_force] = phi
+    info[HW_INFO.a2] = a2
     r = s.out.raw[i]
-    sens = block(pr, po, PB_SENSORS)
-    read_packed(y[0], y[2], a2, phi, sens, r)
+    sens = block(params, po, PB.sensors)
+    read_packed(y[STATE.x1], y[STATE.x2], a2, phi, sens, r)
     if flags & F_SENSORS:  # each sensor stage reads channel j before writing it: in place
         z = s.noise.z
         cursor = s.noise.cursor
@@ -228,7 +234,7 @@ def hardware_tick(i, u, p, s):
         sense_packed(r, z[i, c], sens, r)
         cursor[i] = c + 1
     if flags & F_SENS_DELAY:
-        delay_packed(block(pr, po, PB_SENS_DELAY), block(st, so, SB_SENS_DELAY), r, r)
+        delay_packed(block(params, po, PB.sensor_delay), block(state, so, SB.sensor_delay), r, r)
     ps.t[i] += cfg.period
 
 
@@ -242,7 +248,7 @@ def hardware_step(u, p, s):
 @jit(inline="always")
 def state_ok(i, s) -> bool:
     """False once env i's plant kernel failed or its state left the finite range."""
-    if s.out.info[i, INFO_STATUS] != 0.0:
+    if s.out.info[i, HW_INFO.status] != 0.0:
         return False
     y = s.plant.y[i]
     for k in range(4):

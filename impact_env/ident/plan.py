@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from impact_env.control.policy import CompiledPolicy
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.excitation import Excitation
 from impact_env.rig.log import write_episode
 
@@ -76,8 +76,8 @@ def run_plan(client, out_dir, plan: list[PlanEpisode] | None = None, seed: int =
     files = []
     for j, ep in enumerate(plan):
         n = max(1, int(round(ep.duration_s * scene.control_rate)))
-        kind = {"quiet": P.EpisodeKind.QUIET, "shaker": P.EpisodeKind.SHAKER,
-                "ident_drop": P.EpisodeKind.IDENT_DROP}[ep.kind]
+        kind = {"quiet": protocol.EpisodeKind.QUIET, "shaker": protocol.EpisodeKind.SHAKER,
+                "ident_drop": protocol.EpisodeKind.IDENT_DROP}[ep.kind]
         t0 = time.perf_counter()
         client.arm("onboard", seed + j, n, kind=kind, excitation=ep.excitation,
                    policy=passive if ep.kind == "ident_drop" else None)
@@ -87,5 +87,6 @@ def run_plan(client, out_dir, plan: list[PlanEpisode] | None = None, seed: int =
         if progress:
             what = ep.excitation.describe() if ep.excitation is not None else ep.kind
             print(f"identify: episode {j + 1}/{len(plan)} {ep.kind} ({what}, {ep.duration_s:g} s): "
-                  f"{P.EndReason(end.reason).name} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+                  f"{protocol.EndReason(end.reason).name} in {time.perf_counter() - t0:.1f} s",
+                  file=sys.stderr)
     return files

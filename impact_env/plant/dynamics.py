@@ -23,7 +23,7 @@ from math import sqrt
 from typing import NamedTuple
 
 from impact_env._jit import jit
-from impact_env.plant.layout import AUTO, C2, CONTACT, FREE, K2, M1, M2, B, C, G
+from impact_env.plant.layout import AUTO, CONTACT, FREE, PARAM
 
 
 class Coefs(NamedTuple):
@@ -44,7 +44,8 @@ class Coefs(NamedTuple):
 @jit(inline="always")
 def coefs(p):
     """:class:`Coefs` of the parameter row ``p`` (float64[N_PARAM], :mod:`impact_env.plant.layout`)."""
-    return Coefs(p[M1], p[M2], 1.0 / p[M1], 1.0 / p[M2], p[C], p[B], p[G], p[K2], p[C2])
+    return Coefs(p[PARAM.m1], p[PARAM.m2], 1.0 / p[PARAM.m1], 1.0 / p[PARAM.m2], p[PARAM.c], p[PARAM.b],
+                 p[PARAM.g], p[PARAM.k2], p[PARAM.c2])
 
 
 @jit(inline="always")

@@ -1,4 +1,4 @@
-"""Index layout of the plant's state and parameter arrays (plain ints, frozen by numba as constants).
+"""Index layout of the plant's state and parameter arrays: named positions (numba freezes them as constants).
 
 Frame (the thesis's, section 2.3): x points **downwards**; positions are those of the facing
 surfaces, with body 2's surface at x = 0 when body 2 is at rest, so the penetration is
@@ -6,24 +6,43 @@ surfaces, with body 2's surface at x = 0 when body 2 is at rest, so the penetrat
 positive **upwards**, i.e. towards body 1 (eq 2.7b: ``m2 x2'' = Phi - f2``).
 """
 
-# state vector y (float64[N_STATE])
-X1 = 0  # body 1 position, m (down positive)
-V1 = 1  # body 1 velocity, m/s
-X2 = 2  # body 2 position, m
-V2 = 3  # body 2 velocity, m/s
-W_EXT = 4  # work done on the system by the shaker force since t0, J
-W_DISS = 5  # energy dissipated (pad damping, suspension damping) since t0, J
-N_STATE = 6
+from typing import NamedTuple
 
-# parameter vector p (float64[N_PARAM])
-M1 = 0  # kg
-M2 = 1  # kg
-C = 2  # Hertz stiffness, N/m^1.5
-B = 3  # Tsuji damping coefficient, N s/m^1.25 (0: elastic Hertz)
-G = 4  # gravity on body 1, m/s^2
-K2 = 5  # suspension stiffness of body 2, N/m
-C2 = 6  # suspension damping of body 2, N s/m
-N_PARAM = 7
+from impact_env._packed import positions
+
+
+class StateSlots(NamedTuple):
+    """The entries of a state vector y (float64[N_STATE])."""
+
+    x1: float  # body 1 position, m (down positive)
+    v1: float  # body 1 velocity, m/s
+    x2: float  # body 2 position, m
+    v2: float  # body 2 velocity, m/s
+    w_ext: float  # work done on the system by the shaker force since t0, J
+    w_diss: float  # energy dissipated (pad damping, suspension damping) since t0, J
+
+
+class ParamSlots(NamedTuple):
+    """The entries of a plant parameter vector p (float64[N_PARAM])."""
+
+    m1: float  # kg
+    m2: float  # kg
+    c: float  # Hertz stiffness, N/m^1.5
+    b: float  # Tsuji damping coefficient, N s/m^1.25 (0: elastic Hertz)
+    g: float  # gravity on body 1, m/s^2
+    k2: float  # suspension stiffness of body 2, N/m
+    c2: float  # suspension damping of body 2, N s/m
+
+
+#: positions by name (impact_env._packed): ``y[STATE.x1]``, ``p[PARAM.c]``
+STATE = positions(StateSlots)
+PARAM = positions(ParamSlots)
+N_STATE = len(STATE)
+N_PARAM = len(PARAM)
+# the same positions as plain ints, for the kernels that still read them so (plant/integrators.py,
+# plant/free_flight.py, sim/metrics.py, eval/, rig/, deploy/): the names above are the convention
+X1, V1, X2, V2, W_EXT, W_DISS = STATE
+M1, M2, C, B, G, K2, C2 = PARAM
 
 # contact modes
 FREE = 0  # event-located integration, no contact force

@@ -43,7 +43,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from impact_env.config import ConfigError
-from impact_env.control import laws as LW
+from impact_env.control import laws
 from impact_env.control.laws.law import Law, Param
 from impact_env.control.observation import ObservationLayout, make_layout
 from impact_env.control.policy import CompiledPolicy
@@ -87,13 +87,13 @@ class Policy:
         (``values[N, frame_size]``, named by ``self.layout.names``); may update ``memory``.
         Default: the compiled law ``name`` (:func:`impact_env.control.laws.law_forces`) with
         :meth:`law_constants`, one set per env."""
-        if self.name not in LW.KIND:
+        if self.name not in laws.KIND:
             raise NotImplementedError(f"{type(self).__name__} is not a compiled law: override force()")
         n = values.shape[0]
-        K = LW.constants_rows(self.name, self.law_constants(), n)
-        mem = memory if memory is not None and memory.shape[1] >= LW.MEMORY else np.zeros((n, LW.MEMORY))
-        slots = LW.law_slots(self.name, self.layout.names)
-        return LW.law_forces(LW.KIND[self.name], slots, K, np.ascontiguousarray(values, dtype=np.float64),
+        K = laws.constants_rows(self.name, self.law_constants(), n)
+        mem = memory if memory is not None and memory.shape[1] >= laws.MEMORY else np.zeros((n, laws.MEMORY))
+        slots = laws.law_slots(self.name, self.layout.names)
+        return laws.law_forces(laws.KIND[self.name], slots, K, np.ascontiguousarray(values, dtype=np.float64),
                              np.ascontiguousarray(mem), np.empty(n))
 
     def reset_memory(self, memory: np.ndarray, rows: np.ndarray) -> None:
@@ -211,5 +211,5 @@ def law_policy(law: Law) -> type[Policy]:
 
 
 #: every classic law's policy class, by name (impact_env.policy.registry finds them here)
-LAW_POLICIES: dict[str, type[Policy]] = {law.name: law_policy(law) for law in LW.REGISTRY}
+LAW_POLICIES: dict[str, type[Policy]] = {law.name: law_policy(law) for law in laws.REGISTRY}
 globals().update({cls.__name__: cls for cls in LAW_POLICIES.values()})  # (so that pickle finds them)

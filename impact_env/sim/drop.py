@@ -22,8 +22,8 @@ from impact_env.hardware.arrays import (
     initial_state,
     plant_params,
 )
-from impact_env.plant import layout as L
 from impact_env.plant.integrators import PlantCarry, PlantConsts, Records
+from impact_env.plant.layout import DIVERGED, EVENT_OVERFLOW, N_EVENT_COLS, N_STATE, OK, STEP_UNDERFLOW
 from impact_env.plant.run import run_periods
 from impact_env.scene import Scene, load_scene
 from impact_env.scene.scene import ADAPTIVE
@@ -108,9 +108,9 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     mode = initial_mode(scene, y, p)
     scale = error_scale(scene, p)
     hstate = np.zeros(1)
-    ev = np.zeros((max_events, L.N_EVENT_COLS))
+    ev = np.zeros((max_events, N_EVENT_COLS))
     evn = np.zeros(1, dtype=np.int64)
-    out_y = np.empty((n + 1, L.N_STATE))
+    out_y = np.empty((n + 1, N_STATE))
     out_mode = np.empty(n + 1, dtype=np.int64)
     out_peak = np.zeros(n + 1)
     # the period's peak force (scratch), and the largest penetration of the run (m; negative: the
@@ -122,13 +122,13 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
     consts = PlantConsts(p, scale, method, integ.dt, integ.rtol)
     carry = PlantCarry(y, hstate, ev, evn, peak)
     t0 = time.perf_counter()
-    status = L.OK
+    status = OK
     done = n
     if controller is None:
         status, mode, done = run_periods(mode, 0.0, 0.0, rec_period, consts, carry,
                                          Records(out_y, out_mode, out_peak, 1, n))
     else:
-        scr_y = np.empty((1, L.N_STATE))
+        scr_y = np.empty((1, N_STATE))
         scr_mode = np.empty(1, dtype=np.int64)
         scr_peak = np.zeros(1)
         scr = Records(scr_y, scr_mode, scr_peak, 0, 1)
@@ -143,14 +143,14 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
                 status, mode, _done = run_periods(mode, f2, t, ctrl_period, consts, carry, scr)
                 peak_k = max(peak_k, scr_peak[0])
                 k_ctrl += 1
-                if status != L.OK:
+                if status != OK:
                     break
             out_y[k], out_mode[k], out_peak[k], f2_rec[k] = y, mode, peak_k, f2
-            if status != L.OK:
+            if status != OK:
                 done = k
                 break
     wall = time.perf_counter() - t0
-    if status != L.OK:
+    if status != OK:
         _raise_status(status, out_y, done, rec_period, scene)
     return build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_touch, rec_period, wall,
                             float(peak[1]))
@@ -159,9 +159,9 @@ def simulate(scene: Scene | str, controller: Controller | None = None, t_end: fl
 def _raise_status(status, out_y, done, rec_period, scene):
     last = out_y[max(done - 1, 0)]
     t = done * rec_period
-    what = {L.DIVERGED: "the state left the finite range (|x|+|v| > 1e9 or NaN)",
-            L.STEP_UNDERFLOW: "dopri5's step size fell below 1e-15 of the span",
-            L.EVENT_OVERFLOW: "more than 16 contact switches within one step"}[status]
+    what = {DIVERGED: "the state left the finite range (|x|+|v| > 1e9 or NaN)",
+            STEP_UNDERFLOW: "dopri5's step size fell below 1e-15 of the span",
+            EVENT_OVERFLOW: "more than 16 contact switches within one step"}[status]
     raise SimulationDiverged(
         f"simulation of scene {scene.name!r} diverged near t = {t:.6g} s: {what}. Last finite "
         f"state x1, v1, x2, v2 = {last[:4].tolist()}. Try a smaller integrator.dt, "

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from impact_env._bind import bind
-from impact_env._jit import entry_point
 from impact_env._threads import BlockRunner, check_threads, env_blocks, resolve_threads
 from impact_env.config import check_hold_ticks
 from impact_env.control.front_end import FrontEnd
@@ -25,7 +23,7 @@ from impact_env.control.residual import residual_arrays, start_residual
 from impact_env.hardware.batch import NOISE_BLOCK, Hardware
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.records import N_PLANT_REC, N_REC
-from impact_env.sim.step import SimParams, SimState, sim_blocks, sim_step
+from impact_env.sim.step import SimParams, SimState, sim_step
 
 #: envs per block at least when a step runs in threads (measured: scripts/bench_env.py, section
 #: "threads", rig on 2 cores: 2 blocks of 32 envs 0.99x and 1.27x in two runs with a free second
@@ -44,13 +42,15 @@ class Simulator:
     (float64[N, 4]: the conditioned readings), ``detected``, ``records`` (float64[N, hold_ticks,
     N_REC], :mod:`impact_env.sim.records`) and ``plant_records`` (float64[N, hold_ticks,
     N_PLANT_REC]: the plant's integral and located separations), and the hardware's arrays
-    (``Y``, ``P``, ``t``, ``info``, ``impact_energy``, ``t_touch``, ``drawn``) through :attr:`hw`.
+    (``plant_state``, ``plant_parameters``, ``t``, ``info``, ``impact_energy``, ``t_touch``,
+    ``drawn``) through :attr:`hw`.
 
     ``residual``: a compiled classic law evaluated every tick on its own observation frame; the
     command of a tick is ``clip(action + law, -1, 1)`` (:mod:`impact_env.sim.step`).
 
-    ``threads``: a step runs its envs in this many threads at once (one compiled parallel region
-    over blocks of at least :data:`MIN_BLOCK_ENVS` envs; a smaller batch runs serially);
+    ``threads``: a step runs its envs in this many threads at once (blocks of at least
+    :data:`MIN_BLOCK_ENVS` envs, :class:`~impact_env._threads.BlockRunner`; a smaller batch runs
+    serially);
     ``"auto"``: the CPUs this process may use, at most one per :data:`MIN_BLOCK_ENVS` envs;
     None or 1: serially, in the calling thread.  The results do not depend on it, bitwise
     (:mod:`impact_env._threads`).  It may be changed between steps (:attr:`threads`).
@@ -72,9 +72,7 @@ class Simulator:
         self.records = np.zeros((self.n, self.hold, N_REC))
         self.plant_records = np.zeros((self.n, self.hold, N_PLANT_REC))
         self._all = np.ones(self.n, dtype=bool)
-        # sim_step serially, or its parallel shim over blocks, bound to this simulator's argument
-        # types (float64[::1] actions, bool[::1] active) from the first step on
-        self._run = BlockRunner(sim_step, sim_blocks, entry_point, bind)
+        self._run = BlockRunner(sim_step)  # over the blocks of envs (threads)
         self.residual = residual
         if residual is not None:
             if residual.mlp is not None or residual.history != 1:
@@ -104,9 +102,10 @@ class Simulator:
     def reset(self, rngs, mask=None) -> np.ndarray:
         """Start new drops where ``mask`` is true (all if None); returns their indices."""
         idx = self.hw.reset(rngs, mask)
-        self.fe.start(idx, self.hw.raw, self.hw.Y)
+        self.fe.start(idx, self.hw.raw, self.hw.plant_state)
         if self.residual is not None:  # the law's memory and first frame, from the same readings
-            start_residual(np.asarray(idx, dtype=np.int64), self.hw.Y, self.fe.state, self.params.law,
+            start_residual(np.asarray(idx, dtype=np.int64), self.hw.plant_state, self.fe.state,
+                           self.params.law,
                            self.state.law)
         self.records[idx] = 0.0
         self.plant_records[idx] = 0.0
@@ -127,20 +126,11 @@ class Simulator:
         (``actions, active, params, state``), the step's noise drawn: for a caller that runs the
         step inside a kernel of its own, over :attr:`blocks` (the catch task's
         :func:`~impact_env.env.task_kernel.catch_step`)."""
-        args = self.call_args(actions, active)
-        self.hw.refill_noise(self.hold, None if active is None else args[1], self._blocks)
-        return args
-
-    def call_args(self, actions, active=None) -> tuple:
-        """:meth:`step_args` without drawing the noise: for a caller that binds them once
-        (:meth:`impact_env.env.task.CatchTask.prepared_step`) and tops the noise up itself
-        (``hw.refill_noise``) before every step."""
         n = self.n
-        # the types the bound kernel was made for: writable C-contiguous float64[n] and bool[n]
-        own = (type(actions) is np.ndarray and actions.dtype == np.float64 and actions.ndim == 1
-               and actions.shape[0] == n and actions.flags.c_contiguous and actions.flags.writeable)
-        a = actions if own else np.array(actions, dtype=np.float64).reshape(n)
-        act = self._all if active is None else np.array(active, dtype=bool).reshape(n)
+        # C-contiguous and writeable, as the compiled kernels were compiled for (a copy otherwise)
+        a = np.require(actions, np.float64, ("C", "W")).reshape(n)
+        act = self._all if active is None else np.require(active, bool, ("C", "W")).reshape(n)
+        self.hw.refill_noise(self.hold, None if active is None else act, self._blocks)
         return a, act, self.params, self.state
 
     # -- what the rest of the project reads ---------------------------------------------------
@@ -157,12 +147,21 @@ class Simulator:
         return self.fe.detected
 
     @property
+    def plant_state(self) -> np.ndarray:
+        return self.hw.plant_state
+
+    @property
+    def plant_parameters(self) -> np.ndarray:
+        return self.hw.plant_parameters
+
+    # the old names of plant_state and plant_parameters (eval/ and rig/ read them)
+    @property
     def Y(self) -> np.ndarray:
-        return self.hw.Y
+        return self.hw.plant_state
 
     @property
     def P(self) -> np.ndarray:
-        return self.hw.P
+        return self.hw.plant_parameters
 
     @property
     def t(self) -> np.ndarray:

@@ -1,8 +1,7 @@
 """The simulator's compiled step: for every active env, ``hold`` ticks of the hardware stage
 under the held command, each followed by the front end's conditioning; then, unless the plant
 failed, the observation.  One call per step for the whole batch, or, when the simulator has
-threads, one compiled parallel region over blocks of envs (:func:`sim_blocks`,
-:mod:`impact_env._threads`).
+threads, one call per block of envs, the blocks at once (:class:`impact_env._threads.BlockRunner`).
 
 The order inside a tick is the rig's: the command for the tick is the policy's held action,
 plus, with a residual law, that law's command from the readings of the tick before (its own
@@ -21,11 +20,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import prange
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
-from impact_env._threads import unflatten
 from impact_env.control.front_end import (
     FrontEndParams,
     FrontEndState,
@@ -36,17 +33,14 @@ from impact_env.control.front_end import (
 )
 from impact_env.control.residual import ResidualParams, ResidualState, add_residual, observe_residual
 from impact_env.hardware.stage import (
-    INFO_CATCH_INTEGRAL,
-    INFO_CONTACT_FORCE,
-    INFO_F_APPLIED,
-    INFO_F_DEMAND,
-    INFO_SATURATED,
+    HW_INFO,
     HardwareParams,
     HardwareState,
     hardware_tick,
     state_ok,
 )
-from impact_env.sim import records as R
+from impact_env.plant.layout import STATE
+from impact_env.sim.records import PREC, REC
 
 
 class SimParams(NamedTuple):
@@ -71,12 +65,12 @@ def _first_separation(pr, events, n0, n1, t_start):
     """The plant record's ``t_separation`` / ``v1_separation``: the first separation (kind -1)
     among the events ``n0 .. n1 - 1`` of the plant's log (those of this tick, whose times count
     from the tick's start ``t_start``), or NaN (none, or beyond the log's size)."""
-    pr[R.PREC.t_separation] = np.nan
-    pr[R.PREC.v1_separation] = np.nan
+    pr[PREC.t_separation] = np.nan
+    pr[PREC.v1_separation] = np.nan
     for e in range(n0, min(n1, events.shape[0])):
         if events[e, 1] < 0.0:
-            pr[R.PREC.t_separation] = t_start + events[e, 0]
-            pr[R.PREC.v1_separation] = events[e, 3]
+            pr[PREC.t_separation] = t_start + events[e, 0]
+            pr[PREC.v1_separation] = events[e, 3]
             return
 
 
@@ -105,19 +99,21 @@ def env_step(i, a, p, s):
             if ok and law_on:
                 observe_residual(i, Y[i], s.fe, p.law, s.law)
         r = s.records[i, k]
-        r[R.REC.t] = t[i]
-        for j in range(4):
-            r[R.REC.x1 + j] = Y[i, j]
-        r[R.REC.u] = u
-        r[R.REC.f_demand] = info[i, INFO_F_DEMAND]
-        r[R.REC.f_applied] = info[i, INFO_F_APPLIED]
-        r[R.REC.saturated] = info[i, INFO_SATURATED]
-        r[R.REC.contact_force] = info[i, INFO_CONTACT_FORCE]
-        r[R.REC.detected] = detected[i]
-        r[R.REC.status] = 0.0 if ok else 1.0
-        pr = s.plant_records[i, k]
-        pr[R.PREC.catch_integral] = info[i, INFO_CATCH_INTEGRAL]
-        _first_separation(pr, events[i], n0, n_events[i, 0], t[i] - period)
+        r[REC.t] = t[i]
+        r[REC.x1] = Y[i, STATE.x1]
+        r[REC.v1] = Y[i, STATE.v1]
+        r[REC.x2] = Y[i, STATE.x2]
+        r[REC.v2] = Y[i, STATE.v2]
+        r[REC.u] = u
+        r[REC.f_demand] = info[i, HW_INFO.f_demand]
+        r[REC.f_applied] = info[i, HW_INFO.f_applied]
+        r[REC.saturated] = info[i, HW_INFO.saturated]
+        r[REC.contact_force] = info[i, HW_INFO.contact_force]
+        r[REC.detected] = detected[i]
+        r[REC.status] = 0.0 if ok else 1.0
+        plant_record = s.plant_records[i, k]
+        plant_record[PREC.catch_integral] = info[i, HW_INFO.catch_integral]
+        _first_separation(plant_record, events[i], n0, n_events[i, 0], t[i] - period)
     if ok:
         observe(i, True, a, Y[i], s.fe, p.obs, s.obs)
     return ok
@@ -132,24 +128,3 @@ def sim_step(i0, i1, actions, active, p, s):
     for i in range(i0, i1):
         if active[i]:
             env_step(i, actions[i], p, s)
-
-
-@jit(nogil=True)
-def _sim_block(i0, i1, actions, active, fp, fs):
-    """:func:`sim_step` on envs ``i0 .. i1 - 1``, its SimParams and SimState rebuilt from their
-    leaves (``fp``, ``fs``: :func:`impact_env._threads.flatten`); False if it raised (numba
-    loses an exception raised inside a parallel loop)."""
-    try:
-        sim_step(i0, i1, actions, active, unflatten(fp, SimParams), unflatten(fs, SimState))
-    except Exception:  # noqa: BLE001 - reported by the caller (impact_env._threads.BlockRunner)
-        return False
-    return True
-
-
-@jit(nogil=True, parallel=True)
-def sim_blocks(bounds, ok, actions, active, fp, fs):
-    """:func:`sim_step` on the blocks of envs ``bounds[b] .. bounds[b + 1] - 1``, all in one
-    compiled parallel region (numba's threads); ``ok[b]``: block b did not raise.  The shim of
-    :mod:`impact_env._threads`."""
-    for b in prange(bounds.shape[0] - 1):
-        ok[b] = _sim_block(bounds[b], bounds[b + 1], actions, active, fp, fs)

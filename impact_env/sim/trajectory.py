@@ -8,9 +8,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from impact_env.hardware.stability import accuracy_warnings
-from impact_env.plant import layout as L
 from impact_env.plant.dynamics import contact_forces
 from impact_env.plant.energy import catch_energy, energies, energy_above_rest
+from impact_env.plant.layout import AUTO, CONTACT, PARAM, STATE
 from impact_env.scene import Scene
 from impact_env.scene.scene import ADAPTIVE
 
@@ -53,12 +53,13 @@ class Trajectory:
 
     def energies(self) -> dict[str, np.ndarray]:
         p = self.params
-        return energies(self.x1, self.v1, self.x2, self.v2, p[L.M1], p[L.M2], p[L.C], p[L.G], p[L.K2])
+        return energies(self.x1, self.v1, self.x2, self.v2, p[PARAM.m1], p[PARAM.m2], p[PARAM.c], p[PARAM.g],
+                        p[PARAM.k2])
 
     def catch_energy(self) -> np.ndarray:
         """Body 1's energy above resting on body 2 (J); see :func:`plant.energy.catch_energy`."""
         p = self.params
-        return catch_energy(self.x1, self.v1, self.x2, p[L.M1], p[L.C], p[L.G])
+        return catch_energy(self.x1, self.v1, self.x2, p[PARAM.m1], p[PARAM.c], p[PARAM.g])
 
     def energy_balance_error(self) -> float:
         """max |E(t) + dissipated(t) - work_shaker(t) - E(0)| / E_scale over the run, E_scale the
@@ -111,8 +112,9 @@ class Trajectory:
     def energy_above_rest(self) -> np.ndarray:
         """The system's energy above rest (J), see :func:`plant.energy.energy_above_rest`."""
         p = self.params
-        return energy_above_rest(self.x1, self.v1, self.x2, self.v2, p[L.M1], p[L.M2], p[L.C], p[L.G],
-                                 p[L.K2])
+        return energy_above_rest(self.x1, self.v1, self.x2, self.v2, p[PARAM.m1], p[PARAM.m2], p[PARAM.c],
+                                 p[PARAM.g],
+                                 p[PARAM.k2])
 
     def time_to_fraction(self, fraction: float = 0.01) -> float | None:
         """Time (s) from the first touch until the system's energy above rest
@@ -183,11 +185,12 @@ def build_trajectory(scene, p, out_y, out_mode, out_peak, f2_rec, ev, evn, t_tou
     d = x1 - x2
     mode = out_mode
     fc = np.empty(n)
-    contact_forces(d, v1 - v2, mode.astype(np.int64), p[L.C], p[L.B], fc)
-    contact = (mode == L.CONTACT) if mode[0] != L.AUTO else (fc > 0)
+    contact_forces(d, v1 - v2, mode.astype(np.int64), p[PARAM.c], p[PARAM.b], fc)
+    contact = (mode == CONTACT) if mode[0] != AUTO else (fc > 0)
     k = int(min(evn[0], ev.shape[0]))
     return Trajectory(t=t, x1=x1, v1=v1, x2=x2, v2=v2, contact=contact, contact_force=fc,
-                      peak_force=out_peak.copy(), shaker_force=f2_rec, work_shaker=out_y[:, L.W_EXT].copy(),
-                      dissipated=out_y[:, L.W_DISS].copy(), events=ev[:k].copy(), t_first_contact=t_touch,
+                      peak_force=out_peak.copy(), shaker_force=f2_rec, work_shaker=out_y[:,
+                                                                                         STATE.w_ext].copy(),
+                      dissipated=out_y[:, STATE.w_diss].copy(), events=ev[:k].copy(), t_first_contact=t_touch,
                       scene=scene, params=p, wall_time_s=wall, n_events_dropped=int(evn[0]) - k,
                       peak_penetration=peak_penetration)
