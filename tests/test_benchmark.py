@@ -1,5 +1,6 @@
 """The frozen suite (impact_env.eval.suite), the benchmark's record (impact_env.eval.benchmark)
-and the leaderboard generated from records (scripts/leaderboard.py)."""
+and the leaderboard generated from records (scripts/leaderboard.py); README's main job on held-out
+seeds (scripts/readme_table.py)."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ import pytest
 
 from impact_env.config import ConfigError
 from impact_env.eval import limits as LM
-from impact_env.eval.compare import compare, format_statistics, summary_json, write_outputs
+from impact_env.eval.compare import ENERGY_CURVE_RATE, compare, format_statistics, summary_json, write_outputs
 from impact_env.eval.oracle_cache import OracleCache, law_warm_starts
 from impact_env.eval.paired import bootstrap, iqm, mean, prob_improvement, resample_indices
 from impact_env.eval.rollout import rollout
@@ -196,7 +196,7 @@ def test_a_request_of_days_is_refused_unless_allowed(scene, monkeypatch):
     monkeypatch.setattr(LM, "SMALL_STEPS", 0)  # measured however small
     with pytest.raises(ConfigError, match=r"days.*--allow-long"):
         compare(scene("rig"), ["passive"], episodes=1000, horizon=H, workers=1, progress=False)
-    cost = LM.estimate(scene("rig"), H, 1000, 1, 1, 1e4)
+    cost = LM.estimate(scene("rig"), H, 1000, 1, 1, 1e4, ENERGY_CURVE_RATE)
     assert cost.seconds == pytest.approx(1000 * H / scene("rig").control_period)
 
 

@@ -1,7 +1,7 @@
 """The docs' generated blocks (``python scripts/docs_tables.py``) are current, and the facts they
-hold come from one place: the layers from pyproject's import-linter contract (also README's
-chain of layers), the "where is it" index from the scene's dataclasses and the registries of
-effects and laws."""
+hold come from one place: the layers from pyproject's import-linter contract (README, a project card,
+links to docs/architecture.md rather than repeating them), the "where is it" index from the
+scene's dataclasses and the registries of effects and laws."""
 
 from __future__ import annotations
 
@@ -17,17 +17,6 @@ from impact_env.scene import Scene
 
 def test_every_generated_block_is_current(capsys):
     assert docs_tables.main(["--check"]) == 0, capsys.readouterr().err
-
-
-def test_the_readme_chain_of_layers_is_the_contracts(root):
-    text = (root / "README.md").read_text()
-    chain = text.split("## Architecture", 1)[1].split("```", 2)[1].split("\n\n", 1)[0]
-    layers = []
-    for layer in re.split(r"\s>\s", " ".join(chain.split())):
-        names = [n.strip().rstrip("/") for n in layer.split("|")]
-        layers.append([n if n.startswith("impact_env") or n in ("agents", "baselines") else f"impact_env.{n}"
-                       for n in names])
-    assert layers == docs_tables.contract_layers()
 
 
 def _leaves(cls, prefix: str) -> list[str]:

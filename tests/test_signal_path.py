@@ -58,7 +58,7 @@ def _order(text: str, names: list[str]) -> list[str]:
 
 
 def _docs(root) -> list[tuple[str, str, list[str]]]:
-    readme = (root / "README.md").read_text()
+    explanation = (root / "docs" / "explanation" / "signal-path.md").read_text()
     scenes = (root / "docs" / "scenes.md").read_text()
     both = HARDWARE + CONTROLLER
     return [
@@ -66,7 +66,8 @@ def _docs(root) -> list[tuple[str, str, list[str]]]:
          _between(effects.__doc__ or "", "One signal path", "Each effect"), both),
         ("impact_env/hardware/stage.py", _between(stage.__doc__ or "", "Order (fixed", "A stage runs"),
          HARDWARE),
-        ("README.md", _between(readme, "hardware stage (hardware/stage.py):", "=> observation"), both),
+        ("docs/explanation/signal-path.md",
+         _between(explanation, "hardware stage (hardware/stage.py):", "=> observation"), both),
         ("docs/scenes.md", _between(scenes, "`action -> command scaling", "front end"), both),
     ]
 

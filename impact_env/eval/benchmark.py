@@ -263,7 +263,9 @@ def write_record(record: dict, out_dir: Path, fmt: str = "png") -> list[Path]:
     name = record["suite"]["name"]
     p = out_dir / f"{name}.json"
     p.write_text(dumps_record(record))
-    return [p, plot_profiles(record, out_dir / f"{name}_profile.{fmt}")]
+    order = sorted(record["overall"], key=lambda k: _rank_key(record["overall"][k]))
+    scores = {spec: scores_per_drop(record, spec) for spec in order}
+    return [p, plot_profiles(record, scores, out_dir / f"{name}_profile.{fmt}")]
 
 
 def dumps_record(record: dict) -> str:

@@ -35,24 +35,21 @@ def profile_band(scores: np.ndarray, strata: np.ndarray, seed: int, thresholds=T
     return low, high
 
 
-def plot_profiles(record: dict, path: Path) -> Path:
-    """Every policy's performance profile over the suite's drops (the record's sets as strata)."""
+def plot_profiles(record: dict, scores: dict[str, tuple[np.ndarray, np.ndarray]], path: Path) -> Path:
+    """Every policy's performance profile over the suite's drops: ``scores`` maps each policy,
+    best first, to its oracle-normalised score per drop and the drop's set (the strata)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from impact_env.eval.benchmark import _rank_key, scores_per_drop
-
     seed = record["suite"]["sets"][0]["seed"]
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
-    order = sorted(record["overall"], key=lambda k: _rank_key(record["overall"][k]))
-    for spec in order:
-        scores, strata = scores_per_drop(record, spec)
-        if not np.any(~np.isnan(scores)):
+    for spec, (per_drop, strata) in scores.items():
+        if not np.any(~np.isnan(per_drop)):
             continue
-        line, = ax.plot(THRESHOLDS, profile(scores), label=_label(spec))
-        low, high = profile_band(scores, strata, seed)
+        line, = ax.plot(THRESHOLDS, profile(per_drop), label=_label(spec))
+        low, high = profile_band(per_drop, strata, seed)
         ax.fill_between(THRESHOLDS, low, high, color=line.get_color(), alpha=0.2, linewidth=0)
     ax.set_xlabel("score threshold tau (0 = passive, 100 = per-drop oracle)")
     ax.set_ylabel("share of drops with score > tau")

@@ -249,7 +249,7 @@ def compare(scene, specs: list[str], episodes: int = 100, seed: int = 0, horizon
     n_rows = len(specs) + (cache is not None) + (cache is not None and "passive" not in specs)
     with session(cluster, workers) as (cl, workers):
         if not is_small(scene, horizon, episodes, n_rows):
-            check_cost(estimate(scene, horizon, episodes, n_rows, workers, trace_rate,
+            check_cost(estimate(scene, horizon, episodes, n_rows, workers, trace_rate, ENERGY_CURVE_RATE,
                                 record_commands=listed_oracle),
                        f"{n_rows} policies x {episodes} episodes of {horizon:g} s", allow_long)
         commands, cache_stats = None, None

@@ -79,15 +79,15 @@ def measure(scene, horizon: float, trace_rate: float) -> tuple[float, float]:
 
 
 def estimate(scene, horizon: float, episodes: int, policies: int, workers: int, trace_rate: float,
-             record_commands: bool = False) -> Cost:
+             curve_rate: float, record_commands: bool = False) -> Cost:
     """The memory (bytes) and time (s) of ``policies`` x ``episodes`` episodes of ``horizon`` s
-    over ``workers`` processes (module doc)."""
-    from impact_env.eval.compare import ENERGY_CURVE_RATE
+    over ``workers`` processes, each episode's catch-energy curve kept at ``curve_rate`` Hz
+    (module doc)."""
     from impact_env.sim.metrics import EPISODE_METRICS
 
     per_episode, per_period = measure(scene, horizon, trace_rate)
     periods = horizon / scene.control_period
-    parent = (len(EPISODE_METRICS) * 8 + (horizon * ENERGY_CURVE_RATE + 1) * ENERGY_CURVE_BYTES
+    parent = (len(EPISODE_METRICS) * 8 + (horizon * curve_rate + 1) * ENERGY_CURVE_BYTES
               + (periods * 8 if record_commands else 0.0))
     chunk = math.ceil(episodes / max(1, math.ceil(workers / max(policies, 1)))) if workers > 1 else episodes
     at_once = min(workers, policies * max(1, math.ceil(episodes / chunk))) * chunk
