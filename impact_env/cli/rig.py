@@ -136,6 +136,7 @@ def cmd_serve(args) -> int:
                                                       "max_horizon_s", "log_flush_s"))
         raise ConfigError(str(exc) if option or args.virtual else f"--driver {args.driver}: {exc}") from None
     target.install_signal_handlers()
+    target.on_note = lambda text: print(f"impact-env rig: {text}", file=sys.stderr, flush=True)
     if key:
         print(f"impact-env rig: session key from {args.key}: every datagram is authenticated",
               file=sys.stderr,

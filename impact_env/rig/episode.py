@@ -214,10 +214,14 @@ class Episode:
             return {"commands_accepted": int(self.wire.c.commands[0]),
                     "commands_acted": int(cc[RG.CC.acted]), "commands_superseded": int(cc[RG.CC.superseded]),
                     "commands_expired": int(cc[RG.CC.expired]),
-                    "commands_unused_at_end": int(cs[RG.CS.next_step] >= 0) + int(cs[RG.CS.cur_acted] == 0.0)}
+                    "commands_unused_at_end": int(cs[RG.CS.next_step] >= 0) + int(cs[RG.CS.cur_acted] == 0.0),
+                    "host_silent_steps": int(cc[RG.CC.silent_steps]),
+                    "host_silent_from_step": int(cc[RG.CC.silent_from])}
         self.note_acted()
         out = dict(self.cmd_counts)
         out["commands_unused_at_end"] = (self.next_cmd is not None) + (not self.cmd_acted)
+        # the Python loop runs lock-step only: each step waits for its command (or the link ends)
+        out["host_silent_steps"], out["host_silent_from_step"] = 0, -1
         return out
 
     @property
@@ -306,9 +310,9 @@ class Episode:
         hl = RG.host_link(ctl.layout.size, CF.libc_address("write"), wake_w, CF.libc_address("usleep"))
         self.hl = hl
         link, f = tg.link, tg.link.filter
-        if self.host:  # the loop owns the host's lane (else the socket) for the episode
-            fd = link.endpoint.open_lane(link.last_sender) if link.last_sender is not None else -1
-            link.endpoint.lane_busy = fd >= 0  # the loop reads the lane, the network thread the socket
+        if self.host:  # the loop owns the session's socket (else the target's) for the episode
+            fd = link.endpoint.session_fd
+            link.endpoint.session_busy = fd >= 0  # the loop reads it, the network thread the target's
             self.wire = WR.make(fd if fd >= 0 else link.endpoint.fileno(), f.key, f.nonce, f.session or 0,
                                 self.ep, link.last_sender,
                                 f.stream(f.session or 0, P.MsgType.COMMAND), link.seq, wake_fd=wake_w)
@@ -334,7 +338,7 @@ class Episode:
             why = self._network(rt, hl, wake_r)
         finally:
             rt.join()
-            link.endpoint.lane_busy = False
+            link.endpoint.session_busy = False
             restore()
             tg.running_link = None
             os.close(wake_r)
@@ -366,16 +370,16 @@ class Episode:
         tg, link = self.t, self.t.link
         sh = hl.shared
         why: str | None = None
-        lane = link.endpoint.lane_busy
+        own = link.endpoint.session_busy
         while True:
             done = sh[RG.SH.done] != 0 or not rt.is_alive()
             if self.host:
                 why = self._take_queued(why)
             if done:
                 return why
-            if self.host and not lane:  # the loop reads the socket
+            if self.host and not own:  # the loop reads the target's socket
                 ready = select.select([wake_r], [], [], 0.005)[0]
-            else:  # the loop reads the host's lane (or nothing): the rest is the socket's
+            else:  # the loop reads the session's socket (or nothing): the rest is the target's
                 ready = link.endpoint.wait_readable(0.005 if self.host else 0.02, wake_r)
             if wake_r in ready:
                 try:
@@ -384,7 +388,7 @@ class Episode:
                     pass
             if why is not None:
                 continue
-            if not self.host or lane:
+            if not self.host or own:
                 step = int(sh[RG.SH.tick]) // self.hold
                 for msg in link.recv_all(episode=self.ep, step=step):
                     why = self.take(msg)
