@@ -104,6 +104,22 @@ def start_target(*args: str, timeout_s: float = 300.0,
     return proc, re.search(r"udp://\S+", line).group(0)
 
 
+def streamed_ticks(folder: Path) -> int:
+    """The most rows a target's streamed log (``*.partial``) in ``folder`` has on disk now (0:
+    none readable yet): read without HDF5's file lock, which the target holds while it writes,
+    and retried by the caller if a read meets a half-written file."""
+    import h5py
+
+    most = 0
+    for path in Path(folder).glob("*.partial"):
+        try:
+            with h5py.File(path, "r", locking=False) as f:
+                most = max(most, int(f.attrs["n_ticks"]))
+        except (OSError, KeyError, ValueError):
+            continue
+    return most
+
+
 def stop(proc: subprocess.Popen, sig=signal.SIGTERM, timeout_s: float = 20.0) -> int:
     if proc.poll() is None:
         proc.send_signal(sig)

@@ -179,6 +179,7 @@ class Target:
         self.episodes: dict[int, bytes] = {}  # episode -> its log file's bytes (the latest few)
         self.last_end: P.EpisodeEnd | None = None
         self._stop = threading.Event()
+        self.signalled = 0  # the signal that stopped serve() (install_signal_handlers), 0 none
         self._pending: P.Message | None = None  # an ARM that ended the episode before it
         self._last_obs: P.Observation | None = None  # the last OBSERVATION of the last episode
         self._closed = False
@@ -253,9 +254,14 @@ class Target:
             hl.shared[SH.stop] = 1
 
     def install_signal_handlers(self) -> None:
-        """SIGTERM and SIGINT stop the serve loop, which zeroes the shaker on its way out."""
+        """SIGTERM and SIGINT stop the serve loop, which zeroes the shaker on its way out
+        (``signalled``: the signal's number)."""
+        def handler(signum, _frame):
+            self.signalled = signum
+            self.stop()
+
         for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: self.stop())
+            signal.signal(sig, handler)
 
     def close(self) -> None:
         """Zero the shaker, close the driver and the socket (idempotent)."""
@@ -621,9 +627,13 @@ class Target:
 
     def _write(self, ep: Episode, meta: LG.EpisodeMeta, end) -> None:
         ctl = ep.ctl
-        if ep.stream is not None:
-            ep.stream.close()
-        if self.cfg.log_dir is not None:
+        if self.stopping and ep.stream is not None and self.cfg.log_dir is not None:
+            # asked to stop (SIGTERM, SIGINT): the streamed file becomes the log (its last rows,
+            # its end and counters), not written again: the process exits within a second
+            data = ep.stream.finish(meta, self.cfg.log_dir).read_bytes()
+        elif self.cfg.log_dir is not None:
+            if ep.stream is not None:
+                ep.stream.close()
             data = LG.write_episode(ctl.log, self.cfg.log_dir, meta).read_bytes()
             if ep.stream is not None:
                 ep.stream.discard()  # the finished file replaces what was streamed
