@@ -88,6 +88,17 @@ class Episode:
         self.stop_asked_tick = -1  # the tick the loop was at when it was asked to stop
         self.stop_tick = -1  # the tick it stopped at
 
+    def prefault(self) -> None:
+        """Write every page of the episode's arrays now (the log's rows and observations, the
+        lateness, the true records): fresh memory is mapped on its first write, a page fault each
+        4 kB (or a huge page's zeroing), which in the loop's first ticks made the first episode of
+        a target late by milliseconds (OVERRUN, FIRST_COMMAND_TIMEOUT)."""
+        log = self.ctl.log
+        for arr in (log.rows, log.obs, self.lateness):
+            arr.fill(0.0)
+        if self.trec is not None:
+            self.trec.fill(np.nan)
+
     @property
     def overruns(self) -> int:
         """Rows flagged OVERRUN this episode (a tick that started a period or more late, or
@@ -334,6 +345,7 @@ class Episode:
         rt = threading.Thread(target=loop, name="rig-rt-loop", daemon=True)
         restore = tg.placement.python_thread()
         rt.start()
+        self.last_heard = time.perf_counter()  # the link's watch starts with the loop, not at ARM
         try:
             why = self._network(rt, hl, wake_r)
         finally:

@@ -207,6 +207,19 @@ class Target:
         ctl.log.record(tick=0)
         if self.compiled:
             self._warm_up_loop(ctl)
+        self._warm_up_log(ctl)
+
+    def _warm_up_log(self, ctl: Controller) -> None:
+        """h5py imported and the HDF5 library started now, not in the first episode: a log
+        streamed and finished, and one written, in a throwaway folder."""
+        meta = LG.EpisodeMeta(scene_toml="", mode="onboard", hold_ticks=1, seed=0, control_rate_hz=self.rate,
+                              obs_names=ctl.layout.names)
+        with tempfile.TemporaryDirectory(prefix="impact-env-rig-warm-") as tmp:
+            ctl.log.record(tick=0)
+            stream = LG.LogStream(ctl.log, Path(tmp) / "warm.h5.partial", meta, np.ones(1, np.int64), 1.0)
+            stream.finish(meta, tmp)
+            LG.write_episode(ctl.log, tmp, meta, name="written.h5").read_bytes()
+        ctl.log.reset()
 
     def _warm_up_loop(self, ctl: Controller) -> None:
         """Compile (or load) the real-time core for this driver's kind, both modes, on a
@@ -548,12 +561,13 @@ class Target:
         self.state = P.TargetState.RUNNING
         armed = P.Armed(self.episode, 0, ctl.layout.size, N_ACTIONS, 4, N_TELEMETRY, hold, self.rate,
                         self.scene_sha)
+        ep = Episode(self, arm_msg, armed, ctl, hold, seed)
+        ep.prefault()  # the episode's arrays in memory before ARMED: no page fault in its first ticks
         self.reply(armed, arm_msg)
         if kind in (P.EpisodeKind.SHAKER, P.EpisodeKind.QUIET):
             drv.hold()
         else:
             drv.release()
-        ep = Episode(self, arm_msg, armed, ctl, hold, seed)
         ep.datagrams0 = datagrams0
         ep.policy = policy
         try:
