@@ -126,9 +126,10 @@ class Episode:
                 self.cmd_counts["commands_superseded"] += 1
         elif t == P.MsgType.DISARM:
             tg.reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, self.ep), msg)
-            if msg.body.reason == 1:  # the host is closing: its session ends with the episode
+            if msg.body.reason == P.DISARM_CLOSING:  # the host is closing: its session ends with the episode
                 tg.close_session_after_episode()
-            return "DISARMED"
+            # the host's task caught body 1: the episode ends CAUGHT, as the host says
+            return "CAUGHT" if msg.body.reason == P.DISARM_CAUGHT else "DISARMED"
         elif t == P.MsgType.ARM:
             if msg.body == self.a:  # the same request again (its ARMED was lost): answer it again
                 tg.reply(self.armed, msg)

@@ -330,17 +330,19 @@ class RigClient:
                 fh.write(data)
             return read_episode(path)
 
-    def disarm(self, wait: bool = False, closing: bool = False) -> None:
+    def disarm(self, wait: bool = False, closing: bool = False, caught: bool = False) -> None:
         """Stop the episode (best effort: one datagram, or a bounded request with ``wait``);
-        ``closing``: the session ends too (another host may then open one at once)."""
+        ``closing``: the session ends too (another host may then open one at once); ``caught``:
+        the host's task caught body 1, and the target's log says so (end reason CAUGHT)."""
         if self.endpoint.closed:
             return
-        if wait:
-            self.link.request(P.Disarm(0),
+        reason = P.DISARM_CLOSING if closing else P.DISARM_CAUGHT if caught else P.DISARM_USER
+        if wait or caught:  # a catch is acknowledged: a lost one would leave the log's end another
+            self.link.request(P.Disarm(reason),
                               lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
                               "ACK of DISARM", self.timeout_s, self.retries)
         else:
-            self.link.send(P.Disarm(1 if closing else 0))
+            self.link.send(P.Disarm(reason))
 
     def close(self, budget_s: float = 0.3) -> None:
         """End the session (DISARM "host closing", acknowledged, so that the target frees it for
@@ -524,8 +526,8 @@ TASK_OPTIONS_DOC
         trunc = trunc or (not term and self._n >= self.max_steps)
         if term or trunc:
             self._running = False
-            if term:
-                self.client.disarm()
+            if term:  # one end reason on both sides: the target's log says CAUGHT too
+                self.client.disarm(caught=True)
         info = self._info(obs)
         info.update(extra)
         if term or trunc:

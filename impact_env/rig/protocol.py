@@ -94,7 +94,9 @@ code   type          dir    payload (offset type field [unit])
                             SCENE); 5 u32 offset [B]; 9 u16 max_len [B].  = 11 B
 11     CHUNK         T->H   0 u8 resource; 1 u32 item; 5 u32 total [B]; 9 u32 offset [B]; 13 u16 n [B];
                             15 n bytes data.  = 15 + n B
-12     DISARM        H->T   0 u8 reason (0 user, 1 host closing, 2 host error).  Answered by ACK.  = 1 B
+12     DISARM        H->T   0 u8 reason (0 user, 1 host closing, 2 host error, 3 caught: the host's
+                            task ended the episode, whose end reason is then CAUGHT).  Answered by
+                            ACK.  = 1 B
 13     HEARTBEAT     both   0 u8 state; 1 u32 episode; 5 u32 step; 9 u32 peer_seq (newest sequence
                             number accepted from the peer).  = 13 B
 14     ERROR         both   0 u16 code (``ErrorCode``); 2 u32 ref_seq (the message it answers, or 0);
@@ -241,6 +243,11 @@ class EndReason(enum.IntEnum):
     FAULT = 7  # the driver reported an error
     SENSOR_FAULT = 8  # implausible readings outlasted effects.sensors.fault_limit_s (issue 25)
     OVERRUN = 9  # real time: no tick ran for longer than the target's limit (max_gap_s): 0 N, ended
+
+
+# DISARM's reasons: the user; the host closing (its session ends too); a host error; the host's
+# task caught body 1 (terminate_on_catch): the episode's end reason is then CAUGHT, on both sides
+DISARM_USER, DISARM_CLOSING, DISARM_ERROR, DISARM_CAUGHT = 0, 1, 2, 3
 
 
 class EpisodeKind(enum.IntEnum):
@@ -743,10 +750,10 @@ class Chunk(Body):
 class Disarm(Body):
     TYPE: ClassVar = MsgType.DISARM
     FMT: ClassVar = struct.Struct("<B")
-    reason: int = 0
+    reason: int = 0  # DISARM_USER, DISARM_CLOSING, DISARM_ERROR, DISARM_CAUGHT
 
     def __post_init__(self):
-        _uint("reason", self.reason, U8)
+        _uint("reason", self.reason, DISARM_CAUGHT)
 
 
 @dataclass(frozen=True)
