@@ -79,6 +79,15 @@ print(json.dumps({"sent": sent, "not_sent": not_sent, "replies": replies, "reply
 """
 
 
+def slow_rate_args(rate_hz: float) -> tuple[str, ...]:
+    """``rig serve`` options for the rig scene at a control rate far below its 10 kHz (a target a
+    delayed host can answer with margins of milliseconds): the rate, and the sensors' filters off
+    (their 20-1000 Hz bands need a Nyquist frequency above 1 kHz)."""
+    filters = ("accelerometer", "force", "potentiometer", "body1_displacement")
+    return ("--set", f"control.rate={rate_hz:g}",
+            *(a for f in filters for a in ("--set", f'effects.filters.{f}.kind="none"')))
+
+
 def start_target(*args: str, timeout_s: float = 300.0,
                  driver: str | None = None) -> tuple[subprocess.Popen, str]:
     """``impact-env rig serve --virtual --port 0 ARGS`` (``--driver DRIVER`` instead of

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 import pytest
-from rig_helpers import start_target, stop
+from rig_helpers import slow_rate_args, start_target, stop
 
 from impact_env.rig.host import RigEnv
 
@@ -24,7 +24,7 @@ N_TARGETS = 2  # fresh processes per mode
 @pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "realtime"])
 def test_each_fresh_targets_first_episode_reaches_its_horizon(lockstep):
     for k in range(N_TARGETS):
-        args = ["--scene", "rig", "--set", "control.rate=1000"] + (["--lockstep"] if lockstep else [])
+        args = ["--scene", "rig", *slow_rate_args(1000)] + (["--lockstep"] if lockstep else [])
         proc, addr = start_target(*args)
         env = None
         try:

@@ -152,7 +152,7 @@ BODY_STRATEGIES = st.one_of(
     st.builds(P.EpisodeEnd, u32, u8, u32, u64, u32, u32, sha),
     st.builds(P.Fetch, u8, u32, u32, st.integers(1, P.U16)),
     chunk_like(P.Chunk, lambda d: (d(u8), d(u32))),
-    st.builds(P.Disarm, u8),
+    st.builds(P.Disarm, st.integers(0, P.DISARM_CAUGHT)),
     st.builds(P.Heartbeat, u8, u32, u32, u32),
     st.builds(P.Error, u16, u32, st.text(max_size=200)),
 )

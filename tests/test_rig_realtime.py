@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from rig_helpers import start_target, stop
+from rig_helpers import slow_rate_args, start_target, stop
 
 from impact_env.rig import controller as CT
 from impact_env.rig import log as LG
@@ -219,8 +219,7 @@ def _own_step_share(wait_ms: float) -> tuple[int, int, dict]:
     its host at hold 1 for 10 steps, answering each OBSERVATION DELAY_S after it came (a delayed
     host: its round trip is the delay, not this machine's speed): (commands acting in their own
     step, commands sent, the episode's counters)."""
-    proc, addr = start_target("--scene", "rig", "--set", f"control.rate={RATE_HZ:g}", "--command-wait",
-                              str(wait_ms))
+    proc, addr = start_target("--scene", "rig", *slow_rate_args(RATE_HZ), "--command-wait", str(wait_ms))
     # the target's loop spins on the last CPU (impact_env.rig.placement); a host on the same machine
     # keeps off it (as docs/rig.md says: taskset), or the two share a core in scheduler slices of ms
     before = os.sched_getaffinity(0)

@@ -25,7 +25,6 @@ from impact_env.rig.host import RigClient
 from impact_env.rig.log import read_episode
 
 pytestmark = pytest.mark.slow
-PERIOD_TICKS_1MS = 10  # 1 ms at the rig scene's 10 kHz
 
 
 def _wait_file(folder, pattern, timeout_s=30.0):
@@ -37,10 +36,14 @@ def _wait_file(folder, pattern, timeout_s=30.0):
 
 
 def _check_stopped(log):
-    """DISARMED; the loop stopped within 1 ms of tick time of being asked; the last row 0 N."""
+    """DISARMED; the loop ran at most two ticks after it was asked to stop (it reads the stop word
+    before every tick; ticks that a preempted loop let pass unrun are skipped, not run: how many
+    pass depends on this machine's load, not asserted); the last row 0 N."""
     c = log.meta.counters
     assert log.meta.end_reason == "DISARMED"
-    assert 0 <= c["stop_tick"] - c["stop_asked_tick"] <= PERIOD_TICKS_1MS
+    asked, stopped = c["stop_asked_tick"], c["stop_tick"]
+    tick = log["tick"].astype(np.int64)
+    assert 0 <= asked <= stopped and np.count_nonzero((tick > asked) & (tick < stopped)) <= 2
     assert log["force_applied_N"][-1] == 0.0 and log["force_demand_N"][-1] == 0.0
     tick, skipped = log["tick"].astype(np.int64), log["skipped_ticks"].astype(np.int64)
     assert np.array_equal(np.diff(tick) - 1, skipped[1:])  # every tick ran or is counted skipped
@@ -54,11 +57,11 @@ def test_a_signal_during_an_onboard_episode_ends_the_process_with_its_log_comple
     signal to the process's end is printed (``pytest -s``); the target aims at under 1 s (the
     streamed log becomes the finished one, not written again, and the interpreter's teardown is
     skipped), but on a machine shared with other jobs no bound on it is asserted but the stop's
-    own (20 s, a fifth of the 100 s episode)."""
+    own (20 s, the 20 s episode's length)."""
     proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path))
     c = RigClient(addr)
     try:
-        c.arm("onboard", 3, 1_000_000, kind=P.EpisodeKind.SHAKER,
+        c.arm("onboard", 3, 200_000, kind=P.EpisodeKind.SHAKER,
               excitation=Excitation("sweep", 20.0, 200.0, 2000.0))
         _wait_file(tmp_path, "*.partial")  # the episode runs (its log streams)
         deadline = time.monotonic() + 30.0
@@ -77,7 +80,7 @@ def test_a_signal_during_an_onboard_episode_ends_the_process_with_its_log_comple
     assert "shaker at 0 N" in out and "overruns" in out  # the totals printed at exit
     log = read_episode(_wait_file(tmp_path, "episode_*.h5", timeout_s=1.0))
     _check_stopped(log)
-    assert log.meta.counters["stop_tick"] == log["tick"][-1] and log["tick"][-1] < 1_000_000
+    assert log.meta.counters["stop_tick"] == log["tick"][-1] and log["tick"][-1] < 200_000
     assert np.any(np.abs(log["force_demand_N"]) > 1.0)  # the shaker was driven when the signal came
     assert not list(tmp_path.glob("*.partial"))  # the finished log replaced the streamed one
     print(f"{signal.Signals(sig).name}: the target process ended {waited:.3f} s after the signal")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rig_helpers import LossyProxy, start_target, stop, streamed_ticks
+from rig_helpers import LossyProxy, slow_rate_args, start_target, stop, streamed_ticks
 
 from impact_env.env.catch_env import ImpactCatchEnv
 from impact_env.rig.host import RigClient, RigEnv
@@ -221,7 +221,7 @@ HOST = r"""
 import sys, time, numpy as np
 from impact_env.rig.host import RigClient
 c = RigClient(sys.argv[1])
-c.arm("host", 5, 100_000, hold_ticks=10, link_timeout_ms=300)
+c.arm("host", 5, 50_000, hold_ticks=10, link_timeout_ms=300)
 step, applied = 0, 0
 while True:  # a host stepping in real time until it is killed
     obs = c.observation(step, 0.05)
@@ -243,7 +243,7 @@ def test_host_killed_midway_force_is_zero_within_two_policy_periods(tmp_path):
     whatever the load): the host is SIGKILLed while stepping; the log shows the demanded force at
     0 from 2 policy periods after the last command's first tick, then the link timeout ends the
     episode."""
-    proc, addr = start_target("--scene", "rig", "--set", "control.rate=1000", "--log-dir", str(tmp_path))
+    proc, addr = start_target("--scene", "rig", *slow_rate_args(1000), "--log-dir", str(tmp_path))
     host = subprocess.Popen([sys.executable, "-c", HOST, addr], stdout=subprocess.PIPE, text=True,
                             env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
