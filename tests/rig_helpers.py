@@ -79,6 +79,15 @@ print(json.dumps({"sent": sent, "not_sent": not_sent, "replies": replies, "reply
 """
 
 
+def slow_rate_args(rate_hz: float) -> tuple[str, ...]:
+    """``rig serve`` options for the rig scene at a control rate far below its 10 kHz (a target a
+    delayed host can answer with margins of milliseconds): the rate, and the sensors' filters off
+    (their 20-1000 Hz bands need a Nyquist frequency above 1 kHz)."""
+    filters = ("accelerometer", "force", "potentiometer", "body1_displacement")
+    return ("--set", f"control.rate={rate_hz:g}",
+            *(a for f in filters for a in ("--set", f'effects.filters.{f}.kind="none"')))
+
+
 def start_target(*args: str, timeout_s: float = 300.0,
                  driver: str | None = None) -> tuple[subprocess.Popen, str]:
     """``impact-env rig serve --virtual --port 0 ARGS`` (``--driver DRIVER`` instead of
@@ -104,6 +113,22 @@ def start_target(*args: str, timeout_s: float = 300.0,
     return proc, re.search(r"udp://\S+", line).group(0)
 
 
+def streamed_ticks(folder: Path) -> int:
+    """The most rows a target's streamed log (``*.partial``) in ``folder`` has on disk now (0:
+    none readable yet): read without HDF5's file lock, which the target holds while it writes,
+    and retried by the caller if a read meets a half-written file."""
+    import h5py
+
+    most = 0
+    for path in Path(folder).glob("*.partial"):
+        try:
+            with h5py.File(path, "r", locking=False) as f:
+                most = max(most, int(f.attrs["n_ticks"]))
+        except (OSError, KeyError, ValueError):
+            continue
+    return most
+
+
 def stop(proc: subprocess.Popen, sig=signal.SIGTERM, timeout_s: float = 20.0) -> int:
     if proc.poll() is None:
         proc.send_signal(sig)
@@ -116,26 +141,32 @@ def stop(proc: subprocess.Popen, sig=signal.SIGTERM, timeout_s: float = 20.0) ->
 
 
 class LossyProxy:
-    """A UDP relay on 127.0.0.1: datagrams from the host go to the target and back, each dropped
-    with probability ``loss`` (in bursts of ``burst`` datagrams), duplicated with ``dup``, and
-    held back to be sent after the next one with ``reorder``.  Runs in a thread until ``close``
-    (or ``max_s``)."""
+    """A UDP relay between a host and a target: datagrams from the host go to the target and back,
+    each dropped with probability ``loss`` (in bursts of ``burst`` datagrams), duplicated with
+    ``dup``, and held back to be sent after the next one with ``reorder``; with ``cut`` set, every
+    datagram from the host is dropped (counted ``cut``).  The host sees the proxy at 127.0.0.2
+    (``address``), the target on 127.0.0.1: once the target's INFO names its session's port, the
+    proxy listens on 127.0.0.2 at that port too and relays it to the target's session socket (as
+    a router that forwards the session's port).  Runs in a thread until ``close`` (or ``max_s``)."""
 
     def __init__(self, target: str, loss: float = 0.0, dup: float = 0.0, reorder: float = 0.0, burst: int = 1,
                  seed: int = 0, max_s: float = 120.0):
         host, port = re.match(r"udp://([^:]+):(\d+)", target).groups()
         self.target = (host, int(port))
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.address = f"udp://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.sock.bind(("127.0.0.2", 0))
+        self.address = f"udp://127.0.0.2:{self.sock.getsockname()[1]}"
         self.up = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.up.bind(("127.0.0.1", 0))
         self.loss, self.dup, self.reorder, self.burst = loss, dup, reorder, max(1, int(burst))
+        self.cut = False
         self.rng = random.Random(seed)
         self.client = None
-        self.counts = {"forwarded": 0, "dropped": 0, "duplicated": 0, "reordered": 0}
+        self.counts = {"forwarded": 0, "dropped": 0, "duplicated": 0, "reordered": 0, "cut": 0}
         self._dropping = 0
         self._held = {}
+        # the target's session ports: the proxy's listener for each, and back
+        self._listeners: dict[int, socket.socket] = {}
         self._stop = threading.Event()
         self._deadline = time.monotonic() + max_s
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -162,22 +193,41 @@ class LossyProxy:
             sock.sendto(*held)
             self.counts["forwarded"] += 1
 
+    def _listen(self, data: bytes) -> None:
+        """An INFO (type 2) names the session's port (payload bytes 72..73): listen there."""
+        if len(data) >= 42 + 74 and data[:4] == b"IMPR" and data[6] == 2:
+            port = int.from_bytes(data[42 + 72:42 + 74], "little")
+            if port and port not in self._listeners:
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                s.bind(("127.0.0.2", port))
+                self._listeners[port] = s
+
     def _run(self) -> None:
         while not self._stop.is_set() and time.monotonic() < self._deadline:
-            ready, _, _ = select.select([self.sock, self.up], [], [], 0.05)
+            socks = [self.sock, self.up, *self._listeners.values()]
+            ready, _, _ = select.select(socks, [], [], 0.05)
             for s in ready:
                 try:
                     data, addr = s.recvfrom(70000)
                 except OSError:
                     return
-                if s is self.sock:
-                    self.client = addr
-                    self._pass(self.up, data, self.target)
-                elif self.client is not None:
-                    self._pass(self.sock, data, self.client)
+                if s is self.up:  # from the target: back to the host, from the matching address
+                    self._listen(data)
+                    back = self._listeners.get(addr[1], self.sock)
+                    if self.client is not None:
+                        self._pass(back, data, self.client)
+                    continue
+                self.client = addr
+                if self.cut:
+                    self.counts["cut"] += 1
+                    continue
+                port = s.getsockname()[1] if s is not self.sock else self.target[1]
+                self._pass(self.up, data, (self.target[0], port))
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2.0)
         self.sock.close()
         self.up.close()
+        for s in self._listeners.values():
+            s.close()

@@ -94,3 +94,26 @@ def test_compare_rig_refuses_a_gap_over_one_percent_of_skipped_ticks(allow, fake
     else:
         assert rc == 1 and "sim-to-rig gap" not in out
         assert "'passive' skipped 30 % of its ticks" in err and "lock-step" in err and "idle core" in err
+
+
+def test_episodes_the_rig_cut_short_count_as_failed_and_are_named():
+    """compare --rig in real time: an episode the rig ended OVERRUN, SENSOR_FAULT or LINK_LOST is
+    not a whole episode: its metrics are not in the table, it counts as failed (3/3 here, not
+    0/3), and each is named in the failures with its end reason."""
+    from impact_env.eval import rig_compare as RC
+    from impact_env.eval.compare import summarize
+
+    reasons = ("OVERRUN", "SENSOR_FAULT", "LINK_LOST")
+    logs = []
+    for reason in reasons:
+        log = _log_with_gap(range(40, 50))
+        log.meta.end_reason = reason
+        logs.append(log)
+    failures: list = []
+    run, skipped = RC._run("passive", logs, failures, 1.0)
+    s = summarize(run)
+    assert s["episodes"] == 3 and s["failed_episodes"] == 3
+    assert [f["episode"] for f in failures] == [0, 1, 2]
+    for f, reason in zip(failures, reasons, strict=True):
+        assert f"ended the episode {reason} at tick 99" in f["error"] and f["policy"] == "passive"
+    assert np.allclose(skipped, 0.1)  # the skipped-tick share is still reported

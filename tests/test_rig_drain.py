@@ -60,32 +60,36 @@ def _udp():
 
 
 @linux
-@pytest.mark.parametrize("lanes", [True, False], ids=["lane", "no-lane"])
-def test_a_flood_from_others_leaves_the_lanes_peer_its_datagrams(lanes):
+@pytest.mark.parametrize("session", [True, False], ids=["session-socket", "shared-socket"])
+def test_a_flood_from_others_leaves_the_sessions_host_its_datagrams(session):
     """A stranger's 2000 datagrams fill the target's 4 KiB buffer (the kernel drops most of
-    them), then the host sends 20, each read by the lane's owner (as the real-time loop reads it:
-    the lane's file descriptor).  With a lane for the host (Endpoint.open_lane) every one of the
-    host's arrives, in order, and every drop is the stranger's; without one (the fault a lane
-    removes) the host's land behind the flood, and the kernel drops them."""
-    e = Endpoint(rcvbuf=4096, lanes=lanes)
+    them), then the host sends 20, each read by the session socket's owner (as the real-time loop
+    reads it: its file descriptor).  With a socket of the session's own (Endpoint.open_session),
+    which the host sends to, every one of the host's arrives, in order, and every drop is the
+    stranger's; without one (the host sending to the target's socket) the host's land behind the
+    flood, and the kernel drops them."""
+    e = Endpoint(rcvbuf=4096)
     host, stranger = _udp(), _udp()
     try:
-        fd = e.open_lane(host.getsockname())
-        assert (fd >= 0) == lanes
-        e.lane_busy = lanes  # the loop owns the lane: the socket's reader leaves it alone
+        to = e.local
+        if session:
+            port = e.open_session(host.getsockname())
+            assert port not in (0, e.local[1]) and e.session_fd >= 0
+            to = (e.local[0], port)
+            e.session_busy = True  # the loop owns the session's socket: the target's reader leaves it alone
         for _ in range(2000):
             stranger.sendto(b"x" * 100, e.local)
         mine = []
         for k in range(20):
-            host.sendto(b"h%02d" % k, e.local)
-            if lanes:
-                mine.append(os.read(fd, 100))
+            host.sendto(b"h%02d" % k, to)
+            if session:
+                mine.append(os.read(e.session_fd, 100))
         got = e.recv_many()
         mine += [d for d, a in got if a == host.getsockname()]
         theirs = [d for d, a in got if a == stranger.getsockname()]
-        assert len(mine) + len(theirs) == len(got) + (20 if lanes else 0)
+        assert len(mine) + len(theirs) == len(got) + (20 if session else 0)
         assert len(mine) + len(theirs) + e.kernel_drops() == 2020  # every datagram read or counted
-        if lanes:
+        if session:
             assert mine == [b"h%02d" % k for k in range(20)] and 0 < len(theirs) < 2000
         else:
             assert len(mine) < 20 and e.kernel_drops() > 2000 - len(theirs)
@@ -96,24 +100,40 @@ def test_a_flood_from_others_leaves_the_lanes_peer_its_datagrams(lanes):
 
 
 @linux
-def test_a_lane_replaced_or_closed_loses_nothing_and_the_address_stays_taken():
-    """A lane for another peer replaces the first: what the first held is read first.  A second
-    endpoint cannot bind the address (a second target is refused, lanes or not)."""
-    e = Endpoint(lanes=True)
+def test_a_session_socket_replaced_or_closed_loses_nothing_and_takes_its_peer_only():
+    """A session socket for another peer replaces the first: what the first held is read first.
+    The session's socket takes its host's datagrams only (connected: another sender's are not
+    delivered to it), and sends to its host go out of it.  A second endpoint cannot bind the
+    target's address, nor anyone the session's port."""
+    e = Endpoint()
     a, b = _udp(), _udp()
     try:
-        e.open_lane(a.getsockname())
-        assert e.open_lane(a.getsockname()) == e.open_lane(a.getsockname())  # the same lane
-        e.lane_busy = True
+        port_a = e.open_session(a.getsockname())
+        assert e.open_session(a.getsockname()) == port_a  # the same socket
+        e.session_busy = True
         for k in range(3):
-            a.sendto(b"a%d" % k, e.local)
-        assert e.recv_many() == []  # in the lane, which its owner reads
-        e.lane_busy = False
-        e.open_lane(b.getsockname())
-        b.sendto(b"b0", e.local)
+            a.sendto(b"a%d" % k, (e.local[0], port_a))
+        b.sendto(b"not a's", (e.local[0], port_a))  # not the session's host: never delivered
+        assert e.recv_many() == []  # in the session's socket, which its owner reads
+        e.send(b"to a", a.getsockname())
+        assert a.recvfrom(100) == (b"to a", (e.local[0], port_a))
+        e.send(b"to a, main", a.getsockname(), main=True)
+        assert a.recvfrom(100) == (b"to a, main", e.local)
+        e.session_busy = False
+        port_b = e.open_session(b.getsockname())
+        b.sendto(b"b0", (e.local[0], port_b))
         assert [d for d, _ in e.recv_many()] == [b"a0", b"a1", b"a2", b"b0"]
         with pytest.raises(OSError, match="cannot bind"):
-            Endpoint(e.address, lanes=True)
+            Endpoint(e.address)
+        for port in (e.local[1], port_b):
+            thief = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            thief.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            thief.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            with pytest.raises(OSError):
+                thief.bind(("127.0.0.1", port))
+            thief.close()
+        e.close_session()
+        assert e.session_fd == -1 and e.session_port == 0
     finally:
         a.close()
         b.close()

@@ -20,10 +20,10 @@ HEAD = dict(session=0x01020304, seq=5, tick=10000, host_ns=1_000_000_007, target
 
 # Header bytes common to every golden message, then per message: type byte, payload length,
 # payload, tag (HMAC-SHA256 under GOLDEN_KEY with the session nonce GOLDEN_NONCE, 16 bytes).
-# Header: magic "IMPR" | major 03 | minor 00 | type | flags 00 | session 04030201 |
+# Header: magic "IMPR" | major 04 | minor 00 | type | flags 00 | session 04030201 |
 # seq 05000000 | tick 1027000000000000 (10000) | host_ns 07ca9a3b00000000 (1000000007) |
 # target_ns 0b94357700000000 (2000000011) | payload length (u16).
-MAGIC_VER = "494d5052" "03" "00"
+MAGIC_VER = "494d5052" "04" "00"
 GOLDEN_KEY = bytes(range(32))
 GOLDEN_NONCE = 0x0123456789ABCDEF
 HOST_NONCE = bytes.fromhex("00112233445566778899aabbccddeeff")
@@ -33,56 +33,57 @@ AFTER_TYPE = "00" "04030201" "05000000" "1027000000000000" "07ca9a3b00000000" "0
 GOLDEN = [
     # nonce | 64 zero bytes of padding
     (P.Hello(nonce=HOST_NONCE), "01", "5000", HOST_NONCE.hex() + "00" * 64,
-     "9bf0b1d0b316cb38118235861f6003ba"),
+     "87f1f837ab21b7b69f3b8af5190e68ab"),
     (P.Challenge(nonce=HOST_NONCE, target_nonce=TARGET_NONCE), "0f", "2000",
-     HOST_NONCE.hex() + TARGET_NONCE.hex(), "cc1ea7a6d6566e804fbae49b33ab2234"),
+     HOST_NONCE.hex() + TARGET_NONCE.hex(), "5e4cdbc2ba886214f0b12d5045d42024"),
     # nonce | target nonce | 48 zero bytes of padding
     (P.Response(nonce=HOST_NONCE, target_nonce=TARGET_NONCE), "10", "5000",
-     HOST_NONCE.hex() + TARGET_NONCE.hex() + "00" * 48, "31c966be0176a3a423dbf21189208da9"),
+     HOST_NONCE.hex() + TARGET_NONCE.hex() + "00" * 48, "d504be07cf70e619815a5f31bd5b7826"),
     (P.Info(nonce=HOST_NONCE, control_rate_hz=1e4, state=P.TargetState.IDLE, driver=0, lockstep=True,
-            scene_size=2345, scene_sha256=SHA_SCENE, session_nonce=0x1122334455667788, keyed=True),
-     "02", "4800",
+            scene_size=2345, scene_sha256=SHA_SCENE, session_nonce=0x1122334455667788, keyed=True,
+            session_port=5601),
+     "02", "4a00",
      # nonce (16 B) | rate 1e4 (f64) | state 00 | driver 00 | lockstep 01 | scene_size 2345 | sha256 |
-     # session_nonce (u64) | keyed 01
+     # session_nonce (u64) | keyed 01 | session_port 5601
      HOST_NONCE.hex() + "000000000088c340" "00" "00" "01" "29090000" + SHA_SCENE.hex() + "8877665544332211"
-     "01",
-     "42cd1c410060367572f01f9b5757b9d6"),
+     "01" "e115",
+     "b37854aadca05fcf0bb3ffe8c296a76b"),
     (P.Arm(mode="onboard", observation="sensors", history=2, options=P.ARM_TERMINATE_ON_CATCH, hold_ticks=10,
            seed=42, horizon_ticks=4000, first_command_timeout_ticks=1000, link_timeout_ms=500,
            policy_size=100000, policy_sha256=SHA_POLICY), "03", "3e00",
      # mode 02 | obs 00 | history 02 | options 01 | hold 10 | seed 42 | horizon 4000 | timeout 1000 |
      # link 500 ms | size 100000 | sha256
      "02" "00" "02" "01" "0a00" "2a00000000000000" "a00f0000" "e8030000" "f4010000" "a0860100"
-     + SHA_POLICY.hex(), "7847e7a44be1fba8631a1cd5134195e7"),
+     + SHA_POLICY.hex(), "16816c4c44f0f8d855cc9d4a42b4c953"),
     (P.Armed(episode=3, start_tick=123456, obs_size=10, action_size=1, obs_dtype=4, telemetry_size=2,
              hold_ticks=10, control_rate_hz=1e4, scene_sha256=SHA_SCENE), "04", "3c00",
      "03000000" "40e2010000000000" "0a00" "0100" "04" "02" "0a00" "000000000088c340" + SHA_SCENE.hex(),
-     "0b24683a2debf62286cda9eb3ad0e3e3"),
+     "e57a56f03fbd17c599ae963272f00b78"),
     (P.PolicyChunk(upload_id=0x0807060504030201, total=100000, offset=2048, data=b"\x00\x01\x02\xff"),
      "05", "1600", "0102030405060708" "a0860100" "00080000" "0400" "000102ff",
-     "2650e7be6bf80212a04efa2577288dbe"),
+     "86d5bcd0e49a1c5b39fdeab9db222823"),
     (P.Ack(acked_type=P.MsgType.POLICY_CHUNK, code=0, acked_seq=77, value=2052), "06", "0e00",
-     "05" "00" "4d000000" "0408000000000000", "9c9f8330a910ca98c0664bb38c769c08"),
+     "05" "00" "4d000000" "0408000000000000", "4e7b34abc9208b49e0b99381f6efe752"),
     (P.Command(episode=3, step=7, action=(0.25,)), "07", "1200",
-     "03000000" "07000000" "0100" "000000000000d03f", "26e1e54d8a595bcc4e88967144582d3c"),
+     "03000000" "07000000" "0100" "000000000000d03f", "b36d56ffab122079cedc5d2f91c98f12"),
     (P.Observation(episode=3, step=7, status=0x10002, dtype=4, obs=(1.5, -0.25, 0.0), telemetry=(12.5,)),
      "08", "2500",
      # episode | step | status | dtype 04 | n 3 | m 1 (u16) | 1.5f -0.25f 0.0f | 12.5 (f64)
      "03000000" "07000000" "02000100" "04" "0300" "0100" "0000c03f" "000080be" "00000000" "0000000000002940",
-     "8e44b69de0f0b2a6b9dc748143699e14"),
+     "1877325e8daa95c5c8bf1eaafbe5f6a4"),
     (P.EpisodeEnd(episode=3, reason=P.EndReason.HORIZON, status=0x4, n_ticks=4000, n_steps=400,
                   data_size=65536, data_sha256=SHA_POLICY), "09", "3900",
      "03000000" "01" "04000000" "a00f000000000000" "90010000" "00000100" + SHA_POLICY.hex(),
-     "d4d5ebdbe6f285535177199066476153"),
+     "00691bb4b18483ad71f1fdffea97141d"),
     (P.Fetch(resource=P.Resource.EPISODE, item=3, offset=1024, max_len=1024), "0a", "0b00",
-     "02" "03000000" "00040000" "0004", "d49bd74122fb20923b5346e81ac0018f"),
+     "02" "03000000" "00040000" "0004", "1f3c42c8a38bed940d3bd8eb903b17bf"),
     (P.Chunk(resource=P.Resource.EPISODE, item=3, total=65536, offset=1024, data=b"HDF"), "0b", "1200",
-     "02" "03000000" "00000100" "00040000" "0300" "484446", "db70e715486f97864aed81dce161b613"),
-    (P.Disarm(reason=1), "0c", "0100", "01", "dc33d693269a4b413410f80abc0f0f39"),
+     "02" "03000000" "00000100" "00040000" "0300" "484446", "792b7fb1f1dd2d170402fc9be4d7a9b9"),
+    (P.Disarm(reason=1), "0c", "0100", "01", "22eb6bf5015f35de95eb29a602b50352"),
     (P.Heartbeat(state=P.TargetState.RUNNING, episode=3, step=7, peer_seq=99), "0d", "0d00",
-     "02" "03000000" "07000000" "63000000", "104a9c53aa1f996bc10ec78480b2a54a"),
+     "02" "03000000" "07000000" "63000000", "1c7b2a88dd1d5c4fce925cc1b2cfbf17"),
     (P.Error(code=P.ErrorCode.BUSY, ref_seq=5, text="busy: session 0x1"), "0e", "1900",
-     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "e2fd67d4386a9eee762bea38ba2eb0cc"),
+     "0200" "05000000" "1100" + b"busy: session 0x1".hex(), "45133ef79e7f45222dc9a3566bfc9689"),
 ]
 
 
@@ -151,7 +152,7 @@ BODY_STRATEGIES = st.one_of(
     st.builds(P.EpisodeEnd, u32, u8, u32, u64, u32, u32, sha),
     st.builds(P.Fetch, u8, u32, u32, st.integers(1, P.U16)),
     chunk_like(P.Chunk, lambda d: (d(u8), d(u32))),
-    st.builds(P.Disarm, u8),
+    st.builds(P.Disarm, st.integers(0, P.DISARM_CAUGHT)),
     st.builds(P.Heartbeat, u8, u32, u32, u32),
     st.builds(P.Error, u16, u32, st.text(max_size=200)),
 )
@@ -235,11 +236,12 @@ def _frame(mtype=P.MsgType.HELLO, payload=bytes(P.Hello.FMT.size), major=P.VERSI
     (_frame(payload=bytes(79)), P.CorruptDatagram, "payload"),  # HELLO needs 80 bytes
     (_frame(payload=bytes(81)), P.CorruptDatagram, "payload"),  # and exactly 80 at minor 0
     (_frame(P.MsgType.COMMAND, struct.pack("<IIH", 0, 0, 2) + bytes(8)), P.CorruptDatagram, "payload"),
-    (_frame(P.MsgType.COMMAND, struct.pack("<IIH", 0, 0, 0)), P.CorruptDatagram, "payload"),  # no action
-    (_frame(P.MsgType.ARM, bytes(62)), P.CorruptDatagram, "payload"),  # mode 0 is not a mode
+    # no action, mode 0: authenticated (no key here) fields out of range, which the sender is told
+    (_frame(P.MsgType.COMMAND, struct.pack("<IIH", 0, 0, 0)), P.FieldOutOfRange, "field"),
+    (_frame(P.MsgType.ARM, bytes(62)), P.FieldOutOfRange, "field"),
     (_frame(P.MsgType.ERROR, struct.pack("<HIH", 1, 0, 2) + b"\xff\xfe"), P.CorruptDatagram, "payload"),
-    (_frame(P.MsgType.INFO, struct.pack("<16sdBBBI32sQB", bytes(16), float("nan"), 0, 0, 0, 0, bytes(32), 1,
-                                        0)),
+    (_frame(P.MsgType.INFO, struct.pack("<16sdBBBI32sQBH", bytes(16), float("nan"), 0, 0, 0, 0, bytes(32), 1,
+                                        0, 0)),
      P.CorruptDatagram, "payload"),
     (_frame(P.MsgType.CHUNK, struct.pack("<BIIIH", 2, 0, 2, 0, 3) + b"abc"), P.CorruptDatagram, "payload"),
 ])

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 import pytest
-from rig_helpers import start_target, stop
+from rig_helpers import start_target, stop, streamed_ticks
 
 from impact_env.rig import protocol as P
 from impact_env.rig.excitation import Excitation
@@ -25,7 +25,6 @@ from impact_env.rig.host import RigClient
 from impact_env.rig.log import read_episode
 
 pytestmark = pytest.mark.slow
-PERIOD_TICKS_1MS = 10  # 1 ms at the rig scene's 10 kHz
 
 
 def _wait_file(folder, pattern, timeout_s=30.0):
@@ -37,36 +36,54 @@ def _wait_file(folder, pattern, timeout_s=30.0):
 
 
 def _check_stopped(log):
-    """DISARMED; the loop stopped within 1 ms of tick time of being asked; the last row 0 N."""
+    """DISARMED; the loop ran at most two ticks after it was asked to stop (it reads the stop word
+    before every tick; ticks that a preempted loop let pass unrun are skipped, not run: how many
+    pass depends on this machine's load, not asserted); the last row 0 N."""
     c = log.meta.counters
     assert log.meta.end_reason == "DISARMED"
-    assert 0 <= c["stop_tick"] - c["stop_asked_tick"] <= PERIOD_TICKS_1MS
+    asked, stopped = c["stop_asked_tick"], c["stop_tick"]
+    tick = log["tick"].astype(np.int64)
+    assert 0 <= asked <= stopped and np.count_nonzero((tick > asked) & (tick < stopped)) <= 2
     assert log["force_applied_N"][-1] == 0.0 and log["force_demand_N"][-1] == 0.0
     tick, skipped = log["tick"].astype(np.int64), log["skipped_ticks"].astype(np.int64)
     assert np.array_equal(np.diff(tick) - 1, skipped[1:])  # every tick ran or is counted skipped
 
 
-def test_sigterm_during_an_onboard_episode(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_signal_during_an_onboard_episode_ends_the_process_with_its_log_complete(tmp_path, sig):
+    """SIGTERM or SIGINT while an onboard episode drives the shaker: the process exits 0 by itself
+    (no SIGKILL needed), having printed its totals, and the episode's log is complete: DISARMED,
+    its counters, every tick up to the stop, no streamed ``.partial`` left.  The time from the
+    signal to the process's end is printed (``pytest -s``); the target aims at under 1 s (the
+    streamed log becomes the finished one, not written again, and the interpreter's teardown is
+    skipped), but on a machine shared with other jobs no bound on it is asserted but the stop's
+    own (20 s, the 20 s episode's length)."""
     proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path))
     c = RigClient(addr)
     try:
         c.arm("onboard", 3, 200_000, kind=P.EpisodeKind.SHAKER,
               excitation=Excitation("sweep", 20.0, 200.0, 2000.0))
         _wait_file(tmp_path, "*.partial")  # the episode runs (its log streams)
-        time.sleep(0.3)
+        deadline = time.monotonic() + 30.0
+        while streamed_ticks(tmp_path) < 2000:  # 0.2 s of ticks on disk: the shaker is driven
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
         t0 = time.monotonic()
-        assert stop(proc, signal.SIGTERM) == 0
+        proc.send_signal(sig)
+        proc.wait(20.0)  # TimeoutExpired fails the test: the process did not end by itself
         waited = time.monotonic() - t0
     finally:
         c.close()
+        stop(proc, signal.SIGKILL)  # a no-op once it exited
+    assert proc.returncode == 0
     out = proc.stdout.read()
     assert "shaker at 0 N" in out and "overruns" in out  # the totals printed at exit
-    log = read_episode(_wait_file(tmp_path, "episode_*.h5"))
+    log = read_episode(_wait_file(tmp_path, "episode_*.h5", timeout_s=1.0))
     _check_stopped(log)
-    assert 1000 < log["tick"][-1] < 200_000  # stopped mid-episode (a 20 s episode)
-    assert waited < 19.0  # not at the horizon: far sooner (the bound is the episode's length)
+    assert log.meta.counters["stop_tick"] == log["tick"][-1] and log["tick"][-1] < 200_000
     assert np.any(np.abs(log["force_demand_N"]) > 1.0)  # the shaker was driven when the signal came
     assert not list(tmp_path.glob("*.partial"))  # the finished log replaced the streamed one
+    print(f"{signal.Signals(sig).name}: the target process ended {waited:.3f} s after the signal")
 
 
 HOST = r"""

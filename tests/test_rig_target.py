@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rig_helpers import LossyProxy, start_target, stop
+from rig_helpers import LossyProxy, slow_rate_args, start_target, stop, streamed_ticks
 
 from impact_env.env.catch_env import ImpactCatchEnv
 from impact_env.rig.host import RigClient, RigEnv
@@ -227,27 +227,29 @@ HOST = r"""
 import sys, time, numpy as np
 from impact_env.rig.host import RigClient
 c = RigClient(sys.argv[1])
-c.arm("host", 5, 100_000, hold_ticks=10, link_timeout_ms=300)
+c.arm("host", 5, 50_000, hold_ticks=10, link_timeout_ms=300)
 step, applied = 0, 0
-t0 = time.perf_counter()
 while True:  # a host stepping in real time until it is killed
     obs = c.observation(step, 0.05)
     if obs is not None:
+        if not hasattr(obs, "obs"):
+            print("ended", obs, flush=True)
+            break
         step = obs.step
         c.command(step, 0.1)
         step += 1
         applied += obs.telemetry[0] != 0.0  # force demanded: a command of ours is in use
-        # "stepping" once commands have been applied (on a loaded machine many arrive too late)
-        if time.perf_counter() - t0 > 0.3 and applied >= 20:
+        if applied >= 20:
             print("stepping", flush=True)
 """
 
 
 def test_host_killed_midway_force_is_zero_within_two_policy_periods(tmp_path):
-    """Real time, hold 10 ticks: the host is SIGKILLed while stepping; the log shows the demanded
-    force at 0 from 2 policy periods after the last command's first tick, then the link timeout
-    ends the episode."""
-    proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path))
+    """Real time, hold 10 ticks of a 1 kHz target (10 ms steps, which a Python host keeps up with
+    whatever the load): the host is SIGKILLed while stepping; the log shows the demanded force at
+    0 from 2 policy periods after the last command's first tick, then the link timeout ends the
+    episode."""
+    proc, addr = start_target("--scene", "rig", *slow_rate_args(1000), "--log-dir", str(tmp_path))
     host = subprocess.Popen([sys.executable, "-c", HOST, addr], stdout=subprocess.PIPE, text=True,
                             env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
@@ -285,7 +287,10 @@ def test_sigterm_mid_episode_leaves_the_shaker_at_zero(tmp_path):
     # (a held 20 N moves body 2 by 2 mm; a catching law's 200 N held over skipped ticks can trip
     # the 7 mm limit on a loaded machine, ending the episode before the signal)
     c.arm("onboard", 3, 100_000, kind=P.EpisodeKind.SHAKER, excitation=Excitation("sweep", 20.0, 200.0, 2000.0))
-    time.sleep(0.3)
+    deadline = time.monotonic() + 30.0
+    while streamed_ticks(tmp_path) <= 200:  # it runs, the shaker driven
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
     assert stop(proc, signal.SIGTERM) == 0
     c.close()
     assert "shaker at 0 N" in proc.stdout.read()

@@ -66,7 +66,7 @@ def test_the_compiled_classifier_gives_every_datagram_the_filters_reason():
     r = random.Random(25)
     w = _wire()
     f = P.DatagramFilter("target", session=SESSION, key=KEY)
-    f.nonce, f.peer = NONCE, HOST
+    f.nonce, f.peer, f.n_actions = NONCE, HOST, 1
     seq, step, sent = 0, 0, []
     outcomes: dict[str, int] = {}
     for i in range(20_000):
@@ -96,7 +96,7 @@ def test_the_compiled_classifier_gives_every_datagram_the_filters_reason():
                              _command(seq, step=max(0, step - r.randint(1, 3))),
                              _command(seq, episode=EPISODE - 1, step=step)])
         elif kind == 8:  # a payload the protocol refuses (no action), well tagged
-            head = P.HEADER.pack(P.MAGIC, 3, 0, 7, 0, SESSION, seq, 0, 0, 0, 10)
+            head = P.HEADER.pack(P.MAGIC, P.VERSION_MAJOR, 0, 7, 0, SESSION, seq, 0, 0, 0, 10)
             frame = head + struct.pack("<IIH", EPISODE, step, 0)
             data = frame + P.tag(KEY, NONCE, frame)
         elif kind == 9:  # other types from the host: the network thread's
@@ -106,8 +106,14 @@ def test_the_compiled_classifier_gives_every_datagram_the_filters_reason():
             data, sender = _command(seq, step=step), STRANGER
         what, got = _feed(w, data, sender, step)
         if what == "queued":
-            assert sender != HOST or len(data) < P.OVERHEAD or data[6] != P.MsgType.COMMAND \
-                or data[:4] != P.MAGIC or data[4] != 3
+            if not (sender != HOST or len(data) < P.OVERHEAD or data[6] != P.MsgType.COMMAND
+                    or data[:4] != P.MAGIC or data[4] != P.VERSION_MAJOR):
+                # the host's authentic COMMAND of another action count: the network thread's
+                # filter refuses it, to be answered with an ERROR naming the count
+                assert f.accept(data, EPISODE, step, sender) is None and f.last_reason == "corrupt"
+                assert f.refusal is not None and f.refusal[2].startswith("n=")
+                f.refusal = None
+                outcomes["refused"] = outcomes.get("refused", 0) + 1
         else:
             msg = f.accept(data, EPISODE, step, sender)
             want = "accepted" if msg is not None else f.last_reason
@@ -120,7 +126,7 @@ def test_the_compiled_classifier_gives_every_datagram_the_filters_reason():
                     assert got is None
         outcomes[what] = outcomes.get(what, 0) + 1
     for reason in ("accepted", "corrupt", "unauthenticated", "wrong_session", "duplicate", "out_of_order",
-                   "late", "queued"):
+                   "late", "queued", "refused"):
         assert outcomes.get(reason, 0) > 0, outcomes  # every outcome was exercised
     assert int(w.c.accepted[0]) == f.counts()["accepted"]
     print("wire fuzz:", outcomes)

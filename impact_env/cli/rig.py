@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import typing
 
@@ -136,6 +137,7 @@ def cmd_serve(args) -> int:
                                                       "max_horizon_s", "log_flush_s"))
         raise ConfigError(str(exc) if option or args.virtual else f"--driver {args.driver}: {exc}") from None
     target.install_signal_handlers()
+    target.on_note = lambda text: print(f"impact-env rig: {text}", file=sys.stderr, flush=True)
     if key:
         print(f"impact-env rig: session key from {args.key}: every datagram is authenticated",
               file=sys.stderr,
@@ -158,6 +160,16 @@ def cmd_serve(args) -> int:
               flush=True)
     except BrokenPipeError:  # whoever started us is gone; the shaker is at 0 N all the same
         pass
+    if target.signalled:
+        # stopped by SIGTERM or SIGINT: the shaker is at 0 N, the driver shut down, every log
+        # closed and fsynced; the interpreter's teardown (numba's and h5py's modules, the
+        # threads) took seconds on a loaded machine, so the process ends here, at once
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (BrokenPipeError, ValueError):
+                pass
+        os._exit(0)
     return 0
 
 

@@ -132,9 +132,15 @@ def _observation(client, step: int, resend=None):
     raise RigTimeout(f"OBSERVATION of step {step}", (client.retries + 1) * client.timeout_s, client.address)
 
 
+# the ends of a whole episode, as the simulator's: any other (OVERRUN, SENSOR_FAULT, LINK_LOST,
+# SAFETY, FAULT, FIRST_COMMAND_TIMEOUT, DISARMED) is an episode the rig cut short: failed, named
+WHOLE_ENDS = ("HORIZON", "CAUGHT")
+
+
 def _run(spec: str, logs: list, failures: list, wall: float) -> tuple[PolicyRun, np.ndarray]:
     """A PolicyRun (as compare makes it) from the episodes' logs, and each episode's share of
-    skipped ticks (NaN: no log)."""
+    skipped ticks (NaN: no log).  An episode whose log ends otherwise than at its horizon or a
+    catch counts as failed (its metrics NaN) and is named in ``failures`` with its end reason."""
     n = len(logs)
     metrics = {k: np.full(n, np.nan) for k in EPISODE_METRICS}
     period = math.nan
@@ -147,6 +153,13 @@ def _run(spec: str, logs: list, failures: list, wall: float) -> tuple[PolicyRun,
             continue
         period = 1.0 / log.meta.control_rate_hz
         skipped[j] = skipped_fraction(log)
+        end = str(log.meta.end_reason)
+        if end not in WHOLE_ENDS:
+            failures.append({"policy": spec, "episode": j, "seed": int(log.meta.seed), "row": j,
+                             "t_s": float(log["t_s"][-1]) if log.n_ticks else 0.0,
+                             "error": f"the rig ended the episode {end} at tick {int(log['tick'][-1])}: cut "
+                                      "short, not a whole episode"})
+            continue
         if has_truth(log):
             m = exact_metrics(log)
         else:

@@ -88,6 +88,17 @@ class Episode:
         self.stop_asked_tick = -1  # the tick the loop was at when it was asked to stop
         self.stop_tick = -1  # the tick it stopped at
 
+    def prefault(self) -> None:
+        """Write every page of the episode's arrays now (the log's rows and observations, the
+        lateness, the true records): fresh memory is mapped on its first write, a page fault each
+        4 kB (or a huge page's zeroing), which in the loop's first ticks made the first episode of
+        a target late by milliseconds (OVERRUN, FIRST_COMMAND_TIMEOUT)."""
+        log = self.ctl.log
+        for arr in (log.rows, log.obs, self.lateness):
+            arr.fill(0.0)
+        if self.trec is not None:
+            self.trec.fill(np.nan)
+
     @property
     def overruns(self) -> int:
         """Rows flagged OVERRUN this episode (a tick that started a period or more late, or
@@ -115,9 +126,10 @@ class Episode:
                 self.cmd_counts["commands_superseded"] += 1
         elif t == P.MsgType.DISARM:
             tg.reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, self.ep), msg)
-            if msg.body.reason == 1:  # the host is closing: its session ends with the episode
+            if msg.body.reason == P.DISARM_CLOSING:  # the host is closing: its session ends with the episode
                 tg.close_session_after_episode()
-            return "DISARMED"
+            # the host's task caught body 1: the episode ends CAUGHT, as the host says
+            return "CAUGHT" if msg.body.reason == P.DISARM_CAUGHT else "DISARMED"
         elif t == P.MsgType.ARM:
             if msg.body == self.a:  # the same request again (its ARMED was lost): answer it again
                 tg.reply(self.armed, msg)
@@ -214,10 +226,14 @@ class Episode:
             return {"commands_accepted": int(self.wire.c.commands[0]),
                     "commands_acted": int(cc[RG.CC.acted]), "commands_superseded": int(cc[RG.CC.superseded]),
                     "commands_expired": int(cc[RG.CC.expired]),
-                    "commands_unused_at_end": int(cs[RG.CS.next_step] >= 0) + int(cs[RG.CS.cur_acted] == 0.0)}
+                    "commands_unused_at_end": int(cs[RG.CS.next_step] >= 0) + int(cs[RG.CS.cur_acted] == 0.0),
+                    "host_silent_steps": int(cc[RG.CC.silent_steps]),
+                    "host_silent_from_step": int(cc[RG.CC.silent_from])}
         self.note_acted()
         out = dict(self.cmd_counts)
         out["commands_unused_at_end"] = (self.next_cmd is not None) + (not self.cmd_acted)
+        # the Python loop runs lock-step only: each step waits for its command (or the link ends)
+        out["host_silent_steps"], out["host_silent_from_step"] = 0, -1
         return out
 
     @property
@@ -306,9 +322,9 @@ class Episode:
         hl = RG.host_link(ctl.layout.size, CF.libc_address("write"), wake_w, CF.libc_address("usleep"))
         self.hl = hl
         link, f = tg.link, tg.link.filter
-        if self.host:  # the loop owns the host's lane (else the socket) for the episode
-            fd = link.endpoint.open_lane(link.last_sender) if link.last_sender is not None else -1
-            link.endpoint.lane_busy = fd >= 0  # the loop reads the lane, the network thread the socket
+        if self.host:  # the loop owns the session's socket (else the target's) for the episode
+            fd = link.endpoint.session_fd
+            link.endpoint.session_busy = fd >= 0  # the loop reads it, the network thread the target's
             self.wire = WR.make(fd if fd >= 0 else link.endpoint.fileno(), f.key, f.nonce, f.session or 0,
                                 self.ep, link.last_sender,
                                 f.stream(f.session or 0, P.MsgType.COMMAND), link.seq, wake_fd=wake_w)
@@ -330,11 +346,12 @@ class Episode:
         rt = threading.Thread(target=loop, name="rig-rt-loop", daemon=True)
         restore = tg.placement.python_thread()
         rt.start()
+        self.last_heard = time.perf_counter()  # the link's watch starts with the loop, not at ARM
         try:
             why = self._network(rt, hl, wake_r)
         finally:
             rt.join()
-            link.endpoint.lane_busy = False
+            link.endpoint.session_busy = False
             restore()
             tg.running_link = None
             os.close(wake_r)
@@ -366,16 +383,16 @@ class Episode:
         tg, link = self.t, self.t.link
         sh = hl.shared
         why: str | None = None
-        lane = link.endpoint.lane_busy
+        own = link.endpoint.session_busy
         while True:
             done = sh[RG.SH.done] != 0 or not rt.is_alive()
             if self.host:
                 why = self._take_queued(why)
             if done:
                 return why
-            if self.host and not lane:  # the loop reads the socket
+            if self.host and not own:  # the loop reads the target's socket
                 ready = select.select([wake_r], [], [], 0.005)[0]
-            else:  # the loop reads the host's lane (or nothing): the rest is the socket's
+            else:  # the loop reads the session's socket (or nothing): the rest is the target's
                 ready = link.endpoint.wait_readable(0.005 if self.host else 0.02, wake_r)
             if wake_r in ready:
                 try:
@@ -384,7 +401,7 @@ class Episode:
                     pass
             if why is not None:
                 continue
-            if not self.host or lane:
+            if not self.host or own:
                 step = int(sh[RG.SH.tick]) // self.hold
                 for msg in link.recv_all(episode=self.ep, step=step):
                     why = self.take(msg)

@@ -68,6 +68,13 @@ from impact_env.scene import scene_from_dict
 from impact_env.sim import records as R
 
 N_TEL = len(P.TELEMETRY_FIELDS)
+# this many steps in a row on which the target acted on none of the host's recent COMMANDs (the
+# watchdog had zeroed the force) and the host warns, once per episode (RigCommandsUnheard)
+UNHEARD_WARN_STEPS = 3
+
+
+class RigCommandsUnheard(UserWarning):
+    """The target's OBSERVATIONs say that this host's COMMANDs are not reaching it."""
 SPIN_STEPS = 4  # a real-time host polls for the next OBSERVATION this many policy periods, then sleeps
 
 
@@ -98,6 +105,8 @@ class RigClient:
         # waiting for an OBSERVATION, poll this long before sleeping (see Endpoint.recv)
         self.spin_s = float(spin_s)
         self.endpoint = Endpoint(local, peer=address)
+        # the target's own address: the handshake's; the session's datagrams go to the port INFO names
+        self.target_address = self.endpoint.peer
         self.link = Link(self.endpoint, "host", session=int.from_bytes(os.urandom(4), "little") | 1, key=key)
         self.link.filter.peer = self.endpoint.peer  # only the target's replies count
         self.link.on_accept = self._seen
@@ -134,15 +143,16 @@ class RigClient:
         nonce = secrets.token_bytes(P.NONCE_SIZE)
         f = self.link.filter
         refusals = f.unverified_refusals
+        to = self.target_address
         try:
             challenge = self.link.request(
                 P.Hello(nonce),
                 lambda m: m.type == P.MsgType.CHALLENGE and hmac.compare_digest(m.body.nonce, nonce),
-                "CHALLENGE (answer to HELLO)", self.timeout_s, self.retries).body
+                "CHALLENGE (answer to HELLO)", self.timeout_s, self.retries, addr=to).body
             info = self.link.request(
                 P.Response(nonce, challenge.target_nonce),
                 lambda m: m.type == P.MsgType.INFO and hmac.compare_digest(m.body.nonce, nonce),
-                "INFO (answer to RESPONSE)", self.timeout_s, self.retries).body
+                "INFO (answer to RESPONSE)", self.timeout_s, self.retries, addr=to).body
         except (RigTimeout, RigError) as exc:
             # a host without key reads the target's refusal (tagged without key) as authentic; a
             # host with one cannot check it, and only counts it: the text is this side's own
@@ -151,6 +161,12 @@ class RigClient:
                 raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED, self._refused()) from None
             raise
         f.nonce = info.session_nonce
+        # the session's own socket at the target (its port authenticated in INFO): everything else
+        # goes there, and the target's replies come from there; no other process can bind it
+        session = (to[0], info.session_port, *to[2:]) if info.session_port else to
+        f.session_peer = session
+        self.endpoint.peer = session
+        WR.set_peer(self.wire, session)
         nb = np.frombuffer(int(f.nonce).to_bytes(8, "little"), np.uint8)
         self.wire.rx[:WR.NONCE] = nb  # the compiled path's tags are under the session's nonce too
         self.wire.tx[:WR.NONCE] = nb
@@ -314,17 +330,19 @@ class RigClient:
                 fh.write(data)
             return read_episode(path)
 
-    def disarm(self, wait: bool = False, closing: bool = False) -> None:
+    def disarm(self, wait: bool = False, closing: bool = False, caught: bool = False) -> None:
         """Stop the episode (best effort: one datagram, or a bounded request with ``wait``);
-        ``closing``: the session ends too (another host may then open one at once)."""
+        ``closing``: the session ends too (another host may then open one at once); ``caught``:
+        the host's task caught body 1, and the target's log says so (end reason CAUGHT)."""
         if self.endpoint.closed:
             return
-        if wait:
-            self.link.request(P.Disarm(0),
+        reason = P.DISARM_CLOSING if closing else P.DISARM_CAUGHT if caught else P.DISARM_USER
+        if wait or caught:  # a catch is acknowledged: a lost one would leave the log's end another
+            self.link.request(P.Disarm(reason),
                               lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
                               "ACK of DISARM", self.timeout_s, self.retries)
         else:
-            self.link.send(P.Disarm(1 if closing else 0))
+            self.link.send(P.Disarm(reason))
 
     def close(self, budget_s: float = 0.3) -> None:
         """End the session (DISARM "host closing", acknowledged, so that the target frees it for
@@ -426,6 +444,8 @@ TASK_OPTIONS_DOC
         self._running = True
         self._n = 0
         self._last_obs = None
+        self._unheard = self._unheard_run = 0
+        self._unheard_warned = False
         obs = self._wait_obs(0, resend=None)
         if isinstance(obs, P.EpisodeEnd):
             raise RuntimeError(f"the target ended episode {obs.episode} at once: "
@@ -492,6 +512,8 @@ TASK_OPTIONS_DOC
             extra["steps_missed"] = obs.step - self._n
             self._n = obs.step
         tel = obs.telemetry
+        self._count_unheard(obs.step, tel)
+        extra["commands_unheard_steps"] = self._unheard
         if self._hw is not None and len(tel) > N_TEL:
             recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, R.N_REC)
             self._task_step(recs, self._state, self._out)
@@ -504,13 +526,38 @@ TASK_OPTIONS_DOC
         trunc = trunc or (not term and self._n >= self.max_steps)
         if term or trunc:
             self._running = False
-            if term:
-                self.client.disarm()
+            if term:  # one end reason on both sides: the target's log says CAUGHT too
+                self.client.disarm(caught=True)
         info = self._info(obs)
         info.update(extra)
         if term or trunc:
             info["end_reason"] = "CAUGHT" if term else "HORIZON"
         return np.asarray(obs.obs, dtype=np.float32), reward, term, trunc, info
+
+    def _count_unheard(self, step: int, tel) -> None:
+        """The OBSERVATION of ``step`` says how old the command the target acts on is (telemetry
+        ``command_age_ticks``; -1 none): from step 2 on, older than two policy steps (or none)
+        means that none of this host's COMMANDs of the last two steps acted: counted
+        (``info["commands_unheard_steps"]``), and a run of UNHEARD_WARN_STEPS is named in a
+        :class:`RigCommandsUnheard` warning, once per episode."""
+        if step < 2 or len(tel) < N_TEL:
+            return
+        age = tel[2]
+        if 0 <= age <= 2 * self.hold:
+            self._unheard_run = 0
+            return
+        self._unheard += 1
+        self._unheard_run += 1
+        if self._unheard_run >= UNHEARD_WARN_STEPS and not self._unheard_warned:
+            import warnings
+
+            self._unheard_warned = True
+            client = self.client
+            warnings.warn(f"episode {client.episode}: the target at {client.address} acted on none of "
+                          f"this host's COMMANDs for {self._unheard_run} steps up to step {step} (its "
+                          "watchdog "
+                          "drove 0 N): they are not reaching it in time (lost, delayed, or taken by another "
+                          "process on its machine)", RigCommandsUnheard, stacklevel=3)
 
     # the target's end reasons that are the task's own terminal states; any other end (the host
     # disarmed, the link, a fault, no first command) cuts the episode short: truncated

@@ -447,6 +447,9 @@ class LogStream:
         f.attrs["extra_columns"] = list(log.extra)
         f.flush()
         self._stop = threading.Event()
+        # the writer thread and close() take turns on the file: close() never waits for the thread
+        # to wake (it runs at nice +10, and on a loaded machine it may sleep for seconds)
+        self._lock = threading.Lock()
         self._setup = thread_setup  # called first in the writer's thread (where it may run: placement)
         self._thread = threading.Thread(target=self._run, name="rig-log-stream", daemon=True)
         self._thread.start()
@@ -455,7 +458,10 @@ class LogStream:
         if self._setup is not None:
             self._setup()
         while not self._stop.wait(self.period_s):
-            self.flush()
+            with self._lock:
+                if self._f is None:
+                    return
+                self.flush()
 
     def flush(self, upto: int | None = None) -> None:
         """Append the completed rows not yet on disk and flush the file."""
@@ -475,13 +481,41 @@ class LogStream:
         self.flushes += 1
 
     def close(self) -> None:
-        """Stop the thread, write every row of the log (the final row too), close the file."""
+        """Stop the thread, write every row of the log (the final row too), close the file.  The
+        thread is not waited for: once its flush in progress (if any) is done, it leaves the file
+        alone and ends when it next wakes."""
         self._stop.set()
-        self._thread.join()
-        if self._f:
+        with self._lock:
+            if self._f:
+                self.flush(self.log.n)
+                self._f.close()
+                self._f = None
+
+    def finish(self, meta: EpisodeMeta, directory: str | os.PathLike) -> Path:
+        """The streamed file as the episode's finished log, without writing the rows again (a
+        target asked to stop has a second at most): every row written, ``meta``'s attributes and
+        counters set, fsynced, renamed to :func:`episode_filename` in ``directory`` (atomic).
+        :func:`read_episode` reads it as it reads a file of :func:`write_episode`."""
+        self._stop.set()
+        with self._lock:
+            f = self._f
+            if f is None:
+                raise ValueError(f"{self.path} is closed: nothing to finish")
             self.flush(self.log.n)
-            self._f.close()
+            for fd in fields(EpisodeMeta):
+                if fd.name not in ("counters", "versions", "obs_names"):
+                    f.attrs[fd.name] = getattr(meta, fd.name)
+            g = f["counters"]
+            for k, v in meta.counters.items():
+                g.attrs[k] = v
+            f.close()
             self._f = None
+        with open(self.path, "rb") as fh:
+            os.fsync(fh.fileno())
+        final = Path(directory) / episode_filename(meta.episode, meta.session)
+        os.replace(self.path, final)
+        _fsync_dir(Path(directory))
+        return final
 
     def discard(self) -> None:
         """Close and delete the file (its episode was written as a finished file)."""

@@ -1,11 +1,13 @@
-"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 3.0).
+"""The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 4.0).
 
 Every datagram is one message: a 42-byte header, a payload whose layout the message type fixes,
 and a 16-byte tag (HMAC-SHA256, :func:`tag`).  Version 2.0 replaced 1.0's CRC-32 trailer with
 the tag and appended session_nonce and keyed to INFO; 2.1 gave ARM's options bits 1-2, the
 episode kind (:class:`EpisodeKind`: drops, or identification episodes with body 1 held); 3.0
 opens a session by challenge and response (HELLO -> CHALLENGE, RESPONSE -> INFO, 128-bit
-nonces from both sides), so that no recorded datagram opens one again.  Integers are unsigned
+nonces from both sides), so that no recorded datagram opens one again; 4.0 gives each session a
+socket of its own at the target, named in INFO (``session_port``), to which the host sends
+everything after the handshake.  Integers are unsigned
 little-endian, floats IEEE-754 little-endian.
 
 Header (42 bytes) and trailer
@@ -15,7 +17,7 @@ Header (42 bytes) and trailer
 offset  size  type        field
 ======  ====  ==========  =================================================================
 0       4     bytes       magic ``b"IMPR"``
-4       1     u8          major version (3): a receiver drops any other major
+4       1     u8          major version (4): a receiver drops any other major
 5       1     u8          minor version (0): see *Versioning*
 6       1     u8          message type (table below)
 7       1     u8          flags: bit 0 ``FLAG_RETRY`` (a request sent again); others reserved
@@ -54,7 +56,9 @@ code   type          dir    payload (offset type field [unit])
                             (0 idle, 1 armed, 2 running, 3 fault); 25 u8 driver (0 virtual, 1
                             hardware); 26 u8 lockstep (0/1); 27 u32 scene_size [B] (resource SCENE);
                             31 32s scene_sha256; 63 u64 session_nonce (drawn per session; in every
-                            later tag); 71 u8 keyed.  = 72 B
+                            later tag); 71 u8 keyed; 72 u16 session_port (the session's own socket
+                            at the target, 0: none; the host sends the session's datagrams there;
+                            4.0).  = 74 B
 3      ARM           H->T   0 u8 mode (1 host, 2 onboard); 1 u8 observation (0 sensors, 1 privileged,
                             2 both); 2 u8 history [frames, 1..64]; 3 u8 options (bit 0
                             ``ARM_TERMINATE_ON_CATCH``; bits 1-2 the ``EpisodeKind``: 0 drop, 1
@@ -90,7 +94,9 @@ code   type          dir    payload (offset type field [unit])
                             SCENE); 5 u32 offset [B]; 9 u16 max_len [B].  = 11 B
 11     CHUNK         T->H   0 u8 resource; 1 u32 item; 5 u32 total [B]; 9 u32 offset [B]; 13 u16 n [B];
                             15 n bytes data.  = 15 + n B
-12     DISARM        H->T   0 u8 reason (0 user, 1 host closing, 2 host error).  Answered by ACK.  = 1 B
+12     DISARM        H->T   0 u8 reason (0 user, 1 host closing, 2 host error, 3 caught: the host's
+                            task ended the episode, whose end reason is then CAUGHT).  Answered by
+                            ACK.  = 1 B
 13     HEARTBEAT     both   0 u8 state; 1 u32 episode; 5 u32 step; 9 u32 peer_seq (newest sequence
                             number accepted from the peer).  = 13 B
 14     ERROR         both   0 u16 code (``ErrorCode``); 2 u32 ref_seq (the message it answers, or 0);
@@ -151,7 +157,7 @@ from typing import ClassVar
 from impact_env.rig import handshake as _HS
 
 MAGIC = b"IMPR"
-VERSION_MAJOR = 3
+VERSION_MAJOR = 4
 VERSION_MINOR = 0
 
 HEADER = struct.Struct("<4sBBBBIIQQQH")
@@ -176,6 +182,8 @@ FLAG_RETRY = 1
 ARM_TERMINATE_ON_CATCH = 1
 ARM_KIND_SHIFT = 1  # options bits 1-2: the episode kind (EpisodeKind)
 ARM_KIND_MASK = 0b110
+# the other bits are reserved: an ARM with one is refused
+ARM_OPTIONS_MAX = ARM_TERMINATE_ON_CATCH | ARM_KIND_MASK
 
 U8, U16, U32, U64 = 0xFF, 0xFFFF, 0xFFFF_FFFF, 0xFFFF_FFFF_FFFF_FFFF
 _FLT_MAX = 3.4028234663852886e38
@@ -237,6 +245,11 @@ class EndReason(enum.IntEnum):
     OVERRUN = 9  # real time: no tick ran for longer than the target's limit (max_gap_s): 0 N, ended
 
 
+# DISARM's reasons: the user; the host closing (its session ends too); a host error; the host's
+# task caught body 1 (terminate_on_catch): the episode's end reason is then CAUGHT, on both sides
+DISARM_USER, DISARM_CLOSING, DISARM_ERROR, DISARM_CAUGHT = 0, 1, 2, 3
+
+
 class EpisodeKind(enum.IntEnum):
     """What an ARMed episode does (ARM options bits 1-2; :mod:`impact_env.rig.excitation`)."""
 
@@ -280,6 +293,26 @@ class CorruptDatagram(ProtocolError):
     """Bad magic, length or payload (``detail``: truncated, magic, length, payload)."""
 
 
+class FieldOutOfRange(CorruptDatagram):
+    """An authenticated datagram with a field out of its range (``detail`` "field"): ``field``
+    names it, ``refusal`` is the terse text of the ERROR that answers it (``field=value [range]``),
+    ``mtype``, ``session``, ``seq`` are its header's."""
+
+    def __init__(self, message: str, field: str, refusal: str, mtype: int = 0, session: int = 0,
+                 seq: int = 0):
+        super().__init__("field", message)
+        self.field, self.refusal = field, refusal
+        self.mtype, self.session, self.seq = mtype, session, seq
+
+
+class FieldError(ValueError):
+    """A field out of its range: ``field`` and the terse ``refusal`` (``field=value [range]``)."""
+
+    def __init__(self, message: str, field: str, refusal: str):
+        super().__init__(message)
+        self.field, self.refusal = field, refusal
+
+
 class WrongVersion(ProtocolError):
     reason = "wrong_version"
 
@@ -300,7 +333,8 @@ def _uint(name: str, value, hi: int, lo: int = 0) -> None:
     if type(value) is int and lo <= value <= hi:  # the common case, first: decoding runs it per field
         return
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ValueError(f"{name} = {value!r} must be an integer in [{lo}, {hi}]")
+        raise FieldError(f"{name} = {value!r} must be an integer in [{lo}, {hi}]", name,
+                         f"{name}={value!r:.24} [{lo},{hi}]")
 
 
 def _digest(name: str, value) -> None:
@@ -310,8 +344,9 @@ def _digest(name: str, value) -> None:
 
 def _floats(name: str, values, limit: int, lo: int = 0) -> None:
     if not isinstance(values, tuple) or not lo <= len(values) <= limit:
-        raise ValueError(f"{name} must be a tuple of {lo} to {limit} floats, got {type(values).__name__} "
-                         f"of length {len(values) if hasattr(values, '__len__') else '?'}")
+        n = len(values) if hasattr(values, '__len__') else '?'
+        raise FieldError(f"{name} must be a tuple of {lo} to {limit} floats, got {type(values).__name__} "
+                         f"of length {n}", name, f"n={n} [{lo},{limit}]")
     for v in values:
         if type(v) is not float:
             raise ValueError(f"{name} must hold Python floats, got {v!r} ({type(v).__name__})")
@@ -405,7 +440,7 @@ class Response(Body):
 @dataclass(frozen=True)
 class Info(Body):
     TYPE: ClassVar = MsgType.INFO
-    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}sdBBBI32sQB")
+    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}sdBBBI32sQBH")
     nonce: bytes = bytes(NONCE_SIZE)
     control_rate_hz: float = 1.0e4
     state: int = TargetState.IDLE
@@ -415,6 +450,7 @@ class Info(Body):
     scene_sha256: bytes = bytes(32)
     session_nonce: int = 0
     keyed: bool = False
+    session_port: int = 0  # the session's own socket at the target (0: none, use the target's address)
 
     def __post_init__(self):
         _nonce("nonce", self.nonce)
@@ -430,14 +466,15 @@ class Info(Body):
         _uint("session_nonce", self.session_nonce, U64)
         if not isinstance(self.keyed, bool):
             raise ValueError(f"keyed must be a bool, got {self.keyed!r}")
+        _uint("session_port", self.session_port, U16)
 
     @classmethod
     def unpack(cls, payload, newer):
         _need(payload, cls.FMT.size, newer, exact=True)
-        nonce, rate, state, driver, lock, size, sha, snonce, keyed = cls.FMT.unpack_from(payload)
+        nonce, rate, state, driver, lock, size, sha, snonce, keyed, port = cls.FMT.unpack_from(payload)
         if lock > 1 or keyed > 1:
             raise CorruptDatagram("payload", f"INFO lockstep/keyed byte {lock}/{keyed} is not 0 or 1")
-        return cls(nonce, rate, state, driver, bool(lock), size, sha, snonce, bool(keyed))
+        return cls(nonce, rate, state, driver, bool(lock), size, sha, snonce, bool(keyed), port)
 
 
 @dataclass(frozen=True)
@@ -483,8 +520,11 @@ class Arm(Body):
     def unpack(cls, payload, newer):
         _need(payload, cls.FMT.size, newer, exact=True)
         mode, obs, *rest = cls.FMT.unpack_from(payload)
-        if mode not in _MODE_NAMES or obs not in _OBS_NAMES:
-            raise CorruptDatagram("payload", f"ARM mode {mode} or observation {obs} unknown")
+        if mode not in _MODE_NAMES:
+            raise FieldError(f"ARM mode {mode} unknown: 1 host, 2 onboard", "mode", f"mode={mode} [1,2]")
+        if obs not in _OBS_NAMES:
+            raise FieldError(f"ARM observation {obs} unknown: 0 sensors, 1 privileged, 2 both", "observation",
+                             f"observation={obs} [0,2]")
         return cls(_MODE_NAMES[mode], _OBS_NAMES[obs], *rest)
 
 
@@ -710,10 +750,10 @@ class Chunk(Body):
 class Disarm(Body):
     TYPE: ClassVar = MsgType.DISARM
     FMT: ClassVar = struct.Struct("<B")
-    reason: int = 0
+    reason: int = 0  # DISARM_USER, DISARM_CLOSING, DISARM_ERROR, DISARM_CAUGHT
 
     def __post_init__(self):
-        _uint("reason", self.reason, U8)
+        _uint("reason", self.reason, DISARM_CAUGHT)
 
 
 @dataclass(frozen=True)
@@ -883,6 +923,9 @@ def decode(data: bytes, key: bytes = b"", nonce: int = 0) -> Message:
         body = cls.unpack(payload, minor > VERSION_MINOR)
     except ProtocolError:
         raise
+    except FieldError as exc:  # authenticated (the tag checked): the sender may be told which field
+        raise FieldOutOfRange(f"{cls.TYPE.name} payload invalid: {exc}", exc.field, exc.refusal, mtype,
+                              session, seq) from None
     except (ValueError, struct.error) as exc:
         raise CorruptDatagram("payload", f"{cls.TYPE.name} payload invalid: {exc}") from None
     # the header's fields are in range by construction (struct): skip Message's checks
@@ -963,6 +1006,8 @@ class DatagramFilter:
     key: bytes = b""
     nonce: int = 0
     peer: tuple | None = None
+    # the host's filter: the target's session socket (INFO's session_port), a second address of its peer
+    session_peer: tuple | None = None
     loopback_only: bool = False
     last_stranger: Message | None = None
     last_unauth: bool = False  # the last datagram dropped was a HELLO whose tag did not check
@@ -972,6 +1017,14 @@ class DatagramFilter:
     opened: tuple | None = None
     limiter: _HS.RateLimiter = field(default_factory=_HS.RateLimiter)
     challenges: _HS.Challenges = field(default_factory=_HS.Challenges)
+    # the target: the armed COMMAND's action count (ARMED's action_size); None: any count
+    n_actions: int | None = None
+    # the target: (ERROR code, seq, text, datagram size) of the last datagram dropped that its
+    # session's host is to be told about (a field out of range); the link answers and clears it
+    refusal: tuple | None = None
+    # the answers to refusals, per source (their own buckets: a host's HELLOs keep theirs)
+    refusal_limiter: _HS.RateLimiter = field(default_factory=_HS.RateLimiter)
+    refusals_limited: int = 0
     # datagrams of the open session that authenticated from its peer, whatever their fate after
     # (accepted, or dropped as duplicate, out of order or late): a late COMMAND is still a host
     # that is alive, which is what a link timeout asks
@@ -1020,12 +1073,14 @@ class DatagramFilter:
             msg = decode(data, self.key, self.nonce)
         except ProtocolError as exc:
             self._drop(exc.reason, str(exc), exc.detail)
+            if isinstance(exc, FieldOutOfRange) and self.role == "target":
+                self._refuse(exc, len(data), sender)
             if isinstance(exc, Unauthenticated) and exc.detail == "ERROR" and self.role == "host":
                 self._refusal(data, sender)
             self.last_unauth = isinstance(exc, Unauthenticated) and exc.detail == "HELLO"
             return None
         t = msg.type
-        if self.peer is not None and sender is not None and tuple(sender[:2]) != tuple(self.peer[:2]):
+        if not self.from_peer(sender):
             self._drop("stranger", f"{t.name} from {sender[0]}:{sender[1]}, not the session's host",
                        t.name)
             self.last_stranger = msg
@@ -1047,6 +1102,11 @@ class DatagramFilter:
             self._drop("no_challenge", "RESPONSE that answers no live challenge sent to its sender "
                        "(replayed, expired, or never asked)")
             return None
+        if t == MsgType.COMMAND and self.n_actions is not None and len(msg.body.action) != self.n_actions:
+            n, want = len(msg.body.action), self.n_actions
+            self._drop("corrupt", f"COMMAND of {n} actions; the armed episode takes {want}", "action_count")
+            self.refusal = (ErrorCode.OUT_OF_RANGE, msg.seq, f"n={n} [{want},{want}]", len(data))
+            return None
         if (t == MsgType.COMMAND and episode is not None and step is not None
                 and (msg.body.episode, msg.body.step) < (episode, step)):
             self._drop("late", f"COMMAND for episode {msg.body.episode} step {msg.body.step} arrived at "
@@ -1060,7 +1120,7 @@ class DatagramFilter:
         (the host may hold none, or another).  Anyone can make one, so nothing of it is kept:
         only counted, when it claims to answer this session from its peer, so that a host whose
         HELLO times out can say that a refusal came (its text is never read)."""
-        if self.peer is not None and sender is not None and tuple(sender[:2]) != tuple(self.peer[:2]):
+        if not self.from_peer(sender):
             return
         try:
             msg = decode(data)
@@ -1068,6 +1128,29 @@ class DatagramFilter:
             return
         if msg.body.code == ErrorCode.UNAUTHENTICATED and msg.session == self.session:
             self.unverified_refusals += 1
+
+    def _refuse(self, exc: FieldOutOfRange, size: int, sender: tuple | None) -> None:
+        """A field out of range in an authenticated request of the open session from its host:
+        kept for the link to answer (an ERROR OUT_OF_RANGE naming the field and its range)."""
+        if (self.session is not None and exc.session == self.session and self.peer is not None
+                and self.from_peer(sender) and exc.mtype in self._types and exc.mtype not in HANDSHAKE_TYPES):
+            self.refusal = (ErrorCode.OUT_OF_RANGE, exc.seq, exc.refusal, size)
+
+    def allow_refusal(self, sender: tuple | None) -> bool:
+        """Whether the per-source limiter of refusals lets this side answer one; counted if not."""
+        if self.refusal_limiter.allow(source(sender)):
+            return True
+        self.refusals_limited += 1
+        return False
+
+    def from_peer(self, sender: tuple | None) -> bool:
+        """Whether ``sender`` may speak for the peer: any sender while no peer is set, else the
+        peer's address and port (or the session's socket's, ``session_peer``)."""
+        if self.peer is None or sender is None:
+            return True
+        who = tuple(sender[:2])
+        return who == tuple(self.peer[:2]) or (self.session_peer is not None
+                                               and who == tuple(self.session_peer[:2]))
 
     def _redeem(self, msg: Message, sender: tuple | None) -> bool:
         b = msg.body

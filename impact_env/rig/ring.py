@@ -69,6 +69,7 @@ class CommandState(NamedTuple):
     cur_id: int
     cur_acted: int  # 1 once it has acted on a tick
     n_cmd: int  # commands taken into use
+    heard_step: int  # the latest step an accepted command was for (-1: none yet)
 
 
 CS = positions(CommandState)
@@ -81,6 +82,10 @@ class CommandCounts(NamedTuple):
     acted: int
     superseded: int
     expired: int
+    # steps at whose end no command of the host's had been accepted for it (or a later step):
+    # the host's datagrams stopped arriving in time (lost, late, or taken)
+    silent_steps: int
+    silent_from: int  # the first such step (-1: none)
 
 
 CC = positions(CommandCounts)
@@ -115,7 +120,9 @@ def reset(link: HostLink) -> None:
     link.cs[CS.cur_step] = -1.0
     link.cs[CS.cur_id] = -1.0
     link.cs[CS.cur_acted] = 1.0
+    link.cs[CS.heard_step] = -1.0
     link.cc[:] = 0
+    link.cc[CC.silent_from] = -1
 
 
 def newest_observation(link: HostLink, after: int) -> tuple[np.ndarray, np.ndarray] | None:

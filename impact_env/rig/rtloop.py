@@ -256,6 +256,8 @@ def _offer(hl, step, val):
     """A command the wire accepted: the newest for the latest step waits to be used (latest wins);
     each one it replaces is superseded."""
     cs, cc = hl.cs, hl.cc
+    if step > cs[RG.CS.heard_step]:
+        cs[RG.CS.heard_step] = step
     if cs[RG.CS.next_step] < 0 or step >= cs[RG.CS.next_step]:
         if cs[RG.CS.next_step] >= 0:
             cc[RG.CC.superseded] += 1
@@ -419,6 +421,11 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
             for _ in range(LATE_READS):  # what came since the spin stopped reading (or, behind, at all)
                 if _poll(w, hl, step) == WR.NONE:
                     break
+            if boundary and step > 0 and cs[RG.CS.heard_step] < step - 1:
+                # nothing from the host for the step that just ended: its datagrams stopped coming
+                if cc[RG.CC.silent_from] < 0:
+                    cc[RG.CC.silent_from] = step - 1
+                cc[RG.CC.silent_steps] += 1
             if tm.lockstep_host and boundary:  # lock-step: the step's command first
                 sent = float(cycles())
                 while cs[RG.CS.next_step] < step and sh[RG.SH.stop] == 0:

@@ -40,6 +40,7 @@ import signal
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,6 +70,8 @@ from impact_env.rig.transport import Endpoint, Link, UploadAssembler, chunk_repl
 from impact_env.sim.records import N_REC
 
 N_TELEMETRY = len(P.TELEMETRY_FIELDS)
+NO_UPLOAD = "policy_sha256: no upload of that size and sha256"  # an ARM's refusal (fits its size)
+N_ACTIONS = 1  # actions per COMMAND (ARMED's action_size): the shaker's one force
 # real-time host mode's default wait for a step's command, in control periods: the host's round
 # trip (about 50 us for ImpactCatchRig-v0 on a 2-core VM, scripts/bench_rig.py) must fit in it,
 # and the tick's own work after it (act, safety, apply, the log row: 3-6 us at p99) in the rest
@@ -157,13 +160,15 @@ class Target:
                              f"period ({1 / self.rate:g} s): the tick's own work needs the rest")
         self.placement = Placement(self.cfg.loop_cpu, self.cfg.loop_nice, self.cfg.loop_fifo)
         # a receive buffer for a flood to fill while the loop cannot read (the kernel caps it at
-        # net.core.rmem_max: 4 MB here, 208 kB on a stock kernel); the session's host gets a lane
-        # of its own (Endpoint.open_lane), so that a flood fills this buffer, not the host's
-        self.endpoint = Endpoint(bind, rcvbuf=RCVBUF, lanes=True)
+        # net.core.rmem_max: 4 MB here, 208 kB on a stock kernel); the session's host gets a socket
+        # of its own (Endpoint.open_session), so that a flood fills this buffer, not the host's
+        self.endpoint = Endpoint(bind, rcvbuf=RCVBUF)
         self.link = Link(self.endpoint, "target", key=self.cfg.key, on_stranger=self._stranger)
         self.link.on_unauthenticated = self._unauthenticated
         self.link.on_handshake = self.handshake
+        self.link.on_refused = self._refused
         self.link.filter.loopback_only = not self.cfg.key
+        self.link.filter.n_actions = N_ACTIONS  # a COMMAND of another count is refused
         self._heard = 0.0  # perf_counter of the session host's last accepted datagram
         self._close_session = False
         self.scene_toml = self.scene.to_toml().encode()
@@ -174,9 +179,12 @@ class Target:
         self.episodes: dict[int, bytes] = {}  # episode -> its log file's bytes (the latest few)
         self.last_end: P.EpisodeEnd | None = None
         self._stop = threading.Event()
+        self.signalled = 0  # the signal that stopped serve() (install_signal_handlers), 0 none
         self._pending: P.Message | None = None  # an ARM that ended the episode before it
         self._last_obs: P.Observation | None = None  # the last OBSERVATION of the last episode
         self._closed = False
+        self.notes: list[str] = []  # what note() said (the last 64)
+        self.on_note: Callable[[str], None] | None = None  # called with each note (rig serve prints it)
         # since the target started (the logs' counters are per episode)
         self.counters = {"episodes": 0, "sessions": 0, "overruns": 0, "skipped_ticks": 0, "watchdog_trips": 0,
                          "commands_after_end": 0, "overrun_episodes": 0}
@@ -199,6 +207,19 @@ class Target:
         ctl.log.record(tick=0)
         if self.compiled:
             self._warm_up_loop(ctl)
+        self._warm_up_log(ctl)
+
+    def _warm_up_log(self, ctl: Controller) -> None:
+        """h5py imported and the HDF5 library started now, not in the first episode: a log
+        streamed and finished, and one written, in a throwaway folder."""
+        meta = LG.EpisodeMeta(scene_toml="", mode="onboard", hold_ticks=1, seed=0, control_rate_hz=self.rate,
+                              obs_names=ctl.layout.names)
+        with tempfile.TemporaryDirectory(prefix="impact-env-rig-warm-") as tmp:
+            ctl.log.record(tick=0)
+            stream = LG.LogStream(ctl.log, Path(tmp) / "warm.h5.partial", meta, np.ones(1, np.int64), 1.0)
+            stream.finish(meta, tmp)
+            LG.write_episode(ctl.log, tmp, meta, name="written.h5").read_bytes()
+        ctl.log.reset()
 
     def _warm_up_loop(self, ctl: Controller) -> None:
         """Compile (or load) the real-time core for this driver's kind, both modes, on a
@@ -230,6 +251,14 @@ class Target:
     def address(self) -> str:
         return self.endpoint.address
 
+    def note(self, text: str) -> None:
+        """Something the operator should read (``rig serve`` prints it): kept in ``notes`` (the
+        last 64) and passed to ``on_note``."""
+        self.notes.append(text)
+        del self.notes[:-64]
+        if self.on_note is not None:
+            self.on_note(text)
+
     def stop(self) -> None:
         """Stop serving; a running compiled loop sees it before its next tick (0 N, DISARMED)."""
         self._stop.set()
@@ -238,9 +267,14 @@ class Target:
             hl.shared[SH.stop] = 1
 
     def install_signal_handlers(self) -> None:
-        """SIGTERM and SIGINT stop the serve loop, which zeroes the shaker on its way out."""
+        """SIGTERM and SIGINT stop the serve loop, which zeroes the shaker on its way out
+        (``signalled``: the signal's number)."""
+        def handler(signum, _frame):
+            self.signalled = signum
+            self.stop()
+
         for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: self.stop())
+            signal.signal(sig, handler)
 
     def close(self) -> None:
         """Zero the shaker, close the driver and the socket (idempotent)."""
@@ -292,7 +326,8 @@ class Target:
                            addr, self.cfg.key, msg)
             return
         self.open_session(msg, addr)
-        self.link.send(self.info(b.nonce), reply_to=msg, addr=addr)
+        # from the target's own address, where the host waits for it: INFO names the session's port
+        self._send_raw(self.info(b.nonce), msg.session, addr, self.cfg.key, msg)
 
     def open_session(self, msg: P.Message, addr: tuple) -> None:
         """A RESPONSE that answers a live challenge (from the session's host, or any allowed peer
@@ -304,6 +339,9 @@ class Target:
             f.nonce = secrets.randbits(64) | 1
             f.peer = addr
             self.counters["sessions"] += 1
+            # the session's own socket, connected to its host, bound without SO_REUSEPORT: no
+            # other process can bind it, and only the host's datagrams reach it
+            self.endpoint.open_session(addr)
         f.opened = (P.source(addr), msg.session, msg.body.nonce, msg.body.target_nonce)
         self.link.last_sender = addr
         self._heard = time.perf_counter()
@@ -314,6 +352,7 @@ class Target:
         self.link.session = None
         f.peer, f.nonce, f.opened = None, 0, None
         self._close_session = False
+        self.endpoint.close_session()
 
     def _stranger(self, msg: P.Message, addr: tuple) -> None:
         """A well-tagged datagram from another address than the session's host's: counted by the
@@ -339,6 +378,15 @@ class Target:
         if err is not None and self.link.filter.allow_reply(addr):
             self._send_raw(err, head[5], addr, b"")
 
+    def _refused(self, refusal: tuple, addr: tuple) -> None:
+        """A request of the session's host with a field out of range (the link's ``on_refused``):
+        answered with an ERROR naming the field and its range, no larger than the request, within
+        the per-source rate of refusals."""
+        code, seq, text, size = refusal
+        err = P.Error.fitting(code, seq, text, size)
+        if err is not None and self.link.filter.allow_refusal(addr):
+            self.link.send(err, addr=addr)
+
     def _send_raw(self, body: P.Body, session: int, addr: tuple, key: bytes,
                   reply_to: P.Message | None = None) -> None:
         """Send ``body`` to ``addr`` in ``session`` (not necessarily the open one), numbered from
@@ -346,7 +394,7 @@ class Target:
         seq, self.link.seq = self.link.seq, (self.link.seq + 1) & P.U32
         msg = P.Message(body, session=session, seq=seq, host_ns=reply_to.host_ns if reply_to else 0,
                         target_ns=time.perf_counter_ns() & P.U64)
-        self.endpoint.send(P.encode(msg, key, 0), addr)
+        self.endpoint.send(P.encode(msg, key, 0), addr, main=True)
 
     # -- what a running episode may ask of its target ----------------------------------------------
     @property
@@ -365,8 +413,15 @@ class Target:
     def reply(self, body: P.Body, to: P.Message) -> None:
         self.link.send(body, reply_to=to, addr=self.link.last_sender)
 
-    def _error(self, to: P.Message, code: int, text: str) -> None:
-        self.reply(P.Error.shorten(code, to.seq, text), to)
+    def _error(self, to: P.Message, code: int, text: str, fit: bool = False) -> None:
+        """An ERROR answering ``to``.  ``fit`` (a refused ARM): no larger than ``to`` was (its
+        text cut to fit: the field it names comes first), within the per-source rate of refusals."""
+        if not fit:
+            self.reply(P.Error.shorten(code, to.seq, text), to)
+            return
+        err = P.Error.fitting(code, to.seq, text, P.OVERHEAD + len(to.body.pack()))
+        if err is not None and self.link.filter.allow_refusal(self.link.last_sender):
+            self.reply(err, to)
 
     def _handle_idle(self, msg: P.Message) -> None:
         t = msg.type
@@ -404,6 +459,7 @@ class Target:
     def _arm(self, msg: P.Message) -> None:
         a: P.Arm = msg.body
         try:
+            self._check_bounds(a)
             policy = residual = None
             kind = a.kind
             if kind in (P.EpisodeKind.SHAKER, P.EpisodeKind.QUIET):
@@ -411,8 +467,7 @@ class Target:
             elif a.policy_size:
                 data = self.upload.data if self.upload.complete else b""
                 if len(data) != a.policy_size or hashlib.sha256(data).digest() != a.policy_sha256:
-                    raise _Refused(P.ErrorCode.POLICY_REJECTED, "the uploaded policy file does not match "
-                                   "ARM's size and sha256 (upload it first)")
+                    raise _Refused(P.ErrorCode.POLICY_REJECTED, NO_UPLOAD)
                 pol = CompiledPolicy.from_dict(__import__("json").loads(data.decode()), "the uploaded policy")
                 pol.check_scene(self.scene)
                 if a.mode == "onboard":
@@ -421,21 +476,18 @@ class Target:
                 elif pol.law is not None:
                     residual = pol
                 else:
-                    raise _Refused(P.ErrorCode.POLICY_REJECTED, "host mode takes a classic law as the "
-                                   "residual, not a network")
+                    raise _Refused(P.ErrorCode.POLICY_REJECTED,
+                                   "policy: host mode takes a classic law, not a network")
             elif a.mode == "onboard":
-                raise _Refused(P.ErrorCode.BAD_REQUEST, "onboard mode needs an uploaded policy")
+                raise _Refused(P.ErrorCode.BAD_REQUEST,
+                               "policy_size=0: onboard mode needs an uploaded policy")
             if a.mode == "onboard":
                 observation, history, hold = policy.observation, policy.history, policy.hold_ticks
             else:
                 observation, history, hold = a.observation, a.history, a.hold_ticks
-            if a.horizon_ticks > self.cfg.max_horizon_s * self.rate:
-                raise _Refused(P.ErrorCode.OUT_OF_RANGE, f"horizon_ticks = {a.horizon_ticks} "
-                               f"({a.horizon_ticks / self.rate:g} s) exceeds this target's longest episode, "
-                               f"{self.cfg.max_horizon_s:g} s (rig serve --max-horizon S)")
             if a.horizon_ticks % hold:
-                raise _Refused(P.ErrorCode.BAD_REQUEST, f"horizon_ticks = {a.horizon_ticks} is not a whole "
-                               f"number of policy steps of {hold} ticks")
+                raise _Refused(P.ErrorCode.BAD_REQUEST,
+                               f"horizon_ticks={a.horizon_ticks} % hold_ticks={hold} != 0")
             layout = make_layout(self.scene, observation, history)
             ctl = Controller(self.scene, layout, hold, a.horizon_ticks, a.mode, policy, residual,
                              self.cfg.safety,
@@ -445,10 +497,10 @@ class Target:
                 # the host's own allowance for its first command (the force is 0 N until then)
                 ctl.params.safety[SF.P_FIRST] = a.first_command_timeout_ticks
         except _Refused as exc:
-            self._error(msg, exc.code, str(exc))
+            self._error(msg, exc.code, str(exc), fit=True)
             return
         except (ValueError, KeyError, UnicodeDecodeError) as exc:
-            self._error(msg, P.ErrorCode.BAD_REQUEST, f"{type(exc).__name__}: {exc}")
+            self._error(msg, P.ErrorCode.BAD_REQUEST, f"{type(exc).__name__}: {exc}", fit=True)
             return
         for k, v in TRUTH_UNITS.items():
             if k in ctl.log.extra_units:
@@ -456,21 +508,36 @@ class Target:
         self.episode += 1
         self._run_episode(msg, ctl, hold, policy)
 
+    @property
+    def max_horizon_ticks(self) -> int:
+        """The longest episode ARM may ask for (``max_horizon_s``), in ticks: also the bound of
+        its first-command and link timeouts."""
+        return int(self.cfg.max_horizon_s * self.rate)
+
+    def _check_bounds(self, a: P.Arm) -> None:
+        """ARM's fields against this target's bounds (the protocol's ranges were checked when it
+        was decoded): refused OUT_OF_RANGE naming the first field out, and its range."""
+        top = self.max_horizon_ticks
+        for name, value, hi in (("horizon_ticks", a.horizon_ticks, top),
+                                ("first_command_timeout_ticks", a.first_command_timeout_ticks, top),
+                                ("link_timeout_ms", a.link_timeout_ms, int(self.cfg.max_horizon_s * 1e3)),
+                                ("options", a.options, P.ARM_OPTIONS_MAX)):
+            if value > hi:
+                raise _Refused(P.ErrorCode.OUT_OF_RANGE, f"{name}={value} [0,{hi}]")
+
     def _excitation(self, a: P.Arm, kind: P.EpisodeKind):
         """The open-loop "policy" of an identification episode with body 1 held: the uploaded
         excitation (:mod:`impact_env.rig.excitation`), or 0 N for a quiet one without upload."""
         if a.mode != "onboard":
-            raise _Refused(P.ErrorCode.BAD_REQUEST, f"a {kind.name.lower()} episode runs onboard (its "
-                           "excitation is played by the target), not in host mode")
+            raise _Refused(P.ErrorCode.BAD_REQUEST, f"mode=host: a {kind.name.lower()} episode runs onboard")
         exc = EX.Excitation()
         if a.policy_size:
             data = self.upload.data if self.upload.complete else b""
             if len(data) != a.policy_size or hashlib.sha256(data).digest() != a.policy_sha256:
-                raise _Refused(P.ErrorCode.POLICY_REJECTED, "the uploaded excitation does not match ARM's "
-                               "size and sha256 (upload it first)")
+                raise _Refused(P.ErrorCode.POLICY_REJECTED, NO_UPLOAD)
             exc = EX.Excitation.from_json(data, "the uploaded excitation")
         if kind == P.EpisodeKind.QUIET and exc.signal != "zero":
-            raise _Refused(P.ErrorCode.BAD_REQUEST, f"a quiet episode drives 0 N; got a {exc.signal} excitation")
+            raise _Refused(P.ErrorCode.BAD_REQUEST, f"policy: a quiet episode drives 0 N, not {exc.signal}")
         cfg = self.cfg.safety or SafetyConfig()
         cmds = exc.commands(self.rate, a.horizon_ticks, float(self.scene.effects.command_scale), cfg.peak_n,
                             cfg.continuous_n)
@@ -492,13 +559,15 @@ class Target:
         if self.cfg.lockstep:
             ctl.drain(int(self.cfg.rearm_idle_s * self.rate))
         self.state = P.TargetState.RUNNING
-        armed = P.Armed(self.episode, 0, ctl.layout.size, 1, 4, N_TELEMETRY, hold, self.rate, self.scene_sha)
+        armed = P.Armed(self.episode, 0, ctl.layout.size, N_ACTIONS, 4, N_TELEMETRY, hold, self.rate,
+                        self.scene_sha)
+        ep = Episode(self, arm_msg, armed, ctl, hold, seed)
+        ep.prefault()  # the episode's arrays in memory before ARMED: no page fault in its first ticks
         self.reply(armed, arm_msg)
         if kind in (P.EpisodeKind.SHAKER, P.EpisodeKind.QUIET):
             drv.hold()
         else:
             drv.release()
-        ep = Episode(self, arm_msg, armed, ctl, hold, seed)
         ep.datagrams0 = datagrams0
         ep.policy = policy
         try:
@@ -534,6 +603,12 @@ class Target:
                     **(ep.command_counters() if ep.host else {})}
         if ep.host:
             counters["commands_late"] = counts["late"]
+        silent = counters.get("host_silent_steps", 0)
+        if silent:
+            self.note(f"episode {ep.ep}: HOST_SILENT: no COMMAND of the host's "
+                      f"{self.link.peer_name} arrived in time for {silent} of {ep.m // ctl.hold} steps (the "
+                      f"first: step {counters['host_silent_from_step']}); {counts['late']} came late: "
+                      "its datagrams stopped arriving (lost, delayed, or taken by another process)")
         if ep.stop_asked_tick >= 0:  # asked to stop (DISARM, a signal, a lost link) at this tick; stopped at
             counters["stop_asked_tick"] = ep.stop_asked_tick
             counters["stop_tick"] = ep.stop_tick
@@ -566,9 +641,13 @@ class Target:
 
     def _write(self, ep: Episode, meta: LG.EpisodeMeta, end) -> None:
         ctl = ep.ctl
-        if ep.stream is not None:
-            ep.stream.close()
-        if self.cfg.log_dir is not None:
+        if self.stopping and ep.stream is not None and self.cfg.log_dir is not None:
+            # asked to stop (SIGTERM, SIGINT): the streamed file becomes the log (its last rows,
+            # its end and counters), not written again: the process exits within a second
+            data = ep.stream.finish(meta, self.cfg.log_dir).read_bytes()
+        elif self.cfg.log_dir is not None:
+            if ep.stream is not None:
+                ep.stream.close()
             data = LG.write_episode(ctl.log, self.cfg.log_dir, meta).read_bytes()
             if ep.stream is not None:
                 ep.stream.discard()  # the finished file replaces what was streamed
@@ -589,7 +668,8 @@ class Target:
 
     def info(self, nonce: bytes) -> P.Info:
         return P.Info(nonce, self.rate, int(self.state), 0 if self.driver.virtual else 1, self.cfg.lockstep,
-                      len(self.scene_toml), self.scene_sha, self.link.filter.nonce, self.keyed)
+                      len(self.scene_toml), self.scene_sha, self.link.filter.nonce, self.keyed,
+                      self.endpoint.session_port)
 
 
 class _Refused(Exception):

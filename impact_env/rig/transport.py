@@ -29,7 +29,6 @@ import ipaddress
 import os
 import select
 import socket
-import sys
 import time
 from collections.abc import Callable
 
@@ -113,6 +112,10 @@ def _resolve(addr: Address) -> tuple[int, tuple]:
 
 
 # -- endpoint ------------------------------------------------------------------------------------------
+def _same_peer(a: tuple | None, b: tuple | None) -> bool:
+    return a is not None and b is not None and tuple(a[:2]) == tuple(b[:2])
+
+
 def _proc_drops(sock: socket.socket) -> int:
     """The kernel's drop count of ``sock`` (Linux's /proc/net/udp{,6}, found by the socket's
     inode); -1 where there is none."""
@@ -133,30 +136,27 @@ def _proc_drops(sock: socket.socket) -> int:
 
 
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: the kernel's drop count with each datagram
-# Linux delivers a datagram to the connected socket of a SO_REUSEPORT group whose peer sent it,
-# ahead of the group's unconnected one (net/ipv4/udp.c's scoring): what a lane relies on.
-# IMPACT_ENV_RIG_LANES=0 turns lanes off (an A/B of them: docs/rig.md)
-LANES = sys.platform.startswith("linux") and hasattr(socket, "SO_REUSEPORT") \
-    and os.environ.get("IMPACT_ENV_RIG_LANES", "1") != "0"
 
 
 class Endpoint:
-    """A non-blocking UDP socket bound to ``bind`` (default: loopback, a free port).
+    """A non-blocking UDP socket bound to ``bind`` (default: loopback, a free port), never with
+    ``SO_REUSEPORT`` or ``SO_REUSEADDR``: another process, whatever its user, cannot bind the same
+    address beside it and take a share of its datagrams (the kernel refuses the second bind).
 
     ``peer`` is the default destination of :meth:`send`.  Attributes: ``address`` (the bound
     ``udp://`` address), ``sent``, ``received``, ``send_dropped`` (datagrams a full buffer or
     an unreachable peer refused; UDP gives no other delivery report).
+
+    A target gives its session's host a socket of the session's own (:meth:`open_session`).
     """
 
     def __init__(self, bind: str | Address = "udp://127.0.0.1:0", peer: str | Address | None = None,
-                 rcvbuf: int = 1 << 20, lanes: bool = False):
+                 rcvbuf: int = 1 << 20):
         b = _as_address(bind, allow_port_zero=True)
         family, sockaddr = _resolve(b)
         self._sock = socket.socket(family, socket.SOCK_DGRAM)
         try:
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, int(rcvbuf))
-            # bound first without SO_REUSEPORT, so that a second program binding the same
-            # address is refused as before; the flag afterwards only admits this endpoint's lanes
             self._sock.bind(sockaddr)
             self._sock.setblocking(False)
         except OSError as exc:
@@ -164,19 +164,13 @@ class Endpoint:
             raise OSError(f"cannot bind {format_address(b)}: {exc}") from exc
         self._family = family
         self._rcvbuf = int(rcvbuf)
-        self._lanes = bool(lanes) and LANES
-        if self._lanes:
-            try:
-                self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-            except OSError:
-                self._lanes = False
-        self._lane: socket.socket | None = None
-        self._lane_peer: tuple | None = None
-        #: True while another reader (the target's real-time loop) owns the lane: recv and
-        #: recv_many then read the endpoint's own socket only
-        self.lane_busy = False
-        self._pending: list[tuple[bytes, tuple]] = []  # what a replaced lane still held
-        self._lane_drops_before = 0  # kernel drops of lanes already closed
+        self._session: socket.socket | None = None
+        self._session_peer: tuple | None = None
+        #: True while another reader (the target's real-time loop) owns the session's socket: recv
+        #: and recv_many then read the endpoint's own socket only
+        self.session_busy = False
+        self._pending: list[tuple[bytes, tuple]] = []  # what a closed session socket still held
+        self._session_drops_before = 0  # kernel drops of session sockets already closed
         local = self._sock.getsockname()
         self.local: Address = (local[0], local[1])
         self.peer: tuple | None = None
@@ -205,16 +199,20 @@ class Endpoint:
         if self._closed:
             raise EndpointClosed(f"endpoint {self.address} is closed")
 
-    def send(self, data: bytes, addr: tuple | None = None) -> bool:
-        """Send one datagram to ``addr`` (default: the peer); False if the OS refused it."""
+    def send(self, data: bytes, addr: tuple | None = None, main: bool = False) -> bool:
+        """Send one datagram to ``addr`` (default: the peer); False if the OS refused it.  To the
+        session's peer it goes out of the session's socket, unless ``main`` (a handshake's reply,
+        from the address the peer knows before it learns the session's port)."""
         self._check()
         dest = addr if addr is not None else self.peer
         if dest is None:
             raise ValueError(f"endpoint {self.address} has no peer: give addr")
         if len(data) > P.MAX_DATAGRAM:
             raise ValueError(f"datagram of {len(data)} B exceeds {P.MAX_DATAGRAM} B")
+        session = self._session is not None and not main and _same_peer(dest, self._session_peer)
+        sock = self._session if session else self._sock
         try:
-            self._sock.sendto(data, dest)
+            sock.sendto(data, dest)
         except (BlockingIOError, ConnectionRefusedError, InterruptedError):
             self.send_dropped += 1
             return False
@@ -222,8 +220,10 @@ class Endpoint:
         return True
 
     def _readers(self) -> list[socket.socket]:
-        """The sockets this endpoint reads now: the lane (unless the loop owns it), then its own."""
-        return [self._lane, self._sock] if self._lane is not None and not self.lane_busy else [self._sock]
+        """The sockets this endpoint reads now: the session's (unless the loop owns it), then its own."""
+        if self._session is not None and not self.session_busy:
+            return [self._session, self._sock]
+        return [self._sock]
 
     def recv(self, timeout: float = 0.0, spin_s: float = 0.0) -> tuple[bytes, tuple] | None:
         """The next datagram and its sender, waiting at most ``timeout`` s (0: just poll);
@@ -267,7 +267,7 @@ class Endpoint:
                     raise
 
     def recv_many(self, limit: int = 4096) -> list[tuple[bytes, tuple]]:
-        """Every datagram waiting now (at most ``limit``), the lane's first, without waiting: a
+        """Every datagram waiting now (at most ``limit``), the session's first, without waiting: a
         reader that drains the queue at each wake-up, so that junk never queues ahead of the host.
         Reads the kernel's drop counter (``kernel_dropped``) from each datagram's ancillary data."""
         self._check()
@@ -291,56 +291,67 @@ class Endpoint:
                 for level, kind, value in ancdata:
                     if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4 \
                             and sock is self._sock:
-                        # the socket's drops since it opened (a lane's are read from /proc)
+                        # the socket's drops since it opened (a session socket's are read from /proc)
                         self.kernel_dropped = int.from_bytes(value[:4], "little")
                 out.append((data, addr))
         return out
 
-    def open_lane(self, peer: tuple) -> int:
-        """A socket of its own for ``peer``'s datagrams: a second socket bound to this endpoint's
-        address (``SO_REUSEPORT``) and connected to ``peer``, so that the kernel puts ``peer``'s
-        datagrams in the lane's buffer and everyone else's in the endpoint's.  A flood from any
-        other sender then fills the endpoint's buffer, never the lane's: the target gives its
-        session's host one (:mod:`impact_env.rig.wire`).  Returns the lane's file descriptor, or
-        -1 where there is none (an endpoint made without ``lanes``, a platform other than Linux:
-        ``peer``'s datagrams stay on the endpoint's socket).  The lane stays open for ``peer``; a
-        lane for another peer replaces it, what the old one held read first.  :meth:`recv` and
-        :meth:`recv_many` read the lane too (not while ``lane_busy``)."""
+    def open_session(self, peer: tuple) -> int:
+        """A socket of ``peer``'s session's own: bound to this endpoint's host address on a port the
+        kernel picks (no ``SO_REUSEPORT``: no other process can bind it beside this one) and
+        connected to ``peer``, so that the kernel puts in its buffer ``peer``'s datagrams and no
+        one else's (a connected UDP socket matches its peer only).  A flood from any other sender
+        then fills the endpoint's own buffer, never the session's.  The target names the port in
+        its INFO (authenticated), and its host sends the session's datagrams there
+        (:mod:`impact_env.rig.wire`: the real-time loop reads it).  Returns the port.  The socket
+        stays open for ``peer``; one for another peer replaces it, what the old one held read
+        first.  :meth:`recv` and :meth:`recv_many` read it too (not while ``session_busy``);
+        :meth:`send` to ``peer`` goes out of it."""
         self._check()
-        if not self._lanes:
-            return -1
-        if self._lane is not None and self._lane_peer == peer:
-            return self._lane.fileno()
-        self._close_lane()
-        lane = socket.socket(self._family, socket.SOCK_DGRAM)
+        if self._session is not None and _same_peer(self._session_peer, peer):
+            return self.session_port
+        self.close_session()
+        sock = socket.socket(self._family, socket.SOCK_DGRAM)
+        local = self._sock.getsockname()
         try:
-            lane.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self._rcvbuf)
-            lane.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-            lane.bind(self._sock.getsockname())
-            lane.connect(peer)
-            lane.setblocking(False)
-        except OSError:
-            lane.close()
-            return -1
-        self._lane, self._lane_peer = lane, peer
-        return lane.fileno()
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self._rcvbuf)
+            sock.bind((local[0], 0, *local[2:]))
+            sock.connect(peer)
+            sock.setblocking(False)
+        except OSError as exc:
+            sock.close()
+            raise OSError(f"cannot open a session socket on {format_address(self.local)} for "
+                          f"{format_address((peer[0], peer[1]))}: {exc}") from exc
+        self._session, self._session_peer = sock, peer
+        return self.session_port
 
-    def _close_lane(self) -> None:
-        lane, self._lane = self._lane, None
-        if lane is None:
+    @property
+    def session_fd(self) -> int:
+        """The session socket's file descriptor (-1: none open)."""
+        return self._session.fileno() if self._session is not None else -1
+
+    @property
+    def session_port(self) -> int:
+        """The session socket's port (0: none open)."""
+        return self._session.getsockname()[1] if self._session is not None else 0
+
+    def close_session(self) -> None:
+        """Close the session's socket (if open): what it holds is read first (the kernel would
+        discard it), for :meth:`recv` and :meth:`recv_many`."""
+        sock, self._session = self._session, None
+        self._session_peer = None
+        if sock is None:
             return
-        while True:  # what it holds, read before it closes (the kernel would discard it)
+        while True:
             try:
-                self._pending.append(lane.recvfrom(P.MAX_DATAGRAM + 1))
-            except (BlockingIOError, InterruptedError, ConnectionRefusedError):
+                self._pending.append(sock.recvfrom(P.MAX_DATAGRAM + 1))
+            except OSError:  # nothing left (BlockingIOError), or an ICMP error reported: done
                 break
-            except OSError:
-                break
-        self._lane_drops_before += _proc_drops(lane)
-        lane.close()
+        self._session_drops_before += max(_proc_drops(sock), 0)
+        sock.close()
 
     def kernel_drops(self) -> int:
-        """Datagrams the kernel dropped for this endpoint's sockets (its own and its lanes')
+        """Datagrams the kernel dropped for this endpoint's sockets (its own and its sessions')
         since it opened (a receive buffer full): Linux's per-socket counter in /proc/net/udp (read
         now, so drops after the last datagram count too), else the last SO_RXQ_OVFL value seen,
         else 0."""
@@ -349,8 +360,8 @@ class Endpoint:
         own = _proc_drops(self._sock)
         if own < 0:
             return self.kernel_dropped or 0
-        lane = _proc_drops(self._lane) if self._lane is not None else 0
-        self.kernel_dropped = own + max(lane, 0) + self._lane_drops_before
+        session = _proc_drops(self._session) if self._session is not None else 0
+        self.kernel_dropped = own + max(session, 0) + self._session_drops_before
         return self.kernel_dropped
 
     def wait_readable(self, timeout: float, *others) -> list:
@@ -374,7 +385,7 @@ class Endpoint:
         if not self._closed:
             self.kernel_drops()
             self._closed = True
-            self._close_lane()
+            self.close_session()
             self._sock.close()
 
     def __enter__(self):
@@ -412,6 +423,8 @@ class Link:
         # the target's handshake: takes the HELLOs and RESPONSEs (with their sender) that the
         # filter accepted, idle or mid-episode; they are not returned by recv
         self.on_handshake: Callable[[P.Message, tuple], None] | None = None
+        # a request the filter refused for a field out of range: (code, seq, text, size), sender
+        self.on_refused: Callable[[tuple, tuple], None] | None = None
 
     @property
     def session(self) -> int | None:
@@ -490,6 +503,9 @@ class Link:
             if self.on_accept is not None:
                 self.on_accept(msg)
             return msg
+        refusal, self.filter.refusal = self.filter.refusal, None
+        if refusal is not None and self.on_refused is not None:
+            self.on_refused(refusal, addr)
         if self.filter.last_unauth and self.on_unauthenticated is not None:
             self.on_unauthenticated(data, addr)
         self.filter.last_unauth = False

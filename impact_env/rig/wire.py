@@ -2,8 +2,9 @@
 step's OBSERVATION made, tagged and sent, by the compiled loop itself (:mod:`impact_env.rig.rtloop`),
 so that no Python thread stands between the host and the tick.
 
-While an episode runs the loop owns the session host's lane (its own socket at the target:
-:meth:`impact_env.rig.transport.Endpoint.open_lane`; where there is none, the target's socket).
+While an episode runs the loop owns the session's socket (its own socket at the target, connected
+to the host: :meth:`impact_env.rig.transport.Endpoint.open_session`; where there is none, the
+target's socket).
 Whenever it waits (spinning to a
 tick's deadline, or for a step's command) it reads every datagram waiting (``recvfrom`` with
 ``MSG_DONTWAIT``, called by address: :mod:`impact_env.rig.cfunc`):
@@ -11,7 +12,9 @@ tick's deadline, or for a step's command) it reads every datagram waiting (``rec
 * a datagram from the session's host whose type byte says COMMAND is classified here, in the
   order and with the reasons of :class:`impact_env.rig.protocol.DatagramFilter` (length, tag
   under the session's key and nonce by OpenSSL's ``HMAC``, payload, session, the COMMAND stream's
-  64-number window, late): the one fast path, the one a host's round trip depends on;
+  64-number window, late): the one fast path, the one a host's round trip depends on (an
+  authentic one with another action count than the armed one goes to the network thread, which
+  refuses it with an ERROR naming the count);
 * every other datagram (other types, other senders, junk) goes, bytes and sender, into a queue
   for the target's network thread, which puts it through the Python filter as before (a
   HELLO's challenge, DISARM, FETCH, the counts by reason).  A full queue (a flood faster than
@@ -135,6 +138,7 @@ class Wire(NamedTuple):
     peer_len: int
     session: int
     episode: int
+    n_actions: int  # the armed COMMAND's action count: another count goes to the network thread (refused)
     rx: np.ndarray  # uint8[NONCE + RX_MAX]: the session nonce, then the datagram read
     tx: np.ndarray  # uint8[NONCE + MAX_DATAGRAM]: the session nonce, then the OBSERVATION
     src: np.ndarray  # uint8[SOCKADDR]: the sender of the datagram read
@@ -334,8 +338,11 @@ def classify(w, n, cur_step):
         return READ
     n_act = get_uint(d, pl + 8, 2)
     need = 10 + 8 * n_act
-    if n_act < 1 or n_act > P.MAX_VALUES or plen < need or (not newer and plen != need):
+    if plen < need or (not newer and plen != need):
         c.corrupt[0] += 1
+        return READ
+    if n_act != w.n_actions:  # authenticated, of another count: refused, answered by the network thread
+        enqueue(w, n)
         return READ
     if get_uint(d, o + H_SESSION, 4) != w.session:
         c.wrong_session[0] += 1
@@ -497,7 +504,7 @@ def address(raw: np.ndarray, n: int) -> tuple:
 
 def make(fd: int, key: bytes, nonce: int, session: int, episode: int, peer: tuple | None,
          stream: tuple[int, int] | None, obs_seq: int, functions: Calls | None = None,
-         wake_fd: int = -1) -> Wire:
+         wake_fd: int = -1, n_actions: int = 1) -> Wire:
     """The loop's wire for an episode: the socket ``fd`` (-1: none), the session's ``key``,
     ``nonce``, id and host address ``peer``, this ``episode``, the COMMAND stream's window as the
     filter has it (``(newest, mask)``, None: no COMMAND yet this session) and the OBSERVATION
@@ -523,13 +530,26 @@ def make(fd: int, key: bytes, nonce: int, session: int, episode: int, peer: tupl
     return Wire(fd=int(fd), calls=functions or calls(), wake_fd=int(wake_fd),
                 wake_write=libc_address("write"),
                 byte=np.ones(1, np.uint8), key=k, key_len=len(key), peer=pr, peer_mask=pm, peer_len=len(raw),
-                session=int(session), episode=int(episode), rx=rx, tx=tx, src=np.zeros(SOCKADDR, np.uint8),
+                session=int(session), episode=int(episode), n_actions=int(n_actions), rx=rx, tx=tx,
+                src=np.zeros(SOCKADDR, np.uint8),
                 srclen=np.zeros(1, np.uint32), md=np.zeros(64, np.uint8), mdlen=np.zeros(1, np.uint32),
                 ts=np.zeros(2, np.int64), f8=f8, b8=f8.view(np.uint8), f4=f4, b4=f4.view(np.uint8), c=counts,
                 st=st, q_data=np.zeros((N_Q, RX_MAX), np.uint8), q_len=np.zeros(N_Q, np.int64),
                 q_src=np.zeros((N_Q, SOCKADDR), np.uint8), q_srclen=np.zeros(N_Q, np.int64),
                 q_head=np.zeros(1, np.int64), q_tail=np.zeros(1, np.int64), out=np.zeros(2 * P.MAX_VALUES),
                 pfd=np.array([fd, 1], np.int32))
+
+
+def set_peer(w: Wire, peer: tuple) -> None:
+    """Point ``w`` at another address of the same family (a host learns the session's port from
+    INFO): where it sends, and whose datagrams it takes."""
+    raw, mask = sockaddr(peer)
+    if len(raw) != w.peer_len:
+        raise ValueError(f"peer {peer!r} is not of the wire's address family")
+    w.peer[:] = 0
+    w.peer_mask[:] = 0
+    w.peer[:len(raw)] = np.frombuffer(raw, np.uint8)
+    w.peer_mask[:len(mask)] = np.frombuffer(mask, np.uint8)
 
 
 def none(functions: Calls | None = None) -> Wire:
