@@ -146,8 +146,9 @@ def cmd_compare(args) -> int:
         print(statistics_legend(runs))
         print(format_statistics(runs))
         print()
-        print("E: body 1's catch energy over its impact value (mean); exit v/v0: body 1's speed at the first "
-              "separation over the impact speed (mean); catch: catch energy below 1 % for good")
+        print("E: body 1's catch energy over its impact value (mean); exit v/v0: body 1's speed at the located "
+              "separation over the impact speed (mean); catch: body 1 at rest on the pad (its energy relative to "
+              "body 2 below 1 % of the impact value, no bounce after); vib: body 2's RMS speed, last 50 ms")
         print(format_table(runs, horizon))
     failures = [f for run in runs.values() for f in run.failures]
     for f in failures[:20]:
