@@ -66,7 +66,7 @@ def test_every_law_module_is_registered_and_dispatched():
     ("thesis-rig:h02x=1", r"unknown parameter\(s\) h02x.*valid: h01, h11"),
     ("thesis-rig:h01=-5", "h01 = -5.0 1/s\\^2 is out of range: must be finite and >= 0"),
     ("thesis-rig:h01=abc", "h01 must be a number"),
-    ("thesis-rig:h01", "must be KEY=VALUE"),
+    ("thesis-rig:h01", "parameters are KEY=VALUE"),
     ("thesis-ideal:free_law=maybe", "free_law = 'maybe' is not one of corrected, printed"),
     ("", "non-empty"),
 ])
