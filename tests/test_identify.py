@@ -129,7 +129,7 @@ def test_the_targets_identification_episodes(tmp_path):
         for kw, match in ((dict(mode="host", kind=protocol.EpisodeKind.SHAKER, excitation=ex), "onboard"),
                           (dict(kind=protocol.EpisodeKind.QUIET, excitation=ex), "quiet"),
                           (dict(kind=protocol.EpisodeKind.SHAKER, horizon=20000,
-                                excitation=Excitation("sweep", 199.0, 10.0, 100.0)), "continuous")):
+                                excitation=Excitation("sweep", 199.0, 10.0, 100.0)), "amplitude_N")):
             mode = kw.pop("mode", "onboard")
             horizon = kw.pop("horizon", 500)
             with pytest.raises(Exception, match=match):
