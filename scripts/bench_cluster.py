@@ -3,7 +3,7 @@
     python scripts/bench_cluster.py [--rounds 3] [--episodes 100] [--oracle-drops 8] \\
         [--out docs/results/cluster_bench.json]
 
-Starts a real cluster on loopback (tests/local_cluster.py: ``python -m dask scheduler`` and
+Starts a real cluster on loopback (impact_env/eval/local_cluster.py: ``python -m dask scheduler`` and
 ``python -m dask worker --nworkers 2 --nthreads 1``, a worker process per core), connects once,
 loads the kernels everywhere, then times two workloads in one process, alternating the ways of
 running them round by round (so a slow spell of the machine falls on all of them):
@@ -37,7 +37,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
 
 def _cpu() -> str:
@@ -83,9 +82,9 @@ def main() -> int:
     import distributed
     import numba
     import numpy as np
-    from local_cluster import local_cluster
 
     from impact_env.eval.compare import RolloutJob, compare, run_job
+    from impact_env.eval.local_cluster import local_cluster
     from impact_env.eval.parallel import Cluster, run_tasks
     from impact_env.scene import load_scene
 
@@ -170,7 +169,8 @@ def main() -> int:
            "loadavg_before": [round(x, 2) for x in load_before],
            "loadavg_after": [round(x, 2) for x in os.getloadavg()],
            "dask": distributed.__version__, "numba": numba.__version__,
-           "cluster": "1 scheduler + 2 worker processes x 1 thread, loopback (tests/local_cluster.py)",
+           "cluster": "1 scheduler + 2 worker processes x 1 thread, loopback "
+                      "(impact_env/eval/local_cluster.py)",
            "overheads": {"cluster_start_s": round(start_s, 2), "connect_s": round(connect_s, 3),
                          "first_call_fresh_workers_s": round(first_load_s, 2),
                          "task_round_trip_ms": round(round_trip_ms, 2)},

@@ -8,7 +8,7 @@
    costs nothing.  dopri5 is reported per simulated second.
 2. Equal accuracy: for one elastic collision (gravity 0, the ideal rig: m1 = 0.1 kg,
    m2 = 1 kg, c = 2e6 N/m^1.5, 1 m/s) the cheapest setting of rk4+events (dt), dopri5 (rtol)
-   and scipy's ``solve_ivp`` DOP853 with event restarts (rtol; ``tests/naive.py``) that
+   and scipy's ``solve_ivp`` DOP853 with event restarts (rtol; ``impact_env/plant/reference.py``) that
    delivers |e - 1| <= target (default 1e-8), and the wall-time ratios, all in this process.
 
 Timings are the minimum over repeats after a warm-up call (numba compiles on first use).
@@ -24,22 +24,19 @@ import argparse
 import math
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from naive import Params, free_fall_start, reference_drop, sim_overrides  # noqa: E402
 
 import impact_env  # noqa: E402
 from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params  # noqa: E402
 from impact_env.plant.hertz import contact_time  # noqa: E402
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance  # noqa: E402
 from impact_env.plant.layout import AUTO, FREE, N_EVENT_COLS, OK  # noqa: E402
+from impact_env.plant.reference import Params, free_fall_start, reference_drop, sim_overrides  # noqa: E402
 
 FIXED = [("euler", True), ("euler", False), ("symplectic-euler", True), ("symplectic-euler", False),
          ("rk4", True), ("rk4", False)]
@@ -107,7 +104,7 @@ def collision_error(method: str, knob: float) -> tuple[float, float, float, floa
 
     The kernels get a prebuilt Scene (building one from overrides costs milliseconds of
     Python, reported separately) and record once, at the end, so that records do not cut
-    dopri5's steps; solve_ivp restarts at each contact event (``tests/naive.py``)."""
+    dopri5's steps; solve_ivp restarts at each contact event (``impact_env/plant/reference.py``)."""
     m = 0.1 / 1.1
     tc = contact_time(m, 2e6, 1.0)
     n = math.ceil((1e-4 + 1.2 * tc) / 1e-5)

@@ -1,6 +1,6 @@
 """Accuracy per impact of the ``split`` integrator (and RK4 at 1 us, the former default) against
 an independent reference: ``scipy.integrate.solve_ivp`` DOP853 at rtol 1e-12 with event restarts
-(``tests/naive.py: reference_drop``), at plant parameters no test or tuning used.
+(``impact_env/plant/reference.py: reference_drop``), at plant parameters no test or tuning used.
 
 Each case is a drop onto a suspended body 2 under a constant shaker force (held over 100 us
 control periods, as on the rig), long enough for several bounces.  Per contact event it
@@ -24,15 +24,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
 
-from naive import Params, reference_drop, sim_overrides  # noqa: E402
 from scipy.linalg import expm  # noqa: E402
 from scipy.optimize import brentq  # noqa: E402
 
@@ -40,6 +37,7 @@ import impact_env  # noqa: E402
 from impact_env.hardware.arrays import initial_state  # noqa: E402
 from impact_env.plant import hertz  # noqa: E402
 from impact_env.plant.layout import PARAM  # noqa: E402
+from impact_env.plant.reference import Params, reference_drop, sim_overrides  # noqa: E402
 
 # unseen parameters: none of them is a preset's, a test's or a tuning's value
 CASES = [

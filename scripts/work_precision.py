@@ -8,7 +8,8 @@ the repeats after a warm-up call that compiles):
 ``restitution``        |e - 1| of one elastic collision, gravity 0 (the ideal rig: m1 = 0.1 kg,
                        m2 = 1 kg, c = 2e6 N/m^1.5, 1 m/s); reference: e = 1 exactly.
 ``restitution_damped`` |e - e_ref| of the same collision with the pad calibrated to e = 0.6;
-                       reference: solve_ivp (DOP853 rtol 1e-12, event restarts, tests/naive.py).
+                       reference: solve_ivp (DOP853 rtol 1e-12, event restarts,
+                       impact_env/plant/reference.py).
 ``contact_time``       |t_c / t_c,Hertz - 1| of the elastic collision (closed form).
 ``peak_force``         |F_max / F_Hertz - 1| of the elastic collision (closed form).
 ``three_bounces``      max scaled state error (positions / 2 mm, velocities / impact speed)
@@ -31,16 +32,12 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from naive import Params, reference_drop, sim_overrides  # noqa: E402
 
 import impact_env  # noqa: E402
 from impact_env import SimulationDiverged  # noqa: E402
@@ -48,6 +45,7 @@ from impact_env.config import ConfigError  # noqa: E402
 from impact_env.figstyle import DPI, FORMATS, save_figure  # noqa: E402
 from impact_env.hardware.arrays import initial_state, plant_params  # noqa: E402
 from impact_env.plant import hertz  # noqa: E402
+from impact_env.plant.reference import Params, reference_drop, sim_overrides  # noqa: E402
 
 DTS = [1e-5, 5e-6, 2e-6, 1e-6, 5e-7, 2e-7, 1e-7, 5e-8, 2e-8, 1e-8]
 DTS_QUICK = [1e-5, 2e-6, 1e-6, 2e-7]

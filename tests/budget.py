@@ -38,7 +38,7 @@ def richardson(coarse, fine, order: float) -> np.ndarray:
 
 
 def reference_error(ref, rtol: float = 1e-12) -> float:
-    """Bound on the global error of a :func:`naive.reference_drop` run relative to its
+    """Bound on the global error of a :func:`reference.reference_drop` run relative to its
     scales: (its steps) x rtol."""
     return max(ref.n_rhs / 12.0, 1.0) * rtol
 

@@ -1,5 +1,5 @@
 """compare, sweep and robustness on a real Dask cluster (a scheduler and two worker processes on
-loopback, started and stopped by the fixture: tests/local_cluster.py) give bitwise the local run's
+loopback, started and stopped by the fixture: impact_env/eval/local_cluster.py) give bitwise the local run's
 results; bad ``--cluster`` values are refused, naming the option, before anything runs."""
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ SPECS = ["passive", "thesis-rig", "pd-penetration", "oracle:generations=2,popsiz
 
 @pytest.fixture(scope="module")
 def address():
-    from local_cluster import local_cluster
+    from impact_env.eval.local_cluster import local_cluster
 
     with local_cluster(workers=2, threads=1) as addr:
         yield addr

@@ -2,7 +2,7 @@
 grazing contact, a body resting for 10 s, 100 kN shaker forces, and steps beyond stability.
 
 Every case either ends finite and matches a reference (closed-form Hertz, a static
-equilibrium, or ``naive.reference_drop``: solve_ivp DOP853 at rtol 1e-12 with event
+equilibrium, or ``reference.reference_drop``: solve_ivp DOP853 at rtol 1e-12 with event
 restarts) to the tolerance stated next to it, or, with a fixed step beyond the stability
 limit, raises ValueError before simulating or SimulationDiverged while simulating; a NaN
 never comes back.
@@ -15,15 +15,16 @@ import math
 import budget
 import numpy as np
 import pytest
+from hertz_drop import hertz_drop
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from naive import Params, hertz_drop, reference_drop, sim_overrides
 
 import impact_env
 from impact_env import SimulationDiverged
 from impact_env.hardware.arrays import initial_state, plant_params
 from impact_env.hardware.stability import STABILITY_LIMIT
 from impact_env.plant import hertz
+from impact_env.plant.reference import Params, reference_drop, sim_overrides
 
 G = 9.81
 

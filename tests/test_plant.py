@@ -1,4 +1,4 @@
-"""The plant against oracles: closed-form Hertz, the slow references in ``naive.py``
+"""The plant against oracles: closed-form Hertz, the slow references in ``impact_env.plant.reference``
 (pure-Python steppers and a solve_ivp with event restarts), energy ledgers, the restitution
 calibration, determinism, the known error of explicit Euler, and input validation.
 
@@ -14,16 +14,15 @@ import math
 import re
 
 import budget
-import naive
 import numpy as np
 import pytest
+from hertz_drop import hertz_drop
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from naive import Params, hertz_drop, reference_drop, sim_overrides
 
 import impact_env
 from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params
-from impact_env.plant import hertz
+from impact_env.plant import hertz, reference
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance
 from impact_env.plant.layout import (
     AUTO,
@@ -36,6 +35,7 @@ from impact_env.plant.layout import (
     STATE,
     STEP_UNDERFLOW,
 )
+from impact_env.plant.reference import Params, reference_drop, sim_overrides
 
 G = 9.81
 
@@ -118,7 +118,7 @@ def test_kernel_matches_naive_stepper(method):
     tr = impact_env.simulate("ideal", controller=ctrl, t_end=5e-3, record_rate=2.5e5, overrides=ov)
     p = Params.from_array(tr.params)
     y0, _ = initial_state(tr.scene)
-    ref = naive.run_fixed(y0, p, dt, 5000, method, f2=ctrl, control_every=4)[::4]
+    ref = reference.run_fixed(y0, p, dt, 5000, method, f2=ctrl, control_every=4)[::4]
     got = state(tr)
     assert got.shape == ref.shape
     # all six columns, the shaker-work ledger included: both book -f2 times the x2 update,
@@ -141,7 +141,7 @@ def test_advance_matches_naive_stepper(method):
     parr[[PARAM.m1, PARAM.m2, PARAM.c, PARAM.b, PARAM.g, PARAM.k2, PARAM.c2]] = [p.m1, p.m2, p.c, p.b, p.g,
                                                                                  p.k2, p.c2]
     dt, n, f2 = 1e-6, 6000, 12.0
-    y0 = naive.free_fall_start(0.8, G, 2e-4) + [0.0, 0.0]
+    y0 = reference.free_fall_start(0.8, G, 2e-4) + [0.0, 0.0]
     y = np.array(y0)
     ev = np.zeros((16, N_EVENT_COLS))
     evn = np.zeros(1, dtype=np.int64)
@@ -149,7 +149,7 @@ def test_advance_matches_naive_stepper(method):
     consts = PlantConsts(parr, np.ones(6), METHOD_CODES[method], dt, 1e-9)
     status, mode = advance(AUTO, f2, 0.0, n * dt, consts, PlantCarry(y, np.zeros(1), ev, evn, peak))
     assert status == OK and mode == AUTO
-    ref = naive.run_fixed(y0, p, dt, n, method, f2=f2)
+    ref = reference.run_fixed(y0, p, dt, n, method, f2=f2)
     scale = np.abs(ref).max(axis=0)
     assert np.all(np.abs(y - ref[-1]) <= 1e-12 * scale)
     # switches: logged at the end of the step that crosses d = 0, with that step's state
@@ -160,7 +160,7 @@ def test_advance_matches_naive_stepper(method):
     for row, k in zip(ev[: evn[0]], cross, strict=True):
         assert row[1] == (1.0 if d[k] > 0 else -1.0)
         assert np.all(np.abs(row[2:6] - ref[k, :4]) <= 1e-12 * scale[:4])
-    forces = [naive.pad_force(r[0] - r[2], r[1] - r[3], p)[0] for r in ref[1:]]
+    forces = [reference.pad_force(r[0] - r[2], r[1] - r[3], p)[0] for r in ref[1:]]
     assert rel(peak[0], max(forces)) < 1e-12
 
 

@@ -2,7 +2,7 @@
 
 Oracles: ``scipy.linalg.expm`` for body 2's free motion, ``scipy.optimize.brentq`` on that
 exact motion for the touch, and ``solve_ivp`` (DOP853, rtol 1e-12, event restarts:
-``tests/naive.py``) for whole drops, at parameters no preset uses.  Tolerances:
+``impact_env/plant/reference.py``) for whole drops, at parameters no preset uses.  Tolerances:
 
 * free flight: the exponential series is summed until a term no longer changes the sum, so
   its error is the sum's rounding: a few eps per term, at most ``MAX_TERMS``; the expm oracle
@@ -22,7 +22,7 @@ import math
 import budget
 import numpy as np
 import pytest
-from naive import Params, reference_drop, sim_overrides
+from impact_env.plant.reference import Params, reference_drop, sim_overrides
 from scipy.linalg import expm
 from scipy.optimize import brentq
 

@@ -1,4 +1,5 @@
-"""A real Dask cluster on loopback for the tests and ``scripts/bench_cluster.py``: a scheduler
+"""A real Dask cluster on loopback, for trying cluster mode on one machine, the tests and
+``scripts/bench_cluster.py``: a scheduler
 process and worker processes (``python -m dask scheduler`` / ``python -m dask worker``, the
 commands a user runs on a real cluster, docs/cluster.md), bound to 127.0.0.1 only, every wait
 bounded, every process ended on the way out (and by a watchdog if the caller hangs)."""

@@ -2,7 +2,10 @@
 
 Nothing here is compiled or clever: the point is to be easy to check by eye against the
 physics (thesis eq 2.7/2.8 with the Hertz-Tsuji pad) and so to catch the compiled kernels'
-mistakes.  Frame as in :mod:`impact_env.plant.layout`: x points down, penetration
+mistakes.  It imports nothing of impact_env, so it stays an independent oracle; it sits in the
+package so that the tests and the benchmark scripts (``scripts/work_precision.py``,
+``scripts/split_accuracy.py``, ``scripts/bench_plant.py``) share one copy.
+Frame as in :mod:`impact_env.plant.layout`: x points down, penetration
 ``d = x1 - x2``, shaker force f2 on body 2 positive upwards.
 
 State ``y = [x1, v1, x2, v2, W_ext, W_diss]`` (m, m/s, m, m/s, J, J); parameters are passed
@@ -249,8 +252,9 @@ def reference_drop(p: Params, y0, t_end: float, f2: float = 0.0, t_eval=None, rt
         def ev(_t, yy, offset=offset):
             return switching_function(yy, p) - offset
 
-        ev.terminal = True
-        ev.direction = -1.0 if mode else 1.0
+        # solve_ivp reads an event's settings from attributes of the function (its documented API)
+        ev.terminal = True  # type: ignore[attr-defined]
+        ev.direction = -1.0 if mode else 1.0  # type: ignore[attr-defined]
         seg_eval = None
         if t_eval is not None:
             seg_eval = t_eval[(t_eval >= t) & (t_eval <= t_end)]
@@ -332,26 +336,3 @@ def sim_overrides(method: str = "rk4", dt: float = 1e-6, rtol: float = 1e-9, eve
         head, _, rest = k.partition("_")
         ov[f"{head}.{rest}"] = v
     return ov
-
-
-def hertz_drop(m1, m2, c, v, method, restitution=1.0, rtol=1e-11, steps_per_contact=2000):
-    """Simulate one free two-body collision (gravity 0) at relative speed v (m/s) with
-    ``impact_env.simulate``; return ``(trajectory, effective mass, Hertz contact time, dt)``.
-
-    The step (also the record and control period) is the power of ten at or below
-    ``t_c / steps_per_contact`` (at least 1e-8 s, the fastest control rate), so the grids stay
-    whole multiples of it; the touch falls mid-step, 5 % of t_c after the start.
-    """
-    import impact_env
-    from impact_env.plant import hertz
-
-    m = m1 * m2 / (m1 + m2)
-    tc = hertz.contact_time(m, c, v)
-    dt = max(10.0 ** math.floor(math.log10(tc / steps_per_contact)), 1e-8)
-    pre = round(0.05 * tc / dt) * dt + 0.5 * dt
-    n = math.ceil((pre + 1.1 * tc) / dt)
-    ov = sim_overrides(method, dt=dt, rtol=rtol, control_rate=1.0 / dt, plant_m1=m1, plant_m2=m2,
-                       plant_c=c, plant_gravity=0.0, plant_restitution=restitution,
-                       initial_impact_speed=v, initial_pre_contact_time=pre)
-    tr = impact_env.simulate("ideal", t_end=n * dt, record_rate=1.0 / dt, overrides=ov)
-    return tr, m, tc, dt
