@@ -8,7 +8,7 @@ import inspect
 import json
 from pathlib import Path
 
-import leaderboard as LB
+import leaderboard
 import numpy as np
 import pytest
 
@@ -25,14 +25,13 @@ ROOT = Path(__file__).resolve().parents[1]
 def agents_seeds() -> list[tuple[str, range]]:
     """Every seed range agents/ trains, validates or tests on, from its own constants and the
     shipped models' records."""
-    from agents import distill
-    from agents import train as T
+    from agents import distill, train
 
     distill_params = inspect.signature(distill.distill).parameters
     first = distill_params["eval_seed"].default
-    out = [("training (below the test drops)", range(0, T.TEST_SEED)),
-           ("test drops", range(T.TEST_SEED, T.TEST_SEED + T.TEST_EPISODES)),
-           ("validation", range(T.EVAL_SEED, T.EVAL_SEED + T.Tooling.eval_episodes)),
+    out = [("training (below the test drops)", range(0, train.TEST_SEED)),
+           ("test drops", range(train.TEST_SEED, train.TEST_SEED + train.TEST_EPISODES)),
+           ("validation", range(train.EVAL_SEED, train.EVAL_SEED + train.Tooling.eval_episodes)),
            ("distill validation", range(first, first + distill_params["eval_episodes"].default)),
            ("compare's old default", range(0, 100))]
     for meta in (ROOT / "agents" / "models").glob("*/model.json"):
@@ -62,9 +61,9 @@ def test_suite_seeds_are_disjoint_from_every_seed_the_agents_use():
 
 
 def test_the_readme_main_job_runs_on_held_out_seeds():
-    import readme_table as RT
+    import readme_table
 
-    cmd = RT.main_command((ROOT / "README.md").read_text())
+    cmd = readme_table.main_command((ROOT / "README.md").read_text())
     assert int(cmd[cmd.index("--seed") + 1]) == README_SEED
 
 
@@ -161,12 +160,12 @@ def test_the_leaderboard_is_generated_from_the_records_and_checked(record, tmp_p
     records = tmp_path / "records"
     write_record(record, records)
     page = tmp_path / "leaderboard.md"
-    page.write_text(f"# Leaderboard\n\n{LB.START}\nold\n{LB.END}\n")
+    page.write_text(f"# Leaderboard\n\n{leaderboard.START}\nold\n{leaderboard.END}\n")
     args = ["--records", str(records), "--page", str(page), "--suite", "tiny-v1",
             "--suite-page", str(tmp_path / "absent.md")]
-    assert LB.main([*args, "--check"]) == 1  # stale
-    assert LB.main(args) == 0
-    assert LB.main([*args, "--check"]) == 0
+    assert leaderboard.main([*args, "--check"]) == 1  # stale
+    assert leaderboard.main(args) == 0
+    assert leaderboard.main([*args, "--check"]) == 0
     text = page.read_text()
     rows = [ln for ln in text.splitlines() if ln.startswith("| ") and ln[2].isdigit()]
     assert [r.split("|")[2].strip() for r in rows][-1] == "`passive`"
@@ -175,9 +174,9 @@ def test_the_leaderboard_is_generated_from_the_records_and_checked(record, tmp_p
     rec = json.loads((records / "tiny-v1.json").read_text())
     rec["overall"]["thesis-rig"]["score"] = 1.0
     (records / "tiny-v1.json").write_text(json.dumps(rec))
-    assert LB.main([*args, "--check"]) == 1
+    assert leaderboard.main([*args, "--check"]) == 1
 
 
 def test_the_repository_leaderboard_matches_its_records():
     """docs/leaderboard.md is what scripts/leaderboard.py writes from docs/results/benchmark."""
-    assert LB.main(["--check"]) == 0
+    assert leaderboard.main(["--check"]) == 0

@@ -11,7 +11,7 @@ import baselines.registry as registry
 import impact_env.policy.registry as policy_registry
 from baselines import Policy
 from impact_env.cli import main
-from impact_env.control import laws as LW
+from impact_env.control import laws
 from impact_env.eval.compare import compare, format_table, split_policies, summary_json
 from impact_env.eval.rollout import rollout
 from impact_env.eval.sweep import parse_grid, sweep
@@ -202,7 +202,7 @@ def test_a_saved_sb3_model_joins_the_table(tmp_path):
     assert registry.make_policy(str(path), RIG).observation == "sensors"
 
 
-@pytest.mark.parametrize("law", [law.name for law in LW.REGISTRY if law.observation == "sensors"])
+@pytest.mark.parametrize("law", [law.name for law in laws.REGISTRY if law.observation == "sensors"])
 def test_a_baseline_and_its_compiled_policy_print_the_same_table(law, tmp_path):
     """Each classic law exists once, as the compiled kernel: the baseline (Python, its predict
     once per step) and its exported policy file (the compiled loop) run bitwise the same

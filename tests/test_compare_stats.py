@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from impact_env.config import ConfigError
-from impact_env.eval import limits as LM
+from impact_env.eval import limits
 from impact_env.eval.compare import ENERGY_CURVE_RATE, compare, format_statistics, summary_json, write_outputs
 from impact_env.eval.oracle_cache import OracleCache, law_warm_starts
 from impact_env.eval.paired import bootstrap, iqm, mean, prob_improvement, resample_indices
@@ -192,11 +192,11 @@ def test_a_request_out_of_proportion_is_refused_with_an_estimate(scene, warm_ker
 
 
 def test_a_request_of_days_is_refused_unless_allowed(scene, monkeypatch):
-    monkeypatch.setattr(LM, "measure", lambda *a, **k: (1.0, 1.0))  # 1 s per episode-period
-    monkeypatch.setattr(LM, "SMALL_STEPS", 0)  # measured however small
+    monkeypatch.setattr(limits, "measure", lambda *a, **k: (1.0, 1.0))  # 1 s per episode-period
+    monkeypatch.setattr(limits, "SMALL_STEPS", 0)  # measured however small
     with pytest.raises(ConfigError, match=r"days.*--allow-long"):
         compare(scene("rig"), ["passive"], episodes=1000, horizon=H, workers=1, progress=False)
-    cost = LM.estimate(scene("rig"), H, 1000, 1, 1, 1e4, ENERGY_CURVE_RATE)
+    cost = limits.estimate(scene("rig"), H, 1000, 1, 1, 1e4, ENERGY_CURVE_RATE)
     assert cost.seconds == pytest.approx(1000 * H / scene("rig").control_period)
 
 

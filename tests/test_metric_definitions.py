@@ -13,11 +13,11 @@ from gymnasium.utils import seeding
 from scipy.integrate import solve_ivp
 
 from impact_env.eval.rollout import rollout
-from impact_env.plant import layout as L
+from impact_env.plant import layout
 from impact_env.policy.registry import make_policy
 from impact_env.scene import load_scene
-from impact_env.sim import records as R
 from impact_env.sim.metrics import VIBRATION_WINDOW_S, EpisodeMetrics
+from impact_env.sim.records import N_PLANT_REC, N_REC, PREC, REC
 from impact_env.sim.simulator import Simulator
 
 SEEDS = list(range(95000, 95008))
@@ -53,7 +53,8 @@ def _reference(P, y0, t_end, period):
     penetration turns positive, the separation where the damped Hertz force falls to zero),
     with the catch energy's integral as a fifth component.  Returns the tick-end states, the
     integral (J s), the events (t s, kind +1 touch / -1 separation, v1 m/s) and d_s (m)."""
-    m1, m2, c, b, g, k2, c2 = (P[k] for k in (L.M1, L.M2, L.C, L.B, L.G, L.K2, L.C2))
+    m1, m2, c, b, g, k2, c2 = (P[k] for k in (layout.M1, layout.M2, layout.C, layout.B, layout.G,
+                                              layout.K2, layout.C2))
     ds = (m1 * g / c) ** (2.0 / 3.0)
 
     def energy(x1, v1, x2):
@@ -133,7 +134,7 @@ def test_integral_exit_speed_and_catch_match_a_solve_ivp_reference():
     ticks, states, integral, events, ds = _reference(P, y0, horizon, period)
     assert len(events) >= 3 and events[0][1] > 0  # touch, separation, touch again (a bounce)
     touch = events[0]
-    m1, g, c = P[L.M1], P[L.G], P[L.C]
+    m1, g, c = P[layout.M1], P[layout.G], P[layout.C]
     v0 = touch[2]
     e0 = 0.5 * m1 * v0 * v0 + 0.6 * m1 * g * ds  # U(0) = (3/5) m1 g d_s
     np.testing.assert_allclose(m["impact_speed_mps"][0], v0, rtol=1e-9)
@@ -153,15 +154,15 @@ E0 = 0.5 * M1 * 1.0**2 + 0.6 * M1 * G * DS  # an impact at 1 m/s
 
 
 def _records(x1, v1, x2, v2):
-    r = np.zeros((1, len(x1), R.N_REC))
-    r[0, :, R.REC.t] = (np.arange(len(x1)) + 1) * PERIOD
-    r[0, :, R.REC.x1], r[0, :, R.REC.v1], r[0, :, R.REC.x2], r[0, :, R.REC.v2] = x1, v1, x2, v2
+    r = np.zeros((1, len(x1), N_REC))
+    r[0, :, REC.t] = (np.arange(len(x1)) + 1) * PERIOD
+    r[0, :, REC.x1], r[0, :, REC.v1], r[0, :, REC.x2], r[0, :, REC.v2] = x1, v1, x2, v2
     return r
 
 
 def _metrics(records, horizon):
-    P = np.zeros((1, L.N_PARAM))
-    P[0, L.M1], P[0, L.C], P[0, L.G] = M1, C_PAD, G
+    P = np.zeros((1, layout.N_PARAM))
+    P[0, layout.M1], P[0, layout.C], P[0, layout.G] = M1, C_PAD, G
     em = EpisodeMetrics(1, PERIOD, horizon_s=horizon)
     em.start(np.zeros(1), np.ones(1), np.full(1, E0), np.ones(1, dtype=bool))
     em.step(records, P)
@@ -235,12 +236,12 @@ def test_a_rig_log_keeps_the_tick_definitions(plant_records):
     x1[50:] = -1e-3  # leaves at tick 51
     v1 = np.where(np.arange(n) >= 50, -0.5, 0.0)
     rec = _records(x1, v1, np.zeros(n), np.zeros(n))
-    prec = np.full((1, n, R.N_PLANT_REC), np.nan)
-    prec[0, :, R.PREC.catch_integral] = 2.0 * E0 * PERIOD  # the plant's (made up here) integral
-    prec[0, 49, R.PREC.t_separation] = 49.5 * PERIOD
-    prec[0, 49, R.PREC.v1_separation] = -0.6
-    P = np.zeros((1, L.N_PARAM))
-    P[0, L.M1], P[0, L.C], P[0, L.G] = M1, C_PAD, G
+    prec = np.full((1, n, N_PLANT_REC), np.nan)
+    prec[0, :, PREC.catch_integral] = 2.0 * E0 * PERIOD  # the plant's (made up here) integral
+    prec[0, 49, PREC.t_separation] = 49.5 * PERIOD
+    prec[0, 49, PREC.v1_separation] = -0.6
+    P = np.zeros((1, layout.N_PARAM))
+    P[0, layout.M1], P[0, layout.C], P[0, layout.G] = M1, C_PAD, G
     em = EpisodeMetrics(1, PERIOD, plant_records=plant_records)
     em.start(np.zeros(1), np.ones(1), np.full(1, E0), np.ones(1, dtype=bool))
     em.step(rec, P, plant_records=prec if plant_records else None)

@@ -14,7 +14,7 @@ import pytest
 import tomllib
 
 from impact_env.config import ConfigError
-from impact_env.eval import oracle as O
+from impact_env.eval import oracle
 from impact_env.eval.compare import compare, format_table, summary_json
 from impact_env.eval.rollout import rollout
 from impact_env.policy.registry import make_policy, policy_classes, register_policy
@@ -32,7 +32,7 @@ STATE = ("x1", "v1", "x2", "v2")
 def _oracle_registered():
     # an environment installed before this entry point was added does not list it yet
     if "oracle" not in policy_classes():
-        register_policy(O.OraclePolicy, "oracle")
+        register_policy(oracle.OraclePolicy, "oracle")
 
 
 def _recorded(scene, spec, seeds, horizon):
@@ -45,8 +45,8 @@ def test_oracle_is_declared_in_the_policies_entry_point_group():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     eps = project["entry-points"]["impact_env.policies"]
     module, _, cls = eps["oracle"].partition(":")
-    assert getattr(__import__(module, fromlist=[cls]), cls) is O.OraclePolicy
-    assert policy_classes()["oracle"] is O.OraclePolicy
+    assert getattr(__import__(module, fromlist=[cls]), cls) is oracle.OraclePolicy
+    assert policy_classes()["oracle"] is oracle.OraclePolicy
 
 
 @pytest.mark.parametrize("spec, words", [
@@ -76,16 +76,16 @@ def test_a_span_too_short_for_the_basis_is_refused_before_anything_runs():
 
 # -- parameterisation ---------------------------------------------------------------------------------
 def test_knots_grow_geometrically_from_the_first_interval_to_the_window_end():
-    kn = O.knots(0.0, 0.031, 12, 2.5e-4)
+    kn = oracle.knots(0.0, 0.031, 12, 2.5e-4)
     h = np.diff(kn)
     assert len(kn) == 12 - 3 + 1 and kn[0] == 0.0 and kn[-1] == 0.031
     assert h[0] == pytest.approx(2.5e-4, rel=1e-9)
     np.testing.assert_allclose(h[1:] / h[:-1], h[1] / h[0], rtol=1e-9)
-    np.testing.assert_allclose(np.diff(O.knots(0.0, 0.01, 8, 1.0)), 0.002)  # too long a first interval
+    np.testing.assert_allclose(np.diff(oracle.knots(0.0, 0.01, 8, 1.0)), 0.002)  # too long a first interval
 
 
 def test_basis_is_a_partition_of_unity_inside_its_span_and_zero_before():
-    B = O.basis_matrix(1e-4, 310, 0.0005, 0.031, 12, 2.5e-4)
+    B = oracle.basis_matrix(1e-4, 310, 0.0005, 0.031, 12, 2.5e-4)
     tj = np.arange(310) * 1e-4
     inside = tj >= 0.0005 - 1e-12
     np.testing.assert_allclose(B[inside].sum(axis=1), 1.0, rtol=1e-12)
@@ -94,8 +94,8 @@ def test_basis_is_a_partition_of_unity_inside_its_span_and_zero_before():
 
 def test_zero_coefficients_give_the_warm_start_in_the_window_and_hold_its_last_command():
     w = np.linspace(-1.5, 1.5, 50)
-    B = O.basis_matrix(1e-4, 30, 0.0, 0.003, 6, 2.5e-4)
-    u = O.candidates(w, B, np.zeros((1, 6)), 50)[:, 0]
+    B = oracle.basis_matrix(1e-4, 30, 0.0, 0.003, 6, 2.5e-4)
+    u = oracle.candidates(w, B, np.zeros((1, 6)), 50)[:, 0]
     np.testing.assert_array_equal(u[:30], np.clip(w[:30], -1, 1))
     assert np.all(u[30:] == u[29])
 
@@ -106,12 +106,12 @@ def test_physics_scene_moves_the_bodies_bitwise_as_the_full_scene():
     control step, and the adapter's energy integral equals the rollout's."""
     full, U = _recorded(RIG, "pd-penetration", SEEDS, SHORT)
     for i, seed in enumerate(SEEDS):
-        phys = O.physics_scene(RIG, seed)
+        phys = oracle.physics_scene(RIG, seed)
         assert set(phys.effects.active) == {"shaker", "saturation"}
-        r = rollout(phys, O.Replay(U[:, i:i + 1]), [seed], horizon=SHORT)
+        r = rollout(phys, oracle.Replay(U[:, i:i + 1]), [seed], horizon=SHORT)
         for k in STATE:
             np.testing.assert_array_equal(r.traces[k][:, 0], full.traces[k][:, i], err_msg=k)
-        J, end = O._Rig(phys, 3).run(seed, np.repeat(U[:, i:i + 1], 3, axis=1))
+        J, end = oracle._Rig(phys, 3).run(seed, np.repeat(U[:, i:i + 1], 3, axis=1))
         np.testing.assert_array_equal(end["Y"][1], [full.traces[k][-1, i] for k in STATE])
         # same ratios summed in the same order (the adapter's objective is the tick sum, not the
         # plant's exact integral); the energy is computed by numpy here and by the env's compiled
@@ -124,13 +124,13 @@ def test_the_compiled_population_replay_is_the_step_by_step_one_bitwise(scene):
     """_Rig.run steps the population in compiled chunks; the same commands stepped one Python
     sim.step at a time (what it did before) give the same energy integrals and end states, bit
     for bit, over more steps than one noise block holds."""
-    sc = O.physics_scene(load_scene(scene), 1000)
+    sc = oracle.physics_scene(load_scene(scene), 1000)
     n, steps = 5, 2 * 256 + 37
     U = np.random.default_rng(3).uniform(-1, 1, (steps, n))
-    got, end = O._Rig(sc, n).run(1000, U)
+    got, end = oracle._Rig(sc, n).run(1000, U)
     sim = Simulator(sc, n)
     assert steps > sim.hw.noise_block  # the chunks really are cut
-    sim.reset([O.drop_generator(1000) for _ in range(n)])
+    sim.reset([oracle.drop_generator(1000) for _ in range(n)])
     e0 = np.array(sim.impact_energy, dtype=np.float64)
     acc = np.zeros(n)
     for k in range(steps):
@@ -148,12 +148,12 @@ def test_randomised_draws_are_consumed_as_the_simulator_does():
     full, U = _recorded(scene, "pd-penetration", SEEDS, SHORT)
     for i, seed in enumerate(SEEDS):
         sim = Simulator(scene, 1)
-        sim.reset([O.drop_generator(seed)])
-        phys = O.physics_scene(scene, seed)
+        sim.reset([oracle.drop_generator(seed)])
+        phys = oracle.physics_scene(scene, seed)
         assert not phys.randomized
         assert phys == scene.with_draws(sim.drawn[0]).with_overrides(
             {"effects.active": ["shaker", "saturation", "actuator_delay"]})
-        r = rollout(phys, O.Replay(U[:, i:i + 1]), [seed], horizon=SHORT)
+        r = rollout(phys, oracle.Replay(U[:, i:i + 1]), [seed], horizon=SHORT)
         for k in STATE:
             np.testing.assert_array_equal(r.traces[k][:, 0], full.traces[k][:, i], err_msg=k)
 
@@ -165,7 +165,7 @@ def test_replaying_recorded_commands_reproduces_every_metric_bitwise():
     for spec in ("pd-penetration", "thesis-rig"):
         r, U = _recorded(RIG, spec, SEEDS, SHORT)
         assert U.shape == (200, 2) and np.abs(U).max() > 0
-        rp = O.replay(RIG, SEEDS, U, SHORT)
+        rp = oracle.replay(RIG, SEEDS, U, SHORT)
         for key, v in r.metrics.items():
             np.testing.assert_array_equal(rp.metrics[key], v, err_msg=f"{spec} {key}")
 
@@ -191,7 +191,7 @@ def test_recorded_commands_of_a_held_residual_policy_are_per_period_and_replay_b
     U = r.extras["commands"]
     assert U.shape == (200, 2)
     assert np.any(U[0::4] != U[1::4])  # the law moves the command inside a hold
-    rp = O.replay(scene, SEEDS, U, SHORT)
+    rp = oracle.replay(scene, SEEDS, U, SHORT)
     for key, v in r.metrics.items():
         np.testing.assert_array_equal(rp.metrics[key], v, err_msg=key)
 
@@ -255,13 +255,13 @@ def test_compare_runs_the_oracle_last_and_reports_every_gap_to_it():
     specs = ["pd-penetration", "oracle:generations=3,popsize=4", "passive"]
     runs = compare(RIG, specs, episodes=2, seed=1000, horizon=SHORT, workers=1, progress=False)
     assert list(runs) == specs
-    oracle = runs["oracle:generations=3,popsize=4"]
+    oracle_run = runs["oracle:generations=3,popsize=4"]
     for spec, run in runs.items():
-        gap = run.metrics["energy_integral_ms"] - oracle.metrics["energy_integral_ms"]
+        gap = run.metrics["energy_integral_ms"] - oracle_run.metrics["energy_integral_ms"]
         assert run.summary["gap_to_oracle_ms"] == pytest.approx(float(np.median(gap)))
         assert run.summary["gap_to_oracle_min_ms"] >= 0.0, spec
-    assert oracle.summary["gap_to_oracle_ms"] == 0.0
-    assert oracle.summary["oracle_improvement_ms"] >= 0.0 and oracle.summary["oracle_seconds_per_drop"] > 0
+    assert oracle_run.summary["gap_to_oracle_ms"] == 0.0
+    assert oracle_run.summary["oracle_improvement_ms"] >= 0.0 and oracle_run.summary["oracle_seconds_per_drop"] > 0
     table = format_table(runs, SHORT)
     assert "gap to oracle" in table.splitlines()[0] and "oracle:generations=3,popsize=4" in table
     js = summary_json(runs)

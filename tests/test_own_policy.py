@@ -11,7 +11,7 @@ import pytest
 
 from impact_env.config import ConfigError
 from impact_env.eval.compare import compare, split_policies
-from impact_env.policy import registry as RG
+from impact_env.policy import registry
 from impact_env.policy.registry import make_policy, parse_spec
 
 H = 0.03  # s
@@ -51,13 +51,13 @@ def third_party(tmp_path, monkeypatch):
     info = tmp_path / "yieldpolicies-0.1.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: yieldpolicies\nVersion: 0.1\n")
-    (info / "entry_points.txt").write_text(f"[{RG.GROUP}]\nyield = yieldpolicies:Yield\n")
+    (info / "entry_points.txt").write_text(f"[{registry.GROUP}]\nyield = yieldpolicies:Yield\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    RG.entry_point_policies.cache_clear()
-    RG._load.cache_clear()
+    registry.entry_point_policies.cache_clear()
+    registry._load.cache_clear()
     yield tmp_path
-    RG.entry_point_policies.cache_clear()
-    RG._load.cache_clear()
+    registry.entry_point_policies.cache_clear()
+    registry._load.cache_clear()
 
 
 def test_the_spec_grammar_tells_a_class_from_parameters():
@@ -96,9 +96,9 @@ def test_one_object_per_episode_reset_with_its_seed(third_party, scene):
 def test_a_third_party_policy_runs_by_name_through_its_entry_point(third_party, scene, capsys):
     from impact_env.cli.main import main
 
-    assert "yield" in RG.policy_names()
-    assert "yield (sensors observation, module yieldpolicies, reset/act protocol)" in RG.describe_policies()
-    assert RG.policy_class("yield").__module__ == "yieldpolicies"
+    assert "yield" in registry.policy_names()
+    assert "yield (sensors observation, module yieldpolicies, reset/act protocol)" in registry.describe_policies()
+    assert registry.policy_class("yield").__module__ == "yieldpolicies"
     code = main(["compare", "--scene", "rig", "--policies", "yield:gain=0.2,passive", "--episodes", "2",
                  "--horizon", str(H), "--workers", "1", "--no-progress", "--reference", "none",
                  "--no-oracle"])

@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pytest
 
-import impact_env.eval.compare_plots as CP
+from impact_env.eval import compare_plots
 from impact_env.eval.labels import METRIC_LABELS, policy_colors
 from impact_env.scene import load_scene
 
@@ -36,11 +36,11 @@ def capture(monkeypatch):
         plt.close(fig)
         return path
 
-    monkeypatch.setattr(CP, "_finish", finish)
+    monkeypatch.setattr(compare_plots, "_finish", finish)
     return seen
 
 
-@pytest.mark.parametrize("plot", [CP.plot_energy, CP.plot_force, CP.plot_motion])
+@pytest.mark.parametrize("plot", [compare_plots.plot_energy, compare_plots.plot_force, compare_plots.plot_motion])
 def test_one_colour_per_policy_in_every_panel(runs, monkeypatch, tmp_path, plot):
     seen = capture(monkeypatch)
     scene = load_scene("rig")
@@ -58,13 +58,13 @@ def test_one_colour_per_policy_in_every_panel(runs, monkeypatch, tmp_path, plot)
 
 
 def test_the_filter_band_is_the_scenes():
-    assert CP.filter_band(load_scene("rig")) == (20.0, 1000.0)
-    assert CP.filter_band(load_scene("rig", {"effects.filters.force.high_hz": 800.0})) == (20.0, 800.0)
-    assert CP.filter_band(load_scene("ideal")) is None
+    assert compare_plots.filter_band(load_scene("rig")) == (20.0, 1000.0)
+    assert compare_plots.filter_band(load_scene("rig", {"effects.filters.force.high_hz": 800.0})) == (20.0, 800.0)
+    assert compare_plots.filter_band(load_scene("ideal")) is None
 
 
 def test_the_catch_time_figure(runs, tmp_path):
-    path = CP.plot_catch_time(runs, tmp_path / "catch_time.png", load_scene("rig"), 0.05)
+    path = compare_plots.plot_catch_time(runs, tmp_path / "catch_time.png", load_scene("rig"), 0.05)
     assert path.exists() and path.stat().st_size > 5000
 
 
@@ -76,7 +76,7 @@ def test_the_catch_time_figure_is_in_ms_from_the_touch_like_the_others(runs, tmp
     import matplotlib.pyplot as plt
 
     figs = []
-    monkeypatch.setattr(CP, "save_figure", lambda fig, path: (figs.append(fig), path)[1])
+    monkeypatch.setattr(compare_plots, "save_figure", lambda fig, path: (figs.append(fig), path)[1])
     run = runs["passive"]
     ttc = np.array([0.01, 0.02, np.inf])
     from impact_env.eval.compare import PolicyRun
@@ -85,9 +85,9 @@ def test_the_catch_time_figure_is_in_ms_from_the_touch_like_the_others(runs, tmp
     one.metrics, one.episodes = {"time_to_catch_s": ttc}, [0, 1, 2]
     one.summary = {"time_to_catch_median_s": 0.02}
     one.t_touch0 = run.t_touch0
-    CP.plot_catch_time({"passive": one}, tmp_path / "c.png", load_scene("rig"), 0.05)
+    compare_plots.plot_catch_time({"passive": one}, tmp_path / "c.png", load_scene("rig"), 0.05)
     ax = figs[0].axes[0]
-    assert ax.get_xlabel() == CP.TOUCH_MS == "time from first touch, ms"
+    assert ax.get_xlabel() == compare_plots.TOUCH_MS == "time from first touch, ms"
     assert 0.0 < run.t_touch0 < 0.05  # the episode starts before the touch
     marks = {ln.get_marker(): ln.get_xdata()[0] for ln in ax.get_lines() if ln.get_marker() in ("o", ">")}
     assert marks["o"] == pytest.approx(20.0)  # the median, 0.02 s after the touch
@@ -100,7 +100,7 @@ def test_the_motion_legend_sits_below_the_curves_one_entry_per_policy_and_per_bo
     """motion.png had an 8-entry legend in each panel, over the curves: now one row under the
     panels, a colour per policy and a line style per body."""
     seen = capture(monkeypatch)
-    CP.plot_motion(runs, tmp_path / "m.png", load_scene("rig"))
+    compare_plots.plot_motion(runs, tmp_path / "m.png", load_scene("rig"))
     want = policy_colors(SPECS)
     legend = seen["legend_below"]
     assert {k: v[0] for k, v in legend.items() if k in want} == want
@@ -155,13 +155,13 @@ def test_one_style_formats_welch_and_no_flat_zero_lines(runs, tmp_path, monkeypa
         figure_path(tmp_path / "x.jpg")
     dt = 1e-4
     t = np.arange(20_000) * dt
-    freq, asd = CP.force_asd(np.sin(2 * np.pi * 50.0 * t), dt)
+    freq, asd = compare_plots.force_asd(np.sin(2 * np.pi * 50.0 * t), dt)
     assert abs(freq[np.argmax(asd)] - 50.0) <= freq[1]
     seen = capture(monkeypatch)
     titles = []
-    monkeypatch.setattr(CP, "_finish", lambda plt, fig, ax, title, *a, **k: (titles.append(title),
+    monkeypatch.setattr(compare_plots, "_finish", lambda plt, fig, ax, title, *a, **k: (titles.append(title),
                                                                               plt.close(fig))[0])
-    CP.plot_force(runs, tmp_path / "f.png", scene)
+    compare_plots.plot_force(runs, tmp_path / "f.png", scene)
     assert "no force: passive" in titles[0]
     del seen
 
@@ -268,12 +268,12 @@ def test_a_bad_figure_format_is_refused_naming_the_option(argv, names, tmp_path,
 def test_rig_log_plot_draws_no_flat_zero_force_lines(rig_logs, tmp_path, monkeypatch):
     """A passive episode's log has no force panel (no lines at 0 N that read like data): the title
     says 'no force demanded or applied'; an episode with a force keeps the panel and both lines."""
-    import impact_env.figstyle as FS
+    from impact_env import figstyle
     from impact_env.rig.log import read_episode
     from impact_env.rig.log_plot import plot_log
 
     figs = {}
-    real = FS.save_figure
+    real = figstyle.save_figure
 
     def keep(fig, path):
         figs[path.stem] = {"title": fig._suptitle.get_text(),
@@ -281,7 +281,7 @@ def test_rig_log_plot_draws_no_flat_zero_force_lines(rig_logs, tmp_path, monkeyp
                            "ylabels": [a.get_ylabel() for a in fig.axes]}
         return real(fig, path)
 
-    monkeypatch.setattr(FS, "save_figure", keep)
+    monkeypatch.setattr(figstyle, "save_figure", keep)
     for policy, path in rig_logs.items():
         plot_log(read_episode(path), tmp_path / f"{policy}.png")
     passive, pd = figs["passive"], figs["pd-penetration"]

@@ -16,7 +16,7 @@ from impact_env.cli.args import (
     scene_from_args,
 )
 from impact_env.config import ConfigError
-from impact_env.eval import rig_compare as RC  # (called through the module: the rig tests stand in for it)
+from impact_env.eval import rig_compare  # (called through the module: the rig tests stand in for it)
 from impact_env.eval.compare import (
     compare,
     format_statistics,
@@ -28,7 +28,7 @@ from impact_env.eval.compare import (
 )
 from impact_env.policy.export import export_policy
 from impact_env.policy.registry import describe_policies, is_model_spec
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.auth import KeyFileError, load_key
 from impact_env.rig.transport import RigError
 
@@ -194,10 +194,10 @@ def _compare_rig(args, specs) -> int:
 
     try:
         progress = not args.no_progress and not args.json
-        rig_scene, rig_runs = RC.rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
+        rig_scene, rig_runs = rig_compare.rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
                                           horizon=args.horizon, progress=progress, key=key)
     except RigError as exc:  # a key on one side only, or another: the refusal names the option, no traceback
-        if exc.code == P.ErrorCode.UNAUTHENTICATED:
+        if exc.code == protocol.ErrorCode.UNAUTHENTICATED:
             raise ConfigError(str(exc)) from None
         raise
     horizon = rig_scene.episode.horizon if args.horizon is None else args.horizon

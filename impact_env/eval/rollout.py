@@ -56,8 +56,8 @@ from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, C, G
 from impact_env.policy.export import export_policy
 from impact_env.scene import Scene
-from impact_env.sim import records as R
 from impact_env.sim.metrics import AC, EPISODE_METRICS, ST, EpisodeMetrics, MetricArrays, update
+from impact_env.sim.records import REC
 from impact_env.sim.simulator import Simulator
 from impact_env.sim.step import SimParams, SimState, env_step
 
@@ -139,12 +139,12 @@ def _trace_env(row, energy_row, slot, i, Y, records, acc_energy, detected):
         v = Y[i, j]
         row[r, TR.x1 + j] = v if np.isfinite(v) else 0.0
     last = records[i, records.shape[1] - 1]
-    row[r, TR.force_demand] = last[R.REC.f_demand]
-    row[r, TR.force_applied] = last[R.REC.f_applied]
-    row[r, TR.contact_force] = last[R.REC.contact_force]
+    row[r, TR.force_demand] = last[REC.f_demand]
+    row[r, TR.force_applied] = last[REC.f_applied]
+    row[r, TR.contact_force] = last[REC.contact_force]
     row[r, TR.catch_energy] = acc_energy[i]
     row[r, TR.detected] = detected[i]
-    row[r, TR.saturated] = last[R.REC.saturated]
+    row[r, TR.saturated] = last[REC.saturated]
 
 
 @jit
@@ -400,10 +400,10 @@ def rollout(scene: Scene, policy, seeds, horizon: float | None = None, episodes=
             active = None if not failed.any() else ~failed
             sim.step(a, active)
             if commands is not None:  # every period's drive command (hold, residual law included)
-                u = sim.records[:, :, R.REC.u].T
+                u = sim.records[:, :, REC.u].T
                 commands[(k - 1) * hold:k * hold] = u if active is None else np.where(active, u, 0.0)
             metrics.step(sim.records, sim.P, active, sim.plant_records)
-            div = sim.records[:, -1, R.REC.status] != 0.0
+            div = sim.records[:, -1, REC.status] != 0.0
             if active is not None:
                 div &= active
             if div.any():

@@ -95,7 +95,7 @@ from impact_env._jit import jit
 from impact_env._packed import positions
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import M1, C, G
-from impact_env.sim import records as R
+from impact_env.sim.records import N_PLANT_REC, PREC, REC
 
 RESIDUAL_MARKS_S = (0.010, 0.050, 0.100)
 VIBRATION_WINDOW_S = 0.050  # s, the end of the episode over which residual_vibration_mps is taken
@@ -172,21 +172,21 @@ def update(acc, rec, prec, k_env, P_row, settings):
     t = acc[AC.ticks] * period
     t_touch = k_env[EC.t_touch]
     plant = settings[ST.plant_records] > 0.5
-    f = rec[R.REC.f_applied]
+    f = rec[REC.f_applied]
     af = abs(f)
     if af > acc[AC.peak]:
         acc[AC.peak] = af
-    ad = abs(rec[R.REC.f_demand])
+    ad = abs(rec[REC.f_demand])
     if ad > acc[AC.peak_demand]:
         acc[AC.peak_demand] = ad
     acc[AC.sum_sq] += f * f
-    if rec[R.REC.saturated] > 0.5 or abs(rec[R.REC.u]) >= 1.0:
+    if rec[REC.saturated] > 0.5 or abs(rec[REC.u]) >= 1.0:
         acc[AC.saturated] += 1.0
     after = t > t_touch
-    x1 = rec[R.REC.x1]
-    v1 = rec[R.REC.v1]
-    x2 = rec[R.REC.x2]
-    v2 = rec[R.REC.v2]
+    x1 = rec[REC.x1]
+    v1 = rec[REC.v1]
+    x2 = rec[REC.x2]
+    v2 = rec[REC.v2]
     contact = x1 - x2 > 0.0
     if after:
         acc[AC.after] += 1.0
@@ -202,7 +202,7 @@ def update(acc, rec, prec, k_env, P_row, settings):
     if ratio >= settings[ST.catch_fraction]:
         acc[AC.last_above_abs] = t
     if plant:
-        acc[AC.integral] += prec[R.PREC.catch_integral]
+        acc[AC.integral] += prec[PREC.catch_integral]
     # the relative catch energy, m1 (v1 - v2)^2 / 2 + U(d), from the absolute one
     if e + 0.5 * m1 * v2 * (v2 - 2.0 * v1) >= settings[ST.catch_fraction] * e0:
         acc[AC.last_above] = t
@@ -214,8 +214,8 @@ def update(acc, rec, prec, k_env, P_row, settings):
         acc[AC.vib_sum] += v2 * v2
         acc[AC.vib_ticks] += 1.0
     if plant:
-        if np.isnan(acc[AC.exit_velocity]) and prec[R.PREC.t_separation] > t_touch:
-            acc[AC.exit_velocity] = -prec[R.PREC.v1_separation] / k_env[EC.impact_speed]
+        if np.isnan(acc[AC.exit_velocity]) and prec[PREC.t_separation] > t_touch:
+            acc[AC.exit_velocity] = -prec[PREC.v1_separation] / k_env[EC.impact_speed]
     was = acc[AC.was_contact] > 0.5
     if was and not contact and after:
         if np.isnan(acc[AC.exit_velocity]) and not plant:
@@ -298,7 +298,7 @@ class EpisodeMetrics:
         if plant_records is None:
             if self.plant_records:
                 raise ValueError("EpisodeMetrics(plant_records=True) needs the plant records of every step")
-            plant_records = np.zeros(records.shape[:2] + (R.N_PLANT_REC,))
+            plant_records = np.zeros(records.shape[:2] + (N_PLANT_REC,))
         update_batch(active, records, plant_records, self.consts, P, self.settings, self.acc)
 
     @property
