@@ -5,7 +5,7 @@
 The target runs as a separate process (``impact-env rig serve --virtual --log-dir TMP``) on
 loopback, as on a rig with its host on the same network; its real-time loop is pinned to the
 last CPU (``impact_env.rig.placement``), and this process, the host, to the other CPUs, as
-docs/rig.md tells a host on the target's machine to be.  The figures come from the episodes'
+docs/rig/loop.md tells a host on the target's machine to be.  The figures come from the episodes'
 logs, read from the target's log folder.
 
 1. Onboard, real time: the compiled pd-penetration law in episodes of 10 s (10^5 ticks) until

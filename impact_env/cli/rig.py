@@ -35,7 +35,7 @@ def add_arguments(p) -> None:
     d.add_argument("--driver", metavar="LIB.so|MODULE:CLASS",
                    help="drive a rig through a C driver (a shared library exporting impact_driver_open, "
                         "impact_env/deploy/rt/impact_driver.h: what real time needs) or a Python RigDriver "
-                        "subclass (lock-step only); docs/rig.md 'Writing a driver for a DAQ card'")
+                        "subclass (lock-step only); docs/rig/drivers.md")
     s.add_argument("--driver-config", default="", metavar="STRING",
                    help="passed to the C driver's impact_driver_open (its syntax is the driver's; the replay "
                         "driver's: 'READINGS.f64;COMMANDS.f64')")

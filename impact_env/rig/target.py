@@ -148,7 +148,7 @@ class Target:
                              "by milliseconds under load). A Python RigDriver is for lock-step testing "
                              "(rig serve --lockstep). For real time write the driver in C against "
                              "impact_env/deploy/rt/impact_driver.h and load it with rig serve --driver "
-                             "LIB.so (docs/rig.md, 'Writing a driver for a DAQ card')")
+                             "LIB.so (docs/rig/drivers.md)")
         self.running_link = None  # the running compiled loop's rings (impact_env.rig.ring)
         self.scene = driver.scene
         self.rate = float(self.scene.control_rate)
