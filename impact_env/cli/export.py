@@ -24,8 +24,8 @@ def add_arguments(p) -> None:
                    help="with --c: build it with gcc (double and float32) and replay readings recorded "
                         "from the virtual rig through it beside the simulator's kernels; prints PASS or FAIL "
                         "per build against docs/rig/c-export.md's bounds (double: bitwise; float32: 1e-4 "
-                        "of full scale where the decisions agree, at most 5 %% of ticks deciding differently); "
-                        "exit 1 on any FAIL")
+                        "of full scale where the decisions agree, at most 5 %% of ticks deciding "
+                        "differently); exit 1 on any FAIL")
     p.set_defaults(func=cmd_export)
 
 
