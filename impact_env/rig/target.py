@@ -120,7 +120,7 @@ class TargetConfig:
     # pinned) and its thread's nice value (0: unchanged): impact_env.rig.placement
     loop_cpu: int | None = None
     loop_nice: int = 0
-    loop_fifo: int = 0  # SCHED_FIFO priority of the loop's thread (0: none; placement.py)
+    loop_fifo: int | None = 0  # SCHED_FIFO priority of the loop's thread (0: none; None: where permitted)
 
     def __post_init__(self):
         if self.command_wait_s is not None:
