@@ -149,7 +149,8 @@ def _host_row(what: str, hold: int, h: dict) -> dict:
 
 def _print_host(r: dict) -> None:
     lp = r["lateness_us"]
-    print(f"| {r['hold']} | {r['what']} | {r['sent']} | {r['own_step']} ({100 * r['own_step_share']:.1f} %) | "
+    share = 100 * r["own_step_share"]
+    print(f"| {r['hold']} | {r['what']} | {r['sent']} | {r['own_step']} ({share:.1f} %) | "
           f"{r['unanswered']} | {r['lost']} | {r['timeouts']} | {lp[0]:.0f} / {lp[1]:.0f} / {lp[2]:.0f} | "
           f"{r['ends']} | {r['load']:.1f} |", flush=True)
 
@@ -245,7 +246,8 @@ def kernel_settings() -> dict:
 GOALS = [("hold 4, alone: commands acting in their own step", ">= 99 %"),
          ("hold 1, alone: commands acting in their own step", ">= 95 %"),
          ("hold 4, a flood: commands acting in their own step", ">= 95 %"),
-         ("commands lost (after the ones that came after their episode), all rows", "0"), ("RigTimeouts, all rows", "0"),
+         ("commands lost (after the ones that came after their episode), all rows", "0"),
+         ("RigTimeouts, all rows", "0"),
          ("first episodes reaching their horizon", "100 %")]
 
 
@@ -266,7 +268,8 @@ def goals(rec: dict) -> list[tuple[str, str, str, bool]]:
     out.append((GOALS[4][0], GOALS[4][1], str(timeouts), timeouts == 0))
     fe = rec.get("first_episodes")
     if fe and fe["targets"]:
-        out.append((GOALS[5][0], GOALS[5][1], f"{fe['horizon']} of {fe['targets']}", fe["horizon"] == fe["targets"]))
+        out.append((GOALS[5][0], GOALS[5][1], f"{fe['horizon']} of {fe['targets']}",
+                    fe["horizon"] == fe["targets"]))
     return out
 
 
@@ -285,13 +288,16 @@ def render(records: list[dict]) -> str:
                   f"load average {rec['loadavg_before'][0]:g} before and {rec['loadavg_after'][0]:g} after, "
                   f"from other jobs on the same CPUs; `{rec['json']}`).  The target applied: "
                   + "; ".join(rec["applied"] or ["nothing"])
-                  + (".  Not applied: " + "; ".join(rec["not_applied"]) if rec["not_applied"] else "") + ".", "",
-                  "| onboard ticks | lateness p50 / p99 / p99.9 / max us | overruns per 1e5 ticks | runs of 1 ms "
+                  + (".  Not applied: " + "; ".join(rec["not_applied"]) if rec["not_applied"] else "")
+                  + ".", "",
+                  "| onboard ticks | lateness p50 / p99 / p99.9 / max us | overruns per 1e5 ticks | runs of "
+                  "1 ms "
                   "or more | ends |", "|---|---|---|---|---|",
-                  f"| {o['ticks']} | {o['p50_us']:.1f} / {o['p99_us']:.1f} / {o['p999_us']:.1f} / {o['max_us']:.0f} | "
+                  f"| {o['ticks']} | {o['p50_us']:.1f} / {o['p99_us']:.1f} / {o['p999_us']:.1f} / "
+                  f"{o['max_us']:.0f} | "
                   f"{o['overruns_per_1e5']:.0f} | {o['long_gaps']} | {o['ends']} |", "",
-                  "| hold | beside the loop | commands sent | acted in their own step | steps not answered | lost | "
-                  "RigTimeouts | ends |", "|---|---|---|---|---|---|---|---|"]
+                  "| hold | beside the loop | commands sent | acted in their own step | steps not answered "
+                  "| lost | RigTimeouts | ends |", "|---|---|---|---|---|---|---|---|"]
         for r in rec["host"]:
             lines.append(f"| {r['hold']} | {r['what']} | {r['sent']} | {100 * r['own_step_share']:.1f} % | "
                          f"{r['unanswered']} | {r['lost']} | {r['timeouts']} | {r['ends']} |")
@@ -316,7 +322,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=20, help="host-mode episodes per row (default 20)")
     ap.add_argument("--onboard-ticks", type=int, default=1_000_000, help="onboard ticks (default 1e6)")
-    ap.add_argument("--fresh", type=int, default=5, help="fresh targets for the first-episode row (default 5)")
+    ap.add_argument("--fresh", type=int, default=5,
+                    help="fresh targets for the first-episode row (default 5)")
     ap.add_argument("--max-gap-ms", type=float, default=1.0,
                     help="the target's --max-gap (default 1 ms, the target's own default)")
     ap.add_argument("--serve-args", default="", help="more rig serve options (named in the record)")
@@ -324,8 +331,10 @@ def main() -> int:
     ap.add_argument("--by-hand", nargs="*", default=[], metavar="SETTING",
                     help="kernel settings made by hand for this run, e.g. kernel.sched_rt_runtime_us=-1")
     ap.add_argument("--out", default=None, help="the JSON record (default docs/results/rig/bench-LABEL.json)")
-    ap.add_argument("--doc", default=None, help="rewrite the rig-bench block of this page (docs/rig/timing.md)")
-    ap.add_argument("--quick", action="store_true", help="3 episodes a row, 2e5 onboard ticks, 2 fresh targets")
+    ap.add_argument("--doc", default=None,
+                    help="rewrite the rig-bench block of this page (docs/rig/timing.md)")
+    ap.add_argument("--quick", action="store_true",
+                    help="3 episodes a row, 2e5 onboard ticks, 2 fresh targets")
     args = ap.parse_args()
     episodes = 3 if args.quick else args.episodes
     ticks = 200_000 if args.quick else args.onboard_ticks
@@ -340,8 +349,9 @@ def main() -> int:
     rec: dict = {"script": "scripts/bench_rig.py", "label": args.label, "by_hand": args.by_hand,
                  "command": " ".join(["python", "scripts/bench_rig.py", *sys.argv[1:]]),
                  "json": str(out_path.relative_to(ROOT)) if out_path.is_relative_to(ROOT) else str(out_path),
-                 "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "cpu": platform.processor() or
-                 platform.machine(), "cores": len(cpus), "python": platform.python_version(), "kernel": kernel,
+                 "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
+                 "cpu": platform.processor() or platform.machine(), "cores": len(cpus),
+                 "python": platform.python_version(), "kernel": kernel,
                  "serve": serve, "loadavg_before": [round(x, 2) for x in load_before], "host": []}
     with tempfile.TemporaryDirectory() as tmp:
         log_dir = Path(tmp)
@@ -350,14 +360,17 @@ def main() -> int:
         try:
             print("## 1. Onboard, real time, pd-penetration, episodes of 0.4 s\n")
             r = onboard(addr, log_dir, ticks, 4_000)
-            rec["onboard"] = {"ticks": r["ticks"], "p50_us": r["p"][0], "p99_us": r["p"][1], "p999_us": r["p"][2],
+            rec["onboard"] = {"ticks": r["ticks"], "p50_us": r["p"][0], "p99_us": r["p"][1],
+                              "p999_us": r["p"][2],
                               "max_us": r["max"], "overruns_per_1e5": r["overruns_per_1e5"],
-                              "longest_skip": r["longest_skip"], "long_gaps": r["long_gaps"], "ends": r["ends"]}
+                              "longest_skip": r["longest_skip"], "long_gaps": r["long_gaps"],
+                              "ends": r["ends"]}
             print(json.dumps(rec["onboard"]), flush=True)
             print(f"\n## 2. Host mode, real time: ImpactCatchRig-v0, pd-penetration residual, {episodes} "
                   "episodes a row\n")
-            print("| hold | beside the loop | commands sent | acted in their own step | steps not answered | lost | "
-                  "RigTimeouts | lateness p50/p99/p99.9 us | ends | load |\n|---|---|---|---|---|---|---|---|---|---|")
+            print("| hold | beside the loop | commands sent | acted in their own step | steps not answered | "
+                  "lost | RigTimeouts | lateness p50/p99/p99.9 us | ends | load |\n"
+                  "|---|---|---|---|---|---|---|---|---|---|")
             loop_cpu = loop_cpu_of("127.0.0.1", int(addr.rsplit(":", 1)[1]))
             for what in ("alone", "a CPU-bound process on the loop's CPU"):
                 if what != "alone":
@@ -389,7 +402,8 @@ def main() -> int:
         rec["not_applied"] = re.findall(r"impact-env rig: not applied: (.*)", err)
         rec["start_check"] = re.findall(r"impact-env rig: (this machine, .*)", err)
         rec["since_start"] = _since_start(text)
-    print(f"\n## 3. First episodes: {fresh} fresh targets, one host-mode episode each at hold 4\n", flush=True)
+    print(f"\n## 3. First episodes: {fresh} fresh targets, one host-mode episode each at hold 4\n",
+          flush=True)
     rec["first_episodes"] = first_episodes(fresh, serve)
     print(json.dumps(rec["first_episodes"]))
     rec["loadavg_after"] = [round(x, 2) for x in os.getloadavg()]

@@ -22,8 +22,9 @@ def _measurement(late_ns, longest_gap_ns=0.0, rate_hz=10_000.0, cpu=1, policy="S
 
 
 def _facts(**kw):
-    base = dict(release="6.1.0", version="#1 SMP PREEMPT_DYNAMIC", preempt_model="dynamic", rt_runtime_us=950000,
-                rt_period_us=1000000, autogroup=True, cpus=[0, 1], may_fifo=True, fifo_max=99, may_mlock=True,
+    base = dict(release="6.1.0", version="#1 SMP PREEMPT_DYNAMIC", preempt_model="dynamic",
+                rt_runtime_us=950000, rt_period_us=1000000, autogroup=True, cpus=[0, 1], may_fifo=True,
+                fifo_max=99, may_mlock=True,
                 clocksource="tsc", clocksources=["tsc", "hpet"])
     base.update(kw)
     return C.KernelFacts(**base)
@@ -150,7 +151,8 @@ def test_fifo_asked_by_name_is_refused_up_front_where_not_permitted(monkeypatch)
     with pytest.raises(ValueError, match="loop_fifo = 50 needs root or CAP_SYS_NICE"):
         PL.Placement(None, 0, 50)
     auto = PL.Placement(None, 0, None)  # the default: applied where permitted, else said with its cost
-    assert auto.loop_fifo == 0 and any(line.startswith("SCHED_FIFO (Operation not permitted") for line in auto.missing)
+    assert auto.loop_fifo == 0
+    assert any(line.startswith("SCHED_FIFO (Operation not permitted") for line in auto.missing)
     monkeypatch.setattr(PL, "_may_fifo", lambda prio: None)
     assert PL.Placement(None, 0, None).loop_fifo == PL.AUTO_FIFO
 
