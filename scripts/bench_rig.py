@@ -297,7 +297,7 @@ def render(records: list[dict]) -> str:
                   f"{o['max_us']:.0f} | "
                   f"{o['overruns_per_1e5']:.0f} | {o['long_gaps']} | {o['ends']} |", "",
                   "| hold | beside the loop | commands sent | acted in their own step | steps not answered "
-                  "| lost | RigTimeouts | ends |", "|---|---|---|---|---|---|---|---|"]
+                  "| in no episode's counters | RigTimeouts | ends |", "|---|---|---|---|---|---|---|---|"]
         for r in rec["host"]:
             lines.append(f"| {r['hold']} | {r['what']} | {r['sent']} | {100 * r['own_step_share']:.1f} % | "
                          f"{r['unanswered']} | {r['lost']} | {r['timeouts']} | {r['ends']} |")
