@@ -193,3 +193,20 @@ def test_the_measurement_records_what_it_paced():
     out = C.report(m, C.kernel_facts(probe=False), C.verdict(m, _facts()))
     json.dumps(out)  # one JSON-able record
     assert set(out["tick_late_us"]) >= {"p50", "p99", "p99.9", "max", "longest_gap_us"}
+
+
+def test_rig_check_prints_one_json_record_and_refuses_bad_options(capsys):
+    """``impact-env rig check`` end to end, briefly (no figure asserted), and its bounds checked
+    before any measurement."""
+    from impact_env.cli.main import main
+
+    assert main(["rig", "check", "--seconds", "0.06", "--loop-cpu", "-1", "--loop-fifo", "0", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["policy"] == "SCHED_OTHER" and out["cpu"] == -1 and len(out["rates"]) == len(C.RATES_HZ)
+    assert {"facts", "wakeup_us", "tick_late_us", "verdict", "improve"} <= set(out)
+    for argv, what in ((["--seconds", "0"], "--seconds 0 s is out of range"),
+                       (["--seconds", "601"], "--seconds 601 s is out of range"),
+                       (["--rate", "0.5"], "--rate 0.5 Hz is out of range"),
+                       (["--max-gap", "-1"], "--max-gap -1 ms is out of range")):
+        assert main(["rig", "check", *argv]) == 2
+        assert what in capsys.readouterr().err

@@ -51,8 +51,8 @@ def add_arguments(p) -> None:
                         "others (default: the last CPU, with two or more; -1: no pinning)")
     s.add_argument("--loop-fifo", type=int, default=None, metavar="PRIO",
                    help="the loop thread's SCHED_FIFO priority (1-99; needs root, CAP_SYS_NICE or an rtprio "
-                        "limit): no ordinary thread preempts it (default: 50 where permitted, else the normal "
-                        "policy, said at start; 0: the normal policy)")
+                        "limit): no ordinary thread preempts it (default in real time: 50 where permitted, else "
+                        "the normal policy, said at start; 0: the normal policy)")
     s.add_argument("--start-check", type=float, default=0.3, metavar="S",
                    help="real time: measure the loop's pacing this long at start and say what it costs here "
                         "(default 0.3 s; 0: no measurement; impact-env rig check measures at length)")
@@ -130,6 +130,9 @@ def cmd_serve(args) -> int:
 
     if not args.session_timeout > 0:
         raise ConfigError(f"--session-timeout {args.session_timeout} s must be > 0 s")
+    if not 0 <= args.start_check <= 10:
+        raise ConfigError(f"--start-check {args.start_check:g} s is out of range: 0 to 10 s "
+                          "(impact-env rig check measures at length)")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port} is out of range: 0 to 65535")
     if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
@@ -149,6 +152,9 @@ def cmd_serve(args) -> int:
     kind = "virtual rig" if driver.virtual else f"driver {type(driver).__name__}"
     print(f"impact-env rig: compiling the target's kernels for scene {scene.name!r} ...", file=sys.stderr,
           flush=True)
+    # SCHED_FIFO where permitted (None) serves real time; a lock-step loop has no deadline, so it
+    # keeps the normal policy unless asked
+    fifo = args.loop_fifo if args.loop_fifo is not None or not args.lockstep else 0
     try:
         target = Target(driver, f"udp://{args.host}:{args.port}",
                         TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
@@ -156,7 +162,7 @@ def cmd_serve(args) -> int:
                                      max_gap_s=args.max_gap / 1e3, max_horizon_s=args.max_horizon,
                                      command_wait_s=None if args.command_wait is None else args.command_wait / 1e3,
                                      loop_cpu=args.loop_cpu, loop_nice=args.loop_nice,
-                                     loop_fifo=args.loop_fifo))
+                                     loop_fifo=fifo))
     except ValueError as exc:
         driver.shutdown()
         option = any(name in str(exc) for name in ("command_wait_s", "loop_cpu", "loop_nice", "loop_fifo", "max_gap_s",
@@ -225,9 +231,6 @@ def _apply_placement(target, args, rate_hz: float):
         say(f"not applied: {line}")
     if args.lockstep or not args.start_check > 0:
         return remove
-    if args.start_check > 10:
-        raise ConfigError(f"--start-check {args.start_check:g} s is out of range: 0 to 10 s "
-                          "(impact-env rig check measures at length)")
     m = measure(args.start_check, rate_hz, pl)
     facts = kernel_facts(probe=False)
     v = verdict_for_rate(rate_hz, m.tick_late_ns, m.longest_gap_ns, args.max_gap / 1e3, 100.0,
