@@ -275,10 +275,12 @@ class Measurement:
     sleep_margin_s: float  # the pacing's sleep margin (0: it spins)
 
 
-def measure(seconds: float, rate_hz: float, placement, interval_us: float = 1000.0) -> Measurement:
+def measure(seconds: float, rate_hz: float, placement, interval_us: float = 1000.0,
+            episode_s: float = 0.4) -> Measurement:
     """``seconds`` of measurement in a thread placed by ``placement`` (its loop CPU and
     scheduling): a third of it cyclictest's wake-up latency at ``interval_us``, the rest the loop's
-    pacing at ``rate_hz``."""
+    pacing at ``rate_hz`` in episodes of ``episode_s``, with the rest between them that the loop
+    takes (:meth:`impact_env.rig.placement.Placement.loop_thread`)."""
     nspc = cached_ns_per_cycle()
     gettime, nanosleep = libc_address("clock_gettime"), libc_address("clock_nanosleep")
     interval_ns = int(interval_us * 1e3)
@@ -287,18 +289,27 @@ def measure(seconds: float, rate_hz: float, placement, interval_us: float = 1000
     late = np.zeros(n_ticks, np.float64)
     skipped = np.zeros(n_ticks, np.int64)
     cpt = 1e9 / rate_hz / nspc
-    margin = placement.sleep_margin_s * 1e9 / nspc
+    margin = placement.sleep_margin_for(episode_s) * 1e9 / nspc
     # compiled (or loaded) before the measured thread starts
     wakeup_latencies(gettime, nanosleep, 1000, np.zeros(1, np.int64))
     pace_ticks(cpt, nspc, margin, gettime, nanosleep, np.zeros(1), np.zeros(1, np.int64))
     out: list = []
     err: list = []
 
+    chunk = max(1, int(episode_s * rate_hz))
+
     def run():
         try:
             placement.loop_thread()
             wakeup_latencies(gettime, nanosleep, interval_ns, wake)
-            n, longest = pace_ticks(cpt, nspc, margin, gettime, nanosleep, late, skipped)
+            longest = 0.0
+            for a in range(0, n_ticks, chunk):  # episode by episode, resting between them as the loop does
+                if a > 0:
+                    placement.loop_thread()
+                b = min(n_ticks, a + chunk)
+                _n, gap = pace_ticks(cpt, nspc, margin, gettime, nanosleep, late[a:b], skipped[a:b])
+                placement.loop_done()
+                longest = max(longest, gap)
             out.append(longest)
         except BaseException as exc:  # re-raised in the caller's thread
             err.append(exc)
@@ -310,7 +321,8 @@ def measure(seconds: float, rate_hz: float, placement, interval_us: float = 1000
         raise err[0]
     policy = f"SCHED_FIFO {placement.loop_fifo}" if placement.loop_fifo else "SCHED_OTHER"
     return Measurement(wake, late, skipped, float(out[0]), float(rate_hz), interval_ns,
-                       int(placement.loop_cpu) if placement.pinned else -1, policy, placement.sleep_margin_s)
+                       int(placement.loop_cpu) if placement.pinned else -1, policy,
+                       placement.sleep_margin_for(episode_s))
 
 
 # -- the verdict ------------------------------------------------------------------------------------------
