@@ -27,7 +27,7 @@ What it does:
 * every run on the sensors is checked as the C export would run it on a board without a double
   FPU: its compiled policy in the export's float32 build against the double target, readings of
   drops 0..9 of each scene replayed through both (:mod:`impact_env.deploy.parity`, the bound of
-  docs/rig.md's "How it is checked"; kept in ``report.json``, skipped without a C compiler);
+  docs/rig/c-export.md's "How it is checked"; kept in ``report.json``, skipped without a C compiler);
 * the agent shipped is the run on the sensors whose best model has the best validation return
   (the validation drops, not the test drops, choose it) among those whose float32 build stays
   within that bound on every drop checked; it is copied to ``--ship`` with its ``model.json``,
@@ -99,7 +99,7 @@ def c_float32_check(info: dict, scenes: list[str], drops: int = F32_DROPS) -> di
     """The run's compiled policy in the C export's float32 build against the double target (the numba
     kernels), readings of drops ``0 .. drops - 1`` of each scene replayed through both
     (:func:`impact_env.deploy.parity.check`, judged by :meth:`ParityReport.verdict`, the bounds of
-    docs/rig.md): ``{"bound", "drops", "failed", "max_same"}`` (the largest command difference where
+    docs/rig/c-export.md): ``{"bound", "drops", "failed", "max_same"}`` (the largest command difference where
     the builds decide alike, in full scale), or None without a C compiler."""
     import tempfile
 
@@ -416,7 +416,7 @@ def c_check_line(infos: list[dict], settings: dict) -> str:
             f"{c0['drops'] // len(settings['scenes']) - 1} of each scene ({F32_TICKS} ticks) replayed "
             "through "
             f"both (`impact_env.deploy.parity.check`; bound {c0['bound']:.1e} of full scale where the builds "
-            "decide alike, docs/rig.md), the largest command difference: " + "; ".join(parts) + ".")
+            "decide alike, docs/rig/c-export.md), the largest command difference: " + "; ".join(parts) + ".")
 
 
 def write_doc(doc: Path, text: str) -> None:

@@ -1,36 +1,32 @@
-"""How the target's compiled real-time core keeps time on this machine (issue 25's figures).
+"""How the target's real-time loop keeps time on this machine, with only what the project sets.
 
-    python scripts/bench_rig.py [--episodes 20] [--onboard-ticks 1000000] [--loop-fifo 50] [--quick]
+    python scripts/bench_rig.py [--quick] [--label defaults] [--by-hand "SETTING ..."]
+                                [--out docs/results/rig/bench-LABEL.json] [--doc docs/rig/timing.md]
 
 The target runs as a separate process (``impact-env rig serve --virtual --log-dir TMP``) on
-loopback, as on a rig with its host on the same network; its real-time loop is pinned to the
-last CPU (``impact_env.rig.placement``), and this process, the host, to the other CPUs, as
-docs/rig.md tells a host on the target's machine to be.  The figures come from the episodes'
-logs, read from the target's log folder.
+loopback, as on a rig with its host on the same machine, with the options a user gives it (none
+beyond the log folder and ``--max-gap``; ``--serve-args`` adds more, and they are named in the
+record): it applies what it is permitted to (``impact_env.rig.placement``: its loop pinned,
+SCHED_FIFO where permitted, mlockall, the host kept off the loop's CPU) and says so at start; the
+record keeps those lines.  The figures come from the episodes' logs.
 
-1. Onboard, real time: the compiled pd-penetration law in episodes of 10 s (10^5 ticks) until
-   ``--onboard-ticks`` ticks (default 10^6): tick lateness (start minus deadline) p50 / p99 /
-   p99.9 / max, overruns (rows flagged OVERRUN) per 10^5 ticks, the longest run of skipped ticks
-   and the runs of 10 or more (1 ms without a tick: the target's default ``--max-gap`` ends an
-   episode OVERRUN at such a gap; pass ``--max-gap-ms 1000`` to count them without ending it),
-   the episodes' ends, and the tick's work (read, front end, policy, safety, the virtual rig's
-   hardware stage, log row) p50 / p99.
+1. Onboard, real time: the compiled pd-penetration law in episodes of 0.4 s until
+   ``--onboard-ticks`` ticks: tick lateness (start minus deadline) p50 / p99 / p99.9 / max,
+   overruns per 10^5 ticks, runs of 1 ms or more without a tick, how the episodes ended.
 2. Host mode, real time: ``ImpactCatchRig-v0`` (pd-penetration residual, actions drawn at
-   random), ``--episodes`` episodes each at hold 4 and hold 1, first alone, then with a CPU-bound
-   process of the bench's own pinned to CPU 0 (the host's): of the commands the host sent, the
-   share that acted within their own step (a row of one of the step's ticks driven by the
-   step's command), the steps whose observation the host never answered (it was answering a
-   newer one), commands lost (sent, and in no episode's counters: not accepted, not late; the
-   ones that came after their episode's end are the target's ``commands_after_end``),
-   RigTimeouts, tick lateness p50 / p99 / p99.9 and the wall time of an episode.
-3. The flood: hold 4, ``--episodes`` episodes while a process of the bench's own (pinned to CPU
-   0, nice 19: an attacker on the network, not a load on the host) sends junk as fast as it can
-   (a quarter each: the host's HELLO replayed, bad tags, bad magic, truncated frames); the same
-   command figures, the datagrams sent and how the target accounted for them.
+   random), ``--episodes`` episodes a row: hold 4 and hold 1 alone, then with a CPU-bound process
+   pinned to the loop's CPU (beside the loop), then hold 4 under a flood of junk datagrams from a
+   second process.  Per row: of the commands the host sent, the share that acted within their
+   own step; the steps the host did not answer (a host slower than the steps answers the newest
+   observation); commands lost (sent, and in no episode's counters); RigTimeouts; the ends.
+3. First episodes: ``--fresh`` targets started afresh, each one host-mode episode at hold 4: how
+   many reached their horizon.
 
-Wall-clock figures of a shared machine without a real-time kernel: they say what this machine
-does under the load it had (the 1-minute load average is printed with them), not what a rig
-controller with an isolated core would.
+``--by-hand`` names kernel settings made by hand for the run (sysctl, boot parameters); the
+record also keeps the kernel's real-time settings as found.  ``--doc`` rewrites the block between
+``<!-- rig-bench:start -->`` and ``<!-- rig-bench:end -->`` of the rig's timing page from every
+record in the folder of ``--out``, the defaults' first.  Wall-clock figures: they say what this
+machine did under the load it had (recorded), not what a rig with an isolated core would.
 """
 
 from __future__ import annotations
@@ -55,6 +51,7 @@ from rig_helpers import FLOOD, start_target, stop  # noqa: E402
 from impact_env.policy.export import export_policy  # noqa: E402
 from impact_env.rig.host import RigClient, RigEnv  # noqa: E402
 from impact_env.rig.log import list_episodes, read_episode  # noqa: E402
+from impact_env.rig.placement import loop_cpu_of  # noqa: E402
 from impact_env.rig.transport import RigTimeout  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
 
@@ -142,17 +139,20 @@ def host_realtime(env: RigEnv, log_dir: Path, hold: int, episodes: int, seed0: i
     return tot
 
 
-lost_total = [0]
+def _host_row(what: str, hold: int, h: dict) -> dict:
+    """One host-mode row of the record."""
+    return {"what": what, "hold": hold, "sent": h["sent"], "own_step": h["own_step"],
+            "own_step_share": h["own_step"] / max(1, h["sent"]), "unanswered": h["unanswered"],
+            "lost": h["sent"] - h["accounted"], "timeouts": h["timeouts"], "ends": h["ends"],
+            "lateness_us": [round(float(x), 1) for x in h["lateness"]], "load": os.getloadavg()[0]}
 
 
-def _row(hold: int, what: str, h: dict) -> str:
-    lost = h["sent"] - h["accounted"]
-    lost_total[0] += lost
-    share = 100.0 * h["own_step"] / max(1, h["sent"])
-    lp, wp = h["lateness"], h["wall"]
-    return (f"| {hold} | {what} | {h['sent']} | {h['own_step']} ({share:.1f} %) | {h['unanswered']} | {lost} | "
-            f"{h['timeouts']} | {lp[0]:.0f} / {lp[1]:.0f} / {lp[2]:.0f} | {wp[0]:.2f} ({wp[1]:.2f}) | {h['ends']} | "
-            f"{_load()} |")
+def _print_host(r: dict) -> None:
+    lp = r["lateness_us"]
+    share = 100 * r["own_step_share"]
+    print(f"| {r['hold']} | {r['what']} | {r['sent']} | {r['own_step']} ({share:.1f} %) | "
+          f"{r['unanswered']} | {r['lost']} | {r['timeouts']} | {lp[0]:.0f} / {lp[1]:.0f} / {lp[2]:.0f} | "
+          f"{r['ends']} | {r['load']:.1f} |", flush=True)
 
 
 def _recorded_hello(env: RigEnv) -> bytes:
@@ -178,107 +178,244 @@ def _since_start(text: str) -> dict[str, int]:
     return {k: int(v) for k, v in re.findall(r"(\w+) (\d+)", m.group(1))} if m else {}
 
 
+def _env(addr: str, hold: int) -> RigEnv:
+    return RigEnv(addr, hold_ticks=hold, residual="pd-penetration", terminate_on_catch=False, timeout_s=0.1,
+                  retries=20)
+
+
+def _flood_row(addr: str, log_dir: Path, episodes: int, cpus: list[int]) -> tuple[dict, dict]:
+    env = _env(addr, 4)
+    flood = None
+    try:
+        hello = _recorded_hello(env)
+        host, port = re.match(r"udp://([^:]+):(\d+)", addr).groups()
+        go = log_dir / "go"
+        flood = subprocess.Popen([sys.executable, "-c", FLOOD, host, port, hello.hex(), str(go),
+                                  str(10**9), str(1.0 * episodes)], stdout=subprocess.PIPE, text=True)
+        os.sched_setaffinity(flood.pid, {cpus[0]})  # an attacker on the network, not a load on the loop
+        os.setpriority(os.PRIO_PROCESS, flood.pid, 19)
+        assert flood.stdout.readline().strip() == "ready"
+        go.touch()
+        time.sleep(0.2)
+        h = host_realtime(env, log_dir, 4, episodes, seed0=2000)
+        out, _ = flood.communicate(timeout=60)
+        flood = None
+        return _host_row("a flood of junk datagrams", 4, h), json.loads(out)
+    finally:
+        env.close()
+        if flood is not None:
+            flood.kill()
+            flood.wait()
+
+
+def first_episodes(n: int, serve: list[str]) -> dict:
+    """``n`` targets started afresh, each one host-mode episode at hold 4 (random actions)."""
+    ends: dict[str, int] = {}
+    rng = np.random.default_rng(1)
+    for k in range(n):
+        proc, addr = start_target(*serve)
+        env = None
+        try:
+            env = _env(addr, 4)
+            env.reset(seed=3000 + k)
+            while True:
+                *_, te, tr, info = env.step(np.array([rng.uniform(-0.3, 0.3)], np.float32))
+                if te or tr:
+                    break
+            why = info.get("end_reason", "?")
+        except RigTimeout:
+            why = "RigTimeout"
+        finally:
+            if env is not None:
+                env.close()
+            stop(proc)
+        ends[why] = ends.get(why, 0) + 1
+    return {"targets": n, "horizon": ends.get("HORIZON", 0), "ends": ends}
+
+
+def kernel_settings() -> dict:
+    """The kernel's real-time settings as found (a record names them beside its figures)."""
+    from impact_env.rig.check import kernel_facts
+
+    f = kernel_facts(probe=False)
+    return {"sched_rt_runtime_us": f.rt_runtime_us, "sched_autogroup_enabled": f.autogroup,
+            "preempt": f.preempt_model, "isolated": f.isolated, "nohz_full": f.nohz_full,
+            "clocksource": f.clocksource, "virtual_machine": f.hypervisor, "kernel": f.release}
+
+
+GOALS = [("hold 4, alone: commands acting in their own step", ">= 99 %"),
+         ("hold 1, alone: commands acting in their own step", ">= 95 %"),
+         ("hold 4, a flood: commands acting in their own step", ">= 95 %"),
+         ("commands lost (after the ones that came after their episode), all rows", "0"),
+         ("RigTimeouts, all rows", "0"),
+         ("first episodes reaching their horizon", "100 %")]
+
+
+def goals(rec: dict) -> list[tuple[str, str, str, bool]]:
+    """(goal, target, measured, met) for each of the rig's goals (GOALS)."""
+    rows = {(r["what"], r["hold"]): r for r in rec["host"]}
+    alone4, alone1 = rows.get(("alone", 4)), rows.get(("alone", 1))
+    flood = rows.get(("a flood of junk datagrams", 4))
+    out = []
+    for (name, target), r, goal in zip(GOALS[:3], (alone4, alone1, flood), (0.99, 0.95, 0.95), strict=True):
+        if r is not None:
+            out.append((name, target, f"{100 * r['own_step_share']:.1f} %", r["own_step_share"] >= goal))
+    # a command that came after its episode had ended is in no episode's counters but in the
+    # target's commands_after_end (printed when it stops): accounted for, not lost
+    lost = sum(r["lost"] for r in rec["host"]) - rec.get("since_start", {}).get("commands_after_end", 0)
+    timeouts = sum(r["timeouts"] for r in rec["host"])
+    out.append((GOALS[3][0], GOALS[3][1], str(lost), lost == 0))
+    out.append((GOALS[4][0], GOALS[4][1], str(timeouts), timeouts == 0))
+    fe = rec.get("first_episodes")
+    if fe and fe["targets"]:
+        out.append((GOALS[5][0], GOALS[5][1], f"{fe['horizon']} of {fe['targets']}",
+                    fe["horizon"] == fe["targets"]))
+    return out
+
+
+def render(records: list[dict]) -> str:
+    """The timing page's block: one section per record, the defaults' first."""
+    lines = []
+    for rec in sorted(records, key=lambda r: (bool(r["by_hand"]), r["label"])):
+        o = rec["onboard"]
+        setup = ("only what the project sets (no setting made by hand)" if not rec["by_hand"] else
+                 "with settings made by hand: " + ", ".join(f"`{s}`" for s in rec["by_hand"]))
+        k = rec["kernel"]
+        lines += [f"**{rec['label']}**: {setup}.  Written by `{rec['command']}` ({rec['date_utc']} UTC, "
+                  f"{rec['cpu']}, {rec['cores']} CPUs, kernel {k['kernel']} ({k['preempt']} preemption"
+                  f"{', a virtual machine' if k['virtual_machine'] else ''}), `sched_rt_runtime_us` "
+                  f"{k['sched_rt_runtime_us']}, autogroup {'on' if k['sched_autogroup_enabled'] else 'off'}; "
+                  f"load average {rec['loadavg_before'][0]:g} before and {rec['loadavg_after'][0]:g} after, "
+                  f"from other jobs on the same CPUs; `{rec['json']}`).  The target applied: "
+                  + "; ".join(rec["applied"] or ["nothing"])
+                  + (".  Not applied: " + "; ".join(rec["not_applied"]) if rec["not_applied"] else "")
+                  + ".", "",
+                  "| onboard ticks | lateness p50 / p99 / p99.9 / max us | overruns per 1e5 ticks | runs of "
+                  "1 ms "
+                  "or more | ends |", "|---|---|---|---|---|",
+                  f"| {o['ticks']} | {o['p50_us']:.1f} / {o['p99_us']:.1f} / {o['p999_us']:.1f} / "
+                  f"{o['max_us']:.0f} | "
+                  f"{o['overruns_per_1e5']:.0f} | {o['long_gaps']} | {o['ends']} |", "",
+                  "| hold | beside the loop | commands sent | acted in their own step | steps not answered "
+                  "| in no episode's counters | RigTimeouts | ends |", "|---|---|---|---|---|---|---|---|"]
+        for r in rec["host"]:
+            lines.append(f"| {r['hold']} | {r['what']} | {r['sent']} | {100 * r['own_step_share']:.1f} % | "
+                         f"{r['unanswered']} | {r['lost']} | {r['timeouts']} | {r['ends']} |")
+        lines += ["", "| goal | target | measured | met |", "|---|---|---|---|"]
+        for name, target, measured, met in goals(rec):
+            lines.append(f"| {name} | {target} | {measured} | {'yes' if met else '**no**'} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_doc(doc: Path, folder: Path) -> None:
+    records = [json.loads(p.read_text()) for p in sorted(folder.glob("bench-*.json"))]
+    page = doc.read_text()
+    start, end = "<!-- rig-bench:start -->", "<!-- rig-bench:end -->"
+    i, j = page.index(start), page.index(end)
+    doc.write_text(page[:i] + start + "\n" + render(records) + page[j:])
+
+
 def main() -> int:
+    import platform
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=20, help="host-mode episodes per row (default 20)")
     ap.add_argument("--onboard-ticks", type=int, default=1_000_000, help="onboard ticks (default 1e6)")
+    ap.add_argument("--fresh", type=int, default=5,
+                    help="fresh targets for the first-episode row (default 5)")
     ap.add_argument("--max-gap-ms", type=float, default=1.0,
                     help="the target's --max-gap (default 1 ms, the target's own default)")
-    ap.add_argument("--loop-fifo", type=int, default=0, metavar="PRIO",
-                    help="the target's --loop-fifo (SCHED_FIFO for its loop; root; default 0: none)")
-    ap.add_argument("--quick", action="store_true", help="3 episodes a row, 2e5 onboard ticks")
+    ap.add_argument("--serve-args", default="", help="more rig serve options (named in the record)")
+    ap.add_argument("--label", default="defaults", help="the record's name (default 'defaults')")
+    ap.add_argument("--by-hand", nargs="*", default=[], metavar="SETTING",
+                    help="kernel settings made by hand for this run, e.g. kernel.sched_rt_runtime_us=-1")
+    ap.add_argument("--out", default=None, help="the JSON record (default docs/results/rig/bench-LABEL.json)")
+    ap.add_argument("--doc", default=None,
+                    help="rewrite the rig-bench block of this page (docs/rig/timing.md)")
+    ap.add_argument("--quick", action="store_true",
+                    help="3 episodes a row, 2e5 onboard ticks, 2 fresh targets")
     args = ap.parse_args()
     episodes = 3 if args.quick else args.episodes
     ticks = 200_000 if args.quick else args.onboard_ticks
+    fresh = 2 if args.quick else args.fresh
+    out_path = Path(args.out or ROOT / "docs" / "results" / "rig" / f"bench-{args.label}.json")
     cpus = sorted(os.sched_getaffinity(0))
-    print(f"# bench_rig: {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {len(cpus)} CPUs, "
-          f"load average at start {_load()}; the target's --max-gap {args.max_gap_ms:g} ms, --loop-fifo "
-          f"{args.loop_fifo}\n")
+    load_before = os.getloadavg()
+    serve = ["--scene", "rig", "--max-gap", str(args.max_gap_ms), *args.serve_args.split()]
+    kernel = kernel_settings()
+    print(f"# bench_rig: {len(cpus)} CPUs, load average at start {_load()}; rig serve {' '.join(serve)}; "
+          f"kernel: {kernel}; by hand: {args.by_hand or 'nothing'}\n")
+    rec: dict = {"script": "scripts/bench_rig.py", "label": args.label, "by_hand": args.by_hand,
+                 "command": " ".join(["python", "scripts/bench_rig.py", *sys.argv[1:]]),
+                 "json": str(out_path.relative_to(ROOT)) if out_path.is_relative_to(ROOT) else str(out_path),
+                 "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
+                 "cpu": platform.processor() or platform.machine(), "cores": len(cpus),
+                 "python": platform.python_version(), "kernel": kernel,
+                 "serve": serve, "loadavg_before": [round(x, 2) for x in load_before], "host": []}
     with tempfile.TemporaryDirectory() as tmp:
         log_dir = Path(tmp)
-        extra = ("--loop-fifo", str(args.loop_fifo)) if args.loop_fifo else ()
-        rt, addr = start_target("--scene", "rig", "--log-dir", str(log_dir), "--max-gap", str(args.max_gap_ms),
-                                *extra)
-        if len(cpus) >= 2:  # the target's loop spins on the last CPU: the host keeps off it
-            os.sched_setaffinity(0, set(cpus[:-1]))
-        hog = flood = None
+        rt, addr = start_target(*serve, "--log-dir", str(log_dir))
+        hog = None
         try:
-            print("## 1. Onboard, real time, pd-penetration, episodes of 1e5 ticks\n")
-            print("| ticks | lateness p50 us | p99 us | p99.9 us | max us | overruns per 1e5 ticks | "
-                  "longest skipped run (ticks) | runs of 1 ms or more | tick work p50 us | p99 us | ends | load |")
-            print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-            r = onboard(addr, log_dir, ticks, 100_000)
-            print(f"| {r['ticks']} | {r['p'][0]:.1f} | {r['p'][1]:.1f} | {r['p'][2]:.1f} | {r['max']:.0f} | "
-                  f"{r['overruns_per_1e5']:.0f} | {r['longest_skip']} | {r['long_gaps']} | {r['work'][0]:.2f} | "
-                  f"{r['work'][1]:.2f} | {r['ends']} | {_load()} |", flush=True)
-            head = ("| hold | extra load | commands sent | acted in their own step | observations not answered | "
-                    "lost | RigTimeouts | lateness p50/p99/p99.9 us | wall s per 0.4 s episode p50 (max) | ends "
-                    "| load |\n|---|---|---|---|---|---|---|---|---|---|---|")
+            print("## 1. Onboard, real time, pd-penetration, episodes of 0.4 s\n")
+            r = onboard(addr, log_dir, ticks, 4_000)
+            rec["onboard"] = {"ticks": r["ticks"], "p50_us": r["p"][0], "p99_us": r["p"][1],
+                              "p999_us": r["p"][2],
+                              "max_us": r["max"], "overruns_per_1e5": r["overruns_per_1e5"],
+                              "longest_skip": r["longest_skip"], "long_gaps": r["long_gaps"],
+                              "ends": r["ends"]}
+            print(json.dumps(rec["onboard"]), flush=True)
             print(f"\n## 2. Host mode, real time: ImpactCatchRig-v0, pd-penetration residual, {episodes} "
                   "episodes a row\n")
-            print(head)
-            for extra_load in (False, True):
-                if extra_load:
+            print("| hold | beside the loop | commands sent | acted in their own step | steps not answered | "
+                  "lost | RigTimeouts | lateness p50/p99/p99.9 us | ends | load |\n"
+                  "|---|---|---|---|---|---|---|---|---|---|")
+            loop_cpu = loop_cpu_of("127.0.0.1", int(addr.rsplit(":", 1)[1]))
+            for what in ("alone", "a CPU-bound process on the loop's CPU"):
+                if what != "alone":
                     hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-                    os.sched_setaffinity(hog.pid, {cpus[0]})
+                    os.sched_setaffinity(hog.pid, {cpus[-1] if loop_cpu is None else loop_cpu})
                 for hold in (4, 1):
-                    env = RigEnv(addr, hold_ticks=hold, residual="pd-penetration", terminate_on_catch=False,
-                                 timeout_s=0.1, retries=20)
+                    env = _env(addr, hold)
                     try:
                         h = host_realtime(env, log_dir, hold, episodes)
                     finally:
                         env.close()
-                    what = f"a CPU-bound process on CPU {cpus[0]}" if extra_load else "none"
-                    print(_row(hold, what, h), flush=True)
-            hog.kill()
-            hog.wait()
-            hog = None
-            print(f"\n## 3. The flood: hold 4, {episodes} episodes while a second process sends junk as fast as "
-                  "it can\n")
-            env = RigEnv(addr, hold_ticks=4, residual="pd-penetration", terminate_on_catch=False, timeout_s=0.1,
-                         retries=20)
-            try:
-                hello = _recorded_hello(env)
-                host, port = re.match(r"udp://([^:]+):(\d+)", addr).groups()
-                go = log_dir / "go"
-                flood = subprocess.Popen([sys.executable, "-c", FLOOD, host, port, hello.hex(), str(go),
-                                          str(10**9), str(1.0 * episodes)], stdout=subprocess.PIPE, text=True)
-                os.sched_setaffinity(flood.pid, {cpus[0]})
-                os.setpriority(os.PRIO_PROCESS, flood.pid, 19)
-                assert flood.stdout.readline().strip() == "ready"
-                go.touch()
-                time.sleep(0.2)
-                h = host_realtime(env, log_dir, 4, episodes, seed0=2000)
-                out, _ = flood.communicate(timeout=60)
-                flood = None
-                report = json.loads(out)
-            finally:
-                env.close()
-            print(head)
-            print(_row(4, "the flood", h), flush=True)
-            n_sent = sum(report["sent"].values())
-            print(f"\nflood: {n_sent} datagrams sent in {report['elapsed_s']:.1f} s ({report['sent']}; "
-                  f"{report['not_sent']} refused by its own socket), {report['replies']} replies to it "
-                  f"({report['reply_bytes']} B)")
+                    rec["host"].append(_host_row(what, hold, h))
+                    _print_host(rec["host"][-1])
+                if hog is not None:
+                    hog.kill()
+                    hog.wait()
+                    hog = None
+            row, report = _flood_row(addr, log_dir, episodes, cpus)
+            rec["host"].append(row)
+            _print_host(row)
+            rec["flood"] = report
         finally:
-            for p in (hog, flood):
-                if p is not None:
-                    p.kill()
-                    p.wait()
+            if hog is not None:
+                hog.kill()
+                hog.wait()
             stop(rt)
-        text = rt.stdout.read()
-        print("\n" + "\n".join(line for line in text.splitlines() if "since start" in line))
-        counts = _since_start(text)
-        if counts:
-            print(f"\ncommands in no episode's counters (the rows' 'lost'): {lost_total[0]}; the target's "
-                  f"commands_after_end (commands that came after their episode had ended, counted there): "
-                  f"{counts.get('commands_after_end', 0)}")
-            read = counts.get("datagrams_received", 0)
-            print(f"\nthe target's accounts since start: {read} datagrams read = "
-                  f"{counts.get('datagrams_accepted', 0)} accepted + "
-                  f"{sum(v for k, v in counts.items() if k.startswith('dropped_') and k != 'dropped_kernel')} "
-                  f"dropped by reason; {counts.get('dropped_kernel', 0)} dropped by the kernel (its socket's "
-                  f"buffer full)")
+        text, err = rt.stdout.read(), rt.stderr.read()
+        rec["applied"] = re.findall(r"impact-env rig: applied: (.*)", err)
+        rec["not_applied"] = re.findall(r"impact-env rig: not applied: (.*)", err)
+        rec["start_check"] = re.findall(r"impact-env rig: (this machine, .*)", err)
+        rec["since_start"] = _since_start(text)
+    print(f"\n## 3. First episodes: {fresh} fresh targets, one host-mode episode each at hold 4\n",
+          flush=True)
+    rec["first_episodes"] = first_episodes(fresh, serve)
+    print(json.dumps(rec["first_episodes"]))
+    rec["loadavg_after"] = [round(x, 2) for x in os.getloadavg()]
+    print("\n| goal | target | measured | met |\n|---|---|---|---|")
+    for name, target, measured, met in goals(rec):
+        print(f"| {name} | {target} | {measured} | {'yes' if met else 'no'} |")
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    out_path.write_text(json.dumps(rec, indent=1, default=float) + "\n")
+    print(f"\nrecord: {out_path}")
+    if args.doc:
+        write_doc(Path(args.doc), out_path.parent)
+        print(f"block rewritten: {args.doc}")
     return 0
 
 

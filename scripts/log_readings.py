@@ -4,7 +4,7 @@
 
 ``readings.f64``: little-endian float64, 4 per tick (accelerometer m/s^2, force N, potentiometer
 m, NaN for the body-1 sensor), tick 0 first: the input of ``impact_rt readings.f64 commands.f64``
-(docs/rig.md, "A real-time Linux loop").  A log with skipped ticks is refused (a replay needs
+(docs/rig/c-runtime.md, "A real-time Linux loop").  A log with skipped ticks is refused (a replay needs
 every tick's readings).
 """
 

@@ -2,7 +2,7 @@
 -ffp-contract=off, loaded with ctypes and driven tick by tick with readings recorded from the
 virtual rig beside the numba target's tick (impact_env.rig.controller, onboard): the double
 build bitwise equal for every classic law, the shipped agent and a SAC network (same libm as
-numba's), the float32 build within the bound of docs/rig.md, the closed loop with the virtual
+numba's), the float32 build within the bound of docs/rig/c-export.md, the closed loop with the virtual
 rig; the real-time example, the Cortex-M7 cross-build and the refusals."""
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ AGENT = f"compiled:{ROOT / 'agents/models/best/best.policy.json'}"
 TICKS = 2500  # 0.25 s at 10 kHz: the drop, the first contacts and the catch of most drops
 C_LAWS = [law.name for law in LW.REGISTRY if law.c_body is not None]  # every law that exports to C
 ACTING_C_LAWS = [name for name in C_LAWS if LW.BY_NAME[name].required()]  # ... and reads something
-# float32 build (docs/rig.md, "Deploying to real-time hardware"): on ticks where both builds
+# float32 build (docs/rig/c-export.md, "Deploying to real-time hardware"): on ticks where both builds
 # make the same discrete decisions (status bits and the contact detector), |command difference|
 # <= F32_BOUND of full scale; the ticks where they decide differently (an RMS clamp or a detector
 # threshold met one tick apart) at most F32_FLIP_FRACTION of all (impact_env.deploy.parity).

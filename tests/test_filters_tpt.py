@@ -87,7 +87,7 @@ def test_float32_departs_far_less_than_direct_form_on_the_rigs_band_pass():
     err_df = np.max(np.abs(tdf2_run(sos, x, np.float32) - ref))
     err_tpt = np.max(np.abs(tpt_run(sos, x, np.float32) - ref))
     # IEEE float32 arithmetic in numpy is exactly rounded, so both figures are the same on every
-    # machine; the factor 10 is far below the 40-100x seen on the rig's drops (docs/rig.md)
+    # machine; the factor 10 is far below the 40-100x seen on the rig's drops (docs/rig/c-export.md)
     assert err_tpt * 10 < err_df, (err_tpt, err_df)
     # and the SVF's error is of the order of float32's resolution of the signal, times a small gain
     assert err_tpt < 1e3 * np.finfo(np.float32).eps * np.max(np.abs(x)), err_tpt

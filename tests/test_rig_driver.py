@@ -81,7 +81,7 @@ def test_compare_rig_onboard_estimates_the_metrics_from_the_log():
     estimate and is finite; the passive drop's catch time agrees with the simulator's exact one.
     Bound: the estimate sees contacts through the 2 N detector threshold (touch late by
     d_th / v, d_th = 0.1 mm, v ~ 0.1 m/s at the last bounces: 1 ms) plus one sample per edge
-    (0.1 ms), and the catch is the end of the last flight: 2 ms covers both (docs/rig.md, 'Body
+    (0.1 ms), and the catch is the end of the last flight: 2 ms covers both (docs/rig/logs.md, 'Body
     1's energy from the log', measured 1 ms on the nominal drop)."""
     from impact_env.eval.compare import compare
     from impact_env.eval.rig_compare import rig_compare

@@ -48,6 +48,10 @@ def test_each_fresh_targets_first_episode_reaches_its_horizon(lockstep):
             if env is not None:
                 env.close()
             stop(proc)
-        out = proc.stdout.read()
+        out, err = proc.stdout.read(), proc.stderr.read()
         after = re.search(r"commands_after_end (\d+)", out)
         assert after is None or int(after.group(1)) <= 1, out  # at most the last step's, never step 0's
+        # what the target applied of its placement, and what not, is said at start (real time: with
+        # its cost, measured as the loop runs)
+        assert re.search(r"impact-env rig: (not )?applied: ", err), err[-2000:]
+        assert lockstep or "paced as the loop" in err, err[-2000:]

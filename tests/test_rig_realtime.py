@@ -221,7 +221,7 @@ def _own_step_share(wait_ms: float) -> tuple[int, int, dict]:
     step, commands sent, the episode's counters)."""
     proc, addr = start_target("--scene", "rig", *slow_rate_args(RATE_HZ), "--command-wait", str(wait_ms))
     # the target's loop spins on the last CPU (impact_env.rig.placement); a host on the same machine
-    # keeps off it (as docs/rig.md says: taskset), or the two share a core in scheduler slices of ms
+    # keeps off it (as docs/rig/loop.md says: taskset), or the two share a core in scheduler slices of ms
     before = os.sched_getaffinity(0)
     os.sched_setaffinity(0, set(sorted(before)[:-1]))
     env = RigEnv(addr, hold_ticks=1, horizon=STEPS / RATE_HZ, terminate_on_catch=False, timeout_s=0.5,

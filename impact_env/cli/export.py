@@ -18,15 +18,14 @@ def add_arguments(p) -> None:
     p.add_argument("--onnx", metavar="FILE.onnx", help="also write the network as ONNX (MLP policies only)")
     p.add_argument("--c", metavar="DIR", dest="c_dir",
                    help="also write impact_policy.c/.h: the target's whole tick (front end, policy, hold, "
-                        "residual, safety) as one dependency-free C99 file (docs/rig.md, 'Deploying to "
-                        "real-time hardware')")
+                        "residual, safety) as one dependency-free C99 file (docs/rig/c-export.md)")
     p.add_argument("--force", action="store_true", help="with --c: overwrite the files of an existing DIR")
     p.add_argument("--check", action="store_true",
                    help="with --c: build it with gcc (double and float32) and replay readings recorded "
                         "from the virtual rig through it beside the simulator's kernels; prints PASS or FAIL "
-                        "per build against docs/rig.md's bounds (double: bitwise; float32: 1e-4 of full "
-                        "scale where the decisions agree, at most 5 %% of ticks deciding differently); "
-                        "exit 1 on any FAIL")
+                        "per build against docs/rig/c-export.md's bounds (double: bitwise; float32: 1e-4 "
+                        "of full scale where the decisions agree, at most 5 %% of ticks deciding "
+                        "differently); exit 1 on any FAIL")
     p.set_defaults(func=cmd_export)
 
 
@@ -79,8 +78,8 @@ def cmd_export(args) -> int:
                     if not passed:
                         failed.append(f"{build} (seed {seed})")
             if failed:
-                print(f"  FAIL: {', '.join(failed)} outside the bounds docs/rig.md states ('How it is "
-                      "checked')", flush=True)
+                print(f"  FAIL: {', '.join(failed)} outside the bounds docs/rig/c-export.md states "
+                      "('How it is checked')", flush=True)
                 return 1
-            print("  PASS: both builds within the bounds docs/rig.md states ('How it is checked')")
+            print("  PASS: both builds within the bounds docs/rig/c-export.md states ('How it is checked')")
     return 0

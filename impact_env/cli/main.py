@@ -38,7 +38,7 @@ EPILOG = """examples:
 
 The first run compiles the numba kernels (a progress line on stderr; cached afterwards).
 Docs: README.md and docs/ in the source tree (baselines.md: compare, sweep and the policies;
-scenes.md: scenes and --set; env.md: the Gymnasium env; rig.md: the rig; plant.md: the model)."""
+scenes.md: scenes and --set; env.md: the Gymnasium env; rig/: the rig; plant.md: the model)."""
 
 
 #: every command: name -> (the function that adds its arguments, as "module:function", its one-line

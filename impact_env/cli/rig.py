@@ -1,5 +1,6 @@
-"""``impact-env rig serve | keygen | log | identify``: the real-time target, session keys, the summary
-of an episode log, and the identification plan run on a target."""
+"""``impact-env rig serve | check | keygen | log | identify``: the real-time target, this machine's
+fitness for it, session keys, the summary of an episode log, and the identification plan run on a
+target."""
 
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ def add_arguments(p) -> None:
     d.add_argument("--driver", metavar="LIB.so|MODULE:CLASS",
                    help="drive a rig through a C driver (a shared library exporting impact_driver_open, "
                         "impact_env/deploy/rt/impact_driver.h: what real time needs) or a Python RigDriver "
-                        "subclass (lock-step only); docs/rig.md 'Writing a driver for a DAQ card'")
+                        "subclass (lock-step only); docs/rig/drivers.md")
     s.add_argument("--driver-config", default="", metavar="STRING",
                    help="passed to the C driver's impact_driver_open (its syntax is the driver's; the replay "
                         "driver's: 'READINGS.f64;COMMANDS.f64')")
@@ -48,9 +49,13 @@ def add_arguments(p) -> None:
     s.add_argument("--loop-cpu", type=int, default=None, metavar="N",
                    help="the CPU the real-time loop is pinned to, the target's Python threads going to the "
                         "others (default: the last CPU, with two or more; -1: no pinning)")
-    s.add_argument("--loop-fifo", type=int, default=0, metavar="PRIO",
-                   help="run the loop's thread under SCHED_FIFO at this priority (1-99; needs root or "
-                        "CAP_SYS_NICE): no other thread preempts it; it then sleeps until 50 us before each tick")
+    s.add_argument("--loop-fifo", type=int, default=None, metavar="PRIO",
+                   help="the loop thread's SCHED_FIFO priority (1-99; needs root, CAP_SYS_NICE or an rtprio "
+                        "limit): no ordinary thread preempts it (default in real time: 50 where permitted, else "
+                        "the normal policy, said at start; 0: the normal policy)")
+    s.add_argument("--start-check", type=float, default=0.3, metavar="S",
+                   help="real time: measure the loop's pacing this long at start and say what it costs here "
+                        "(default 0.3 s; 0: no measurement; impact-env rig check measures at length)")
     s.add_argument("--loop-nice", type=int, default=0, metavar="N",
                    help="the loop thread's nice value, e.g. -10 (needs root or CAP_SYS_NICE; default 0)")
     s.add_argument("--max-horizon", type=float, default=60.0, metavar="S",
@@ -74,6 +79,27 @@ def add_arguments(p) -> None:
                         "target is told --scene: a rig that differs from its description, as a physical one "
                         "does (for trying identification and the mismatch map)")
     s.set_defaults(func=cmd_serve)
+    c = rsub.add_parser("check", help="measure this machine's fitness for the real-time loop (wake-up latency "
+                                      "as cyclictest does, the loop's own pacing, the kernel's settings) and say "
+                                      "which rates and holds it sustains and what would improve them")
+    c.add_argument("--seconds", type=float, default=6.0, metavar="S",
+                   help="how long to measure (default 6 s: a third cyclictest's wake-ups, the rest the loop's pacing)")
+    c.add_argument("--rate", type=float, default=10_000.0, metavar="HZ",
+                   help="the tick rate the pacing runs at (default 10000 Hz: the rig scene's)")
+    c.add_argument("--interval", type=float, default=1000.0, metavar="US",
+                   help="cyclictest's wake-up interval (default 1000 us, cyclictest's own)")
+    c.add_argument("--loop-cpu", type=int, default=None, metavar="N",
+                   help="the CPU to measure on (default: the one rig serve pins its loop to; -1: not pinned)")
+    c.add_argument("--loop-fifo", type=int, default=None, metavar="PRIO",
+                   help="the SCHED_FIFO priority to measure under (default: rig serve's, 50 where permitted; "
+                        "0: the normal policy)")
+    c.add_argument("--max-gap", type=float, default=1.0, metavar="MS",
+                   help="rig serve's --max-gap the verdict judges against (default 1 ms)")
+    c.add_argument("--host-round-trip", type=float, default=100.0, metavar="US",
+                   help="the host's round trip the host-mode verdict assumes (default 100 us: a host on the "
+                        "same machine or a direct link)")
+    c.add_argument("--json", action="store_true", help="print one JSON object")
+    c.set_defaults(func=cmd_check)
     i = rsub.add_parser("identify", help="run the identification plan on a target (quiet, shaker-only and "
                                          "identification-drop episodes), then calibrate its scene to the logs")
     i.add_argument("--rig", required=True, metavar="udp://HOST:PORT", help="the target (impact-env rig serve)")
@@ -104,6 +130,9 @@ def cmd_serve(args) -> int:
 
     if not args.session_timeout > 0:
         raise ConfigError(f"--session-timeout {args.session_timeout} s must be > 0 s")
+    if not 0 <= args.start_check <= 10:
+        raise ConfigError(f"--start-check {args.start_check:g} s is out of range: 0 to 10 s "
+                          "(impact-env rig check measures at length)")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port} is out of range: 0 to 65535")
     if args.log_dir and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
@@ -123,6 +152,9 @@ def cmd_serve(args) -> int:
     kind = "virtual rig" if driver.virtual else f"driver {type(driver).__name__}"
     print(f"impact-env rig: compiling the target's kernels for scene {scene.name!r} ...", file=sys.stderr,
           flush=True)
+    # SCHED_FIFO where permitted (None) serves real time; a lock-step loop has no deadline, so it
+    # keeps the normal policy unless asked
+    fifo = args.loop_fifo if args.loop_fifo is not None or not args.lockstep else 0
     try:
         target = Target(driver, f"udp://{args.host}:{args.port}",
                         TargetConfig(lockstep=args.lockstep, log_dir=Path(args.log_dir) if args.log_dir else None,
@@ -130,7 +162,7 @@ def cmd_serve(args) -> int:
                                      max_gap_s=args.max_gap / 1e3, max_horizon_s=args.max_horizon,
                                      command_wait_s=None if args.command_wait is None else args.command_wait / 1e3,
                                      loop_cpu=args.loop_cpu, loop_nice=args.loop_nice,
-                                     loop_fifo=args.loop_fifo))
+                                     loop_fifo=fifo))
     except ValueError as exc:
         driver.shutdown()
         option = any(name in str(exc) for name in ("command_wait_s", "loop_cpu", "loop_nice", "loop_fifo", "max_gap_s",
@@ -145,7 +177,7 @@ def cmd_serve(args) -> int:
     else:
         print("impact-env rig: no --key: answering loopback peers only (127.0.0.0/8, ::1); give --key FILE "
               "to serve a network", file=sys.stderr, flush=True)
-    print(f"impact-env rig: {target.placement.describe()}", file=sys.stderr, flush=True)
+    remove_note = _apply_placement(target, args, scene.control_rate)
     print(f"impact-env rig: listening on {target.address} ({kind}, scene {scene.name}, "
           f"{'lock-step' if args.lockstep else 'real time'} at {scene.control_rate:g} Hz)", flush=True)
     target.serve()
@@ -160,6 +192,7 @@ def cmd_serve(args) -> int:
               flush=True)
     except BrokenPipeError:  # whoever started us is gone; the shaker is at 0 N all the same
         pass
+    remove_note()
     if target.signalled:
         # stopped by SIGTERM or SIGINT: the shaker is at 0 N, the driver shut down, every log
         # closed and fsynced; the interpreter's teardown (numba's and h5py's modules, the
@@ -170,6 +203,112 @@ def cmd_serve(args) -> int:
             except (BrokenPipeError, ValueError):
                 pass
         os._exit(0)
+    return 0
+
+
+def _apply_placement(target, args, rate_hz: float):
+    """What the target applies of its placement (impact_env.rig.placement), printed with what it
+    could not apply and, in real time, what that costs here: a short measurement of the loop's
+    pacing as the loop will run (impact_env.rig.check).  Returns what removes the note that keeps a
+    host on this machine off the loop's CPU."""
+    from impact_env.rig.check import kernel_facts, measure, percentiles_us, verdict_for_rate
+    from impact_env.rig.placement import publish_loop_cpu
+    from impact_env.rig.transport import parse_address
+
+    pl = target.placement
+    say = lambda text: print(f"impact-env rig: {text}", file=sys.stderr, flush=True)  # noqa: E731
+    remove = lambda: None  # noqa: E731
+    if not args.lockstep:
+        pl.lock_memory()
+        if pl.pinned:
+            remove = publish_loop_cpu(parse_address(target.address)[1], int(pl.loop_cpu))
+            pl.applied.append(f"a host on this machine (ImpactCatchRig-v0, compare --rig) keeps off CPU "
+                              f"{pl.loop_cpu} while its session lasts")
+    say(pl.describe())
+    for line in pl.applied:
+        say(f"applied: {line}")
+    for line in pl.missing:
+        say(f"not applied: {line}")
+    if args.lockstep or not args.start_check > 0:
+        return remove
+    m = measure(args.start_check, rate_hz, pl)
+    facts = kernel_facts(probe=False)
+    v = verdict_for_rate(rate_hz, m.tick_late_ns, m.longest_gap_ns, args.max_gap / 1e3, 100.0,
+                         target.command_wait_s * rate_hz)
+    late = percentiles_us(m.tick_late_ns)
+    if v.sustained:
+        what = "sustained onboard" + (f"; host mode from hold {v.min_hold} for a host 100 us away"
+                                      if v.min_hold else "")
+    elif v.ends_overrun:
+        what = "NOT sustained (a stretch without a tick longer than --max-gap: episodes would end OVERRUN)"
+    else:
+        what = f"NOT sustained ({100 * v.overrun_share:.2f} % of ticks a period late)"
+    say(f"this machine, {args.start_check:g} s paced as the loop ({m.policy}, CPU {m.cpu}): tick lateness "
+        f"p99 "
+        f"{late['p99']:.1f} us, max {late['max']:.0f} us, longest stretch without a tick "
+        f"{m.longest_gap_ns / 1e3:.0f} us: {rate_hz:g} Hz {what}"
+        + ("" if v.sustained and not pl.missing and not facts.hypervisor else
+           "; impact-env rig check says what would improve it"))
+    return remove
+
+
+def cmd_check(args) -> int:
+    """``impact-env rig check``: see :mod:`impact_env.rig.check`."""
+    from impact_env.rig.check import kernel_facts, measure, percentiles_us, report, verdict
+    from impact_env.rig.placement import Placement
+
+    if not 0 < args.seconds <= 600:
+        raise ConfigError(f"--seconds {args.seconds:g} s is out of range: more than 0 and at most 600 s")
+    if not 1.0 <= args.rate <= 100_000.0:
+        raise ConfigError(f"--rate {args.rate:g} Hz is out of range: 1 to 100000 Hz")
+    if not 10.0 <= args.interval <= 1e6:
+        raise ConfigError(f"--interval {args.interval:g} us is out of range: 10 to 1000000 us")
+    if not 0 < args.max_gap <= 10_000:
+        raise ConfigError(f"--max-gap {args.max_gap:g} ms is out of range: more than 0 and at most 10000 ms")
+    if not 0 <= args.host_round_trip <= 1e6:
+        raise ConfigError(f"--host-round-trip {args.host_round_trip:g} us is out of range: 0 to 1000000 us")
+    try:
+        pl = Placement(args.loop_cpu, 0, args.loop_fifo)
+    except ValueError as exc:
+        raise ConfigError(str(exc).replace("loop_cpu =", "--loop-cpu").replace("loop_fifo =", "--loop-fifo"))\
+            from None
+    facts = kernel_facts()
+    if not args.json:
+        cpu = pl.loop_cpu if pl.pinned else "(not pinned)"
+        print(f"impact-env rig check: {args.seconds:g} s on CPU {cpu} "
+              f"under {'SCHED_FIFO ' + str(pl.loop_fifo) if pl.loop_fifo else 'SCHED_OTHER'}, as rig serve "
+              "runs its loop; no shaker is driven", flush=True)
+    m = measure(args.seconds, args.rate, pl, args.interval)
+    v = verdict(m, facts, args.max_gap / 1e3, args.host_round_trip)
+    out = report(m, facts, v)
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    f = facts
+    print(f"kernel {f.release}: preemption {f.preempt_model}; real-time throttling "
+          + (f"on ({f.rt_runtime_us} of {f.rt_period_us} us)" if f.throttled else "off")
+          + f"; autogroup {'on' if f.autogroup else 'off'}; isolated CPUs {f.isolated or 'none'}; nohz_full "
+          f"{f.nohz_full or 'none'}; clocksource {f.clocksource or '?'}"
+          + ("; a virtual machine (hypervisor flag)" if f.hypervisor else ""))
+    print(f"this process may: SCHED_FIFO {'yes (up to ' + str(f.fifo_max) + ')' if f.may_fifo else 'no'}, "
+          f"mlockall {'yes' if f.may_mlock else 'no'}")
+    w, t = percentiles_us(m.wakeup_ns), percentiles_us(m.tick_late_ns)
+    print(f"wake-up latency (cyclictest: clock_nanosleep every {args.interval:g} us, {m.wakeup_ns.size} "
+          "wake-ups): "
+          f"p50 {w['p50']:.1f} us, p99 {w['p99']:.1f} us, p99.9 {w['p99.9']:.1f} us, max {w['max']:.1f} us")
+    print(f"the loop's pacing ({args.rate:g} Hz, "
+          + ("spinning" if not m.sleep_margin_s else
+             f"sleeping to {m.sleep_margin_s * 1e6:g} us before each tick")
+          + f", {m.tick_late_ns.size} ticks): lateness p50 {t['p50']:.1f} us, p99 {t['p99']:.1f} us, p99.9 "
+          f"{t['p99.9']:.1f} us, max {t['max']:.1f} us; {int(m.tick_skipped.sum())} ticks skipped; longest "
+          f"stretch without a tick {m.longest_gap_ns / 1e3:.0f} us")
+    print("verdict:")
+    for line in v.lines:
+        print(f"  {line}")
+    if v.improve:
+        print("what would improve it (settings made by hand; name them beside any figure):")
+        for setting, why in v.improve:
+            print(f"  {setting}\n      {why}")
     return 0
 
 

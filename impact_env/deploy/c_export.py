@@ -222,7 +222,7 @@ class _Gen:
  *
  * Arithmetic: double by default (the reference: bitwise the simulator's numba kernels on the
  * same libm); define IMPACT_FLOAT32 for float (MCUs without a double FPU; within the bound of
- * docs/rig.md).  The RMS clamp's ledger stays in double in both builds (its sums are exact).
+ * docs/rig/c-export.md).  The RMS clamp's ledger stays in double in both builds (its sums are exact).
  */"""
 
     def header(self) -> str:
@@ -462,7 +462,7 @@ static const impact_real SOS[IMPACT_N_READINGS][N_SECTIONS][6] = {{
 #else
 /* float32: the same sections as trapezoidal state-variable filters (c1 c2 c3 m0 m1 m2;
  * impact_env.effects.filters.tpt_sections): the same transfer functions, but a high-pass section
- * near z = 1 in direct form amplifies float32 rounding about 100x more (docs/rig.md) */
+ * near z = 1 in direct form amplifies float32 rounding about 100x more (docs/rig/c-export.md) */
 static const impact_real TPT[IMPACT_N_READINGS][N_SECTIONS][6] = {{
 {tpt_txt}
 }};

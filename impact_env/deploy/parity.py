@@ -33,7 +33,7 @@ from impact_env.sim.metrics import EpisodeMetrics
 
 CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off")
 F32_EPS = float(np.finfo(np.float32).eps)
-# What docs/rig.md promises of a build ("Deploying to real-time hardware", "How it is checked"):
+# What docs/rig/c-export.md promises of a build ("Deploying to real-time hardware", "How it is checked"):
 # the double build bitwise the numba target's (every command, force and status word); the float32
 # build within F32_BOUND of full scale on the ticks where both builds take the same discrete
 # decisions (the same status bits and the same contact-detector bit, at the tick and at its policy
@@ -350,7 +350,7 @@ class ParityReport:
                 f"{self.status_differing} status words differ")
 
     def verdict(self, float32: bool) -> tuple[bool, str]:
-        """(passed, a line saying against which bound of docs/rig.md): the double build bitwise; the
+        """(passed, a line saying against which bound of docs/rig/c-export.md): the double build bitwise; the
         float32 build within :data:`F32_BOUND` of full scale where the decisions agree, and at most
         :data:`F32_FLIP_FRACTION` of the ticks deciding differently."""
         if not float32:

@@ -333,13 +333,16 @@ class Episode:
         max_gap = int(round(tg.cfg.max_gap_s * tg.rate))
         wait = tg.command_wait_s * 1e9 / nspc if self.host and not self.lockstep else 0.0
         tm = RL.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap, wait,
-                       tg.cfg.resend_s * 1e9 / nspc, tg.placement.sleep_margin_s * 1e9 / nspc)
+                       tg.cfg.resend_s * 1e9 / nspc, tg.placement.sleep_margin_for(self.horizon / tg.rate) * 1e9 / nspc)
         result: list = []
 
         def loop():
             tg.placement.loop_thread()
             w = self.wire
-            result.append(RL.run_episode(self.horizon, ctl.params, ctl.state, io, tm, self.acct, hl, w))
+            try:
+                result.append(RL.run_episode(self.horizon, ctl.params, ctl.state, io, tm, self.acct, hl, w))
+            finally:
+                tg.placement.loop_done()
 
         stream = tg.open_stream(self, hl.shared[RG.SH.rows:RG.SH.rows + 1])
         tg.running_link = hl

@@ -63,6 +63,7 @@ from impact_env.rig import safety as SF
 from impact_env.rig import wire as WR
 from impact_env.rig.auth import key_from
 from impact_env.rig.log import read_episode
+from impact_env.rig.placement import keep_off_loop_cpu
 from impact_env.rig.transport import Endpoint, Link, RigError, RigTimeout, fetch, parse_address, upload
 from impact_env.scene import scene_from_dict
 from impact_env.sim import records as R
@@ -134,6 +135,8 @@ class RigClient:
             raise
         self.episode = 0
         self.step = 0
+        # a target on this machine: this thread keeps off its loop's CPU while the session lasts
+        self._restore_cpus = keep_off_loop_cpu(host, port)
 
     def hello(self) -> P.Info:
         """HELLO -> CHALLENGE, RESPONSE -> INFO: opens the session (or confirms it: the same
@@ -357,6 +360,7 @@ class RigClient:
             except (RigTimeout, RigError, OSError):
                 pass
         self.endpoint.close()
+        getattr(self, "_restore_cpus", lambda: None)()
 
 
 class RigEnv(gym.Env):

@@ -1,7 +1,7 @@
 """The host's side of the wire in compiled code: a policy step's COMMAND sent and the next
 OBSERVATION awaited, read, authenticated and decoded in one call that releases the GIL
 (:func:`exchange`), so that a host in real time answers the target within the tick the target
-waits for it (``rig serve --command-wait``; docs/rig.md, "The timing contract").
+waits for it (``rig serve --command-wait``; docs/rig/timing.md).
 
 It is :mod:`impact_env.rig.wire`'s other half, on the same :class:`~impact_env.rig.wire.Wire`:
 an OBSERVATION from the target is classified as :class:`impact_env.rig.protocol.DatagramFilter`

@@ -120,7 +120,7 @@ class TargetConfig:
     # pinned) and its thread's nice value (0: unchanged): impact_env.rig.placement
     loop_cpu: int | None = None
     loop_nice: int = 0
-    loop_fifo: int = 0  # SCHED_FIFO priority of the loop's thread (0: none; placement.py)
+    loop_fifo: int | None = 0  # SCHED_FIFO priority of the loop's thread (0: none; None: where permitted)
 
     def __post_init__(self):
         if self.command_wait_s is not None:
@@ -148,7 +148,7 @@ class Target:
                              "by milliseconds under load). A Python RigDriver is for lock-step testing "
                              "(rig serve --lockstep). For real time write the driver in C against "
                              "impact_env/deploy/rt/impact_driver.h and load it with rig serve --driver "
-                             "LIB.so (docs/rig.md, 'Writing a driver for a DAQ card')")
+                             "LIB.so (docs/rig/drivers.md)")
         self.running_link = None  # the running compiled loop's rings (impact_env.rig.ring)
         self.scene = driver.scene
         self.rate = float(self.scene.control_rate)

@@ -14,7 +14,7 @@
  *
  * To drive a rig, replace replay_driver_open with a driver of your DAQ (impact_driver.h): e.g.
  * comedi_data_read/comedi_data_write on a comedi device, or the vendor's C API, converting
- * volts to SI with the calibration constants of the scene (docs/rig.md).
+ * volts to SI with the calibration constants of the scene (docs/rig/wiring.md).
  */
 #define _GNU_SOURCE
 #include <errno.h>
