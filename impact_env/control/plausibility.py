@@ -147,6 +147,10 @@ class PhysicsCheck(NamedTuple):
     per_tick: float  # N per tick: the residual's change the shaker's command does not explain
     drive_gain: float  # N of shaker force change per N of demand change (the largest)
     tail: float  # N: demand changes older than the remembered ones, through the shaker
+    force_gain: float  # the largest shaker force per N of the largest remembered demand
+    peak: float  # N: the amplifier's peak limit (effects.saturation.peak_n; the largest double: none)
+    rms2: float  # N^2: its RMS budget squared (< 0: none)
+    alpha: float  # its mean-square tracker's factor per tick
 
 
 class Counters(NamedTuple):
@@ -154,6 +158,8 @@ class Counters(NamedTuple):
     channel from S_GOOD, the tick of it from S_LAST, the previous raw reading from S_PREV, the
     exact repeats in a row from S_REPEAT) and the ring of force demands (S_DEMAND, N, slot
     tick % DEMAND_TICKS)."""
+
+    mean_square: float  # N^2: an upper bound of the amplifier's mean-square tracker (its budget)
 
     run: float  # faulty ticks in a row
     latch: float  # 1 once they outlasted the limit (SENSOR_TIMEOUT)
@@ -298,8 +304,17 @@ def physics_params(scene) -> np.ndarray:
         + _delay_ticks_max(scene, "actuator_delay", "actuator_s", "actuator_delay_s")
     drive_gain, tail, hp = _drive_response(scene, delays, demand_max)
     per_tick = k_term * x_step + c_hi * a_max * T + lower_unc * a_step + hp
-    if "saturation" in fx.active and fx.saturation.tau_s > 0.0:  # the thermal limit moves slowly
-        per_tick += max(fx.saturation.peak_n - fx.saturation.continuous_n, 0.0) * T / fx.saturation.tau_s
+    # the amplifier's RMS budget may cut the force within a tick once spent: the check keeps an
+    # upper bound of its mean-square tracker (note_demand) and allows the cut it could make
+    ph[PH.force_gain] = drive_gain
+    ph[PH.peak] = np.finfo(np.float64).max  # (no amplifier limit: finite, for the C text)
+    ph[PH.rms2] = -1.0
+    if "saturation" in fx.active:
+        sat = fx.saturation
+        ph[PH.peak] = float(sat.peak_n)
+        if sat.continuous_n > 0.0:
+            ph[PH.rms2] = sat.rms_limit_n ** 2
+            ph[PH.alpha] = -math.expm1(-1.0 / (scene.control_rate * sat.tau_s))
     if "shaker" in fx.active and fx.shaker.amplifier == "voltage" and fx.shaker.back_emf:
         per_tick += fx.shaker.force_factor ** 2 / fx.shaker.coil_resistance * a_max * T
     ph[PH.per_tick] = per_tick
@@ -366,6 +381,33 @@ def _consistent(ph, a, t, x, ag, tg, xg, allowed):
     return abs(r - r_good) <= allowed
 
 
+@jit(inline="always")
+def _largest_force(ph, s):
+    """An upper bound of the shaker's force now (N): the largest remembered demand through it,
+    at most the amplifier's peak."""
+    top = 0.0
+    for j in range(DEMAND_TICKS):
+        d = abs(s[S_DEMAND + j])
+        if d > top:
+            top = d
+    top = ph[PH.force_gain] * top
+    return top if top < ph[PH.peak] else ph[PH.peak]
+
+
+@jit(inline="always")
+def _budget_cut(ph, s):
+    """The most the amplifier's RMS budget can cut the force this tick (N): from the largest
+    force down to the lowest limit the budget can set (its tracker at most SC.mean_square)."""
+    if ph[PH.rms2] < 0.0:
+        return 0.0
+    ms = s[SC.mean_square]
+    room = ms + (ph[PH.rms2] - ms) / ph[PH.alpha]
+    if room < 0.0:
+        room = 0.0
+    cut = _largest_force(ph, s) - np.sqrt(room)
+    return cut if cut > 0.0 else 0.0
+
+
 @jit
 def check_physics(m, raw, p, s):
     """Checks 4 and 5 (module doc) of tick m's readings ``raw`` against the last plausible ones
@@ -393,8 +435,9 @@ def check_physics(m, raw, p, s):
             d = abs(s[S_DEMAND + j] - s[S_DEMAND + jp])
             if d > change:
                 change = d
+    cut = _budget_cut(ph, s)
     ticks = m - oldest
-    allowed = ticks * (ph[PH.drive_gain] * change + ph[PH.per_tick]) + ph[PH.tail] + ph[PH.tol_arm]
+    allowed = ticks * (ph[PH.drive_gain] * change + ph[PH.per_tick] + cut) + ph[PH.tail] + ph[PH.tol_arm]
     if _consistent(ph, a, t, x, ag, tg, xg, allowed):
         return 0
     # blame the one channel whose held reading makes the rest consistent
@@ -462,10 +505,15 @@ def check_readings(m, raw, p, s, out):
 
 
 @jit
-def note_demand(m, force, s):
+def note_demand(m, force, p, s):
     """Remember tick m's force demand (N, the safety layer's output, what the shaker is sent)
-    for the armature check of the ticks that follow."""
+    for the armature check of the ticks that follow, and update the bound of the amplifier's
+    mean-square tracker with the largest force it may apply."""
+    ph = p.phys
     s[S_DEMAND + m % DEMAND_TICKS] = force
+    if ph[PH.rms2] >= 0.0:
+        top = _largest_force(ph, s)
+        s[SC.mean_square] += ph[PH.alpha] * (top * top - s[SC.mean_square])
 
 
 def describe_channels(bits: int) -> list[str]:

@@ -281,6 +281,7 @@ typedef struct {{
      * the force demands of the last ticks (N, slot tick % IMPACT_PL_DEMAND_TICKS: the armature check) */
     double pl_prev[IMPACT_N_READINGS], pl_repeat[IMPACT_N_READINGS];
     double pl_demand[IMPACT_PL_DEMAND_TICKS];
+    double pl_mean_square;  /* N^2: an upper bound of the amplifier's mean-square tracker */
     /* front end: filter memory per section (double: transposed direct form II; float32: the
      * trapezoidal SVF's two integrators), detector, conditioned readings */
     impact_real filt[IMPACT_N_READINGS][{self.nsec}][2];
@@ -378,7 +379,9 @@ static const double PL_OFFSET[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.offset])};
 static const double PL_LIMIT_TICKS = {_r(self.plaus.limit_ticks)};
 /* the cross-channel checks: on, m2' (kg), m2 - m2' (kg), k2 (N/m), the sign check's allowance
  * (N), the armature check's noise allowance (N), its change per tick the drive does not
- * explain (N), the shaker's gain on a change of the demand, the older demands' tail (N) */
+ * explain (N), the shaker's gain on a change of the demand, the older demands' tail (N), the
+ * largest force per N of demand, the amplifier's peak (N), RMS budget squared (N^2, < 0: none)
+ * and mean-square tracker factor per tick */
 static const double PH_ON = {_r(ph[P.on])};
 static const double PH_TOP_MASS = {_r(ph[P.top_mass])};
 static const double PH_LOWER_MASS = {_r(ph[P.lower_mass])};
@@ -388,8 +391,45 @@ static const double PH_TOL_ARM = {_r(ph[P.tol_arm])};
 static const double PH_PER_TICK = {_r(ph[P.per_tick])};
 static const double PH_DRIVE_GAIN = {_r(ph[P.drive_gain])};
 static const double PH_TAIL = {_r(ph[P.tail])};
+static const double PH_FORCE_GAIN = {_r(ph[P.force_gain])};
+static const double PH_PEAK = {_r(ph[P.peak])};
+static const double PH_RMS2 = {_r(ph[P.rms2])};
+static const double PH_ALPHA = {_r(ph[P.alpha])};
 
 static double pl_true(int c, double x) {{ return (x - PL_OFFSET[c]) * PL_SCALE[c]; }}
+
+/* an upper bound of the shaker's force now (N): the largest remembered demand through it */
+static double pl_largest_force(const impact_state *s)
+{{
+    double top = 0.0;
+    for (int j = 0; j < IMPACT_PL_DEMAND_TICKS; j++) {{
+        double d = fabs(s->pl_demand[j]);
+        if (d > top) top = d;
+    }}
+    top = PH_FORCE_GAIN * top;
+    return top < PH_PEAK ? top : PH_PEAK;
+}}
+
+/* the most the amplifier's RMS budget can cut the force this tick (N) */
+static double pl_budget_cut(const impact_state *s)
+{{
+    if (PH_RMS2 < 0.0) return 0.0;
+    double ms = s->pl_mean_square;
+    double room = ms + (PH_RMS2 - ms) / PH_ALPHA;
+    if (room < 0.0) room = 0.0;
+    double cut = pl_largest_force(s) - sqrt(room);
+    return cut > 0.0 ? cut : 0.0;
+}}
+
+/* tick's force demand (N) remembered for the armature check; the budget's bound updated */
+static void pl_note(impact_state *s, double force)
+{{
+    s->pl_demand[s->tick % IMPACT_PL_DEMAND_TICKS] = force;
+    if (PH_RMS2 >= 0.0) {{
+        double top = pl_largest_force(s);
+        s->pl_mean_square += PH_ALPHA * (top * top - s->pl_mean_square);
+    }}
+}}
 
 /* the top part's Newton (m2' a2 + T, the contact force, is not negative) and the armature's
  * (its residual moved by no more than allowed since the held readings) */
@@ -422,8 +462,9 @@ static uint32_t pl_physics(const impact_state *s, const impact_real readings[IMP
         double d = fabs(s->pl_demand[j] - s->pl_demand[jp]);
         if (d > change) change = d;
     }}
+    double cut = pl_budget_cut(s);
     double ticks = (double)s->tick - oldest;
-    double allowed = ticks * (PH_DRIVE_GAIN * change + PH_PER_TICK) + PH_TAIL + PH_TOL_ARM;
+    double allowed = ticks * (PH_DRIVE_GAIN * change + PH_PER_TICK + cut) + PH_TAIL + PH_TOL_ARM;
     if (pl_consistent(a, t, x, ag, tg, xg, allowed)) return 0;
     int held_a = pl_consistent(ag, t, x, ag, tg, xg, allowed);
     int held_t = pl_consistent(a, tg, x, ag, tg, xg, allowed);
@@ -818,6 +859,7 @@ void impact_reset(impact_state *s)
     memset(s->pl_prev, 0, sizeof s->pl_prev);
     memset(s->pl_repeat, 0, sizeof s->pl_repeat);
     memset(s->pl_demand, 0, sizeof s->pl_demand);
+    s->pl_mean_square = 0.0;
 }}
 
 void impact_idle(impact_state *s, int64_t ticks)
@@ -847,7 +889,7 @@ uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READIN
     impact_real u = s->action;{add_res}
     uint32_t status;
     impact_real f = safety(s, u, checked[2], sensor, &status);
-    s->pl_demand[s->tick % IMPACT_PL_DEMAND_TICKS] = (double)f;  /* the armature check's drive */
+    pl_note(s, (double)f);  /* the armature check's drive */
     *command = (status & MODIFIED) ? f / COMMAND_SCALE_N : u;
     *force_n = f;
     s->tick++;

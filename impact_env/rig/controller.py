@@ -179,7 +179,7 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     if p.law.on:
         u = add_residual(u, 0, p.law, s.law)
     f, status = safety_step(u, age, ticks_armed, s.readings[POT], int(st[OWN.sensor]), p.safety, s.safety)
-    note_demand(m, f, s.plaus)  # the armature check's drive (impact_env.control.plausibility)
+    note_demand(m, f, p.plaus, s.plaus)  # the armature check's drive (impact_env.control.plausibility)
     out = f / p.scale if status & MODIFIED else u
     st[OWN.command] = out
     rows = s.log.rows
