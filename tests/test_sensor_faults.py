@@ -135,7 +135,7 @@ def test_the_audit_cases_drive_no_force(fault, rig):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name,drops", [("rig", 60), ("rig-randomized", 180)])
+@pytest.mark.parametrize("name,drops", [("rig", 120), ("rig-randomized", 100)])
 def test_no_false_alarm_on_clean_drops(name, drops):
     """Clean noisy drops (whole episodes, 0.4 s) of thesis-rig and pd-penetration: no tick flagged
     (scripts/fault_detection.py runs 10^4)."""
