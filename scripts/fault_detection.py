@@ -64,7 +64,7 @@ def unseen_drive(clean, faulty, fault: Fault, flag: int) -> float:
     end = min(fault.tick + span, flag if flag >= 0 else len(faulty.force), len(clean.force))
     if end <= fault.tick:
         return 0.0
-    return float(np.abs(faulty.force[fault.tick:end] - clean.force[fault.tick:end]).max())
+    return float(np.abs(faulty.force[fault.tick : end] - clean.force[fault.tick : end]).max())
 
 
 def false_alarms(scene_name: str, policies: list[str], drops: int, ticks: int) -> dict:
@@ -75,12 +75,25 @@ def false_alarms(scene_name: str, policies: list[str], drops: int, ticks: int) -
         d = runners[seed % len(runners)].run(seed)
         bad = np.flatnonzero(d.status & PL.SENSOR_BITS)
         if bad.size:
-            flagged.append({"seed": seed, "policy": policies[seed % len(runners)], "first_tick": int(bad[0]),
-                            "status": int(d.status[bad[0]])})
+            flagged.append(
+                {
+                    "seed": seed,
+                    "policy": policies[seed % len(runners)],
+                    "first_tick": int(bad[0]),
+                    "status": int(d.status[bad[0]]),
+                }
+            )
             flagged_ticks += int(bad.size)
-    return {"scene": scene_name, "policies": policies, "drops": drops, "ticks_per_drop": ticks,
-            "drops_flagged": len(flagged), "ticks_flagged": flagged_ticks, "flagged": flagged[:20],
-            "seconds": round(time.perf_counter() - t0, 1)}
+    return {
+        "scene": scene_name,
+        "policies": policies,
+        "drops": drops,
+        "ticks_per_drop": ticks,
+        "drops_flagged": len(flagged),
+        "ticks_flagged": flagged_ticks,
+        "flagged": flagged[:20],
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
 
 
 def detection(scene_name: str, policy: str, drops: int, ticks: int) -> list[dict]:
@@ -104,11 +117,19 @@ def detection(scene_name: str, policy: str, drops: int, ticks: int) -> list[dict
                     missed += 1
                 else:
                     delays.append(hit - tick)
-            rows.append({"channel": CHANNEL_NAMES[ch], "kind": kind, "size": size, "unit": UNITS[ch],
-                         "drops": drops, "detected": drops - missed,
-                         "delay_ticks_median": float(np.median(delays)) if delays else None,
-                         "delay_ticks_max": int(max(delays)) if delays else None,
-                         "unseen_drive_N_max": round(max(drive), 3)})
+            rows.append(
+                {
+                    "channel": CHANNEL_NAMES[ch],
+                    "kind": kind,
+                    "size": size,
+                    "unit": UNITS[ch],
+                    "drops": drops,
+                    "detected": drops - missed,
+                    "delay_ticks_median": float(np.median(delays)) if delays else None,
+                    "delay_ticks_max": int(max(delays)) if delays else None,
+                    "unseen_drive_N_max": round(max(drive), 3),
+                }
+            )
     return rows
 
 
@@ -120,74 +141,139 @@ def audit_cases(ticks: int) -> list[dict]:
     ph = PL.plausibility_params(scene).phys
     arm = ph[PL.PH.tol_arm] + ph[PL.PH.per_tick] + ph[PL.PH.tail]  # the steady drive's threshold, N
     a_thr = arm / ph[PL.PH.lower_mass]
-    cases = [("accelerometer spike +450 m/s^2", Fault(0, "spike", 5, 450.0)),
-             ("force transducer step +300 N", Fault(1, "step", 5, 300.0)),
-             ("accelerometer stuck at -0.0", Fault(0, "stuck_at", 5, -0.0)),
-             (f"accelerometer spike +{0.95 * a_thr:.1f} m/s^2 (0.95 x its threshold)",
-              Fault(0, "spike", 5, 0.95 * a_thr)),
-             (f"force transducer spike +{0.95 * arm:.1f} N (0.95 x its threshold)", Fault(1, "spike", 5, 0.95 * arm))]
+    cases = [
+        ("accelerometer spike +450 m/s^2", Fault(0, "spike", 5, 450.0)),
+        ("force transducer step +300 N", Fault(1, "step", 5, 300.0)),
+        ("accelerometer stuck at -0.0", Fault(0, "stuck_at", 5, -0.0)),
+        (
+            f"accelerometer spike +{0.95 * a_thr:.1f} m/s^2 (0.95 x its threshold)",
+            Fault(0, "spike", 5, 0.95 * a_thr),
+        ),
+        (
+            f"force transducer spike +{0.95 * arm:.1f} N (0.95 x its threshold)",
+            Fault(1, "spike", 5, 0.95 * arm),
+        ),
+    ]
     out = []
     for name, fault in cases:
         clean, d = run.run(0), run.run(0, fault)
         hit = first_flag(d.status, PL.SENSOR_FAULT, fault.tick)
         flagged = np.flatnonzero(d.status & PL.SENSOR_FAULT)
-        out.append({"case": name, "first_flag_tick": hit, "delay_ticks": hit - fault.tick if hit >= 0 else None,
-                    "timeout_tick": first_flag(d.status, PL.SENSOR_TIMEOUT),
-                    "force_N_on_flagged_ticks_max": float(np.abs(d.force[flagged]).max()) if flagged.size else None,
-                    "unseen_drive_N_max": unseen_drive(clean, d, fault, hit)})
+        out.append(
+            {
+                "case": name,
+                "first_flag_tick": hit,
+                "delay_ticks": hit - fault.tick if hit >= 0 else None,
+                "timeout_tick": first_flag(d.status, PL.SENSOR_TIMEOUT),
+                "force_N_on_flagged_ticks_max": float(np.abs(d.force[flagged]).max())
+                if flagged.size
+                else None,
+                "unseen_drive_N_max": unseen_drive(clean, d, fault, hit),
+            }
+        )
     return out
 
 
 def constants_table(scenes=("rig", "rig-randomized")) -> str:
     """What the check derives from each scene (impact_env.control.plausibility): computed, not
     measured."""
-    rows = [("`tol_sign`: m2' a2 + T may read this far below 0", "N", lambda p: p.phys[PL.PH.tol_sign]),
-            ("`tol_arm`: noise and rounding of the armature residual's change", "N",
-             lambda p: p.phys[PL.PH.tol_arm]),
-            ("`per_tick`: its change per tick the drive does not explain", "N", lambda p: p.phys[PL.PH.per_tick]),
-            ("`drive_gain`: per N of the demand's largest change in the last 16 ticks", "",
-             lambda p: p.phys[PL.PH.drive_gain]),
-            ("accelerometer threshold, steady drive: (tol_arm + per_tick) / (m2 - m2')", "m/s^2",
-             lambda p: (p.phys[PL.PH.tol_arm] + p.phys[PL.PH.per_tick] + p.phys[PL.PH.tail])
-             / p.phys[PL.PH.lower_mass]),
-            ("force transducer threshold, steady drive: tol_arm + per_tick", "N",
-             lambda p: p.phys[PL.PH.tol_arm] + p.phys[PL.PH.per_tick] + p.phys[PL.PH.tail]),
-            ("potentiometer threshold: its jump check's max_step + tol", "mm",
-             lambda p: 1e3 * (p.ch[2, PL.CC.max_jump] + p.ch[2, PL.CC.tol])),
-            ("stuck after this many exact repeats: accelerometer / force / potentiometer", "ticks",
-             lambda p: " / ".join(str(int(v)) for v in p.ch[:3, PL.CC.repeat]))]
+    rows = [
+        ("`tol_sign`: m2' a2 + T may read this far below 0", "N", lambda p: p.phys[PL.PH.tol_sign]),
+        (
+            "`tol_arm`: noise and rounding of the armature residual's change",
+            "N",
+            lambda p: p.phys[PL.PH.tol_arm],
+        ),
+        ("`per_tick`: its change per tick the drive does not explain", "N", lambda p: p.phys[PL.PH.per_tick]),
+        (
+            "`drive_gain`: per N of the demand's largest change in the last 16 ticks",
+            "",
+            lambda p: p.phys[PL.PH.drive_gain],
+        ),
+        (
+            "accelerometer threshold, steady drive: (tol_arm + per_tick) / (m2 - m2')",
+            "m/s^2",
+            lambda p: (
+                (p.phys[PL.PH.tol_arm] + p.phys[PL.PH.per_tick] + p.phys[PL.PH.tail])
+                / p.phys[PL.PH.lower_mass]
+            ),
+        ),
+        (
+            "force transducer threshold, steady drive: tol_arm + per_tick",
+            "N",
+            lambda p: p.phys[PL.PH.tol_arm] + p.phys[PL.PH.per_tick] + p.phys[PL.PH.tail],
+        ),
+        (
+            "potentiometer threshold: its jump check's max_step + tol",
+            "mm",
+            lambda p: 1e3 * (p.ch[2, PL.CC.max_jump] + p.ch[2, PL.CC.tol]),
+        ),
+        (
+            "stuck after this many exact repeats: accelerometer / force / potentiometer",
+            "ticks",
+            lambda p: " / ".join(str(int(v)) for v in p.ch[:3, PL.CC.repeat]),
+        ),
+    ]
     params = [PL.plausibility_params(load_scene(name)) for name in scenes]
-    lines = ["| derived | unit | " + " | ".join(f"`{n}`" for n in scenes) + " |",
-             "|---|---|" + "---:|" * len(scenes)]
+    lines = [
+        "| derived | unit | " + " | ".join(f"`{n}`" for n in scenes) + " |",
+        "|---|---|" + "---:|" * len(scenes),
+    ]
     for name, unit, f in rows:
         vals = [f(p) for p in params]
-        lines.append(f"| {name} | {unit} | " + " | ".join(v if isinstance(v, str) else f"{v:.3g}" for v in vals)
-                     + " |")
+        lines.append(
+            f"| {name} | {unit} | " + " | ".join(v if isinstance(v, str) else f"{v:.3g}" for v in vals) + " |"
+        )
     return "\n".join(lines)
 
 
 def table(rec: dict) -> str:
     fa = rec["false_alarms"]
-    lines = [constants_table(), "", "| scene | policies | drops | drops with a false alarm |", "|---|---|---:|---:|"]
+    lines = [
+        constants_table(),
+        "",
+        "| scene | policies | drops | drops with a false alarm |",
+        "|---|---|---:|---:|",
+    ]
     for r in fa:
         lines.append(f"| `{r['scene']}` | {', '.join(r['policies'])} | {r['drops']} | {r['drops_flagged']} |")
-    lines += ["", f"Detection on `{rec['detection_scene']}` under {rec['detection_policy']}, "
-              f"{rec['detection'][0]['drops']} drops per row, the fault at a random tick of the first 0.25 s:",
-              "", "| channel | fault | size | detected | delay, ticks (median / max) | unseen drive, N (max) |",
-              "|---|---|---:|---:|---:|---:|"]
+    lines += [
+        "",
+        f"Detection on `{rec['detection_scene']}` under {rec['detection_policy']}, "
+        f"{rec['detection'][0]['drops']} drops per row, the fault at a random tick of the first 0.25 s:",
+        "",
+        "| channel | fault | size | detected | delay, ticks (median / max) | unseen drive, N (max) |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
     for r in rec["detection"]:
-        size = f"{r['size']:g} {r['unit']}" if r["kind"] in ("spike", "step") else \
-            ("0 for 5 ticks" if r["kind"] == "dropout" else "")
-        delay = "-" if r["delay_ticks_median"] is None else f"{r['delay_ticks_median']:g} / {r['delay_ticks_max']}"
-        lines.append(f"| {r['channel']} | {r['kind']} | {size} | {r['detected']}/{r['drops']} | {delay} | "
-                     f"{r['unseen_drive_N_max']:g} |")
-    lines += ["", "The audit's cases on `rig` under thesis-rig, at tick 5 (before the touch):", "",
-              "| case | flagged after, ticks | SENSOR_TIMEOUT at tick | force on flagged ticks, N | "
-              "unseen drive, N |", "|---|---:|---:|---:|---:|"]
+        size = (
+            f"{r['size']:g} {r['unit']}"
+            if r["kind"] in ("spike", "step")
+            else ("0 for 5 ticks" if r["kind"] == "dropout" else "")
+        )
+        delay = (
+            "-"
+            if r["delay_ticks_median"] is None
+            else f"{r['delay_ticks_median']:g} / {r['delay_ticks_max']}"
+        )
+        lines.append(
+            f"| {r['channel']} | {r['kind']} | {size} | {r['detected']}/{r['drops']} | {delay} | "
+            f"{r['unseen_drive_N_max']:g} |"
+        )
+    lines += [
+        "",
+        "The audit's cases on `rig` under thesis-rig, at tick 5 (before the touch):",
+        "",
+        "| case | flagged after, ticks | SENSOR_TIMEOUT at tick | force on flagged ticks, N | "
+        "unseen drive, N |",
+        "|---|---:|---:|---:|---:|",
+    ]
     for r in rec["audit"]:
         timeout = "never" if r["timeout_tick"] < 0 else r["timeout_tick"]
         delay = "not flagged" if r["delay_ticks"] is None else r["delay_ticks"]
-        on_flagged = "-" if r["force_N_on_flagged_ticks_max"] is None else f"{r['force_N_on_flagged_ticks_max']:g}"
+        on_flagged = (
+            "-" if r["force_N_on_flagged_ticks_max"] is None else f"{r['force_N_on_flagged_ticks_max']:g}"
+        )
         lines.append(f"| {r['case']} | {delay} | {timeout} | {on_flagged} | {r['unseen_drive_N_max']:g} |")
     lines += ["", f"Command: `{rec['command']}`"]
     return "\n".join(lines)
@@ -196,7 +282,9 @@ def table(rec: dict) -> str:
 def write_table(rec: dict, doc: Path = DOC) -> None:
     text = doc.read_text()
     block = f"<!-- fault-detection:start -->\n{table(rec)}\n<!-- fault-detection:end -->"
-    new, n = re.subn(r"<!-- fault-detection:start -->.*?<!-- fault-detection:end -->", block, text, flags=re.S)
+    new, n = re.subn(
+        r"<!-- fault-detection:start -->.*?<!-- fault-detection:end -->", block, text, flags=re.S
+    )
     if n != 1:
         raise SystemExit(f"{doc}: no fault-detection block")
     doc.write_text(new)
@@ -216,18 +304,32 @@ def main(argv=None) -> int:
         write_table(json.loads(args.out.read_text()))
         return 0
     import numba
+
     policies = args.policies.split(",")
     t0 = time.perf_counter()
-    fa = [false_alarms(args.scene, policies, args.drops, args.ticks),
-          false_alarms("rig", policies, max(1, args.drops // 10), args.ticks)]
+    fa = [
+        false_alarms(args.scene, policies, args.drops, args.ticks),
+        false_alarms("rig", policies, max(1, args.drops // 10), args.ticks),
+    ]
     det = detection(args.scene, policies[0], args.fault_drops, args.ticks)
-    rec = {"false_alarms": fa, "detection_scene": args.scene, "detection_policy": policies[0], "detection": det,
-           "audit": audit_cases(args.ticks),
-           "command": "python scripts/fault_detection.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-           "versions": {"python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__},
-           "cpu": platform.processor() or platform.machine(),
-           "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-           "seconds": round(time.perf_counter() - t0, 1)}
+    rec = {
+        "false_alarms": fa,
+        "detection_scene": args.scene,
+        "detection_policy": policies[0],
+        "detection": det,
+        "audit": audit_cases(args.ticks),
+        "command": " ".join(
+            ["python scripts/fault_detection.py", *(argv if argv is not None else sys.argv[1:])]
+        ),
+        "versions": {
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "numba": numba.__version__,
+        },
+        "cpu": platform.processor() or platform.machine(),
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(rec, indent=1) + "\n")
     print(table(rec))
