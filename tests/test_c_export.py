@@ -112,16 +112,19 @@ def _sequences_agree(pol, scene, cp, episodes, idle) -> list[PA.Recording]:
 
 
 def _hot(readings: np.ndarray, start: int = 200) -> np.ndarray:
-    """Readings of repeated hard contacts: up to 400 N added to the force transducer's reading
-    for 80 of every 100 ticks from ``start``, rising and falling over 10 ticks (40 N a tick:
-    inside the converter's 500 N and the plausibility check's 125 N per tick, so these are
-    plausible readings).  The sensor-fed laws answer each with a saturated command, so the applied
+    """Readings of repeated hard contacts: a contact force of up to 300 N for 80 of every 100
+    ticks from ``start``, rising and falling over 10 ticks, added as the plant's equations have
+    it (body 2, 1 kg, accelerates by Phi / m2, the transducer under the 0.1 kg top part carries
+    0.9 Phi: the plausibility check's cross-channel checks see a consistent contact; 30 N and
+    30 m/s^2 a tick are inside its jump bounds, 300 m/s^2 inside the converter's 500).  The sensor-fed laws answer each with a saturated command, so the applied
     force's RMS reaches the continuous rating within a fraction of the window and the RMS clamp
     cuts from then on (a physical rig would never see this; the safety layer must still act the
     same in both builds)."""
     r = readings.copy()
     p = np.arange(start, len(r)) % 100
-    r[start:, 1] += 400.0 * np.clip(np.minimum(p, 80 - p) / 10.0, 0.0, 1.0)
+    phi = 300.0 * np.clip(np.minimum(p, 80 - p) / 10.0, 0.0, 1.0)
+    r[start:, 0] += phi / 1.0
+    r[start:, 1] += 0.9 * phi
     return r
 
 
@@ -142,7 +145,10 @@ def test_consecutive_episodes_wrap_the_rms_window_bitwise(spec, scene_name, tmp_
     pol = export_policy(spec, scene)
     cp = _build(pol, scene, tmp_path)
     recs = [PA.record(pol, scene, s, LONG_TICKS).readings for s in LONG_SEEDS[scene_name]]
-    episodes = [*recs, _hot(recs[0][:3000], start=100)]
+    # the hot one on a drop nobody acted on: a recorded drive's changes would be in its readings
+    # but not in the replayed law's demands, which the plausibility check's armature check compares
+    passive = PA.record(export_policy("passive", scene), scene, LONG_SEEDS[scene_name][0], 3000).readings
+    episodes = [*recs, _hot(passive, start=100)]
     idle = [1500, 700, 300][:len(episodes) - 1]  # shorter than the window: the heat carries over
     window = int(round(SF.SafetyConfig().rms_window_s * scene.control_rate))
     assert sum(len(e) for e in episodes) > window  # the ring wraps on the episodes' own ticks

@@ -55,8 +55,10 @@ def test_range_jump_hold_and_the_limit():
                             0.0])[0] == plausibility.SENSOR_FAULT | plausibility.SENSOR_POTENTIOMETER
     assert _check(p, s, 8, [1.0, 2.0, x, 0.0])[0] == 0  # a good tick ends the run of faults
     # limit faulty ticks in a row are allowed; the next one latches SENSOR_TIMEOUT, for good
+    # (the good channels' readings move by a few codes, as noisy ones do: a reading repeated
+    # exactly for many ticks is a stuck channel, tests/test_sensor_faults.py)
     for k in range(limit + 1):
-        bits, _ = _check(p, s, 10 + k, [np.nan, 2.0, x, 0.0])
+        bits, _ = _check(p, s, 10 + k, [np.nan, 2.0 + 0.05 * k, x + 1e-6 * k, 0.0])
         assert bool(bits & plausibility.SENSOR_TIMEOUT) == (k == limit), k
     bits, _ = _check(p, s, 30, [1.0, 2.0, x, 0.0])
     assert bits == plausibility.SENSOR_TIMEOUT

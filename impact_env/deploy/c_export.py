@@ -269,12 +269,19 @@ typedef double impact_real;
 #define IMPACT_STATUS_SENSOR_BODY1 0x{SF.SENSOR_BODY1:04x}u  /* ... readings[3] */
 #define IMPACT_STATUS_SENSOR_TIMEOUT 0x{SF.SENSOR_TIMEOUT:04x}u  /* latched: faults too long: 0 N, end it */
 
+#define IMPACT_PL_DEMAND_TICKS {PL.DEMAND_TICKS}  /* force demands the armature check remembers */
+
 typedef struct {{
     int64_t tick;                               /* ticks since the episode's release */
     /* the plausibility check: each channel's last plausible reading and its tick, the faulty
      * ticks in a row, the SENSOR_TIMEOUT latch, whether a reading was seen this episode */
     double pl_good[IMPACT_N_READINGS], pl_last[IMPACT_N_READINGS];
     double pl_run, pl_latch, pl_primed;
+    /* ... each channel's previous raw reading and its exact repeats in a row (the stuck check),
+     * the force demands of the last ticks (N, slot tick % IMPACT_PL_DEMAND_TICKS: the armature check) */
+    double pl_prev[IMPACT_N_READINGS], pl_repeat[IMPACT_N_READINGS];
+    double pl_demand[IMPACT_PL_DEMAND_TICKS];
+    double pl_mean_square;  /* N^2: an upper bound of the amplifier's mean-square tracker */
     /* front end: filter memory per section (double: transposed direct form II; float32: the
      * trapezoidal SVF's two integrators), detector, conditioned readings */
     impact_real filt[IMPACT_N_READINGS][{self.nsec}][2];
@@ -351,19 +358,122 @@ static const impact_real COMMAND_SCALE_N = {_r(self.scale)};"""
 
     def _plausibility(self) -> str:
         ch = self.plaus.ch
-        return f"""/* ---- sensor plausibility (impact_env.control.plausibility): every reading checked before
- * the filters; compared in double in both builds ---- */
+        ph = self.plaus.phys
+        P = PL.PH
+        return f"""/* ---- sensor plausibility (impact_env.control.plausibility; docs/rig/faults.md): every
+ * reading checked before the filters; compared in double in both builds ---- */
 
 /* per channel: checked (1) or disabled (0: read as 0.0), the converter's range (lo, hi), the
- * largest change per tick (max_step |gain|, 0: no jump check) and the noise allowance, from the
+ * largest change per tick (max_step |gain|, 0: no jump check), the noise allowance, the exact
+ * repeats that flag it stuck (0: no stuck check), 1 / gain and the declared offset, from the
  * scene's effects.sensors */
 static const double PL_ON[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.on])};
 static const double PL_LO[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.lo])};
 static const double PL_HI[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.hi])};
 static const double PL_STEP[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.max_jump])};
 static const double PL_TOL[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.tol])};
+static const double PL_REPEAT[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.repeat])};
+static const double PL_SCALE[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.scale])};
+static const double PL_OFFSET[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.offset])};
 /* faulty ticks in a row allowed (effects.sensors.fault_limit_s at the control rate) */
 static const double PL_LIMIT_TICKS = {_r(self.plaus.limit_ticks)};
+/* the cross-channel checks: on, m2' (kg), m2 - m2' (kg), k2 (N/m), the sign check's allowance
+ * (N), the armature check's noise allowance (N), its change per tick the drive does not
+ * explain (N), the shaker's gain on a change of the demand, the older demands' tail (N), the
+ * largest force per N of demand, the amplifier's peak (N), RMS budget squared (N^2, < 0: none)
+ * and mean-square tracker factor per tick */
+static const double PH_ON = {_r(ph[P.on])};
+static const double PH_TOP_MASS = {_r(ph[P.top_mass])};
+static const double PH_LOWER_MASS = {_r(ph[P.lower_mass])};
+static const double PH_K2 = {_r(ph[P.k2])};
+static const double PH_TOL_SIGN = {_r(ph[P.tol_sign])};
+static const double PH_TOL_ARM = {_r(ph[P.tol_arm])};
+static const double PH_PER_TICK = {_r(ph[P.per_tick])};
+static const double PH_DRIVE_GAIN = {_r(ph[P.drive_gain])};
+static const double PH_TAIL = {_r(ph[P.tail])};
+static const double PH_FORCE_GAIN = {_r(ph[P.force_gain])};
+static const double PH_PEAK = {_r(ph[P.peak])};
+static const double PH_RMS2 = {_r(ph[P.rms2])};
+static const double PH_ALPHA = {_r(ph[P.alpha])};
+
+static double pl_true(int c, double x) {{ return (x - PL_OFFSET[c]) * PL_SCALE[c]; }}
+
+/* an upper bound of the shaker's force now (N): the largest remembered demand through it */
+static double pl_largest_force(const impact_state *s)
+{{
+    double top = 0.0;
+    for (int j = 0; j < IMPACT_PL_DEMAND_TICKS; j++) {{
+        double d = fabs(s->pl_demand[j]);
+        if (d > top) top = d;
+    }}
+    top = PH_FORCE_GAIN * top;
+    return top < PH_PEAK ? top : PH_PEAK;
+}}
+
+/* the most the amplifier's RMS budget can cut the force this tick (N) */
+static double pl_budget_cut(const impact_state *s)
+{{
+    if (PH_RMS2 < 0.0) return 0.0;
+    double ms = s->pl_mean_square;
+    double room = ms + (PH_RMS2 - ms) / PH_ALPHA;
+    if (room < 0.0) room = 0.0;
+    double cut = pl_largest_force(s) - sqrt(room);
+    return cut > 0.0 ? cut : 0.0;
+}}
+
+/* tick's force demand (N) remembered for the armature check; the budget's bound updated */
+static void pl_note(impact_state *s, double force)
+{{
+    s->pl_demand[s->tick % IMPACT_PL_DEMAND_TICKS] = force;
+    if (PH_RMS2 >= 0.0) {{
+        double top = pl_largest_force(s);
+        s->pl_mean_square += PH_ALPHA * (top * top - s->pl_mean_square);
+    }}
+}}
+
+/* the top part's Newton (m2' a2 + T, the contact force, is not negative) and the armature's
+ * (its residual moved by no more than allowed since the held readings) */
+static int pl_consistent(double a, double t, double x, double ag, double tg, double xg, double allowed)
+{{
+    if (PH_TOP_MASS * a + t < -PH_TOL_SIGN) return 0;
+    double r = PH_LOWER_MASS * a - t + PH_K2 * x;
+    double r_good = PH_LOWER_MASS * ag - tg + PH_K2 * xg;
+    return fabs(r - r_good) <= allowed;
+}}
+
+/* the channel bits the cross-channel checks blame (0: consistent) */
+static uint32_t pl_physics(const impact_state *s, const impact_real readings[IMPACT_N_READINGS])
+{{
+    double a = pl_true(0, (double)readings[0]), t = pl_true(1, (double)readings[1]);
+    double ag = pl_true(0, s->pl_good[0]), tg = pl_true(1, s->pl_good[1]);
+    double oldest = fmin(s->pl_last[0], s->pl_last[1]);
+    double x = 0.0, xg = 0.0;
+    int pot = PL_ON[2] != 0.0;
+    if (pot) {{
+        x = pl_true(2, (double)readings[2]);
+        xg = pl_true(2, s->pl_good[2]);
+        oldest = fmin(oldest, s->pl_last[2]);
+    }}
+    double change = 0.0;
+    int head = (int)(s->tick % IMPACT_PL_DEMAND_TICKS);
+    for (int j = 0; j < IMPACT_PL_DEMAND_TICKS; j++) {{
+        if (j == head) continue;  /* the oldest demand: no predecessor remembered */
+        int jp = j > 0 ? j - 1 : IMPACT_PL_DEMAND_TICKS - 1;
+        double d = fabs(s->pl_demand[j] - s->pl_demand[jp]);
+        if (d > change) change = d;
+    }}
+    double cut = pl_budget_cut(s);
+    double ticks = (double)s->tick - oldest;
+    double allowed = ticks * (PH_DRIVE_GAIN * change + PH_PER_TICK + cut) + PH_TAIL + PH_TOL_ARM;
+    if (pl_consistent(a, t, x, ag, tg, xg, allowed)) return 0;
+    int held_a = pl_consistent(ag, t, x, ag, tg, xg, allowed);
+    int held_t = pl_consistent(a, tg, x, ag, tg, xg, allowed);
+    int held_x = pot && pl_consistent(a, t, xg, ag, tg, xg, allowed);
+    if (held_a && !held_t && !held_x) return IMPACT_STATUS_SENSOR_ACCELEROMETER;
+    if (held_t && !held_a && !held_x) return IMPACT_STATUS_SENSOR_FORCE;
+    if (held_x && !held_a && !held_t) return IMPACT_STATUS_SENSOR_POTENTIOMETER;
+    return IMPACT_STATUS_SENSOR_ACCELEROMETER | IMPACT_STATUS_SENSOR_FORCE;
+}}
 
 /* the readings the front end may use (a bad one: the channel's last plausible one); the status bits */
 static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_READINGS],
@@ -372,23 +482,29 @@ static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_R
     uint32_t bits = 0;
     int primed = s->pl_primed != 0.0;
     for (int c = 0; c < IMPACT_N_READINGS; c++) {{
-        if (PL_ON[c] == 0.0) {{
-            checked[c] = 0.0;
-            continue;
-        }}
+        if (PL_ON[c] == 0.0) continue;
         double x = (double)readings[c];
         int ok = PL_LO[c] <= x && x <= PL_HI[c];  /* false for NaN */
         if (ok && primed && PL_STEP[c] > 0.0) {{
             double allowed = PL_STEP[c] * ((double)s->tick - s->pl_last[c]) + PL_TOL[c];
             ok = fabs(x - s->pl_good[c]) <= allowed;
         }}
-        if (ok) {{
-            s->pl_good[c] = x;
+        if (primed && x == s->pl_prev[c]) s->pl_repeat[c] += 1.0;
+        else s->pl_repeat[c] = 0.0;
+        s->pl_prev[c] = x;
+        if (ok && PL_REPEAT[c] > 0.0 && s->pl_repeat[c] >= PL_REPEAT[c]) ok = 0;  /* stuck */
+        if (!ok) bits |= (uint32_t)1u << (9 + c);
+    }}
+    if (bits == 0 && primed && PH_ON != 0.0) bits = pl_physics(s, readings);
+    for (int c = 0; c < IMPACT_N_READINGS; c++) {{
+        if (PL_ON[c] == 0.0) {{
+            checked[c] = 0.0;
+        }} else if (bits & ((uint32_t)1u << (9 + c))) {{
+            checked[c] = (impact_real)s->pl_good[c];
+        }} else {{
+            s->pl_good[c] = (double)readings[c];
             s->pl_last[c] = (double)s->tick;
             checked[c] = readings[c];
-        }} else {{
-            bits |= (uint32_t)1u << (9 + c);
-            checked[c] = (impact_real)s->pl_good[c];
         }}
     }}
     s->pl_primed = 1.0;
@@ -740,6 +856,10 @@ void impact_reset(impact_state *s)
     memset(s->pl_good, 0, sizeof s->pl_good);
     memset(s->pl_last, 0, sizeof s->pl_last);
     s->pl_run = s->pl_latch = s->pl_primed = 0.0;
+    memset(s->pl_prev, 0, sizeof s->pl_prev);
+    memset(s->pl_repeat, 0, sizeof s->pl_repeat);
+    memset(s->pl_demand, 0, sizeof s->pl_demand);
+    s->pl_mean_square = 0.0;
 }}
 
 void impact_idle(impact_state *s, int64_t ticks)
@@ -769,6 +889,7 @@ uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READIN
     impact_real u = s->action;{add_res}
     uint32_t status;
     impact_real f = safety(s, u, checked[2], sensor, &status);
+    pl_note(s, (double)f);  /* the armature check's drive */
     *command = (status & MODIFIED) ? f / COMMAND_SCALE_N : u;
     *force_n = f;
     s->tick++;

@@ -45,6 +45,7 @@ from impact_env.control.plausibility import (  # issue 25: the sensor plausibili
     PlausibilityParams,
     check_readings,
     make_state,
+    note_demand,
     plausibility_params,
     reset_state,
 )
@@ -178,6 +179,7 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     if p.law.on:
         u = add_residual(u, 0, p.law, s.law)
     f, status = safety_step(u, age, ticks_armed, s.readings[POT], int(st[OWN.sensor]), p.safety, s.safety)
+    note_demand(m, f, p.plaus, s.plaus)  # the armature check's drive (impact_env.control.plausibility)
     out = f / p.scale if status & MODIFIED else u
     st[OWN.command] = out
     rows = s.log.rows

@@ -1,0 +1,171 @@
+"""Faults found from physics (impact_env.control.plausibility's stuck and cross-channel checks;
+docs/rig/faults.md): each fault kind on each channel injected into a closed-loop drop of the
+rig target's compiled tick on the virtual rig (impact_env.eval.sensor_faults), detected after
+the derived delay, blamed on its channel, 0 N on every flagged tick, and the exported C tick
+doing the same bit for bit on the same readings; the audit's three cases before the touch; and
+no false alarm on clean noisy drops of ``rig`` and ``rig-randomized``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from impact_env.control import plausibility as PL
+from impact_env.deploy import parity
+from impact_env.deploy.c_export import write_c
+from impact_env.eval.sensor_faults import DropRunner, Fault, first_flag
+from impact_env.policy.export import export_policy
+from impact_env.scene import load_scene
+
+TICKS = 400
+SEED = 0
+PRE_TOUCH = 3  # the drop's contact starts at tick 11: the drive is 0 N until then
+CATCH = 30  # the drive has held -200 N for the 16 ticks the armature check remembers
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """thesis-rig (the audit's law) on rig: the drop runner, its clean drop, the check's
+    parameters and the C double build."""
+    scene = load_scene("rig")
+    pol = export_policy("thesis-rig", scene)
+    run = DropRunner(pol, scene, TICKS)
+    d = tmp_path_factory.mktemp("faults") / "c"
+    write_c(pol, scene, d)
+    cp = parity.CPolicy(parity.build_shared(d, d / "lib.so"))
+    return run, run.run(SEED), run.ctl.params.plaus, cp
+
+
+def _thresholds(p) -> np.ndarray:
+    """The smallest change of each channel's reading a tick flags while the drive is steady:
+    the armature check's allowance over the channel's weight in its residual (accelerometer,
+    force transducer), the jump check's allowance (potentiometer)."""
+    ph = p.phys
+    arm = ph[PL.PH.tol_arm] + ph[PL.PH.per_tick] + ph[PL.PH.tail]
+    pot = p.ch[2, PL.CC.max_jump] + p.ch[2, PL.CC.tol]
+    return np.array([arm / ph[PL.PH.lower_mass], arm, pot])
+
+
+def _bits_equal(a, b) -> bool:
+    return a.shape == b.shape and np.array_equal(np.asarray(a, np.float64).view(np.uint64),
+                                                 np.asarray(b, np.float64).view(np.uint64))
+
+
+def test_the_clean_drop_is_what_the_test_assumes(rig):
+    run, clean, p, _cp = rig
+    assert not np.any(clean.status & PL.SENSOR_BITS)
+    assert np.all(clean.force[:PRE_TOUCH + 8] == 0.0)  # before the touch
+    assert np.all(clean.force[CATCH - 17:CATCH + 6] == clean.force[CATCH - 1]) and clean.force[CATCH] != 0.0
+    # stuck from tick 1: flagged at the limit, still before the touch
+    assert p.ch[:3, PL.CC.repeat].max() <= 10
+
+
+SIZES = {"spike": (100.0, 50.0, 1e-3), "step": (50.0, 20.0, 1e-3)}
+
+
+@pytest.mark.parametrize("kind", ["spike", "step", "stuck", "dropout"])
+@pytest.mark.parametrize("ch", [0, 1, 2])
+def test_each_fault_on_each_channel(ch, kind, rig):
+    """The fault happened (the readings differ from the clean drop's), was flagged with its
+    channel's bit after the derived delay (0 ticks for a spike, a step and a dropout larger
+    than the channel's threshold; ``repeat - 1`` for a stuck reading, which the check can only
+    tell from noise by its length), every flagged tick drove 0 N, and the C tick replaying the
+    same readings gives the same forces and status words, bit for bit."""
+    run, clean, p, cp = rig
+    if kind == "stuck":
+        fault, delay = Fault(ch, "stuck", 1), int(p.ch[ch, PL.CC.repeat]) - 1
+    elif kind == "dropout":  # where the reading is far from 0 (a dropout at 0 is no fault)
+        far = np.flatnonzero(np.abs(clean.readings[:, ch]) > 1.5 * _thresholds(p)[ch])
+        tick = CATCH if ch != 2 else int(far[0])
+        fault, delay = Fault(ch, "dropout", tick, length=5), 0
+    else:
+        fault, delay = Fault(ch, kind, PRE_TOUCH, SIZES[kind][ch]), 0
+    d = run.run(SEED, fault)
+    k = fault.tick
+    changed = np.flatnonzero(d.readings[:, ch] != clean.readings[:, ch])
+    assert changed.size and changed[0] >= k  # the fault happened, from its tick on
+    if kind == "dropout":
+        assert abs(clean.readings[k, ch]) > _thresholds(p)[ch]
+    hit = first_flag(d.status, PL.SENSOR_FAULT)
+    assert hit == k + delay, (hit, k, delay, hex(int(d.status[hit])) if hit >= 0 else None)
+    assert d.status[hit] & PL.CHANNEL_BITS[ch], hex(int(d.status[hit]))
+    flagged = np.flatnonzero(d.status & PL.SENSOR_FAULT)
+    assert np.all(d.force[flagged] == 0.0)
+    assert np.all(d.force[np.flatnonzero(d.status & PL.SENSOR_TIMEOUT)] == 0.0)
+    if kind in ("spike", "dropout"):  # no later ticks flagged on this channel
+        assert np.all(flagged < k + fault.length + 2) or ch == 2
+    got = parity.c_sequence(cp, [d.readings], [])[0]
+    assert _bits_equal(got.force, d.force) and np.array_equal(got.status, d.status)
+
+
+@pytest.mark.parametrize("ch", [0, 1])
+def test_a_spike_below_the_threshold_passes_and_one_above_is_flagged(ch, rig):
+    """The threshold the docs state (the steady drive's allowance), before the touch, from both
+    sides (the noise moves the residual by a few tenths of it): half of it passes, one and a half
+    is flagged on its tick."""
+    run, clean, p, _cp = rig
+    thr = _thresholds(p)[ch]
+    low = run.run(SEED, Fault(ch, "spike", PRE_TOUCH, 0.5 * thr))
+    high = run.run(SEED, Fault(ch, "spike", PRE_TOUCH, 1.5 * thr))
+    assert not np.any(low.status[:PRE_TOUCH + 1] & PL.SENSOR_BITS)
+    assert first_flag(high.status, PL.SENSOR_FAULT) == PRE_TOUCH
+
+
+@pytest.mark.parametrize("fault", [Fault(0, "spike", 5, 450.0), Fault(1, "step", 5, 300.0),
+                                   Fault(0, "stuck_at", 5, -0.0)], ids=["a2+450", "T+300", "a2=-0"])
+def test_the_audit_cases_drive_no_force(fault, rig):
+    """The audit's cases under thesis-rig before the touch: a +450 m/s^2 accelerometer sample
+    (below its jump bound) and a +300 N transducer step are flagged on their tick, the step
+    for good (SENSOR_TIMEOUT after the limit); an accelerometer stuck at -0.0 after the stuck
+    limit, then for good; no flagged tick drives a force; the C tick does the same."""
+    run, clean, p, cp = rig
+    d = run.run(SEED, fault)
+    hit = first_flag(d.status, PL.SENSOR_FAULT)
+    delay = int(p.ch[0, PL.CC.repeat]) if fault.kind == "stuck_at" else 0  # (tick 5 differs from tick 4)
+    assert hit == fault.tick + delay
+    assert np.all(d.force[np.flatnonzero(d.status & PL.SENSOR_FAULT)] == 0.0)
+    if fault.kind != "spike":
+        timeout = first_flag(d.status, PL.SENSOR_TIMEOUT)
+        assert timeout == hit + int(p.limit_ticks)
+        assert np.all(d.force[timeout:] == 0.0) and np.any(clean.force[timeout:] != 0.0)
+    else:
+        assert np.flatnonzero(d.status & PL.SENSOR_FAULT).tolist() == [fault.tick]
+    got = parity.c_sequence(cp, [d.readings], [])[0]
+    assert _bits_equal(got.force, d.force) and np.array_equal(got.status, d.status)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name,drops", [("rig", 120), ("rig-randomized", 100)])
+def test_no_false_alarm_on_clean_drops(name, drops):
+    """Clean noisy drops (whole episodes, 0.4 s) of thesis-rig and pd-penetration: no tick flagged
+    (scripts/fault_detection.py runs 10^4)."""
+    scene = load_scene(name)
+    runners = [DropRunner(export_policy(s, scene), scene, 4000) for s in ("thesis-rig", "pd-penetration")]
+    flagged = []
+    for seed in range(drops):
+        d = runners[seed % 2].run(1000 + seed)
+        if np.any(d.status & PL.SENSOR_BITS):
+            flagged.append((seed, first_flag(d.status, PL.SENSOR_BITS)))
+    assert flagged == []
+
+
+def test_the_runner_is_the_virtual_rig():
+    """The compiled drop runner is the virtual rig's per-tick loop (parity.record), bit for bit."""
+    scene = load_scene("rig-randomized")
+    pol = export_policy("pd-penetration", scene)
+    d = DropRunner(pol, scene, 300).run(7)
+    rec = parity.record(pol, scene, 7, 300)
+    assert _bits_equal(d.readings, rec.readings) and _bits_equal(d.force, rec.force)
+    assert np.array_equal(d.status, rec.status)
+
+
+def test_stuck_limits_follow_from_the_noise():
+    """The repeat limit: the smallest n with (q / (sqrt(2 pi) sigma))^n below the 8-sigma tail,
+    sigma at the scene's smallest noise scale, plus the sensor delay line's start."""
+    p = PL.plausibility_params(load_scene("rig"))
+    q = 1000.0 / 2**16  # the accelerometer's and the transducer's converter step
+    assert PL.repeat_limit(q, 0.5) == p.ch[0, PL.CC.repeat] == 8  # (0.0122^8 = 5e-16)
+    assert PL.repeat_limit(q, 0.2) == p.ch[1, PL.CC.repeat] == 10
+    assert PL.repeat_limit(q, 0.0) == 0 and PL.repeat_limit(0.0, 0.5) == 1
+    r = PL.plausibility_params(load_scene("rig-randomized"))  # noise x0.5, 2 ticks of sensor delay
+    assert r.ch[0, PL.CC.repeat] == PL.repeat_limit(q, 0.25) + 2
