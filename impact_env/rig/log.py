@@ -29,7 +29,7 @@ dataset                 dtype     unit     meaning
 ``status``              uint32             status bits (:mod:`impact_env.rig.safety`)
 ``step``                int64              policy step (tick // hold_ticks)
 ``contact_detected``    uint8              the front end's contact detector (0/1)
-``lateness_ns``         int64     ns       tick start minus its deadline (:mod:`impact_env.rig.clock`)
+``lateness_ns``         int64     ns       tick start minus its deadline (:mod:`impact_env.rig.rtloop`)
 ``compute_ns``          int64     ns       time the tick's work took
 ``command_step``        int64              host mode: the policy step of the command that acted (-1:
                                            none; onboard: the row's own step)

@@ -16,8 +16,10 @@ The driver is one of two kinds, chosen by the type of ``io`` (numba compiles one
 
 * :class:`VirtualIO`: the virtual rig's hardware stage, compiled into the loop (its truth columns
   and true records too);
-* :class:`CIO`: a C driver's ``read``/``apply`` called through their addresses
-  (:mod:`impact_env.rig.cdriver`, ``impact_env/deploy/rt/impact_driver.h``).
+* :class:`CIO`: a driver's ``read``/``apply`` called through their addresses: a C driver's
+  (:mod:`impact_env.rig.cdriver`, ``impact_env/deploy/rt/impact_driver.h``), or a Python
+  :class:`~impact_env.rig.driver.RigDriver`'s through ctypes callbacks
+  (:class:`impact_env.rig.cdriver.PythonCallbacks`; lock-step only: each call takes the GIL).
 
 Time is the clock's: a command's age and the first-command allowance count periods of the clock
 (the tick the clock is in), not ticks run, so they hold in seconds whatever the loop skipped.  A
@@ -79,7 +81,8 @@ class VirtualIO(NamedTuple):
 
 
 class CIO(NamedTuple):
-    """A C driver as the loop's driver: its functions' addresses and context."""
+    """A driver called through addresses as the loop's driver: its functions' addresses and
+    context."""
 
     read: int
     apply: int
@@ -88,6 +91,9 @@ class CIO(NamedTuple):
     truth: np.ndarray  # float64[4] NaN: a physical rig measures no body-1 state
     command_col: int  # the log column of the command sent
     records: np.ndarray  # float64[0, N_REC]: a physical rig has no true records to send the host
+    # float64[1]: the force the driver says it applied (N), written by a Python driver's apply;
+    # float64[0] for a C driver, whose ABI returns none: the log then has the force demanded
+    applied: np.ndarray
 
 
 class Timing(NamedTuple):
@@ -216,7 +222,7 @@ def _ov_apply(io, m, out, f, row, rows, detected, rate):
             rc = call_apply(io.apply, io.ctx, m, out)
             if row >= 0:
                 r = rows[row]
-                r[LG.FORCE_APPLIED] = f
+                r[LG.FORCE_APPLIED] = io.applied[0] if io.applied.shape[0] > 0 else f
                 r[io.command_col] = out
             return rc
         return impl

@@ -58,7 +58,7 @@ from impact_env.rig import ring as RG
 from impact_env.rig import rtloop as RL
 from impact_env.rig import safety as SF
 from impact_env.rig import wire as WR
-from impact_env.rig.cdriver import CDriver
+from impact_env.rig.cdriver import CDriver, PythonCallbacks
 from impact_env.rig.controller import TRUTH_COLUMNS, TRUTH_UNITS, Controller
 from impact_env.rig.cycles import cached_ns_per_cycle
 from impact_env.rig.driver import RigDriver, VirtualRig
@@ -95,9 +95,6 @@ class TargetConfig:
     resend_s: float = 0.02
     # lock-step: idle time assumed between episodes (the coil cools in the RMS window)
     rearm_idle_s: float = 1.0
-    poll_every: int = 64  # onboard lock-step: ticks between checks for DISARM
-    # the per-tick Python loop even for the virtual rig (the loop a physical driver uses)
-    python_loop: bool = False
     seed_offset: int = 0  # added to every ARM's seed (0: the drops ImpactCatch-v0 meets for the same seeds)
     # the shared key (impact_env.rig.auth); b"": none, and then only loopback peers are answered
     key: bytes = b""
@@ -138,11 +135,15 @@ class Target:
                  config: TargetConfig | None = None):
         self.driver = driver
         self.cfg = config or TargetConfig()
-        #: whether episodes run in the compiled real-time core (impact_env.rig.rtloop)
-        self.compiled = isinstance(driver, (VirtualRig, CDriver)) and not self.cfg.python_loop
-        if not self.compiled and not self.cfg.lockstep:
-            what = (f"the Python driver {type(driver).__name__}" if not self.cfg.python_loop
-                    else "the per-tick Python loop (python_loop)")
+        #: a Python driver's read and apply as the compiled loop calls them (None: the virtual
+        #: rig's hardware stage is compiled into the loop; a C driver's functions are called directly)
+        self.callbacks = None if isinstance(driver, (VirtualRig, CDriver)) else PythonCallbacks(driver)
+        if self.callbacks is not None and driver.virtual:
+            raise ValueError(f"the Python driver {type(driver).__name__} says virtual = True: only "
+                             "VirtualRig is a virtual rig (the loop runs its hardware stage and logs its truth); a "
+                             "Python driver is seen through read() and apply() only (virtual = False)")
+        if self.callbacks is not None and not self.cfg.lockstep:
+            what = f"the Python driver {type(driver).__name__}"
             raise ValueError(f"{what} cannot keep real time: its read() and apply() would run Python on "
                              "every 100 us tick (the GIL, the garbage collector and the interpreter are late "
                              "by milliseconds under load). A Python RigDriver is for lock-step testing "
@@ -199,14 +200,10 @@ class Target:
         law = CompiledPolicy.from_law("passive", {}, {}, self.scene, "sensors")
         ctl = Controller(self.scene, layout, 1, 4, "onboard", law, law, self.cfg.safety,
                          extra_columns=TRUTH_COLUMNS if self.driver.virtual else ("command",))
-        raw = np.zeros(4)
-        ctl.start(raw, None)
-        ctl.observe(1, raw, None)
-        ctl.act(1, 0.0, 0, 1, 1, raw)
+        ctl.start(np.zeros(4), None)
         ctl.drain(1)
         ctl.log.record(tick=0)
-        if self.compiled:
-            self._warm_up_loop(ctl)
+        self._warm_up_loop(ctl)
         self._warm_up_log(ctl)
 
     def _warm_up_log(self, ctl: Controller) -> None:
@@ -222,18 +219,16 @@ class Target:
         ctl.log.reset()
 
     def _warm_up_loop(self, ctl: Controller) -> None:
-        """Compile (or load) the real-time core for this driver's kind, both modes, on a
-        throwaway controller in lock-step for one tick (a virtual rig's hardware on a throwaway
-        drop; a C driver is not called: its addresses are replaced by a C function of the loop's
-        own that reads zeros)."""
+        """Compile (or load) the loop for this driver's kind, both modes, on a throwaway
+        controller in lock-step: one tick of a virtual rig's hardware on a throwaway drop; no
+        tick of a driver called by address (it is not called before its first episode)."""
         cached_ns_per_cycle(refresh=True)
-        if isinstance(self.driver, CDriver):
-            read, apply, ctx = self.driver.addresses
+        if not isinstance(self.driver, VirtualRig):
+            read, apply, ctx = (self.driver.addresses if isinstance(self.driver, CDriver)
+                                else self.callbacks.addresses)
             io = RL.CIO(read, apply, ctx, np.zeros(4), np.full(4, np.nan), ctl.log.col("command"),
-                        np.zeros((0, N_REC))) if "command" in ctl.log.names else None
-            if io is None:
-                return
-            m1 = 0  # no tick: a C driver is not called before its first episode
+                        np.zeros((0, N_REC)), np.zeros(0 if self.callbacks is None else 1))
+            m1 = 0
         else:
             hw = self.driver.hw
             hw.refill_noise(2)
@@ -571,7 +566,7 @@ class Target:
         ep.datagrams0 = datagrams0
         ep.policy = policy
         try:
-            end = ep.run_compiled() if self.compiled else ep.run_python()
+            end = ep.run()
         finally:
             drv.idle()
             self.state = P.TargetState.IDLE
