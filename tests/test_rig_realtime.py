@@ -88,7 +88,7 @@ def test_host_commands_act_from_their_arrival_tick():
     for m, u, f, status in out:
         if m < 6:
             assert status & SF.NO_COMMAND and f == 0.0 and u == 0.0
-            assert rows[m, LG.COMMAND_STEP] == -1 and rows[m, LG.COMMAND_AGE] == -1
+            assert rows[m, LG.COL.command_step] == -1 and rows[m, LG.COL.command_age_ticks] == -1
         elif m < 8:  # its own step: acts at once
             assert status & (SF.NO_COMMAND | SF.REPEATED | SF.WATCHDOG) == 0 and u == pytest.approx(0.2)
         elif m < 12:  # the next step: held once more
@@ -96,7 +96,7 @@ def test_host_commands_act_from_their_arrival_tick():
         else:
             assert status & SF.WATCHDOG and f == 0.0
         if m >= 6:
-            assert rows[m, LG.COMMAND_STEP] == 1 and rows[m, LG.COMMAND_AGE] == m - 6
+            assert rows[m, LG.COL.command_step] == 1 and rows[m, LG.COL.command_age_ticks] == m - 6
     assert ctl.st[CT.OWN.cmd_first] == 6
 
 
