@@ -144,22 +144,10 @@ class Episode:
                 "host_silent_steps": int(cc[ring.CC.silent_steps]),
                 "host_silent_from_step": int(cc[ring.CC.silent_from])}
 
-    def final_row(self, raw: np.ndarray, stopped: bool = False) -> None:
-        """The row of tick ``horizon``: its readings and observation, no command (and the ticks
-        skipped just before it, if any, flagged on it).  ``stopped``: the row of the tick the
-        loop stopped at (a stop, an overrun): 0 N, the readings of the last tick read."""
-        if stopped:
-            skipped = int(self.acct[controller.ACCT.unreported])
-            self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
-                                accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
-                                action=math.nan, step=self.m // self.hold, force_demand_N=0.0,
-                                force_applied_N=0.0, contact_detected=self.ctl.fe.detected[0],
-                                command_age_ticks=-1, command_step=-1, skipped_ticks=skipped,
-                                status=safety.OVERRUN if skipped else 0)
-            if skipped:
-                self.acct[controller.ACCT.unreported] = 0
-                self.acct[controller.ACCT.overruns] += 1
-            return
+    def final_row(self, raw: np.ndarray) -> None:
+        """The row of the tick the loop ended at (the horizon, or a stop, an overrun): its
+        readings (the last ones read) and observation, no command, 0 N (and the ticks skipped just
+        before it, if any, flagged on it)."""
         skipped = int(self.acct[controller.ACCT.unreported])
         self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
                             accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
@@ -250,15 +238,12 @@ class Episode:
         self.m, status, self.end_code = result[0]
         self.status_or |= status
         self.stop_tick = int(hl.shared[ring.SH.tick])
-        if self.end_code == controller.END.none:
+        if self.end_code in (controller.END.none, controller.END.stop, controller.END.overrun):
             self.final_row(io.raw if isinstance(io, rtloop.CIO) else drv.read())
+        if self.end_code == controller.END.none:
             end = protocol.EndReason.HORIZON
         elif self.end_code == controller.END.stop:
-            self.final_row(io.raw if isinstance(io, rtloop.CIO) else drv.read(), stopped=True)
             end = protocol.EndReason[why or "DISARMED"]
-        elif self.end_code == rtloop.END.overrun:
-            self.final_row(io.raw if isinstance(io, rtloop.CIO) else drv.read(), stopped=True)
-            end = protocol.EndReason.OVERRUN
         else:
             end = _END[self.end_code]
         if tg.callbacks is not None and tg.callbacks.fault:  # what the Python driver raised or reported
