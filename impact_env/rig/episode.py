@@ -252,7 +252,7 @@ class Episode:
         return end
 
     def _network(self, rt, hl, wake_r) -> str | None:
-        """The network while the loop runs (see :meth:`run_compiled`); returns the end reason's
+        """The network while the loop runs (see :meth:`run`); returns the end reason's
         name it asked the loop to stop for, or None."""
         tg, link = self.t, self.t.link
         sh = hl.shared
