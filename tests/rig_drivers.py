@@ -11,7 +11,7 @@ from impact_env.rig.driver import RigDriver, VirtualRig
 
 class BlindRig(RigDriver):
     """The virtual rig as the target would see a physical one: ``virtual = False``, no truth, only
-    ``read`` and ``apply``.  The target then runs its per-tick Python loop, the host gets no
+    ``read`` and ``apply``.  The target's loop then calls them through callbacks, the host gets no
     reward, and the episode's metrics come from the log's estimate (thesis eq 4.5)."""
 
     virtual = False

@@ -1,12 +1,14 @@
 """The physical rig's path, without a physical rig: ``BlindRig`` (tests/rig_drivers.py) is the
-virtual rig behind the DAQ card's boundary only (``virtual = False``, no truth).  The target runs
-its per-tick Python loop for it, the host gets observations but no reward, and compare --rig
+virtual rig behind the DAQ card's boundary only (``virtual = False``, no truth).  The target's
+one compiled loop calls its read() and apply() through ctypes callbacks
+(impact_env.rig.cdriver.PythonCallbacks), the host gets observations but no reward, and compare --rig
 gets its metrics from the log's estimate (thesis eq 4.5), as it would from a real rig.  Loops are
 bounded in steps and time; targets run in a thread of this process, or as a process for the CLI."""
 
 from __future__ import annotations
 
 import threading
+import time
 from contextlib import contextmanager
 
 import numpy as np
@@ -21,11 +23,11 @@ pytestmark = pytest.mark.slow
 
 
 @contextmanager
-def blind_target(scene="rig"):
+def blind_target(scene="rig", driver=None, **cfg):
     from impact_env.rig.target import Target, TargetConfig
 
-    driver = BlindRig(scene)
-    target = Target(driver, config=TargetConfig(lockstep=True))
+    driver = driver or BlindRig(scene)
+    target = Target(driver, config=TargetConfig(lockstep=True, **cfg))
     th = threading.Thread(target=target.serve, daemon=True)
     th.start()
     try:
@@ -74,6 +76,75 @@ def test_host_mode_observations_equal_the_simulator_and_no_reward_is_claimed():
         finally:
             env.close()
     assert driver.calls["apply"] >= 200 and driver.calls["read"] >= 200 and driver.calls["idle"] >= 1
+
+
+def _logged_episode(target, logs, seed=5, steps=1000):
+    """One host-mode episode of seeded actions on ``target``, to its end: its log."""
+    from impact_env.rig.log import list_episodes, read_episode
+
+    env = RigEnv(target.address, horizon=0.02, timeout_s=0.2, retries=50, hold_ticks=2)
+    try:
+        env.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        for _ in range(steps):
+            _o, _r, te, tr, info = env.step(rng.uniform(-0.5, 0.5, 1).astype(np.float32))
+            if te or tr:
+                break
+    finally:
+        env.close()
+    deadline = time.monotonic() + 10.0
+    while not list_episodes(logs) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return read_episode(list_episodes(logs)[0])
+
+
+def test_a_python_driver_in_the_loop_logs_what_the_virtual_rig_logs_bitwise(tmp_path):
+    """The one loop with a Python driver (BlindRig, through callbacks) and with the virtual rig's
+    hardware stage compiled into it: the same drop and commands give the same log, bitwise, in
+    every column they share (readings, observation, actions, demanded and applied force, status),
+    all but the loop's own timing."""
+    from impact_env.rig.driver import VirtualRig
+
+    logs = {}
+    for name, driver in (("blind", BlindRig("rig")), ("virtual", VirtualRig("rig"))):
+        (tmp_path / name).mkdir()
+        with blind_target(driver=driver, log_dir=tmp_path / name) as (target, _):
+            logs[name] = _logged_episode(target, tmp_path / name)
+    blind, virtual = logs["blind"], logs["virtual"]
+    assert blind.meta.end_reason == virtual.meta.end_reason and blind.n_ticks > 50
+    shared = [c for c in blind.columns if c not in ("lateness_ns", "compute_ns")]
+    assert "force_applied_N" in shared and "command" in shared and "status" in shared
+    for col in shared:
+        assert np.array_equal(blind[col], virtual[col], equal_nan=True), (col, blind[col], virtual[col])
+    assert np.array_equal(blind.observation, virtual.observation)
+
+
+class _FailingRig(BlindRig):
+    """BlindRig whose apply() raises at its 30th call."""
+
+    def apply(self, command: float, ticks: int = 1) -> float:
+        if self.calls["apply"] == 29:
+            raise OSError("DAQ card unplugged")
+        return super().apply(command, ticks)
+
+
+def test_a_python_driver_that_raises_ends_the_episode_fault_and_is_named():
+    """An exception in a Python driver's apply() inside the compiled loop: 0 N, the episode ends
+    FAULT (the host's env says so), and the target's note names the driver and the error."""
+    with blind_target(driver=_FailingRig("rig")) as (target, driver):
+        env = RigEnv(target.address, horizon=0.02, timeout_s=0.2, retries=50, hold_ticks=2)
+        try:
+            env.reset(seed=4)
+            for _ in range(100):
+                _o, _r, te, tr, info = env.step(np.zeros(1, np.float32))
+                if te or tr:
+                    break
+        finally:
+            env.close()
+        assert info["end_reason"] == "FAULT"
+        assert driver.calls["apply"] == 29  # its 30th raised
+        notes = target.notes
+        assert any("_FailingRig" in n and "OSError: DAQ card unplugged" in n for n in notes), notes
 
 
 def test_compare_rig_onboard_estimates_the_metrics_from_the_log():

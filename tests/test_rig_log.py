@@ -27,20 +27,20 @@ def _fill(rows, obs, count, n, hold):
         i = L.claim_row(rows, count)
         if i < 0:
             return k
-        rows[i, L.TICK] = k
-        rows[i, L.T_S] = k * 1e-4
-        rows[i, L.ACCEL] = 0.5 * k
-        rows[i, L.FORCE] = -0.25 * k
-        rows[i, L.POT] = 1e-6 * k
-        rows[i, L.ACTION] = 0.1
-        rows[i, L.FORCE_DEMAND] = 20.0
-        rows[i, L.FORCE_APPLIED] = 20.0 if k < 15 else 0.0
-        rows[i, L.COMMAND_AGE] = k % hold if k < 15 else k - 10
-        rows[i, L.STATUS] = 0 if k < 15 else WATCHDOG | OVERRUN
-        rows[i, L.STEP] = k // hold
-        rows[i, L.DETECTED] = 1.0 if 5 <= k < 9 else 0.0
-        rows[i, L.LATENESS_NS] = 1000 + k
-        rows[i, L.COMPUTE_NS] = 20_000 + k
+        rows[i, L.COL.tick] = k
+        rows[i, L.COL.t_s] = k * 1e-4
+        rows[i, L.COL.accelerometer_mps2] = 0.5 * k
+        rows[i, L.COL.force_N] = -0.25 * k
+        rows[i, L.COL.potentiometer_m] = 1e-6 * k
+        rows[i, L.COL.action] = 0.1
+        rows[i, L.COL.force_demand_N] = 20.0
+        rows[i, L.COL.force_applied_N] = 20.0 if k < 15 else 0.0
+        rows[i, L.COL.command_age_ticks] = k % hold if k < 15 else k - 10
+        rows[i, L.COL.status] = 0 if k < 15 else WATCHDOG | OVERRUN
+        rows[i, L.COL.step] = k // hold
+        rows[i, L.COL.contact_detected] = 1.0 if 5 <= k < 9 else 0.0
+        rows[i, L.COL.lateness_ns] = 1000 + k
+        rows[i, L.COL.compute_ns] = 20_000 + k
         rows[i, L.N_FIXED] = 3.0 * k  # the first extra column
         for j in range(obs.shape[1]):
             obs[i, j] = k + 0.5 * j

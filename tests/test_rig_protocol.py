@@ -377,7 +377,7 @@ def test_fuzz_every_datagram_is_accepted_or_counted():
     home, elsewhere = ("127.0.0.1", 5600), ("127.0.0.1", 5601)
     now = [0.0]  # the rate limiter's clock: 1 ms a datagram, so its verdicts are the seed's alone
     f = P.DatagramFilter("target", session=session, peer=home, loopback_only=True,
-                         limiter=P._HS.RateLimiter(clock=lambda: now[0]))
+                         limiter=P.handshake.RateLimiter(clock=lambda: now[0]))
     seq = 0
     episode, step = 1, 0
     sent: dict[int, list[bytes]] = {}  # type -> accepted datagrams, newest last

@@ -33,24 +33,6 @@ def _serve(**cfg):
     return target, th
 
 
-def _late_clock(monkeypatch, python_loop: bool):
-    """Every tick of the target's episodes starts LAG_S late (the compiled loop's cycle counter
-    anchor, or the Python loop's TickClock, started in the past)."""
-    from impact_env.rig import episode as E
-    from impact_env.rig.cycles import ns_per_cycle
-
-    if python_loop:
-        class LateClock(E.TickClock):
-            def start(self, t0_ns=None, index=0):
-                super().start(self.now_ns() - int(LAG_S * 1e9), index)
-
-        monkeypatch.setattr(E, "TickClock", LateClock)
-    else:
-        lag = LAG_S * 1e9 / ns_per_cycle()
-        real = E._now
-        monkeypatch.setattr(E, "_now", lambda: int(real() - lag))
-
-
 def _episode_log(env):
     """The episode's log, fetched from the target (it waits, boundedly, while the log is written)."""
     return env.client.fetch_log(env.client.episode)
@@ -73,10 +55,12 @@ def _rig_log_json(target, episode, tmp_path) -> dict:
     return json.loads(buf.getvalue())
 
 
-def test_the_python_tick_loop_is_refused_for_real_time():
-    """The per-tick Python loop is for lock-step tests only: real time would run Python each tick."""
-    with pytest.raises(ValueError, match="cannot keep real time"):
-        Target(VirtualRig("rig"), config=TargetConfig(python_loop=True))
+def test_a_python_driver_is_refused_for_real_time():
+    """A Python driver is called from the loop through callbacks that take the GIL: lock-step only."""
+    from rig_drivers import BlindRig
+
+    with pytest.raises(ValueError, match="BlindRig cannot keep real time"):
+        Target(BlindRig("rig"), config=TargetConfig())
 
 
 def test_host_commands_act_from_their_arrival_tick():
@@ -104,7 +88,7 @@ def test_host_commands_act_from_their_arrival_tick():
     for m, u, f, status in out:
         if m < 6:
             assert status & SF.NO_COMMAND and f == 0.0 and u == 0.0
-            assert rows[m, LG.COMMAND_STEP] == -1 and rows[m, LG.COMMAND_AGE] == -1
+            assert rows[m, LG.COL.command_step] == -1 and rows[m, LG.COL.command_age_ticks] == -1
         elif m < 8:  # its own step: acts at once
             assert status & (SF.NO_COMMAND | SF.REPEATED | SF.WATCHDOG) == 0 and u == pytest.approx(0.2)
         elif m < 12:  # the next step: held once more
@@ -112,7 +96,7 @@ def test_host_commands_act_from_their_arrival_tick():
         else:
             assert status & SF.WATCHDOG and f == 0.0
         if m >= 6:
-            assert rows[m, LG.COMMAND_STEP] == 1 and rows[m, LG.COMMAND_AGE] == m - 6
+            assert rows[m, LG.COL.command_step] == 1 and rows[m, LG.COL.command_age_ticks] == m - 6
     assert ctl.st[CT.OWN.cmd_first] == 6
 
 

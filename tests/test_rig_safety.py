@@ -165,7 +165,7 @@ def test_rms_clamp_equals_reference(window_s):
                              np.full(2 * n, -1.0)])
     out = np.array([s.step(d, 0, k, 0.0)[0] for k, d in enumerate(demand)])
     ref = naive_rms_clamp(demand * SCALE, n, S.SafetyConfig().rms_limit_n ** 2)
-    q = s.params[S.P_QUANTUM]
+    q = s.params[S.PARAM.quantum]
     np.testing.assert_array_less(np.abs(out**2 - ref**2), (n + 2) * q)  # squares kept to a quantum each
     # the RMS over every window of n ticks respects the rating (to the quanta)
     sq = np.concatenate([np.zeros(n - 1), out**2])
@@ -234,8 +234,8 @@ def test_params_errors(args, match):
 
 def test_quantum_keeps_the_sum_exact_in_float64():
     p = S.safety_params(S.SafetyConfig(rms_window_s=600.0), SCALE, 1e4, 1)
-    assert p[S.P_WINDOW] * S.SafetyConfig().peak_n ** 2 / p[S.P_QUANTUM] <= 2.0**50
-    assert S.safety_params(S.SafetyConfig(), SCALE, RATE, 1)[S.P_QUANTUM] == 1e-6
+    assert p[S.PARAM.window] * S.SafetyConfig().peak_n ** 2 / p[S.PARAM.quantum] <= 2.0**50
+    assert S.safety_params(S.SafetyConfig(), SCALE, RATE, 1)[S.PARAM.quantum] == 1e-6
 
 
 def test_describe_status():

@@ -316,25 +316,3 @@ def test_rig_log_command_summarises_a_virtual_log(lockstep, tmp_path):
     out = tmp_path / "log.png"
     rc = main(["rig", "log", str(path), "--json", "--plot", str(out)])
     assert rc == 0 and out.stat().st_size > 10_000
-
-
-def test_python_tick_loop_equals_the_simulation_too():
-    """The per-tick Python loop (the one a physical rig's driver runs) gives the same episode as the
-    virtual rig's compiled loop: the simulator's, bitwise (target in a thread of this process)."""
-    import threading
-
-    from impact_env.rig.driver import VirtualRig
-    from impact_env.rig.target import Target, TargetConfig
-
-    target = Target(VirtualRig("rig"), config=TargetConfig(lockstep=True, python_loop=True))
-    th = threading.Thread(target=target.serve, daemon=True)
-    th.start()
-    env = RigEnv(target.address, horizon=0.02, timeout_s=0.2, retries=50)
-    try:
-        n, bad = run_pair(env, ImpactCatchEnv("rig", horizon=0.02), 6, 10_000)
-        assert bad == 0 and n == 200
-    finally:
-        env.close()
-        target.stop()
-        th.join(10)
-    assert not th.is_alive()

@@ -8,8 +8,7 @@ that talk through public interfaces only:
   ``close_session_after_episode`` and ``stopping``), :mod:`~impact_env.rig.controller` (the
   compiled tick: front end, policy, residual law, safety, log row), :mod:`~impact_env.rig.safety`
   (watchdog, force clamps, travel limit, non-finite commands), :mod:`~impact_env.rig.driver`
-  (the rig's driver interface and the virtual rig), :mod:`~impact_env.rig.clock` and
-  :mod:`~impact_env.rig.cycles` (tick pacing), :mod:`~impact_env.rig.excitation`;
+  (the rig's driver interface and the virtual rig), :mod:`~impact_env.rig.cycles` (tick pacing), :mod:`~impact_env.rig.excitation`;
 * the **host** (the Gymnasium side: the one module here that imports the env layer):
   :mod:`~impact_env.rig.host` (``RigClient`` and ``ImpactCatchRig-v0``, whose task is
   :mod:`impact_env.env.task`'s);

@@ -14,7 +14,7 @@ import os
 import secrets
 from pathlib import Path
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 
 
 class KeyFileError(ValueError):
@@ -40,9 +40,9 @@ def load_key(path, option: str = "--key") -> bytes:
     except ValueError:
         raise KeyFileError(f"{option} {p}: the key file must hold the key as hexadecimal digits "
                         f"(impact-env rig keygen writes one)") from None
-    if len(key) < P.MIN_KEY:
-        raise KeyFileError(f"{option} {p}: the key is {len(key)} B; at least {P.MIN_KEY} B "
-                        f"({2 * P.MIN_KEY} hex digits) are needed")
+    if len(key) < protocol.MIN_KEY:
+        raise KeyFileError(f"{option} {p}: the key is {len(key)} B; at least {protocol.MIN_KEY} B "
+                        f"({2 * protocol.MIN_KEY} hex digits) are needed")
     return key
 
 
@@ -62,8 +62,10 @@ def key_from(value, option: str = "key") -> bytes:
     if value is None:
         return b""
     if isinstance(value, (bytes, bytearray)):
-        if len(value) < P.MIN_KEY:
-            raise KeyFileError(f"{option}: a key of {len(value)} B is too short; at least {P.MIN_KEY} B")
+        if len(value) < protocol.MIN_KEY:
+            raise KeyFileError(
+                f"{option}: a key of {len(value)} B is too short; at least {protocol.MIN_KEY} B"
+            )
         return bytes(value)
     return load_key(value, option)
 
@@ -71,8 +73,8 @@ def key_from(value, option: str = "key") -> bytes:
 def write_key(path, nbytes: int = 32) -> Path:
     """Write a new random key (``nbytes`` bytes, hexadecimal) to ``path``, mode 0600; refuses to
     overwrite an existing file."""
-    if nbytes < P.MIN_KEY:
-        raise ValueError(f"nbytes = {nbytes} must be at least {P.MIN_KEY}")
+    if nbytes < protocol.MIN_KEY:
+        raise ValueError(f"nbytes = {nbytes} must be at least {protocol.MIN_KEY}")
     p = Path(os.fspath(path)).expanduser()
     fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     if os.name == "posix":

@@ -1,4 +1,5 @@
-"""A driver written in C (``impact_env/deploy/rt/impact_driver.h``), loaded from a shared library:
+"""Drivers called by address from the compiled loop.  A driver written in C
+(``impact_env/deploy/rt/impact_driver.h``), loaded from a shared library:
 what a lab writes around its DAQ library (NI-DAQmx, comedi, a board's SDK) so that the target's
 compiled loop (:mod:`impact_env.rig.rtloop`) calls ``read`` and ``apply`` every tick with no
 Python in between.  ``impact-env rig serve --driver LIB.so --driver-config STRING``.
@@ -6,7 +7,9 @@ Python in between.  ``impact-env rig serve --driver LIB.so --driver-config STRIN
 The library exports ``int impact_driver_open(impact_driver *drv, const char *config)``, which
 fills the struct's function pointers and context.  The lifecycle calls outside the tick (arm,
 release, idle, close) go through ctypes from Python; the tick's read and apply through their
-addresses (:mod:`impact_env.rig.cfunc`) from compiled code.
+addresses (:mod:`impact_env.rig.cfunc`) from compiled code.  A Python
+:class:`~impact_env.rig.driver.RigDriver` is called the same way, through
+:class:`PythonCallbacks` (lock-step only).
 """
 
 from __future__ import annotations
@@ -130,6 +133,58 @@ class CDriver(RigDriver):
             self._open = False
             self._idle(self._s.ctx)
             self._close(self._s.ctx)
+
+
+class PythonCallbacks:
+    """A Python :class:`~impact_env.rig.driver.RigDriver`'s ``read`` and ``apply`` as C functions
+    of the driver ABI's signatures (ctypes callbacks), so that the compiled loop
+    (:mod:`impact_env.rig.rtloop`) calls them by address as it calls a C driver's: one loop for
+    every driver.  Each call takes the GIL: lock-step only (the target refuses real time).
+
+    ``apply`` writes the force the driver returns into :attr:`applied` (the log's
+    ``force_applied_N``).  An exception in the driver, or a fault its ``error()`` reports, returns
+    a non-zero code: the loop drives 0 N and ends the episode FAULT; :meth:`take_fault` says what
+    it was."""
+
+    def __init__(self, driver: RigDriver):
+        self.driver = driver
+        self.applied = np.zeros(1)  # N
+        self.fault = ""
+        # kept referenced for the target's lifetime: the loop holds only their addresses
+        self._read = _READ(self._on_read)
+        self._apply = _APPLY(self._on_apply)
+
+    @property
+    def addresses(self) -> tuple[int, int, int]:
+        """(read, apply, ctx) as ints, for the compiled loop (no context: the callbacks are bound)."""
+        return (int(ctypes.cast(self._read, ctypes.c_void_p).value or 0),
+                int(ctypes.cast(self._apply, ctypes.c_void_p).value or 0), 0)
+
+    def take_fault(self) -> str:
+        fault, self.fault = self.fault, ""
+        return fault
+
+    def _on_read(self, _ctx, tick: int, buf) -> int:
+        try:
+            raw = self.driver.read()
+            for i in range(4):
+                buf[i] = float(raw[i])
+        except Exception as exc:  # noqa: BLE001 (any driver error ends the episode FAULT, named)
+            self.fault = f"read() at tick {tick} raised {type(exc).__name__}: {exc}"
+            return -1
+        return 0
+
+    def _on_apply(self, _ctx, tick: int, command: float) -> int:
+        try:
+            self.applied[0] = self.driver.apply(command)
+            fault = self.driver.error()
+        except Exception as exc:  # noqa: BLE001
+            self.fault = f"apply() at tick {tick} raised {type(exc).__name__}: {exc}"
+            return -1
+        if fault:
+            self.fault = f"at tick {tick}: {fault}"
+            return -2
+        return 0
 
 
 def build_replay_driver(out_dir: str | os.PathLike, cc: str | None = None) -> Path:

@@ -60,10 +60,10 @@ from impact_env.control.residual import (
 )
 from impact_env.effects.sensors import POT
 from impact_env.hardware.stage import INFO_CONTACT_FORCE, INFO_F_APPLIED, INFO_F_DEMAND, INFO_SATURATED
-from impact_env.rig import log as LG
-from impact_env.rig import safety as SF
+from impact_env.rig import log as tick_log
+from impact_env.rig import safety as rig_safety
 from impact_env.rig.safety import SafetyConfig, safety_step
-from impact_env.sim import records as R
+from impact_env.sim import records
 
 
 class OwnState(NamedTuple):
@@ -79,7 +79,7 @@ class OwnState(NamedTuple):
 OWN = positions(OwnState)
 N_STATE = len(OWN)
 # the safety bits after which the command sent is the safety layer's force, not the demand
-MODIFIED = SF.FORCE_ZEROED | SF.CLAMP_PEAK | SF.CLAMP_RMS | SF.LATCHING
+MODIFIED = rig_safety.FORCE_ZEROED | rig_safety.CLAMP_PEAK | rig_safety.CLAMP_RMS | rig_safety.LATCHING
 NAN4 = np.full(4, np.nan)
 
 
@@ -94,7 +94,7 @@ class ControllerParams(NamedTuple):
     obs: ObsParams  # the policy's observation layout
     law: ResidualParams
     policy: PolicyArrays  # the onboard policy (a placeholder in host mode)
-    safety: np.ndarray  # float64[SF.N_PARAMS]: the safety layer's parameters
+    safety: np.ndarray  # float64[N_PARAMS]: the safety layer's parameters (rig_safety.PARAM)
     plaus: PlausibilityParams  # the sensor plausibility check's (impact_env.control.plausibility)
 
 
@@ -107,7 +107,7 @@ class ControllerState(NamedTuple):
     memory: np.ndarray  # float64[1, m]: the onboard policy's memory
     safety: np.ndarray  # the safety layer's state (impact_env.rig.safety)
     own: np.ndarray  # float64[N_STATE]: columns ST_*
-    log: LG.LogBuffers
+    log: tick_log.LogBuffers
     plaus: np.ndarray  # the plausibility check's state
     readings: np.ndarray  # float64[4]: this tick's readings as the check passed them (bad ones held)
 
@@ -183,22 +183,22 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
     out = f / p.scale if status & MODIFIED else u
     st[OWN.command] = out
     rows = s.log.rows
-    i = LG.claim_row(rows, s.log.filled)
+    i = tick_log.claim_row(rows, s.log.filled)
     if i >= 0:
         row = rows[i]
-        row[LG.TICK] = m
-        row[LG.T_S] = m / p.rate
-        row[LG.ACCEL] = raw[0]
-        row[LG.FORCE] = raw[1]
-        row[LG.POT] = raw[2]
-        row[LG.ACTION] = u
-        row[LG.FORCE_DEMAND] = f
-        row[LG.COMMAND_AGE] = log_age
-        row[LG.STATUS] = status
-        row[LG.STEP] = m // hold
-        row[LG.DETECTED] = s.fe.detected[0]
-        row[LG.COMMAND_STEP] = log_step
-        row[LG.SKIPPED] = 0
+        row[tick_log.COL.tick] = m
+        row[tick_log.COL.t_s] = m / p.rate
+        row[tick_log.COL.accelerometer_mps2] = raw[0]
+        row[tick_log.COL.force_N] = raw[1]
+        row[tick_log.COL.potentiometer_m] = raw[2]
+        row[tick_log.COL.action] = u
+        row[tick_log.COL.force_demand_N] = f
+        row[tick_log.COL.command_age_ticks] = log_age
+        row[tick_log.COL.status] = status
+        row[tick_log.COL.step] = m // hold
+        row[tick_log.COL.contact_detected] = s.fe.detected[0]
+        row[tick_log.COL.command_step] = log_step
+        row[tick_log.COL.skipped_ticks] = 0
         obs = s.obs.obs[0]
         for j in range(obs.shape[0]):
             s.log.obs[i, j] = obs[j]
@@ -257,9 +257,9 @@ class Controller:
         law_p, law_s = residual_arrays(residual, layout, 1)
         self.safety_cfg = safety or SafetyConfig()
         #: the safety layer, whose arrays the compiled tick updates (params, state)
-        self.safety = SF.SafetyLayer(self.safety_cfg, self.scale, self.rate, self.hold, mode)
+        self.safety = rig_safety.SafetyLayer(self.safety_cfg, self.scale, self.rate, self.hold, mode)
         sp = self.safety.params
-        self.log = LG.TickLog(int(horizon_ticks) + 1, layout.size, extra=extra_columns)
+        self.log = tick_log.TickLog(int(horizon_ticks) + 1, layout.size, extra=extra_columns)
         self.params = ControllerParams(mode == "onboard", self.hold, self.scale, self.rate, self.fe.params,
                                        self.fe.obs_params, law_p, pol, sp, plausibility_params(scene))
         self.state = ControllerState(self.fe.state, self.fe.obs_state, law_s, memory, self.safety.state,
@@ -371,7 +371,7 @@ TRUTH_COLUMNS = tuple(col for col, _ in TRUTH_LOG.values()) + ("true_t_s",)
 TRUTH_UNITS = {col: unit for col, unit in TRUTH_LOG.values() if unit} | {"true_t_s": "s"}
 
 
-def truth_columns(log: LG.TickLog) -> TruthColumns:
+def truth_columns(log: tick_log.TickLog) -> TruthColumns:
     """The indices of the truth columns in ``log``."""
     return TruthColumns(*(log.col(TRUTH_LOG[f][0]) for f in TruthColumns._fields))
 
@@ -388,15 +388,15 @@ class DropConstants(NamedTuple):
 def true_record(trec, m, Y, info, u, detected, ok, rate):
     """The virtual rig's true record of tick m (:mod:`impact_env.sim.records`)."""
     r = trec[m]
-    r[R.REC.t] = (m + 1.0) / rate
-    r[R.REC.x1] = Y[0, 0]
-    r[R.REC.v1] = Y[0, 1]
-    r[R.REC.x2] = Y[0, 2]
-    r[R.REC.v2] = Y[0, 3]
-    r[R.REC.u] = u
-    r[R.REC.f_demand] = info[0, INFO_F_DEMAND]
-    r[R.REC.f_applied] = info[0, INFO_F_APPLIED]
-    r[R.REC.saturated] = info[0, INFO_SATURATED]
-    r[R.REC.contact_force] = info[0, INFO_CONTACT_FORCE]
-    r[R.REC.detected] = detected
-    r[R.REC.status] = 0.0 if ok else 1.0
+    r[records.REC.t] = (m + 1.0) / rate
+    r[records.REC.x1] = Y[0, 0]
+    r[records.REC.v1] = Y[0, 1]
+    r[records.REC.x2] = Y[0, 2]
+    r[records.REC.v2] = Y[0, 3]
+    r[records.REC.u] = u
+    r[records.REC.f_demand] = info[0, INFO_F_DEMAND]
+    r[records.REC.f_applied] = info[0, INFO_F_APPLIED]
+    r[records.REC.saturated] = info[0, INFO_SATURATED]
+    r[records.REC.contact_force] = info[0, INFO_CONTACT_FORCE]
+    r[records.REC.detected] = detected
+    r[records.REC.status] = 0.0 if ok else 1.0

@@ -23,7 +23,7 @@ import numpy as np
 from gymnasium.utils import seeding
 
 from impact_env.effects.sensors import N_CHANNELS
-from impact_env.hardware import stage as HS
+from impact_env.hardware import stage
 from impact_env.hardware.batch import Hardware
 from impact_env.rig.errors import RigError
 from impact_env.scene import Scene, load_scene
@@ -156,9 +156,9 @@ class VirtualRig(RigDriver):
         self._u[0] = command
         for _ in range(int(ticks)):
             self.hw.refill_noise(1)
-            HS.hardware_step(self._u, self.hw.params, self.hw.state)
+            stage.hardware_step(self._u, self.hw.params, self.hw.state)
         if not self.hw.diverged()[0]:
-            return float(self.hw.info[0, HS.INFO_F_APPLIED])
+            return float(self.hw.info[0, stage.INFO_F_APPLIED])
         self._fault = "the virtual rig's simulation diverged"
         return float("nan")
 

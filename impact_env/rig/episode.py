@@ -1,21 +1,17 @@
 """One episode on the target: the tick loop, the host's commands, the observations sent back.
 
-Two loops, the same ticks (:mod:`impact_env.rig.controller`):
-
-* :meth:`Episode.run_compiled`, for the virtual rig and C drivers (:mod:`impact_env.rig.cdriver`),
-  in real time or lock-step: the whole episode is ONE compiled call
-  (:func:`impact_env.rig.rtloop.run_episode`: pacing on the CPU's cycle counter, read, front end,
-  policy or the host's newest command, safety, apply, the log row) in its own thread with the
-  GIL released.  Python stays off the tick: the calling thread is the network (it drains every
-  datagram at each wake-up, writes the host's commands into a lock-free ring, sends each step's
-  OBSERVATION as the loop publishes it, stops the loop through a flag it reads every tick), and
-  a third thread streams the log to disk (:class:`impact_env.rig.log.LogStream`).
-* :meth:`Episode.run_python`, for a Python :class:`~impact_env.rig.driver.RigDriver`, in
-  lock-step only (tests; the target refuses it for real time): Python reads, calls the
-  controller's two compiled steps and applies, tick by tick.
-
-Both send, at every step boundary in host mode, the OBSERVATION of that step with the telemetry
-of :mod:`impact_env.rig.protocol` (and a virtual rig's true records of the step's ticks).
+One loop for every driver: the whole episode is ONE compiled call
+(:func:`impact_env.rig.rtloop.run_episode`: pacing on the CPU's cycle counter, read, front end,
+policy or the host's newest command, safety, apply, the log row) in its own thread with the GIL
+released.  The virtual rig's hardware stage is compiled into it; a C driver's ``read`` and
+``apply`` are called through their addresses (:mod:`impact_env.rig.cdriver`), and so are a
+Python :class:`~impact_env.rig.driver.RigDriver`'s, through ctypes callbacks
+(:class:`impact_env.rig.cdriver.PythonCallbacks`: lock-step only, the target refuses it for real
+time).  Python stays off the tick otherwise: the calling thread is the network (the datagrams the
+loop hands over, the link's watch, a stop through a flag the loop reads every tick), and a third
+thread streams the log to disk (:class:`impact_env.rig.log.LogStream`).  In host mode the loop
+sends, at every step boundary, the OBSERVATION of that step with the telemetry of
+:mod:`impact_env.rig.protocol` (and a virtual rig's true records of the step's ticks).
 """
 
 from __future__ import annotations
@@ -26,34 +22,34 @@ import time
 
 import numpy as np
 
-from impact_env.hardware import stage as HS
-from impact_env.rig import cfunc as CF
-from impact_env.rig import controller as CT
-from impact_env.rig import log as LG
-from impact_env.rig import protocol as P
-from impact_env.rig import ring as RG
-from impact_env.rig import rtloop as RL
-from impact_env.rig import safety as SF
-from impact_env.rig import wire as WR
+from impact_env.rig import cfunc, controller, protocol, ring, rtloop, safety, wire
 from impact_env.rig.cdriver import CDriver
-from impact_env.rig.clock import TickClock
-from impact_env.rig.cycles import cached_ns_per_cycle, cycles_now
-from impact_env.sim import records as R
+from impact_env.rig.cycles import cached_ns_per_cycle
+from impact_env.rig.driver import VirtualRig
+from impact_env.sim import records
 
-_END = {CT.END.first_command: P.EndReason.FIRST_COMMAND_TIMEOUT, CT.END.safety: P.EndReason.SAFETY,
-        CT.END.fault: P.EndReason.FAULT, CT.END.stop: P.EndReason.DISARMED,
-        CT.END.sensor_fault: P.EndReason.SENSOR_FAULT, CT.END.overrun: P.EndReason.OVERRUN}
+_END = {
+    controller.END.first_command: protocol.EndReason.FIRST_COMMAND_TIMEOUT,
+    controller.END.safety: protocol.EndReason.SAFETY,
+    controller.END.fault: protocol.EndReason.FAULT,
+    controller.END.stop: protocol.EndReason.DISARMED,
+    controller.END.sensor_fault: protocol.EndReason.SENSOR_FAULT,
+    controller.END.overrun: protocol.EndReason.OVERRUN,
+}
 
 
 class Episode:
     """The running episode ``ep`` of ``target`` (a :class:`impact_env.rig.target.Target`), armed by
     ``arm_msg`` with controller ``ctl``."""
 
-    def __init__(self, target, arm_msg: P.Message, armed: P.Armed, ctl, hold: int, seed: int):
+    def __init__(self, target, arm_msg: protocol.Message, armed: protocol.Armed, ctl, hold: int, seed: int,
+                 policy=None):
         self.t = target
         self.arm_msg, self.armed = arm_msg, armed
-        self.a: P.Arm = arm_msg.body
+        self.a = arm_msg.payload(protocol.Arm)
         self.ctl, self.hold, self.seed = ctl, hold, seed
+        self.policy = policy  # the onboard policy or excitation (None: the host's commands), for the log
+        self.datagrams0: dict[str, int] = {}  # the target's datagram counters at ARM
         self.ep = target.episode
         self.host = self.a.mode == "host"
         self.lockstep = target.cfg.lockstep
@@ -61,40 +57,30 @@ class Episode:
         cfg = target.cfg
         self.link_timeout_s = self.a.link_timeout_ms / 1e3 if self.a.link_timeout_ms else (
             cfg.lockstep_link_timeout_s if self.lockstep else cfg.link_timeout_s)
-        # the command in use (value, step, serial id; step -1: none yet) and the newest one
-        # accepted but not yet in use (a later step's); counts of what became of the commands
-        self.cmd_value, self.cmd_step, self.cmd_id = 0.0, -1, -1
-        self.cmd_acted = True
-        self.next_cmd: tuple[int, float] | None = None
-        self.n_cmd = 0
-        self.cmd_counts = {"commands_accepted": 0, "commands_acted": 0, "commands_superseded": 0,
-                           "commands_expired": 0, "commands_unused_at_end": 0}
-        self.acct = np.zeros(CT.N_ACCT, dtype=np.int64)  # see rtloop.run_episode
+        self.acct = np.zeros(controller.N_ACCT, dtype=np.int64)  # see rtloop.run_episode
         self.last_heard = time.perf_counter()
         self._authentic = target.link.filter.authentic
         self.status_or = 0
         self.m = 0
-        self.obs_msg: P.Observation | None = None
-        self.end_code = CT.END.none
-        self._n0 = 0
-        self.lateness = np.zeros(self.horizon + 1)
-        # a virtual rig's true record of every tick (NaN: not known, e.g. skipped by the Python loop)
-        self.trec = np.full((self.horizon + 1, R.N_REC), np.nan) if target.driver.virtual else None
+        self.obs_msg: protocol.Observation | None = None
+        self.end_code = controller.END.none
+        # a virtual rig's true record of every tick
+        self.trec = np.full((self.horizon + 1, records.N_REC), np.nan) if target.driver.virtual else None
         log = ctl.log
         self.cols = {name: log.col(name) for name in log.names}
-        self.hl = None  # the compiled loop's rings (impact_env.rig.ring), while it runs
-        self.wire: WR.Wire | None = None  # host mode: the loop's wire (impact_env.rig.wire)
+        self.hl: ring.HostLink | None = None  # the compiled loop's rings (impact_env.rig.ring), while it runs
+        self.wire: wire.Wire | None = None  # host mode: the loop's wire (impact_env.rig.wire)
         self.stream = None  # the log streamed to disk (impact_env.rig.log.LogStream), if any
         self.stop_asked_tick = -1  # the tick the loop was at when it was asked to stop
         self.stop_tick = -1  # the tick it stopped at
 
     def prefault(self) -> None:
         """Write every page of the episode's arrays now (the log's rows and observations, the
-        lateness, the true records): fresh memory is mapped on its first write, a page fault each
+        true records): fresh memory is mapped on its first write, a page fault each
         4 kB (or a huge page's zeroing), which in the loop's first ticks made the first episode of
         a target late by milliseconds (OVERRUN, FIRST_COMMAND_TIMEOUT)."""
         log = self.ctl.log
-        for arr in (log.rows, log.obs, self.lateness):
+        for arr in (log.rows, log.obs):
             arr.fill(0.0)
         if self.trec is not None:
             self.trec.fill(np.nan)
@@ -103,88 +89,39 @@ class Episode:
     def overruns(self) -> int:
         """Rows flagged OVERRUN this episode (a tick that started a period or more late, or
         after skipped ticks)."""
-        return int(self.acct[CT.ACCT.overruns])
+        return int(self.acct[controller.ACCT.overruns])
 
     @property
     def skipped_ticks(self) -> int:
         """Ticks of this episode that did not run (overruns), each reported on the next row."""
-        return int(self.acct[CT.ACCT.skipped])
+        return int(self.acct[controller.ACCT.skipped])
 
     # -- messages ----------------------------------------------------------------------------------------
-    def take(self, msg: P.Message) -> str | None:
+    def take(self, msg: protocol.Message) -> str | None:
         """An incoming message during the episode; returns an end reason's name, or None."""
         t, tg = msg.type, self.t
         self.last_heard = time.perf_counter()
-        if t == P.MsgType.COMMAND and msg.body.episode == self.ep:  # the Python loop's (the compiled
-            # loop takes the host's COMMANDs off the wire itself: impact_env.rig.wire)
-            self.cmd_counts["commands_accepted"] += 1
-            if self.next_cmd is None or msg.body.step >= self.next_cmd[0]:
-                if self.next_cmd is not None:  # latest wins: the one it replaces never acts
-                    self.cmd_counts["commands_superseded"] += 1
-                self.next_cmd = (msg.body.step, float(msg.body.action[0]))
-            else:
-                self.cmd_counts["commands_superseded"] += 1
-        elif t == P.MsgType.DISARM:
-            tg.reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, self.ep), msg)
-            if msg.body.reason == P.DISARM_CLOSING:  # the host is closing: its session ends with the episode
+        # (the loop takes the host's COMMANDs off the wire itself: impact_env.rig.wire)
+        if t == protocol.MsgType.DISARM:
+            tg.reply(protocol.Ack(protocol.MsgType.DISARM, protocol.ErrorCode.OK, msg.seq, self.ep), msg)
+            reason = msg.payload(protocol.Disarm).reason
+            if reason == protocol.DISARM_CLOSING:  # the host is closing: its session ends with the episode
                 tg.close_session_after_episode()
             # the host's task caught body 1: the episode ends CAUGHT, as the host says
-            return "CAUGHT" if msg.body.reason == P.DISARM_CAUGHT else "DISARMED"
-        elif t == P.MsgType.ARM:
+            return "CAUGHT" if reason == protocol.DISARM_CAUGHT else "DISARMED"
+        elif t == protocol.MsgType.ARM:
             if msg.body == self.a:  # the same request again (its ARMED was lost): answer it again
                 tg.reply(self.armed, msg)
                 return None
             tg.queue_arm(msg)  # a new episode: this one ends, that one starts
             return "DISARMED"
-        elif t == P.MsgType.FETCH:
+        elif t == protocol.MsgType.FETCH:
             tg.serve_fetch(msg)
-        elif t == P.MsgType.HEARTBEAT:
-            tg.reply(P.Heartbeat(int(tg.state), self.ep, self.m // self.hold, msg.seq), msg)
-        elif t == P.MsgType.HELLO and msg.session == tg.link.session:
-            tg.reply(tg.info(msg.body.nonce), msg)
+        elif t == protocol.MsgType.HEARTBEAT:
+            tg.reply(protocol.Heartbeat(int(tg.state), self.ep, self.m // self.hold, msg.seq), msg)
+        elif t == protocol.MsgType.HELLO and msg.session == tg.link.session:
+            tg.reply(tg.info(msg.payload(protocol.Hello).nonce), msg)
         return None
-
-    def drain(self, budget_s: float = 0.0) -> str | None:
-        """Take every datagram that arrives within ``budget_s`` (0: those already there)."""
-        deadline = time.perf_counter() + budget_s
-        while True:
-            msg = self.t.link.recv(max(deadline - time.perf_counter(), 0.0), episode=self.ep,
-                                   step=self.m // self.hold)
-            if msg is None:
-                return None
-            why = self.take(msg)
-            if why:
-                return why
-            if time.perf_counter() >= deadline:
-                return None
-
-    def command_for_tick(self, boundary: bool) -> str | None:
-        """Make the command of tick ``m`` current: in lock-step at a step boundary wait for the
-        host's command of that step (re-sending the observation while waiting); otherwise take
-        the newest one that has arrived.  Returns an end reason's name, or None."""
-        step = self.m // self.hold
-        why = None
-        if self.lockstep and boundary:
-            sent = time.perf_counter()
-            while not (self.next_cmd is not None and self.next_cmd[0] >= step):
-                msg = self.t.link.recv(min(self.t.cfg.resend_s, 0.005), episode=self.ep, step=step)
-                why = self.take(msg) if msg is not None else None
-                if why:
-                    break
-                if self.t.stopping:
-                    return "DISARMED"
-                now = time.perf_counter()
-                if self.link_lost(now):
-                    return "LINK_LOST"
-                if now - sent >= self.t.cfg.resend_s and self.obs_msg is not None:
-                    self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
-                    sent = now
-        else:
-            why = self.drain(0.0)
-            if not why and self.link_lost(time.perf_counter()):
-                why = "LINK_LOST"
-        self.select_command(step)
-        return why
 
     def link_lost(self, now: float) -> bool:
         """Nothing authentic from the host for the link timeout: not even a late command (those
@@ -195,101 +132,34 @@ class Episode:
             self.last_heard = now
         return now - self.last_heard > self.link_timeout_s
 
-    def select_command(self, step: int) -> None:
-        """The newest accepted command for ``step`` (or an earlier, still live one) becomes the
-        one in use from this tick on; one whose step is over without it having acted (the
-        ticks left in its step were skipped) expires, counted."""
-        self.note_acted()
-        nxt = self.next_cmd
-        if nxt is None or nxt[0] > step:
-            return
-        self.next_cmd = None
-        if nxt[0] < step:  # accepted in time, but its step ended before a tick could run it
-            self.cmd_counts["commands_expired"] += 1
-            return
-        if not self.cmd_acted:  # the one in use never reached a tick
-            self.cmd_counts["commands_superseded"] += 1
-        self.n_cmd += 1
-        self.cmd_step, self.cmd_value, self.cmd_id, self.cmd_acted = nxt[0], nxt[1], self.n_cmd, False
-
-    def note_acted(self) -> None:
-        """Whether the command in use has acted on a tick yet (the controller keeps its id)."""
-        if not self.cmd_acted and int(self.ctl.st[CT.OWN.cmd_id]) == self.cmd_id:
-            self.cmd_acted = True
-            self.cmd_counts["commands_acted"] += 1
-
     def command_counters(self) -> dict[str, int]:
-        """What became of this episode's commands (every accepted one is counted once)."""
-        hl = self.hl
-        if hl is not None:  # the compiled loop kept them (impact_env.rig.rtloop, wire)
-            cs, cc = hl.cs, hl.cc
-            return {"commands_accepted": int(self.wire.c.commands[0]),
-                    "commands_acted": int(cc[RG.CC.acted]), "commands_superseded": int(cc[RG.CC.superseded]),
-                    "commands_expired": int(cc[RG.CC.expired]),
-                    "commands_unused_at_end": int(cs[RG.CS.next_step] >= 0) + int(cs[RG.CS.cur_acted] == 0.0),
-                    "host_silent_steps": int(cc[RG.CC.silent_steps]),
-                    "host_silent_from_step": int(cc[RG.CC.silent_from])}
-        self.note_acted()
-        out = dict(self.cmd_counts)
-        out["commands_unused_at_end"] = (self.next_cmd is not None) + (not self.cmd_acted)
-        # the Python loop runs lock-step only: each step waits for its command (or the link ends)
-        out["host_silent_steps"], out["host_silent_from_step"] = 0, -1
-        return out
+        """What became of this episode's commands (every accepted one is counted once), as the
+        loop kept them (:mod:`impact_env.rig.rtloop`, :mod:`impact_env.rig.wire`)."""
+        assert self.hl is not None and self.wire is not None, "command_counters() before the episode ran"
+        cs, cc = self.hl.cs, self.hl.cc
+        return {"commands_accepted": int(self.wire.c.commands[0]),
+                "commands_acted": int(cc[ring.CC.acted]), "commands_superseded": int(cc[ring.CC.superseded]),
+                "commands_expired": int(cc[ring.CC.expired]),
+                "commands_unused_at_end": int(cs[ring.CS.next_step] >= 0) + int(cs[ring.CS.cur_acted] == 0.0),
+                "host_silent_steps": int(cc[ring.CC.silent_steps]),
+                "host_silent_from_step": int(cc[ring.CC.silent_from])}
 
-    @property
-    def cmd_first(self) -> int:
-        """The tick the command in use first acted at (-1: none, or it has not acted yet)."""
-        self.note_acted()
-        return int(self.ctl.st[CT.OWN.cmd_first]) if self.cmd_acted and self.cmd_step >= 0 else -1
-
-    def send_observation(self) -> None:
-        """The OBSERVATION of the step that starts at tick m (host mode), with a virtual rig's
-        true records of the previous step's ticks when every one of them is known (a tick the
-        Python loop skipped has none: then the OBSERVATION carries no records and the host marks
-        the step)."""
-        log = self.ctl.log
-        n = log.n
-        last = log.rows[n - 1] if n else None
-        first = self.cmd_first
-        telem = [float(last[LG.FORCE_DEMAND]) if n else 0.0, float(last[LG.FORCE_APPLIED]) if n else 0.0,
-                 float(self.m - first) if first >= 0 else -1.0]
-        if self.trec is not None and self.m >= self.hold:
-            rec = self.trec[self.m - self.hold:self.m]
-            if not np.isnan(rec).any():
-                telem += rec.ravel().tolist()
-        obs = tuple(float(x) for x in self.ctl.obs)
-        self.obs_msg = P.Observation(self.ep, self.m // self.hold, int(self.status_or) & P.U32, 4, obs,
-                                     tuple(telem))
-        self.t.link.send(self.obs_msg, tick=self.m, addr=self.t.link.last_sender)
-
-    def final_row(self, raw: np.ndarray, stopped: bool = False) -> None:
-        """The row of tick ``horizon``: its readings and observation, no command (and the ticks
-        skipped just before it, if any, flagged on it).  ``stopped``: the row of the tick the
-        loop stopped at (a stop, an overrun): 0 N, the readings of the last tick read."""
-        if stopped:
-            skipped = int(self.acct[CT.ACCT.unreported])
-            self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
-                                accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
-                                action=math.nan, step=self.m // self.hold, force_demand_N=0.0,
-                                force_applied_N=0.0, contact_detected=self.ctl.fe.detected[0],
-                                command_age_ticks=-1, command_step=-1, skipped_ticks=skipped,
-                                status=SF.OVERRUN if skipped else 0)
-            if skipped:
-                self.acct[CT.ACCT.unreported] = 0
-                self.acct[CT.ACCT.overruns] += 1
-            return
-        skipped = int(self.acct[CT.ACCT.unreported])
+    def final_row(self, raw: np.ndarray) -> None:
+        """The row of the tick the loop ended at (the horizon, or a stop, an overrun): its
+        readings (the last ones read) and observation, no command, 0 N (and the ticks skipped just
+        before it, if any, flagged on it)."""
+        skipped = int(self.acct[controller.ACCT.unreported])
         self.ctl.log.record(obs=self.ctl.obs, tick=self.m, t_s=self.m / self.t.rate,
                             accelerometer_mps2=raw[0], force_N=raw[1], potentiometer_m=raw[2],
                             action=math.nan, step=self.m // self.hold,
                             contact_detected=self.ctl.fe.detected[0], command_age_ticks=-1, command_step=-1,
-                            skipped_ticks=skipped, status=SF.OVERRUN if skipped else 0)
+                            skipped_ticks=skipped, status=safety.OVERRUN if skipped else 0)
         if skipped:
-            self.acct[CT.ACCT.unreported] = 0
-            self.acct[CT.ACCT.overruns] += 1
+            self.acct[controller.ACCT.unreported] = 0
+            self.acct[controller.ACCT.overruns] += 1
 
-    # -- the compiled real-time core (rtloop): the virtual rig and C drivers ----------------------
-    def run_compiled(self) -> P.EndReason:
+    # -- the compiled loop (rtloop) -------------------------------------------------------------------
+    def run(self) -> protocol.EndReason:
         """The whole episode in one compiled call (:func:`impact_env.rig.rtloop.run_episode`) in
         its own thread, the GIL released.  In host mode the loop reads the socket itself and
         takes the host's COMMANDs and sends the OBSERVATIONs (:mod:`impact_env.rig.wire`); this
@@ -302,49 +172,55 @@ class Episode:
         drv, ctl, tg = self.t.driver, self.ctl, self.t
         nspc = cached_ns_per_cycle()
         cpt = 1e9 / tg.rate / nspc
-        if isinstance(drv, CDriver):
-            raw0 = drv.read_tick(0)
-            read, apply, ctx = drv.addresses
-            io = RL.CIO(read, apply, ctx, raw0.copy(), np.full(4, np.nan), self.cols["command"],
-                        np.zeros((0, R.N_REC)))
+        if not isinstance(drv, VirtualRig):  # a C driver, or a Python one through its callbacks
+            raw0 = drv.read_tick(0) if isinstance(drv, CDriver) else drv.read().copy()
+            read, apply, ctx = drv.addresses if isinstance(drv, CDriver) else tg.callbacks.addresses
+            applied = tg.callbacks.applied if tg.callbacks is not None else np.zeros(0)
+            io: rtloop.CIO | rtloop.VirtualIO = rtloop.CIO(
+                read, apply, ctx, raw0.copy(), np.full(4, np.nan), self.cols["command"],
+                np.zeros((0, records.N_REC)), applied)
             ctl.start(raw0, None)
         else:
             hw = drv.hw
             hw.set_noise_block(max(self.horizon + 1, hw.noise_block))
             hw.refill_noise(self.horizon)  # the whole episode's noise now: no draws in the loop
-            io = RL.VirtualIO(hw.params, hw.state, CT.truth_columns(ctl.log),
-                              CT.DropConstants(float(hw.impact_energy[0]), float(hw.impact_speed[0]),
-                                               float(hw.t_touch[0])), self.trec, self.cols["true_t_s"])
+            assert self.trec is not None  # a virtual rig's
+            drop = controller.DropConstants(float(hw.impact_energy[0]), float(hw.impact_speed[0]),
+                                            float(hw.t_touch[0]))
+            io = rtloop.VirtualIO(hw.params, hw.state, controller.truth_columns(ctl.log), drop, self.trec,
+                                  self.cols["true_t_s"])
             ctl.start(drv.read().copy(), drv.truth())
         wake_r, wake_w = os.pipe()
         os.set_blocking(wake_w, False)
         os.set_blocking(wake_r, False)
-        hl = RG.host_link(ctl.layout.size, CF.libc_address("write"), wake_w, CF.libc_address("usleep"))
+        hl = ring.host_link(ctl.layout.size, cfunc.libc_address("write"), wake_w,
+                            cfunc.libc_address("usleep"))
         self.hl = hl
         link, f = tg.link, tg.link.filter
         if self.host:  # the loop owns the session's socket (else the target's) for the episode
             fd = link.endpoint.session_fd
             link.endpoint.session_busy = fd >= 0  # the loop reads it, the network thread the target's
-            self.wire = WR.make(fd if fd >= 0 else link.endpoint.fileno(), f.key, f.nonce, f.session or 0,
+            self.wire = wire.make(fd if fd >= 0 else link.endpoint.fileno(), f.key, f.nonce, f.session or 0,
                                 self.ep, link.last_sender,
-                                f.stream(f.session or 0, P.MsgType.COMMAND), link.seq, wake_fd=wake_w)
+                                f.stream(f.session or 0, protocol.MsgType.COMMAND), link.seq, wake_fd=wake_w)
         else:
-            self.wire = WR.none()
+            self.wire = wire.none()
         max_gap = int(round(tg.cfg.max_gap_s * tg.rate))
         wait = tg.command_wait_s * 1e9 / nspc if self.host and not self.lockstep else 0.0
-        tm = RL.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap, wait,
-                       tg.cfg.resend_s * 1e9 / nspc, tg.placement.sleep_margin_for(self.horizon / tg.rate) * 1e9 / nspc)
+        sleep_margin_s = tg.placement.sleep_margin_for(self.horizon / tg.rate)
+        tm = rtloop.Timing(not self.lockstep, self.lockstep and self.host, 0.0, cpt, nspc, max_gap, wait,
+                           tg.cfg.resend_s * 1e9 / nspc, sleep_margin_s * 1e9 / nspc)
         result: list = []
 
         def loop():
             tg.placement.loop_thread()
             w = self.wire
             try:
-                result.append(RL.run_episode(self.horizon, ctl.params, ctl.state, io, tm, self.acct, hl, w))
+                result.append(rtloop.run_episode(self.horizon, ctl.params, ctl.state, io, tm, self.acct, hl, w))
             finally:
                 tg.placement.loop_done()
 
-        stream = tg.open_stream(self, hl.shared[RG.SH.rows:RG.SH.rows + 1])
+        stream = tg.open_stream(self, hl.shared[ring.SH.rows:ring.SH.rows + 1])
         tg.running_link = hl
         rt = threading.Thread(target=loop, name="rig-rt-loop", daemon=True)
         restore = tg.placement.python_thread()
@@ -361,34 +237,33 @@ class Episode:
             os.close(wake_w)
         if self.host:
             self._take_queued(None)  # what the loop queued after the network thread's last look
-            WR.merge(self.wire, link)
+            wire.merge(self.wire, link)
             self._last_observation(hl)
         self.m, status, self.end_code = result[0]
         self.status_or |= status
-        self.stop_tick = int(hl.shared[RG.SH.tick])
-        if self.end_code == CT.END.none:
-            self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read())
-            end = P.EndReason.HORIZON
-        elif self.end_code == CT.END.stop:
-            self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read(), stopped=True)
-            end = P.EndReason[why or "DISARMED"]
-        elif self.end_code == RL.END.overrun:
-            self.final_row(io.raw if isinstance(io, RL.CIO) else drv.read(), stopped=True)
-            end = P.EndReason.OVERRUN
+        self.stop_tick = int(hl.shared[ring.SH.tick])
+        if self.end_code in (controller.END.none, controller.END.stop, controller.END.overrun):
+            self.final_row(io.raw if isinstance(io, rtloop.CIO) else drv.read())
+        if self.end_code == controller.END.none:
+            end = protocol.EndReason.HORIZON
+        elif self.end_code == controller.END.stop:
+            end = protocol.EndReason[why or "DISARMED"]
         else:
             end = _END[self.end_code]
+        if tg.callbacks is not None and tg.callbacks.fault:  # what the Python driver raised or reported
+            tg.note(f"episode {self.ep}: the driver {type(drv).__name__}: {tg.callbacks.take_fault()}")
         self.stream = stream
         return end
 
     def _network(self, rt, hl, wake_r) -> str | None:
-        """The network while the loop runs (see :meth:`run_compiled`); returns the end reason's
+        """The network while the loop runs (see :meth:`run`); returns the end reason's
         name it asked the loop to stop for, or None."""
         tg, link = self.t, self.t.link
         sh = hl.shared
         why: str | None = None
         own = link.endpoint.session_busy
         while True:
-            done = sh[RG.SH.done] != 0 or not rt.is_alive()
+            done = sh[ring.SH.done] != 0 or not rt.is_alive()
             if self.host:
                 why = self._take_queued(why)
             if done:
@@ -405,7 +280,7 @@ class Episode:
             if why is not None:
                 continue
             if not self.host or own:
-                step = int(sh[RG.SH.tick]) // self.hold
+                step = int(sh[ring.SH.tick]) // self.hold
                 for msg in link.recv_all(episode=self.ep, step=step):
                     why = self.take(msg)
                     if why:
@@ -416,137 +291,45 @@ class Episode:
             if not why and tg.stopping:
                 why = "DISARMED"
             if why:
-                self.stop_asked_tick = int(sh[RG.SH.tick])
-                sh[RG.SH.stop] = 1
+                self.stop_asked_tick = int(sh[ring.SH.tick])
+                sh[ring.SH.stop] = 1
 
     def _take_queued(self, why: str | None) -> str | None:
         """The datagrams the loop handed over (:func:`impact_env.rig.wire.queued`) through the
         link's filter, each accepted one taken; returns the first end reason one of them gave."""
+        assert self.hl is not None and self.wire is not None, "the loop's rings and wire: only while it runs"
         link, sh = self.t.link, self.hl.shared
-        step = int(sh[RG.SH.tick]) // self.hold
-        for data, addr in WR.queued(self.wire):
+        step = int(sh[ring.SH.tick]) // self.hold
+        for data, addr in wire.queued(self.wire):
             msg = link.take(data, addr, self.ep, step)
             if msg is not None and why is None:
                 why = self.take(msg)
                 if why:
-                    self.stop_asked_tick = int(sh[RG.SH.tick])
-                    sh[RG.SH.stop] = 1
+                    self.stop_asked_tick = int(sh[ring.SH.tick])
+                    sh[ring.SH.stop] = 1
         return why
 
     def _last_observation(self, hl) -> None:
         """The last OBSERVATION the loop sent, as a message (the target sends it again to a host
         still stepping an episode that ended)."""
-        got = RG.newest_observation(hl, 0)
+        got = ring.newest_observation(hl, 0)
         if got is None:
             return
         meta, obs = got
-        m = int(meta[RG.OM.tick])
-        telem = [float(meta[RG.OM.demand]), float(meta[RG.OM.applied]), float(meta[RG.OM.age])]
+        m = int(meta[ring.OM.tick])
+        telem = [float(meta[ring.OM.demand]), float(meta[ring.OM.applied]), float(meta[ring.OM.age])]
         if self.trec is not None and m >= self.hold:
             rec = self.trec[m - self.hold:m]
             if not np.isnan(rec).any():
                 telem += rec.ravel().tolist()
-        self.obs_msg = P.Observation(self.ep, int(meta[RG.OM.step]), int(meta[RG.OM.status]) & P.U32, 4,
-                                     tuple(float(x) for x in obs[:self.ctl.layout.size]), tuple(telem))
-
-    # -- any driver, tick by tick in Python ------------------------------------------------------------
-    def run_python(self) -> P.EndReason:
-        drv, ctl, c = self.t.driver, self.ctl, self.cols
-        virtual = drv.virtual
-        clock = TickClock(self.t.rate, lockstep=self.lockstep)
-        ctl.start(drv.read().copy(), drv.truth())
-        clock.start()
-        late_flag = False
-        u = 0.0
-        period_ns = 1e9 / self.t.rate
-        while True:
-            t_work = time.perf_counter_ns()
-            raw = drv.read()
-            boundary = ctl.observe(self.m, raw, drv.truth()) if self.m > 0 else True
-            if virtual and self.m > 0:  # a tick's detector bit is the one of the readings it produced
-                self.trec[self.m - 1, R.REC.detected] = ctl.fe.detected[0]
-            if boundary and self.host:
-                self.send_observation()
-            if self.m >= self.horizon:
-                self.final_row(raw)
-                return P.EndReason.HORIZON
-            why = self.command_for_tick(boundary) if self.host else (
-                self.drain(0.0) if self.lockstep and self.m % self.t.cfg.poll_every == 0 else None)
-            if why:
-                return P.EndReason[why]
-            if self.t.stopping:
-                return P.EndReason.DISARMED
-            u, _f, status, row = ctl.act(self.m, self.cmd_value, self.cmd_step, self.cmd_id, self.m, raw)
-            if late_flag or self.acct[CT.ACCT.unreported] > 0:
-                status |= SF.OVERRUN
-                self.acct[CT.ACCT.overruns] += 1
-            f_applied = drv.apply(u)
-            self.status_or |= status
-            if row >= 0:
-                r = ctl.log.rows[row]
-                r[LG.FORCE_APPLIED] = f_applied
-                r[LG.STATUS] = status
-                r[LG.LATENESS_NS] = self.lateness[self.m]
-                r[LG.SKIPPED] = self.acct[CT.ACCT.unreported]
-                r[c["command"]] = u
-                if virtual:
-                    self._truth_row(r)
-                r[LG.COMPUTE_NS] = time.perf_counter_ns() - t_work
-            self.acct[CT.ACCT.unreported] = 0
-            if drv.error():
-                return P.EndReason.FAULT
-            if status & SF.FIRST_COMMAND_TIMEOUT:
-                return P.EndReason.FIRST_COMMAND_TIMEOUT
-            if status & SF.SENSOR_TIMEOUT:  # issue 25 (rig-sensors): implausible readings too long
-                return P.EndReason.SENSOR_FAULT
-            if status & SF.LATCHING:
-                return P.EndReason.SAFETY
-            self.m += 1
-            late_flag = False
-            if not self.lockstep:
-                tick = clock.wait(poll=lambda budget: self.drain(budget) and None)
-                behind = tick.index - self.m  # whole periods behind (the clock jumps to the due tick)
-                k = int(CT.skip_allowed(self.m, behind, self.hold, self.horizon, not self.host))
-                if k:  # the ticks that cannot run on time pass with the command held (the DAC holds it)
-                    drv.apply(u, k)
-                    self.m += k
-                    self.acct[CT.ACCT.unreported] += k
-                    self.acct[CT.ACCT.skipped] += k
-                # a step's first tick is never skipped: it runs late, and the clock follows
-                clock.next_index = self.m + 1
-                late_ns = tick.start_ns - clock.deadline(self.m)
-                late_flag = late_ns >= period_ns
-                self.lateness[self.m] = late_ns
-
-    def _truth_row(self, r: np.ndarray) -> None:
-        drv, c = self.t.driver, self.cols
-        info, y, hw = drv.last_info, drv.truth(), drv.hw
-        for j, name in enumerate(("true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps")):
-            r[c[name]] = y[j]
-        r[c["hw_force_demand_N"]] = info[HS.INFO_F_DEMAND]
-        r[c["hw_force_applied_N"]] = info[HS.INFO_F_APPLIED]
-        r[c["hw_saturated"]] = info[HS.INFO_SATURATED]
-        r[c["hw_contact_force_N"]] = info[HS.INFO_CONTACT_FORCE]
-        r[c["hw_status"]] = 0.0 if (info[HS.INFO_STATUS] == 0 and np.all(np.isfinite(y))) else 1.0
-        r[c["impact_energy_J"]] = hw.impact_energy[0]
-        r[c["impact_speed_mps"]] = hw.impact_speed[0]
-        r[c["t_touch_s"]] = hw.t_touch[0]
-        r[c["true_t_s"]] = hw.t[0]
-        t = self.trec[self.m]
-        t[R.REC.t] = hw.t[0]
-        t[R.REC.x1:R.REC.v2 + 1] = y[:4]
-        t[R.REC.u] = r[c["command"]]
-        t[R.REC.f_demand] = info[HS.INFO_F_DEMAND]
-        t[R.REC.f_applied] = info[HS.INFO_F_APPLIED]
-        t[R.REC.saturated] = info[HS.INFO_SATURATED]
-        t[R.REC.contact_force] = info[HS.INFO_CONTACT_FORCE]
-        t[R.REC.status] = r[c["hw_status"]]
-        t[R.REC.detected] = self.ctl.fe.detected[0]  # until the front end has seen its readings
-
-
-def _now() -> int:
-    return int(cycles_now())
-
+        self.obs_msg = protocol.Observation(
+            self.ep,
+            int(meta[ring.OM.step]),
+            int(meta[ring.OM.status]) & protocol.U32,
+            4,
+            tuple(float(x) for x in obs[: self.ctl.layout.size]),
+            tuple(telem),
+        )
 
 def os_read(fd: int) -> bytes:
     import os

@@ -46,7 +46,7 @@ from gymnasium import spaces
 from impact_env._jit import bound_call, entry_point
 from impact_env.control.observation import OBS_LIMIT, make_layout
 from impact_env.control.policy import CompiledPolicy
-from impact_env.env import task_kernel as TK
+from impact_env.env import task_kernel
 from impact_env.env.task import (
     TaskConfig,
     check_actions,
@@ -57,18 +57,15 @@ from impact_env.env.task import (
 )
 from impact_env.hardware.batch import Hardware
 from impact_env.policy.export import export_policy
-from impact_env.rig import host_wire as HW
-from impact_env.rig import protocol as P
-from impact_env.rig import safety as SF
-from impact_env.rig import wire as WR
+from impact_env.rig import host_wire, protocol, safety, wire
 from impact_env.rig.auth import key_from
 from impact_env.rig.log import read_episode
 from impact_env.rig.placement import keep_off_loop_cpu
 from impact_env.rig.transport import Endpoint, Link, RigError, RigTimeout, fetch, parse_address, upload
 from impact_env.scene import scene_from_dict
-from impact_env.sim import records as R
+from impact_env.sim import records
 
-N_TEL = len(P.TELEMETRY_FIELDS)
+N_TEL = len(protocol.TELEMETRY_FIELDS)
 # this many steps in a row on which the target acted on none of the host's recent COMMANDs (the
 # watchdog had zeroed the force) and the host warns, once per episode (RigCommandsUnheard)
 UNHEARD_WARN_STEPS = 3
@@ -86,7 +83,7 @@ def status_names(status: int) -> list[str]:
 
 @functools.lru_cache(maxsize=256)
 def _status_names(status: int) -> tuple[str, ...]:
-    return tuple(name for name, bit in SF.STATUS_BITS.items() if status & bit)
+    return tuple(name for name, bit in safety.STATUS_BITS.items() if status & bit)
 
 
 class RigClient:
@@ -114,21 +111,23 @@ class RigClient:
         # the compiled path of a policy step (impact_env.rig.host_wire): its COMMAND out, the
         # next OBSERVATION in
         f = self.link.filter
-        self.wire = WR.make(self.endpoint.fileno(), f.key, 0, self.link.session or 0, 0, self.endpoint.peer,
+        self.wire = wire.make(self.endpoint.fileno(), f.key, 0, self.link.session or 0, 0, self.endpoint.peer,
                             None, 0)
         try:
             info = self.hello()
             self.lockstep = bool(info.lockstep)
             self.virtual = info.driver == 0
-            toml = fetch(self.link, P.Resource.SCENE, 0, info.scene_sha256, self.timeout_s, self.retries)
+            toml = fetch(
+                self.link, protocol.Resource.SCENE, 0, info.scene_sha256, self.timeout_s, self.retries
+            )
             import tomllib
 
             self.scene = scene_from_dict(tomllib.loads(toml.decode()))
             # compile (or load) the compiled path now, not in an episode's first step: one call
             # that sends nothing and waits for nothing, then bound (numba's typing skipped after)
             args = (self.wire, False, 0, 0, 0.0, 0, 1 << 31, 0, 0)
-            HW.exchange(*args)
-            self._exchange = entry_point(HW.exchange, args)
+            host_wire.exchange(*args)
+            self._exchange = entry_point(host_wire.exchange, args)
             self._take_wire()
         except BaseException:
             self.endpoint.close()
@@ -138,30 +137,34 @@ class RigClient:
         # a target on this machine: this thread keeps off its loop's CPU while the session lasts
         self._restore_cpus = keep_off_loop_cpu(host, port)
 
-    def hello(self) -> P.Info:
+    def hello(self) -> protocol.Info:
         """HELLO -> CHALLENGE, RESPONSE -> INFO: opens the session (or confirms it: the same
         session id again keeps it; one that the target closed after its idle timeout is opened
         anew, with a new session nonce).  Both nonces are fresh (``secrets``), so no recorded
         handshake opens anything again."""
-        nonce = secrets.token_bytes(P.NONCE_SIZE)
+        nonce = secrets.token_bytes(protocol.NONCE_SIZE)
         f = self.link.filter
         refusals = f.unverified_refusals
         to = self.target_address
+        assert to is not None  # the endpoint's peer, given at construction
         try:
             challenge = self.link.request(
-                P.Hello(nonce),
-                lambda m: m.type == P.MsgType.CHALLENGE and hmac.compare_digest(m.body.nonce, nonce),
-                "CHALLENGE (answer to HELLO)", self.timeout_s, self.retries, addr=to).body
+                protocol.Hello(nonce),
+                lambda m: isinstance(m.body, protocol.Challenge) and hmac.compare_digest(m.body.nonce, nonce),
+                "CHALLENGE (answer to HELLO)", self.timeout_s, self.retries,
+                addr=to).payload(protocol.Challenge)
             info = self.link.request(
-                P.Response(nonce, challenge.target_nonce),
-                lambda m: m.type == P.MsgType.INFO and hmac.compare_digest(m.body.nonce, nonce),
-                "INFO (answer to RESPONSE)", self.timeout_s, self.retries, addr=to).body
+                protocol.Response(nonce, challenge.target_nonce),
+                lambda m: isinstance(m.body, protocol.Info) and hmac.compare_digest(m.body.nonce, nonce),
+                "INFO (answer to RESPONSE)", self.timeout_s, self.retries, addr=to).payload(protocol.Info)
         except (RigTimeout, RigError) as exc:
             # a host without key reads the target's refusal (tagged without key) as authentic; a
             # host with one cannot check it, and only counts it: the text is this side's own
-            if ((isinstance(exc, RigError) and exc.code == P.ErrorCode.UNAUTHENTICATED)
+            if ((isinstance(exc, RigError) and exc.code == protocol.ErrorCode.UNAUTHENTICATED)
                     or (isinstance(exc, RigTimeout) and f.unverified_refusals > refusals)):
-                raise RigError("the session (HELLO)", P.ErrorCode.UNAUTHENTICATED, self._refused()) from None
+                raise RigError(
+                    "the session (HELLO)", protocol.ErrorCode.UNAUTHENTICATED, self._refused()
+                ) from None
             raise
         f.nonce = info.session_nonce
         # the session's own socket at the target (its port authenticated in INFO): everything else
@@ -169,10 +172,10 @@ class RigClient:
         session = (to[0], info.session_port, *to[2:]) if info.session_port else to
         f.session_peer = session
         self.endpoint.peer = session
-        WR.set_peer(self.wire, session)
+        wire.set_peer(self.wire, session)
         nb = np.frombuffer(int(f.nonce).to_bytes(8, "little"), np.uint8)
-        self.wire.rx[:WR.NONCE] = nb  # the compiled path's tags are under the session's nonce too
-        self.wire.tx[:WR.NONCE] = nb
+        self.wire.rx[:wire.NONCE] = nb  # the compiled path's tags are under the session's nonce too
+        self.wire.tx[:wire.NONCE] = nb
         self.info = info
         return info
 
@@ -187,8 +190,8 @@ class RigClient:
 
     def arm(self, mode: str, seed: int, horizon_ticks: int, observation: str = "sensors", history: int = 1,
             hold_ticks: int = 1, policy: CompiledPolicy | None = None, link_timeout_ms: int = 0,
-            first_command_timeout_ticks: int = 1000, kind: P.EpisodeKind = P.EpisodeKind.DROP,
-            excitation=None) -> P.Armed:
+            first_command_timeout_ticks: int = 1000, kind: protocol.EpisodeKind = protocol.EpisodeKind.DROP,
+            excitation=None) -> protocol.Armed:
         """Upload ``policy`` (onboard: the policy; host mode: a residual law) or, for an
         identification episode of ``kind`` shaker, its ``excitation``
         (:class:`impact_env.rig.excitation.Excitation`), and arm an episode (the session
@@ -204,13 +207,23 @@ class RigClient:
             data = (json.dumps(policy.to_dict()) + "\n").encode()
         if data:
             upload(self.link, data, self.timeout_s, self.retries)
-        options = int(P.EpisodeKind(kind)) << P.ARM_KIND_SHIFT
-        arm = P.Arm(mode, observation, int(history), options, int(hold_ticks), int(seed) & P.U64,
-                    int(horizon_ticks), int(first_command_timeout_ticks), int(link_timeout_ms), len(data),
-                    hashlib.sha256(data).digest() if data else bytes(32))
+        options = int(protocol.EpisodeKind(kind)) << protocol.ARM_KIND_SHIFT
+        arm = protocol.Arm(
+            mode,
+            observation,
+            int(history),
+            options,
+            int(hold_ticks),
+            int(seed) & protocol.U64,
+            int(horizon_ticks),
+            int(first_command_timeout_ticks),
+            int(link_timeout_ms),
+            len(data),
+            hashlib.sha256(data).digest() if data else bytes(32),
+        )
         # arming builds the target's controller and readies the rig: allow it a quarter second a try
-        armed = self.link.request(arm, lambda m: m.type == P.MsgType.ARMED, "ARMED (answer to ARM)",
-                                  max(self.timeout_s, 0.25), self.retries).body
+        armed = self.link.request(arm, lambda m: m.type == protocol.MsgType.ARMED, "ARMED (answer to ARM)",
+                                  max(self.timeout_s, 0.25), self.retries).payload(protocol.Armed)
         self.episode, self.step = armed.episode, 0
         return armed
 
@@ -218,12 +231,24 @@ class RigClient:
         """Send the COMMAND of ``step`` (one datagram, not acknowledged)."""
         link, f = self.link, self.link.filter
         seq = link.seq
-        link.seq = (seq + 1) & P.U32
-        self.endpoint.send(P.command_datagram(self.episode, int(step), float(action), link.session or 0, seq,
-                                              time.perf_counter_ns() & P.U64, 0, f.key, f.nonce))
+        link.seq = (seq + 1) & protocol.U32
+        self.endpoint.send(
+            protocol.command_datagram(
+                self.episode,
+                int(step),
+                float(action),
+                link.session or 0,
+                seq,
+                time.perf_counter_ns() & protocol.U64,
+                0,
+                f.key,
+                f.nonce,
+            )
+        )
 
-    def observation(self, step: int, timeout_s: float,
-                    send: tuple[int, float] | None = None) -> P.Observation | P.EpisodeEnd | None:
+    def observation(
+        self, step: int, timeout_s: float, send: tuple[int, float] | None = None
+    ) -> protocol.Observation | protocol.EpisodeEnd | None:
         """The newest OBSERVATION of the current episode that has come, of ``step`` or later (a
         host slower than the target's steps skips the older ones: in real time the newest is the
         one to answer), the EPISODE_END of the current episode if the target ended it before that
@@ -240,17 +265,17 @@ class RigClient:
             cmd_step, action = send if send is not None else (0, 0.0)
             seq = self.link.seq
             if send is not None:
-                self.link.seq = (seq + 1) & P.U32
+                self.link.seq = (seq + 1) & protocol.U32
             code = self._exchange(self.wire, send is not None, self.episode, int(cmd_step), float(action), seq,
                                   int(step), int(self.spin_s * 1e9), int(max(left, 0.0) * 1e9))
             send = None
             self._take_wire()
-            if code == HW.OBSERVED:
+            if code == host_wire.OBSERVED:
                 return self._wire_observation()
             end = self.last_end
             if end is not None and end.episode == self.episode and not self._has_last_obs(end, step):
                 return end
-            if code == HW.TIMEOUT:
+            if code == host_wire.TIMEOUT:
                 return None
         return None
 
@@ -259,7 +284,7 @@ class RigClient:
         kept by ``_seen``), and its counts into the filter's and the endpoint's."""
         w = self.wire
         if w.q_head[0] != w.q_tail[0]:
-            for data, addr in WR.queued(w):
+            for data, addr in wire.queued(w):
                 self.link.take(data, addr)
         c = w.c
         f = self.link.filter
@@ -277,31 +302,31 @@ class RigClient:
         self.endpoint.sent += c.sent.item()
         c.received[0] = c.accepted[0] = c.queued[0] = c.sent[0] = 0
 
-    def _wire_observation(self) -> P.Observation:
+    def _wire_observation(self) -> protocol.Observation:
         """The OBSERVATION the compiled path took (its values copied out of the wire)."""
         st, out = self.wire.st, self.wire.out
         n, m = int(st.out_n[0]), int(st.out_m[0])
         vals = out[:n + m].tolist()
-        obs = object.__new__(P.Observation)  # fields in range by construction, as protocol.decode's
+        obs = object.__new__(protocol.Observation)  # fields in range by construction, as protocol.decode's
         obs.__dict__.update(episode=self.episode, step=int(st.out_step[0]), status=int(st.out_status[0]),
                             dtype=int(st.out_dtype[0]), obs=tuple(vals[:n]), telemetry=tuple(vals[n:]))
         return obs
 
-    def _seen(self, msg: P.Message) -> None:
+    def _seen(self, msg: protocol.Message) -> None:
         """Every accepted message: an EPISODE_END is kept even when a request (a FETCH, an
         ARM's retry) was waiting when it came."""
-        if msg.type == P.MsgType.EPISODE_END:
+        if isinstance(msg.body, protocol.EpisodeEnd):
             self.last_end = msg.body
 
     @staticmethod
-    def _has_last_obs(end: P.EpisodeEnd, step: int) -> bool:
+    def _has_last_obs(end: protocol.EpisodeEnd, step: int) -> bool:
         """Whether the target sent an OBSERVATION of ``step`` before ending (at the horizon it
         sends the last step's)."""
-        return end.reason == P.EndReason.HORIZON and step <= end.n_steps
+        return end.reason == protocol.EndReason.HORIZON and step <= end.n_steps
 
-    last_end: P.EpisodeEnd | None = None
+    last_end: protocol.EpisodeEnd | None = None
 
-    def wait_end(self, timeout_s: float) -> P.EpisodeEnd:
+    def wait_end(self, timeout_s: float) -> protocol.EpisodeEnd:
         """The EPISODE_END of the current episode (an onboard episode runs to its end)."""
         deadline = time.perf_counter() + timeout_s
         while (self.last_end is None or self.last_end.episode != self.episode):
@@ -309,8 +334,9 @@ class RigClient:
             if left <= 0:
                 raise RigTimeout(f"EPISODE_END of episode {self.episode}", timeout_s, self.address)
             msg = self.link.recv(left)
-            if msg is not None and msg.type == P.MsgType.EPISODE_END and msg.body.episode == self.episode:
-                self.last_end = msg.body
+            body = None if msg is None else msg.body
+            if isinstance(body, protocol.EpisodeEnd) and body.episode == self.episode:
+                self.last_end = body
         return self.last_end
 
     def fetch_log(self, episode: int | None = None, sha256: bytes | None = None):
@@ -319,7 +345,7 @@ class RigClient:
         deadline = time.perf_counter() + 10.0
         while True:
             try:
-                data = fetch(self.link, P.Resource.EPISODE, ep, sha256, self.timeout_s, self.retries)
+                data = fetch(self.link, protocol.Resource.EPISODE, ep, sha256, self.timeout_s, self.retries)
                 break
             except Exception as exc:  # the episode may still be running (BUSY): wait, boundedly
                 if "BUSY" not in str(exc) or time.perf_counter() > deadline:
@@ -339,13 +365,19 @@ class RigClient:
         the host's task caught body 1, and the target's log says so (end reason CAUGHT)."""
         if self.endpoint.closed:
             return
-        reason = P.DISARM_CLOSING if closing else P.DISARM_CAUGHT if caught else P.DISARM_USER
+        reason = (
+            protocol.DISARM_CLOSING if closing else protocol.DISARM_CAUGHT if caught else protocol.DISARM_USER
+        )
         if wait or caught:  # a catch is acknowledged: a lost one would leave the log's end another
-            self.link.request(P.Disarm(reason),
-                              lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
-                              "ACK of DISARM", self.timeout_s, self.retries)
+            self.link.request(
+                protocol.Disarm(reason),
+                lambda m: isinstance(m.body, protocol.Ack) and m.body.acked_type == protocol.MsgType.DISARM,
+                "ACK of DISARM",
+                self.timeout_s,
+                self.retries,
+            )
         else:
-            self.link.send(P.Disarm(reason))
+            self.link.send(protocol.Disarm(reason))
 
     def close(self, budget_s: float = 0.3) -> None:
         """End the session (DISARM "host closing", acknowledged, so that the target frees it for
@@ -354,9 +386,14 @@ class RigClient:
         if not self.endpoint.closed:
             tries = max(1, min(self.retries + 1, int(budget_s / self.timeout_s)))
             try:
-                self.link.request(P.Disarm(1),
-                                  lambda m: m.type == P.MsgType.ACK and m.body.acked_type == P.MsgType.DISARM,
-                                  "ACK of DISARM", min(self.timeout_s, budget_s), tries - 1)
+                self.link.request(
+                    protocol.Disarm(1),
+                    lambda m: (isinstance(m.body, protocol.Ack)
+                               and m.body.acked_type == protocol.MsgType.DISARM),
+                    "ACK of DISARM",
+                    min(self.timeout_s, budget_s),
+                    tries - 1,
+                )
             except (RigTimeout, RigError, OSError):
                 pass
         self.endpoint.close()
@@ -447,44 +484,54 @@ TASK_OPTIONS_DOC
               link_timeout_ms=self._link_ms)
         self._running = True
         self._n = 0
-        self._last_obs = None
+        self._last_obs: protocol.Observation | None = None
         self._unheard = self._unheard_run = 0
         self._unheard_warned = False
         obs = self._wait_obs(0, resend=None)
-        if isinstance(obs, P.EpisodeEnd):
+        if isinstance(obs, protocol.EpisodeEnd):
             raise RuntimeError(f"the target ended episode {obs.episode} at once: "
-                               f"{P.EndReason(obs.reason).name}")
+                               f"{protocol.EndReason(obs.reason).name}")
         return np.asarray(obs.obs, dtype=np.float32), self._info(obs)
 
-    def _start_drop(self, ep_seed: int, state: TK.TaskState, rows: np.ndarray) -> None:
+    def _start_drop(self, ep_seed: int, state: task_kernel.TaskState, rows: np.ndarray) -> None:
         """The drop's constants, as the virtual rig draws them from the seed, and the task's rows."""
         from gymnasium.utils import seeding
 
         hw = self._hw
+        assert hw is not None  # a virtual rig's drop
         hw.reset([seeding.np_random(ep_seed)[0]])
-        rows[0, TK.INFO.t_touch] = hw.t_touch[0]
-        TK.task_reset_rows(np.zeros(1, np.int64), np.zeros((1, 1, R.N_REC)),
-                           TK.Drop(hw.Y, hw.P, hw.impact_energy, hw.impact_speed), self.tp, state, rows)
+        rows[0, task_kernel.INFO.t_touch] = hw.t_touch[0]
+        task_kernel.task_reset_rows(
+            np.zeros(1, np.int64),
+            np.zeros((1, 1, records.N_REC)),
+            task_kernel.Drop(hw.Y, hw.P, hw.impact_energy, hw.impact_speed),
+            self.tp,
+            state,
+            rows,
+        )
 
-    def _task_step(self, recs: np.ndarray, state: TK.TaskState, out: TK.TaskOut) -> None:
+    def _task_step(self, recs: np.ndarray, state: task_kernel.TaskState, out: task_kernel.TaskOut) -> None:
         hw = self._hw
-        self._y[:] = recs[:, -1, R.REC.x1:R.REC.v2 + 1]
-        drop = TK.Drop(self._y, hw.P, hw.impact_energy, hw.impact_speed)
+        assert hw is not None  # a virtual rig's records
+        self._y[:] = recs[:, -1, records.REC.x1:records.REC.v2 + 1]
+        drop = task_kernel.Drop(self._y, hw.P, hw.impact_energy, hw.impact_speed)
         args = (self._active, recs, drop, self.tp, state, out)
         if self._task_fn is None:  # the first call runs it and binds it (numba's typing skipped after)
-            self._task_fn = bound_call(TK.task_step, args)
+            self._task_fn = bound_call(task_kernel.task_step, args)
         else:
             self._task_fn(*args)
 
     def _warm_up(self) -> None:
         """Compile (or load) the reward kernels now, on copies, so that no episode waits for them:
         a host that stalls mid-episode loses ticks of control to the watchdog."""
-        state = TK.TaskState(*(a.copy() for a in self._state))
-        out = TK.TaskOut(*(a.copy() for a in self._out))
+        state = task_kernel.TaskState(*(a.copy() for a in self._state))
+        out = task_kernel.TaskOut(*(a.copy() for a in self._out))
         self._start_drop(0, state, out.rows)
-        self._task_step(np.zeros((1, self.hold, R.N_REC)), state, out)
+        self._task_step(np.zeros((1, self.hold, records.N_REC)), state, out)
 
-    def _wait_obs(self, step: int, resend, send: tuple[int, float] | None = None) -> P.Observation | P.EpisodeEnd:
+    def _wait_obs(
+        self, step: int, resend, send: tuple[int, float] | None = None
+    ) -> protocol.Observation | protocol.EpisodeEnd:
         c = self.client
         for _ in range(c.retries + 1):
             got = c.observation(step, c.timeout_s, send)
@@ -508,7 +555,7 @@ TASK_OPTIONS_DOC
                                 self._a1)[0])
         self._n += 1
         got = self._wait_obs(self._n, resend=u, send=(self._n - 1, u))  # the COMMAND, then the next OBSERVATION
-        if isinstance(got, P.EpisodeEnd):
+        if isinstance(got, protocol.EpisodeEnd):
             return self._ended(got)
         obs = got
         extra: dict[str, Any] = {}
@@ -519,7 +566,7 @@ TASK_OPTIONS_DOC
         self._count_unheard(obs.step, tel)
         extra["commands_unheard_steps"] = self._unheard
         if self._hw is not None and len(tel) > N_TEL:
-            recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, R.N_REC)
+            recs = np.asarray(tel[N_TEL:], dtype=np.float64).reshape(1, self.hold, records.N_REC)
             self._task_step(recs, self._state, self._out)
             reward, term, trunc = float(self._out.rewards[0]), bool(self._out.terminated[0]), \
                 bool(self._out.truncated[0])
@@ -567,24 +614,24 @@ TASK_OPTIONS_DOC
     # disarmed, the link, a fault, no first command) cuts the episode short: truncated
     TERMINAL_REASONS = frozenset({"CAUGHT", "SAFETY"})
 
-    def _ended(self, end: P.EpisodeEnd):
+    def _ended(self, end: protocol.EpisodeEnd):
         """The step the target ended the episode in (EPISODE_END before the step's OBSERVATION):
         the last observation again, no reward (no records came), terminated or truncated by the
         reason."""
         self._running = False
         try:
-            reason = P.EndReason(end.reason).name
+            reason = protocol.EndReason(end.reason).name
         except ValueError:
             reason = f"reason {end.reason}"
         term = reason in self.TERMINAL_REASONS
         obs = self._last_obs
-        info = self._info(obs) if obs is not None else {}
+        info: dict[str, Any] = self._info(obs) if obs is not None else {}
         info.update(end_reason=reason, reward_available=False, status=int(end.status),
                     status_flags=status_names(end.status), ticks=int(end.n_ticks))
         o = np.asarray(obs.obs if obs is not None else np.zeros(self.layout.size), dtype=np.float32)
         return o, 0.0, term, not term, info
 
-    def _info(self, obs: P.Observation) -> dict[str, Any]:
+    def _info(self, obs: protocol.Observation) -> dict[str, Any]:
         self._last_obs = obs
         tel = obs.telemetry
         out: dict[str, Any] = {"step": obs.step, "status": obs.status,

@@ -16,15 +16,14 @@ from __future__ import annotations
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
-from impact_env.rig import protocol as P
-from impact_env.rig import wire as WR
+from impact_env.rig import protocol, wire
 from impact_env.rig.cfunc import call_poll, call_recvfrom
 
 # what exchange() returns: the newest OBSERVATION is in Wire.out; Python has a queued datagram to
 # look at (none observed yet); the time ran out
 OBSERVED, QUEUED, TIMEOUT = 1, 2, 3
 OBS_FIXED = 17  # bytes of an OBSERVATION's fixed payload fields (protocol.Observation.FMT)
-assert P.Observation.FMT.size == OBS_FIXED and P.Command.FMT.size == 10
+assert protocol.Observation.FMT.size == OBS_FIXED and protocol.Command.FMT.size == 10
 
 
 @jit
@@ -32,39 +31,46 @@ def classify_observation(w, n, episode, min_step):
     """The datagram of ``n`` bytes in ``w.rx`` from ``w.src``, as the host's filter would take it:
     an OBSERVATION of the target's (counted by reason in ``w.c``; one of ``episode`` at ``min_step``
     or later, newer than the one held, copied to ``w.out``) or, anything else, queued."""
-    c, d, o = w.c, w.rx, WR.NONCE
-    if (n < P.OVERHEAD or not WR.from_peer(w) or d[o + WR.H_TYPE] != WR.T_OBSERVATION
-            or d[o + WR.H_MAJOR] != P.VERSION_MAJOR or d[o] != WR.MAGIC[0] or d[o + 1] != WR.MAGIC[1]
-            or d[o + 2] != WR.MAGIC[2] or d[o + 3] != WR.MAGIC[3]):
-        WR.enqueue(w, n)
+    c, d, o = w.c, w.rx, wire.NONCE
+    if (
+        n < protocol.OVERHEAD
+        or not wire.from_peer(w)
+        or d[o + wire.H_TYPE] != wire.T_OBSERVATION
+        or d[o + wire.H_MAJOR] != protocol.VERSION_MAJOR
+        or d[o] != wire.MAGIC[0]
+        or d[o + 1] != wire.MAGIC[1]
+        or d[o + 2] != wire.MAGIC[2]
+        or d[o + 3] != wire.MAGIC[3]
+    ):
+        wire.enqueue(w, n)
         return
-    plen = WR.get_uint(d, o + WR.H_PLEN, 2)
-    if P.HEADER_SIZE + plen + P.TAG_SIZE != n:
+    plen = wire.get_uint(d, o + wire.H_PLEN, 2)
+    if protocol.HEADER_SIZE + plen + protocol.TAG_SIZE != n:
         c.corrupt[0] += 1
         return
-    if not WR.tag_checks(w, P.HEADER_SIZE + plen):
+    if not wire.tag_checks(w, protocol.HEADER_SIZE + plen):
         c.unauthenticated[0] += 1
         return
-    newer = d[o + WR.H_MINOR] > P.VERSION_MINOR
-    pl = o + P.HEADER_SIZE
+    newer = d[o + wire.H_MINOR] > protocol.VERSION_MINOR
+    pl = o + protocol.HEADER_SIZE
     if plen < OBS_FIXED:
         c.corrupt[0] += 1
         return
     dtype = d[pl + 12]
-    n_obs = WR.get_uint(d, pl + 13, 2)
-    m = WR.get_uint(d, pl + 15, 2)
-    if (dtype != 4 and dtype != 8) or m > P.MAX_VALUES or n_obs > P.MAX_VALUES:
+    n_obs = wire.get_uint(d, pl + 13, 2)
+    m = wire.get_uint(d, pl + 15, 2)
+    if (dtype != 4 and dtype != 8) or m > protocol.MAX_VALUES or n_obs > protocol.MAX_VALUES:
         c.corrupt[0] += 1
         return
     need = OBS_FIXED + dtype * n_obs + 8 * m
     if plen < need or (not newer and plen != need):
         c.corrupt[0] += 1
         return
-    if WR.get_uint(d, o + WR.H_SESSION, 4) != w.session:
+    if wire.get_uint(d, o + wire.H_SESSION, 4) != w.session:
         c.wrong_session[0] += 1
         return
     c.authentic[0] += 1
-    new = WR.fresh(w, WR.get_uint(d, o + WR.H_SEQ, 4))
+    new = wire.fresh(w, wire.get_uint(d, o + wire.H_SEQ, 4))
     if new == 0:
         c.duplicate[0] += 1
         return
@@ -73,20 +79,20 @@ def classify_observation(w, n, episode, min_step):
         return
     c.accepted[0] += 1
     st = w.st
-    step = WR.get_uint(d, pl + 4, 4)
-    if WR.get_uint(d, pl, 4) != episode or step < min_step or (st.got[0] and step <= st.out_step[0]):
+    step = wire.get_uint(d, pl + 4, 4)
+    if wire.get_uint(d, pl, 4) != episode or step < min_step or (st.got[0] and step <= st.out_step[0]):
         return
     q = pl + OBS_FIXED
     out = w.out
     for i in range(n_obs):
-        out[i] = WR.get_f32(d, q, w) if dtype == 4 else WR.get_f64(d, q, w)
+        out[i] = wire.get_f32(d, q, w) if dtype == 4 else wire.get_f64(d, q, w)
         q += dtype
     for i in range(m):
-        out[n_obs + i] = WR.get_f64(d, q, w)
+        out[n_obs + i] = wire.get_f64(d, q, w)
         q += 8
     st.got[0] = 1
     st.out_step[0] = step
-    st.out_status[0] = WR.get_uint(d, pl + 8, 4)
+    st.out_status[0] = wire.get_uint(d, pl + 8, 4)
     st.out_dtype[0] = dtype
     st.out_n[0] = n_obs
     st.out_m[0] = m
@@ -95,25 +101,25 @@ def classify_observation(w, n, episode, min_step):
 @jit
 def send_command(w, episode, step, action, seq, host_ns):
     """The one-action COMMAND of ``step`` (protocol.command_datagram's bytes), sent to the target."""
-    t, o = w.tx, WR.NONCE
+    t, o = w.tx, wire.NONCE
     for k in range(4):
-        t[o + k] = WR.MAGIC[k]
-    t[o + WR.H_MAJOR] = P.VERSION_MAJOR
-    t[o + WR.H_MINOR] = P.VERSION_MINOR
-    t[o + WR.H_TYPE] = WR.T_COMMAND
-    t[o + WR.H_FLAGS] = 0
-    WR.put_uint(t, o + WR.H_SESSION, 4, w.session)
-    WR.put_uint(t, o + WR.H_SEQ, 4, seq)
-    WR.put_uint(t, o + WR.H_TICK, 8, 0)
-    WR.put_uint(t, o + WR.H_HOST_NS, 8, host_ns)
-    WR.put_uint(t, o + WR.H_TARGET_NS, 8, 0)
-    WR.put_uint(t, o + WR.H_PLEN, 2, 18)
-    pl = o + P.HEADER_SIZE
-    WR.put_uint(t, pl, 4, episode)
-    WR.put_uint(t, pl + 4, 4, step)
-    WR.put_uint(t, pl + 8, 2, 1)
-    WR.put_f64(t, pl + 10, action, w)
-    WR.send_frame(w, P.HEADER_SIZE + 18)
+        t[o + k] = wire.MAGIC[k]
+    t[o + wire.H_MAJOR] = protocol.VERSION_MAJOR
+    t[o + wire.H_MINOR] = protocol.VERSION_MINOR
+    t[o + wire.H_TYPE] = wire.T_COMMAND
+    t[o + wire.H_FLAGS] = 0
+    wire.put_uint(t, o + wire.H_SESSION, 4, w.session)
+    wire.put_uint(t, o + wire.H_SEQ, 4, seq)
+    wire.put_uint(t, o + wire.H_TICK, 8, 0)
+    wire.put_uint(t, o + wire.H_HOST_NS, 8, host_ns)
+    wire.put_uint(t, o + wire.H_TARGET_NS, 8, 0)
+    wire.put_uint(t, o + wire.H_PLEN, 2, 18)
+    pl = o + protocol.HEADER_SIZE
+    wire.put_uint(t, pl, 4, episode)
+    wire.put_uint(t, pl + 4, 4, step)
+    wire.put_uint(t, pl + 8, 2, 1)
+    wire.put_f64(t, pl + 10, action, w)
+    wire.send_frame(w, protocol.HEADER_SIZE + 18)
 
 
 @jit(nogil=True)
@@ -123,14 +129,16 @@ def exchange(w, send, episode, step, action, seq, min_step, spin_ns, timeout_ns)
     ``spin_ns``, then asleep in poll()); once one has come, read whatever else is waiting (the
     newest wins).  Returns OBSERVED, QUEUED (a datagram for Python came first) or TIMEOUT."""
     w = borrow(w)
-    t0 = WR.now_ns(w)
+    t0 = wire.now_ns(w)
     if send:
         send_command(w, episode, step, action, seq, t0)
     st = w.st
     st.got[0] = 0
     while True:
-        w.srclen[0] = WR.SOCKADDR
-        n = call_recvfrom(w.calls.recvfrom, w.fd, w.rx, WR.NONCE, WR.RX_MAX, WR.MSG_DONTWAIT, w.src, w.srclen)
+        w.srclen[0] = wire.SOCKADDR
+        n = call_recvfrom(
+            w.calls.recvfrom, w.fd, w.rx, wire.NONCE, wire.RX_MAX, wire.MSG_DONTWAIT, w.src, w.srclen
+        )
         if n >= 0:
             w.c.received[0] += 1
             h = w.q_head[0]
@@ -140,7 +148,7 @@ def exchange(w, send, episode, step, action, seq, min_step, spin_ns, timeout_ns)
             continue
         if st.got[0]:
             return OBSERVED
-        waited = WR.now_ns(w) - t0
+        waited = wire.now_ns(w) - t0
         if waited >= timeout_ns:
             return TIMEOUT
         if waited >= spin_ns:

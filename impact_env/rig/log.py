@@ -29,7 +29,7 @@ dataset                 dtype     unit     meaning
 ``status``              uint32             status bits (:mod:`impact_env.rig.safety`)
 ``step``                int64              policy step (tick // hold_ticks)
 ``contact_detected``    uint8              the front end's contact detector (0/1)
-``lateness_ns``         int64     ns       tick start minus its deadline (:mod:`impact_env.rig.clock`)
+``lateness_ns``         int64     ns       tick start minus its deadline (:mod:`impact_env.rig.rtloop`)
 ``compute_ns``          int64     ns       time the tick's work took
 ``command_step``        int64              host mode: the policy step of the command that acted (-1:
                                            none; onboard: the row's own step)
@@ -64,6 +64,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.scene import scene_from_dict
 
 FORMAT = "impact_env.rig.episode"
@@ -72,17 +73,33 @@ KINDS = ("drop", "ident_drop", "shaker", "quiet")  # impact_env.rig.protocol.Epi
 # attributes a file of an older format lacks, with the value they mean there
 _SINCE_3 = {"kind": "drop", "excitation": "", "physics_toml": ""}
 
-(TICK, T_S, ACCEL, FORCE, POT, ACTION, FORCE_DEMAND, FORCE_APPLIED, COMMAND_AGE, STATUS, STEP, DETECTED,
- LATENESS_NS, COMPUTE_NS, COMMAND_STEP, SKIPPED) = range(16)
+
+
+class LogRow(NamedTuple):
+    """The fixed columns of a log row (float64 in memory), read by name: ``row[COL.force_N]``;
+    each field: (unit, dtype on disk), the table in the module doc."""
+
+    tick: tuple = ("", "int64")
+    t_s: tuple = ("s", "float64")
+    accelerometer_mps2: tuple = ("m/s^2", "float64")
+    force_N: tuple = ("N", "float64")
+    potentiometer_m: tuple = ("m", "float64")
+    action: tuple = ("", "float64")
+    force_demand_N: tuple = ("N", "float64")
+    force_applied_N: tuple = ("N", "float64")
+    command_age_ticks: tuple = ("ticks", "int64")
+    status: tuple = ("", "uint32")
+    step: tuple = ("", "int64")
+    contact_detected: tuple = ("", "uint8")
+    lateness_ns: tuple = ("ns", "int64")
+    compute_ns: tuple = ("ns", "int64")
+    command_step: tuple = ("", "int64")
+    skipped_ticks: tuple = ("ticks", "int64")
+
+
+COL = positions(LogRow)
 # name, unit, dtype on disk, in column order
-COLUMNS = (
-    ("tick", "", "int64"), ("t_s", "s", "float64"), ("accelerometer_mps2", "m/s^2", "float64"),
-    ("force_N", "N", "float64"), ("potentiometer_m", "m", "float64"), ("action", "", "float64"),
-    ("force_demand_N", "N", "float64"), ("force_applied_N", "N", "float64"),
-    ("command_age_ticks", "ticks", "int64"), ("status", "", "uint32"), ("step", "", "int64"),
-    ("contact_detected", "", "uint8"), ("lateness_ns", "ns", "int64"), ("compute_ns", "ns", "int64"),
-    ("command_step", "", "int64"), ("skipped_ticks", "ticks", "int64"),
-)
+COLUMNS = tuple((name, *spec) for name, spec in zip(LogRow._fields, LogRow(), strict=True))
 N_FIXED = len(COLUMNS)
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from impact_env.hardware.batch import Hardware
 from impact_env.rig.log import EpisodeLog
-from impact_env.sim import records as R
+from impact_env.sim import records
 from impact_env.sim.metrics import EpisodeMetrics
 
 
@@ -39,19 +39,19 @@ def log_records(log: EpisodeLog) -> np.ndarray:
     def held(values):
         return np.asarray(values, dtype=np.float64)[:n_rows][prev] if n else np.zeros(0)
 
-    rec = np.zeros((n, R.N_REC))
-    rec[:, R.REC.t] = (k + 1) / log.meta.control_rate_hz
+    rec = np.zeros((n, records.N_REC))
+    rec[:, records.REC.t] = (k + 1) / log.meta.control_rate_hz
     for j, name in enumerate(("true_x1_m", "true_v1_mps", "true_x2_m", "true_v2_mps")):
-        rec[:, R.REC.x1 + j] = smooth(name)
-    rec[:, R.REC.u] = held(log["command"])
-    rec[:, R.REC.f_demand] = held(log["hw_force_demand_N"])
-    rec[:, R.REC.f_applied] = smooth("hw_force_applied_N")
-    rec[:, R.REC.saturated] = held(log["hw_saturated"])
-    rec[:, R.REC.contact_force] = smooth("hw_contact_force_N")
+        rec[:, records.REC.x1 + j] = smooth(name)
+    rec[:, records.REC.u] = held(log["command"])
+    rec[:, records.REC.f_demand] = held(log["hw_force_demand_N"])
+    rec[:, records.REC.f_applied] = smooth("hw_force_applied_N")
+    rec[:, records.REC.saturated] = held(log["hw_saturated"])
+    rec[:, records.REC.contact_force] = smooth("hw_contact_force_N")
     det = np.asarray(log["contact_detected"], dtype=np.float64)
     nxt = np.append(det[1:n_rows + 1], det[-1]) if det.size <= n_rows else det[1:n_rows + 1]
-    rec[:, R.REC.detected] = nxt[prev] if n else 0.0
-    rec[:, R.REC.status] = held(log["hw_status"])
+    rec[:, records.REC.detected] = nxt[prev] if n else 0.0
+    rec[:, records.REC.status] = held(log["hw_status"])
     return rec
 
 
@@ -77,5 +77,5 @@ def exact_metrics(log: EpisodeLog, catch_fraction: float = 0.01,
     m = EpisodeMetrics(1, 1.0 / log.meta.control_rate_hz, catch_fraction, min_flight_s)
     m.start(hw.t_touch, hw.impact_speed, hw.impact_energy, hw.Y[:, 0] - hw.Y[:, 2] > 0.0)
     m.step(rec[None, :, :], hw.P)
-    failed = np.array([bool(np.any(rec[:, R.REC.status] != 0.0)) or len(rec) == 0])
+    failed = np.array([bool(np.any(rec[:, records.REC.status] != 0.0)) or len(rec) == 0])
     return {k: float(v[0]) for k, v in m.finish(failed).items()}

@@ -146,15 +146,17 @@ source (token buckets: 32 at once, 50 per second; a HELLO past it is ``rate_limi
 
 from __future__ import annotations
 
+import builtins
 import enum
 import functools
 import hmac
 import math
 import struct
+from collections.abc import Hashable
 from dataclasses import dataclass, field, fields
-from typing import ClassVar
+from typing import Any, ClassVar, TypeVar, cast
 
-from impact_env.rig import handshake as _HS
+from impact_env.rig import handshake
 
 MAGIC = b"IMPR"
 VERSION_MAJOR = 4
@@ -169,7 +171,7 @@ MAX_PAYLOAD = MAX_DATAGRAM - OVERHEAD  # 65449 B
 MIN_KEY = 16  # bytes of a shared key, at least
 # the types tagged with nonce 0: those sent before the session's nonce is known to both sides
 OPEN_TYPES = frozenset({1, 2, 14, 15, 16})  # HELLO, INFO, ERROR, CHALLENGE, RESPONSE
-NONCE_SIZE = _HS.NONCE_SIZE  # bytes of the host's and the target's handshake nonces
+NONCE_SIZE = handshake.NONCE_SIZE  # bytes of the host's and the target's handshake nonces
 # zero bytes that pad HELLO and RESPONSE so that no reply to them is larger (anti-amplification)
 HELLO_PAD, RESPONSE_PAD = 64, 48
 MTU_DATAGRAM = 1472  # Ethernet MTU 1500 - IPv4 20 - UDP 8, B
@@ -375,18 +377,22 @@ class Body:
         return self.FMT.pack(*self._fixed())
 
     def _fixed(self) -> tuple:
-        return tuple(getattr(self, name) for name in _names(type(self)))
+        cls = cast(Hashable, type(self))  # a class is hashable (mypy reads the eq dataclass's instances)
+        return tuple(getattr(self, name) for name in _names(cls))
 
     @classmethod
-    def unpack(cls, payload: bytes, newer: bool) -> Body:
+    def unpack(cls, payload: bytes | memoryview, newer: bool) -> Body:
         """Decode ``payload``; ``newer``: the sender's minor is newer (trailing bytes allowed)."""
         n = cls.FMT.size
         _need(payload, n, newer, exact=True)
         return cls(*cls.FMT.unpack_from(payload))
 
 
+
+B = TypeVar("B", bound=Body)  # a payload class
+
 @functools.cache
-def _names(cls) -> tuple[str, ...]:
+def _names(cls: Any) -> tuple[str, ...]:
     return tuple(f.name for f in fields(cls))
 
 
@@ -856,6 +862,14 @@ class Message:
     def type(self) -> MsgType:
         return self.body.TYPE
 
+    def payload(self, cls: builtins.type[B]) -> B:
+        """The body as ``cls``, for code that has checked the type code (``msg.type``): a
+        message of another type is a TypeError, not a missing attribute later."""
+        body = self.body
+        if not isinstance(body, cls):
+            raise TypeError(f"a {self.type.name} message carries {type(body).__name__}, not {cls.__name__}")
+        return body
+
 
 def tag(key: bytes, nonce: int, frame) -> bytes:
     """The datagram's tag: HMAC-SHA256 under ``key`` (b"": no key, an integrity check only) of
@@ -1015,15 +1029,15 @@ class DatagramFilter:
     replies_limited: int = 0
     # the open session's handshake: (source, session, host nonce, target nonce)
     opened: tuple | None = None
-    limiter: _HS.RateLimiter = field(default_factory=_HS.RateLimiter)
-    challenges: _HS.Challenges = field(default_factory=_HS.Challenges)
+    limiter: handshake.RateLimiter = field(default_factory=handshake.RateLimiter)
+    challenges: handshake.Challenges = field(default_factory=handshake.Challenges)
     # the target: the armed COMMAND's action count (ARMED's action_size); None: any count
     n_actions: int | None = None
     # the target: (ERROR code, seq, text, datagram size) of the last datagram dropped that its
     # session's host is to be told about (a field out of range); the link answers and clears it
     refusal: tuple | None = None
     # the answers to refusals, per source (their own buckets: a host's HELLOs keep theirs)
-    refusal_limiter: _HS.RateLimiter = field(default_factory=_HS.RateLimiter)
+    refusal_limiter: handshake.RateLimiter = field(default_factory=handshake.RateLimiter)
     refusals_limited: int = 0
     # datagrams of the open session that authenticated from its peer, whatever their fate after
     # (accepted, or dropped as duplicate, out of order or late): a late COMMAND is still a host
@@ -1080,7 +1094,7 @@ class DatagramFilter:
             self.last_unauth = isinstance(exc, Unauthenticated) and exc.detail == "HELLO"
             return None
         t = msg.type
-        if not self.from_peer(sender):
+        if sender is not None and not self.from_peer(sender):
             self._drop("stranger", f"{t.name} from {sender[0]}:{sender[1]}, not the session's host",
                        t.name)
             self.last_stranger = msg
@@ -1088,7 +1102,7 @@ class DatagramFilter:
         if t not in self._types:
             self._drop("unexpected", f"{t.name} is not for the {self.role}")
             return None
-        if t not in self.open_types and (self.session is None or msg.session != self.session):
+        if t not in (self.open_types or ()) and (self.session is None or msg.session != self.session):
             self._drop("wrong_session", f"{t.name} of session {msg.session:#x}, open: "
                        f"{'none' if self.session is None else f'{self.session:#x}'}")
             return None
@@ -1102,14 +1116,16 @@ class DatagramFilter:
             self._drop("no_challenge", "RESPONSE that answers no live challenge sent to its sender "
                        "(replayed, expired, or never asked)")
             return None
-        if t == MsgType.COMMAND and self.n_actions is not None and len(msg.body.action) != self.n_actions:
-            n, want = len(msg.body.action), self.n_actions
+        if t == MsgType.COMMAND and self.n_actions is not None and \
+                len(msg.payload(Command).action) != self.n_actions:
+            n, want = len(msg.payload(Command).action), self.n_actions
             self._drop("corrupt", f"COMMAND of {n} actions; the armed episode takes {want}", "action_count")
             self.refusal = (ErrorCode.OUT_OF_RANGE, msg.seq, f"n={n} [{want},{want}]", len(data))
             return None
         if (t == MsgType.COMMAND and episode is not None and step is not None
-                and (msg.body.episode, msg.body.step) < (episode, step)):
-            self._drop("late", f"COMMAND for episode {msg.body.episode} step {msg.body.step} arrived at "
+                and (msg.payload(Command).episode, msg.payload(Command).step) < (episode, step)):
+            cmd = msg.payload(Command)
+            self._drop("late", f"COMMAND for episode {cmd.episode} step {cmd.step} arrived at "
                        f"episode {episode} step {step}")
             return None
         self.counters["accepted"] += 1
@@ -1126,7 +1142,7 @@ class DatagramFilter:
             msg = decode(data)
         except ProtocolError:
             return
-        if msg.body.code == ErrorCode.UNAUTHENTICATED and msg.session == self.session:
+        if msg.payload(Error).code == ErrorCode.UNAUTHENTICATED and msg.session == self.session:
             self.unverified_refusals += 1
 
     def _refuse(self, exc: FieldOutOfRange, size: int, sender: tuple | None) -> None:
@@ -1153,7 +1169,7 @@ class DatagramFilter:
                                                and who == tuple(self.session_peer[:2]))
 
     def _redeem(self, msg: Message, sender: tuple | None) -> bool:
-        b = msg.body
+        b = msg.payload(Response)
         src = source(sender)
         if self.opened is not None and self.opened == (src, msg.session, b.nonce, b.target_nonce):
             return True  # the handshake that opened this session, again: its INFO was lost

@@ -16,8 +16,10 @@ The driver is one of two kinds, chosen by the type of ``io`` (numba compiles one
 
 * :class:`VirtualIO`: the virtual rig's hardware stage, compiled into the loop (its truth columns
   and true records too);
-* :class:`CIO`: a C driver's ``read``/``apply`` called through their addresses
-  (:mod:`impact_env.rig.cdriver`, ``impact_env/deploy/rt/impact_driver.h``).
+* :class:`CIO`: a driver's ``read``/``apply`` called through their addresses: a C driver's
+  (:mod:`impact_env.rig.cdriver`, ``impact_env/deploy/rt/impact_driver.h``), or a Python
+  :class:`~impact_env.rig.driver.RigDriver`'s through ctypes callbacks
+  (:class:`impact_env.rig.cdriver.PythonCallbacks`; lock-step only: each call takes the GIL).
 
 Time is the clock's: a command's age and the first-command allowance count periods of the clock
 (the tick the clock is in), not ticks run, so they hold in seconds whatever the loop skipped.  A
@@ -46,10 +48,8 @@ from impact_env.hardware.stage import (
     hardware_tick,
     state_ok,
 )
-from impact_env.rig import log as LG
-from impact_env.rig import ring as RG
-from impact_env.rig import safety as SF
-from impact_env.rig import wire as WR
+from impact_env.rig import log as tick_log
+from impact_env.rig import ring, safety, wire
 from impact_env.rig.cfunc import call_apply, call_read, call_usleep, call_write, fence
 from impact_env.rig.controller import (
     ACCT,
@@ -64,7 +64,7 @@ from impact_env.rig.controller import (
     true_record,
 )
 from impact_env.rig.cycles import cycles
-from impact_env.sim import records as R
+from impact_env.sim import records as sim_records
 
 
 class VirtualIO(NamedTuple):
@@ -79,7 +79,8 @@ class VirtualIO(NamedTuple):
 
 
 class CIO(NamedTuple):
-    """A C driver as the loop's driver: its functions' addresses and context."""
+    """A driver called through addresses as the loop's driver: its functions' addresses and
+    context."""
 
     read: int
     apply: int
@@ -88,6 +89,9 @@ class CIO(NamedTuple):
     truth: np.ndarray  # float64[4] NaN: a physical rig measures no body-1 state
     command_col: int  # the log column of the command sent
     records: np.ndarray  # float64[0, N_REC]: a physical rig has no true records to send the host
+    # float64[1]: the force the driver says it applied (N), written by a Python driver's apply;
+    # float64[0] for a C driver, whose ABI returns none: the log then has the force demanded
+    applied: np.ndarray
 
 
 class Timing(NamedTuple):
@@ -175,7 +179,7 @@ def _ov_seen(io, m, detected):
     if _is(io, VirtualIO):
         def impl(io, m, detected):
             if m > 0:
-                io.records[m - 1, R.REC.detected] = detected
+                io.records[m - 1, sim_records.REC.detected] = detected
         return impl
     if _is(io, CIO):
         return lambda io, m, detected: None
@@ -193,7 +197,7 @@ def _ov_apply(io, m, out, f, row, rows, detected, rate):
             if row >= 0:
                 r = rows[row]
                 tc = io.truth
-                r[LG.FORCE_APPLIED] = info[0, INFO_F_APPLIED]
+                r[tick_log.COL.force_applied_N] = info[0, INFO_F_APPLIED]
                 r[tc.command] = out
                 r[tc.x1] = Y[0, 0]
                 r[tc.v1] = Y[0, 1]
@@ -216,7 +220,7 @@ def _ov_apply(io, m, out, f, row, rows, detected, rate):
             rc = call_apply(io.apply, io.ctx, m, out)
             if row >= 0:
                 r = rows[row]
-                r[LG.FORCE_APPLIED] = f
+                r[tick_log.COL.force_applied_N] = io.applied[0] if io.applied.shape[0] > 0 else f
                 r[io.command_col] = out
             return rc
         return impl
@@ -256,23 +260,23 @@ def _offer(hl, step, val):
     """A command the wire accepted: the newest for the latest step waits to be used (latest wins);
     each one it replaces is superseded."""
     cs, cc = hl.cs, hl.cc
-    if step > cs[RG.CS.heard_step]:
-        cs[RG.CS.heard_step] = step
-    if cs[RG.CS.next_step] < 0 or step >= cs[RG.CS.next_step]:
-        if cs[RG.CS.next_step] >= 0:
-            cc[RG.CC.superseded] += 1
-        cs[RG.CS.next_step] = step
-        cs[RG.CS.next_val] = val
+    if step > cs[ring.CS.heard_step]:
+        cs[ring.CS.heard_step] = step
+    if cs[ring.CS.next_step] < 0 or step >= cs[ring.CS.next_step]:
+        if cs[ring.CS.next_step] >= 0:
+            cc[ring.CC.superseded] += 1
+        cs[ring.CS.next_step] = step
+        cs[ring.CS.next_val] = val
     else:
-        cc[RG.CC.superseded] += 1
+        cc[ring.CC.superseded] += 1
 
 
 @jit(inline="always")
 def _poll(w, hl, step):
     """One waiting datagram through the wire (:func:`impact_env.rig.wire.read_one`); an accepted
     COMMAND is offered.  Returns what the wire did (NONE: nothing was waiting)."""
-    r = WR.read_one(w, step)
-    if r == WR.COMMAND:
+    r = wire.read_one(w, step)
+    if r == wire.COMMAND:
         _offer(hl, w.st.cmd_step[0], w.st.cmd_val[0])
     return r
 
@@ -282,20 +286,20 @@ def _select_command(hl, step):
     """The waiting command for ``step`` becomes the one in use from this tick on; one whose step
     is over before a tick could run it expires."""
     cs, cc = hl.cs, hl.cc
-    nxt = cs[RG.CS.next_step]
+    nxt = cs[ring.CS.next_step]
     if nxt < 0 or nxt > step:
         return
-    cs[RG.CS.next_step] = -1.0
+    cs[ring.CS.next_step] = -1.0
     if nxt < step:
-        cc[RG.CC.expired] += 1
+        cc[ring.CC.expired] += 1
         return
-    if cs[RG.CS.cur_acted] == 0.0:
-        cc[RG.CC.superseded] += 1
-    cs[RG.CS.n_cmd] += 1.0
-    cs[RG.CS.cur_step] = nxt
-    cs[RG.CS.cur_val] = cs[RG.CS.next_val]
-    cs[RG.CS.cur_id] = cs[RG.CS.n_cmd]
-    cs[RG.CS.cur_acted] = 0.0
+    if cs[ring.CS.cur_acted] == 0.0:
+        cc[ring.CC.superseded] += 1
+    cs[ring.CS.n_cmd] += 1.0
+    cs[ring.CS.cur_step] = nxt
+    cs[ring.CS.cur_val] = cs[ring.CS.next_val]
+    cs[ring.CS.cur_id] = cs[ring.CS.n_cmd]
+    cs[ring.CS.cur_acted] = 0.0
 
 
 @jit(inline="always")
@@ -309,31 +313,31 @@ def _publish_observation(m, status_or, p, s, hl, w, records):
     """The observation of the step that starts at tick m, with its telemetry: into the ring (the
     target's record of it) and, as an OBSERVATION datagram, to the host."""
     step = m // p.hold
-    j = step % RG.N_OBS
+    j = step % ring.N_OBS
     meta = hl.obs_meta[j]
     n = s.log.filled[0]
     rows = s.log.rows
-    meta[RG.OM.step] = step
-    meta[RG.OM.tick] = m
-    meta[RG.OM.status] = status_or
-    meta[RG.OM.demand] = rows[n - 1, LG.FORCE_DEMAND] if n > 0 else 0.0
-    meta[RG.OM.applied] = rows[n - 1, LG.FORCE_APPLIED] if n > 0 else 0.0
+    meta[ring.OM.step] = step
+    meta[ring.OM.tick] = m
+    meta[ring.OM.status] = status_or
+    meta[ring.OM.demand] = rows[n - 1, tick_log.COL.force_demand_N] if n > 0 else 0.0
+    meta[ring.OM.applied] = rows[n - 1, tick_log.COL.force_applied_N] if n > 0 else 0.0
     cs = hl.cs
-    acted = cs[RG.CS.cur_acted] != 0.0 and cs[RG.CS.cur_step] >= 0
-    meta[RG.OM.age] = m - s.own[OWN.cmd_first] if acted else -1.0
+    acted = cs[ring.CS.cur_acted] != 0.0 and cs[ring.CS.cur_step] >= 0
+    meta[ring.OM.age] = m - s.own[OWN.cmd_first] if acted else -1.0
     obs = s.obs.obs[0]
     for i in range(obs.shape[0]):
         hl.obs[j, i] = obs[i]
     tel = hl.telem
-    tel[0] = meta[RG.OM.demand]
-    tel[1] = meta[RG.OM.applied]
-    tel[2] = meta[RG.OM.age]
+    tel[0] = meta[ring.OM.demand]
+    tel[1] = meta[ring.OM.applied]
+    tel[2] = meta[ring.OM.age]
     r0 = r1 = 0
     if m >= p.hold and records.shape[0] > 0:  # a virtual rig: the true records of the step's ticks
         r0, r1 = m - p.hold, m
-    WR.send_observation(w, m, step, status_or, obs, tel, records, r0, r1)
+    wire.send_observation(w, m, step, status_or, obs, tel, records, r0, r1)
     fence()
-    hl.shared[RG.SH.obs_head] = step + 1
+    hl.shared[ring.SH.obs_head] = step + 1
 
 
 # -- the loop -----------------------------------------------------------------------------------------------
@@ -361,14 +365,14 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
     # tick 0 is due one period after the loop starts (plus ``tm.t0``, an offset in cycles for
     # tests): the set-up before it (threads, the log file) must not make the episode start late
     t0c = float(cycles()) + cpt + tm.t0
-    c_ref, n_ref = float(cycles()), float(WR.now_ns(w))  # the cycle counter against CLOCK_MONOTONIC
+    c_ref, n_ref = float(cycles()), float(wire.now_ns(w))  # the cycle counter against CLOCK_MONOTONIC
     sh, cs, cc = hl.shared, hl.cs, hl.cc
     status_or = 0
     end = END.none
     m = 0
     prev = -1.0  # the start of the last tick run (none yet: no gap before the first)
     while True:
-        if sh[RG.SH.stop] != 0:
+        if sh[ring.SH.stop] != 0:
             io_zero(io, m)
             end = END.stop
             break
@@ -378,7 +382,7 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
             dl = t0c + m * cpt
             now = float(cycles())
             if tm.sleep_margin > 0.0 and dl - now > tm.sleep_margin:
-                WR.sleep_until_ns(w, np.int64(n_ref + (dl - tm.sleep_margin - c_ref) * nspc))
+                wire.sleep_until_ns(w, np.int64(n_ref + (dl - tm.sleep_margin - c_ref) * nspc))
                 now = float(cycles())
             while now < dl:
                 if host and dl - now > margin:  # the host's datagrams, as they come
@@ -403,7 +407,7 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
             prev = now
             clock_tick = max(m, int((now - t0c) // cpt))  # time in periods of the clock
         w0 = cycles()
-        sh[RG.SH.tick] = m
+        sh[ring.SH.tick] = m
         if m > 0:
             if io_read(io, m) != 0:
                 io_zero(io, m)
@@ -419,72 +423,72 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
         if host:
             step = m // hold
             for _ in range(LATE_READS):  # what came since the spin stopped reading (or, behind, at all)
-                if _poll(w, hl, step) == WR.NONE:
+                if _poll(w, hl, step) == wire.NONE:
                     break
-            if boundary and step > 0 and cs[RG.CS.heard_step] < step - 1:
+            if boundary and step > 0 and cs[ring.CS.heard_step] < step - 1:
                 # nothing from the host for the step that just ended: its datagrams stopped coming
-                if cc[RG.CC.silent_from] < 0:
-                    cc[RG.CC.silent_from] = step - 1
-                cc[RG.CC.silent_steps] += 1
+                if cc[ring.CC.silent_from] < 0:
+                    cc[ring.CC.silent_from] = step - 1
+                cc[ring.CC.silent_steps] += 1
             if tm.lockstep_host and boundary:  # lock-step: the step's command first
                 sent = float(cycles())
-                while cs[RG.CS.next_step] < step and sh[RG.SH.stop] == 0:
-                    if _poll(w, hl, step) != WR.NONE:
+                while cs[ring.CS.next_step] < step and sh[ring.SH.stop] == 0:
+                    if _poll(w, hl, step) != wire.NONE:
                         continue
                     if tm.resend > 0.0 and float(cycles()) - sent >= tm.resend:  # lost? send it again
-                        WR.resend_observation(w)
+                        wire.resend_observation(w)
                         sent = float(cycles())
                     call_usleep(hl.wake[2], 20)
-                if sh[RG.SH.stop] != 0:
+                if sh[ring.SH.stop] != 0:
                     continue
             _select_command(hl, step)
-            if realtime and tm.command_wait > 0.0 and cs[RG.CS.cur_step] != step:
+            if realtime and tm.command_wait > 0.0 and cs[ring.CS.cur_step] != step:
                 # the step's command has not come: wait for it, up to command_wait into the period
                 until = t0c + m * cpt + tm.command_wait
-                while float(cycles()) < until and sh[RG.SH.stop] == 0:
-                    if _poll(w, hl, step) == WR.COMMAND:
+                while float(cycles()) < until and sh[ring.SH.stop] == 0:
+                    if _poll(w, hl, step) == wire.COMMAND:
                         _select_command(hl, step)
-                        if cs[RG.CS.cur_step] == step:
+                        if cs[ring.CS.cur_step] == step:
                             break
-        cmd = HostCommand(cs[RG.CS.cur_val], int(cs[RG.CS.cur_step]), int(cs[RG.CS.cur_id]))
+        cmd = HostCommand(cs[ring.CS.cur_val], int(cs[ring.CS.cur_step]), int(cs[ring.CS.cur_id]))
         out, f, status, row = act_tick(m, clock_tick, cmd, p, s, io_raw(io))
         if realtime and late >= cpt:
-            status |= SF.OVERRUN
+            status |= safety.OVERRUN
         if acct[ACCT.unreported] > 0:
-            status |= SF.OVERRUN
+            status |= safety.OVERRUN
         rc = io_apply(io, m, out, f, row, rows, s.fe.detected[0], p.rate)
         status_or |= status
         if row >= 0:
             r = rows[row]
-            r[LG.STATUS] = status
-            r[LG.LATENESS_NS] = late * nspc
-            r[LG.SKIPPED] = acct[ACCT.unreported]
-        if status & SF.OVERRUN:
+            r[tick_log.COL.status] = status
+            r[tick_log.COL.lateness_ns] = late * nspc
+            r[tick_log.COL.skipped_ticks] = acct[ACCT.unreported]
+        if status & safety.OVERRUN:
             acct[ACCT.overruns] += 1
         acct[ACCT.unreported] = 0
-        if host and cs[RG.CS.cur_acted] == 0.0 and st[OWN.cmd_id] == cs[RG.CS.cur_id]:
-            cs[RG.CS.cur_acted] = 1.0
-            cc[RG.CC.acted] += 1
+        if host and cs[ring.CS.cur_acted] == 0.0 and st[OWN.cmd_id] == cs[ring.CS.cur_id]:
+            cs[ring.CS.cur_acted] = 1.0
+            cc[ring.CC.acted] += 1
         if row >= 0:
-            rows[row, LG.COMPUTE_NS] = (cycles() - w0) * nspc
+            rows[row, tick_log.COL.compute_ns] = (cycles() - w0) * nspc
         fence()
-        sh[RG.SH.rows] = s.log.filled[0]
+        sh[ring.SH.rows] = s.log.filled[0]
         m += 1
-        if status & SF.FIRST_COMMAND_TIMEOUT:
+        if status & safety.FIRST_COMMAND_TIMEOUT:
             end = END.first_command
             break
-        if status & SF.SENSOR_TIMEOUT:  # implausible readings outlasted the scene's limit
+        if status & safety.SENSOR_TIMEOUT:  # implausible readings outlasted the scene's limit
             end = END.sensor_fault
             break
-        if status & SF.LATCHING:
+        if status & safety.LATCHING:
             end = END.safety
             break
         if rc != 0:
             io_zero(io, m)
             end = END.fault
             break
-    sh[RG.SH.tick] = m
+    sh[ring.SH.tick] = m
     fence()
-    sh[RG.SH.done] = 1
+    sh[ring.SH.done] = 1
     _wake(hl)
     return m, status_or, end

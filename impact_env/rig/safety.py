@@ -88,12 +88,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.config import ConfigError, check_hold_ticks, check_range, doc_field
-from impact_env.control import plausibility as PL
+from impact_env.control import plausibility
 
 NO_COMMAND = 1 << 0
 REPEATED = 1 << 1
@@ -104,13 +106,13 @@ CLAMP_PEAK = 1 << 5
 CLAMP_RMS = 1 << 6
 TRAVEL = 1 << 7
 # the plausibility check's bits (impact_env.control.plausibility: it runs below this layer)
-SENSOR_FAULT = PL.SENSOR_FAULT
-SENSOR_ACCELEROMETER = PL.SENSOR_ACCELEROMETER
-SENSOR_FORCE = PL.SENSOR_FORCE
-SENSOR_POTENTIOMETER = PL.SENSOR_POTENTIOMETER
-SENSOR_BODY1 = PL.SENSOR_BODY1
-SENSOR_TIMEOUT = PL.SENSOR_TIMEOUT
-SENSOR_BITS = PL.SENSOR_BITS
+SENSOR_FAULT = plausibility.SENSOR_FAULT
+SENSOR_ACCELEROMETER = plausibility.SENSOR_ACCELEROMETER
+SENSOR_FORCE = plausibility.SENSOR_FORCE
+SENSOR_POTENTIOMETER = plausibility.SENSOR_POTENTIOMETER
+SENSOR_BODY1 = plausibility.SENSOR_BODY1
+SENSOR_TIMEOUT = plausibility.SENSOR_TIMEOUT
+SENSOR_BITS = plausibility.SENSOR_BITS
 OVERRUN = 1 << 16
 LATCHING = TRAVEL
 FORCE_ZEROED = NO_COMMAND | WATCHDOG | NONFINITE | TRAVEL | SENSOR_FAULT | SENSOR_TIMEOUT
@@ -122,16 +124,45 @@ STATUS_BITS = {"NO_COMMAND": NO_COMMAND, "REPEATED": REPEATED, "WATCHDOG": WATCH
                "SENSOR_FORCE": SENSOR_FORCE, "SENSOR_POTENTIOMETER": SENSOR_POTENTIOMETER,
                "SENSOR_BODY1": SENSOR_BODY1, "SENSOR_TIMEOUT": SENSOR_TIMEOUT, "OVERRUN": OVERRUN}
 
-# parameter array (float64[N_PARAMS])
-P_SCALE, P_PEAK, P_BUDGET, P_QUANTUM, P_WINDOW, P_TRAVEL, P_FIRST, P_HOLD, P_HOST = range(9)
-N_PARAMS = 9
-# state array (float64[N_STATE_FIXED + window]): latched bits, running sum of squares (quanta),
-# ring head, counters, then the ring of squares (quanta)
-(S_LATCH, S_SUM, S_HEAD, S_PREV_WD, S_WD_TRIPS, S_NONFINITE, S_PEAK, S_RMS, S_TRAVEL_TRIPS,
- S_SENSOR_TICKS) = range(10)
-N_STATE_FIXED = 10
-COUNTERS = {"watchdog_trips": S_WD_TRIPS, "nonfinite_ticks": S_NONFINITE, "clamp_peak_ticks": S_PEAK,
-            "clamp_rms_ticks": S_RMS, "travel_trips": S_TRAVEL_TRIPS, "sensor_fault_ticks": S_SENSOR_TICKS}
+class SafetyParams(NamedTuple):
+    """The safety layer's parameters (float64[N_PARAMS]), read by name: ``p[PARAM.peak]``."""
+
+    scale: int  # N per unit command
+    peak: int  # N, the peak clamp
+    budget: int  # quanta of f^2 the RMS window may hold (-1: no RMS clamp)
+    quantum: int  # N^2 per quantum
+    window: int  # ticks of the RMS window
+    travel: int  # m, the travel limit
+    first: int  # ticks: host mode's allowance for the first command
+    hold: int  # ticks per policy step
+    host: int  # 1.0: host mode (the watchdog on), 0.0: onboard
+
+
+class SafetyState(NamedTuple):
+    """The safety layer's fixed state (float64[N_STATE_FIXED + window]: then the ring of the
+    window's squares, in quanta), read by name: ``s[STATE.latch]``."""
+
+    latch: int  # latched status bits
+    sum: int  # the window's running sum of squares (quanta)
+    head: int  # the ring's head
+    prev_watchdog: int  # 1.0: the last tick was WATCHDOG (a trip counts once)
+    watchdog_trips: int
+    nonfinite_ticks: int
+    clamp_peak_ticks: int
+    clamp_rms_ticks: int
+    travel_trips: int
+    sensor_fault_ticks: int
+
+
+PARAM = positions(SafetyParams)
+N_PARAMS = len(PARAM)
+STATE = positions(SafetyState)
+N_STATE_FIXED = len(STATE)
+# the per-episode counters (state entries named as the log's counters)
+COUNTERS = {name: getattr(STATE, name) for name in ("watchdog_trips", "nonfinite_ticks", "clamp_peak_ticks",
+                                                     "clamp_rms_ticks", "travel_trips", "sensor_fault_ticks")}
+# plain-int aliases for the C export (impact_env.deploy.c_export), which still reads them
+P_SCALE, P_PEAK, P_BUDGET, P_QUANTUM, P_WINDOW, P_TRAVEL, P_FIRST = PARAM[:7]
 MAX_WINDOW = 10_000_000  # ticks (80 MB of state): a guard against a mistyped window or rate
 
 _f = doc_field
@@ -179,27 +210,27 @@ def safety_params(cfg: SafetyConfig, command_scale: float, rate: float, hold_tic
                           f"at most {MAX_WINDOW} (shorten the window)")
     quantum = max(1e-6, cfg.peak_n**2 * n / 2.0**50)
     p = np.empty(N_PARAMS)
-    p[P_SCALE] = command_scale
-    p[P_PEAK] = cfg.peak_n
-    p[P_BUDGET] = math.floor(n * cfg.rms_limit_n**2 / quantum) if cfg.continuous_n > 0 else -1.0
-    p[P_QUANTUM] = quantum
-    p[P_WINDOW] = n
-    p[P_TRAVEL] = cfg.travel_limit_m
-    p[P_FIRST] = math.ceil(cfg.first_command_timeout_s * rate - 1e-9)
-    p[P_HOLD] = hold_ticks
-    p[P_HOST] = 1.0 if mode == "host" else 0.0
+    p[PARAM.scale] = command_scale
+    p[PARAM.peak] = cfg.peak_n
+    p[PARAM.budget] = math.floor(n * cfg.rms_limit_n**2 / quantum) if cfg.continuous_n > 0 else -1.0
+    p[PARAM.quantum] = quantum
+    p[PARAM.window] = n
+    p[PARAM.travel] = cfg.travel_limit_m
+    p[PARAM.first] = math.ceil(cfg.first_command_timeout_s * rate - 1e-9)
+    p[PARAM.hold] = hold_ticks
+    p[PARAM.host] = 1.0 if mode == "host" else 0.0
     return p
 
 
 def make_safety_state(params: np.ndarray) -> np.ndarray:
     """Zeroed state for ``params``: no latches, an empty (cool) RMS window."""
-    return np.zeros(N_STATE_FIXED + int(params[P_WINDOW]))
+    return np.zeros(N_STATE_FIXED + int(params[PARAM.window]))
 
 
 def new_episode(state: np.ndarray) -> np.ndarray:
     """Clear the latches and counters for a new episode; the RMS window (heat) is kept."""
-    state[S_LATCH] = 0.0
-    state[S_PREV_WD] = 0.0
+    state[STATE.latch] = 0.0
+    state[STATE.prev_watchdog] = 0.0
     for i in COUNTERS.values():
         state[i] = 0.0
     return state
@@ -208,13 +239,13 @@ def new_episode(state: np.ndarray) -> np.ndarray:
 @jit
 def drain_window(state, params, n_ticks):
     """Push ``n_ticks`` idle (0 N) ticks into the RMS window (time spent disarmed)."""
-    n = int(params[P_WINDOW])
-    head = int(state[S_HEAD])
+    n = int(params[PARAM.window])
+    head = int(state[STATE.head])
     for _ in range(min(n_ticks, n)):
-        state[S_SUM] -= state[N_STATE_FIXED + head]
+        state[STATE.sum] -= state[N_STATE_FIXED + head]
         state[N_STATE_FIXED + head] = 0.0
         head = (head + 1) % n
-    state[S_HEAD] = head
+    state[STATE.head] = head
 
 
 @jit
@@ -223,12 +254,12 @@ def safety_step(demand, age_ticks, ticks_armed, x2_m, sensor_bits, params, state
     apply (N, up positive) and the status bits (int64); updates ``state``."""
     status = 0
     use = True
-    hold = params[P_HOLD]
-    if params[P_HOST] != 0.0:
+    hold = params[PARAM.hold]
+    if params[PARAM.host] != 0.0:
         if age_ticks < 0:
             status |= NO_COMMAND
             use = False
-            if ticks_armed >= params[P_FIRST]:
+            if ticks_armed >= params[PARAM.first]:
                 status |= FIRST_COMMAND_TIMEOUT
         elif age_ticks >= 2.0 * hold:
             status |= WATCHDOG
@@ -236,34 +267,34 @@ def safety_step(demand, age_ticks, ticks_armed, x2_m, sensor_bits, params, state
         elif age_ticks >= hold:
             status |= REPEATED
     if status & WATCHDOG:
-        if state[S_PREV_WD] == 0.0:
-            state[S_WD_TRIPS] += 1.0
-        state[S_PREV_WD] = 1.0
+        if state[STATE.prev_watchdog] == 0.0:
+            state[STATE.watchdog_trips] += 1.0
+        state[STATE.prev_watchdog] = 1.0
     else:
-        state[S_PREV_WD] = 0.0
+        state[STATE.prev_watchdog] = 0.0
     f = 0.0
     if use:
-        f = demand * params[P_SCALE]
+        f = demand * params[PARAM.scale]
         if not np.isfinite(f):
             status |= NONFINITE
-            state[S_NONFINITE] += 1.0
+            state[STATE.nonfinite_ticks] += 1.0
             f = 0.0
     if not np.isfinite(x2_m):
         sensor_bits |= SENSOR_FAULT | SENSOR_POTENTIOMETER
     if sensor_bits != 0:
         status |= sensor_bits
-        state[S_SENSOR_TICKS] += 1.0
+        state[STATE.sensor_fault_ticks] += 1.0
         f = 0.0
-    latch = int(state[S_LATCH])
-    if np.isfinite(x2_m) and abs(x2_m) > params[P_TRAVEL]:
+    latch = int(state[STATE.latch])
+    if np.isfinite(x2_m) and abs(x2_m) > params[PARAM.travel]:
         if (latch & TRAVEL) == 0:
-            state[S_TRAVEL_TRIPS] += 1.0
+            state[STATE.travel_trips] += 1.0
         latch |= TRAVEL
-    state[S_LATCH] = latch
+    state[STATE.latch] = latch
     if latch != 0:
         status |= latch
         f = 0.0
-    peak = params[P_PEAK]
+    peak = params[PARAM.peak]
     if f > peak:
         f = peak
         status |= CLAMP_PEAK
@@ -271,15 +302,15 @@ def safety_step(demand, age_ticks, ticks_armed, x2_m, sensor_bits, params, state
         f = -peak
         status |= CLAMP_PEAK
     if status & CLAMP_PEAK:
-        state[S_PEAK] += 1.0
+        state[STATE.clamp_peak_ticks] += 1.0
     # RMS window: the oldest square leaves, this tick's enters
-    n = int(params[P_WINDOW])
-    head = int(state[S_HEAD])
+    n = int(params[PARAM.window])
+    head = int(state[STATE.head])
     slot = N_STATE_FIXED + head
-    others = state[S_SUM] - state[slot]
-    q_unit = params[P_QUANTUM]
+    others = state[STATE.sum] - state[slot]
+    q_unit = params[PARAM.quantum]
     sq = np.floor(f * f / q_unit + 0.5)
-    budget = params[P_BUDGET]
+    budget = params[PARAM.budget]
     if budget >= 0.0 and others + sq > budget:
         room = budget - others
         if room < 0.0:
@@ -290,10 +321,10 @@ def safety_step(demand, age_ticks, ticks_armed, x2_m, sensor_bits, params, state
         if sq > room:
             sq = room
         status |= CLAMP_RMS
-        state[S_RMS] += 1.0
+        state[STATE.clamp_rms_ticks] += 1.0
     state[slot] = sq
-    state[S_SUM] = others + sq
-    state[S_HEAD] = (head + 1) % n
+    state[STATE.sum] = others + sq
+    state[STATE.head] = (head + 1) % n
     return f, status
 
 
@@ -333,11 +364,11 @@ class SafetyLayer:
     @property
     def window_rms_n(self) -> float:
         """RMS of the applied force over the current window, N."""
-        return math.sqrt(self.state[S_SUM] * self.params[P_QUANTUM] / self.params[P_WINDOW])
+        return math.sqrt(self.state[STATE.sum] * self.params[PARAM.quantum] / self.params[PARAM.window])
 
     @property
     def latched(self) -> int:
-        return int(self.state[S_LATCH])
+        return int(self.state[STATE.latch])
 
     def counters(self) -> dict[str, int]:
         """Per-episode counts (plain ints): watchdog trips, non-finite ticks, clamped ticks, travel trips,

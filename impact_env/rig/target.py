@@ -50,15 +50,9 @@ from impact_env.config import check_range
 from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.policy.registry import make_policy  # noqa: F401  (the policy registry loaded before serving)
-from impact_env.rig import controller as CT
-from impact_env.rig import excitation as EX
-from impact_env.rig import log as LG
-from impact_env.rig import protocol as P
-from impact_env.rig import ring as RG
-from impact_env.rig import rtloop as RL
-from impact_env.rig import safety as SF
-from impact_env.rig import wire as WR
-from impact_env.rig.cdriver import CDriver
+from impact_env.rig import controller, excitation, protocol, ring, rtloop, safety, wire
+from impact_env.rig import log as tick_log
+from impact_env.rig.cdriver import CDriver, PythonCallbacks
 from impact_env.rig.controller import TRUTH_COLUMNS, TRUTH_UNITS, Controller
 from impact_env.rig.cycles import cached_ns_per_cycle
 from impact_env.rig.driver import RigDriver, VirtualRig
@@ -69,7 +63,7 @@ from impact_env.rig.safety import SafetyConfig
 from impact_env.rig.transport import Endpoint, Link, UploadAssembler, chunk_reply
 from impact_env.sim.records import N_REC
 
-N_TELEMETRY = len(P.TELEMETRY_FIELDS)
+N_TELEMETRY = len(protocol.TELEMETRY_FIELDS)
 NO_UPLOAD = "policy_sha256: no upload of that size and sha256"  # an ARM's refusal (fits its size)
 N_ACTIONS = 1  # actions per COMMAND (ARMED's action_size): the shaker's one force
 # real-time host mode's default wait for a step's command, in control periods: the host's round
@@ -95,9 +89,6 @@ class TargetConfig:
     resend_s: float = 0.02
     # lock-step: idle time assumed between episodes (the coil cools in the RMS window)
     rearm_idle_s: float = 1.0
-    poll_every: int = 64  # onboard lock-step: ticks between checks for DISARM
-    # the per-tick Python loop even for the virtual rig (the loop a physical driver uses)
-    python_loop: bool = False
     seed_offset: int = 0  # added to every ARM's seed (0: the drops ImpactCatch-v0 meets for the same seeds)
     # the shared key (impact_env.rig.auth); b"": none, and then only loopback peers are answered
     key: bytes = b""
@@ -138,11 +129,15 @@ class Target:
                  config: TargetConfig | None = None):
         self.driver = driver
         self.cfg = config or TargetConfig()
-        #: whether episodes run in the compiled real-time core (impact_env.rig.rtloop)
-        self.compiled = isinstance(driver, (VirtualRig, CDriver)) and not self.cfg.python_loop
-        if not self.compiled and not self.cfg.lockstep:
-            what = (f"the Python driver {type(driver).__name__}" if not self.cfg.python_loop
-                    else "the per-tick Python loop (python_loop)")
+        #: a Python driver's read and apply as the compiled loop calls them (None: the virtual
+        #: rig's hardware stage is compiled into the loop; a C driver's functions are called directly)
+        self.callbacks = None if isinstance(driver, (VirtualRig, CDriver)) else PythonCallbacks(driver)
+        if self.callbacks is not None and driver.virtual:
+            raise ValueError(f"the Python driver {type(driver).__name__} says virtual = True: only "
+                             "VirtualRig is a virtual rig (the loop runs its hardware stage and logs its truth); a "
+                             "Python driver is seen through read() and apply() only (virtual = False)")
+        if self.callbacks is not None and not self.cfg.lockstep:
+            what = f"the Python driver {type(driver).__name__}"
             raise ValueError(f"{what} cannot keep real time: its read() and apply() would run Python on "
                              "every 100 us tick (the GIL, the garbage collector and the interpreter are late "
                              "by milliseconds under load). A Python RigDriver is for lock-step testing "
@@ -174,14 +169,14 @@ class Target:
         self.scene_toml = self.scene.to_toml().encode()
         self.scene_sha = hashlib.sha256(self.scene_toml).digest()
         self.upload = UploadAssembler()
-        self.state = P.TargetState.IDLE
+        self.state = protocol.TargetState.IDLE
         self.episode = 0
         self.episodes: dict[int, bytes] = {}  # episode -> its log file's bytes (the latest few)
-        self.last_end: P.EpisodeEnd | None = None
+        self.last_end: protocol.EpisodeEnd | None = None
         self._stop = threading.Event()
         self.signalled = 0  # the signal that stopped serve() (install_signal_handlers), 0 none
-        self._pending: P.Message | None = None  # an ARM that ended the episode before it
-        self._last_obs: P.Observation | None = None  # the last OBSERVATION of the last episode
+        self._pending: protocol.Message | None = None  # an ARM that ended the episode before it
+        self._last_obs: protocol.Observation | None = None  # the last OBSERVATION of the last episode
         self._closed = False
         self.notes: list[str] = []  # what note() said (the last 64)
         self.on_note: Callable[[str], None] | None = None  # called with each note (rig serve prints it)
@@ -199,52 +194,64 @@ class Target:
         law = CompiledPolicy.from_law("passive", {}, {}, self.scene, "sensors")
         ctl = Controller(self.scene, layout, 1, 4, "onboard", law, law, self.cfg.safety,
                          extra_columns=TRUTH_COLUMNS if self.driver.virtual else ("command",))
-        raw = np.zeros(4)
-        ctl.start(raw, None)
-        ctl.observe(1, raw, None)
-        ctl.act(1, 0.0, 0, 1, 1, raw)
+        ctl.start(np.zeros(4), None)
         ctl.drain(1)
         ctl.log.record(tick=0)
-        if self.compiled:
-            self._warm_up_loop(ctl)
+        self._warm_up_loop(ctl)
         self._warm_up_log(ctl)
 
     def _warm_up_log(self, ctl: Controller) -> None:
         """h5py imported and the HDF5 library started now, not in the first episode: a log
         streamed and finished, and one written, in a throwaway folder."""
-        meta = LG.EpisodeMeta(scene_toml="", mode="onboard", hold_ticks=1, seed=0, control_rate_hz=self.rate,
-                              obs_names=ctl.layout.names)
+        meta = tick_log.EpisodeMeta(
+            scene_toml="",
+            mode="onboard",
+            hold_ticks=1,
+            seed=0,
+            control_rate_hz=self.rate,
+            obs_names=ctl.layout.names,
+        )
         with tempfile.TemporaryDirectory(prefix="impact-env-rig-warm-") as tmp:
             ctl.log.record(tick=0)
-            stream = LG.LogStream(ctl.log, Path(tmp) / "warm.h5.partial", meta, np.ones(1, np.int64), 1.0)
+            stream = tick_log.LogStream(
+                ctl.log, Path(tmp) / "warm.h5.partial", meta, np.ones(1, np.int64), 1.0
+            )
             stream.finish(meta, tmp)
-            LG.write_episode(ctl.log, tmp, meta, name="written.h5").read_bytes()
+            tick_log.write_episode(ctl.log, tmp, meta, name="written.h5").read_bytes()
         ctl.log.reset()
 
     def _warm_up_loop(self, ctl: Controller) -> None:
-        """Compile (or load) the real-time core for this driver's kind, both modes, on a
-        throwaway controller in lock-step for one tick (a virtual rig's hardware on a throwaway
-        drop; a C driver is not called: its addresses are replaced by a C function of the loop's
-        own that reads zeros)."""
+        """Compile (or load) the loop for this driver's kind, both modes, on a throwaway
+        controller in lock-step: one tick of a virtual rig's hardware on a throwaway drop; no
+        tick of a driver called by address (it is not called before its first episode)."""
         cached_ns_per_cycle(refresh=True)
-        if isinstance(self.driver, CDriver):
-            read, apply, ctx = self.driver.addresses
-            io = RL.CIO(read, apply, ctx, np.zeros(4), np.full(4, np.nan), ctl.log.col("command"),
-                        np.zeros((0, N_REC))) if "command" in ctl.log.names else None
-            if io is None:
-                return
-            m1 = 0  # no tick: a C driver is not called before its first episode
+        if not isinstance(self.driver, VirtualRig):
+            if isinstance(self.driver, CDriver):
+                read, apply, ctx = self.driver.addresses
+            else:
+                assert self.callbacks is not None  # a Python driver's
+                read, apply, ctx = self.callbacks.addresses
+            io: rtloop.CIO | rtloop.VirtualIO = rtloop.CIO(
+                read, apply, ctx, np.zeros(4), np.full(4, np.nan), ctl.log.col("command"),
+                np.zeros((0, N_REC)), np.zeros(0 if self.callbacks is None else 1))
+            m1 = 0
         else:
             hw = self.driver.hw
             hw.refill_noise(2)
-            io = RL.VirtualIO(hw.params, hw.state, CT.truth_columns(ctl.log), CT.DropConstants(0.0, 0.0, 0.0),
-                              np.zeros((4, N_REC)), ctl.log.col("true_t_s"))
+            io = rtloop.VirtualIO(
+                hw.params,
+                hw.state,
+                controller.truth_columns(ctl.log),
+                controller.DropConstants(0.0, 0.0, 0.0),
+                np.zeros((4, N_REC)),
+                ctl.log.col("true_t_s"),
+            )
             m1 = 1
-        tm = RL.Timing(False, False, 0.0, 1.0, 1.0, 10, 0.0, 0.0, 0.0)
+        tm = rtloop.Timing(False, False, 0.0, 1.0, 1.0, 10, 0.0, 0.0, 0.0)
         for onboard in (True, False):
-            hl = RG.host_link(ctl.layout.size)
-            RL.run_episode(m1, ctl.params._replace(onboard=onboard), ctl.state, io, tm,
-                           np.zeros(CT.N_ACCT, dtype=np.int64), hl, WR.none())
+            hl = ring.host_link(ctl.layout.size)
+            rtloop.run_episode(m1, ctl.params._replace(onboard=onboard), ctl.state, io, tm,
+                           np.zeros(controller.N_ACCT, dtype=np.int64), hl, wire.none())
             ctl.log.reset()
 
     @property
@@ -309,27 +316,27 @@ class Target:
     def keyed(self) -> bool:
         return bool(self.cfg.key)
 
-    def handshake(self, msg: P.Message, addr: tuple) -> None:
+    def handshake(self, msg: protocol.Message, addr: tuple) -> None:
         """A HELLO or RESPONSE the filter accepted (the link's ``on_handshake``, idle or
         running).  A HELLO opens nothing: it is answered with a CHALLENGE (a fresh target nonce,
         the same one for a retried HELLO; the filter's per-source limit has let it through).  A
         RESPONSE that answers a live challenge sent to ``addr`` (the filter checked it, and spent
         the challenge) opens the session, or confirms it, and is answered with INFO."""
         f = self.link.filter
-        b = msg.body
-        if msg.type == P.MsgType.HELLO:
-            target_nonce = f.challenges.issue(P.source(addr), msg.session, b.nonce)
-            self._send_raw(P.Challenge(b.nonce, target_nonce), msg.session, addr, self.cfg.key, msg)
+        if msg.type == protocol.MsgType.HELLO:
+            nonce = msg.payload(protocol.Hello).nonce
+            target_nonce = f.challenges.issue(protocol.source(addr), msg.session, nonce)
+            self._send_raw(protocol.Challenge(nonce, target_nonce), msg.session, addr, self.cfg.key, msg)
             return
-        if self.state == P.TargetState.RUNNING and msg.session != f.session:
-            self._send_raw(P.Error(P.ErrorCode.BUSY, msg.seq, "busy: an episode is running"), msg.session,
-                           addr, self.cfg.key, msg)
+        if self.state == protocol.TargetState.RUNNING and msg.session != f.session:
+            self._send_raw(protocol.Error(protocol.ErrorCode.BUSY, msg.seq, "busy: an episode is running"),
+                           msg.session, addr, self.cfg.key, msg)
             return
         self.open_session(msg, addr)
         # from the target's own address, where the host waits for it: INFO names the session's port
-        self._send_raw(self.info(b.nonce), msg.session, addr, self.cfg.key, msg)
+        self._send_raw(self.info(msg.payload(protocol.Response).nonce), msg.session, addr, self.cfg.key, msg)
 
-    def open_session(self, msg: P.Message, addr: tuple) -> None:
+    def open_session(self, msg: protocol.Message, addr: tuple) -> None:
         """A RESPONSE that answers a live challenge (from the session's host, or any allowed peer
         while none is open): a new session id gets a fresh session nonce and pins the host's
         address and port; the same id again (the host says HELLO at every ARM) keeps them."""
@@ -342,7 +349,8 @@ class Target:
             # the session's own socket, connected to its host, bound without SO_REUSEPORT: no
             # other process can bind it, and only the host's datagrams reach it
             self.endpoint.open_session(addr)
-        f.opened = (P.source(addr), msg.session, msg.body.nonce, msg.body.target_nonce)
+        response = msg.payload(protocol.Response)
+        f.opened = (protocol.source(addr), msg.session, response.nonce, response.target_nonce)
         self.link.last_sender = addr
         self._heard = time.perf_counter()
 
@@ -354,13 +362,17 @@ class Target:
         self._close_session = False
         self.endpoint.close_session()
 
-    def _stranger(self, msg: P.Message, addr: tuple) -> None:
+    def _stranger(self, msg: protocol.Message, addr: tuple) -> None:
         """A well-tagged datagram from another address than the session's host's: counted by the
         filter (``stranger``); a HELLO is answered with an ERROR (BUSY) that names no host, no
         larger than the HELLO, within the per-source reply rate; the session is kept."""
-        if msg.type == P.MsgType.HELLO and self.link.filter.allow_reply(addr):
-            err = P.Error.fitting(P.ErrorCode.BUSY, msg.seq, "busy: another host's session is open",
-                                  P.OVERHEAD + P.Hello.FMT.size)
+        if msg.type == protocol.MsgType.HELLO and self.link.filter.allow_reply(addr):
+            err = protocol.Error.fitting(
+                protocol.ErrorCode.BUSY,
+                msg.seq,
+                "busy: another host's session is open",
+                protocol.OVERHEAD + protocol.Hello.FMT.size,
+            )
             if err is not None:
                 self._send_raw(err, msg.session, addr, self.cfg.key, msg)
 
@@ -371,10 +383,10 @@ class Target:
         sent it, and composes its message to the user itself."""
         text = "refused: this target has a key" if self.keyed else "refused: this target has no key"
         try:
-            head = P.HEADER.unpack_from(data)
+            head = protocol.HEADER.unpack_from(data)
         except Exception:  # noqa: BLE001 (a datagram shorter than a header: nothing to answer)
             return
-        err = P.Error.fitting(P.ErrorCode.UNAUTHENTICATED, head[6], text, len(data))
+        err = protocol.Error.fitting(protocol.ErrorCode.UNAUTHENTICATED, head[6], text, len(data))
         if err is not None and self.link.filter.allow_reply(addr):
             self._send_raw(err, head[5], addr, b"")
 
@@ -383,18 +395,18 @@ class Target:
         answered with an ERROR naming the field and its range, no larger than the request, within
         the per-source rate of refusals."""
         code, seq, text, size = refusal
-        err = P.Error.fitting(code, seq, text, size)
+        err = protocol.Error.fitting(code, seq, text, size)
         if err is not None and self.link.filter.allow_refusal(addr):
             self.link.send(err, addr=addr)
 
-    def _send_raw(self, body: P.Body, session: int, addr: tuple, key: bytes,
-                  reply_to: P.Message | None = None) -> None:
+    def _send_raw(self, body: protocol.Body, session: int, addr: tuple, key: bytes,
+                  reply_to: protocol.Message | None = None) -> None:
         """Send ``body`` to ``addr`` in ``session`` (not necessarily the open one), numbered from
         the link's counter so that a host's stream of these never sees a number twice."""
-        seq, self.link.seq = self.link.seq, (self.link.seq + 1) & P.U32
-        msg = P.Message(body, session=session, seq=seq, host_ns=reply_to.host_ns if reply_to else 0,
-                        target_ns=time.perf_counter_ns() & P.U64)
-        self.endpoint.send(P.encode(msg, key, 0), addr, main=True)
+        seq, self.link.seq = self.link.seq, (self.link.seq + 1) & protocol.U32
+        msg = protocol.Message(body, session=session, seq=seq, host_ns=reply_to.host_ns if reply_to else 0,
+                        target_ns=time.perf_counter_ns() & protocol.U64)
+        self.endpoint.send(protocol.encode(msg, key, 0), addr, main=True)
 
     # -- what a running episode may ask of its target ----------------------------------------------
     @property
@@ -402,7 +414,7 @@ class Target:
         """The target is shutting down: the episode ends before its next tick."""
         return self._stop.is_set()
 
-    def queue_arm(self, msg: P.Message) -> None:
+    def queue_arm(self, msg: protocol.Message) -> None:
         """An ARM that ended the running episode: it starts the next one."""
         self._pending = msg
 
@@ -410,64 +422,64 @@ class Target:
         """The host is closing: its session ends with the episode."""
         self._close_session = True
 
-    def reply(self, body: P.Body, to: P.Message) -> None:
+    def reply(self, body: protocol.Body, to: protocol.Message) -> None:
         self.link.send(body, reply_to=to, addr=self.link.last_sender)
 
-    def _error(self, to: P.Message, code: int, text: str, fit: bool = False) -> None:
+    def _error(self, to: protocol.Message, code: int, text: str, fit: bool = False) -> None:
         """An ERROR answering ``to``.  ``fit`` (a refused ARM): no larger than ``to`` was (its
         text cut to fit: the field it names comes first), within the per-source rate of refusals."""
         if not fit:
-            self.reply(P.Error.shorten(code, to.seq, text), to)
+            self.reply(protocol.Error.shorten(code, to.seq, text), to)
             return
-        err = P.Error.fitting(code, to.seq, text, P.OVERHEAD + len(to.body.pack()))
+        err = protocol.Error.fitting(code, to.seq, text, protocol.OVERHEAD + len(to.body.pack()))
         if err is not None and self.link.filter.allow_refusal(self.link.last_sender):
             self.reply(err, to)
 
-    def _handle_idle(self, msg: P.Message) -> None:
+    def _handle_idle(self, msg: protocol.Message) -> None:
         t = msg.type
-        if t == P.MsgType.FETCH:
+        if t == protocol.MsgType.FETCH:
             self.serve_fetch(msg)
-        elif t == P.MsgType.POLICY_CHUNK:
-            self.reply(self.upload.add(msg.body, msg.seq), msg)
-        elif t == P.MsgType.ARM:
+        elif t == protocol.MsgType.POLICY_CHUNK:
+            self.reply(self.upload.add(msg.payload(protocol.PolicyChunk), msg.seq), msg)
+        elif t == protocol.MsgType.ARM:
             self._arm(msg)
-        elif t == P.MsgType.DISARM:
-            self.reply(P.Ack(P.MsgType.DISARM, P.ErrorCode.OK, msg.seq, 0), msg)
-            if msg.body.reason == 1:  # the host is closing: its session ends
+        elif t == protocol.MsgType.DISARM:
+            self.reply(protocol.Ack(protocol.MsgType.DISARM, protocol.ErrorCode.OK, msg.seq, 0), msg)
+            if msg.payload(protocol.Disarm).reason == protocol.DISARM_CLOSING:  # the host is closing
                 self._close_session = True
-        elif t == P.MsgType.COMMAND:
+        elif t == protocol.MsgType.COMMAND:
             self.counters["commands_after_end"] += 1  # for an episode already over: never applied
-            if self._last_obs is not None and msg.body.episode == self._last_obs.episode:
+            if self._last_obs is not None and msg.payload(protocol.Command).episode == self._last_obs.episode:
                 # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
                 self.link.send(self._last_obs, addr=self.link.last_sender)
-        elif t == P.MsgType.HEARTBEAT:
-            self.reply(P.Heartbeat(int(self.state), self.episode, 0, msg.seq), msg)
+        elif t == protocol.MsgType.HEARTBEAT:
+            self.reply(protocol.Heartbeat(int(self.state), self.episode, 0, msg.seq), msg)
 
-    def serve_fetch(self, msg: P.Message) -> None:
-        b = msg.body
-        if b.resource == P.Resource.SCENE:
+    def serve_fetch(self, msg: protocol.Message) -> None:
+        b = msg.payload(protocol.Fetch)
+        if b.resource == protocol.Resource.SCENE:
             self.reply(chunk_reply(self.scene_toml, b, msg.seq), msg)
-        elif b.resource == P.Resource.EPISODE and b.item in self.episodes:
+        elif b.resource == protocol.Resource.EPISODE and b.item in self.episodes:
             self.reply(chunk_reply(self.episodes[b.item], b, msg.seq), msg)
-        elif (b.resource == P.Resource.EPISODE and b.item == self.episode
-                and self.state == P.TargetState.RUNNING):
-            self._error(msg, P.ErrorCode.BUSY, f"episode {b.item} is still running")
+        elif (b.resource == protocol.Resource.EPISODE and b.item == self.episode
+                and self.state == protocol.TargetState.RUNNING):
+            self._error(msg, protocol.ErrorCode.BUSY, f"episode {b.item} is still running")
         else:
-            self._error(msg, P.ErrorCode.UNKNOWN_RESOURCE, f"no resource {b.resource} item {b.item}")
+            self._error(msg, protocol.ErrorCode.UNKNOWN_RESOURCE, f"no resource {b.resource} item {b.item}")
 
     # -- arming ------------------------------------------------------------------------------------
-    def _arm(self, msg: P.Message) -> None:
-        a: P.Arm = msg.body
+    def _arm(self, msg: protocol.Message) -> None:
+        a = msg.payload(protocol.Arm)
         try:
             self._check_bounds(a)
             policy = residual = None
             kind = a.kind
-            if kind in (P.EpisodeKind.SHAKER, P.EpisodeKind.QUIET):
+            if kind in (protocol.EpisodeKind.SHAKER, protocol.EpisodeKind.QUIET):
                 policy = self._excitation(a, kind)
             elif a.policy_size:
                 data = self.upload.data if self.upload.complete else b""
                 if len(data) != a.policy_size or hashlib.sha256(data).digest() != a.policy_sha256:
-                    raise _Refused(P.ErrorCode.POLICY_REJECTED, NO_UPLOAD)
+                    raise _Refused(protocol.ErrorCode.POLICY_REJECTED, NO_UPLOAD)
                 pol = CompiledPolicy.from_dict(__import__("json").loads(data.decode()), "the uploaded policy")
                 pol.check_scene(self.scene)
                 if a.mode == "onboard":
@@ -476,17 +488,18 @@ class Target:
                 elif pol.law is not None:
                     residual = pol
                 else:
-                    raise _Refused(P.ErrorCode.POLICY_REJECTED,
+                    raise _Refused(protocol.ErrorCode.POLICY_REJECTED,
                                    "policy: host mode takes a classic law, not a network")
             elif a.mode == "onboard":
-                raise _Refused(P.ErrorCode.BAD_REQUEST,
+                raise _Refused(protocol.ErrorCode.BAD_REQUEST,
                                "policy_size=0: onboard mode needs an uploaded policy")
             if a.mode == "onboard":
+                assert policy is not None  # onboard without one was refused above
                 observation, history, hold = policy.observation, policy.history, policy.hold_ticks
             else:
                 observation, history, hold = a.observation, a.history, a.hold_ticks
             if a.horizon_ticks % hold:
-                raise _Refused(P.ErrorCode.BAD_REQUEST,
+                raise _Refused(protocol.ErrorCode.BAD_REQUEST,
                                f"horizon_ticks={a.horizon_ticks} % hold_ticks={hold} != 0")
             layout = make_layout(self.scene, observation, history)
             ctl = Controller(self.scene, layout, hold, a.horizon_ticks, a.mode, policy, residual,
@@ -495,12 +508,12 @@ class Target:
                              observation=observation)
             if a.mode == "host" and a.first_command_timeout_ticks > 0:
                 # the host's own allowance for its first command (the force is 0 N until then)
-                ctl.params.safety[SF.P_FIRST] = a.first_command_timeout_ticks
+                ctl.params.safety[safety.PARAM.first] = a.first_command_timeout_ticks
         except _Refused as exc:
             self._error(msg, exc.code, str(exc), fit=True)
             return
         except (ValueError, KeyError, UnicodeDecodeError) as exc:
-            self._error(msg, P.ErrorCode.BAD_REQUEST, f"{type(exc).__name__}: {exc}", fit=True)
+            self._error(msg, protocol.ErrorCode.BAD_REQUEST, f"{type(exc).__name__}: {exc}", fit=True)
             return
         for k, v in TRUTH_UNITS.items():
             if k in ctl.log.extra_units:
@@ -514,67 +527,70 @@ class Target:
         its first-command and link timeouts."""
         return int(self.cfg.max_horizon_s * self.rate)
 
-    def _check_bounds(self, a: P.Arm) -> None:
+    def _check_bounds(self, a: protocol.Arm) -> None:
         """ARM's fields against this target's bounds (the protocol's ranges were checked when it
         was decoded): refused OUT_OF_RANGE naming the first field out, and its range."""
         top = self.max_horizon_ticks
         for name, value, hi in (("horizon_ticks", a.horizon_ticks, top),
                                 ("first_command_timeout_ticks", a.first_command_timeout_ticks, top),
                                 ("link_timeout_ms", a.link_timeout_ms, int(self.cfg.max_horizon_s * 1e3)),
-                                ("options", a.options, P.ARM_OPTIONS_MAX)):
+                                ("options", a.options, protocol.ARM_OPTIONS_MAX)):
             if value > hi:
-                raise _Refused(P.ErrorCode.OUT_OF_RANGE, f"{name}={value} [0,{hi}]")
+                raise _Refused(protocol.ErrorCode.OUT_OF_RANGE, f"{name}={value} [0,{hi}]")
 
-    def _excitation(self, a: P.Arm, kind: P.EpisodeKind):
+    def _excitation(self, a: protocol.Arm, kind: protocol.EpisodeKind):
         """The open-loop "policy" of an identification episode with body 1 held: the uploaded
         excitation (:mod:`impact_env.rig.excitation`), or 0 N for a quiet one without upload."""
         if a.mode != "onboard":
-            raise _Refused(P.ErrorCode.BAD_REQUEST, f"mode=host: a {kind.name.lower()} episode runs onboard")
-        exc = EX.Excitation()
+            raise _Refused(
+                protocol.ErrorCode.BAD_REQUEST, f"mode=host: a {kind.name.lower()} episode runs onboard"
+            )
+        exc = excitation.Excitation()
         if a.policy_size:
             data = self.upload.data if self.upload.complete else b""
             if len(data) != a.policy_size or hashlib.sha256(data).digest() != a.policy_sha256:
-                raise _Refused(P.ErrorCode.POLICY_REJECTED, NO_UPLOAD)
-            exc = EX.Excitation.from_json(data, "the uploaded excitation")
-        if kind == P.EpisodeKind.QUIET and exc.signal != "zero":
-            raise _Refused(P.ErrorCode.BAD_REQUEST, f"policy: a quiet episode drives 0 N, not {exc.signal}")
+                raise _Refused(protocol.ErrorCode.POLICY_REJECTED, NO_UPLOAD)
+            exc = excitation.Excitation.from_json(data, "the uploaded excitation")
+        if kind == protocol.EpisodeKind.QUIET and exc.signal != "zero":
+            raise _Refused(
+                protocol.ErrorCode.BAD_REQUEST, f"policy: a quiet episode drives 0 N, not {exc.signal}"
+            )
         cfg = self.cfg.safety or SafetyConfig()
         cmds = exc.commands(self.rate, a.horizon_ticks, float(self.scene.effects.command_scale), cfg.peak_n,
                             cfg.continuous_n)
-        return EX.ExcitationPolicy(exc, cmds, make_layout(self.scene, "sensors", 1).size,
+        return excitation.ExcitationPolicy(exc, cmds, make_layout(self.scene, "sensors", 1).size,
                                    float(self.scene.effects.command_scale))
 
     # -- one episode ---------------------------------------------------------------------------------
-    def _run_episode(self, arm_msg: P.Message, ctl: Controller, hold: int, policy) -> None:
-        a: P.Arm = arm_msg.body
+    def _run_episode(self, arm_msg: protocol.Message, ctl: Controller, hold: int, policy) -> None:
+        a = arm_msg.payload(protocol.Arm)
         datagrams0 = self._datagram_counts()
         datagrams0["accepted"] -= 1  # the ARM itself is the episode's
         datagrams0["received"] -= 1
         drv = self.driver
-        seed = (a.seed + self.cfg.seed_offset) & P.U64
+        seed = (a.seed + self.cfg.seed_offset) & protocol.U64
         drv.arm(seed)
         kind = a.kind
-        if kind == P.EpisodeKind.IDENT_DROP:
+        if kind == protocol.EpisodeKind.IDENT_DROP:
             drv.nominal_drop()
         if self.cfg.lockstep:
             ctl.drain(int(self.cfg.rearm_idle_s * self.rate))
-        self.state = P.TargetState.RUNNING
-        armed = P.Armed(self.episode, 0, ctl.layout.size, N_ACTIONS, 4, N_TELEMETRY, hold, self.rate,
+        self.state = protocol.TargetState.RUNNING
+        armed = protocol.Armed(self.episode, 0, ctl.layout.size, N_ACTIONS, 4, N_TELEMETRY, hold, self.rate,
                         self.scene_sha)
-        ep = Episode(self, arm_msg, armed, ctl, hold, seed)
+        ep = Episode(self, arm_msg, armed, ctl, hold, seed, policy)
         ep.prefault()  # the episode's arrays in memory before ARMED: no page fault in its first ticks
         self.reply(armed, arm_msg)
-        if kind in (P.EpisodeKind.SHAKER, P.EpisodeKind.QUIET):
+        if kind in (protocol.EpisodeKind.SHAKER, protocol.EpisodeKind.QUIET):
             drv.hold()
         else:
             drv.release()
         ep.datagrams0 = datagrams0
-        ep.policy = policy
         try:
-            end = ep.run_compiled() if self.compiled else ep.run_python()
+            end = ep.run()
         finally:
             drv.idle()
-            self.state = P.TargetState.IDLE
+            self.state = protocol.TargetState.IDLE
             self._heard = time.perf_counter()
         self._last_obs = ep.obs_msg
         self._finish(ep, end, policy)
@@ -615,31 +631,49 @@ class Target:
         meta = self._meta(ep, policy, end.name, counters)
         self._write(ep, meta, end)
 
-    def _meta(self, ep: Episode, policy, end_reason: str, counters: dict) -> LG.EpisodeMeta:
+    def _meta(self, ep: Episode, policy, end_reason: str, counters: dict) -> tick_log.EpisodeMeta:
         ctl, a = ep.ctl, ep.a
-        return LG.EpisodeMeta(scene_toml=self.scene_toml.decode(), mode=a.mode, hold_ticks=ctl.hold,
-                              seed=ep.seed, control_rate_hz=self.rate, episode=ep.ep,
-                              session=self.link.session or 0, policy="" if policy is None else policy.name,
-                              policy_sha256=("" if policy is None or not a.policy_size
-                                             else hashlib.sha256(self.upload.data).hexdigest()),
-                              observation=ctl.observation, history=ctl.layout.history,
-                              obs_names=ctl.layout.names, end_reason=end_reason, counters=counters,
-                              kind=a.kind.name.lower(),
-                              excitation=(policy.excitation.to_json() if isinstance(policy, EX.ExcitationPolicy)
-                                          else ""),
-                              physics_toml=getattr(self.driver, "physics_toml", ""))
+        return tick_log.EpisodeMeta(
+            scene_toml=self.scene_toml.decode(),
+            mode=a.mode,
+            hold_ticks=ctl.hold,
+            seed=ep.seed,
+            control_rate_hz=self.rate,
+            episode=ep.ep,
+            session=self.link.session or 0,
+            policy="" if policy is None else policy.name,
+            policy_sha256=(
+                "" if policy is None or not a.policy_size else hashlib.sha256(self.upload.data).hexdigest()
+            ),
+            observation=ctl.observation,
+            history=ctl.layout.history,
+            obs_names=ctl.layout.names,
+            end_reason=end_reason,
+            counters=counters,
+            kind=a.kind.name.lower(),
+            excitation=(
+                policy.excitation.to_json() if isinstance(policy, excitation.ExcitationPolicy) else ""
+            ),
+            physics_toml=getattr(self.driver, "physics_toml", ""),
+        )
 
-    def open_stream(self, ep: Episode, published: np.ndarray) -> LG.LogStream | None:
+    def open_stream(self, ep: Episode, published: np.ndarray) -> tick_log.LogStream | None:
         """The episode's log streamed to ``log_dir`` while it runs (None without a log dir)."""
         if self.cfg.log_dir is None:
             return None
-        meta = self._meta(ep, ep.policy, LG.INCOMPLETE, {})
-        name = LG.episode_filename(ep.ep, self.link.session or 0) + LG.PARTIAL_SUFFIX
+        meta = self._meta(ep, ep.policy, tick_log.INCOMPLETE, {})
+        name = tick_log.episode_filename(ep.ep, self.link.session or 0) + tick_log.PARTIAL_SUFFIX
         Path(self.cfg.log_dir).mkdir(parents=True, exist_ok=True)
-        return LG.LogStream(ep.ctl.log, Path(self.cfg.log_dir) / name, meta, published, self.cfg.log_flush_s,
-                            self.placement.background_thread)
+        return tick_log.LogStream(
+            ep.ctl.log,
+            Path(self.cfg.log_dir) / name,
+            meta,
+            published,
+            self.cfg.log_flush_s,
+            self.placement.background_thread,
+        )
 
-    def _write(self, ep: Episode, meta: LG.EpisodeMeta, end) -> None:
+    def _write(self, ep: Episode, meta: tick_log.EpisodeMeta, end) -> None:
         ctl = ep.ctl
         if self.stopping and ep.stream is not None and self.cfg.log_dir is not None:
             # asked to stop (SIGTERM, SIGINT): the streamed file becomes the log (its last rows,
@@ -648,28 +682,37 @@ class Target:
         elif self.cfg.log_dir is not None:
             if ep.stream is not None:
                 ep.stream.close()
-            data = LG.write_episode(ctl.log, self.cfg.log_dir, meta).read_bytes()
+            data = tick_log.write_episode(ctl.log, self.cfg.log_dir, meta).read_bytes()
             if ep.stream is not None:
                 ep.stream.discard()  # the finished file replaces what was streamed
         else:
             with tempfile.TemporaryDirectory(prefix="impact-env-rig-") as tmp:
-                data = LG.write_episode(ctl.log, tmp, meta).read_bytes()
+                data = tick_log.write_episode(ctl.log, tmp, meta).read_bytes()
         self.episodes[ep.ep] = data
         for old in [k for k in self.episodes if k < ep.ep - 8]:
             del self.episodes[old]
         self.counters["episodes"] += 1
         self.counters["overruns"] += ep.overruns
         self.counters["skipped_ticks"] += ep.skipped_ticks
-        self.counters["overrun_episodes"] += end == P.EndReason.OVERRUN
+        self.counters["overrun_episodes"] += end == protocol.EndReason.OVERRUN
         self.counters["watchdog_trips"] += meta.counters.get("watchdog_trips", 0)
-        self.last_end = P.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & P.U32, ctl.log.n,
+        self.last_end = protocol.EpisodeEnd(ep.ep, int(end), int(ep.status_or) & protocol.U32, ctl.log.n,
                                      ep.m // ctl.hold, len(data), hashlib.sha256(data).digest())
         self.link.send(self.last_end, addr=self.link.last_sender)
 
-    def info(self, nonce: bytes) -> P.Info:
-        return P.Info(nonce, self.rate, int(self.state), 0 if self.driver.virtual else 1, self.cfg.lockstep,
-                      len(self.scene_toml), self.scene_sha, self.link.filter.nonce, self.keyed,
-                      self.endpoint.session_port)
+    def info(self, nonce: bytes) -> protocol.Info:
+        return protocol.Info(
+            nonce,
+            self.rate,
+            int(self.state),
+            0 if self.driver.virtual else 1,
+            self.cfg.lockstep,
+            len(self.scene_toml),
+            self.scene_sha,
+            self.link.filter.nonce,
+            self.keyed,
+            self.endpoint.session_port,
+        )
 
 
 class _Refused(Exception):

@@ -32,7 +32,7 @@ import socket
 import time
 from collections.abc import Callable
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.errors import RigError
 
 Address = tuple[str, int]
@@ -207,10 +207,10 @@ class Endpoint:
         dest = addr if addr is not None else self.peer
         if dest is None:
             raise ValueError(f"endpoint {self.address} has no peer: give addr")
-        if len(data) > P.MAX_DATAGRAM:
-            raise ValueError(f"datagram of {len(data)} B exceeds {P.MAX_DATAGRAM} B")
+        if len(data) > protocol.MAX_DATAGRAM:
+            raise ValueError(f"datagram of {len(data)} B exceeds {protocol.MAX_DATAGRAM} B")
         session = self._session is not None and not main and _same_peer(dest, self._session_peer)
-        sock = self._session if session else self._sock
+        sock = self._session if session and self._session is not None else self._sock
         try:
             sock.sendto(data, dest)
         except (BlockingIOError, ConnectionRefusedError, InterruptedError):
@@ -241,7 +241,7 @@ class Endpoint:
             socks = self._readers()
             for sock in socks:
                 try:
-                    data, addr = sock.recvfrom(P.MAX_DATAGRAM + 1)
+                    data, addr = sock.recvfrom(protocol.MAX_DATAGRAM + 1)
                     self.received += 1
                     return data, addr
                 except (BlockingIOError, InterruptedError):
@@ -278,7 +278,7 @@ class Endpoint:
         for sock in self._readers():
             while len(out) < limit:
                 try:
-                    data, ancdata, _flags, addr = sock.recvmsg(P.MAX_DATAGRAM + 1, anc)
+                    data, ancdata, _flags, addr = sock.recvmsg(protocol.MAX_DATAGRAM + 1, anc)
                 except (BlockingIOError, InterruptedError):
                     break
                 except ConnectionRefusedError:
@@ -344,7 +344,7 @@ class Endpoint:
             return
         while True:
             try:
-                self._pending.append(sock.recvfrom(P.MAX_DATAGRAM + 1))
+                self._pending.append(sock.recvfrom(protocol.MAX_DATAGRAM + 1))
             except OSError:  # nothing left (BlockingIOError), or an ICMP error reported: done
                 break
         self._session_drops_before += max(_proc_drops(sock), 0)
@@ -409,20 +409,20 @@ class Link:
 
     def __init__(self, endpoint: Endpoint, role: str, session: int | None = None,
                  clock: Callable[[], int] = time.perf_counter_ns, key: bytes = b"",
-                 on_stranger: Callable[[P.Message, tuple], None] | None = None):
+                 on_stranger: Callable[[protocol.Message, tuple], None] | None = None):
         self.endpoint = endpoint
         self.role = role
-        self.filter = P.DatagramFilter(role, session=session, key=bytes(key))
+        self.filter = protocol.DatagramFilter(role, session=session, key=bytes(key))
         self.clock = clock
         self.seq = 0
         self.last_sender: tuple | None = None
         self.on_stranger = on_stranger
         self.on_unauthenticated: Callable[[bytes, tuple], None] | None = None
         # sees every accepted message, whoever waits for it (a request's wait drops the others)
-        self.on_accept: Callable[[P.Message], None] | None = None
+        self.on_accept: Callable[[protocol.Message], None] | None = None
         # the target's handshake: takes the HELLOs and RESPONSEs (with their sender) that the
         # filter accepted, idle or mid-episode; they are not returned by recv
-        self.on_handshake: Callable[[P.Message, tuple], None] | None = None
+        self.on_handshake: Callable[[protocol.Message, tuple], None] | None = None
         # a request the filter refused for a field out of range: (code, seq, text, size), sender
         self.on_refused: Callable[[tuple, tuple], None] | None = None
 
@@ -439,29 +439,36 @@ class Link:
         p = self.endpoint.peer or self.last_sender
         return format_address((p[0], p[1])) if p else "the peer"
 
-    def send(self, body: P.Body, tick: int = 0, reply_to: P.Message | None = None, flags: int = 0,
-             addr: tuple | None = None) -> P.Message:
+    def send(
+        self,
+        body: protocol.Body,
+        tick: int = 0,
+        reply_to: protocol.Message | None = None,
+        flags: int = 0,
+        addr: tuple | None = None,
+    ) -> protocol.Message:
         """Stamp, number and send ``body``; returns the message sent."""
         msg = self.stamp(body, tick, reply_to, flags)
-        self.endpoint.send(P.encode(msg, self.filter.key, self.filter.nonce), addr)
+        self.endpoint.send(protocol.encode(msg, self.filter.key, self.filter.nonce), addr)
         return msg
 
-    def stamp(self, body: P.Body, tick: int = 0, reply_to: P.Message | None = None,
-              flags: int = 0) -> P.Message:
+    def stamp(self, body: protocol.Body, tick: int = 0, reply_to: protocol.Message | None = None,
+              flags: int = 0) -> protocol.Message:
         """The message ``body`` becomes when sent now: this session, the next sequence number
         (taken), this side's clock, the other side's timestamp echoed from ``reply_to``."""
-        now = self.clock() & P.U64
+        now = self.clock() & protocol.U64
         if self.role == "host":
             hns, tns = now, (reply_to.target_ns if reply_to is not None else 0)
         else:
             hns, tns = (reply_to.host_ns if reply_to is not None else 0), now
-        msg = P.Message(body, session=self.session or 0, seq=self.seq, tick=tick, host_ns=hns, target_ns=tns,
-                        flags=flags)
-        self.seq = (self.seq + 1) & P.U32
+        msg = protocol.Message(
+            body, session=self.session or 0, seq=self.seq, tick=tick, host_ns=hns, target_ns=tns, flags=flags
+        )
+        self.seq = (self.seq + 1) & protocol.U32
         return msg
 
     def recv(self, timeout: float = 0.0, episode: int | None = None,
-             step: int | None = None, spin_s: float = 0.0) -> P.Message | None:
+             step: int | None = None, spin_s: float = 0.0) -> protocol.Message | None:
         """The next accepted message within ``timeout`` s (dropped datagrams are counted by
         ``self.filter`` and waiting goes on); None if none came in time.  ``spin_s``: see
         :meth:`Endpoint.recv`."""
@@ -477,7 +484,7 @@ class Link:
                 return None
 
     def recv_all(self, episode: int | None = None, step: int | None = None,
-                 limit: int = 4096) -> list[P.Message]:
+                 limit: int = 4096) -> list[protocol.Message]:
         """Every datagram waiting now through the filter (each one accepted or counted under its
         reason by ``self.filter``); returns the accepted messages, in order."""
         out = []
@@ -488,14 +495,14 @@ class Link:
         return out
 
     def take(self, data: bytes, addr: tuple, episode: int | None = None,
-             step: int | None = None) -> P.Message | None:
+             step: int | None = None) -> protocol.Message | None:
         """One datagram through the filter: an accepted message for the caller; a handshake
         (HELLO, RESPONSE) to ``on_handshake``; a rejected one counted and reported to
         ``on_unauthenticated`` / ``on_stranger``.  The one path of :meth:`recv`, :meth:`recv_all`
         and the datagrams the target's real-time loop read (:mod:`impact_env.rig.wire`), so that
         all treat every datagram alike."""
         msg = self.filter.accept(data, episode, step, addr)
-        if msg is not None and self.on_handshake is not None and msg.type in P.HANDSHAKE_TYPES:
+        if msg is not None and self.on_handshake is not None and msg.type in protocol.HANDSHAKE_TYPES:
             self.on_handshake(msg, addr)
             return None
         if msg is not None:
@@ -515,9 +522,16 @@ class Link:
                 self.on_stranger(stranger, addr)
         return None
 
-    def request(self, body: P.Body, match: Callable[[P.Message], bool], what: str, timeout_s: float = 0.05,
-                retries: int = 5, on_other: Callable[[P.Message], None] | None = None,
-                addr: tuple | None = None) -> P.Message:
+    def request(
+        self,
+        body: protocol.Body,
+        match: Callable[[protocol.Message], bool],
+        what: str,
+        timeout_s: float = 0.05,
+        retries: int = 5,
+        on_other: Callable[[protocol.Message], None] | None = None,
+        addr: tuple | None = None,
+    ) -> protocol.Message:
         """Send ``body`` and return the first accepted message for which ``match`` is true,
         re-sending after every ``timeout_s`` s without one, ``retries`` times at most.
 
@@ -530,15 +544,16 @@ class Link:
         seqs = set()
         t0 = time.perf_counter()
         for attempt in range(int(retries) + 1):
-            sent = self.send(body, flags=P.FLAG_RETRY if attempt else 0, addr=addr)
+            sent = self.send(body, flags=protocol.FLAG_RETRY if attempt else 0, addr=addr)
             seqs.add(sent.seq)
             deadline = time.perf_counter() + timeout_s
             while (remaining := deadline - time.perf_counter()) > 0:
                 msg = self.recv(remaining)
                 if msg is None:
                     break
-                if msg.type == P.MsgType.ERROR and msg.body.ref_seq in seqs:
-                    raise RigError(what, msg.body.code, msg.body.text)
+                if msg.type == protocol.MsgType.ERROR and msg.payload(protocol.Error).ref_seq in seqs:
+                    err = msg.payload(protocol.Error)
+                    raise RigError(what, err.code, err.text)
                 if match(msg):
                     return msg
                 if on_other is not None:
@@ -553,61 +568,74 @@ def upload_id(data: bytes) -> int:
 
 
 def upload(link: Link, data: bytes, timeout_s: float = 0.05, retries: int = 5,
-           on_other: Callable[[P.Message], None] | None = None) -> int:
+           on_other: Callable[[protocol.Message], None] | None = None) -> int:
     """Send ``data`` (a policy file) as POLICY_CHUNKs, each acknowledged by an ACK whose value
     is the length the target holds, at least the chunk's end offset (more when it holds the file
     already: the same file uploaded again).  Returns the number of chunks; raises RigTimeout/RigError."""
-    if len(data) > P.MAX_TRANSFER:
-        raise ValueError(f"file of {len(data)} B exceeds {P.MAX_TRANSFER} B")
+    if len(data) > protocol.MAX_TRANSFER:
+        raise ValueError(f"file of {len(data)} B exceeds {protocol.MAX_TRANSFER} B")
     uid = upload_id(data)
-    offsets = range(0, max(len(data), 1), P.CHUNK_DATA)
+    offsets = range(0, max(len(data), 1), protocol.CHUNK_DATA)
     for off in offsets:
-        piece = data[off:off + P.CHUNK_DATA]
+        piece = data[off:off + protocol.CHUNK_DATA]
         end = off + len(piece)
 
         def acked(m, end=end):
             b = m.body
-            return m.type == P.MsgType.ACK and b.acked_type == P.MsgType.POLICY_CHUNK and b.value >= end
+            return (
+                m.type == protocol.MsgType.ACK
+                and b.acked_type == protocol.MsgType.POLICY_CHUNK
+                and b.value >= end
+            )
 
-        reply = link.request(P.PolicyChunk(uid, len(data), off, piece), acked,
+        reply = link.request(protocol.PolicyChunk(uid, len(data), off, piece), acked,
                              f"ACK of policy bytes {off}..{end} of {len(data)}", timeout_s, retries, on_other)
-        if reply.body.code != P.ErrorCode.OK:
-            raise RigError(f"policy bytes {off}..{end}", reply.body.code, "chunk not accepted")
+        ack = reply.payload(protocol.Ack)
+        if ack.code != protocol.ErrorCode.OK:
+            raise RigError(f"policy bytes {off}..{end}", ack.code, "chunk not accepted")
     return len(offsets)
 
 
 def fetch(link: Link, resource: int, item: int = 0, sha256: bytes | None = None, timeout_s: float = 0.05,
-          retries: int = 5, on_other: Callable[[P.Message], None] | None = None,
-          max_total: int = P.MAX_TRANSFER) -> bytes:
+          retries: int = 5, on_other: Callable[[protocol.Message], None] | None = None,
+          max_total: int = protocol.MAX_TRANSFER) -> bytes:
     """Fetch a resource (``protocol.Resource``: the scene TOML, an episode's log) chunk by chunk;
     checks the total stays the same across chunks and, if given, the sha256 of the result."""
     parts: list[bytes] = []
     off, total = 0, None
     try:
-        name = f"{P.Resource(resource).name} {item}"
+        name = f"{protocol.Resource(resource).name} {item}"
     except ValueError:
         name = f"resource {resource} item {item}"
     while total is None or off < total:
         def answers(m, off=off):
             b = m.body
-            return m.type == P.MsgType.CHUNK and b.resource == resource and b.item == item and b.offset == off
+            return (
+                m.type == protocol.MsgType.CHUNK
+                and b.resource == resource
+                and b.item == item
+                and b.offset == off
+            )
 
-        reply = link.request(P.Fetch(resource, item, off, P.CHUNK_DATA), answers,
-                             f"CHUNK of {name} at byte {off}", timeout_s, retries, on_other).body
+        reply = link.request(protocol.Fetch(resource, item, off, protocol.CHUNK_DATA), answers,
+                             f"CHUNK of {name} at byte {off}", timeout_s, retries,
+                             on_other).payload(protocol.Chunk)
         if total is None:
             total = reply.total
             if total > max_total:
                 raise ValueError(f"{name} is {total} B, more than max_total = {max_total} B")
         elif reply.total != total:
-            raise RigError(f"{name}", P.ErrorCode.BAD_REQUEST,
+            raise RigError(f"{name}", protocol.ErrorCode.BAD_REQUEST,
                            f"its size changed during the transfer ({total} -> {reply.total} B)")
         if not reply.data and off < total:
-            raise RigError(f"{name}", P.ErrorCode.BAD_REQUEST, f"empty chunk at byte {off} of {total}")
+            raise RigError(f"{name}", protocol.ErrorCode.BAD_REQUEST, f"empty chunk at byte {off} of {total}")
         parts.append(reply.data)
         off += len(reply.data)
     out = b"".join(parts)
     if sha256 is not None and hashlib.sha256(out).digest() != sha256:
-        raise RigError(f"{name}", P.ErrorCode.BAD_REQUEST, "sha256 of the fetched bytes does not match")
+        raise RigError(
+            f"{name}", protocol.ErrorCode.BAD_REQUEST, "sha256 of the fetched bytes does not match"
+        )
     return out
 
 
@@ -644,26 +672,29 @@ class UploadAssembler:
                              f"(or its sha256 does not match the upload id)")
         return bytes(self._buf)
 
-    def add(self, chunk: P.PolicyChunk, seq: int = 0) -> P.Ack:
+    def add(self, chunk: protocol.PolicyChunk, seq: int = 0) -> protocol.Ack:
         if chunk.upload_id != self.upload_id or chunk.total != self.total:
             if chunk.total > self.max_bytes:
-                return P.Ack(P.MsgType.POLICY_CHUNK, P.ErrorCode.OUT_OF_RANGE, seq, 0)
+                return protocol.Ack(protocol.MsgType.POLICY_CHUNK, protocol.ErrorCode.OUT_OF_RANGE, seq, 0)
             self.upload_id, self.total, self._buf = chunk.upload_id, chunk.total, bytearray()
         end = chunk.offset + len(chunk.data)
         if chunk.offset > len(self._buf):
-            return P.Ack(P.MsgType.POLICY_CHUNK, P.ErrorCode.OUT_OF_RANGE, seq, len(self._buf))
+            return protocol.Ack(
+                protocol.MsgType.POLICY_CHUNK, protocol.ErrorCode.OUT_OF_RANGE, seq, len(self._buf)
+            )
         if end > len(self._buf):
             self._buf[chunk.offset:] = chunk.data
-        return P.Ack(P.MsgType.POLICY_CHUNK, P.ErrorCode.OK, seq, len(self._buf))
+        return protocol.Ack(protocol.MsgType.POLICY_CHUNK, protocol.ErrorCode.OK, seq, len(self._buf))
 
 
-def chunk_reply(data: bytes, request: P.Fetch, seq: int = 0) -> P.Chunk | P.Error:
+def chunk_reply(data: bytes, request: protocol.Fetch, seq: int = 0) -> protocol.Chunk | protocol.Error:
     """The CHUNK answering ``request`` (of sequence number ``seq``) for the resource bytes
     ``data`` (the target's side of :func:`fetch`), or an ERROR (OUT_OF_RANGE) for an offset past
     the end."""
     if request.offset > len(data):
-        return P.Error(P.ErrorCode.OUT_OF_RANGE, seq, f"offset {request.offset} B is past the end "
-                       f"({len(data)} B)")
-    n = min(request.max_len, P.CHUNK_DATA)
-    return P.Chunk(request.resource, request.item, len(data), request.offset,
+        return protocol.Error(
+            protocol.ErrorCode.OUT_OF_RANGE, seq, f"offset {request.offset} B is past the end ({len(data)} B)"
+        )
+    n = min(request.max_len, protocol.CHUNK_DATA)
+    return protocol.Chunk(request.resource, request.item, len(data), request.offset,
                    bytes(data[request.offset:request.offset + n]))

@@ -40,7 +40,7 @@ from typing import NamedTuple
 import numpy as np
 
 from impact_env._jit import jit
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.cfunc import (
     call_clock_gettime,
     call_clock_nanosleep,
@@ -62,13 +62,13 @@ NONCE = 8  # bytes of the session nonce in front of every tagged frame
 # header offsets (protocol.HEADER, "<4sBBBBIIQQQH")
 H_MAJOR, H_MINOR, H_TYPE, H_FLAGS, H_SESSION, H_SEQ, H_TICK, H_HOST_NS, H_TARGET_NS, H_PLEN = (
     4, 5, 6, 7, 8, 12, 16, 24, 32, 40)
-T_COMMAND = int(P.MsgType.COMMAND)
-T_OBSERVATION = int(P.MsgType.OBSERVATION)
-MAGIC = np.frombuffer(P.MAGIC, np.uint8)
+T_COMMAND = int(protocol.MsgType.COMMAND)
+T_OBSERVATION = int(protocol.MsgType.OBSERVATION)
+MAGIC = np.frombuffer(protocol.MAGIC, np.uint8)
 _HALF = 1 << 31
 _U32 = 0xFFFFFFFF
 _WINDOW = 64  # DatagramFilter.WINDOW
-assert P.DatagramFilter.WINDOW == _WINDOW and P.HEADER_SIZE == 42 and P.TAG_SIZE == 16
+assert protocol.DatagramFilter.WINDOW == _WINDOW and protocol.HEADER_SIZE == 42 and protocol.TAG_SIZE == 16
 
 
 class Calls(NamedTuple):
@@ -219,7 +219,7 @@ def tag_checks(w, end):
     if not tag_of(w, w.rx, NONCE + end):
         return False
     diff = 0
-    for k in range(P.TAG_SIZE):
+    for k in range(protocol.TAG_SIZE):
         diff |= w.md[k] ^ w.rx[NONCE + end + k]
     return diff == 0
 
@@ -319,20 +319,28 @@ def classify(w, n, cur_step):
     c = w.c
     d = w.rx
     o = NONCE
-    if (n < P.OVERHEAD or not from_peer(w) or d[o + H_TYPE] != T_COMMAND or d[o + H_MAJOR] != P.VERSION_MAJOR
-            or d[o] != MAGIC[0] or d[o + 1] != MAGIC[1] or d[o + 2] != MAGIC[2] or d[o + 3] != MAGIC[3]):
+    if (
+        n < protocol.OVERHEAD
+        or not from_peer(w)
+        or d[o + H_TYPE] != T_COMMAND
+        or d[o + H_MAJOR] != protocol.VERSION_MAJOR
+        or d[o] != MAGIC[0]
+        or d[o + 1] != MAGIC[1]
+        or d[o + 2] != MAGIC[2]
+        or d[o + 3] != MAGIC[3]
+    ):
         enqueue(w, n)
         return READ
     # the host's COMMAND: the filter's checks, in its order
     plen = get_uint(d, o + H_PLEN, 2)
-    if P.HEADER_SIZE + plen + P.TAG_SIZE != n:
+    if protocol.HEADER_SIZE + plen + protocol.TAG_SIZE != n:
         c.corrupt[0] += 1
         return READ
-    if not tag_checks(w, P.HEADER_SIZE + plen):
+    if not tag_checks(w, protocol.HEADER_SIZE + plen):
         c.unauthenticated[0] += 1
         return READ
-    newer = d[o + H_MINOR] > P.VERSION_MINOR
-    pl = o + P.HEADER_SIZE
+    newer = d[o + H_MINOR] > protocol.VERSION_MINOR
+    pl = o + protocol.HEADER_SIZE
     if plen < 10:
         c.corrupt[0] += 1
         return READ
@@ -378,10 +386,12 @@ def send_frame(w, n):
     if not tag_of(w, t, NONCE + n):
         w.c.send_dropped[0] += 1
         return
-    for k in range(P.TAG_SIZE):
+    for k in range(protocol.TAG_SIZE):
         t[NONCE + n + k] = w.md[k]
-    sent = call_sendto(w.calls.sendto, w.fd, t, NONCE, n + P.TAG_SIZE, MSG_DONTWAIT, w.peer, w.peer_len)
-    if sent == n + P.TAG_SIZE:
+    sent = call_sendto(
+        w.calls.sendto, w.fd, t, NONCE, n + protocol.TAG_SIZE, MSG_DONTWAIT, w.peer, w.peer_len
+    )
+    if sent == n + protocol.TAG_SIZE:
         w.c.sent[0] += 1
     else:
         w.c.send_dropped[0] += 1
@@ -396,8 +406,10 @@ def send_observation(w, tick, step, status, obs, telem, records, r0, r1):
     o = NONCE
     nrec = 0
     if r1 > r0:
-        ok = (obs.shape[0] * 4 + (telem.shape[0] + (r1 - r0) * records.shape[1]) * 8 + 17 + P.OVERHEAD
-              <= P.MAX_DATAGRAM) and telem.shape[0] + (r1 - r0) * records.shape[1] <= P.MAX_VALUES
+        ok = (
+            obs.shape[0] * 4 + (telem.shape[0] + (r1 - r0) * records.shape[1]) * 8 + 17 + protocol.OVERHEAD
+            <= protocol.MAX_DATAGRAM
+        ) and telem.shape[0] + (r1 - r0) * records.shape[1] <= protocol.MAX_VALUES
         if ok:
             for i in range(r0, r1):
                 for j in range(records.shape[1]):
@@ -410,8 +422,8 @@ def send_observation(w, tick, step, status, obs, telem, records, r0, r1):
     plen = 17 + 4 * n_obs + 8 * m
     for k in range(4):
         t[o + k] = MAGIC[k]
-    t[o + H_MAJOR] = P.VERSION_MAJOR
-    t[o + H_MINOR] = P.VERSION_MINOR
+    t[o + H_MAJOR] = protocol.VERSION_MAJOR
+    t[o + H_MINOR] = protocol.VERSION_MINOR
     t[o + H_TYPE] = T_OBSERVATION
     t[o + H_FLAGS] = 0
     put_uint(t, o + H_SESSION, 4, w.session)
@@ -421,7 +433,7 @@ def send_observation(w, tick, step, status, obs, telem, records, r0, r1):
     put_uint(t, o + H_HOST_NS, 8, w.st.host_ns[0])
     put_uint(t, o + H_TARGET_NS, 8, now_ns(w))
     put_uint(t, o + H_PLEN, 2, plen)
-    p = o + P.HEADER_SIZE
+    p = o + protocol.HEADER_SIZE
     put_uint(t, p, 4, w.episode)
     put_uint(t, p + 4, 4, step)
     put_uint(t, p + 8, 4, status & _U32)
@@ -440,8 +452,8 @@ def send_observation(w, tick, step, status, obs, telem, records, r0, r1):
             for j in range(records.shape[1]):
                 put_f64(t, q, records[i, j], w)
                 q += 8
-    w.st.obs_len[0] = P.HEADER_SIZE + plen
-    send_frame(w, P.HEADER_SIZE + plen)
+    w.st.obs_len[0] = protocol.HEADER_SIZE + plen
+    send_frame(w, protocol.HEADER_SIZE + plen)
 
 
 @jit
@@ -515,29 +527,61 @@ def make(fd: int, key: bytes, nonce: int, session: int, episode: int, peer: tupl
     pr[:len(raw)] = np.frombuffer(raw, np.uint8)
     pm[:len(mask)] = np.frombuffer(mask, np.uint8)
     k = np.frombuffer(key, np.uint8).copy() if key else np.zeros(1, np.uint8)
-    nb = np.frombuffer(int(nonce & P.U64).to_bytes(8, "little"), np.uint8)
+    nb = np.frombuffer(int(nonce & protocol.U64).to_bytes(8, "little"), np.uint8)
     rx = np.zeros(NONCE + RX_MAX, np.uint8)
-    tx = np.zeros(NONCE + P.MAX_DATAGRAM, np.uint8)
+    tx = np.zeros(NONCE + protocol.MAX_DATAGRAM, np.uint8)
     rx[:NONCE] = nb
     tx[:NONCE] = nb
     f8, f4 = np.zeros(1), np.zeros(1, np.float32)
     counts = WireCounts(*(np.zeros(1, np.int64) for _ in WireCounts._fields))
     newest, m = stream if stream is not None else (0, 0)
-    st = WireState(np.array([stream is not None], np.int64), np.array([newest], np.int64),
-                   np.array([ctypes.c_int64(m & P.U64).value], np.int64), np.array([obs_seq], np.int64),
-                   np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1),
-                   *(np.zeros(1, np.int64) for _ in range(6)))
-    return Wire(fd=int(fd), calls=functions or calls(), wake_fd=int(wake_fd),
-                wake_write=libc_address("write"),
-                byte=np.ones(1, np.uint8), key=k, key_len=len(key), peer=pr, peer_mask=pm, peer_len=len(raw),
-                session=int(session), episode=int(episode), n_actions=int(n_actions), rx=rx, tx=tx,
-                src=np.zeros(SOCKADDR, np.uint8),
-                srclen=np.zeros(1, np.uint32), md=np.zeros(64, np.uint8), mdlen=np.zeros(1, np.uint32),
-                ts=np.zeros(2, np.int64), f8=f8, b8=f8.view(np.uint8), f4=f4, b4=f4.view(np.uint8), c=counts,
-                st=st, q_data=np.zeros((N_Q, RX_MAX), np.uint8), q_len=np.zeros(N_Q, np.int64),
-                q_src=np.zeros((N_Q, SOCKADDR), np.uint8), q_srclen=np.zeros(N_Q, np.int64),
-                q_head=np.zeros(1, np.int64), q_tail=np.zeros(1, np.int64), out=np.zeros(2 * P.MAX_VALUES),
-                pfd=np.array([fd, 1], np.int32))
+    st = WireState(
+        np.array([stream is not None], np.int64),
+        np.array([newest], np.int64),
+        np.array([ctypes.c_int64(m & protocol.U64).value], np.int64),
+        np.array([obs_seq], np.int64),
+        np.zeros(1, np.int64),
+        np.zeros(1, np.int64),
+        np.zeros(1, np.int64),
+        np.zeros(1),
+        *(np.zeros(1, np.int64) for _ in range(6)),
+    )
+    return Wire(
+        fd=int(fd),
+        calls=functions or calls(),
+        wake_fd=int(wake_fd),
+        wake_write=libc_address("write"),
+        byte=np.ones(1, np.uint8),
+        key=k,
+        key_len=len(key),
+        peer=pr,
+        peer_mask=pm,
+        peer_len=len(raw),
+        session=int(session),
+        episode=int(episode),
+        n_actions=int(n_actions),
+        rx=rx,
+        tx=tx,
+        src=np.zeros(SOCKADDR, np.uint8),
+        srclen=np.zeros(1, np.uint32),
+        md=np.zeros(64, np.uint8),
+        mdlen=np.zeros(1, np.uint32),
+        ts=np.zeros(2, np.int64),
+        f8=f8,
+        b8=f8.view(np.uint8),
+        f4=f4,
+        b4=f4.view(np.uint8),
+        c=counts,
+        st=st,
+        q_data=np.zeros((N_Q, RX_MAX), np.uint8),
+        q_len=np.zeros(N_Q, np.int64),
+        q_src=np.zeros((N_Q, SOCKADDR), np.uint8),
+        q_srclen=np.zeros(N_Q, np.int64),
+        q_head=np.zeros(1, np.int64),
+        q_tail=np.zeros(1, np.int64),
+        out=np.zeros(2 * protocol.MAX_VALUES),
+        pfd=np.array([fd, 1], np.int32),
+    )
 
 
 def set_peer(w: Wire, peer: tuple) -> None:
@@ -584,7 +628,7 @@ def merge(w: Wire, link) -> None:
     link.endpoint.send_dropped += int(c.send_dropped[0])
     st = w.st
     if st.known[0] and f.session == w.session:
-        f.set_stream(w.session, T_COMMAND, int(st.newest[0]), int(st.mask[0]) & P.U64)
-    link.seq = max(link.seq, int(st.obs_seq[0]) & P.U32)
+        f.set_stream(w.session, T_COMMAND, int(st.newest[0]), int(st.mask[0]) & protocol.U64)
+    link.seq = max(link.seq, int(st.obs_seq[0]) & protocol.U32)
 
 
