@@ -142,7 +142,7 @@ def step(s, u, k, out):
     x2 = s[2]
     v2 = s[3]
     f2 = k[K.c0] * s[4] + k[K.c1] * s[5] + k[K.cz2] * s[6] + k[K.dz] * u
-    n = int(k[K.substeps])
+    n = int(k[K.substeps]) if k[K.substeps] >= 1.0 else 1
     h = k[K.h] / n
     for _ in range(n):
         f = contact(x1 - x2, v1 - v2, k)[0]
@@ -176,7 +176,7 @@ def jacobian(s, u, k, A, B):
     x2 = s[2]
     v2 = s[3]
     f2 = k[K.c0] * s[4] + k[K.c1] * s[5] + k[K.cz2] * s[6] + k[K.dz] * u
-    n = int(k[K.substeps])
+    n = int(k[K.substeps]) if k[K.substeps] >= 1.0 else 1
     h = k[K.h] / n
     m1 = k[K.m1]
     m2 = k[K.m2]

@@ -202,12 +202,19 @@ def backward(k, mem, n):
 
 
 @jit(inline="always")
+def horizon_of(k):
+    """The horizon (steps) the constants ask for, within 1 .. NMAX."""
+    n = int(k[K.horizon]) if k[K.horizon] >= 1.0 else 1
+    return n if n <= NMAX else NMAX
+
+
+@jit(inline="always")
 def solve(k, mem):
     """The force demand (N, upwards, inside the box) for the augmented state in
     ``mem[STATE:STATE + NX]``, improving the plan in ``mem`` in place (see the module doc)."""
-    n = int(k[K.horizon])
-    iters = int(k[K.iterations])
-    halvings = int(k[K.line_search])
+    n = horizon_of(k)
+    iters = int(k[K.iterations]) if k[K.iterations] >= 0.0 else 0
+    halvings = int(k[K.line_search]) if k[K.line_search] >= 1.0 else 1
     cost = forward(k, mem, n, 0.0, True)
     for _ in range(iters):
         if not backward(k, mem, n):
@@ -235,7 +242,7 @@ def mpc_tick(x1, v1, x2, v2, k, mem):
     """One control tick on the state (x1 m, v1 m/s, x2 m, v2 m/s; x down-positive): the force
     demand (N, upwards, inside the box).  The shaker's state is the memory's model of it, driven
     by the demands this function returned; the plan shifts by one period for the next tick."""
-    n = int(k[K.horizon])
+    n = horizon_of(k)
     if mem[MEM.started] == 0.0:
         for j in range(NMAX):
             mem[PLAN + j] = 0.0
