@@ -183,3 +183,52 @@ def test_the_law_runs_from_the_registry():
     state = np.zeros((1, solver.MEMORY))
     got = pol.force(np.array([DROP[:4]]), state)
     assert got[0] == want and state[0, solver.MEM.ticks] == 1.0
+
+
+def test_c_text_is_bitwise_the_kernel(tmp_path):
+    """The solver's C text (impact_env.control.mpc.c_text), built in double with the export's
+    flags (-ffp-contract=off), gives bitwise the numba kernel's forces and memory on the ticks of
+    a closed loop (saturation, slew and a fallback included)."""
+    import ctypes
+
+    from impact_env.control.mpc import c_text
+    from impact_env.deploy import parity
+
+    src = tmp_path / "mpc.c"
+    src.write_text("#include <math.h>\ntypedef double impact_real;\n" + c_text.solver_c() + r"""
+void run(const double *k, double *mem, const double *states, int n, double *out)
+{
+    for (int t = 0; t < n; t++)
+        out[t] = mpc_tick(states[4 * t], states[4 * t + 1], states[4 * t + 2], states[4 * t + 3], k, mem);
+}
+""")
+    lib = tmp_path / "libmpc.so"
+    import subprocess
+
+    subprocess.run([parity.find_cc(), *parity.CFLAGS, "-fPIC", "-shared", "-o", str(lib), str(src), "-lm"],
+                   check=True)
+    run = ctypes.CDLL(str(lib)).run
+    scene = RIG.with_overrides({"effects.saturation.peak_n": 120.0, "effects.saturation.continuous_n": 0.0,
+                                "effects.saturation.slew_n_per_s": 4e5})
+    k = constants(scene, iterations=2.0, substeps=2.0)
+    ticks = 60
+    mem = np.zeros(solver.MEMORY)
+    s = np.array(DROP, dtype=float)
+    nxt = np.zeros(NX)
+    states, want = [], []
+    for t in range(ticks):
+        x = s[:4].copy()
+        if t == 7:
+            x[2] = np.inf
+        states.append(x)
+        want.append(solver.mpc_tick(x[0], x[1], x[2], x[3], k, mem))
+        model.step(s, want[-1], k, nxt)
+        s = nxt.copy()
+    cmem = np.zeros(solver.MEMORY)
+    got = np.zeros(ticks)
+    st = np.ascontiguousarray(np.array(states))
+    dbl = ctypes.POINTER(ctypes.c_double)
+    run(k.ctypes.data_as(dbl), cmem.ctypes.data_as(dbl), st.ctypes.data_as(dbl), ctypes.c_int(ticks),
+        got.ctypes.data_as(dbl))
+    assert mem[solver.MEM.fallbacks] == 1.0 and np.max(np.abs(want)) == 120.0
+    assert np.array_equal(got, np.array(want)) and np.array_equal(cmem, mem)

@@ -1,6 +1,7 @@
 """Model-predictive control of the impact: the prediction model (:mod:`.model`) and the
 real-time-iteration iLQR solver (:mod:`.solver`) shared by the MPC laws
-(``mpc-state`` on the true state, :mod:`impact_env.control.laws.mpc_state`).
+(``mpc-state`` on the true state, :mod:`impact_env.control.laws.mpc_state`), and its C text
+(:mod:`.c_text`).
 
 Interface for a law built on the solver (stable):
 
@@ -17,6 +18,8 @@ Interface for a law built on the solver (stable):
   demands); a caller with its own estimate of it may write it there before the call.
 * ``solver.solve(k, mem) -> f``: the core on the augmented state ``mem[STATE:STATE + 7]``,
   without the shaker-model update and plan shift that ``mpc_tick`` does.
+* C: :func:`impact_env.control.mpc.c_text.solver_c` is the same solver in C99 (file-scope
+  static functions, ``mpc_tick(x1, v1, x2, v2, k, mem)``), bitwise the kernel in double.
 * counters: ``mem[solver.MEM.fallbacks]`` (non-finite state or result: the previous plan's
   input was used), ``mem[solver.MEM.no_descent]`` (iterations that found no lower cost).
 """
