@@ -9,7 +9,9 @@
    ``time.perf_counter_ns`` in the same run; the counter's own cost (an empty timed region) is
    reported and not subtracted.  Goal (issue "A rig-shaped core"): p99 <= 5 us for a 64 x 64 MLP.
    For scale, the same observations through SB3's ``model.predict`` and through one Python call
-   of the compiled kernel (dispatch included).
+   of the compiled kernel (dispatch included).  ``mpc-state`` (goal p99 <= 50 us) is timed on
+   each drop's ticks in order, since its memory holds the warm start.  ``--laws mpc-state
+   --json PATH`` times only the named policies and writes their figures as a JSON record.
 2. Parity: max |compiled - reference| on those observations (SB3 ``predict(deterministic=True)``
    for the MLP; the baselines' float64 command for the laws, memory carried along).
 3. ``compare``'s rollout of the committed agent on 16 rig drops of 0.4 s: the SB3 model through
@@ -100,6 +102,9 @@ def pct(x: np.ndarray) -> tuple[float, ...]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer calls and repeats")
+    ap.add_argument("--laws", default="", help="only these policies of part 1-2 (comma-separated names, e.g. "
+                    "mpc-state), and no parts 3-4")
+    ap.add_argument("--json", default="", help="also write part 1-2's figures to this JSON record")
     args = ap.parse_args()
     scene = load_scene("rig")
     n_rows = 4000 if args.quick else 20_000
@@ -116,7 +121,13 @@ def main() -> int:
           "reference predict, p50 us | parity: max abs diff |")
     print("|---|---|---|---|---|---|---|---|")
     cases = [(MODEL, "sensors"), ("passive", "sensors"), ("thesis-rig", "sensors"),
-             ("pd-penetration", "sensors"), ("thesis-ideal", "privileged")]
+             ("pd-penetration", "sensors"), ("thesis-ideal", "privileged"), ("mpc-state", "privileged")]
+    if args.laws:
+        wanted = args.laws.split(",")
+        cases = [c for c in cases if c[0] in wanted]
+    record: dict = {"command": "python scripts/bench_policy.py " + " ".join(sys.argv[1:]),
+                    "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "ns_per_cycle": nspc,
+                    "laws": {}}
     for spec, observation in cases:
         obs_ep, starts = episode_obs(scene, observation, n_rows)
         comp = export_policy(spec, scene)
@@ -135,6 +146,9 @@ def main() -> int:
             else:
                 want, state = ref.command(obs_ep[k], state, starts[k])
             worst = max(worst, float(np.max(np.abs(got - want))))
+        if spec == "mpc-state":
+            # its memory is the warm start: time each drop's ticks in order, as an episode runs them
+            flat = np.ascontiguousarray(obs_ep.transpose(1, 0, 2).reshape(-1, obs_ep.shape[-1]))
         mem = np.zeros(m)
         cyc = np.empty(flat.shape[0] * reps, dtype=np.uint64)
         timed_calls(pi, pf, flat, mem, 1, cyc[:flat.shape[0]])  # compile and warm up
@@ -153,6 +167,16 @@ def main() -> int:
         name = "PPO agent (64x64 tanh MLP)" if spec == MODEL else spec
         print(f"| {name} | {p50:.0f} | {p99:.0f} | {p999:.0f} | {mx:.0f} | {py_call:.2f} | {ref_call:.1f} | "
               f"{worst:.2e} |")
+        record["laws"][spec] = {"p50_ns": p50, "p99_ns": p99, "p99.9_ns": p999, "max_ns": mx,
+                                "calls": int(cyc.size), "parity_max_abs": worst}
+    if args.json:
+        import json
+        import platform
+
+        record.update(cpu=platform.processor() or platform.machine(), python=platform.python_version())
+        Path(args.json).write_text(json.dumps(record, indent=1) + "\n")
+    if args.laws:
+        return 0
     print()
     print("## 3. compare's rollout of the committed agent: SB3 in the Python loop vs compiled "
           "(16 drops x 0.4 s)")

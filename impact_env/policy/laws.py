@@ -91,7 +91,9 @@ class Policy:
             raise NotImplementedError(f"{type(self).__name__} is not a compiled law: override force()")
         n = values.shape[0]
         K = laws.constants_rows(self.name, self.law_constants(), n)
-        mem = memory if memory is not None and memory.shape[1] >= laws.MEMORY else np.zeros((n, laws.MEMORY))
+        # a law's kernel reads only its own memory (law.memory floats), not the widest law's
+        wide = memory is not None and memory.shape[1] >= self.memory_size
+        mem = memory if wide else np.zeros((n, laws.MEMORY))
         slots = laws.law_slots(self.name, self.layout.names)
         return laws.law_forces(laws.KIND[self.name], slots, K, np.ascontiguousarray(values, dtype=np.float64),
                              np.ascontiguousarray(mem), np.empty(n))
