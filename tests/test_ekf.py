@@ -78,10 +78,11 @@ def test_inverse_filter_is_the_filters_state_space(rig):
 def test_noise_free_drop_converges_within_its_own_covariance(rig):
     """Readings without noise or ADC, the filter as ``rig`` has it: once the contact has been
     seen for 8 ticks (tick 18 on; the touch is at tick 10, and the linearisation about a
-    near-zero penetration is poorest in those ticks), every plant state's error stays within 3 standard deviations of the
-    filter's own covariance (the bound the filter derives for itself: without noise the error
-    is the prior's and the model's, which that covariance holds), and by the end of the first
-    contact body 1's position is known to 20 um and its speed to 3 % of the impact speed."""
+    near-zero penetration is poorest in those ticks), every plant state's error stays within
+    3 standard deviations of the filter's own covariance (the bound the filter derives for
+    itself: without noise the error is the prior's and the model's, which that covariance
+    holds), and by the end of the first contact body 1's position is known to 20 um and its
+    speed to 3 % of the impact speed."""
     frames, truth, demand, m1 = _drops(rig.with_overrides(QUIET), 1, seed=5)
     k = constants_vector(ekf_constants(rig))
     ox, st = _run(k, frames[0], demand)
