@@ -206,7 +206,10 @@ def law_policy(law: Law) -> type[Policy]:
     gains as ``PARAMS``; its docs are the law module's."""
     name = "".join(part.capitalize() for part in re.split(r"[^0-9a-zA-Z]+", law.name))
     return type(name, (Policy,), {
-        "name": law.name, "observation": law.observation, "memory_size": law.memory, "PARAMS": law.params,
+        # (a law with memory gets the packed row of every law, laws.MEMORY: the one kernel,
+        # law_forces, reads rows of that width, and force() replaces a narrower row by zeros)
+        "name": law.name, "observation": law.observation, "memory_size": laws.MEMORY if law.memory else 0,
+        "PARAMS": law.params,
         "reads": law.required(), "law": law, "__module__": __name__,
         "__doc__": f"The classic law ``{law.name}``: {law.doc}",
     })

@@ -22,14 +22,15 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError
-from impact_env.control.laws import mpc_state, passive, pd_penetration, thesis_ideal, thesis_rig
+from impact_env.control.laws import mpc, mpc_state, passive, pd_penetration, thesis_ideal, thesis_rig
 from impact_env.control.laws.law import Law, Param
 
 __all__ = ["BY_NAME", "CONSTANTS", "KIND", "LAWS", "MEMORY", "N_SLOTS", "READS", "REGISTRY", "Law", "Param",
            "constants_rows", "law_force", "law_forces", "law_slots", "markdown_table", "pack_law"]
 
 #: every classic law; a law's place here is its kind code
-REGISTRY: tuple[Law, ...] = (passive.LAW, thesis_ideal.LAW, thesis_rig.LAW, pd_penetration.LAW, mpc_state.LAW)
+REGISTRY: tuple[Law, ...] = (passive.LAW, thesis_ideal.LAW, thesis_rig.LAW, pd_penetration.LAW, mpc_state.LAW,
+                             mpc.LAW)
 BY_NAME = {law.name: law for law in REGISTRY}
 LAWS = tuple(BY_NAME)
 KIND = {name: k for k, name in enumerate(LAWS)}
@@ -45,6 +46,7 @@ _THESIS_IDEAL = KIND[thesis_ideal.LAW.name]
 _THESIS_RIG = KIND[thesis_rig.LAW.name]
 _PD_PENETRATION = KIND[pd_penetration.LAW.name]
 _MPC_STATE = KIND[mpc_state.LAW.name]
+_MPC = KIND[mpc.LAW.name]
 
 
 @jit(inline="always")
@@ -59,6 +61,8 @@ def law_force(kind, slots, k, v, mem):
         return pd_penetration.force(slots, k, v, mem)
     if kind == _MPC_STATE:
         return mpc_state.force(slots, k, v, mem)
+    if kind == _MPC:
+        return mpc.force(slots, k, v, mem)
     return 0.0
 
 
