@@ -80,7 +80,7 @@ def _law_settings(spec: str, scene, env_kwargs) -> dict:
     law_teacher.parse_teacher(spec)  # the name first: a bad one is the first error, before any work
     entry = read_conf(default_conf_file("ppo"), "ImpactCatch-v0")
     kw = {k: v for k, v in (entry.get("env_kwargs") or {}).items() if k not in ("observation", "history")}
-    kw.update(hold_ticks=1, residual=None)
+    kw.update(hold_ticks=1)
     kw.update(env_kwargs or {})
     name = scene if scene is not None else kw.get("scene", "rig")
     kw.pop("scene", None)
@@ -113,6 +113,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
             batch_size: int = 4096, torch_threads: int = 1, past_commands: bool = False,
             scene: str | None = None, env_kwargs: dict | None = None, train_horizon: float | None = None,
             fit_samples: int | None = None, eval_every: int = 1, student_observation: str = "sensors",
+            teacher_noise: float = 0.0, per_tick: bool = False,
             log=sys.stderr) -> dict:
     """Distil ``teacher`` into a student in ``out``; returns the student's ``model.json`` content.
 
@@ -189,6 +190,9 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     if is_law:
         teach = law_teacher.LawTeacher(teacher, scene_obj, both.names, both.scales, envs)
         low, high = -1.0, 1.0
+        if kw.get("residual") is not None:  # the label: the teacher's command less the residual law's
+            teach = law_teacher.ResidualLabel(teach, law_teacher.LawTeacher(
+                law_teacher.PREFIX + kw["residual"], scene_obj, both.names, both.scales, envs))
     else:
         teach = _ModelTeacher(teacher, np.arange(S, F))  # the true state of the newest frame
         low, high = teach.low, teach.high
@@ -259,6 +263,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     obs, _ = venv.reset(seed=seed)
     env_seconds[0] += time.perf_counter() - t
     last_loss = float("nan")
+    errors: list[float] = []  # per iteration: the student's mean squared error on its new data, unfitted
     for it in range(iterations):
         beta = 0.5 ** it
         use_teacher = (rng.random(envs) < beta)[:, None]
@@ -274,7 +279,16 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
             x = obs[:, student_idx]
             a_s = act_student(x)
             xs[k], ys[k] = x, a_t
-            obs, _ = env_step(venv, np.where(use_teacher, a_t, a_s))
+            applied = a_t
+            if teacher_noise:  # DART: the teacher's applied command perturbed, its label not
+                applied = np.clip(a_t + teacher_noise * rng.standard_normal(a_t.shape), low, high)
+            if per_tick:  # the mixing drawn every tick, not every episode
+                use_teacher = (rng.random(envs) < beta)[:, None]
+            obs, _ = env_step(venv, np.where(use_teacher, applied, a_s))
+        with torch.inference_mode():  # DAgger's own measure: the student against its labels on the new data
+            error = float(torch.mean((actor(torch.from_numpy(xs.reshape(-1, xs.shape[-1])))
+                                      - torch.from_numpy(ys.reshape(-1, 1))) ** 2))
+        errors.append(round(error, 8))
         X = xs.reshape(-1, xs.shape[-1]) if X is None else np.concatenate([X, xs.reshape(-1, xs.shape[-1])])
         Y = ys.reshape(-1, 1) if Y is None else np.concatenate([Y, ys.reshape(-1, 1)])
         x_all, y_all = torch.from_numpy(X), torch.from_numpy(Y)
@@ -291,8 +305,8 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
         wall = time.perf_counter() - t0 - eval_time
         step = (it + 1) * steps_per_episode * envs
         if (it + 1) % eval_every and it + 1 < iterations:
-            log.write(f"distill: iteration {it + 1}/{iterations} (beta {beta:.3f}, {n} samples), loss "
-                      f"{last_loss:.2e}, {wall:.0f} s\n")
+            log.write(f"distill: iteration {it + 1}/{iterations} (beta {beta:.3f}, {n} samples), imitation "
+                      f"error {error:.2e}, loss {last_loss:.2e}, {wall:.0f} s\n")
             log.flush()
             continue
         t_eval = time.perf_counter()
@@ -300,8 +314,8 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
         eval_time += time.perf_counter() - t_eval
         history_log.append({"step": step, "wall_s": round(wall, 3), "env_s": round(env_seconds[0], 3),
                             "return": round(ret, 4), "beta": beta, "loss": round(last_loss, 6)})
-        log.write(f"distill: iteration {it + 1}/{iterations} (beta {beta:.3f}, {n} samples), loss "
-                  f"{last_loss:.2e}, validation return {ret:.2f}, {wall:.0f} s\n")
+        log.write(f"distill: iteration {it + 1}/{iterations} (beta {beta:.3f}, {n} samples), imitation "
+                  f"error {error:.2e}, loss {last_loss:.2e}, validation return {ret:.2f}, {wall:.0f} s\n")
         log.flush()
         if best is None or ret > best["mean_reward"]:
             best = {"step": step, "mean_reward": ret, "wall_s": round(wall, 3)}
@@ -316,6 +330,9 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     # teacher's residual law alone (action 0)
     if is_law:
         eval_teacher = law_teacher.LawTeacher(teacher, scene_obj, both.names, both.scales, eval_episodes)
+        if kw.get("residual") is not None:
+            eval_teacher = law_teacher.ResidualLabel(eval_teacher, law_teacher.LawTeacher(
+                law_teacher.PREFIX + kw["residual"], scene_obj, both.names, both.scales, eval_episodes))
         eval_teacher.start(np.ones(eval_episodes, dtype=bool))
         best["teacher"] = teacher
         best["teacher_return"] = episode_return(eval_teacher.act)
@@ -349,10 +366,11 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
                                 "batch_size": batch_size, "net_arch": [64, 64],
                                 "past_commands": past_commands,
                                 "train_horizon_s": train_horizon, "fit_samples": fit_samples,
-                                "eval_every": eval_every},
+                                "eval_every": eval_every, "teacher_noise": teacher_noise,
+                                "per_tick": per_tick},
             "distilled_from": source,
             "validation": {"seeds": best["drops"], "best": best, "history": history_log},
-            "versions": _versions(), "interrupted": False}
+            "imitation_error": errors, "versions": _versions(), "interrupted": False}
     (out / "model.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
     best_meta = {**meta, "steps": best["step"]}
     (out / "best_model.json").write_text(json.dumps(best_meta, indent=2, default=str) + "\n")
@@ -407,6 +425,11 @@ def main(argv=None) -> int:
     p.add_argument("--student-observation", choices=("sensors", "both"), default="sensors",
                    help="sensors (what a rig gives, default) or both (the sensors and the true state: "
                         "how much the information limits the student)")
+    p.add_argument("--teacher-noise", type=float, default=0.0, metavar="SIGMA",
+                   help="std of Gaussian noise on the teacher's applied command (fraction of the command "
+                        "scale; its label stays clean: DART); default 0")
+    p.add_argument("--per-tick", action="store_true",
+                   help="draw who acts (teacher or student) every tick instead of every episode")
     p.add_argument("--torch-threads", type=int, default=1)
     p.add_argument("--past-commands", action="store_true",
                    help="let the student read its own past commands (the observation's history holds "
@@ -421,7 +444,8 @@ def main(argv=None) -> int:
                        torch_threads=a.torch_threads, past_commands=a.past_commands, scene=a.scene,
                        env_kwargs=_pairs(a.env_kwargs, "--env-kwargs") or None, train_horizon=a.train_horizon,
                        fit_samples=a.fit_samples, eval_every=a.eval_every,
-                       student_observation=a.student_observation)
+                       student_observation=a.student_observation, teacher_noise=a.teacher_noise,
+                       per_tick=a.per_tick)
     except ConfigError as exc:
         print(f"agents.distill: {exc}", file=sys.stderr)
         return 2

@@ -57,9 +57,9 @@ def check_student_options(spec: str, hold_ticks: int, residual) -> None:
     if int(hold_ticks) != 1:
         raise ConfigError(f"hold_ticks = {hold_ticks!r}: a law teacher ({spec}) runs every control period, "
                           "so its student acts every period too (hold_ticks 1)")
-    if residual is not None:
-        raise ConfigError(f"residual = {residual!r}: a law teacher ({spec}) labels the whole command, so its "
-                          "student has no residual law under it (residual None)")
+    if residual is not None and (not isinstance(residual, str) or residual.split(":")[0] not in law_names()):
+        raise ConfigError(f"residual = {residual!r}: under a law teacher ({spec}) the residual is a compiled "
+                          f"classic law, one of {', '.join(law_names())}, or None")
 
 
 class LawTeacher:
@@ -100,3 +100,21 @@ class LawTeacher:
         values = np.ascontiguousarray(frames[:, self.columns] * self.scales)
         f = self._law_forces(self.kind, self.slots, self.constants, values, self.memory, self._forces)
         return np.clip(f / self.command_scale, -1.0, 1.0)[:, None]
+
+
+class ResidualLabel:
+    """A law teacher over a residual law: its label is the teacher's command less the residual's
+    on the same frame (clipped to [-1, 1]), so that the env's ``clip(action + residual)`` applies
+    the teacher's command.  The residual's copy here runs on the observation's sensor entries
+    (float32, as the env gives them), the env's own on its float64 readings: the two differ by
+    that rounding only."""
+
+    def __init__(self, teacher: LawTeacher, residual: LawTeacher):
+        self.teacher, self.residual = teacher, residual
+
+    def start(self, rows) -> None:
+        self.teacher.start(rows)
+        self.residual.start(rows)
+
+    def act(self, frames: np.ndarray) -> np.ndarray:
+        return np.clip(self.teacher.act(frames) - self.residual.act(frames), -1.0, 1.0)
