@@ -22,14 +22,14 @@ import numpy as np
 
 from impact_env._jit import jit
 from impact_env.config import ConfigError
-from impact_env.control.laws import passive, pd_penetration, thesis_ideal, thesis_rig
+from impact_env.control.laws import mpc_state, passive, pd_penetration, thesis_ideal, thesis_rig
 from impact_env.control.laws.law import Law, Param
 
 __all__ = ["BY_NAME", "CONSTANTS", "KIND", "LAWS", "MEMORY", "N_SLOTS", "READS", "REGISTRY", "Law", "Param",
            "constants_rows", "law_force", "law_forces", "law_slots", "markdown_table", "pack_law"]
 
 #: every classic law; a law's place here is its kind code
-REGISTRY: tuple[Law, ...] = (passive.LAW, thesis_ideal.LAW, thesis_rig.LAW, pd_penetration.LAW)
+REGISTRY: tuple[Law, ...] = (passive.LAW, thesis_ideal.LAW, thesis_rig.LAW, pd_penetration.LAW, mpc_state.LAW)
 BY_NAME = {law.name: law for law in REGISTRY}
 LAWS = tuple(BY_NAME)
 KIND = {name: k for k, name in enumerate(LAWS)}
@@ -44,6 +44,7 @@ MEMORY = max(law.memory for law in REGISTRY)
 _THESIS_IDEAL = KIND[thesis_ideal.LAW.name]
 _THESIS_RIG = KIND[thesis_rig.LAW.name]
 _PD_PENETRATION = KIND[pd_penetration.LAW.name]
+_MPC_STATE = KIND[mpc_state.LAW.name]
 
 
 @jit(inline="always")
@@ -56,6 +57,8 @@ def law_force(kind, slots, k, v, mem):
         return thesis_rig.force(slots, k, v, mem)
     if kind == _PD_PENETRATION:
         return pd_penetration.force(slots, k, v, mem)
+    if kind == _MPC_STATE:
+        return mpc_state.force(slots, k, v, mem)
     return 0.0
 
 
