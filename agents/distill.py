@@ -21,6 +21,15 @@ teacher does on the states the student itself visits (DAgger, Ross et al. 2011):
 3. the student is evaluated on the validation drops (``agents.train``'s: 900000 + j, the whole
    horizon, no penalties) after each iteration; the best is kept.
 
+With ``--teacher law:NAME`` the teacher is a compiled classic law of the registry (``mpc-state``,
+``thesis-ideal``, ...; :mod:`agents.law_teacher`) on the true state of the frames the student
+visits, every control period: the run's scene and options are ``agents/hyperparams/ppo.yml``'s
+(or ``--scene`` / ``--env-kwargs``) at ``hold_ticks`` 1, the label is the whole command (or, with
+a residual law, the teacher's command less that law's), and the run is judged against the teacher
+itself on the validation drops.  ``--student-observation both`` gives the student the true state
+too, which separates what the sensors cannot see (the information) from what DAgger does not
+learn.  ``python -m agents.train --quick --teacher law:NAME`` is this with a one-minute budget.
+
 The student reads the sensor frames, not its own past commands (which the observation's history
 also holds: their first-layer weights are 0, unless ``--past-commands``): with them, a float32
 build's rounding of one command fed back into the next ones, and the C export's float32 check of

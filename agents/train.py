@@ -93,8 +93,8 @@ QUICK_STEPS = {"ppo": 1_000_000, "sac": 250_000}
 QUICK_EVAL_EVERY = {"ppo": 256_000, "sac": 50_000}
 # --quick --teacher law:NAME: DAgger from a compiled classic law (agents.distill), no RL; the budget
 # (scripts/quick_teacher.py measures it and the student's ratio to the oracle)
-QUICK_DAGGER = {"history": 16, "iterations": 6, "envs": 64, "train_horizon": 0.05, "fit_samples": 400_000,
-                "eval_every": 2}
+QUICK_DAGGER = {"history": 48, "iterations": 4, "envs": 64, "train_horizon": 0.05, "fit_samples": 400_000,
+                "eval_every": 1}
 TEST_SEED = 1000  # the README's held-out drops (compare --seed 1000)
 TEST_EPISODES = 100
 

@@ -182,7 +182,7 @@ def write_docs(rec: dict, doc: Path) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--teacher", default="law:thesis-ideal:h01=2.15e6,h11=1460")
+    p.add_argument("--teacher", default="law:mpc-state")
     p.add_argument("--out", default="runs/quick_teacher")
     p.add_argument("--record", default=str(DEFAULT_RECORD))
     p.add_argument("--workers", type=int, default=1)
