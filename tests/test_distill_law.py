@@ -95,3 +95,19 @@ def test_a_law_teacher_refuses_a_held_action(tmp_path):
     with pytest.raises(ConfigError, match="residual"):
         distill(TEACHER, tmp_path / "run", env_kwargs={"residual": "compiled:x.json"})
     assert not (tmp_path / "run").exists()
+
+
+def test_quick_with_a_teacher_refuses_rl_options_and_bad_names_before_any_work(tmp_path, capsys, monkeypatch):
+    """``agents.train --quick --teacher``: DAgger with its own budget; an RL option or a name that is
+    not a compiled law exits 2 naming the choices, with no run folder made."""
+    from agents.train import main as train_main
+
+    monkeypatch.chdir(tmp_path)
+    assert train_main(["--quick", "--teacher", "law:nope"]) == 2
+    err = capsys.readouterr().err
+    assert "'nope' is not a compiled classic law" in err and all(name in err for name in law_names())
+    assert train_main(["--quick", "--teacher", "law:thesis-ideal", "--algo", "sac"]) == 2
+    assert "drop --algo" in capsys.readouterr().err
+    assert train_main(["--teacher", "law:thesis-ideal"]) == 2
+    assert "goes with --quick" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
