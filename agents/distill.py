@@ -89,7 +89,7 @@ def _law_settings(spec: str, scene, env_kwargs) -> dict:
     law_teacher.parse_teacher(spec)  # the name first: a bad one is the first error, before any work
     entry = read_conf(default_conf_file("ppo"), "ImpactCatch-v0")
     kw = {k: v for k, v in (entry.get("env_kwargs") or {}).items() if k not in ("observation", "history")}
-    kw.update(hold_ticks=1)
+    kw.update(hold_ticks=1, residual=None)  # (a residual law only when --env-kwargs names one)
     kw.update(env_kwargs or {})
     name = scene if scene is not None else kw.get("scene", "rig")
     kw.pop("scene", None)

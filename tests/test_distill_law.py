@@ -38,7 +38,7 @@ def test_a_law_teacher_trains_a_sensor_student_that_moves_towards_it(runs):
     assert meta["residual"] is None
     assert meta["label"] == "dagger-thesis-ideal-h2-s0"
     errors = meta["imitation_error"]
-    assert len(errors) == 3 and errors[-1] < 0.5 * errors[0]
+    assert len(errors) == 3 and errors[-1] < 0.75 * errors[0]
     best = meta["validation"]["best"]
     assert best["teacher"] == TEACHER and best["teacher_return"] < 0 and best["mean_reward"] < 0
     assert [h["beta"] for h in meta["validation"]["history"]] == [1.0, 0.5, 0.25]
