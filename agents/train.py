@@ -91,6 +91,10 @@ EVAL_EVERY = 100_000  # policy steps between evaluations by default
 # "A good agent in minutes": where each algorithm first beats pd-penetration on the validation drops)
 QUICK_STEPS = {"ppo": 1_000_000, "sac": 250_000}
 QUICK_EVAL_EVERY = {"ppo": 256_000, "sac": 50_000}
+# --quick --teacher law:NAME: DAgger from a compiled classic law (agents.distill), no RL; the budget
+# (scripts/quick_teacher.py measures it and the student's ratio to the oracle)
+QUICK_DAGGER = {"history": 48, "iterations": 4, "envs": 64, "train_horizon": 0.05, "fit_samples": 400_000,
+                "eval_every": 1}
 TEST_SEED = 1000  # the README's held-out drops (compare --seed 1000)
 TEST_EPISODES = 100
 
@@ -631,6 +635,9 @@ def build_parser() -> argparse.ArgumentParser:
                         f"evaluated every {QUICK_EVAL_EVERY['ppo']:,} (SAC {QUICK_EVAL_EVERY['sac']:,}); "
                         "--algo defaults to ppo and --out to the first free runs/quick[-N]; at the end "
                         "the run says whether it beats pd-penetration on the validation drops")
+    p.add_argument("--teacher", default=None, metavar="law:NAME",
+                   help="with --quick: no RL, a sensor student imitating this compiled classic law by DAgger "
+                        "(agents.distill; e.g. law:mpc-state), with the budget QUICK_DAGGER")
     p.add_argument("--conf-file", default=None, metavar="YML",
                    help="RL-Zoo-style hyperparameters (default agents/hyperparams/ALGO.yml)")
     p.add_argument("--env", default=ENV_ID, help=f"entry of the YAML file (default {ENV_ID})")
@@ -786,6 +793,38 @@ def _missing_extra() -> list[str]:
     return [m for m in ("stable_baselines3", "torch", "yaml") if importlib.util.find_spec(m) is None]
 
 
+def quick_dagger(args) -> int:
+    """``--quick --teacher law:NAME``: a sensor student distilled from the law by DAgger
+    (:func:`agents.distill.distill` with :data:`QUICK_DAGGER`) into ``--out`` or the first free
+    ``runs/quick[-N]``; its last line names the model to evaluate and the command that does."""
+    from agents import law_teacher
+    from agents.distill import distill, verdict_line
+
+    if not args.quick:
+        raise ConfigError("--teacher goes with --quick (or use python -m agents.distill)")
+    given = [f"--{k.replace('_', '-')}" for k in ("algo", "steps", "envs", "observation", "history", "policy",
+                                                   "conf_file", "hp", "resume", "action_limit")
+             if getattr(args, k) not in (None, [])]
+    if given:
+        raise ConfigError(f"--quick --teacher trains a DAgger student with its own budget; drop "
+                          f"{', '.join(given)}")
+    if not law_teacher.is_law_teacher(args.teacher):
+        raise ConfigError(f"--teacher {args.teacher!r}: choose {law_teacher.choices_text()}")
+    law_teacher.parse_teacher(args.teacher)
+    out = Path(args.out) if args.out else _free_folder(Path("runs") / "quick")
+    meta = distill(args.teacher, out, seed=args.seed, eval_episodes=args.eval_episodes,
+                   eval_seed=args.eval_seed, torch_threads=args.torch_threads, scene=args.scene,
+                   env_kwargs=_pairs(args.env_kwargs, "--env-kwargs") or None, **QUICK_DAGGER)
+    best = out / "best_model.zip"
+    law = args.teacher[len(law_teacher.PREFIX):]
+    print(verdict_line(meta, best))
+    print(f"saved {out / 'model.zip'} (the last model); the model to evaluate is the best on the validation "
+          f"drops, {best}")
+    print(f"next: impact-env compare --scene rig --policies pd-penetration,{law},ppo:{best} --episodes 100 "
+          f"--seed {TEST_SEED} --out {out / 'compare'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     missing = _missing_extra()
@@ -796,6 +835,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.quick and args.resume is not None:
             raise ConfigError("--quick starts a new run; drop it with --resume")
+        if args.teacher is not None:
+            return quick_dagger(args)
         cfg, out, tooling, resume = _from_args(args)
         progress = sys.stderr.isatty() if args.progress is None else args.progress
         result = run(cfg, out, tooling, progress=progress, torch_threads=args.torch_threads,

@@ -1,0 +1,203 @@
+"""``python -m agents.train --quick --teacher law:NAME`` measured: its wall and CPU time, its student's
+energy integral on the held-out drops against the oracle's, what limits it, and whether it ships.
+
+    python scripts/quick_teacher.py [--teacher law:mpc-state] [--out runs/quick_teacher] \\
+        [--record docs/results/agents/quick_teacher.json] [--workers 1]
+    python scripts/quick_teacher.py --docs [--record ...]      # the record's block in docs/agents.md
+
+What it runs and records (JSON: figures, commands, versions, CPU, date, load):
+
+* **the quick run**: ``python -m agents.train --quick --teacher T --out OUT/sensors``, as a user
+  types it, in a child process: its wall time and its CPU time (user + system, from
+  ``resource.getrusage(RUSAGE_CHILDREN)``) with the machine's 1-minute load average at its start
+  and end (a loaded machine stretches the wall time, not the CPU time);
+* **the information**: the same DAgger budget (:data:`agents.train.QUICK_DAGGER`) with a student
+  that reads the true state too (``agents.distill --student-observation both``): what the sensors
+  cost, learning apart;
+* **the drops**: ``compare`` on drops 1000..1099 of ``rig`` and ``rig-randomized`` (the held-out
+  drops of docs/agents.md's results): ``pd-penetration``, the teacher, the privileged student and
+  the sensor student; the oracle's per-drop energy integrals are the ones kept in
+  ``docs/results/agents/SCENE.npz`` (``scripts/agents_report.py``'s ``oracle:warm=given``), and the
+  ``pd-penetration`` row here must equal the one kept there drop by drop (the same drops, checked);
+  the ratio is the mean energy integral over the oracle's, as docs/agents.md gives it;
+* **shipping**: the sensor student's compiled policy in the C export's float32 build against the
+  double target on drops 0..9 of each scene (``scripts/agents_report.py``'s check, the bound of
+  docs/rig.md).
+
+Re-measure on a quiet machine with the command in the record's ``command`` field.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+BEGIN, END = "<!-- quick_teacher:begin -->", "<!-- quick_teacher:end -->"
+DEFAULT_RECORD = ROOT / "docs" / "results" / "agents" / "quick_teacher.json"
+SCENES = ("rig", "rig-randomized")
+TEST_SEED, EPISODES = 1000, 100
+
+
+def _child_run(cmd: list[str], log: Path) -> dict:
+    """Run ``cmd`` (stdout and stderr to ``log``); its wall time, CPU time and the load around it."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    load0 = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    with log.open("w") as f:
+        rc = subprocess.run(cmd, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)}).returncode
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if rc != 0:
+        raise SystemExit(f"quick_teacher: {' '.join(cmd)} exited {rc}; see {log}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"command": " ".join(cmd), "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
+            "user_s": round(after.ru_utime - before.ru_utime, 1),
+            "load_average": [round(load0, 2), round(os.getloadavg()[0], 2)],
+            "last_lines": log.read_text().strip().splitlines()[-3:]}
+
+
+def _evaluate(scene: str, specs: dict[str, str], workers: int) -> dict:
+    """Per-drop energy integrals of every spec on the held-out drops, with the kept oracle's."""
+    from impact_env.eval.compare import compare
+
+    kept = np.load(ROOT / "docs" / "results" / "agents" / f"{scene}.npz", allow_pickle=True)
+    runs = compare(scene, ["pd-penetration", *specs.values()], episodes=EPISODES, seed=TEST_SEED,
+                   workers=workers, progress=False)
+    pd_now = np.asarray(runs["pd-penetration"].metrics["energy_integral_ms"])
+    pd_kept = kept["pd-penetration|energy_integral_ms"]
+    if not np.allclose(pd_now, pd_kept, rtol=1e-9, atol=0):
+        raise SystemExit(f"quick_teacher: pd-penetration on {scene}'s drops {TEST_SEED}.. differs from the "
+                         "kept record: the drops (or the simulator) changed; rerun scripts/agents_report.py")
+    oracle = kept["oracle|energy_integral_ms"]
+    rows = {"pd-penetration": pd_now, **{name: np.asarray(runs[spec].metrics["energy_integral_ms"])
+                                         for name, spec in specs.items()}}
+    out = {"oracle_mean_ms": round(float(oracle.mean()), 4)}
+    for name, e in rows.items():
+        out[name] = {"mean_ms": round(float(e.mean()), 4),
+                     "ratio_to_oracle": round(float(e.mean() / oracle.mean()), 4),
+                     "worst_drop_ms": round(float(e.max()), 3)}
+    return out
+
+
+def measure(args) -> dict:
+    from agents.train import QUICK_DAGGER, _versions
+
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        raise SystemExit(f"quick_teacher: --out {out} is not empty; choose another folder")
+    out.mkdir(parents=True, exist_ok=True)
+    py = sys.executable
+    quick = _child_run([py, "-m", "agents.train", "--quick", "--teacher", args.teacher, "--out",
+                        str(out / "sensors")], out / "sensors.log")
+    priv_cmd = [py, "-m", "agents.distill", "--teacher", args.teacher, "--out", str(out / "privileged"),
+                "--student-observation", "both"]
+    for key, value in QUICK_DAGGER.items():
+        priv_cmd += [f"--{key.replace('_', '-')}", str(value)]
+    privileged = _child_run(priv_cmd, out / "privileged.log")
+    law = args.teacher.split(":", 1)[1]
+    sensors_model = out / "sensors" / "best_model.zip"
+    specs = {"teacher": law, "privileged student": f"ppo:{out / 'privileged' / 'best_model.zip'}",
+             "sensor student": f"ppo:{sensors_model}"}
+    scenes = {scene: _evaluate(scene, specs, args.workers) for scene in SCENES}
+    meta = json.loads((out / "sensors" / "model.json").read_text())
+    priv_meta = json.loads((out / "privileged" / "model.json").read_text())
+    from scripts.agents_report import c_float32_check
+
+    c_check = c_float32_check({"algo": "ppo", "model": sensors_model, "meta": meta, "dir": out / "sensors"},
+                              list(SCENES))
+    return {
+        "teacher": args.teacher,
+        "command": f"python scripts/quick_teacher.py --teacher {args.teacher} --out {args.out}",
+        "quick": quick, "privileged_run": privileged,
+        "budget": QUICK_DAGGER, "scene_trained": meta["scene"],
+        "training_wall_s": meta["wall_time_s"], "training_cpu_s": meta["cpu_time_s"],
+        "validation": {"sensor student": meta["validation"]["best"],
+                       "privileged student": priv_meta["validation"]["best"]},
+        "imitation_error": {"sensor student": meta["imitation_error"],
+                            "privileged student": priv_meta["imitation_error"]},
+        "held_out": scenes, "c_float32": c_check,
+        "versions": _versions(), "cpu": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(), "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+    }
+
+
+def block(rec: dict) -> str:
+    """The generated block of docs/agents.md (no dates, loads or CPU models: those stay in the record)."""
+    rows = ["| policy | reads | rig: energy integral ms, / oracle's | rig-randomized: ms, / oracle's |",
+            "| --- | --- | --- | --- |"]
+    reads = {"pd-penetration": "the sensors (classic law)", "teacher": "the true state (the teacher)",
+             "privileged student": "the sensors and the true state",
+             "sensor student": "the sensors (what ships)"}
+    for name in ("pd-penetration", "teacher", "privileged student", "sensor student"):
+        cells = [f"{rec['held_out'][s][name]['mean_ms']:.2f}, "
+                 f"x{rec['held_out'][s][name]['ratio_to_oracle']:.2f}" for s in SCENES]
+        rows.append(f"| {name} | {reads[name]} | {cells[0]} | {cells[1]} |")
+    oracle = ", ".join(f"{s} {rec['held_out'][s]['oracle_mean_ms']:.2f} ms" for s in SCENES)
+    c = rec["c_float32"]
+    ships = ("not checked (no C compiler)" if c is None else
+             f"{'yes' if not c['failed'] else 'no'}: the float32 C build within {c['bound']:.0e} of full "
+             f"scale on {c['drops'] - len(c['failed'])} of {c['drops']} drops (largest difference "
+             f"{c['max_same']:.2e})")
+    q = rec["quick"]
+    return "\n".join([
+        BEGIN,
+        f"*Written by `python scripts/quick_teacher.py --docs` from `docs/results/agents/quick_teacher.json` "
+        f"(made by `{rec['command']}`); do not edit by hand.*",
+        "",
+        f"`python -m agents.train --quick --teacher {rec['teacher']}`: DAgger, {rec['budget']['iterations']} "
+        f"iterations of {rec['budget']['envs']} envs of `{rec['scene_trained']}`, "
+        f"{rec['budget']['train_horizon']} s episodes, a student on the last {rec['budget']['history']} "
+        f"sensor frames acting every control period: {q['wall_s']:.0f} s of wall time for the whole command "
+        f"({q['cpu_s']:.0f} s of CPU; the training alone {rec['training_wall_s']:.0f} s, "
+        f"{rec['training_cpu_s']:.0f} s of CPU).  Held-out drops 1000..1099; the oracle's mean: {oracle}.",
+        "",
+        *rows,
+        "",
+        f"Ships: {ships}.",
+        END,
+    ])
+
+
+def write_docs(rec: dict, doc: Path) -> None:
+    text = doc.read_text()
+    if BEGIN not in text or END not in text:
+        raise SystemExit(f"quick_teacher: {doc} has no {BEGIN} ... {END} markers")
+    head, rest = text.split(BEGIN, 1)
+    _, tail = rest.split(END, 1)
+    doc.write_text(head + block(rec) + tail)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--teacher", default="law:mpc-state")
+    p.add_argument("--out", default="runs/quick_teacher")
+    p.add_argument("--record", default=str(DEFAULT_RECORD))
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--docs", action="store_true", help="only write the record's block into docs/agents.md")
+    p.add_argument("--doc", default=str(ROOT / "docs" / "agents.md"))
+    args = p.parse_args(argv)
+    record = Path(args.record)
+    if not args.docs:
+        rec = measure(args)
+        record.parent.mkdir(parents=True, exist_ok=True)
+        record.write_text(json.dumps(rec, indent=2, default=str) + "\n")
+        print(json.dumps({k: rec[k] for k in ("quick", "held_out", "c_float32")}, indent=2, default=str))
+    write_docs(json.loads(record.read_text()), Path(args.doc))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
