@@ -101,6 +101,11 @@ def start_target(*args: str, timeout_s: float = 300.0,
     which = ["--virtual"] if driver is None else ["--driver", driver]
     if "--max-gap" not in args:  # a shared, loaded machine preempts the loop for ms: only the tests
         args = (*args, "--max-gap", "1000")  # of the gap limit itself (a driver's injected stall) keep 1 ms
+    if "--loop-fifo" not in args:  # a real-time target's default is a SCHED_FIFO spinner where
+        # permitted (root): tests run beside each other (pytest -n auto), and two FIFO spinners on
+        # one CPU would starve each other and the tests' own processes; the tests inject lateness
+        # instead, and tests/test_rig_check.py tests the placement with fakes
+        args = (*args, "--loop-fifo", "0")
     cmd = [sys.executable, "-m", "impact_env.cli.main", "rig", "serve", *which, "--port", "0", *args]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env)
     deadline = time.monotonic() + timeout_s
