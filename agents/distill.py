@@ -141,7 +141,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     from stable_baselines3 import PPO
 
     from agents.policies import actor_indices
-    from agents.train import TEST_EPISODES, TEST_SEED, _load_average, _versions
+    from agents.run_facts import TEST_EPISODES, TEST_SEED, _load_average, _versions
     from impact_env.control.observation import make_layout
     from impact_env.env.sb3_vecenv import make_sb3_vec_env
     from impact_env.env.task import EVALUATION_OPTIONS
@@ -446,7 +446,7 @@ def main(argv=None) -> int:
                         "loop to grow in")
     a = p.parse_args(argv)
     try:
-        from agents.train import _pairs
+        from agents.run_facts import _pairs
 
         meta = distill(a.teacher, a.out, history=a.history, iterations=a.iterations, envs=a.envs,
                        epochs=a.epochs, seed=a.seed, eval_episodes=a.eval_episodes,

@@ -64,7 +64,6 @@ Seeds (none of the three ranges meets another; checked):
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import math
 import sys
@@ -80,6 +79,7 @@ from agents.run_config import (
     read_conf,
     resolve,
 )
+from agents.run_facts import TEST_EPISODES, TEST_SEED, _literal, _load_average, _pairs, _versions  # noqa: F401
 from impact_env.config import ConfigError
 from impact_env.env.task import EVALUATION_OPTIONS
 
@@ -95,8 +95,6 @@ QUICK_EVAL_EVERY = {"ppo": 256_000, "sac": 50_000}
 # (scripts/quick_teacher.py measures it and the student's ratio to the oracle)
 QUICK_DAGGER = {"history": 48, "iterations": 4, "envs": 64, "train_horizon": 0.05, "fit_samples": 400_000,
                 "eval_every": 1}
-TEST_SEED = 1000  # the README's held-out drops (compare --seed 1000)
-TEST_EPISODES = 100
 
 
 @dataclass
@@ -448,16 +446,6 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
                        checkpoint=checkpoint, env_time_s=timer.seconds, scene=cfg.scene)
 
 
-def _load_average() -> float | None:
-    """The 1-minute load average (None where the OS has none): wall times on a shared machine are
-    read with it."""
-    import os
-
-    try:
-        return round(os.getloadavg()[0], 2)
-    except (AttributeError, OSError):
-        return None
-
 
 def _save_checkpoint(model, out: Path, settings: dict, replay_buffer: bool, keep: int | None = None) -> Path:
     """``checkpoints/model_<steps>_steps.zip`` with its settings file (and SAC's replay buffer),
@@ -593,34 +581,8 @@ def make_config(algo, conf_file=None, *, env_id: str = ENV_ID, scene=None, overr
                    policy=policy)
 
 
-def _versions() -> dict:
-    import gymnasium
-    import numpy
-    import stable_baselines3
-    import torch
-
-    return {"python": sys.version.split()[0], "stable_baselines3": stable_baselines3.__version__,
-            "torch": torch.__version__, "gymnasium": gymnasium.__version__, "numpy": numpy.__version__}
-
 
 # -- command line ---------------------------------------------------------------------------------
-def _literal(text: str):
-    """A ``--hp`` value: a Python literal (``3e-4``, ``[32, 32]``, ``'auto'``) or a bare word."""
-    try:
-        return ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        return {"true": True, "false": False, "null": None, "none": None}.get(text.lower(), text)
-
-
-def _pairs(items: list[str], what: str) -> dict:
-    out = {}
-    for item in items:
-        key, eq, value = item.partition("=")
-        if not eq or not key.strip() or not value.strip():
-            raise ConfigError(f"{what} {item!r} must be KEY=VALUE")
-        out[key.strip()] = _literal(value.strip())
-    return out
-
 
 def build_parser() -> argparse.ArgumentParser:
     from impact_env.cli import add_scene_arguments

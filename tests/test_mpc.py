@@ -176,7 +176,7 @@ def test_the_law_runs_from_the_registry():
     from baselines import make_policy
 
     pol = make_policy("mpc-state:horizon=30", RIG)
-    assert pol.observation == "privileged" and pol.memory_size == solver.MEMORY
+    assert pol.observation == "privileged" and pol.memory_size >= solver.MEMORY  # (the packed row of every law)
     k = constants(horizon=30.0)
     mem = np.zeros(solver.MEMORY)
     want = solver.mpc_tick(DROP[0], DROP[1], DROP[2], DROP[3], k, mem)
