@@ -180,7 +180,7 @@ def test_the_law_runs_from_the_registry():
     k = constants(horizon=30.0)
     mem = np.zeros(solver.MEMORY)
     want = solver.mpc_tick(DROP[0], DROP[1], DROP[2], DROP[3], k, mem)
-    state = np.zeros((1, solver.MEMORY))
+    state = np.zeros((1, pol.memory_size))
     got = pol.force(np.array([DROP[:4]]), state)
     assert got[0] == want and state[0, solver.MEM.ticks] == 1.0
 
