@@ -40,6 +40,8 @@ COMPARE_CASES = {
     "compare_rig_randomized": ("rig-randomized", None, ("passive", "thesis-rig", "pd-penetration"), 4, 100,
                                None),
     "compare_ideal": ("ideal", None, ("passive", "thesis-ideal"), 2, 0, 0.004),
+    # the solver laws: the MPC on the true state and on the filter's estimate
+    "compare_rig_mpc": ("rig", None, ("mpc-state", "mpc"), 2, 1000, None),
 }
 DROP_CASES = {
     # name: (scene, overrides, t_end s, record rate Hz, rng seed)

@@ -55,8 +55,6 @@ def constants_of(scene, P: dict) -> dict:
     return out
 
 
-# not inlined: the solver is large, and law_force (inlined into every rollout and env kernel)
-# would otherwise carry a copy of it into each of them, multiplying their compile time
 @jit
 def force(slots, k, v, mem):
     ekf_k = k[EKF_CONSTANTS_START:]

@@ -99,8 +99,6 @@ def solver_constants(scene, P: dict) -> dict:
     return out
 
 
-# not inlined: the solver is large, and law_force (inlined into every rollout and env kernel)
-# would otherwise carry a copy of it into each of them, multiplying their compile time
 @jit
 def force(slots, k, v, mem):
     return solver.mpc_tick(v[slots[RD.x1]], v[slots[RD.v1]], v[slots[RD.x2]], v[slots[RD.v2]], k, mem)

@@ -11,7 +11,7 @@ Interface for a law built on the solver (stable):
   and passes ``k`` whole (the solver reads only its own entries).
 * memory: ``mem[:solver.MEMORY]`` (zero at the episode start); a law with more memory puts its
   own after ``solver.MEMORY`` and passes the slice ``mem[:solver.MEMORY]`` (or the whole row).
-* ``solver.mpc_tick(x1, v1, x2, v2, k, mem) -> f``: numba (inline), the state estimate in SI
+* ``solver.mpc_tick(x1, v1, x2, v2, k, mem) -> f``: a numba kernel, the state estimate in SI
   (x1 m, v1 m/s, x2 m, v2 m/s, x down-positive as the plant has it), returns the force demand
   f (N, upwards on body 2), inside ``|f| <= umax`` and the slew box.  The shaker's augmented
   state lives in ``mem[solver.STATE + 4:solver.STATE + 7]`` (the model driven by the returned
