@@ -76,7 +76,7 @@ N = N_STATE
 ACC, FORCE, POT = 0, 1, 2
 
 
-@jit(inline="always")
+@jit
 def contact(d, dd, c, b, d_floor):
     """(F N, dF/dd N/m, dF/dd' N s/m): the pad's force, clipped at 0, and its slopes (the damping
     term's d^-0.75 slope taken at ``max(d, d_floor)``, finite at the touch)."""
@@ -91,20 +91,20 @@ def contact(d, dd, c, b, d_floor):
     return f, 1.5 * c * s + 0.25 * b * dd * sqrt(sqrt(de)) / de, b * q
 
 
-@jit(inline="always")
+@jit
 def damping(k, im1):
     """The pad's Tsuji damping b (N s/m^1.25) for body 1's inverse mass im1 (1/kg)."""
     m2 = k[EK.m2]
     return k[EK.zeta] * sqrt(k[EK.c] * m2 / (1.0 + m2 * im1))
 
 
-@jit(inline="always")
+@jit
 def _accels(k, x1, v1, x2, v2, im1, f2, b):
     f, _fd, _fdd = contact(x1 - x2, v1 - v2, k[EK.c], b, k[EK.d_floor])
     return k[EK.g] - f * im1, (f - f2 - k[EK.k2] * x2 - k[EK.c2] * v2) / k[EK.m2]
 
 
-@jit(inline="always")
+@jit
 def plant_step(k, x, f2):
     """One RK4 step of the plant states ``x[:4]`` over the period under the held force f2 (N, up)."""
     dt = k[EK.dt]
@@ -126,7 +126,7 @@ def plant_step(k, x, f2):
     x[V2] = v2 + w * (a2 + 2.0 * b2 + 2.0 * c2 + e2)
 
 
-@jit(inline="always")
+@jit
 def readings(k, x, f2, hy, hx):
     """The raw readings' true values (before gain and offset) at the state ``x`` after a period
     under f2 (N): a2, T, x2 into ``hy`` (float64[3]), their gradients in the state into ``hx``
@@ -160,7 +160,7 @@ def readings(k, x, f2, hy, hx):
         hx[c * N + BIAS_ALT + c] = 1.0 / k[CH_BASE[c] + CO_GAIN]
 
 
-@jit(inline="always")
+@jit
 def applied_force(k, mem, f_law, v2):
     """The force (N, up) the scene's hardware applies over this period for the law's demand
     ``f_law`` (N): the policy's clip to +-command_scale, the shaker (back-EMF from the estimate's
@@ -182,7 +182,7 @@ def applied_force(k, mem, f_law, v2):
     return f
 
 
-@jit(inline="always")
+@jit
 def unfilter(k, mem, y):
     """Each channel's raw reading from its filtered one ``y[c]`` (the inverse filter, on its
     state in ``mem``) into ``mem[raw]``."""
@@ -205,7 +205,7 @@ def unfilter(k, mem, y):
         mem[M.raw + c] = r
 
 
-@jit(inline="always")
+@jit
 def _prior(k, mem):
     """The estimate at the episode start (body 1 not yet seen: the scene's drop ranges)."""
     x = mem[M.x:M.x + N]
@@ -227,7 +227,7 @@ def _prior(k, mem):
     _bias_prior(k, p)
 
 
-@jit(inline="always")
+@jit
 def _bias_prior(k, p):
     for b0 in (BIAS, BIAS_ALT):
         p[(b0 + ACC) * N + b0 + ACC] = k[EK.p_b_acc]
@@ -235,7 +235,7 @@ def _bias_prior(k, p):
         p[(b0 + POT) * N + b0 + POT] = k[EK.p_b_pot]
 
 
-@jit(inline="always")
+@jit
 def _reinflate(k, mem, restart):
     """After lost track: the covariance back to the reset's (diagonal); with ``restart`` (a
     non-finite estimate) also the mean: both bodies at the potentiometer's x2, at rest."""
@@ -261,7 +261,7 @@ def _reinflate(k, mem, restart):
     _bias_prior(k, p)
 
 
-@jit(inline="always")
+@jit
 def _healthy(x, p):
     for i in range(N):
         if not isfinite(x[i]) or not (p[i * N + i] > 0.0) or not isfinite(p[i * N + i]):
@@ -269,7 +269,7 @@ def _healthy(x, p):
     return True
 
 
-@jit(inline="always")
+@jit
 def ekf_update(k, mem):
     """The measurement update with this tick's raw readings (``mem[raw]``: a2 m/s^2, T N,
     x2 m), channel by channel (the channels' noises are independent, so the sequential scalar
@@ -314,7 +314,7 @@ def ekf_update(k, mem):
     return nis
 
 
-@jit(inline="always")
+@jit
 def _lost_track_test(k, mem, nis):
     mem[M.nis_last] = nis
     if not _healthy(mem[M.x:M.x + N], mem[M.p:M.p + N * N]) or not isfinite(nis):
@@ -338,7 +338,7 @@ def _lost_track_test(k, mem, nis):
         mem[M.nis_ticks] = 0.0
 
 
-@jit(inline="always")
+@jit
 def _white_acceleration(p, ix, iv, q, dt):
     """Q of a white acceleration of std q (m/s^2) held over a period dt on (position, speed)."""
     q2 = q * q
@@ -349,7 +349,7 @@ def _white_acceleration(p, ix, iv, q, dt):
     p[iv * N + iv] += q2 * d2
 
 
-@jit(inline="always")
+@jit
 def ekf_predict(k, mem, f2):
     """The estimate at the next tick: the plant under the applied force f2 (N, up) held over
     the period (mean by RK4, covariance by ``Phi = I + J dt + (J dt)^2 / 2`` at the updated
@@ -413,7 +413,7 @@ def ekf_predict(k, mem, f2):
         p[(b0 + POT) * N + b0 + POT] += k[EK.q_b_pot] * k[EK.q_b_pot]
 
 
-@jit(inline="always")
+@jit
 def ekf_measure(k, mem, y):
     """This tick's half before the controller: the raw readings recovered from the frame's
     filtered ones ``y`` (a2, T, x2); on the episode's first tick the prior (the first frame is
@@ -428,7 +428,7 @@ def ekf_measure(k, mem, y):
     ekf_update(k, mem)
 
 
-@jit(inline="always")
+@jit
 def ekf_tick(k, mem, y, f_law):
     """The tick's second half, once the controller has chosen its demand ``f_law`` (N): the
     force the hardware applies for it (:func:`applied_force`) and the prediction."""

@@ -118,7 +118,7 @@ def shaker_realisation(A, B, C, D) -> dict[str, float]:
     return out
 
 
-@jit(inline="always")
+@jit
 def contact(d, dd, k):
     """(F N, dF/dd N/m, dF/dd' N s/m) of the Hertz-Tsuji pad at penetration d (m) and rate dd (m/s);
     zero out of contact and where the damped force would pull (clipped, as the plant does)."""
@@ -134,7 +134,7 @@ def contact(d, dd, k):
     return f, 1.5 * k[K.c] * s + 0.25 * k[K.b] * dd / (se * sqrt(se)), k[K.b] * q
 
 
-@jit(inline="always")
+@jit
 def step(s, u, k, out):
     """One control period from the state ``s`` (float64[NX]) under the demand u (N) into ``out``."""
     x1 = s[0]
@@ -162,7 +162,7 @@ def step(s, u, k, out):
     out[6] = z2
 
 
-@jit(inline="always")
+@jit
 def jacobian(s, u, k, A, B):
     """The step's Jacobians at (s, u): A (float64[NX * NX], row-major) = d out / d s and
     B (float64[NX]) = d out / d u, through every substep (chain rule on the plant's 4 states)."""
@@ -241,7 +241,7 @@ def jacobian(s, u, k, A, B):
     B[6] = k[K.b2]
 
 
-@jit(inline="always")
+@jit
 def state_cost(s, k):
     """Body 1's catch energy (J) plus w2 times body 2's energy at the state ``s``."""
     d = s[0] - s[2]
@@ -251,7 +251,7 @@ def state_cost(s, k):
     return e + k[K.w2] * (0.5 * k[K.m2] * s[3] * s[3] + 0.5 * k[K.k2] * s[2] * s[2])
 
 
-@jit(inline="always")
+@jit
 def add_state_cost_derivatives(s, k, w, gx, Hx):
     """Add w times :func:`state_cost`'s gradient to ``gx`` (float64[NX]) and its Hessian to ``Hx``
     (float64[NX * NX], row-major)."""

@@ -70,7 +70,7 @@ VN = SNEXT + NX  # the new value Hessian's upper triangle [NX * NX]
 MEMORY = VN + NX * NX  # floats
 
 
-@jit(inline="always")
+@jit
 def bounds(k, u_before):
     """(lo, hi) of an input that follows ``u_before`` (N): the peak box, narrowed by the slew."""
     lo = -k[K.umax]
@@ -84,7 +84,7 @@ def bounds(k, u_before):
     return lo, hi
 
 
-@jit(inline="always")
+@jit
 def clip(u, lo, hi):
     if u < lo:
         return lo
@@ -93,7 +93,7 @@ def clip(u, lo, hi):
     return u
 
 
-@jit(inline="always")
+@jit
 def forward(k, mem, n, alpha, write):
     """Roll the plan out with step ``alpha`` (0: the plan itself, projected) and the gains from
     the stored states; the predicted cost (J).  ``write``: the new plan and states replace them."""
@@ -126,7 +126,7 @@ def forward(k, mem, n, alpha, write):
     return cost
 
 
-@jit(inline="always")
+@jit
 def backward(k, mem, n):
     """The backward pass over the stored plan and states: gains into GAINS and FEED; False if
     a curvature Quu is not positive and finite."""
@@ -201,14 +201,14 @@ def backward(k, mem, n):
     return True
 
 
-@jit(inline="always")
+@jit
 def horizon_of(k):
     """The horizon (steps) the constants ask for, within 1 .. NMAX."""
     n = int(k[K.horizon]) if k[K.horizon] >= 1.0 else 1
     return n if n <= NMAX else NMAX
 
 
-@jit(inline="always")
+@jit
 def solve(k, mem):
     """The force demand (N, upwards, inside the box) for the augmented state in
     ``mem[STATE:STATE + NX]``, improving the plan in ``mem`` in place (see the module doc)."""
@@ -237,7 +237,7 @@ def solve(k, mem):
     return clip(mem[PLAN], lo, hi)
 
 
-@jit(inline="always")
+@jit
 def mpc_tick(x1, v1, x2, v2, k, mem):
     """One control tick on the state (x1 m, v1 m/s, x2 m, v2 m/s; x down-positive): the force
     demand (N, upwards, inside the box).  The shaker's state is the memory's model of it, driven
