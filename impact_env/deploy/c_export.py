@@ -81,6 +81,11 @@ def _ident(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name).upper()
 
 
+def _memory(pol) -> int:
+    """The floats of memory a policy's classic law keeps (at least 1: C has no empty array)."""
+    return max(LW.BY_NAME[pol.law["name"]].memory, 1)
+
+
 def _drop_unused(src: str) -> str:
     """Without the scalar constants nothing reads (e.g. a law's own detector threshold when the
     front end's detector bit is in the observation): -Wall -Werror refuses unused ones."""
@@ -233,9 +238,9 @@ class _Gen:
     /* the residual law's frame and memory (history 1) */
     impact_real res_frame[{rl.frame_size}];
     float res_obs[{rl.size}];
-    impact_real res_mem[{LW.MEMORY}];"""
-        law_mem = f"\n    impact_real law_mem[{LW.MEMORY}];  /* previous penetration d (m), previous x2 (m) */" \
-            if self.pol.law is not None else ""
+    impact_real res_mem[{_memory(self.res)}];"""
+        law_mem = (f"\n    impact_real law_mem[{_memory(self.pol)}];  /* the law's memory (zero at the release) */"
+                   if self.pol.law is not None else "")
         return f"""{self._banner()}
 #ifndef IMPACT_POLICY_H
 #define IMPACT_POLICY_H
@@ -323,7 +328,7 @@ uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READIN
     # -- the source -------------------------------------------------------------------------------
     def source(self) -> str:
         parts = [self._banner(), self._prelude(), self._plausibility(), self._front_end(),
-                 self._observe("main", self.pol.layout),
+                 self._observe("main", self.pol.layout), *self._law_preludes(),
                  self._policy()]
         if self.res is not None:
             parts += [self._observe("res", self.res.layout), self._law("res", self.res)]
@@ -646,6 +651,19 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
     }}{out}
 }}"""
 
+    def _law_preludes(self) -> list[str]:
+        """The file-scope C text (static functions) of the classic laws in the file, each once."""
+        out: list[str] = []
+        for pol in (self.pol, self.res):
+            if pol is None or pol.law is None:
+                continue
+            law = LW.BY_NAME[pol.law["name"]]
+            if law.c_prelude is not None:
+                text = f"/* ---- {law.name}'s functions ({law.c_prelude.__module__}) ---- */\n\n{law.c_prelude()}"
+                if text not in out:
+                    out.append(text)
+        return out
+
     def _policy(self) -> str:
         if self.pol.law is not None:
             return self._law("main", self.pol)
@@ -665,6 +683,11 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
         if law.c_body is None:
             raise ConfigError(f"law {name!r} cannot be deployed from the sensors")
         body = law.c_body(P, sl)
+        if re.search(rf"\b{P}_CONSTANTS\b", body):  # the body reads them as one vector
+            cdefs += (f"\n/* the same, as the vector the law's kernel reads ({name}'s Constants order) */\n"
+                      f"static const impact_real {P}_CONSTANTS[{max(len(k), 1)}] = {{\n"
+                      + "\n".join(f"    {_r(v)},  /* [{i}] {c} */" for i, (c, v) in enumerate(zip(consts, k, strict=True)))
+                      + "\n};")
         fn = "policy_act" if which == "main" else "residual_act"
         return f"""/* ---- {'the policy' if which == 'main' else 'the residual law'}: {name} (impact_env.control.laws, kind {kind}) ---- */
 
