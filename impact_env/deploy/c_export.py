@@ -86,6 +86,15 @@ def _memory(pol) -> int:
     return max(LW.BY_NAME[pol.law["name"]].memory, 1)
 
 
+def float32_refusal(policy: CompiledPolicy) -> str:
+    """Why ``policy``'s C file has no float32 build (a law's ``c_double_only``, naming the law),
+    or "" when it has one."""
+    for pol in (policy, policy.residual_policy()):
+        if pol is not None and pol.law is not None and LW.BY_NAME[pol.law["name"]].c_double_only:
+            return f"{pol.law['name']} has no float32 build: {LW.BY_NAME[pol.law['name']].c_double_only}"
+    return ""
+
+
 def _drop_unused(src: str) -> str:
     """Without the scalar constants nothing reads (e.g. a law's own detector threshold when the
     front end's detector bit is in the observation): -Wall -Werror refuses unused ones."""
@@ -177,6 +186,15 @@ class _Gen:
             _, _, self.widest = MLP.pack_mlp(pol.mlp["layers"])
 
     # -- the header ------------------------------------------------------------------------------
+    def _no_float32(self) -> str:
+        why = float32_refusal(self.pol)
+        if not why:
+            return ""
+        return f"""#ifdef IMPACT_FLOAT32
+#error "{why.replace('"', "'")} (docs/rig/c-export.md): build it in double"
+#endif
+
+"""
     def _banner(self) -> str:
         pol, lay = self.pol, self.pol.layout
         what = (f"classic law {pol.law['name']}" if pol.law is not None else
@@ -194,6 +212,10 @@ class _Gen:
                             "(dimensionless)")
         res = (f"residual law {self.res.law['name']} added every tick, the sum clipped to [-1, 1]"
                if self.res is not None else "no residual law")
+        why = float32_refusal(pol)
+        f32 = (f"no float32 build ({why})" if why else
+               "define IMPACT_FLOAT32 for float (MCUs without a double FPU; within the bound of\n"
+               " * docs/rig/c-export.md)")
         body1 = ("checked like the others" if self.plaus.ch[3, PL.CC.on] else
                  "(disabled in the scene, as on the rig: pass NaN; not read)")
         return f"""/*
@@ -226,8 +248,7 @@ class _Gen:
 {chr(10).join(rows)}
  *
  * Arithmetic: double by default (the reference: bitwise the simulator's numba kernels on the
- * same libm); define IMPACT_FLOAT32 for float (MCUs without a double FPU; within the bound of
- * docs/rig/c-export.md).  The RMS clamp's ledger stays in double in both builds (its sums are exact).
+ * same libm); {f32}.  The RMS clamp's ledger stays in double in both builds (its sums are exact).
  */"""
 
     def header(self) -> str:
@@ -239,7 +260,7 @@ class _Gen:
     impact_real res_frame[{rl.frame_size}];
     float res_obs[{rl.size}];
     impact_real res_mem[{_memory(self.res)}];"""
-        law_mem = (f"\n    impact_real law_mem[{_memory(self.pol)}];  /* the law's memory (zero at the release) */"
+        law_mem = (f"\n    impact_real law_mem[{_memory(self.pol)}];  /* the law's memory, 0 at release */"
                    if self.pol.law is not None else "")
         return f"""{self._banner()}
 #ifndef IMPACT_POLICY_H
@@ -247,7 +268,7 @@ class _Gen:
 
 #include <stdint.h>
 
-#ifdef IMPACT_FLOAT32
+{self._no_float32()}#ifdef IMPACT_FLOAT32
 typedef float impact_real;
 #else
 typedef double impact_real;
@@ -695,7 +716,7 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
 static const impact_real {P}_COMMAND_SCALE_N = {_r(pol.command_scale)};
 static const impact_real {P}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
 
-/* the command in [-1, 1] for the observation row obs; mem: the law's memory (2 values) */
+/* the command in [-1, 1] for the observation row obs; mem: the law's memory */
 static impact_real {fn}(const float *obs, impact_real *mem)
 {{
     impact_real v[{lay.frame_size}];

@@ -114,7 +114,8 @@ static void ekf_readings(const impact_real *k, const impact_real *x, impact_real
     hy[EKF_ACC] = a2;
     hy[EKF_FORCE] = f - top * a2;
     hy[EKF_POT] = x[EKF_X2];
-    impact_real ga0 = fd / m2, ga1 = fdd / m2, ga2 = (-fd - k[EKF_K_K2]) / m2, ga3 = (-fdd - k[EKF_K_C2]) / m2;
+    impact_real ga0 = fd / m2, ga1 = fdd / m2;
+    impact_real ga2 = (-fd - k[EKF_K_K2]) / m2, ga3 = (-fdd - k[EKF_K_C2]) / m2;
     hx[EKF_ACC * EKF_N + EKF_X1] = ga0;
     hx[EKF_ACC * EKF_N + EKF_V1] = ga1;
     hx[EKF_ACC * EKF_N + EKF_X2] = ga2;
@@ -183,7 +184,8 @@ static impact_real ekf_saturate(impact_real f_cmd, impact_real *state, const imp
 }
 
 /* the force (N, up) the scene's hardware applies over this period for the law's demand f_law (N) */
-static impact_real ekf_applied_force(const impact_real *k, impact_real *mem, impact_real f_law, impact_real v2)
+static impact_real ekf_applied_force(const impact_real *k, impact_real *mem, impact_real f_law,
+                                     impact_real v2)
 {
     impact_real cs = k[EKF_K_COMMAND_SCALE];
     impact_real u = f_law / cs;
@@ -191,7 +193,8 @@ static impact_real ekf_applied_force(const impact_real *k, impact_real *mem, imp
     else if (u > 1.0) u = 1.0;
     impact_real f = u * cs;
     if (k[EKF_K_SH_ON] > 0.0)
-        f = ekf_shaker(k + EKF_K_SH_0, mem + EKF_M_SHAKER, (int)k[EKF_K_SH_N], f, v2, k[EKF_K_BACK_EMF] > 0.0);
+        f = ekf_shaker(k + EKF_K_SH_0, mem + EKF_M_SHAKER, (int)k[EKF_K_SH_N], f, v2,
+                       k[EKF_K_BACK_EMF] > 0.0);
     if (k[EKF_K_SAT_ON] > 0.0) f = ekf_saturate(f, mem + EKF_M_SAT, k + EKF_K_SAT_PEAK);
     return f;
 }

@@ -74,6 +74,7 @@ class Law:
     #   C statements that set ``f`` (N) from ``v`` (the frame, SI) and ``mem``; None: not exportable.
     #   The constants are there one by one (``{prefix}_{NAME}``) and as the array ``{prefix}_CONSTANTS``
     c_prelude: Callable[[], str] | None = None  # file-scope C text the body calls (its static functions)
+    c_double_only: str = ""  # why its C has no float32 build (the export refuses one); "": it has one
 
     def required(self) -> tuple[str, ...]:
         """The entries the observation must hold."""

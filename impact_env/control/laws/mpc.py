@@ -99,5 +99,8 @@ def c_body(P: str, sl: dict[str, int]) -> str:
 LAW = Law("mpc", "sensors", "model-predictive control (the `mpc-state` solver) on an extended Kalman "
           "filter's estimate: the scene's model (both bodies, m1, the shaker, the limit, the filters "
           "inverted) fed by the accelerometer, transducer and potentiometer",
-          SensorReads, Constants, constants_of, memory=solver.MEMORY + EKF_MEMORY, params=PARAMS, c_body=c_body,
-          c_prelude=c_prelude)
+          SensorReads, Constants, constants_of, memory=solver.MEMORY + EKF_MEMORY, params=PARAMS,
+          c_body=c_body, c_prelude=c_prelude,
+          c_double_only="its command jumps by full scale within a tick where the plan switches "
+          "(the force box's active set, the line search's accepted step), so the float32 front end's "
+          "rounding moves a switch by a tick: no per-tick bound holds")
