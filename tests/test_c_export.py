@@ -29,7 +29,7 @@ AGENT = f"compiled:{ROOT / 'agents/models/best/best.policy.json'}"
 TICKS = 2500  # 0.25 s at 10 kHz: the drop, the first contacts and the catch of most drops
 C_LAWS = [law.name for law in LW.REGISTRY if law.c_body is not None]  # every law that exports to C
 ACTING_C_LAWS = [name for name in C_LAWS if LW.BY_NAME[name].required()]  # ... and reads something
-F32_C_LAWS = [name for name in ACTING_C_LAWS if not LW.BY_NAME[name].c_double_only]  # ... with a float32 build
+F32_C_LAWS = [name for name in ACTING_C_LAWS if not LW.BY_NAME[name].c_double_only]  # ... in float32 too
 # float32 build (docs/rig/c-export.md, "Deploying to real-time hardware"): on ticks where both builds
 # make the same discrete decisions (status bits and the contact detector), |command difference|
 # <= F32_BOUND of full scale; the ticks where they decide differently (an RMS clamp or a detector

@@ -18,7 +18,7 @@ from __future__ import annotations
 import re
 
 from impact_env.control.estimation import layout
-from impact_env.control.estimation.layout import EK, EkfMemory
+from impact_env.control.estimation.layout import EkfConstants, EkfMemory
 from impact_env.effects.saturation import SP, ST
 from impact_env.effects.shaker import P_D
 
@@ -27,9 +27,11 @@ def _defines() -> str:
     # the named constants (an array's numbered ones are reached from its first, a channel's
     # block from EKF_CH_BASE)
     channel = re.compile(rf"({'|'.join(layout.CHANNEL_NAMES)})_")
-    ks = [f"#define EKF_K_{name.upper()} {i}" for i, name in enumerate(EK._fields)
+    names: tuple[str, ...] = EkfConstants._fields
+    ks = [f"#define EKF_K_{name.upper()} {i}" for i, name in enumerate(names)
           if not (re.fullmatch(r"sh_\d+", name) or channel.match(name)) or name == "sh_0"]
-    ms = [f"#define EKF_M_{name.upper()} {getattr(EkfMemory, name)}" for name in EkfMemory._fields]
+    memory: dict[str, int] = EkfMemory._asdict()  # type: ignore[attr-defined]  # (a namedtuple instance)
+    ms = [f"#define EKF_M_{name.upper()} {pos}" for name, pos in memory.items()]
     plain = {"N": layout.N_STATE, "N_MEAS": layout.N_MEAS, "MAX_Z": layout.MAX_Z, "X1": layout.X1,
              "V1": layout.V1, "X2": layout.X2, "V2": layout.V2, "IM1": layout.IM1, "BIAS": layout.BIAS,
              "BIAS_ALT": layout.BIAS_ALT, "CO_GAIN": layout.CO_GAIN, "CO_OFFSET": layout.CO_OFFSET,
