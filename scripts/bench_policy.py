@@ -9,9 +9,10 @@
    ``time.perf_counter_ns`` in the same run; the counter's own cost (an empty timed region) is
    reported and not subtracted.  Goal (issue "A rig-shaped core"): p99 <= 5 us for a 64 x 64 MLP.
    For scale, the same observations through SB3's ``model.predict`` and through one Python call
-   of the compiled kernel (dispatch included).  ``mpc-state`` (goal p99 <= 50 us) is timed on
-   each drop's ticks in order, since its memory holds the warm start.  ``--laws mpc-state
-   --json PATH`` times only the named policies and writes their figures as a JSON record.
+   of the compiled kernel (dispatch included).  ``mpc-state`` and ``mpc`` (goal p99 <= 50 us)
+   are timed on each drop's ticks in order, from its start, since their memory holds the warm
+   start (and mpc's filter).  ``--laws mpc,mpc-state --json PATH`` times only the named policies
+   and writes their figures as a JSON record.
 2. Parity: max |compiled - reference| on those observations (SB3 ``predict(deterministic=True)``
    for the MLP; the baselines' float64 command for the laws, memory carried along).
 3. ``compare``'s rollout of the committed agent on 16 rig drops of 0.4 s: the SB3 model through
@@ -48,15 +49,19 @@ from impact_env.rig.cycles import cycles, ns_per_cycle  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
 
 MODEL = "ppo:agents/models/ppo_rig/model.zip"
+IN_ORDER = ("mpc-state", "mpc")  # laws whose memory carries the warm start (and mpc's filter) tick to tick
 
 
 @njit(cache=False)
-def timed_calls(pi, pf, obs, mem, reps, out):
-    """Cycle count of each of ``reps`` passes over the observation rows (one act per row)."""
+def timed_calls(pi, pf, obs, starts, mem, reps, out):
+    """Cycle count of each of ``reps`` passes over the observation rows (one act per row); the
+    memory is zeroed (untimed) before each row that ``starts`` an episode, as a rollout does."""
     sink = 0.0
     k = 0
     for _ in range(reps):
         for i in range(obs.shape[0]):
+            if starts[i]:
+                mem[:] = 0.0
             t0 = cycles()
             sink += act(pi, pf, obs[i], mem)
             t1 = cycles()
@@ -121,7 +126,8 @@ def main() -> int:
           "reference predict, p50 us | parity: max abs diff |")
     print("|---|---|---|---|---|---|---|---|")
     cases = [(MODEL, "sensors"), ("passive", "sensors"), ("thesis-rig", "sensors"),
-             ("pd-penetration", "sensors"), ("thesis-ideal", "privileged"), ("mpc-state", "privileged")]
+             ("pd-penetration", "sensors"), ("thesis-ideal", "privileged"), ("mpc-state", "privileged"),
+             ("mpc", "sensors")]
     if args.laws:
         wanted = args.laws.split(",")
         cases = [c for c in cases if c[0] in wanted]
@@ -146,13 +152,16 @@ def main() -> int:
             else:
                 want, state = ref.command(obs_ep[k], state, starts[k])
             worst = max(worst, float(np.max(np.abs(got - want))))
-        if spec == "mpc-state":
-            # its memory is the warm start: time each drop's ticks in order, as an episode runs them
+        flat_starts = np.zeros(flat.shape[0], dtype=np.bool_)
+        if spec in IN_ORDER:
+            # the memory is the warm start (and mpc's filter): time each drop's ticks in order, from
+            # its start, as an episode runs them
             flat = np.ascontiguousarray(obs_ep.transpose(1, 0, 2).reshape(-1, obs_ep.shape[-1]))
+            flat_starts = np.ascontiguousarray(starts.T.reshape(-1))
         mem = np.zeros(m)
         cyc = np.empty(flat.shape[0] * reps, dtype=np.uint64)
-        timed_calls(pi, pf, flat, mem, 1, cyc[:flat.shape[0]])  # compile and warm up
-        timed_calls(pi, pf, flat, mem, reps, cyc)
+        timed_calls(pi, pf, flat, flat_starts, mem, 1, cyc[:flat.shape[0]])  # compile and warm up
+        timed_calls(pi, pf, flat, flat_starts, mem, reps, cyc)
         p50, p99, p999, mx = pct(cyc.astype(np.float64) * nspc)
         sub = flat[:500]
         single = np.zeros((1, m))

@@ -5,7 +5,7 @@ held-out drops, and its tick cost, as JSON and as the generated block of docs/ba
     python scripts/mpc_record.py --episodes 100        # the full-size record (a quiet machine)
     python scripts/mpc_record.py --render              # rewrite the block from the records
 
-1. ``impact-env compare --scene rig --policies mpc-state,pd-penetration,thesis-rig,oracle
+1. ``impact-env compare --scene rig --policies mpc-state,mpc,pd-penetration,thesis-rig,oracle
    --episodes N --seed 1000 --json``: each policy's mean energy integral (ms) with its 95 %
    bootstrap interval (compare's statistics, :mod:`impact_env.eval.scores`), its ratio to the
    oracle's mean, the share caught and the median catch time; written to
@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "results" / "mpc"
 DOC = ROOT / "docs" / "baselines.md"
 START, END = "<!-- mpc-record:start -->", "<!-- mpc-record:end -->"
-POLICIES = "mpc-state,pd-penetration,thesis-rig,oracle"
+POLICIES = "mpc-state,mpc,pd-penetration,thesis-rig,oracle"
 
 
 def _cpu() -> str:

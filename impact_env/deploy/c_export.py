@@ -81,6 +81,20 @@ def _ident(name: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in name).upper()
 
 
+def _memory(pol) -> int:
+    """The floats of memory a policy's classic law keeps (at least 1: C has no empty array)."""
+    return max(LW.BY_NAME[pol.law["name"]].memory, 1)
+
+
+def float32_refusal(policy: CompiledPolicy) -> str:
+    """Why ``policy``'s C file has no float32 build (a law's ``c_double_only``, naming the law),
+    or "" when it has one."""
+    for pol in (policy, policy.residual_policy()):
+        if pol is not None and pol.law is not None and LW.BY_NAME[pol.law["name"]].c_double_only:
+            return f"{pol.law['name']} has no float32 build: {LW.BY_NAME[pol.law['name']].c_double_only}"
+    return ""
+
+
 def _drop_unused(src: str) -> str:
     """Without the scalar constants nothing reads (e.g. a law's own detector threshold when the
     front end's detector bit is in the observation): -Wall -Werror refuses unused ones."""
@@ -172,6 +186,15 @@ class _Gen:
             _, _, self.widest = MLP.pack_mlp(pol.mlp["layers"])
 
     # -- the header ------------------------------------------------------------------------------
+    def _no_float32(self) -> str:
+        why = float32_refusal(self.pol)
+        if not why:
+            return ""
+        return f"""#ifdef IMPACT_FLOAT32
+#error "{why.replace('"', "'")} (docs/rig/c-export.md): build it in double"
+#endif
+
+"""
     def _banner(self) -> str:
         pol, lay = self.pol, self.pol.layout
         what = (f"classic law {pol.law['name']}" if pol.law is not None else
@@ -189,6 +212,10 @@ class _Gen:
                             "(dimensionless)")
         res = (f"residual law {self.res.law['name']} added every tick, the sum clipped to [-1, 1]"
                if self.res is not None else "no residual law")
+        why = float32_refusal(pol)
+        f32 = (f"no float32 build ({why})" if why else
+               "define IMPACT_FLOAT32 for float (MCUs without a double FPU; within the bound of\n"
+               " * docs/rig/c-export.md)")
         body1 = ("checked like the others" if self.plaus.ch[3, PL.CC.on] else
                  "(disabled in the scene, as on the rig: pass NaN; not read)")
         return f"""/*
@@ -221,8 +248,7 @@ class _Gen:
 {chr(10).join(rows)}
  *
  * Arithmetic: double by default (the reference: bitwise the simulator's numba kernels on the
- * same libm); define IMPACT_FLOAT32 for float (MCUs without a double FPU; within the bound of
- * docs/rig/c-export.md).  The RMS clamp's ledger stays in double in both builds (its sums are exact).
+ * same libm); {f32}.  The RMS clamp's ledger stays in double in both builds (its sums are exact).
  */"""
 
     def header(self) -> str:
@@ -233,16 +259,16 @@ class _Gen:
     /* the residual law's frame and memory (history 1) */
     impact_real res_frame[{rl.frame_size}];
     float res_obs[{rl.size}];
-    impact_real res_mem[{LW.MEMORY}];"""
-        law_mem = f"\n    impact_real law_mem[{LW.MEMORY}];  /* previous penetration d (m), previous x2 (m) */" \
-            if self.pol.law is not None else ""
+    impact_real res_mem[{_memory(self.res)}];"""
+        law_mem = (f"\n    impact_real law_mem[{_memory(self.pol)}];  /* the law's memory, 0 at release */"
+                   if self.pol.law is not None else "")
         return f"""{self._banner()}
 #ifndef IMPACT_POLICY_H
 #define IMPACT_POLICY_H
 
 #include <stdint.h>
 
-#ifdef IMPACT_FLOAT32
+{self._no_float32()}#ifdef IMPACT_FLOAT32
 typedef float impact_real;
 #else
 typedef double impact_real;
@@ -323,7 +349,7 @@ uint32_t impact_step(impact_state *s, const impact_real readings[IMPACT_N_READIN
     # -- the source -------------------------------------------------------------------------------
     def source(self) -> str:
         parts = [self._banner(), self._prelude(), self._plausibility(), self._front_end(),
-                 self._observe("main", self.pol.layout),
+                 self._observe("main", self.pol.layout), *self._law_preludes(),
                  self._policy()]
         if self.res is not None:
             parts += [self._observe("res", self.res.layout), self._law("res", self.res)]
@@ -646,6 +672,19 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
     }}{out}
 }}"""
 
+    def _law_preludes(self) -> list[str]:
+        """The file-scope C text (static functions) of the classic laws in the file, each once."""
+        out: list[str] = []
+        for pol in (self.pol, self.res):
+            if pol is None or pol.law is None:
+                continue
+            law = LW.BY_NAME[pol.law["name"]]
+            if law.c_prelude is not None:
+                text = f"/* ---- {law.name}'s functions ({law.c_prelude.__module__}) ---- */\n\n{law.c_prelude()}"
+                if text not in out:
+                    out.append(text)
+        return out
+
     def _policy(self) -> str:
         if self.pol.law is not None:
             return self._law("main", self.pol)
@@ -665,6 +704,11 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
         if law.c_body is None:
             raise ConfigError(f"law {name!r} cannot be deployed from the sensors")
         body = law.c_body(P, sl)
+        if re.search(rf"\b{P}_CONSTANTS\b", body):  # the body reads them as one vector
+            cdefs += (f"\n/* the same, as the vector the law's kernel reads ({name}'s Constants order) */\n"
+                      f"static const impact_real {P}_CONSTANTS[{max(len(k), 1)}] = {{\n"
+                      + "\n".join(f"    {_r(v)},  /* [{i}] {c} */" for i, (c, v) in enumerate(zip(consts, k, strict=True)))
+                      + "\n};")
         fn = "policy_act" if which == "main" else "residual_act"
         return f"""/* ---- {'the policy' if which == 'main' else 'the residual law'}: {name} (impact_env.control.laws, kind {kind}) ---- */
 
@@ -672,7 +716,7 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
 static const impact_real {P}_COMMAND_SCALE_N = {_r(pol.command_scale)};
 static const impact_real {P}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
 
-/* the command in [-1, 1] for the observation row obs; mem: the law's memory (2 values) */
+/* the command in [-1, 1] for the observation row obs; mem: the law's memory */
 static impact_real {fn}(const float *obs, impact_real *mem)
 {{
     impact_real v[{lay.frame_size}];

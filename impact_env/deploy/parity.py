@@ -23,7 +23,7 @@ import numpy as np
 from impact_env.config import ConfigError
 from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
-from impact_env.deploy.c_export import HEADER_NAME, SOURCE_NAME
+from impact_env.deploy.c_export import HEADER_NAME, SOURCE_NAME, float32_refusal
 from impact_env.hardware import stage as HS
 from impact_env.hardware.batch import Hardware
 from impact_env.rig.controller import Controller
@@ -389,7 +389,10 @@ def compare_runs(a: Recording, b: Recording, hold: int = 1) -> ParityReport:
 def check(policy: CompiledPolicy, scene, c_dir, seeds=(0, 1), ticks: int = 2000,
           float32: bool = False) -> list[ParityReport]:
     """Build ``c_dir`` and replay recorded readings of each seed through it; one report per
-    seed (:func:`compare_runs`)."""
+    seed (:func:`compare_runs`).  ConfigError for a float32 build the policy has none of
+    (:func:`impact_env.deploy.c_export.float32_refusal`)."""
+    if float32 and float32_refusal(policy):
+        raise ConfigError(f"--check float32: {float32_refusal(policy)}")
     with tempfile.TemporaryDirectory(prefix="impact-c-") as tmp:
         lib = build_shared(c_dir, Path(tmp) / "libimpact.so", float32)
         cp = CPolicy(lib, float32)

@@ -71,7 +71,10 @@ class Law:
     memory: int = 0  # floats of memory per env (zeroed at an episode start)
     params: dict[str, Param] = field(default_factory=dict)  # its gains and settings
     c_body: Callable[[str, dict[str, int]], str] | None = None  # (constant prefix, slot of each read) -> the
-    #   C statements that set ``f`` (N) from ``v`` (the frame, SI) and ``mem``; None: not exportable
+    #   C statements that set ``f`` (N) from ``v`` (the frame, SI) and ``mem``; None: not exportable.
+    #   The constants are there one by one (``{prefix}_{NAME}``) and as the array ``{prefix}_CONSTANTS``
+    c_prelude: Callable[[], str] | None = None  # file-scope C text the body calls (its static functions)
+    c_double_only: str = ""  # why its C has no float32 build (the export refuses one); "": it has one
 
     def required(self) -> tuple[str, ...]:
         """The entries the observation must hold."""

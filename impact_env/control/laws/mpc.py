@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections import namedtuple
 
 from impact_env._jit import jit
+from impact_env.control.estimation.c_text import ekf_c
 from impact_env.control.estimation.ekf import ekf_measure, ekf_tick
 from impact_env.control.estimation.layout import MEMORY as EKF_MEMORY
 from impact_env.control.estimation.layout import V1, V2, X1, X2, EkfConstants, EkfMemory
@@ -32,6 +33,7 @@ from impact_env.control.laws import mpc_state
 from impact_env.control.laws.estimate import SensorReads
 from impact_env.control.laws.law import Law, Param
 from impact_env.control.mpc import model, solver
+from impact_env.control.mpc.c_text import solver_c
 
 #: the solver's constants first (prefixed ``solver_``: both name the masses), then the filter's
 SOLVER_FIELDS = tuple(f"solver_{name}" for name in model.Constants._fields)
@@ -70,7 +72,33 @@ def force(slots, k, v, mem):
     return f
 
 
+def c_prelude() -> str:
+    """The solver's and the filter's C text (file-scope static functions)."""
+    return solver_c() + "\n" + ekf_c()
+
+
+def c_body(P: str, sl: dict[str, int]) -> str:
+    """:func:`force` in C: the filter's measurement half, the solver on its estimate, the
+    filter's prediction with the demand."""
+    return f"""
+    /* the filter's frame (a2 m/s^2, T N, x2 m as filtered), kept in its memory as force() keeps it */
+    const impact_real *ekf_k = {P}_CONSTANTS + {EKF_CONSTANTS_START};
+    impact_real *ekf_mem = mem + {EKF_MEMORY_START};
+    impact_real *frame = ekf_mem + EKF_M_INNOV;
+    frame[0] = v[{sl["accelerometer"]}];
+    frame[1] = v[{sl["force"]}];
+    frame[2] = v[{sl["potentiometer"]}];
+    ekf_measure(ekf_k, ekf_mem, frame);
+    const impact_real *x = ekf_mem + EKF_M_X;
+    f = mpc_tick(x[EKF_X1], x[EKF_V1], x[EKF_X2], x[EKF_V2], {P}_CONSTANTS, mem);
+    ekf_tick(ekf_k, ekf_mem, frame, f);"""
+
+
 LAW = Law("mpc", "sensors", "model-predictive control (the `mpc-state` solver) on an extended Kalman "
           "filter's estimate: the scene's model (both bodies, m1, the shaker, the limit, the filters "
           "inverted) fed by the accelerometer, transducer and potentiometer",
-          SensorReads, Constants, constants_of, memory=solver.MEMORY + EKF_MEMORY, params=PARAMS, c_body=None)
+          SensorReads, Constants, constants_of, memory=solver.MEMORY + EKF_MEMORY, params=PARAMS,
+          c_body=c_body, c_prelude=c_prelude,
+          c_double_only="its command jumps by full scale within a tick where the plan switches "
+          "(the force box's active set, the line search's accepted step), so the float32 front end's "
+          "rounding moves a switch by a tick: no per-tick bound holds")
