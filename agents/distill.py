@@ -4,7 +4,7 @@
         [--history 4] [--iterations 50] [--envs 64] [--epochs 4] [--seed 0] [--eval-episodes 16]
 
 Why: a feedback policy on the true state (``observation="privileged"``) comes much closer to the
-oracle than one on the sensors (docs/agents.md, the gap's decomposition), and RL on the sensors
+oracle than one on the sensors (docs/agents-results.md, the gap's decomposition), and RL on the sensors
 alone has to find by trial what the teacher already does.  The student reads what a rig gives
 (``observation="sensors"``) with the last ``history`` sensor frames, so that it can see a contact
 start (the force's rise) and estimate what the teacher saw directly; it is trained to act as the
@@ -36,7 +36,7 @@ build's rounding of one command fed back into the next ones, and the C export's 
 such a student exceeded its bound (1.88e-4 of full scale against 1e-4 on drop 1 of ``rig``).
 Without them the student still departs by up to 1.75e-4 on 3 of the 20 drops that
 ``scripts/agents_report.py`` checks (its 4 frames' differences amplify the float32 filters'
-rounding), so the students are not shipped (docs/agents.md, "Issue 26's 1.2x / 1.3x goals");
+rounding), so the students are not shipped (docs/agents-results.md, the 1.2x / 1.3x goals);
 a student trained to be robust to that rounding is the open step.  It is an SB3 PPO
 ``MlpPolicy`` (64x64 actor, the teacher's action bounds) on the sensor observation, saved as
 ``best_model.zip`` / ``model.zip`` with the settings files that ``impact-env compare``, the

@@ -87,8 +87,8 @@ OBSERVATIONS = ("sensors", "privileged", "both")
 EVAL_SEED = 900_000  # validation drops: eval_seed + j
 CHECKPOINT_EVERY = 100_000  # policy steps between checkpoints by default (--resume needs one)
 EVAL_EVERY = 100_000  # policy steps between evaluations by default
-# --quick: a budget of about a minute on a 2-core machine with the YAML's settings (docs/agents.md,
-# "A good agent in minutes": where each algorithm first beats pd-penetration on the validation drops)
+# --quick: a budget of about a minute on a 2-core machine with the YAML's settings (docs/agents-results.md,
+# the training runs: where each algorithm first beats pd-penetration on the validation drops)
 QUICK_STEPS = {"ppo": 1_000_000, "sac": 250_000}
 QUICK_EVAL_EVERY = {"ppo": 256_000, "sac": 50_000}
 # --quick --teacher law:NAME: DAgger from a compiled classic law (agents.distill), no RL; the budget

@@ -1,10 +1,10 @@
 """The agents' results (issue 11, item 4): trained runs next to the classic laws and the oracle on
 held-out drops of ``rig`` and ``rig-randomized``, with bootstrap 95 % intervals; writes the
-results section of ``docs/agents.md``, a figure, and ships the best agent.
+results of ``docs/agents-results.md``, a figure, and ships the best agent.
 
     python scripts/agents_report.py --runs runs/ppo_s0 runs/ppo_s100 runs/ppo_s200 runs/sac_s0 ... \\
         [--episodes 100] [--seed 1000] [--scenes rig,rig-randomized] [--oracle oracle:warm=given] \\
-        [--workers 2] [--out runs/report] [--reuse] [--doc docs/agents.md] \\
+        [--workers 2] [--out runs/report] [--reuse] [--doc docs/agents-results.md] \\
         [--figure docs/figures/agents_results.png] [--format png|pdf|svg] [--ship agents/models/best]
 
 What it does:
@@ -655,7 +655,7 @@ def readme_table(all_stats: dict, infos: list[dict], shipped: str, settings: dic
     head = (f"*Written by `python scripts/agents_report.py` from `{settings['results']}` (made by "
             f"`python scripts/agents_report.py {settings['command']}`); 100 held-out drops per scene "
             f"(seeds {settings['seed']}..{settings['seed'] + settings['episodes'] - 1}), bootstrap 95 % "
-            "intervals; the paired comparisons and every run are in docs/agents.md.*")
+            "intervals; the paired comparisons and every run are in docs/agents-results.md.*")
     return head + "\n\n" + "\n".join(rows) + ("\n\n" + "\n".join(extra) if extra else "")
 
 
@@ -734,7 +734,7 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--resamples", type=int, default=10000)
     p.add_argument("--boot-seed", type=int, default=20251122)
-    p.add_argument("--doc", default="docs/agents.md")
+    p.add_argument("--doc", default="docs/agents-results.md")
     p.add_argument("--readme", default=None,
                    help="the README whose agent table (between its agents_report:readme markers) is "
                         "rewritten too (default: README.md in the folder above --doc's; '' for none)")

@@ -6,10 +6,10 @@ printed first.
 
     python scripts/bench_agents.py [--envs 16,64,256,1024] [--batches 256,1024,4096,16384] [--threads 1,2]
 
-Its output, with the load it ran at, is kept in docs/results/agents/bench_agents.txt (docs/agents.md,
-"A good agent in minutes", reads it): at load 2-3 the env alone stepped 68, 175, 98 and 54 thousand
-policy steps/s at 16, 64, 256 and 1024 envs (hold 4, the compiled residual law); a PPO gradient
-step of a 64x64 actor and critic cost 5.7 us per sample at batch 4096 with one thread, so the
+Its output, with the load it ran at, is kept in docs/results/agents/bench_agents.txt (docs/env.md,
+"Where a training run's time goes", names the script): at load 2-3 the env alone stepped 68, 175, 98
+and 54 thousand policy steps/s at 16, 64, 256 and 1024 envs (hold 4, the compiled residual law); a
+PPO gradient step of a 64x64 actor and critic cost 5.7 us per sample at batch 4096 with one thread, so the
 update, not the env, bounds PPO's throughput; 2 threads gave erratic, mostly slower figures on
 the 2 shared cores.
 """

@@ -3,7 +3,7 @@ energy integral on the held-out drops against the oracle's, what limits it, and 
 
     python scripts/quick_teacher.py [--teacher law:mpc-state] [--out runs/quick_teacher] \\
         [--record docs/results/agents/quick_teacher.json] [--workers 1]
-    python scripts/quick_teacher.py --docs [--record ...]      # the record's block in docs/agents.md
+    python scripts/quick_teacher.py --docs [--record ...]  # its block in docs/agents-distillation.md
 
 What it runs and records (JSON: figures, commands, versions, CPU, date, load):
 
@@ -15,11 +15,11 @@ What it runs and records (JSON: figures, commands, versions, CPU, date, load):
   that reads the true state too (``agents.distill --student-observation both``): what the sensors
   cost, learning apart;
 * **the drops**: ``compare`` on drops 1000..1099 of ``rig`` and ``rig-randomized`` (the held-out
-  drops of docs/agents.md's results): ``pd-penetration``, the teacher, the privileged student and
+  drops of docs/agents-results.md): ``pd-penetration``, the teacher, the privileged student and
   the sensor student; the oracle's per-drop energy integrals are the ones kept in
   ``docs/results/agents/SCENE.npz`` (``scripts/agents_report.py``'s ``oracle:warm=given``), and the
   ``pd-penetration`` row here must equal the one kept there drop by drop (the same drops, checked);
-  the ratio is the mean energy integral over the oracle's, as docs/agents.md gives it;
+  the ratio is the mean energy integral over the oracle's, as docs/agents-results.md gives it;
 * **shipping**: the sensor student's compiled policy in the C export's float32 build against the
   double target on drops 0..9 of each scene (``scripts/agents_report.py``'s check, the bound of
   docs/rig.md).
@@ -135,7 +135,8 @@ def measure(args) -> dict:
 
 
 def block(rec: dict) -> str:
-    """The generated block of docs/agents.md (no dates, loads or CPU models: those stay in the record)."""
+    """The generated block of docs/agents-distillation.md (no dates, loads or CPU models: those stay in
+    the record)."""
     rows = ["| policy | reads | rig: energy integral ms, / oracle's | rig-randomized: ms, / oracle's |",
             "| --- | --- | --- | --- |"]
     reads = {"pd-penetration": "the sensors (classic law)", "teacher": "the true state (the teacher)",
@@ -186,8 +187,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="runs/quick_teacher")
     p.add_argument("--record", default=str(DEFAULT_RECORD))
     p.add_argument("--workers", type=int, default=1)
-    p.add_argument("--docs", action="store_true", help="only write the record's block into docs/agents.md")
-    p.add_argument("--doc", default=str(ROOT / "docs" / "agents.md"))
+    p.add_argument("--docs", action="store_true",
+                   help="only write the record's block into docs/agents-distillation.md")
+    p.add_argument("--doc", default=str(ROOT / "docs" / "agents-distillation.md"))
     args = p.parse_args(argv)
     record = Path(args.record)
     if not args.docs:

@@ -1,4 +1,4 @@
-"""scripts/agents_report.py rebuilds docs/agents.md's results section and its figure from the
+"""scripts/agents_report.py rebuilds docs/agents-results.md's results section and its figure from the
 per-drop results kept in the repository (docs/results/agents), exactly: no hand edits, no run
 folders needed."""
 
@@ -23,9 +23,9 @@ def _section(text: str, mod) -> str:
 
 def test_the_results_section_regenerates_exactly_from_the_kept_results(tmp_path):
     mod = _report()
-    doc = tmp_path / "docs" / "agents.md"
+    doc = tmp_path / "docs" / "agents-results.md"
     doc.parent.mkdir()
-    shutil.copyfile(ROOT / "docs" / "agents.md", doc)
+    shutil.copyfile(ROOT / "docs" / "agents-results.md", doc)
     committed = _section(doc.read_text(), mod)
     # a stale section is replaced, not kept
     doc.write_text(doc.read_text().replace(committed, "\nstale\n"))
@@ -48,7 +48,7 @@ def test_the_report_states_the_goals_and_the_decomposition():
     import json
 
     rep = json.loads((RESULTS / "report.json").read_text())
-    text = (ROOT / "docs" / "agents.md").read_text()
+    text = (ROOT / "docs" / "agents-results.md").read_text()
     section = _section(text, _report())
     for run in rep["runs"]:
         assert f"| {run['label']} |" in section

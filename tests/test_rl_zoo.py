@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _eval_env_kwargs(conf: Path, **extra) -> list[str]:
     """``--eval-env-kwargs`` repeating the YAML's ``env_kwargs`` (rl_zoo3 2.9 builds its evaluation
-    env without them otherwise; see docs/agents.md), plus ``extra``."""
+    env without them otherwise; see docs/agents-zoo.md), plus ``extra``."""
     kwargs = {**yaml.safe_load(conf.read_text())["ImpactCatch-v0"].get("env_kwargs", {}), **extra}
     return [f"{k}:{v!r}" for k, v in kwargs.items()]
 

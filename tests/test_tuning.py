@@ -1,4 +1,4 @@
-"""RL Zoo + Optuna tuning as docs/agents.md runs it ("Tuning across machines"): two tuning
+"""RL Zoo + Optuna tuning as docs/agents-zoo.md runs it ("Tuning across machines"): two tuning
 processes share one Optuna journal storage and get different trials.
 
 Each process is rl_zoo3's own ``train`` with the documented flags (``-optimize``, ``--storage
@@ -64,7 +64,7 @@ def test_two_tuning_processes_share_one_journal_and_get_different_trials(tmp_pat
     env = {**os.environ, "PYTHONPATH": path, "MPLBACKEND": "Agg"}
     procs = []
     for me, other, seed in (("a", "b", 0), ("b", "a", 1)):
-        # the documented command (docs/agents.md), one --seed per process
+        # the documented command (docs/agents-zoo.md), one --seed per process
         cmd = [sys.executable, str(script), me, other, str(tmp_path / f"trials_{me}.json"),
                "--algo", "ppo", "--env", "ImpactCatch-v0", "--gym-packages", "impact_env",
                "--conf-file", str(ROOT / "agents" / "hyperparams" / "ppo.yml"),

@@ -1,4 +1,4 @@
-"""Keep what docs/agents.md's diagnostic tables of issue 26 need from the run folders of the
+"""Keep what docs/agents-results.md's diagnostic tables of issue 26 need from the run folders of the
 diagnostic runs (runs/x/NAME, made by run.sh): for each run, its model.json without the bulky keys,
 with the command-line options and the load average (uptime before and after) of run.sh's log.
 

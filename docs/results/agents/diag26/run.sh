@@ -3,7 +3,7 @@
 # 2-core machine shared with two other engineers.  Each argument pair is NAME "OPTIONS"; series.log
 # (kept here) holds every run's options, the uptime before and after, and the run's last lines.
 #   docs/results/agents/diag26/run.sh p64a "--algo ppo --seed 0 --envs 64 --hp n_steps=1000 --hp n_epochs=5 --steps 1000000 --eval-every 64000" ...
-#   python docs/results/agents/diag26/collect.py runs/x      # NAME.json: what docs/agents.md's tables read
+#   python docs/results/agents/diag26/collect.py runs/x      # NAME.json: what docs/agents-results.md's tables read
 cd "$(git rev-parse --show-toplevel)" && export PYTHONPATH=$PWD
 mkdir -p runs/x
 while [ $# -gt 0 ]; do
