@@ -1,5 +1,5 @@
 """The ``mpc`` law's estimator on drops of a scene: its errors, its consistency and its
-lost-track count, as a JSON record, and the figures of docs/baselines.md ("The estimator of
+lost-track count, as a JSON record, and the figures of docs/mpc.md ("The estimator of
 `mpc`", between the ``ekf-figures`` markers) written from it.
 
     python scripts/ekf_record.py [--scene rig] [--drops 20] [--out docs/results/ekf.json]
@@ -116,7 +116,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ticks", type=int, default=600)
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--out", default=str(ROOT / "docs" / "results" / "ekf.json"))
-    ap.add_argument("--doc", default=str(ROOT / "docs" / "baselines.md"))
+    ap.add_argument("--doc", default=str(ROOT / "docs" / "mpc.md"))
     a = ap.parse_args(argv)
     r = record(a.scene, a.drops, a.ticks, a.seed)
     Path(a.out).write_text(json.dumps(r, indent=1) + "\n")

@@ -1,6 +1,6 @@
 """What the ``mpc`` law costs per tick: the compiled tick on this machine (from
 ``scripts/bench_policy.py``'s record) and an ESTIMATE for a Cortex-M7 from the instruction count
-of its C build; writes the M7 record and the block of docs/baselines.md between the
+of its C build; writes the M7 record and the block of docs/mpc.md between the
 ``mpc-cost`` markers.
 
     python scripts/bench_policy.py --laws mpc,mpc-state --json docs/results/mpc_cost.json
@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 
 BENCH = ROOT / "docs" / "results" / "mpc_cost.json"
 M7 = ROOT / "docs" / "results" / "mpc_m7.json"
-DOC = ROOT / "docs" / "baselines.md"
+DOC = ROOT / "docs" / "mpc.md"
 M7_FLAGS = ("-mcpu=cortex-m7", "-mfpu=fpv5-d16", "-mfloat-abi=hard", "-mthumb", "-O2", "-std=c99", "-Wall",
             "-Wextra", "-Werror", "-ffp-contract=off", "-fno-short-enums")
 CLOCK_HZ = 600e6  # a 600 MHz Cortex-M7 (STM32H7, i.MX RT1060 class)

@@ -1,5 +1,5 @@
 """The MPC's record: ``mpc-state`` beside the classic laws and the per-drop oracle on ``rig``'s
-held-out drops, and its tick cost, as JSON and as the generated block of docs/baselines.md.
+held-out drops, and its tick cost, as JSON and as the generated block of docs/mpc.md.
 
     python scripts/mpc_record.py                       # compare (20 drops) + tick cost + block
     python scripts/mpc_record.py --episodes 100        # the full-size record (a quiet machine)
@@ -15,7 +15,7 @@ held-out drops, and its tick cost, as JSON and as the generated block of docs/ba
    ``act`` call of ``mpc-state`` on the observations of rig drops, in order per drop (the warm
    start as in an episode).
 3. The block between ``<!-- mpc-record:start -->`` and ``<!-- mpc-record:end -->`` of
-   docs/baselines.md, written from the two records.
+   docs/mpc.md, written from the two records.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "results" / "mpc"
-DOC = ROOT / "docs" / "baselines.md"
+DOC = ROOT / "docs" / "mpc.md"
 START, END = "<!-- mpc-record:start -->", "<!-- mpc-record:end -->"
 POLICIES = "mpc-state,mpc,pd-penetration,thesis-rig,oracle"
 

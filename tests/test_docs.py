@@ -154,10 +154,6 @@ def test_no_dated_prose_outside_generated_blocks(page):
 
 # -- page length ---------------------------------------------------------------------------------
 WORD_LIMIT = 2500  # words a hand-written page may hold outside its generated blocks
-OVER_THE_LIMIT_FOR_NOW = {  # page: why it is over, until it is split
-    "docs/baselines.md": "over the limit with its MPC sections (mpc-state, the estimator of mpc); the lead "
-                         "splits it after the MPC work merges",
-}
 
 
 def hand_written_pages() -> list[Path]:
@@ -183,8 +179,7 @@ def test_the_word_count_skips_generated_blocks_only():
 
 def _page_case(page: Path):
     name = str(page.relative_to(ROOT))
-    over = OVER_THE_LIMIT_FOR_NOW.get(name)
-    return pytest.param(page, id=name, marks=[pytest.mark.xfail(strict=True, reason=over)] if over else [])
+    return pytest.param(page, id=name)
 
 
 @pytest.mark.parametrize("page", [_page_case(p) for p in hand_written_pages()])
