@@ -16,6 +16,9 @@ Per process (``PYTHONPATH`` = the checkout), the figures a user feels:
   every env on the nominal drop, random actions; best of a few repeats);
 * ``step_us``: one single-env step (min over repeats), for reference.
 
+``--quick``: only ``step_us``, ``vec_1024`` and ``compare10_s`` (``compare`` on 10 drops x 2
+laws, after a first call that compiles), a few minutes a round.
+
 Reported: per checkout, the median over rounds of every figure, and the ratio this / other.
 ``--threads`` is the vector env's ``threads`` (1: serial, the default of the env).
 """
@@ -36,6 +39,7 @@ import json, sys, time
 import gymnasium as gym, numpy as np, torch
 import impact_env
 threads = int(sys.argv[1])
+quick = sys.argv[2] == "1"
 torch.set_num_threads(1)
 out = {"package": impact_env.__file__}
 
@@ -66,6 +70,16 @@ for _ in range(4):
     best = min(best, time.perf_counter() - t0)
 out["step_us"] = best / len(acts) * 1e6
 out["vec_1024"] = vec_rate(1024, 100, 3)
+if quick:
+    from impact_env.eval.compare import compare
+    from impact_env.scene import load_scene
+    compare(load_scene("rig"), ["thesis-rig"], episodes=1, seed=0, workers=1, progress=False)  # compiled
+    t0 = time.perf_counter()
+    compare(load_scene("rig"), ["thesis-rig", "pd-penetration"], episodes=10, seed=0, workers=1,
+            progress=False)
+    out["compare10_s"] = time.perf_counter() - t0
+    print(json.dumps(out))
+    sys.exit(0)
 out["vec_16384"] = vec_rate(16384, 10, 2)
 
 from stable_baselines3 import PPO
@@ -86,11 +100,13 @@ print(json.dumps(out))
 '''
 
 FIGURES = ("ppo_single", "ppo_vector", "compare_s", "vec_1024", "vec_16384", "step_us")
+QUICK_FIGURES = ("compare10_s", "vec_1024", "step_us")
 
 
-def probe(checkout: Path, threads: int) -> dict:
+def probe(checkout: Path, threads: int, quick: bool = False) -> dict:
     env = dict(os.environ, PYTHONPATH=str(checkout))
-    out = subprocess.run([sys.executable, "-c", PROBE, str(threads)], cwd=checkout, env=env,
+    out = subprocess.run([sys.executable, "-c", PROBE, str(threads), "1" if quick else "0"], cwd=checkout,
+                         env=env,
                          capture_output=True, text=True, timeout=1800)
     if out.returncode != 0:
         raise SystemExit(f"probe in {checkout} failed:\n{out.stderr[-2000:]}")
@@ -107,6 +123,8 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--threads", type=int, default=1, help="the vector env's threads")
     ap.add_argument("--json", type=Path, help="also write every round's figures here")
+    ap.add_argument("--quick", action="store_true",
+                    help="only step_us, vec_1024 and compare10_s (10 drops x 2 laws, compiled first)")
     args = ap.parse_args()
     sides = {"this": ROOT, "other": args.other.resolve()}
     rows: dict[str, list[dict]] = {k: [] for k in sides}
@@ -114,13 +132,13 @@ def main() -> int:
     for r in range(args.rounds):
         # which side runs first alternates: the first of a pair may run on a colder machine
         for k in order if r % 2 == 0 else order[::-1]:
-            rows[k].append(probe(sides[k], args.threads))
+            rows[k].append(probe(sides[k], args.threads, args.quick))
             print(k, json.dumps(rows[k][-1]), file=sys.stderr, flush=True)
     if args.json:
         args.json.write_text(json.dumps({"command": sys.argv, "rounds": rows}, indent=1) + "\n")
     print("| figure | " + " | ".join(f"{k} ({d})" for k, d in sides.items()) + " | this / other |")
     print("|---|---|---|---|")
-    for f in FIGURES:
+    for f in QUICK_FIGURES if args.quick else FIGURES:
         a, b = _median(rows["this"], f), _median(rows["other"], f)
         print(f"| {f} | {a:.4g} | {b:.4g} | {a / b:.3f} |")
     return 0

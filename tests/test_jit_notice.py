@@ -1,7 +1,7 @@
 """The compile progress on stderr: only while kernels compile (a cold cache for the current
 source stamp), never at import, saying which kernel and how far; one compiled version per kernel
-for calls with different constants (fewer specialisations, less to compile); no numba-level
-inlining; and one cache for every copy of the same sources under ``NUMBA_CACHE_DIR``."""
+for calls with different constants (fewer specialisations, less to compile); and one cache for
+every copy of the same sources under ``NUMBA_CACHE_DIR``."""
 
 from __future__ import annotations
 
@@ -86,17 +86,6 @@ def test_each_kernel_is_counted_once_and_constants_share_one_version(tmp_path):
     assert numbers == sorted(numbers) and set(numbers) <= {1, 2, 3, 4}, err
     assert "signatures 1 [(int64, float64)]" in err, err
     assert "16.0" in err.splitlines()  # the value is the same: (2 + 3) 1.5 + 4 1.5 + (1.5 + 1)
-
-
-def test_jit_refuses_numba_inlining():
-    from impact_env._jit import jit
-
-    try:
-        jit(inline="always")
-    except TypeError as err:
-        assert "inline" in str(err)
-    else:
-        raise AssertionError("jit(inline=...) was accepted")
 
 
 def _copy_package(dest: Path) -> Path:

@@ -69,7 +69,7 @@ class ObsState(NamedTuple):
     obs: np.ndarray  # float32[N, size]: the observation rows
 
 
-@jit
+@jit(inline="always")
 def reset_front_end(s, i):
     """Env i's filters and detector at an episode start (the readings come from the caller)."""
     s.filt[i] = 0.0
@@ -77,14 +77,14 @@ def reset_front_end(s, i):
     s.detected[i] = 0.0
 
 
-@jit
+@jit(inline="always")
 def reset_obs(s, i):
     """Env i's observation history at an episode start."""
     s.frames[i] = 0.0
     s.past_actions[i] = 0.0
 
 
-@jit
+@jit(inline="always")
 def condition(i, raw, p, s):
     """Filters and detector of env i on its raw readings ``raw[i]`` (float64[4]); ``p``:
     FrontEndParams, ``s``: FrontEndState."""
@@ -100,7 +100,7 @@ def condition(i, raw, p, s):
     s.detected[i] = 1.0 if d else 0.0
 
 
-@jit
+@jit(inline="always")
 def observe(i, push, action, truth, fe, op, os):
     """Env i's observation row after a policy step: push ``action`` into the past actions (when
     ``push``), shift the frames, write the new frame from the conditioned readings of ``fe``

@@ -83,7 +83,7 @@ def pack_mlp(layers: list[dict]) -> tuple[np.ndarray, np.ndarray, int]:
     return ints, np.concatenate(chunks), widest
 
 
-@jit
+@jit(inline="always")
 def _activate(code, x, a0, a1):
     if code == 1:
         return np.tanh(x)
@@ -98,7 +98,7 @@ def _activate(code, x, a0, a1):
     return x
 
 
-@jit
+@jit(inline="always")
 def mlp_forward(layers, w, obs, scratch):
     """The network's output (float64[n_out] of the last layer, in ``scratch``'s first slots after
     the call: returned as a view) for the observation row ``obs``."""
@@ -151,7 +151,7 @@ def mlp_forward(layers, w, obs, scratch):
     return x[:layers[layers.shape[0] - 1, LI.n_out]]
 
 
-@jit
+@jit(inline="always")
 def output_transform(mode, a, low, high):
     """SB3's deterministic action from the network's output ``a`` (see the module doc)."""
     if mode == 1:

@@ -365,13 +365,13 @@ def reset_state(state: np.ndarray) -> np.ndarray:
     return state
 
 
-@jit
+@jit(inline="always")
 def _true_value(ch, c, x):
     """A reading in the true value's unit (its declared offset and gain undone)."""
     return (x - ch[c, CC.offset]) * ch[c, CC.scale]
 
 
-@jit
+@jit(inline="always")
 def _consistent(ph, a, t, x, ag, tg, xg, allowed):
     """Whether readings (a2, T, x2) pass checks 4 and 5 against the held ones (module doc)."""
     if ph[PH.top_mass] * a + t < -ph[PH.tol_sign]:
@@ -381,7 +381,7 @@ def _consistent(ph, a, t, x, ag, tg, xg, allowed):
     return abs(r - r_good) <= allowed
 
 
-@jit
+@jit(inline="always")
 def _largest_force(ph, s):
     """An upper bound of the shaker's force now (N): the largest remembered demand through it,
     at most the amplifier's peak."""
@@ -394,7 +394,7 @@ def _largest_force(ph, s):
     return top if top < ph[PH.peak] else ph[PH.peak]
 
 
-@jit
+@jit(inline="always")
 def _budget_cut(ph, s):
     """The most the amplifier's RMS budget can cut the force this tick (N): from the largest
     force down to the lowest limit the budget can set (its tracker at most SC.mean_square)."""

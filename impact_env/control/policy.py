@@ -84,7 +84,7 @@ class PolicyArrays(NamedTuple):
     floats: np.ndarray  # float64: header (FloatsHead), the frame's scales, the law's constants or the weights
 
 
-@jit
+@jit(inline="always")
 def act(pi, pf, obs, mem):
     """The command (float64 in [-1, 1]) of the packed policy for the observation row ``obs``
     (float32 or float64[obs size]); ``mem`` (float64[memory size]) is its memory and scratch,

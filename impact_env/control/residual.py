@@ -43,14 +43,14 @@ def residual_arrays(law: CompiledPolicy | None, layout: ObservationLayout,
             ResidualState(np.zeros((n, m)), obs_state(law.layout, n)))
 
 
-@jit
+@jit(inline="always")
 def add_residual(u, i, p, s):
     """``clip(u + law, -1, 1)``: env i's command with the law's on its last frame."""
     u = u + act(p.law.ints, p.law.floats, s.obs.obs[i], s.memory[i])
     return -1.0 if u < -1.0 else (1.0 if u > 1.0 else u)
 
 
-@jit
+@jit(inline="always")
 def observe_residual(i, truth, fe, p, s):
     """Rebuild env i's law frame from the front end's conditioned readings (FrontEndState ``fe``)."""
     observe(i, False, 0.0, truth, fe, p.obs, s.obs)

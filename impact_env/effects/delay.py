@@ -87,13 +87,13 @@ def reset_delay_state(buf: np.ndarray, head: np.ndarray, fill=0.0) -> None:
     head[0] = 0.0
 
 
-@jit
+@jit(inline="always")
 def delay_step(buf, head, x, out):
     """Push ``x`` (float64[n_ch]) and write the input of k steps ago into ``out``; returns ``out``."""
     return _push(buf.reshape(buf.size), 0, buf.shape[0], head, x, out)  # (a view: buf is contiguous)
 
 
-@jit
+@jit(inline="always")
 def _push(line, base, k, head, x, out):
     """:func:`delay_step` on a line of k rows held flat, row h at ``line[base + h n]`` (n =
     x's channels): the packed block's row is used as it is, where a reshape would cost a call
@@ -136,7 +136,7 @@ def pack_params(k: int) -> np.ndarray:
     return np.array([float(k)])
 
 
-@jit
+@jit(inline="always")
 def delay_packed(p, st, x, out):
     """:func:`delay_step` on a packed block: ``p`` = [k], ``st`` = [head, buffer]; x, out
     float64[n_ch] (they may be the same array)."""

@@ -95,7 +95,7 @@ def make_detector_state(s0: float = 0.0) -> np.ndarray:
     return np.array(DetectorState(prev_signal=s0, latch=0.0), dtype=np.float64)
 
 
-@jit
+@jit(inline="always")
 def detect(a2_meas, f_meas, state, params):
     """One sample: returns True while contact is detected; updates ``state``.
 

@@ -240,7 +240,7 @@ def passband_centre_hz(cfg: FilterConfig) -> float:
     return float(np.sqrt(cfg.low_hz * cfg.high_hz)) if cfg.kind == "bandpass" else 0.0
 
 
-@jit
+@jit(inline="always")
 def filter_step(sos, zi, x, out):
     """One sample through every channel's SOS cascade (transposed direct form II, as sosfilt).
 

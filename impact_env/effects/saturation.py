@@ -106,7 +106,7 @@ def make_saturation_state() -> np.ndarray:
     return np.zeros(N_STATE)
 
 
-@jit
+@jit(inline="always")
 def saturate(f_cmd, state, params):
     """Apply the limits to the command ``f_cmd`` (N); update ``state``.
 

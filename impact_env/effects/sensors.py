@@ -262,7 +262,7 @@ def draw_noise(rng: np.random.Generator, n_steps: int | None = None) -> np.ndarr
     return rng.standard_normal(shape)
 
 
-@jit
+@jit(inline="always")
 def true_readings(x1, x2, a2, phi, top_mass, out):
     """Fill ``out`` (float64[4]) with the true channel values: a2 (m/s^2), transducer force
     ``phi - top_mass * a2`` (N), x2 (m), x1 (m).  phi is the contact force (N, >= 0)."""
@@ -272,7 +272,7 @@ def true_readings(x1, x2, a2, phi, top_mass, out):
     out[BODY1] = x1
 
 
-@jit
+@jit(inline="always")
 def _channel(p, j, truth, z):
     """One channel's reading from its parameters ``p[j + CP.*]`` (a flat row): gain, offset and
     noise, then the ADC's rounding and clipping; 0 if the channel is disabled."""
@@ -289,7 +289,7 @@ def _channel(p, j, truth, z):
     return y
 
 
-@jit
+@jit(inline="always")
 def sense(truth, z, params, out):
     """Measure: ``out[i] = ADC(gain*truth[i] + offset + noise_std*z[i])`` per channel; 0 if disabled.
 
@@ -324,13 +324,13 @@ def pack_params(cfg: SensorsConfig, top_mass: float) -> np.ndarray:
     return np.concatenate([[float(top_mass)], sensor_params(cfg).ravel()])
 
 
-@jit
+@jit(inline="always")
 def read_packed(x1, x2, a2, phi, p, out):
     """The true channel values (:func:`true_readings`) with the packed block's top mass."""
     return true_readings(x1, x2, a2, phi, p[P_TOP_MASS], out)
 
 
-@jit
+@jit(inline="always")
 def sense_packed(truth, z, p, out):
     """:func:`sense` on a packed block (``truth`` and ``out`` may be the same array)."""
     # (indexed in place: a reshape of the row would cost a call into numba's helper every tick)

@@ -260,13 +260,13 @@ def shaker_step(A, B, C, D, x, u):
     return shaker_step_into(A, B, C, D, x, u, np.empty(x.shape[0]))
 
 
-@jit
+@jit(inline="always")
 def shaker_step_into(A, B, C, D, x, u, scratch):
     """:func:`shaker_step` with a caller-owned scratch array (float64[n]) instead of an allocation."""
     return _shaker_step_flat(A.ravel(), 0, B, C, D, x, u, scratch)
 
 
-@jit
+@jit(inline="always")
 def _shaker_step_flat(p, a0, B, C, D, x, u, scratch):
     """The step, with A read row-major from ``p[a0:]``: the packed block's row is used as it
     is, where a reshape would cost a call into numba's helper every tick."""
@@ -302,7 +302,7 @@ def pack_params(A, B, C, D, E) -> np.ndarray:
                            np.asarray(C, float), np.asarray(E, float)])
 
 
-@jit
+@jit(inline="always")
 def shaker_packed(p, st, u, v2, back_emf):
     """Force held over this period for the demand u (N), on a packed block; with ``back_emf``
     body 2's velocity v2 (m/s, down positive, held over the period) enters through E."""

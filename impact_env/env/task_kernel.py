@@ -82,7 +82,7 @@ BOOL_KEYS = ("contact", "saturated", "detected", "diverged", "caught")
 N_COL = len(INFO)
 
 
-@jit
+@jit(inline="always")
 def task_env(i, on, records, d, p, s, out):
     """Env i's reward, flags and info row after its step (``on``: it was stepped; else reward
     0, no flags, its row kept): :func:`task_step`'s arithmetic for one env."""
@@ -183,7 +183,7 @@ def fill_row(i, last, d, p, s, rows):
     r[INFO.caught] = 1.0 if s.below[i] >= p.hold else 0.0
 
 
-@jit
+@jit(inline="always")
 def reset_task(s, i, d):
     """Env i's task state at an episode start (``d``: the drop's start values)."""
     s.steps[i] = 0

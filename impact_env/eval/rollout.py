@@ -125,7 +125,7 @@ def _energies(Y, P, out):
     return out
 
 
-@jit
+@jit(inline="always")
 def _trace_env(row, energy_row, slot, i, Y, records, acc_energy, detected):
     """Env i's trace sample: its catch energy in ``energy_row[i]``, and, where it has a slot
     (``slot[i] >= 0``: it is one of the traced episodes), every column of TRACE_KEYS in

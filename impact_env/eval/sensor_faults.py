@@ -64,7 +64,7 @@ class Fault:
 NONE = np.array([0.0, NO_FAULT, 0.0, 0.0, 0.0])
 
 
-@jit
+@jit(inline="always")
 def _inject(m, reading, fault, before):
     """The controller's reading of tick m with the fault applied (``reading``: float64[4], in
     place); ``before``: the channel's reading just before the fault (stuck)."""

@@ -170,13 +170,13 @@ def reset_env(s: HardwareState, i: int, y0: np.ndarray, mode0: int) -> None:
     s.out.raw[i] = (0.0, 0.0, y[STATE.x2], y[STATE.x1])
 
 
-@jit
+@jit(inline="always")
 def block(row, offsets, j):
     """Block ``j`` of a packed row (:mod:`impact_env.hardware.blocks`): a view."""
     return row[offsets[j]:offsets[j + 1]]
 
 
-@jit
+@jit(inline="always")
 def hardware_tick(i, u, p, s):
     """Advance env i by one control period under the drive command u (1 = the scene's
     command scale newtons upwards, before the drawn amplifier gain); ``p``: HardwareParams,
@@ -245,7 +245,7 @@ def hardware_step(u, p, s):
         hardware_tick(i, u[i], p, s)
 
 
-@jit
+@jit(inline="always")
 def state_ok(i, s) -> bool:
     """False once env i's plant kernel failed or its state left the finite range."""
     if s.out.info[i, HW_INFO.status] != 0.0:

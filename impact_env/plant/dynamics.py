@@ -41,14 +41,14 @@ class Coefs(NamedTuple):
     c2: float  # body 2's suspension damping, N s/m
 
 
-@jit
+@jit(inline="always")
 def coefs(p):
     """:class:`Coefs` of the parameter row ``p`` (float64[N_PARAM], :mod:`impact_env.plant.layout`)."""
     return Coefs(p[PARAM.m1], p[PARAM.m2], 1.0 / p[PARAM.m1], 1.0 / p[PARAM.m2], p[PARAM.c], p[PARAM.b],
                  p[PARAM.g], p[PARAM.k2], p[PARAM.c2])
 
 
-@jit
+@jit(inline="always")
 def contact_force(d, dd, mode, c, b):
     """Return ``(F, Fe)``: the contact force and its elastic part (both N) for penetration d (m),
     penetration rate dd (m/s) and contact mode."""
@@ -77,7 +77,7 @@ def contact_forces(d, dd, mode, c, b, out):
         out[i] = contact_force(d[i], dd[i], mode[i], c, b)[0]
 
 
-@jit
+@jit(inline="always")
 def event_value(x1, v1, x2, v2, c, b):
     """Switching function: positive in contact, negative in free flight, continuous.
 
@@ -96,7 +96,7 @@ def event_value(x1, v1, x2, v2, c, b):
     return d if d < r else r
 
 
-@jit
+@jit(inline="always")
 def event_sign(x1, v1, x2, v2, c, b):
     """A value with the sign of :func:`event_value` (and zero where it is zero), without its
     power 0.8: for the crossing test of every accepted step, where only the sign counts."""
@@ -107,7 +107,7 @@ def event_sign(x1, v1, x2, v2, c, b):
     return q if q <= 0.0 else d
 
 
-@jit
+@jit(inline="always")
 def deriv(x1, v1, x2, v2, mode, f2, pc):
     """Time derivative of (x1, v1, x2, v2, W_ext, W_diss) under a shaker force f2 (N, upwards).
 

@@ -8,7 +8,7 @@ import numpy as np
 from impact_env._jit import jit
 
 
-@jit
+@jit(inline="always")
 def catch_energy_at(x1, v1, x2, m1, c, g):
     """:func:`catch_energy` of one state, compiled (J); the task's rewards and the episode
     metrics use it."""

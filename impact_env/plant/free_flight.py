@@ -36,7 +36,7 @@ MAX_ROOT_ITER = 100
 ROOT_TOL = 1e-14  # bracket width of a located touch, relative to the sub-step
 
 
-@jit
+@jit(inline="always")
 def free_cap(pc):
     """The longest sub-step (s) over which :func:`body2_after` converges fast, ``inf`` for a
     free body 2 with no suspension."""
@@ -46,7 +46,7 @@ def free_cap(pc):
     return 1e300
 
 
-@jit
+@jit(inline="always")
 def body2_after(x2, v2, h, f2, pc):
     """Body 2's position (m) and velocity (m/s) after h seconds (0 <= h <= :func:`free_cap`) on
     its suspension under the constant force f2 (N, upwards)."""
@@ -66,13 +66,13 @@ def body2_after(x2, v2, h, f2, pc):
     return sx, sv
 
 
-@jit
+@jit(inline="always")
 def body1_after(x1, v1, h, g):
     """Body 1's position (m) and velocity (m/s) after h seconds of free fall."""
     return x1 + h * (v1 + 0.5 * g * h), v1 + g * h
 
 
-@jit
+@jit(inline="always")
 def gap_after(x1, v1, x2, v2, h, f2, pc):
     """Penetration (m) and its rate (m/s) after h seconds of free flight."""
     a1, b1 = body1_after(x1, v1, h, pc.g)
@@ -80,21 +80,21 @@ def gap_after(x1, v1, x2, v2, h, f2, pc):
     return a1 - a2, b1 - b2
 
 
-@jit
+@jit(inline="always")
 def _switch_after(x1, v1, x2, v2, h, f2, pc):
     a1, b1 = body1_after(x1, v1, h, pc.g)
     a2, b2 = body2_after(x2, v2, h, f2, pc)
     return event_value(a1, b1, a2, b2, pc.c, pc.b)
 
 
-@jit
+@jit(inline="always")
 def touch_time(x1, v1, x2, v2, h, f2, pc):
     """The time (s, in (0, h]) at which the switching function turns positive on the exact
     free motion, or -1 if it does not within h (:func:`touch_and_end`'s first value)."""
     return touch_and_end(x1, v1, x2, v2, h, f2, pc)[0]
 
 
-@jit
+@jit(inline="always")
 def touch_and_end(x1, v1, x2, v2, h, f2, pc):
     """``(tau, x1(h), v1(h), x2(h), v2(h))``: the time (s, in (0, h]) at which the switching function turns
     positive on the exact free motion, or -1 if it does not within h; and the state at h, which
@@ -176,7 +176,7 @@ def touch_and_end(x1, v1, x2, v2, h, f2, pc):
     return hi, a1, b1, a2, b2
 
 
-@jit
+@jit(inline="always")
 def gap_top(x1, v1, x2, v2, h, f2, pc):
     """The largest penetration (m; negative: the closest approach) on the exact free motion
     within a sub-step of h seconds over which the penetration rate turns from + (at 0) to <= 0
@@ -207,7 +207,7 @@ def gap_top(x1, v1, x2, v2, h, f2, pc):
     return a1 - a2
 
 
-@jit
+@jit(inline="always")
 def body2_position_integral(x2, v2, h, f2, pc):
     """The time integral of body 2's position over h seconds (m s; 0 <= h <= :func:`free_cap`)
     of the motion :func:`body2_after` propagates: the same series integrated term by term,

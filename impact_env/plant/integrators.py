@@ -110,7 +110,7 @@ GRADE_PIECES = 16
 GRADE_POWER = 4.0
 
 
-@jit
+@jit(inline="always")
 def _fixed_step(method, z, mode, f2, h, pc):
     """One step of a fixed-step method from the state ``z`` = (x1, v1, x2, v2, W_ext, W_diss);
     returns the new one."""
@@ -167,7 +167,7 @@ DENSE_P = np.array([
 ])
 
 
-@jit
+@jit(inline="always")
 def _dense(y, k, h, theta, out):
     """Dormand-Prince's continuous extension: the state at ``theta`` (0..1) of the step of
     length h from y whose stages are k; into ``out``."""
@@ -182,7 +182,7 @@ def _dense(y, k, h, theta, out):
         out[j] = y[j] + h * acc
 
 
-@jit
+@jit(inline="always")
 def _force_rate(y, dy, pc):
     """Time derivative of the contact force (N/s) at state y (in contact, d > 0) whose time
     derivative is dy (the stage)."""
@@ -201,7 +201,7 @@ TOP_PENETRATION = 0  # _dense_top: the root of the penetration rate
 TOP_FORCE = 1  # the root of the contact force's rate
 
 
-@jit
+@jit(inline="always")
 def _rate(which, z, dz, pc):
     """The rate whose root :func:`_dense_top` finds, at state z with time derivative dz."""
     if which == TOP_FORCE:
@@ -301,7 +301,7 @@ def _trial(method, y, out, scratch, mode, f2, h, pc):
             out[j] = r[j]
 
 
-@jit
+@jit(inline="always")
 def _crossed(mode, gv):
     return (mode == CONTACT and gv < 0.0) or (mode == FREE and gv > 0.0)
 
@@ -373,7 +373,7 @@ def _force_now(y, mode, pc):
     return f
 
 
-@jit
+@jit(inline="always")
 def _graded_piece(tau, zone_len, rem):
     """Length of the next piece of the graded zone after a touch: from ``tau`` (s since the
     touch) to the next node ``zone_len (k / GRADE_PIECES)^GRADE_POWER`` above it, at most ``rem``."""
@@ -390,7 +390,7 @@ def _graded_piece(tau, zone_len, rem):
     return piece
 
 
-@jit
+@jit(inline="always")
 def _penetration_peak(pkd, d0, s0, d1, s1, h):
     """The largest penetration so far, given a step of h seconds from (d0, d0' = s0) to
     (d1, s1): the step's end, and where the penetration rate turned from + to - within the step,
@@ -406,7 +406,7 @@ def _penetration_peak(pkd, d0, s0, d1, s1, h):
     return pkd
 
 
-@jit
+@jit(inline="always")
 def _catch_part(x1, v1, x2, pc):
     """Body 1's catch energy (:func:`impact_env.plant.energy.catch_energy_at`) less its constant
     ``(3/5) m1 g d_s`` (J), which :func:`advance` adds once per span: the integrand of the
@@ -418,7 +418,7 @@ def _catch_part(x1, v1, x2, pc):
     return e
 
 
-@jit
+@jit(inline="always")
 def _catch_rate(x1, v1, x2, v2, mode, pc):
     """``(e, de/dt)``: :func:`_catch_part` (J) and its time derivative (W) at a state under the
     contact force F of ``mode``: ``m1 g v2 - F v1 + c d_+^1.5 (v1 - v2)`` (body 1's power
@@ -435,7 +435,7 @@ def _catch_rate(x1, v1, x2, v2, mode, pc):
     return e, r
 
 
-@jit
+@jit(inline="always")
 def _hermite(h, ea, ra, eb, rb):
     """The integral over a step of h seconds of a function with values ``ea``, ``eb`` and
     derivatives ``ra``, ``rb`` at its ends: the corrected trapezoidal rule (the cubic Hermite
@@ -443,7 +443,7 @@ def _hermite(h, ea, ra, eb, rb):
     return 0.5 * h * (ea + eb) + h * h * (ra - rb) / 12.0
 
 
-@jit
+@jit(inline="always")
 def _advance_fixed(mode, f2, t0, span, consts, carry):
     """Fixed-step part of :func:`advance`: the state lives in scalars, arrays are touched only
     at a contact switch and in the graded zone after a touch.
@@ -614,7 +614,7 @@ def advance(mode, f2, t0, span, consts, carry):
     return status, mode
 
 
-@jit
+@jit(inline="always")
 def _pad_energy(d, c):
     """Elastic energy of the pad at penetration d (J), ``(2/5) c d^2.5`` for d > 0."""
     if d > 0.0:
@@ -622,7 +622,7 @@ def _pad_energy(d, c):
     return 0.0
 
 
-@jit
+@jit(inline="always")
 def _pad_rate(d, dd, c):
     """The time derivative of :func:`_pad_energy` (W) at penetration d (m) and rate dd (m/s)."""
     if d > 0.0:
@@ -666,7 +666,7 @@ def _free_pad_integral(x1, v1, x2, v2, h, f2, pc):
     return q
 
 
-@jit
+@jit(inline="always")
 def _contact_scale(y, pc, e_min):
     """The error scales of the contact in progress: ``(penetration m, speed m/s, energy J)``.
 
@@ -685,7 +685,7 @@ def _contact_scale(y, pc, e_min):
     return (2.5 * e / pc.c) ** 0.4, sqrt(2.0 * e * (pc.im1 + pc.im2)), e
 
 
-@jit
+@jit(inline="always")
 def _invariant(y, pc):
     """``E + W_diss - W_ext`` (J) in contact (elastic pad energy of the CONTACT mode's odd
     extension, ``(2/5) c |d|^2.5``): constant along the exact motion under a constant f2 (the
@@ -701,7 +701,7 @@ def _invariant(y, pc):
 MAX_PROJECTION = 1e3
 
 
-@jit
+@jit(inline="always")
 def _project_energy(y, target, pc, vs, rtol):
     """Move the velocities of an elastic contact's state y (in place) onto the energy
     invariant's level ``target`` (:func:`_invariant`): the standard projection (Hairer, Lubich

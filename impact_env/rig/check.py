@@ -51,7 +51,7 @@ OWN_STEP_GOAL_DEFAULT = 0.99
 
 
 # -- the measurements, in compiled code --------------------------------------------------------------------
-@jit
+@jit(inline="always")
 def _now_ns(gettime, ts):
     call_clock_gettime(gettime, CLOCK_MONOTONIC, ts)
     return ts[0] * 1_000_000_000 + ts[1]

@@ -384,7 +384,7 @@ class DropConstants(NamedTuple):
     t_touch: float  # s
 
 
-@jit
+@jit(inline="always")
 def true_record(trec, m, Y, info, u, detected, ok, rate):
     """The virtual rig's true record of tick m (:mod:`impact_env.sim.records`)."""
     r = trec[m]

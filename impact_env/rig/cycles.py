@@ -24,7 +24,7 @@ def _readcyclecounter(typingctx):
     return types.uint64(), codegen
 
 
-@jit
+@jit(inline="always")
 def cycles():
     """The cycle counter now (uint64)."""
     return _readcyclecounter()

@@ -134,7 +134,7 @@ class LogBuffers(NamedTuple):
     filled: np.ndarray  # int64[1]: rows filled (not `count`, which is tuple.count)
 
 
-@jit
+@jit(inline="always")
 def claim_row(rows, count):
     """Index of the next free row of a TickLog (and counts it), or -1 when the log is full."""
     i = count[0]

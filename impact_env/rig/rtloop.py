@@ -255,7 +255,7 @@ def _ov_zero(io, m):
 
 
 # -- the host's commands ---------------------------------------------------------------------------------
-@jit
+@jit(inline="always")
 def _offer(hl, step, val):
     """A command the wire accepted: the newest for the latest step waits to be used (latest wins);
     each one it replaces is superseded."""
@@ -271,7 +271,7 @@ def _offer(hl, step, val):
         cc[ring.CC.superseded] += 1
 
 
-@jit
+@jit(inline="always")
 def _poll(w, hl, step):
     """One waiting datagram through the wire (:func:`impact_env.rig.wire.read_one`); an accepted
     COMMAND is offered.  Returns what the wire did (NONE: nothing was waiting)."""
@@ -281,7 +281,7 @@ def _poll(w, hl, step):
     return r
 
 
-@jit
+@jit(inline="always")
 def _select_command(hl, step):
     """The waiting command for ``step`` becomes the one in use from this tick on; one whose step
     is over before a tick could run it expires."""
@@ -302,7 +302,7 @@ def _select_command(hl, step):
     cs[ring.CS.cur_acted] = 0.0
 
 
-@jit
+@jit(inline="always")
 def _wake(hl):
     if hl.wake[1] >= 0:
         call_write(hl.wake[0], hl.wake[1], hl.byte)

@@ -163,7 +163,7 @@ class Wire(NamedTuple):
 
 
 # -- bytes ---------------------------------------------------------------------------------------------
-@jit
+@jit(inline="always")
 def get_uint(buf, o, n):
     v = 0
     for k in range(n - 1, -1, -1):
@@ -171,48 +171,48 @@ def get_uint(buf, o, n):
     return v
 
 
-@jit
+@jit(inline="always")
 def put_uint(buf, o, n, v):
     for k in range(n):
         buf[o + k] = (v >> (8 * k)) & 0xFF
 
 
-@jit
+@jit(inline="always")
 def get_f64(buf, o, w):
     for k in range(8):
         w.b8[k] = buf[o + k]
     return w.f8[0]
 
 
-@jit
+@jit(inline="always")
 def put_f64(buf, o, x, w):
     w.f8[0] = x
     for k in range(8):
         buf[o + k] = w.b8[k]
 
 
-@jit
+@jit(inline="always")
 def get_f32(buf, o, w):
     for k in range(4):
         w.b4[k] = buf[o + k]
     return w.f4[0]
 
 
-@jit
+@jit(inline="always")
 def put_f32(buf, o, x, w):
     w.f4[0] = x
     for k in range(4):
         buf[o + k] = w.b4[k]
 
 
-@jit
+@jit(inline="always")
 def tag_of(w, buf, n):
     """HMAC-SHA256 of buf[0:n] (the nonce, then the frame) into w.md; False on failure."""
     w.mdlen[0] = 64
     return call_hmac(w.calls.hmac, w.calls.sha256, w.key, w.key_len, buf, n, w.md, w.mdlen) != 0
 
 
-@jit
+@jit(inline="always")
 def tag_checks(w, end):
     """Whether the tag after the frame of ``end`` bytes in ``w.rx`` is the frame's (under the key
     and the nonce in front of it); compared in constant time."""
@@ -224,13 +224,13 @@ def tag_checks(w, end):
     return diff == 0
 
 
-@jit
+@jit(inline="always")
 def now_ns(w):
     call_clock_gettime(w.calls.clock_gettime, CLOCK_MONOTONIC, w.ts)
     return w.ts[0] * 1_000_000_000 + w.ts[1]
 
 
-@jit
+@jit(inline="always")
 def sleep_until_ns(w, t_ns):
     """Sleep until CLOCK_MONOTONIC reads ``t_ns`` (clock_nanosleep, TIMER_ABSTIME)."""
     w.ts[0] = t_ns // 1_000_000_000
@@ -239,7 +239,7 @@ def sleep_until_ns(w, t_ns):
 
 
 # -- receiving -----------------------------------------------------------------------------------------
-@jit
+@jit(inline="always")
 def from_peer(w):
     if w.srclen[0] != w.peer_len:
         return False

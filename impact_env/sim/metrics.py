@@ -162,7 +162,7 @@ N_CONST = len(EC)
 N_SETTINGS = len(ST)
 
 
-@jit
+@jit(inline="always")
 def update(acc, rec, prec, k_env, P_row, settings):
     """Advance one env's accumulator ``acc`` by the tick record ``rec`` and its plant record
     ``prec`` (read only with ``settings``' plant_records; its constants ``k_env`` = t_touch s,

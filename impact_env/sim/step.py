@@ -60,7 +60,7 @@ class SimState(NamedTuple):
     plant_records: np.ndarray  # float64[N, hold, N_PLANT_REC]: their plant records (sim.records)
 
 
-@jit
+@jit(inline="always")
 def _first_separation(pr, events, n0, n1, t_start):
     """The plant record's ``t_separation`` / ``v1_separation``: the first separation (kind -1)
     among the events ``n0 .. n1 - 1`` of the plant's log (those of this tick, whose times count
@@ -74,7 +74,7 @@ def _first_separation(pr, events, n0, n1, t_start):
             return
 
 
-@jit
+@jit(inline="always")
 def env_step(i, a, p, s):
     """Env i: ``p.hold`` ticks under the action ``a`` (and the residual law), then its
     observation.  Returns False if the plant failed (its observation is then left as it was)."""

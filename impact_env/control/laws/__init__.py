@@ -49,7 +49,7 @@ _MPC_STATE = KIND[mpc_state.LAW.name]
 _MPC = KIND[mpc.LAW.name]
 
 
-@jit
+@jit(inline="always")
 def law_force(kind, slots, k, v, mem):
     """The force demand (N, upwards) of law ``kind`` with constants ``k`` on the frame values
     ``v`` (float64, SI units) read at ``slots``; ``mem`` is its memory row.  Passive: 0."""

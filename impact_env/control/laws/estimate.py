@@ -43,7 +43,7 @@ class SensorReads(NamedTuple):
 SR = positions(SensorReads)
 
 
-@jit
+@jit(inline="always")
 def estimate(v, slots, top, c, rate, threshold, mem):
     """(phi N, d m, d' m/s, x2 m, v2 m/s, detected) from the frame values ``v`` (SI) read at
     ``slots`` (:class:`SensorReads`); updates ``mem`` (:class:`Memory`)."""

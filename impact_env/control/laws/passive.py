@@ -17,7 +17,7 @@ class Constants(NamedTuple):
     """None."""
 
 
-@jit
+@jit(inline="always")
 def force(slots, k, v, mem):
     return 0.0
 

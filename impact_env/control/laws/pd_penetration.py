@@ -62,7 +62,7 @@ def constants_of(scene, P: dict) -> dict:
             "threshold": scene.effects.detector.threshold_n}
 
 
-@jit
+@jit(inline="always")
 def force(slots, k, v, mem):
     m2, c, kp, kd, dref = k[K.m2], k[K.c], k[K.kp], k[K.kd], k[K.dref]
     phi, d, d_rate, x2, v2, detected = estimate(v, slots, k[K.top_mass], c, k[K.rate], k[K.threshold], mem)

@@ -76,7 +76,7 @@ def constants_of(scene, P: dict) -> dict:
             "sign": 1.0 if P["free_law"] == "corrected" else -1.0}
 
 
-@jit
+@jit(inline="always")
 def force(slots, k, v, mem):
     m1, m2, c, g = k[K.m1], k[K.m2], k[K.c], k[K.g]
     h01, h11, h02, h12, dref, sign = k[K.h01], k[K.h11], k[K.h02], k[K.h12], k[K.dref], k[K.sign]

@@ -63,7 +63,7 @@ def constants_of(scene, P: dict) -> dict:
             "rate": scene.control_rate, "threshold": scene.effects.detector.threshold_n}
 
 
-@jit
+@jit(inline="always")
 def force(slots, k, v, mem):
     m1, m2, c, g = k[K.m1], k[K.m2], k[K.c], k[K.g]
     h01, h11, h02, h12, dref = k[K.h01], k[K.h11], k[K.h02], k[K.h12], k[K.dref]
