@@ -50,7 +50,10 @@ Physics checks (docs/rig/faults.md derives every bound; :func:`physics_params` c
 3. **stuck**: a channel whose reading repeats exactly for ``repeat_limit`` ticks in a row (its
    noise vanished: two noisy readings fall in the same converter code with probability at most
    ``q / (sqrt(2 pi) noise_std s_min)``, s_min the smallest noise scale the scene draws; the limit
-   is the smallest n with that probability to the n below 1.2e-15, the jump check's 8 sigma);
+   is the smallest n with that probability to the n below 1.2e-15, the jump check's 8 sigma),
+   counted only strictly inside the converter's range (``lo < x < hi``: at either limit the
+   converter clips, so the repeats are real; docs/rig/faults.md says which checks catch a
+   channel stuck there);
 4. **the top part's Newton** (thesis eq 2.7b / 4.4: the contact force ``Phi = m2' a2 + T`` is
    never negative): ``m2' a2 + T >= -tol_sign``;
 5. **the armature's Newton** (body 2 below the transducer, mass ``m2 - m2'``, driven by the
@@ -475,7 +478,10 @@ def check_readings(m, raw, p, s, out):
         else:
             s[S_REPEAT + c] = 0.0
         s[S_PREV + c] = x
-        if ok and ch[c, CC.repeat] > 0.0 and s[S_REPEAT + c] >= ch[c, CC.repeat]:
+        # a reading at the converter's limit repeats because the converter clips, not because
+        # the noise vanished: the stuck check counts only readings strictly inside the range
+        if ok and ch[c, CC.repeat] > 0.0 and s[S_REPEAT + c] >= ch[c, CC.repeat] \
+                and ch[c, CC.lo] < x and x < ch[c, CC.hi]:
             ok = False
         if not ok:
             bits |= 1 << (9 + c)

@@ -518,7 +518,9 @@ static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_R
         if (primed && x == s->pl_prev[c]) s->pl_repeat[c] += 1.0;
         else s->pl_repeat[c] = 0.0;
         s->pl_prev[c] = x;
-        if (ok && PL_REPEAT[c] > 0.0 && s->pl_repeat[c] >= PL_REPEAT[c]) ok = 0;  /* stuck */
+        /* stuck: only strictly inside the range (at the converter's limit it clips: repeats are real) */
+        if (ok && PL_REPEAT[c] > 0.0 && s->pl_repeat[c] >= PL_REPEAT[c]
+            && PL_LO[c] < x && x < PL_HI[c]) ok = 0;
         if (!ok) bits |= (uint32_t)1u << (9 + c);
     }}
     if (bits == 0 && primed && PH_ON != 0.0) bits = pl_physics(s, readings);
