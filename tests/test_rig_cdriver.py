@@ -188,19 +188,7 @@ def test_cli_loads_a_c_driver_and_refuses_a_python_one_for_real_time(replay, cap
     assert "impact_driver_open(config='nope') returned -2" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize(
-    "hold",
-    [
-        pytest.param(
-            1,
-            marks=pytest.mark.xfail(
-                reason="the physics checks (docs/rig/faults.md) flag readings that do not answer this episode's commands; this test's driver replays or holds readings: it needs a driver that answers its commands",
-                strict=False,
-            ),
-        ),
-        4,
-    ],
-)
+@pytest.mark.parametrize("hold", [pytest.param(1, marks=pytest.mark.xfail(reason="the physics checks (docs/rig/faults.md) flag readings that do not answer this episode's commands; this test's driver replays or holds readings: it needs a driver that answers its commands", strict=False)), 4])
 def test_host_mode_with_a_slow_driver_every_tick_and_command_accounted(replay, tmp_path, hold):
     """Host mode in real time, the C driver's read taking 150 us (1.5 periods) every tick: ticks
     are skipped (the fault happened, hold 4; hold 1 never skips a step's first tick, so every

@@ -63,10 +63,7 @@ def test_a_python_driver_is_refused_for_real_time():
         Target(BlindRig("rig"), config=TargetConfig())
 
 
-@pytest.mark.xfail(
-    reason="the physics checks (docs/rig/faults.md) flag readings that do not answer this episode's commands; this test's driver replays or holds readings: it needs a driver that answers its commands",
-    strict=False,
-)
+@pytest.mark.xfail(reason="the physics checks (docs/rig/faults.md) flag readings that do not answer this episode's commands; this test's driver replays or holds readings: it needs a driver that answers its commands", strict=False)
 def test_host_commands_act_from_their_arrival_tick():
     """The controller's tick (act_tick): a command for step n that arrives at the third tick of
     the step acts from that tick, is held for the step, repeated through the next (REPEATED) and
