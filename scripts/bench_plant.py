@@ -35,7 +35,7 @@ import impact_env  # noqa: E402
 from impact_env.hardware.arrays import METHOD_CODES, initial_state, plant_params  # noqa: E402
 from impact_env.plant.hertz import contact_time  # noqa: E402
 from impact_env.plant.integrators import PlantCarry, PlantConsts, advance  # noqa: E402
-from impact_env.plant.layout import AUTO, FREE, N_EVENT_COLS, OK  # noqa: E402
+from impact_env.plant.layout import AUTO, FREE, N_EVENT_COLS, OK, V1, V2, X1, X2  # noqa: E402
 from impact_env.plant.reference import Params, free_fall_start, reference_drop, sim_overrides  # noqa: E402
 
 FIXED = [("euler", True), ("euler", False), ("symplectic-euler", True), ("symplectic-euler", False),
@@ -167,18 +167,18 @@ def minimal_rk4_rate(n: int, repeats: int) -> float:
     @jit(cache=False)
     def loop(y, n, h, p):
         pc = coefs(p)
-        x1, v1, x2, v2 = y[0], y[1], y[2], y[3]
+        x1, v1, x2, v2 = y[X1], y[V1], y[X2], y[V2]
         hh, h6 = 0.5 * h, h / 6.0
         for _ in range(n):
             a = deriv(x1, v1, x2, v2, AUTO, 0.0, pc)
-            q = deriv(x1 + hh * a[0], v1 + hh * a[1], x2 + hh * a[2], v2 + hh * a[3], AUTO, 0.0, pc)
-            r = deriv(x1 + hh * q[0], v1 + hh * q[1], x2 + hh * q[2], v2 + hh * q[3], AUTO, 0.0, pc)
-            s = deriv(x1 + h * r[0], v1 + h * r[1], x2 + h * r[2], v2 + h * r[3], AUTO, 0.0, pc)
-            x1 += h6 * (a[0] + 2.0 * (q[0] + r[0]) + s[0])
-            v1 += h6 * (a[1] + 2.0 * (q[1] + r[1]) + s[1])
-            x2 += h6 * (a[2] + 2.0 * (q[2] + r[2]) + s[2])
-            v2 += h6 * (a[3] + 2.0 * (q[3] + r[3]) + s[3])
-        y[0], y[1], y[2], y[3] = x1, v1, x2, v2
+            q = deriv(x1 + hh * a[X1], v1 + hh * a[V1], x2 + hh * a[X2], v2 + hh * a[V2], AUTO, 0.0, pc)
+            r = deriv(x1 + hh * q[X1], v1 + hh * q[V1], x2 + hh * q[X2], v2 + hh * q[V2], AUTO, 0.0, pc)
+            s = deriv(x1 + h * r[X1], v1 + h * r[V1], x2 + h * r[X2], v2 + h * r[V2], AUTO, 0.0, pc)
+            x1 += h6 * (a[X1] + 2.0 * (q[X1] + r[X1]) + s[X1])
+            v1 += h6 * (a[V1] + 2.0 * (q[V1] + r[V1]) + s[V1])
+            x2 += h6 * (a[X2] + 2.0 * (q[X2] + r[X2]) + s[X2])
+            v2 += h6 * (a[V2] + 2.0 * (q[V2] + r[V2]) + s[V2])
+        y[X1], y[V1], y[X2], y[V2] = x1, v1, x2, v2
 
     scene = impact_env.load_scene("ideal")
     p = plant_params(scene)

@@ -41,7 +41,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from impact_env.control import plausibility as PL  # noqa: E402
+from impact_env.control import plausibility  # noqa: E402
 from impact_env.eval.sensor_faults import DropRunner, Fault, first_flag  # noqa: E402
 from impact_env.policy.export import export_policy  # noqa: E402
 from impact_env.scene import load_scene  # noqa: E402
@@ -73,7 +73,7 @@ def false_alarms(scene_name: str, policies: list[str], drops: int, ticks: int) -
     flagged, flagged_ticks, t0 = [], 0, time.perf_counter()
     for seed in range(drops):
         d = runners[seed % len(runners)].run(seed)
-        bad = np.flatnonzero(d.status & PL.SENSOR_BITS)
+        bad = np.flatnonzero(d.status & plausibility.SENSOR_BITS)
         if bad.size:
             flagged.append(
                 {
@@ -111,7 +111,7 @@ def detection(scene_name: str, policy: str, drops: int, ticks: int) -> list[dict
                 clean = run.run(seed)
                 fault = Fault(ch, kind, tick, size, DROPOUT_TICKS)
                 d = run.run(seed, fault)
-                hit = first_flag(d.status, PL.SENSOR_FAULT, tick)
+                hit = first_flag(d.status, plausibility.SENSOR_FAULT, tick)
                 drive.append(unseen_drive(clean, d, fault, hit))
                 if hit < 0:
                     missed += 1
@@ -138,9 +138,10 @@ def audit_cases(ticks: int) -> list[dict]:
     force there and the faulty one's."""
     scene = load_scene("rig")
     run = DropRunner(export_policy("thesis-rig", scene), scene, ticks)
-    ph = PL.plausibility_params(scene).phys
-    arm = ph[PL.PH.tol_arm] + ph[PL.PH.per_tick] + ph[PL.PH.tail]  # the steady drive's threshold, N
-    a_thr = arm / ph[PL.PH.lower_mass]
+    ph = plausibility.plausibility_params(scene).phys
+    # the steady drive's threshold, N
+    arm = ph[plausibility.PH.tol_arm] + ph[plausibility.PH.per_tick] + ph[plausibility.PH.tail]
+    a_thr = arm / ph[plausibility.PH.lower_mass]
     cases = [
         ("accelerometer spike +450 m/s^2", Fault(0, "spike", 5, 450.0)),
         ("force transducer step +300 N", Fault(1, "step", 5, 300.0)),
@@ -157,14 +158,14 @@ def audit_cases(ticks: int) -> list[dict]:
     out = []
     for name, fault in cases:
         clean, d = run.run(0), run.run(0, fault)
-        hit = first_flag(d.status, PL.SENSOR_FAULT, fault.tick)
-        flagged = np.flatnonzero(d.status & PL.SENSOR_FAULT)
+        hit = first_flag(d.status, plausibility.SENSOR_FAULT, fault.tick)
+        flagged = np.flatnonzero(d.status & plausibility.SENSOR_FAULT)
         out.append(
             {
                 "case": name,
                 "first_flag_tick": hit,
                 "delay_ticks": hit - fault.tick if hit >= 0 else None,
-                "timeout_tick": first_flag(d.status, PL.SENSOR_TIMEOUT),
+                "timeout_tick": first_flag(d.status, plausibility.SENSOR_TIMEOUT),
                 "force_N_on_flagged_ticks_max": float(np.abs(d.force[flagged]).max())
                 if flagged.size
                 else None,
@@ -178,43 +179,55 @@ def constants_table(scenes=("rig", "rig-randomized")) -> str:
     """What the check derives from each scene (impact_env.control.plausibility): computed, not
     measured."""
     rows = [
-        ("`tol_sign`: m2' a2 + T may read this far below 0", "N", lambda p: p.phys[PL.PH.tol_sign]),
+        ("`tol_sign`: m2' a2 + T may read this far below 0", "N", lambda p: p.phys[plausibility.PH.tol_sign]),
         (
             "`tol_arm`: noise and rounding of the armature residual's change",
             "N",
-            lambda p: p.phys[PL.PH.tol_arm],
+            lambda p: p.phys[plausibility.PH.tol_arm],
         ),
-        ("`per_tick`: its change per tick the drive does not explain", "N", lambda p: p.phys[PL.PH.per_tick]),
+        (
+            "`per_tick`: its change per tick the drive does not explain",
+            "N",
+            lambda p: p.phys[plausibility.PH.per_tick],
+        ),
         (
             "`drive_gain`: per N of the demand's largest change in the last 16 ticks",
             "",
-            lambda p: p.phys[PL.PH.drive_gain],
+            lambda p: p.phys[plausibility.PH.drive_gain],
         ),
         (
             "accelerometer threshold, steady drive: (tol_arm + per_tick) / (m2 - m2')",
             "m/s^2",
             lambda p: (
-                (p.phys[PL.PH.tol_arm] + p.phys[PL.PH.per_tick] + p.phys[PL.PH.tail])
-                / p.phys[PL.PH.lower_mass]
+                (
+                    p.phys[plausibility.PH.tol_arm]
+                    + p.phys[plausibility.PH.per_tick]
+                    + p.phys[plausibility.PH.tail]
+                )
+                / p.phys[plausibility.PH.lower_mass]
             ),
         ),
         (
             "force transducer threshold, steady drive: tol_arm + per_tick",
             "N",
-            lambda p: p.phys[PL.PH.tol_arm] + p.phys[PL.PH.per_tick] + p.phys[PL.PH.tail],
+            lambda p: (
+                p.phys[plausibility.PH.tol_arm]
+                + p.phys[plausibility.PH.per_tick]
+                + p.phys[plausibility.PH.tail]
+            ),
         ),
         (
             "potentiometer threshold: its jump check's max_step + tol",
             "mm",
-            lambda p: 1e3 * (p.ch[2, PL.CC.max_jump] + p.ch[2, PL.CC.tol]),
+            lambda p: 1e3 * (p.ch[2, plausibility.CC.max_jump] + p.ch[2, plausibility.CC.tol]),
         ),
         (
             "stuck after this many exact repeats: accelerometer / force / potentiometer",
             "ticks",
-            lambda p: " / ".join(str(int(v)) for v in p.ch[:3, PL.CC.repeat]),
+            lambda p: " / ".join(str(int(v)) for v in p.ch[:3, plausibility.CC.repeat]),
         ),
     ]
-    params = [PL.plausibility_params(load_scene(name)) for name in scenes]
+    params = [plausibility.plausibility_params(load_scene(name)) for name in scenes]
     lines = [
         "| derived | unit | " + " | ".join(f"`{n}`" for n in scenes) + " |",
         "|---|---|" + "---:|" * len(scenes),

@@ -180,12 +180,12 @@ def test_training_without_the_extra_says_how_to_get_it(tmp_path, capsys, monkeyp
     runs it for real in a core-only venv)."""
     import importlib.util
 
-    import agents.train as T
+    import agents.train as agents_train
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec",
                         lambda name, *a: None if name == "yaml" else real(name, *a))
-    assert T.main(["--algo", "ppo", "--out", str(tmp_path / "run")]) == 2
+    assert agents_train.main(["--algo", "ppo", "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
     assert "yaml not installed" in err and "pip install 'impact-env[sb3]'" in err
     assert not (tmp_path / "run").exists()

@@ -16,26 +16,26 @@ import numpy as np
 import pytest
 
 from impact_env.config import ConfigError
-from impact_env.control import laws as LW
-from impact_env.deploy import parity as PA
+from impact_env.control import laws
+from impact_env.deploy import parity
 from impact_env.deploy.c_export import generate_c, write_c
 from impact_env.policy.export import export_policy
-from impact_env.rig import safety as SF
+from impact_env.rig import safety
 from impact_env.scene import load_scene
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parent.parent
 AGENT = f"compiled:{ROOT / 'agents/models/best/best.policy.json'}"
 TICKS = 2500  # 0.25 s at 10 kHz: the drop, the first contacts and the catch of most drops
-C_LAWS = [law.name for law in LW.REGISTRY if law.c_body is not None]  # every law that exports to C
-ACTING_C_LAWS = [name for name in C_LAWS if LW.BY_NAME[name].required()]  # ... and reads something
-F32_C_LAWS = [name for name in ACTING_C_LAWS if not LW.BY_NAME[name].c_double_only]  # ... in float32 too
+C_LAWS = [law.name for law in laws.REGISTRY if law.c_body is not None]  # every law that exports to C
+ACTING_C_LAWS = [name for name in C_LAWS if laws.BY_NAME[name].required()]  # ... and reads something
+F32_C_LAWS = [name for name in ACTING_C_LAWS if not laws.BY_NAME[name].c_double_only]  # ... in float32 too
 # float32 build (docs/rig/c-export.md, "Deploying to real-time hardware"): on ticks where both builds
 # make the same discrete decisions (status bits and the contact detector), |command difference|
 # <= F32_BOUND of full scale; the ticks where they decide differently (an RMS clamp or a detector
 # threshold met one tick apart) at most F32_FLIP_FRACTION of all (impact_env.deploy.parity).
-F32_BOUND = PA.F32_BOUND
-F32_FLIP_FRACTION = PA.F32_FLIP_FRACTION
+F32_BOUND = parity.F32_BOUND
+F32_FLIP_FRACTION = parity.F32_FLIP_FRACTION
 
 
 # a core install (no torch, no stable-baselines3, no onnxruntime) runs every test of the classic
@@ -78,7 +78,7 @@ def _build(pol, scene, tmp_path, float32=False):
     d = tmp_path / ("c32" if float32 else "c64")
     if not (d / "impact_policy.c").exists():
         write_c(pol, scene, d, force=True)
-    return PA.CPolicy(PA.build_shared(d, d / "lib.so", float32), float32)
+    return parity.CPolicy(parity.build_shared(d, d / "lib.so", float32), float32)
 
 
 @pytest.mark.parametrize("scene_name,seed", [("rig", 0), ("rig-randomized", 7)])
@@ -87,9 +87,9 @@ def test_double_build_is_bitwise_the_numba_target(spec, scene_name, seed, reques
     scene = load_scene(scene_name)
     pol = export_policy(_spec(spec, request), scene)
     cp = _build(pol, scene, tmp_path)
-    rec = PA.record(pol, scene, seed, TICKS)
-    got = PA.replay(cp, rec)
-    assert np.array_equal(got.command, rec.command), PA.compare_runs(rec, got)
+    rec = parity.record(pol, scene, seed, TICKS)
+    got = parity.replay(cp, rec)
+    assert np.array_equal(got.command, rec.command), parity.compare_runs(rec, got)
     assert np.array_equal(got.force, rec.force)
     assert np.array_equal(got.status, rec.status)
     assert np.any(rec.command != 0.0) or spec == "passive"  # the policy did act: not a vacuous match
@@ -100,15 +100,15 @@ def _bitwise(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64))
 
 
-def _sequences_agree(pol, scene, cp, episodes, idle) -> list[PA.Recording]:
+def _sequences_agree(pol, scene, cp, episodes, idle) -> list[parity.Recording]:
     """The C build and the numba target over the same consecutive episodes: every command,
     force and status word of every tick bit for bit; returns the numba target's runs."""
-    want = PA.numba_sequence(pol, scene, episodes, idle)
-    got = PA.c_sequence(cp, episodes, idle)
+    want = parity.numba_sequence(pol, scene, episodes, idle)
+    got = parity.c_sequence(cp, episodes, idle)
     for k, (w, g) in enumerate(zip(want, got, strict=True)):
-        assert _bitwise(g.command, w.command), (k, PA.compare_runs(w, g))
+        assert _bitwise(g.command, w.command), (k, parity.compare_runs(w, g))
         assert _bitwise(g.force, w.force), k
-        assert np.array_equal(g.status, w.status), (k, PA.compare_runs(w, g))
+        assert np.array_equal(g.status, w.status), (k, parity.compare_runs(w, g))
     return want
 
 
@@ -145,17 +145,18 @@ def test_consecutive_episodes_wrap_the_rms_window_bitwise(spec, scene_name, tmp_
     scene = load_scene(scene_name)
     pol = export_policy(spec, scene)
     cp = _build(pol, scene, tmp_path)
-    recs = [PA.record(pol, scene, s, LONG_TICKS).readings for s in LONG_SEEDS[scene_name]]
+    recs = [parity.record(pol, scene, s, LONG_TICKS).readings for s in LONG_SEEDS[scene_name]]
     # the hot one on a drop nobody acted on: a recorded drive's changes would be in its readings
     # but not in the replayed law's demands, which the plausibility check's armature check compares
-    passive = PA.record(export_policy("passive", scene), scene, LONG_SEEDS[scene_name][0], 3000).readings
+    passive = parity.record(export_policy("passive", scene), scene, LONG_SEEDS[scene_name][0], 3000).readings
     episodes = [*recs, _hot(passive, start=100)]
     idle = [1500, 700, 300][:len(episodes) - 1]  # shorter than the window: the heat carries over
-    window = int(round(SF.SafetyConfig().rms_window_s * scene.control_rate))
+    window = int(round(safety.SafetyConfig().rms_window_s * scene.control_rate))
     assert sum(len(e) for e in episodes) > window  # the ring wraps on the episodes' own ticks
     want = _sequences_agree(pol, scene, cp, episodes, idle)
     assert all(np.any(w.command != 0.0) for w in want[:-1])  # the policy did act in every drop
-    assert np.any(want[-1].status & SF.CLAMP_RMS)  # the wrapped ring's sum decided the last episode's force
+    # the wrapped ring's sum decided the last episode's force
+    assert np.any(want[-1].status & safety.CLAMP_RMS)
 
 
 # the drive command's scale of the safety-branch test: a law's command is clipped to [-1, 1], so at the
@@ -179,8 +180,8 @@ def test_safety_branches_bitwise(spec, request, tmp_path):
     scene = load_scene("rig", {"effects.command_scale": HOT_SCALE_N})
     pol = export_policy(_spec(spec, request), scene)
     cp = _build(pol, scene, tmp_path)
-    base = PA.record(export_policy("passive", scene), scene, 0, 6000).readings  # a drop nobody acts on
-    limit = SF.SafetyConfig().travel_limit_m
+    base = parity.record(export_policy("passive", scene), scene, 0, 6000).readings  # a drop nobody acts on
+    limit = safety.SafetyConfig().travel_limit_m
     nan_acc, nan_pot, beyond, inf_force, long_fault = (base[:2000].copy() for _ in range(5))
     nan_acc[500, 0] = np.nan
     nan_pot[300, 2] = np.nan
@@ -194,23 +195,26 @@ def test_safety_branches_bitwise(spec, request, tmp_path):
     idle = [3000, 100, 100, 100, 100, 100]
     want = _sequences_agree(pol, scene, cp, episodes, idle)
     bits = [int(np.bitwise_or.reduce(w.status)) for w in want]
-    for k, (tick, chan) in {2: (500, SF.SENSOR_ACCELEROMETER), 3: (300, SF.SENSOR_POTENTIOMETER),
-                            5: (600, SF.SENSOR_FORCE)}.items():
+    for k, (tick, chan) in {2: (500, safety.SENSOR_ACCELEROMETER), 3: (300, safety.SENSOR_POTENTIOMETER),
+                            5: (600, safety.SENSOR_FORCE)}.items():
         st = want[k].status
-        assert st[tick] & SF.SENSOR_FAULT and st[tick] & chan and want[k].force[tick] == 0.0, k
-        assert np.count_nonzero(st & SF.SENSOR_FAULT) == 1, k  # that tick alone: not latched
-        assert not bits[k] & (SF.NONFINITE | SF.SENSOR_TIMEOUT), k  # the bad sample reached no policy
-    trip = int(np.argmax(want[4].status & SF.TRAVEL))
-    assert bits[4] & SF.TRAVEL and 360 < trip < 400 and np.all(want[4].status[trip:] & SF.TRAVEL)
-    assert not np.any(want[4].status[:403] & SF.SENSOR_FAULT)  # the excursion was plausible (its end is not)
+        assert st[tick] & safety.SENSOR_FAULT and st[tick] & chan and want[k].force[tick] == 0.0, k
+        assert np.count_nonzero(st & safety.SENSOR_FAULT) == 1, k  # that tick alone: not latched
+        assert not bits[k] & (safety.NONFINITE | safety.SENSOR_TIMEOUT), k  # the bad sample reached no policy
+    trip = int(np.argmax(want[4].status & safety.TRAVEL))
+    assert bits[4] & safety.TRAVEL and 360 < trip < 400 and np.all(want[4].status[trip:] & safety.TRAVEL)
+    # the excursion was plausible (its end is not)
+    assert not np.any(want[4].status[:403] & safety.SENSOR_FAULT)
     assert np.all(want[4].force[trip:] == 0.0)
     lf = want[6].status
     n_lim = int(PA_limit(scene))
-    assert not np.any(lf[:700 + n_lim] & SF.SENSOR_TIMEOUT) and np.all(lf[700 + n_lim:] & SF.SENSOR_TIMEOUT)
+    assert not np.any(lf[: 700 + n_lim] & safety.SENSOR_TIMEOUT) and np.all(
+        lf[700 + n_lim :] & safety.SENSOR_TIMEOUT
+    )
     assert np.all(want[6].force[700:] == 0.0)
     if pol.law is not None:
-        rms = [np.flatnonzero(w.status & SF.CLAMP_RMS) for w in want[:2]]
-        assert bits[0] & SF.CLAMP_PEAK and rms[0].size and rms[1].size
+        rms = [np.flatnonzero(w.status & safety.CLAMP_RMS) for w in want[:2]]
+        assert bits[0] & safety.CLAMP_PEAK and rms[0].size and rms[1].size
         assert rms[1][0] < rms[0][0]  # the second hot episode started with the first one's heat
 
 
@@ -227,13 +231,13 @@ def test_float32_build_within_its_bound(spec, tmp_path):
     pol = export_policy(spec, scene)
     cp = _build(pol, scene, tmp_path, float32=True)
     for seed in (0, 5):
-        rec = PA.record(pol, scene, seed, TICKS)
-        got = PA.replay(cp, rec)
-        flip = PA.decisions_differ(rec, got, pol.hold_ticks)
+        rec = parity.record(pol, scene, seed, TICKS)
+        got = parity.replay(cp, rec)
+        flip = parity.decisions_differ(rec, got, pol.hold_ticks)
         du = np.abs(got.command - rec.command)
         assert du[~flip].max() <= F32_BOUND, (seed, du[~flip].max())
         assert np.count_nonzero(flip) <= F32_FLIP_FRACTION * TICKS
-        rep = PA.compare_runs(rec, got, pol.hold_ticks)
+        rep = parity.compare_runs(rec, got, pol.hold_ticks)
         assert rep.verdict(True)[0] and rep.flipped == np.count_nonzero(flip)  # what --check prints
         assert np.any(du > 0.0) or spec == "thesis-rig"  # float32 is really in use (thesis-rig: saturated)
 
@@ -246,9 +250,9 @@ def test_a_scene_without_a_front_end_effect(without, tmp_path):
     base = load_scene("rig")
     scene = load_scene("rig", {"effects.active": [e for e in base.effects.active if e != without]})
     pol = export_policy("pd-penetration", scene)
-    rec = PA.record(pol, scene, 0, 1500)
+    rec = parity.record(pol, scene, 0, 1500)
     for f32 in (False, True):
-        got = PA.replay(_build(pol, scene, tmp_path, float32=f32), rec)
+        got = parity.replay(_build(pol, scene, tmp_path, float32=f32), rec)
         du = np.abs(got.command - rec.command)
         assert (du.max() == 0.0) if not f32 else (du.max() <= F32_BOUND), (f32, du.max())
 
@@ -271,10 +275,10 @@ def test_mpc_check_passes_in_double_and_has_no_float32_build(tmp_path, capsys):
     src = (out / "impact_policy.c").read_text()
     assert "static impact_real mpc_tick(" in src and "static void ekf_measure(" in src
     with pytest.raises(ConfigError, match="#error.*mpc has no float32 build"):
-        PA.build_shared(out, tmp_path / "f32.so", float32=True)
+        parity.build_shared(out, tmp_path / "f32.so", float32=True)
     scene = load_scene("rig")
     with pytest.raises(ConfigError, match="mpc has no float32 build"):
-        PA.check(export_policy(MPC_SPEC, scene), scene, out, seeds=(0,), ticks=10, float32=True)
+        parity.check(export_policy(MPC_SPEC, scene), scene, out, seeds=(0,), ticks=10, float32=True)
 
 
 # the float32 closed loop against the double one, over the whole horizon (see the test's doc)
@@ -305,14 +309,14 @@ def test_closed_loop_with_the_virtual_rig(spec, seed, tmp_path):
     scene = load_scene("rig")
     ticks = int(round(scene.episode.horizon * scene.control_rate))
     pol = export_policy(spec, scene)
-    rec = PA.record(pol, scene, seed, ticks)
+    rec = parity.record(pol, scene, seed, ticks)
     c64 = _build(pol, scene, tmp_path)
-    d64 = PA.closed_loop(c64, scene, seed, ticks)
+    d64 = parity.closed_loop(c64, scene, seed, ticks)
     assert np.array_equal(d64.readings, rec.readings) and np.array_equal(d64.command, rec.command)
-    d32 = PA.closed_loop(_build(pol, scene, tmp_path, float32=True), scene, seed, ticks)
+    d32 = parity.closed_loop(_build(pol, scene, tmp_path, float32=True), scene, seed, ticks)
     assert np.any(d32.command != d64.command)  # float32 is in use: not a vacuous comparison
-    m64 = PA.episode_metrics(scene, seed, d64.records)
-    m32 = PA.episode_metrics(scene, seed, d32.records)
+    m64 = parity.episode_metrics(scene, seed, d64.records)
+    m32 = parity.episode_metrics(scene, seed, d32.records)
     rng = np.random.default_rng(1000 + seed)
     keys = {"energy_integral_ms": 1e-4 * m64["energy_integral_ms"],  # metric -> its resolution
             "time_to_catch_s": 1.0 / scene.control_rate,
@@ -320,7 +324,7 @@ def test_closed_loop_with_the_virtual_rig(spec, seed, tmp_path):
     reach = dict.fromkeys(keys, 0.0)
     for _ in range(ENSEMBLE):
         err = rng.uniform(-F32_BOUND, F32_BOUND, ticks)
-        mp = PA.episode_metrics(scene, seed, PA.closed_loop(c64, scene, seed, ticks, err).records)
+        mp = parity.episode_metrics(scene, seed, parity.closed_loop(c64, scene, seed, ticks, err).records)
         for k in keys:
             reach[k] = max(reach[k], _deviation(mp[k], m64[k]))
     for k, floor in keys.items():
@@ -334,8 +338,8 @@ def test_realtime_example_runs_and_replays_bitwise(tmp_path):
     pol = export_policy("pd-penetration", scene)
     d = tmp_path / "c"
     write_c(pol, scene, d)
-    exe = PA.build_rt_example(d, tmp_path / "impact_rt")
-    rec = PA.record(pol, scene, 2, 2000)
+    exe = parity.build_rt_example(d, tmp_path / "impact_rt")
+    rec = parity.record(pol, scene, 2, 2000)
     rec.readings.astype("<f8").tofile(tmp_path / "r.f64")
     out = subprocess.run([str(exe), str(tmp_path / "r.f64"), str(tmp_path / "c.f64"), "--no-sleep"],
                          capture_output=True, text=True, timeout=60)
@@ -358,7 +362,7 @@ def test_cortex_m7_cross_build(float32, tmp_path):
     scene = load_scene("rig")
     pol = export_policy(AGENT, scene)
     write_c(pol, scene, tmp_path / "c")
-    size = PA.build_arm(tmp_path / "c", tmp_path / "p.o", float32)
+    size = parity.build_arm(tmp_path / "c", tmp_path / "p.o", float32)
     n_weights = sum(np.asarray(ly["weight"]).size + len(ly["bias"]) for ly in pol.mlp["layers"])
     assert size["text"] >= n_weights * (4 if float32 else 8)  # the weights are in flash, as constants
     assert size["data"] == 0 and size["bss"] == 0  # no globals: all state is the caller's
@@ -371,10 +375,10 @@ def test_cortex_m7_cross_build_of_mpc(tmp_path):
     its float32 build stops at the header's #error."""
     scene = load_scene("rig")
     write_c(export_policy("mpc", scene), scene, tmp_path / "c")
-    size = PA.build_arm(tmp_path / "c", tmp_path / "p.o")
+    size = parity.build_arm(tmp_path / "c", tmp_path / "p.o")
     assert size["data"] == 0 and size["bss"] == 0
     with pytest.raises(ConfigError, match="mpc has no float32 build"):
-        PA.build_arm(tmp_path / "c", tmp_path / "p32.o", float32=True)
+        parity.build_arm(tmp_path / "c", tmp_path / "p32.o", float32=True)
 
 
 def _libm_bound(pol) -> float:
@@ -397,7 +401,7 @@ def _libm_bound(pol) -> float:
     return 2.0 * out
 
 
-@pytest.mark.skipif(shutil.which("qemu-arm") is None or shutil.which(PA.ARM_LINUX_CC) is None,
+@pytest.mark.skipif(shutil.which("qemu-arm") is None or shutil.which(parity.ARM_LINUX_CC) is None,
                     reason="Debian's qemu-user and gcc-arm-linux-gnueabihf are not installed "
                            "(.ci/run installs them)")
 @pytest.mark.parametrize("spec", [*ACTING_C_LAWS, AGENT])
@@ -414,12 +418,12 @@ def test_parity_of_an_arm_linux_build_under_qemu_arm(spec, tmp_path):
     pol = export_policy(spec, scene)
     d = tmp_path / "c"
     write_c(pol, scene, d)
-    rec = PA.record(pol, scene, 2, 3000)
+    rec = parity.record(pol, scene, 2, 3000)
     rec.readings.astype("<f8").tofile(tmp_path / "r.f64")
     got = {}
     builds = (False, True) if spec in F32_C_LAWS or spec == AGENT else (False,)  # mpc: double only
     for f32 in builds:
-        arm = PA.build_rt_example(d, tmp_path / f"arm{int(f32)}", f32, cc=PA.ARM_LINUX_CC, extra=("-static",))
+        arm = parity.build_rt_example(d, tmp_path / f"arm{int(f32)}", f32, cc=parity.ARM_LINUX_CC, extra=("-static",))
         file = tmp_path / f"arm{int(f32)}.f64"
         r = subprocess.run(["qemu-arm", str(arm), str(tmp_path / "r.f64"), str(file), "--no-sleep"],
                            capture_output=True, text=True, timeout=300)
@@ -434,7 +438,7 @@ def test_parity_of_an_arm_linux_build_under_qemu_arm(spec, tmp_path):
         assert np.abs(got[False] - rec.command).max() <= _libm_bound(pol)
     if True not in got:
         return
-    x86 = PA.build_rt_example(d, tmp_path / "x86_f32", True)
+    x86 = parity.build_rt_example(d, tmp_path / "x86_f32", True)
     r = subprocess.run([str(x86), str(tmp_path / "r.f64"), str(tmp_path / "x86.f64"), "--no-sleep"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
@@ -532,18 +536,18 @@ def test_the_check_counts_flipped_decisions_apart_from_its_bound():
     first tick flipped; the same difference on a tick with the same decisions is a FAIL; the
     double build passes only bitwise."""
     n = 100
-    a = PA.Recording(np.zeros((n, 4)), np.zeros(n), np.zeros(n), np.zeros(n, np.int64),
-                     detected=np.zeros(n, np.int64))
-    b = PA.Recording(a.readings, a.command.copy(), a.force.copy(), a.status.copy(),
-                     detected=a.detected.copy())
+    a = parity.Recording(np.zeros((n, 4)), np.zeros(n), np.zeros(n), np.zeros(n, np.int64),
+                         detected=np.zeros(n, np.int64))
+    b = parity.Recording(a.readings, a.command.copy(), a.force.copy(), a.status.copy(),
+                         detected=a.detected.copy())
     b.command[40:44] = 0.102
     b.detected[40] = 1
-    rep = PA.compare_runs(a, b, hold=4)
+    rep = parity.compare_runs(a, b, hold=4)
     assert rep.flipped == 4 and rep.max_abs_same == 0.0 and rep.max_abs == 0.102
     assert rep.verdict(True)[0] and not rep.verdict(False)[0]
     assert "PASS" in rep.verdict(True)[1] and "4 ticks (4.00 %) decide differently" in rep.verdict(True)[1]
-    rep1 = PA.compare_runs(a, b, hold=1)  # without the hold, ticks 41-43 decided alike: over the bound
+    rep1 = parity.compare_runs(a, b, hold=1)  # without the hold, ticks 41-43 decided alike: over the bound
     assert rep1.flipped == 1 and not rep1.verdict(True)[0] and "FAIL" in rep1.verdict(True)[1]
     b.command[40:44] = 0.0
     b.command[60] = 0.5 * F32_BOUND
-    assert PA.compare_runs(a, b).verdict(True)[0] and not PA.compare_runs(a, b).verdict(False)[0]
+    assert parity.compare_runs(a, b).verdict(True)[0] and not parity.compare_runs(a, b).verdict(False)[0]

@@ -339,36 +339,36 @@ def test_every_list_of_effects_is_derived_from_the_registry():
     oracle's readings-only list are read from it."""
     import dataclasses
 
-    from impact_env.effects import registry as REG
+    from impact_env.effects import registry
     from impact_env.eval.oracle import SENSOR_SIDE
     from impact_env.hardware import stage
     from impact_env.hardware.batch import Hardware
     from impact_env.scene import load_scene
     from impact_env.scene.effects import EFFECTS, EffectsConfig
 
-    assert EFFECTS == REG.NAMES and len(set(EFFECTS)) == len(EFFECTS)
+    assert EFFECTS == registry.NAMES and len(set(EFFECTS)) == len(EFFECTS)
     sections = {f.name: f.default_factory for f in dataclasses.fields(EffectsConfig)}
-    assert all(sections[e.section] is e.config for e in REG.REGISTRY)
-    for which in (REG.HARDWARE, REG.CONTROLLER):
-        bits = [REG.flag(e.name) for e in REG.side(which)]
-        bits += [REG.option_flag(e.name, o) for e in REG.side(which) for o in e.options]
+    assert all(sections[e.section] is e.config for e in registry.REGISTRY)
+    for which in (registry.HARDWARE, registry.CONTROLLER):
+        bits = [registry.flag(e.name) for e in registry.side(which)]
+        bits += [registry.option_flag(e.name, o) for e in registry.side(which) for o in e.options]
         assert len(set(bits)) == len(bits) and all(b > 0 and not b & (b - 1) for b in bits), which
     # the bits are fixed numbers (kernels, the C export and rig logs read them): adding an effect moves none
     pinned = {"actuator_delay": 1, "shaker": 2, "saturation": 4, "sensors": 8, "sensor_delay": 16,
               "filters": 1, "detector": 2}
-    assert {name: REG.flag(name) for name in pinned} == pinned
-    assert REG.option_flag("shaker", "back_emf") == 32
-    hw = REG.side(REG.HARDWARE)
+    assert {name: registry.flag(name) for name in pinned} == pinned
+    assert registry.option_flag("shaker", "back_emf") == 32
+    hw = registry.side(registry.HARDWARE)
     assert stage.PARAM_BLOCKS == ("drive",) + tuple(e.name for e in hw)
     assert stage.STATE_BLOCKS == tuple(e.name for e in hw)
     scene = load_scene("rig-randomized", {"effects.shaker.back_emf": True})
     hard = Hardware(scene, 1)
-    assert hard.flags == sum(REG.flag(e.name) for e in hw if scene.effects.on(e.name)) + stage.F_BACK_EMF
+    assert hard.flags == sum(registry.flag(e.name) for e in hw if scene.effects.on(e.name)) + stage.F_BACK_EMF
     for e in hw:  # each block as big as the effect's packer says (the largest over the ranges)
         assert e.pack is not None
         p, s = e.pack(getattr(scene.effects, e.section), hard.rate, scene.effects.on(e.name))
         assert hard.param_block(e.name).shape[1] == p.size and hard.state_block(e.name).shape[1] >= s
-    assert SENSOR_SIDE == REG.READINGS_ONLY
+    assert SENSOR_SIDE == registry.READINGS_ONLY
 
 
 def test_a_flag_bit_given_twice_is_refused(monkeypatch):
@@ -388,13 +388,15 @@ def test_every_effect_module_is_in_the_registry():
     from pathlib import Path
 
     import impact_env.effects as pkg
-    from impact_env.effects import registry as REG
+    from impact_env.effects import registry
     from impact_env.effects.effect import Effect
 
     declared = []
     for mod in pkgutil.iter_modules(pkg.__path__):
         m = importlib.import_module(f"impact_env.effects.{mod.name}")
-        declared += [v for k, v in vars(m).items() if isinstance(v, Effect) and m.__name__ != REG.__name__]
-    assert set(declared) == set(REG.REGISTRY)
+        declared += [
+            v for k, v in vars(m).items() if isinstance(v, Effect) and m.__name__ != registry.__name__
+        ]
+    assert set(declared) == set(registry.REGISTRY)
     docs = (Path(__file__).resolve().parents[1] / "docs" / "scenes.md").read_text()
-    assert REG.markdown_table() in docs, "docs/scenes.md: stale effects table (scripts/docs_tables.py)"
+    assert registry.markdown_table() in docs, "docs/scenes.md: stale effects table (scripts/docs_tables.py)"

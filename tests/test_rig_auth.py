@@ -12,7 +12,7 @@ import threading
 import numpy as np
 import pytest
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.auth import KeyFileError, load_key, write_key
 from impact_env.rig.driver import VirtualRig
 from impact_env.rig.host import RigClient, RigEnv
@@ -147,9 +147,9 @@ def test_a_replayed_datagram_of_another_session_is_refused(keys):
     """The tag covers the session's nonce: a COMMAND recorded in one session does not check in the
     next, even with the same session id and a fresh sequence number."""
     key = load_key(keys[0])
-    msg = P.Message(P.Command(1, 0, (1.0,)), session=7, seq=9)
-    recorded = P.encode(msg, key, nonce=1111)
-    f = P.DatagramFilter("target", session=7, key=key, nonce=2222)
+    msg = protocol.Message(protocol.Command(1, 0, (1.0,)), session=7, seq=9)
+    recorded = protocol.encode(msg, key, nonce=1111)
+    f = protocol.DatagramFilter("target", session=7, key=key, nonce=2222)
     assert f.accept(recorded) is None and f.last_reason == "unauthenticated"
     f.nonce = 1111
     assert f.accept(recorded) is not None

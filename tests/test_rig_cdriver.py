@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from impact_env.policy.export import export_policy
-from impact_env.rig import safety as SF
+from impact_env.rig import safety
 from impact_env.rig.driver import VirtualRig
 from impact_env.rig.host import RigClient
 from impact_env.rig.target import Target, TargetConfig
@@ -144,7 +144,7 @@ def test_a_stall_longer_than_the_limit_ends_overrun_at_zero_newtons(replay, tmp_
     # the fault happened: a gap of more than 1 ms of ticks (the injected stall at tick 100, or the
     # machine preempting the loop earlier: either is a gap, and either must end the same way)
     assert gap > 10
-    assert log["force_applied_N"][-1] == 0.0 and log["status"][-1] & SF.OVERRUN
+    assert log["force_applied_N"][-1] == 0.0 and log["status"][-1] & safety.OVERRUN
     applied = np.flatnonzero(~np.isnan(cmds))
     # 0 N applied at once, at the tick that was due when the loop found the gap; nothing after
     assert applied[-1] == last - gap and cmds[last - gap] == 0.0
@@ -170,7 +170,9 @@ def test_first_command_allowance_counts_seconds_not_ticks(replay, tmp_path):
     # the clock's tick at each row: its tick plus the whole periods it started late (a step's
     # first tick is never skipped, it runs late, so the rows fall behind the clock)
     clock = tick + log["lateness_ns"].astype(np.int64) // 100_000
-    assert status[-1] & SF.FIRST_COMMAND_TIMEOUT and not np.any(status[:-1] & SF.FIRST_COMMAND_TIMEOUT)
+    assert status[-1] & safety.FIRST_COMMAND_TIMEOUT and not np.any(
+        status[:-1] & safety.FIRST_COMMAND_TIMEOUT
+    )
     assert clock[-1] >= 50 and np.all(clock[:-1] < 50)  # it tripped at the first row at 5 ms or after
     assert log.n_ticks < tick[-1] and np.any(log["skipped_ticks"] > 0)  # the fault happened: ticks skipped
 
@@ -217,15 +219,15 @@ def test_host_mode_with_a_slow_driver_every_tick_and_command_accounted(replay, t
     status = log["status"].astype(np.int64)
     skipped = log["skipped_ticks"].astype(np.int64)
     assert tick[-1] == HORIZON and np.array_equal(np.diff(tick) - 1, skipped[1:]) and skipped[0] == 0
-    assert np.all(status[1:][skipped[1:] > 0] & SF.OVERRUN)
+    assert np.all(status[1:][skipped[1:] > 0] & safety.OVERRUN)
     if hold == 1:
         # none skipped: the loop falls behind instead (half a period a tick), its rows flagged late
-        assert skipped.sum() == 0 and log["lateness_ns"][-2] > 100_000 and status[-2] & SF.OVERRUN
+        assert skipped.sum() == 0 and log["lateness_ns"][-2] > 100_000 and status[-2] & safety.OVERRUN
     else:
         # ticks were skipped, never a step's first tick: every step's first tick has its row
         assert skipped.sum() > 0 and set(range(0, HORIZON + 1, hold)) <= set(tick.tolist())
     k = log.meta.counters
-    assert k["skipped_ticks"] == skipped.sum() and k["overruns"] == np.count_nonzero(status & SF.OVERRUN)
+    assert k["skipped_ticks"] == skipped.sum() and k["overruns"] == np.count_nonzero(status & safety.OVERRUN)
     after_end = target.counters["commands_after_end"]
     assert k["commands_accepted"] + k["commands_late"] + after_end == sent
     assert k["commands_accepted"] == (k["commands_acted"] + k["commands_superseded"] + k["commands_expired"]

@@ -11,14 +11,23 @@ import os
 import numpy as np
 import pytest
 
-from impact_env.rig import check as C
-from impact_env.rig import placement as PL
+from impact_env.rig import check as rig_check
+from impact_env.rig import placement
 
 
 def _measurement(late_ns, longest_gap_ns=0.0, rate_hz=10_000.0, cpu=1, policy="SCHED_FIFO 50"):
     late = np.asarray(late_ns, dtype=float)
-    return C.Measurement(np.zeros(10, np.int64), late, np.zeros(late.size, np.int64), float(longest_gap_ns),
-                         rate_hz, 1_000_000, cpu, policy, 0.0)
+    return rig_check.Measurement(
+        np.zeros(10, np.int64),
+        late,
+        np.zeros(late.size, np.int64),
+        float(longest_gap_ns),
+        rate_hz,
+        1_000_000,
+        cpu,
+        policy,
+        0.0,
+    )
 
 
 def _facts(**kw):
@@ -27,7 +36,7 @@ def _facts(**kw):
                 fifo_max=99, may_mlock=True,
                 clocksource="tsc", clocksources=["tsc", "hpet"])
     base.update(kw)
-    return C.KernelFacts(**base)
+    return rig_check.KernelFacts(**base)
 
 
 def test_a_quiet_loop_sustains_every_rate_and_hold_one_at_ten_khz():
@@ -35,10 +44,10 @@ def test_a_quiet_loop_sustains_every_rate_and_hold_one_at_ten_khz():
     hold 1 for a host 50 us away (50 + 5 us < 0.8 periods of 100 us)."""
     rng = np.random.default_rng(0)
     m = _measurement(rng.uniform(1e3, 5e3, 20_000), longest_gap_ns=105e3)
-    v = C.verdict(m, _facts(), max_gap_s=1e-3, host_round_trip_us=50.0)
+    v = rig_check.verdict(m, _facts(), max_gap_s=1e-3, host_round_trip_us=50.0)
     r10 = next(r for r in v.rates if r.rate_hz == 10_000.0)
     assert r10.sustained and r10.overrun_share == 0.0 and r10.min_hold == 1 and r10.holds[1] == 1.0
-    assert v.max_rate_hz == max(C.RATES_HZ)
+    assert v.max_rate_hz == max(rig_check.RATES_HZ)
 
 
 def test_a_stall_longer_than_the_gap_limit_sustains_no_rate():
@@ -47,12 +56,12 @@ def test_a_stall_longer_than_the_gap_limit_sustains_no_rate():
     late = np.full(20_000, 2e3)
     late[7000] = 2.5e6
     m = _measurement(late, longest_gap_ns=2.6e6)
-    v = C.verdict(m, _facts(), max_gap_s=1e-3)
+    v = rig_check.verdict(m, _facts(), max_gap_s=1e-3)
     assert v.max_rate_hz is None and all(r.ends_overrun and not r.sustained for r in v.rates)
     assert all("OVERRUN" in line for line in v.lines)
     # the same stall under a 10 ms limit ends nothing; its one tick late is 1 in 20 000 (< 0.1 %)
-    v10 = C.verdict(m, _facts(), max_gap_s=10e-3)
-    assert v10.max_rate_hz == max(C.RATES_HZ)
+    v10 = rig_check.verdict(m, _facts(), max_gap_s=10e-3)
+    assert v10.max_rate_hz == max(rig_check.RATES_HZ)
 
 
 def test_a_tail_of_late_ticks_limits_the_rate_and_the_hold():
@@ -61,7 +70,7 @@ def test_a_tail_of_late_ticks_limits_the_rate_and_the_hold():
     finer rate is sustained."""
     late = np.full(20_000, 2e3)
     late[::200] = 150e3  # 100 ticks of 20 000
-    v = C.verdict(_measurement(late, longest_gap_ns=250e3), _facts(), host_round_trip_us=100.0)
+    v = rig_check.verdict(_measurement(late, longest_gap_ns=250e3), _facts(), host_round_trip_us=100.0)
     by_rate = {r.rate_hz: r for r in v.rates}
     assert by_rate[10_000.0].overrun_share == pytest.approx(0.005) and not by_rate[10_000.0].sustained
     assert by_rate[5000.0].sustained and by_rate[5000.0].min_hold == 1
@@ -73,14 +82,14 @@ def test_hold_one_needs_the_round_trip_inside_the_command_wait():
     """At 10 kHz a host 90 us away misses hold 1 (90 + 2 us > 80 us, 0.8 of a period) on every
     step but makes hold 2 (< 180 us): the smallest hold that meets its goal is 2."""
     m = _measurement(np.full(20_000, 2e3), longest_gap_ns=105e3)
-    r = C.verdict_for_rate(10_000.0, m.tick_late_ns, m.longest_gap_ns, 1e-3, 90.0)
+    r = rig_check.verdict_for_rate(10_000.0, m.tick_late_ns, m.longest_gap_ns, 1e-3, 90.0)
     assert r.holds[1] == 0.0 and r.holds[2] == 1.0 and r.min_hold == 2
 
 
 def test_the_settings_named_are_the_ones_this_machine_lacks():
     f = _facts(may_fifo=False, fifo_max=0, hypervisor=True, governors=["powersave"], clocksource="kvm-clock",
                clocksources=["kvm-clock", "tsc"])
-    settings = [s for s, _why in C.improvements(f, loop_cpu=1, applied_fifo=False)]
+    settings = [s for s, _why in rig_check.improvements(f, loop_cpu=1, applied_fifo=False)]
     text = "\n".join(settings)
     assert "CAP_SYS_NICE" in settings[0]  # the most effective first: the policy itself
     assert "isolcpus=1 nohz_full=1 rcu_nocbs=1 irqaffinity=0" in text
@@ -89,7 +98,7 @@ def test_the_settings_named_are_the_ones_this_machine_lacks():
     assert "sched_rt_runtime_us" not in text  # throttling matters to a SCHED_FIFO loop only
     tuned = _facts(preempt_model="PREEMPT_RT", preempt_rt=True, rt_runtime_us=-1, isolated=[1], nohz_full=[1],
                    version="#1 SMP PREEMPT_RT", governors=["performance"])
-    assert C.improvements(tuned, loop_cpu=1, applied_fifo=True) == []
+    assert rig_check.improvements(tuned, loop_cpu=1, applied_fifo=True) == []
 
 
 def test_kernel_facts_are_read_from_proc_and_sys(tmp_path):
@@ -104,14 +113,17 @@ def test_kernel_facts_are_read_from_proc_and_sys(tmp_path):
     for path, text in files.items():
         (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / path).write_text(text + "\n")
-    f = C.kernel_facts(tmp_path, probe=False)
+    f = rig_check.kernel_facts(tmp_path, probe=False)
     assert f.preempt_rt and f.preempt_model == "PREEMPT_RT" and not f.throttled and f.autogroup is False
     assert f.isolated == [2, 3, 5] and f.nohz_full == [3] and f.clocksource == "tsc" and f.hypervisor
     assert f.governors == ["performance"]
-    assert C.preempt_model("#1 SMP PREEMPT_DYNAMIC", None, "none voluntary (full) lazy") == ("full", False)
-    assert C.preempt_model("#1 SMP PREEMPT_DYNAMIC", None, None) == ("dynamic", False)
-    assert C.preempt_model("#1 SMP", "1", None) == ("PREEMPT_RT", True)
-    empty = C.kernel_facts(tmp_path / "nothing", probe=False)  # nothing readable: throttled assumed
+    assert rig_check.preempt_model("#1 SMP PREEMPT_DYNAMIC", None, "none voluntary (full) lazy") == (
+        "full",
+        False,
+    )
+    assert rig_check.preempt_model("#1 SMP PREEMPT_DYNAMIC", None, None) == ("dynamic", False)
+    assert rig_check.preempt_model("#1 SMP", "1", None) == ("PREEMPT_RT", True)
+    empty = rig_check.kernel_facts(tmp_path / "nothing", probe=False)  # nothing readable: throttled assumed
     assert empty.throttled and empty.isolated == []
 
 
@@ -120,25 +132,25 @@ def test_a_fifo_loop_rests_within_the_kernels_real_time_allowance(monkeypatch):
     fits the allowance and rests after it: after 0.4 s of spinning, long enough that it spun at
     most RT_SHARE of what the kernel allows; an episode longer than RT_SPIN_LIMIT of it sleeps
     before each tick.  Throttling off: no rest, no sleep.  Time is injected."""
-    monkeypatch.setattr(PL, "rt_allowance", lambda: (0.95, 1.0))
-    pl = PL.Placement(-1, 0, 0)
+    monkeypatch.setattr(placement, "rt_allowance", lambda: (0.95, 1.0))
+    pl = placement.Placement(-1, 0, 0)
     pl.loop_fifo = 50  # as if permitted; nothing is applied to a thread here
     assert pl.sleep_margin_for(0.4) == 0.0 and pl.sleep_margin_for(0.76) == 0.0
-    assert pl.sleep_margin_for(0.8) == PL.SLEEP_MARGIN_S
+    assert pl.sleep_margin_for(0.8) == placement.SLEEP_MARGIN_S
     clock = [100.0]
     slept = []
-    monkeypatch.setattr(PL.time, "perf_counter", lambda: clock[0])
-    monkeypatch.setattr(PL.time, "sleep", lambda s: slept.append(s))
-    monkeypatch.setattr(PL.os, "sched_setscheduler", lambda *a: None)
+    monkeypatch.setattr(placement.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(placement.time, "sleep", lambda s: slept.append(s))
+    monkeypatch.setattr(placement.os, "sched_setscheduler", lambda *a: None)
     pl.loop_thread()
     clock[0] += 0.4
     pl.loop_done()
     clock[0] += 0.01
     pl.loop_thread()
-    rest = 0.4 * (1.0 / (PL.RT_SHARE * 0.95) - 1.0)
+    rest = 0.4 * (1.0 / (placement.RT_SHARE * 0.95) - 1.0)
     assert slept == [pytest.approx(rest - 0.01)]
-    assert 0.4 / (0.4 + rest) == pytest.approx(PL.RT_SHARE * 0.95)
-    monkeypatch.setattr(PL, "rt_allowance", lambda: None)
+    assert 0.4 / (0.4 + rest) == pytest.approx(placement.RT_SHARE * 0.95)
+    monkeypatch.setattr(placement, "rt_allowance", lambda: None)
     slept.clear()
     clock[0] += 0.4
     pl.loop_done()
@@ -147,14 +159,14 @@ def test_a_fifo_loop_rests_within_the_kernels_real_time_allowance(monkeypatch):
 
 
 def test_fifo_asked_by_name_is_refused_up_front_where_not_permitted(monkeypatch):
-    monkeypatch.setattr(PL, "_may_fifo", lambda prio: "Operation not permitted")
+    monkeypatch.setattr(placement, "_may_fifo", lambda prio: "Operation not permitted")
     with pytest.raises(ValueError, match="loop_fifo = 50 needs root or CAP_SYS_NICE"):
-        PL.Placement(None, 0, 50)
-    auto = PL.Placement(None, 0, None)  # the default: applied where permitted, else said with its cost
+        placement.Placement(None, 0, 50)
+    auto = placement.Placement(None, 0, None)  # the default: applied where permitted, else said with its cost
     assert auto.loop_fifo == 0
     assert any(line.startswith("SCHED_FIFO (Operation not permitted") for line in auto.missing)
-    monkeypatch.setattr(PL, "_may_fifo", lambda prio: None)
-    assert PL.Placement(None, 0, None).loop_fifo == PL.AUTO_FIFO
+    monkeypatch.setattr(placement, "_may_fifo", lambda prio: None)
+    assert placement.Placement(None, 0, None).loop_fifo == placement.AUTO_FIFO
 
 
 @pytest.mark.skipif(len(getattr(os, "sched_getaffinity", lambda _: [0])(0)) < 2, reason="needs two CPUs")
@@ -162,22 +174,22 @@ def test_a_host_on_the_targets_machine_keeps_off_its_loop_cpu(monkeypatch, tmp_p
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
     before = os.sched_getaffinity(0)
     loop = max(before)
-    remove = PL.publish_loop_cpu(45678, loop)
+    remove = placement.publish_loop_cpu(45678, loop)
     try:
-        assert PL.loop_cpu_of("127.0.0.1", 45678) == loop
-        assert PL.loop_cpu_of("192.0.2.1", 45678) is None  # another machine's target
-        assert PL.loop_cpu_of("127.0.0.1", 45679) is None  # no note for that port
-        restore = PL.keep_off_loop_cpu("127.0.0.1", 45678)
+        assert placement.loop_cpu_of("127.0.0.1", 45678) == loop
+        assert placement.loop_cpu_of("192.0.2.1", 45678) is None  # another machine's target
+        assert placement.loop_cpu_of("127.0.0.1", 45679) is None  # no note for that port
+        restore = placement.keep_off_loop_cpu("127.0.0.1", 45678)
         assert os.sched_getaffinity(0) == before - {loop}
         restore()
         assert os.sched_getaffinity(0) == before
     finally:
         remove()
         os.sched_setaffinity(0, before)
-    assert PL.loop_cpu_of("127.0.0.1", 45678) is None  # removed with the target
+    assert placement.loop_cpu_of("127.0.0.1", 45678) is None  # removed with the target
     note = tmp_path / f"impact-env-rig-{os.getuid()}" / "45678.json"
     note.write_text(json.dumps({"pid": 2**22 + 12345, "loop_cpu": loop}))  # a target long gone
-    assert PL.loop_cpu_of("127.0.0.1", 45678) is None
+    assert placement.loop_cpu_of("127.0.0.1", 45678) is None
 
 
 def test_the_measurement_records_what_it_paced():
@@ -185,12 +197,12 @@ def test_the_measurement_records_what_it_paced():
     tick run, and the longest stretch is at least a period (no figure is asserted)."""
     from impact_env.rig.cycles import cached_ns_per_cycle
 
-    pl = PL.Placement(-1, 0, 0)
-    m = C.measure(0.03, 10_000.0, pl, interval_us=1000.0)
+    pl = placement.Placement(-1, 0, 0)
+    m = rig_check.measure(0.03, 10_000.0, pl, interval_us=1000.0)
     assert m.tick_late_ns.size == 200 and (m.tick_late_ns >= 0).all() and m.wakeup_ns.size == 10
     assert m.longest_gap_ns >= 1e5 * 0.99 and m.policy == "SCHED_OTHER" and m.cpu == -1
     assert cached_ns_per_cycle() > 0
-    out = C.report(m, C.kernel_facts(probe=False), C.verdict(m, _facts()))
+    out = rig_check.report(m, rig_check.kernel_facts(probe=False), rig_check.verdict(m, _facts()))
     json.dumps(out)  # one JSON-able record
     assert set(out["tick_late_us"]) >= {"p50", "p99", "p99.9", "max", "longest_gap_us"}
 
@@ -202,7 +214,9 @@ def test_rig_check_prints_one_json_record_and_refuses_bad_options(capsys):
 
     assert main(["rig", "check", "--seconds", "0.06", "--loop-cpu", "-1", "--loop-fifo", "0", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["policy"] == "SCHED_OTHER" and out["cpu"] == -1 and len(out["rates"]) == len(C.RATES_HZ)
+    assert (
+        out["policy"] == "SCHED_OTHER" and out["cpu"] == -1 and len(out["rates"]) == len(rig_check.RATES_HZ)
+    )
     assert {"facts", "wakeup_us", "tick_late_us", "verdict", "improve"} <= set(out)
     for argv, what in ((["--seconds", "0"], "--seconds 0 s is out of range"),
                        (["--seconds", "601"], "--seconds 601 s is out of range"),

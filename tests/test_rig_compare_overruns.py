@@ -9,26 +9,26 @@ import socket
 import numpy as np
 import pytest
 
-from impact_env.rig import log as LG
+from impact_env.rig import log as tick_log
 from impact_env.rig.controller import TRUTH_COLUMNS
 from impact_env.rig.log_metrics import log_records, skipped_fraction
-from impact_env.sim import records as R
+from impact_env.sim import records as sim_records
 
 RATE = 1.0e4
 
 
-def _log_with_gap(skip: range) -> LG.EpisodeLog:
+def _log_with_gap(skip: range) -> tick_log.EpisodeLog:
     """A virtual rig's log of ticks 0..99 without the rows of ``skip`` (an overrun), its truth
     linear in time (x1 = 1e-3 t ticks... m), the command a ramp held over the gap."""
     ticks = np.array([k for k in range(100) if k not in skip])
-    log = LG.TickLog(101, 1, extra=TRUTH_COLUMNS)
+    log = tick_log.TickLog(101, 1, extra=TRUTH_COLUMNS)
     for k in ticks:
         row = {"tick": k, "t_s": k / RATE, "action": 0.01 * k, "status": 0, "contact_detected": k % 2}
         row |= {c: 0.0 for c in TRUTH_COLUMNS}
         row |= {"true_x1_m": 1e-3 * k, "true_v1_mps": 2.0 - 0.01 * k, "command": 0.01 * k,
                 "hw_force_applied_N": 2.0 * k}
         log.record(**row)
-    meta = LG.EpisodeMeta(scene_toml="", mode="onboard", hold_ticks=1, seed=0, control_rate_hz=RATE)
+    meta = tick_log.EpisodeMeta(scene_toml="", mode="onboard", hold_ticks=1, seed=0, control_rate_hz=RATE)
     return log.to_episode(meta)
 
 
@@ -36,15 +36,16 @@ def test_records_sit_on_their_ticks_across_skipped_ones():
     log = _log_with_gap(range(40, 50))
     rec = log_records(log)
     assert rec.shape[0] == 100  # ticks 0..99, not the 90 rows
-    np.testing.assert_array_equal(rec[:, R.REC.t], (np.arange(100) + 1) / RATE)
-    np.testing.assert_allclose(rec[:, R.REC.x1], 1e-3 * np.arange(100), rtol=0, atol=1e-15)  # linear: exact
-    assert np.all(rec[40:50, R.REC.u] == rec[39, R.REC.u])  # the command the DAC held
-    assert rec[50, R.REC.u] == 0.5 and rec[39, R.REC.u] == 0.39
+    np.testing.assert_array_equal(rec[:, sim_records.REC.t], (np.arange(100) + 1) / RATE)
+    # linear: exact
+    np.testing.assert_allclose(rec[:, sim_records.REC.x1], 1e-3 * np.arange(100), rtol=0, atol=1e-15)
+    assert np.all(rec[40:50, sim_records.REC.u] == rec[39, sim_records.REC.u])  # the command the DAC held
+    assert rec[50, sim_records.REC.u] == 0.5 and rec[39, sim_records.REC.u] == 0.39
     assert skipped_fraction(log) == pytest.approx(0.1)
     full = _log_with_gap(range(0))
     assert skipped_fraction(full) == 0.0
     r = log_records(full)  # without a gap: the rows as they are, bitwise
-    assert np.array_equal(r[:, R.REC.x1], full["true_x1_m"][:100]) and r.shape[0] == 100
+    assert np.array_equal(r[:, sim_records.REC.x1], full["true_x1_m"][:100]) and r.shape[0] == 100
 
 
 def _free_udp_port() -> int:
@@ -81,9 +82,9 @@ def fake_rig_runs():
 def test_compare_rig_refuses_a_gap_over_one_percent_of_skipped_ticks(allow, fake_rig_runs, monkeypatch,
                                                                     capsys):
     from impact_env.cli.main import main
-    from impact_env.eval import rig_compare as RC
+    from impact_env.eval import rig_compare
 
-    monkeypatch.setattr(RC, "rig_compare", lambda *a, **k: fake_rig_runs)
+    monkeypatch.setattr(rig_compare, "rig_compare", lambda *a, **k: fake_rig_runs)
     argv = ["compare", "--rig", "udp://127.0.0.1:1", "--scene", "rig", "--policies", "passive",
             "--episodes", "1", "--no-progress", "--workers", "1"] + (["--allow-overruns"] if allow else [])
     rc = main(argv)
@@ -100,7 +101,7 @@ def test_episodes_the_rig_cut_short_count_as_failed_and_are_named():
     """compare --rig in real time: an episode the rig ended OVERRUN, SENSOR_FAULT or LINK_LOST is
     not a whole episode: its metrics are not in the table, it counts as failed (3/3 here, not
     0/3), and each is named in the failures with its end reason."""
-    from impact_env.eval import rig_compare as RC
+    from impact_env.eval import rig_compare
     from impact_env.eval.compare import summarize
 
     reasons = ("OVERRUN", "SENSOR_FAULT", "LINK_LOST")
@@ -110,7 +111,7 @@ def test_episodes_the_rig_cut_short_count_as_failed_and_are_named():
         log.meta.end_reason = reason
         logs.append(log)
     failures: list = []
-    run, skipped = RC._run("passive", logs, failures, 1.0)
+    run, skipped = rig_compare._run("passive", logs, failures, 1.0)
     s = summarize(run)
     assert s["episodes"] == 3 and s["failed_episodes"] == 3
     assert [f["episode"] for f in failures] == [0, 1, 2]

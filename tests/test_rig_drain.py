@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.transport import Endpoint, Link
 
 linux = pytest.mark.skipif(not sys.platform.startswith("linux"),
@@ -43,7 +43,7 @@ def test_recv_all_counts_junk_by_reason_and_returns_the_good_ones_in_order():
     try:
         for k in range(5):
             junk.sendto(b"junk" * 10, target.endpoint.local)
-            host.send(P.Heartbeat(0, 0, k, 0))
+            host.send(protocol.Heartbeat(0, 0, k, 0))
         got = target.recv_all()
         assert [m.body.step for m in got] == list(range(5))
         assert target.filter.counts()["corrupt"] == 5 and target.endpoint.received == 10

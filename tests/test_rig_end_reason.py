@@ -9,7 +9,7 @@ import threading
 
 import numpy as np
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.driver import VirtualRig
 from impact_env.rig.host import RigEnv
 from impact_env.rig.target import Target, TargetConfig
@@ -38,7 +38,7 @@ def test_a_catch_on_the_host_is_the_logs_end_reason_too(monkeypatch):
                 break
         assert term and not trunc and info["end_reason"] == "CAUGHT" and env._n == 3
         end = env.client.wait_end(10.0)
-        assert end.reason == P.EndReason.CAUGHT
+        assert end.reason == protocol.EndReason.CAUGHT
         log = env.client.fetch_log(end.episode, end.data_sha256)
         assert log.meta.end_reason == "CAUGHT" and log["tick"][-1] < env.max_steps * 4
     finally:

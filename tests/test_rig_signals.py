@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from rig_helpers import start_target, stop, streamed_ticks
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 from impact_env.rig.excitation import Excitation
 from impact_env.rig.host import RigClient
 from impact_env.rig.log import read_episode
@@ -61,7 +61,7 @@ def test_a_signal_during_an_onboard_episode_ends_the_process_with_its_log_comple
     proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path))
     c = RigClient(addr)
     try:
-        c.arm("onboard", 3, 200_000, kind=P.EpisodeKind.SHAKER,
+        c.arm("onboard", 3, 200_000, kind=protocol.EpisodeKind.SHAKER,
               excitation=Excitation("sweep", 20.0, 200.0, 2000.0))
         _wait_file(tmp_path, "*.partial")  # the episode runs (its log streams)
         deadline = time.monotonic() + 30.0
@@ -129,7 +129,7 @@ def test_kill_9_leaves_a_readable_log_up_to_its_last_flush(tmp_path):
     proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path))
     c = RigClient(addr)
     try:
-        c.arm("onboard", 3, 200_000, kind=P.EpisodeKind.SHAKER,
+        c.arm("onboard", 3, 200_000, kind=protocol.EpisodeKind.SHAKER,
               excitation=Excitation("sweep", 20.0, 200.0, 2000.0))
         part = _wait_file(tmp_path, "*.partial")
         time.sleep(0.5)

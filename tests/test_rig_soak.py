@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from rig_helpers import start_target, stop
 
-from impact_env.rig import safety as SF
+from impact_env.rig import safety
 from impact_env.rig.auth import write_key
 from impact_env.rig.host import RigEnv
 from impact_env.rig.log import read_episode
@@ -58,14 +58,14 @@ def check_ticks(log, horizon_ticks: int) -> tuple[int, int]:
     assert tick[0] == 0 and skipped[0] == 0
     assert tick[-1] == horizon_ticks if log.meta.end_reason == "HORIZON" else tick[-1] < horizon_ticks
     assert np.array_equal(np.diff(tick) - 1, skipped[1:])
-    assert np.all(status[skipped > 0] & SF.OVERRUN)
+    assert np.all(status[skipped > 0] & safety.OVERRUN)
     c = log.meta.counters
     pending = c["skipped_ticks"] - int(skipped.sum())
     if log.meta.end_reason == "HORIZON":  # the horizon's row carries those skipped just before it
         assert pending == 0
     else:  # an episode ended after skipped ticks has no next row for them (host mode skips < H)
         assert 0 <= pending < max(1, int(log.meta.hold_ticks)), pending
-    assert c["overruns"] == np.count_nonzero(status & SF.OVERRUN)
+    assert c["overruns"] == np.count_nonzero(status & safety.OVERRUN)
     return int(skipped.sum()), int(c["overruns"])
 
 
@@ -91,7 +91,7 @@ def check_commands(log, actions: dict[int, float], exact: bool = True) -> dict[s
     missing = sent - len(set(step[drove].tolist()))
     assert missing <= (c["commands_late"] + c["commands_superseded"] + c["commands_expired"]
                        + c["commands_unused_at_end"] + (sent - accounted))
-    assert not np.any(log["status"].astype(np.int64) & SF.NONFINITE)
+    assert not np.any(log["status"].astype(np.int64) & safety.NONFINITE)
     return {"sent": sent, "accounted": accounted, "acted": c["commands_acted"], "late": c["commands_late"],
             "superseded": c["commands_superseded"], "expired": c["commands_expired"]}
 

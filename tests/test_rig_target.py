@@ -277,7 +277,7 @@ def test_host_killed_midway_force_is_zero_within_two_policy_periods(tmp_path):
 def test_sigterm_mid_episode_leaves_the_shaker_at_zero(tmp_path):
     """SIGTERM while an onboard episode runs in real time: the target stops, idles the driver and
     exits 0 ('shaker at 0 N'); the episode's log ends by DISARMED."""
-    from impact_env.rig import protocol as P
+    from impact_env.rig import protocol
     from impact_env.rig.excitation import Excitation
 
     proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path))
@@ -286,7 +286,13 @@ def test_sigterm_mid_episode_leaves_the_shaker_at_zero(tmp_path):
     # on the shaker when the signal comes, and one that no overrun can turn into a travel trip
     # (a held 20 N moves body 2 by 2 mm; a catching law's 200 N held over skipped ticks can trip
     # the 7 mm limit on a loaded machine, ending the episode before the signal)
-    c.arm("onboard", 3, 100_000, kind=P.EpisodeKind.SHAKER, excitation=Excitation("sweep", 20.0, 200.0, 2000.0))
+    c.arm(
+        "onboard",
+        3,
+        100_000,
+        kind=protocol.EpisodeKind.SHAKER,
+        excitation=Excitation("sweep", 20.0, 200.0, 2000.0),
+    )
     deadline = time.monotonic() + 30.0
     while streamed_ticks(tmp_path) <= 200:  # it runs, the shaker driven
         assert time.monotonic() < deadline

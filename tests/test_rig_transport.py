@@ -9,8 +9,7 @@ import time
 
 import pytest
 
-from impact_env.rig import protocol as P
-from impact_env.rig import transport as T
+from impact_env.rig import protocol, transport
 
 LOOP = "udp://127.0.0.1:0"
 # these calls return within their own timeouts (0.02-0.2 s); what the tests guard against is a
@@ -25,8 +24,8 @@ HANG_S = 10.0
     (" udp://10.0.0.2:80 ", ("10.0.0.2", 80)),
 ])
 def test_parse_address(text, addr):
-    assert T.parse_address(text) == addr
-    assert T.parse_address(T.format_address(addr)) == addr
+    assert transport.parse_address(text) == addr
+    assert transport.parse_address(transport.format_address(addr)) == addr
 
 
 @pytest.mark.parametrize("text,match", [
@@ -44,12 +43,12 @@ def test_parse_address(text, addr):
 ])
 def test_parse_address_errors(text, match):
     with pytest.raises(ValueError, match=match):
-        T.parse_address(text)
-    assert T.parse_address("udp://127.0.0.1:0", allow_port_zero=True) == ("127.0.0.1", 0)
+        transport.parse_address(text)
+    assert transport.parse_address("udp://127.0.0.1:0", allow_port_zero=True) == ("127.0.0.1", 0)
 
 
 def test_endpoint_send_recv_timeout_and_close():
-    with T.Endpoint(LOOP) as a, T.Endpoint(LOOP, peer=LOOP.replace(":0", ":1")) as b:
+    with transport.Endpoint(LOOP) as a, transport.Endpoint(LOOP, peer=LOOP.replace(":0", ":1")) as b:
         assert a.local[0] == "127.0.0.1" and a.local[1] > 0
         assert b.send(b"hello", a.local)
         got = a.recv(1.0)
@@ -61,20 +60,20 @@ def test_endpoint_send_recv_timeout_and_close():
     t0 = time.perf_counter()
     a.close()  # idempotent
     assert time.perf_counter() - t0 < HANG_S
-    with pytest.raises(T.EndpointClosed, match="closed"):
+    with pytest.raises(transport.EndpointClosed, match="closed"):
         a.recv(0.1)
-    with pytest.raises(T.EndpointClosed):
+    with pytest.raises(transport.EndpointClosed):
         a.send(b"x", b.local)
-    with pytest.raises(OSError, match="cannot bind"), T.Endpoint("udp://127.0.0.1:0") as c:
-        T.Endpoint(c.address)
+    with pytest.raises(OSError, match="cannot bind"), transport.Endpoint("udp://127.0.0.1:0") as c:
+        transport.Endpoint(c.address)
 
 
 def test_endpoint_refuses_oversize_and_missing_peer():
-    with T.Endpoint(LOOP) as a:
+    with transport.Endpoint(LOOP) as a:
         with pytest.raises(ValueError, match="no peer"):
             a.send(b"x")
         with pytest.raises(ValueError, match="exceeds"):
-            a.send(bytes(P.MAX_DATAGRAM + 1), a.local)
+            a.send(bytes(protocol.MAX_DATAGRAM + 1), a.local)
 
 
 class Responder:
@@ -83,11 +82,11 @@ class Responder:
     ``loss``, sends some replies twice (duplicates) and holds some back one round (reordering)."""
 
     def __init__(self, loss=0.0, resource=b"", refuse_arm=False, seed=1):
-        self.ep = T.Endpoint(LOOP)
-        self.link = T.Link(self.ep, "target")
+        self.ep = transport.Endpoint(LOOP)
+        self.link = transport.Link(self.ep, "target")
         self.loss, self.resource, self.refuse_arm = loss, resource, refuse_arm
         self.rng = random.Random(seed)
-        self.upload = T.UploadAssembler()
+        self.upload = transport.UploadAssembler()
         self.stop = threading.Event()
         self.requests = 0
         self.retries_seen = 0
@@ -99,7 +98,7 @@ class Responder:
     def _send(self, body, msg):
         """Send the reply as a network would deliver it: maybe lost, maybe twice (the same
         bytes), maybe after the next reply (reordered)."""
-        data = P.encode(self.link.stamp(body, reply_to=msg))
+        data = protocol.encode(self.link.stamp(body, reply_to=msg))
         to = self.link.last_sender
         if self.rng.random() < self.loss:
             return
@@ -131,18 +130,18 @@ class Responder:
                 continue
             self.link.last_sender = got[1]
             self.requests += 1
-            self.retries_seen += bool(msg.flags & P.FLAG_RETRY)
+            self.retries_seen += bool(msg.flags & protocol.FLAG_RETRY)
             b = msg.body
-            if msg.type == P.MsgType.HELLO:
+            if msg.type == protocol.MsgType.HELLO:
                 self.link.session = msg.session
-                self._send(P.Info(b.nonce, 1e4, 0, 0, True, len(self.resource),
-                                  hashlib.sha256(self.resource).digest()), msg)
-            elif msg.type == P.MsgType.POLICY_CHUNK:
+                self._send(protocol.Info(b.nonce, 1e4, 0, 0, True, len(self.resource),
+                                         hashlib.sha256(self.resource).digest()), msg)
+            elif msg.type == protocol.MsgType.POLICY_CHUNK:
                 self._send(self.upload.add(b, msg.seq), msg)
-            elif msg.type == P.MsgType.FETCH:
-                self._send(T.chunk_reply(self.resource, b, msg.seq), msg)
-            elif msg.type == P.MsgType.ARM and self.refuse_arm:
-                self._send(P.Error(P.ErrorCode.BAD_REQUEST, msg.seq, "history too long"), msg)
+            elif msg.type == protocol.MsgType.FETCH:
+                self._send(transport.chunk_reply(self.resource, b, msg.seq), msg)
+            elif msg.type == protocol.MsgType.ARM and self.refuse_arm:
+                self._send(protocol.Error(protocol.ErrorCode.BAD_REQUEST, msg.seq, "history too long"), msg)
 
     def close(self):
         self.stop.set()
@@ -160,12 +159,16 @@ def responder(request):
 
 
 def _host(target: Responder, session=0xC0FFEE):
-    return T.Link(T.Endpoint(LOOP, peer=target.ep.address), "host", session=session)
+    return transport.Link(transport.Endpoint(LOOP, peer=target.ep.address), "host", session=session)
 
 
-def _hello(link, nonce=b"\x07" * P.NONCE_SIZE, **kw):
-    return link.request(P.Hello(nonce), lambda m: m.type == P.MsgType.INFO and m.body.nonce == nonce, "INFO",
-                        **kw)
+def _hello(link, nonce=b"\x07" * protocol.NONCE_SIZE, **kw):
+    return link.request(
+        protocol.Hello(nonce),
+        lambda m: m.type == protocol.MsgType.INFO and m.body.nonce == nonce,
+        "INFO",
+        **kw,
+    )
 
 
 def test_request_reply_and_timestamps(responder):
@@ -187,11 +190,17 @@ def test_upload_and_fetch_through_loss_duplicates_and_reordering(responder):
     host = _host(responder)
     try:
         _hello(host, timeout_s=0.02, retries=50)
-        n = T.upload(host, blob, timeout_s=0.02, retries=50)
-        assert n == -(-len(blob) // P.CHUNK_DATA)
+        n = transport.upload(host, blob, timeout_s=0.02, retries=50)
+        assert n == -(-len(blob) // protocol.CHUNK_DATA)
         assert responder.upload.complete and responder.upload.data == blob
-        got = T.fetch(host, P.Resource.SCENE, 0, hashlib.sha256(responder.resource).digest(), timeout_s=0.02,
-                      retries=50)
+        got = transport.fetch(
+            host,
+            protocol.Resource.SCENE,
+            0,
+            hashlib.sha256(responder.resource).digest(),
+            timeout_s=0.02,
+            retries=50,
+        )
         assert got == responder.resource
         assert responder.retries_seen > 0  # loss forced retries
         dropped = host.filter.counts()
@@ -205,8 +214,8 @@ def test_empty_upload_and_fetch(responder):
     host = _host(responder)
     try:
         _hello(host, timeout_s=0.5)
-        assert T.upload(host, b"", timeout_s=0.5) == 1 and responder.upload.data == b""
-        assert T.fetch(host, P.Resource.SCENE, 0, timeout_s=0.5) == b""
+        assert transport.upload(host, b"", timeout_s=0.5) == 1 and responder.upload.data == b""
+        assert transport.fetch(host, protocol.Resource.SCENE, 0, timeout_s=0.5) == b""
     finally:
         host.endpoint.close()
 
@@ -216,8 +225,10 @@ def test_error_reply_raises_rig_error(responder):
     host = _host(responder)
     try:
         _hello(host, timeout_s=0.5)
-        with pytest.raises(T.RigError, match="refused ARMED: BAD_REQUEST: history too long"):
-            host.request(P.Arm(), lambda m: m.type == P.MsgType.ARMED, "ARMED", timeout_s=0.5, retries=0)
+        with pytest.raises(transport.RigError, match="refused ARMED: BAD_REQUEST: history too long"):
+            host.request(
+                protocol.Arm(), lambda m: m.type == protocol.MsgType.ARMED, "ARMED", timeout_s=0.5, retries=0
+            )
     finally:
         host.endpoint.close()
 
@@ -227,14 +238,14 @@ def test_rig_timeout_is_raised_within_its_bound(silent):
     """A target that never answers (a bound socket that reads nothing, or no socket at all, which
     on loopback answers with ICMP port-unreachable) makes ``request`` raise RigTimeout after
     (retries + 1) timeouts, naming what it waited for and where."""
-    quiet = T.Endpoint(LOOP)
+    quiet = transport.Endpoint(LOOP)
     addr = quiet.address
     if silent == "closed port":
         quiet.close()
-    host = T.Link(T.Endpoint(LOOP, peer=addr), "host", session=1)
+    host = transport.Link(transport.Endpoint(LOOP, peer=addr), "host", session=1)
     t0 = time.perf_counter()
     try:
-        with pytest.raises(T.RigTimeout) as info:
+        with pytest.raises(transport.RigTimeout) as info:
             _hello(host, timeout_s=0.05, retries=3)
     finally:
         elapsed = time.perf_counter() - t0
@@ -248,39 +259,44 @@ def test_rig_timeout_is_raised_within_its_bound(silent):
 
 
 def test_request_argument_checks():
-    with T.Endpoint(LOOP) as ep:
-        link = T.Link(ep, "host", session=1)
+    with transport.Endpoint(LOOP) as ep:
+        link = transport.Link(ep, "host", session=1)
         with pytest.raises(ValueError, match="timeout_s"):
-            link.request(P.Hello(), lambda m: True, "x", timeout_s=0.0)
+            link.request(protocol.Hello(), lambda m: True, "x", timeout_s=0.0)
 
 
 def test_upload_assembler_contiguous_prefix_and_restart():
     data = bytes(range(256)) * 20
-    up = T.UploadAssembler()
-    uid = T.upload_id(data)
-    c = lambda off, n=1024: P.PolicyChunk(uid, len(data), off, data[off:off + n])
+    up = transport.UploadAssembler()
+    uid = transport.upload_id(data)
+    c = lambda off, n=1024: protocol.PolicyChunk(uid, len(data), off, data[off:off + n])
     assert up.add(c(0)).value == 1024
     assert up.add(c(0)).value == 1024  # a repeat is harmless
     ack = up.add(c(3072))
-    assert ack.code == P.ErrorCode.OUT_OF_RANGE and ack.value == 1024  # past the prefix
+    assert ack.code == protocol.ErrorCode.OUT_OF_RANGE and ack.value == 1024  # past the prefix
     for off in range(1024, len(data), 1024):
-        assert up.add(c(off)).code == P.ErrorCode.OK
+        assert up.add(c(off)).code == protocol.ErrorCode.OK
     assert up.complete and up.data == data
     other = b"new file"
-    up.add(P.PolicyChunk(T.upload_id(other), len(other), 0, other))
+    up.add(protocol.PolicyChunk(transport.upload_id(other), len(other), 0, other))
     assert up.data == other
-    bad = P.PolicyChunk(12345, 3, 0, b"abc")  # id does not match the bytes
+    bad = protocol.PolicyChunk(12345, 3, 0, b"abc")  # id does not match the bytes
     up.add(bad)
     assert not up.complete
     with pytest.raises(ValueError, match="incomplete"):
         _ = up.data
-    assert T.UploadAssembler(max_bytes=10).add(P.PolicyChunk(1, 11, 0, b"")).code == P.ErrorCode.OUT_OF_RANGE
+    assert (
+        transport.UploadAssembler(max_bytes=10).add(protocol.PolicyChunk(1, 11, 0, b"")).code
+        == protocol.ErrorCode.OUT_OF_RANGE
+    )
 
 
 def test_chunk_reply():
     data = bytes(3000)
-    r = T.chunk_reply(data, P.Fetch(P.Resource.EPISODE, 4, 2048, 4096), seq=9)
+    r = transport.chunk_reply(data, protocol.Fetch(protocol.Resource.EPISODE, 4, 2048, 4096), seq=9)
     assert (r.total, r.offset, len(r.data), r.item) == (3000, 2048, 952, 4)
-    assert T.chunk_reply(data, P.Fetch(P.Resource.EPISODE, 4, 3000, 100)).data == b""
-    err = T.chunk_reply(data, P.Fetch(P.Resource.EPISODE, 4, 3001, 100), seq=9)
-    assert isinstance(err, P.Error) and err.code == P.ErrorCode.OUT_OF_RANGE and err.ref_seq == 9
+    assert transport.chunk_reply(data, protocol.Fetch(protocol.Resource.EPISODE, 4, 3000, 100)).data == b""
+    err = transport.chunk_reply(data, protocol.Fetch(protocol.Resource.EPISODE, 4, 3001, 100), seq=9)
+    assert (
+        isinstance(err, protocol.Error) and err.code == protocol.ErrorCode.OUT_OF_RANGE and err.ref_seq == 9
+    )

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from impact_env.control import plausibility as PL
+from impact_env.control import plausibility
 from impact_env.deploy import parity
 from impact_env.deploy.c_export import write_c
 from impact_env.eval.sensor_faults import DropRunner, Fault, first_flag
@@ -42,9 +42,9 @@ def _thresholds(p) -> np.ndarray:
     the armature check's allowance over the channel's weight in its residual (accelerometer,
     force transducer), the jump check's allowance (potentiometer)."""
     ph = p.phys
-    arm = ph[PL.PH.tol_arm] + ph[PL.PH.per_tick] + ph[PL.PH.tail]
-    pot = p.ch[2, PL.CC.max_jump] + p.ch[2, PL.CC.tol]
-    return np.array([arm / ph[PL.PH.lower_mass], arm, pot])
+    arm = ph[plausibility.PH.tol_arm] + ph[plausibility.PH.per_tick] + ph[plausibility.PH.tail]
+    pot = p.ch[2, plausibility.CC.max_jump] + p.ch[2, plausibility.CC.tol]
+    return np.array([arm / ph[plausibility.PH.lower_mass], arm, pot])
 
 
 def _bits_equal(a, b) -> bool:
@@ -54,11 +54,11 @@ def _bits_equal(a, b) -> bool:
 
 def test_the_clean_drop_is_what_the_test_assumes(rig):
     run, clean, p, _cp = rig
-    assert not np.any(clean.status & PL.SENSOR_BITS)
+    assert not np.any(clean.status & plausibility.SENSOR_BITS)
     assert np.all(clean.force[:PRE_TOUCH + 8] == 0.0)  # before the touch
     assert np.all(clean.force[CATCH - 17:CATCH + 6] == clean.force[CATCH - 1]) and clean.force[CATCH] != 0.0
     # stuck from tick 1: flagged at the limit, still before the touch
-    assert p.ch[:3, PL.CC.repeat].max() <= 10
+    assert p.ch[:3, plausibility.CC.repeat].max() <= 10
 
 
 SIZES = {"spike": (100.0, 50.0, 1e-3), "step": (50.0, 20.0, 1e-3)}
@@ -74,7 +74,7 @@ def test_each_fault_on_each_channel(ch, kind, rig):
     same readings gives the same forces and status words, bit for bit."""
     run, clean, p, cp = rig
     if kind == "stuck":
-        fault, delay = Fault(ch, "stuck", 1), int(p.ch[ch, PL.CC.repeat]) - 1
+        fault, delay = Fault(ch, "stuck", 1), int(p.ch[ch, plausibility.CC.repeat]) - 1
     elif kind == "dropout":  # where the reading is far from 0 (a dropout at 0 is no fault)
         far = np.flatnonzero(np.abs(clean.readings[:, ch]) > 1.5 * _thresholds(p)[ch])
         tick = CATCH if ch != 2 else int(far[0])
@@ -87,12 +87,12 @@ def test_each_fault_on_each_channel(ch, kind, rig):
     assert changed.size and changed[0] >= k  # the fault happened, from its tick on
     if kind == "dropout":
         assert abs(clean.readings[k, ch]) > _thresholds(p)[ch]
-    hit = first_flag(d.status, PL.SENSOR_FAULT)
+    hit = first_flag(d.status, plausibility.SENSOR_FAULT)
     assert hit == k + delay, (hit, k, delay, hex(int(d.status[hit])) if hit >= 0 else None)
-    assert d.status[hit] & PL.CHANNEL_BITS[ch], hex(int(d.status[hit]))
-    flagged = np.flatnonzero(d.status & PL.SENSOR_FAULT)
+    assert d.status[hit] & plausibility.CHANNEL_BITS[ch], hex(int(d.status[hit]))
+    flagged = np.flatnonzero(d.status & plausibility.SENSOR_FAULT)
     assert np.all(d.force[flagged] == 0.0)
-    assert np.all(d.force[np.flatnonzero(d.status & PL.SENSOR_TIMEOUT)] == 0.0)
+    assert np.all(d.force[np.flatnonzero(d.status & plausibility.SENSOR_TIMEOUT)] == 0.0)
     if kind in ("spike", "dropout"):  # no later ticks flagged on this channel
         assert np.all(flagged < k + fault.length + 2) or ch == 2
     got = parity.c_sequence(cp, [d.readings], [])[0]
@@ -108,8 +108,8 @@ def test_a_spike_below_the_threshold_passes_and_one_above_is_flagged(ch, rig):
     thr = _thresholds(p)[ch]
     low = run.run(SEED, Fault(ch, "spike", PRE_TOUCH, 0.5 * thr))
     high = run.run(SEED, Fault(ch, "spike", PRE_TOUCH, 1.5 * thr))
-    assert not np.any(low.status[:PRE_TOUCH + 1] & PL.SENSOR_BITS)
-    assert first_flag(high.status, PL.SENSOR_FAULT) == PRE_TOUCH
+    assert not np.any(low.status[:PRE_TOUCH + 1] & plausibility.SENSOR_BITS)
+    assert first_flag(high.status, plausibility.SENSOR_FAULT) == PRE_TOUCH
 
 
 @pytest.mark.parametrize("fault", [Fault(0, "spike", 5, 450.0), Fault(1, "step", 5, 300.0),
@@ -121,16 +121,17 @@ def test_the_audit_cases_drive_no_force(fault, rig):
     limit, then for good; no flagged tick drives a force; the C tick does the same."""
     run, clean, p, cp = rig
     d = run.run(SEED, fault)
-    hit = first_flag(d.status, PL.SENSOR_FAULT)
-    delay = int(p.ch[0, PL.CC.repeat]) if fault.kind == "stuck_at" else 0  # (tick 5 differs from tick 4)
+    hit = first_flag(d.status, plausibility.SENSOR_FAULT)
+    # (tick 5 differs from tick 4)
+    delay = int(p.ch[0, plausibility.CC.repeat]) if fault.kind == "stuck_at" else 0
     assert hit == fault.tick + delay
-    assert np.all(d.force[np.flatnonzero(d.status & PL.SENSOR_FAULT)] == 0.0)
+    assert np.all(d.force[np.flatnonzero(d.status & plausibility.SENSOR_FAULT)] == 0.0)
     if fault.kind != "spike":
-        timeout = first_flag(d.status, PL.SENSOR_TIMEOUT)
+        timeout = first_flag(d.status, plausibility.SENSOR_TIMEOUT)
         assert timeout == hit + int(p.limit_ticks)
         assert np.all(d.force[timeout:] == 0.0) and np.any(clean.force[timeout:] != 0.0)
     else:
-        assert np.flatnonzero(d.status & PL.SENSOR_FAULT).tolist() == [fault.tick]
+        assert np.flatnonzero(d.status & plausibility.SENSOR_FAULT).tolist() == [fault.tick]
     got = parity.c_sequence(cp, [d.readings], [])[0]
     assert _bits_equal(got.force, d.force) and np.array_equal(got.status, d.status)
 
@@ -145,8 +146,8 @@ def test_no_false_alarm_on_clean_drops(name, drops):
     flagged = []
     for seed in range(drops):
         d = runners[seed % 2].run(1000 + seed)
-        if np.any(d.status & PL.SENSOR_BITS):
-            flagged.append((seed, first_flag(d.status, PL.SENSOR_BITS)))
+        if np.any(d.status & plausibility.SENSOR_BITS):
+            flagged.append((seed, first_flag(d.status, plausibility.SENSOR_BITS)))
     assert flagged == []
 
 
@@ -163,13 +164,13 @@ def test_the_runner_is_the_virtual_rig():
 def test_stuck_limits_follow_from_the_noise():
     """The repeat limit: the smallest n with (q / (sqrt(2 pi) sigma))^n below the 8-sigma tail,
     sigma at the scene's smallest noise scale, plus the sensor delay line's start."""
-    p = PL.plausibility_params(load_scene("rig"))
+    p = plausibility.plausibility_params(load_scene("rig"))
     q = 1000.0 / 2**16  # the accelerometer's and the transducer's converter step
-    assert PL.repeat_limit(q, 0.5) == p.ch[0, PL.CC.repeat] == 8  # (0.0122^8 = 5e-16)
-    assert PL.repeat_limit(q, 0.2) == p.ch[1, PL.CC.repeat] == 10
-    assert PL.repeat_limit(q, 0.0) == 0 and PL.repeat_limit(0.0, 0.5) == 1
-    r = PL.plausibility_params(load_scene("rig-randomized"))  # noise x0.5, 2 ticks of sensor delay
-    assert r.ch[0, PL.CC.repeat] == PL.repeat_limit(q, 0.25) + 2
+    assert plausibility.repeat_limit(q, 0.5) == p.ch[0, plausibility.CC.repeat] == 8  # (0.0122^8 = 5e-16)
+    assert plausibility.repeat_limit(q, 0.2) == p.ch[1, plausibility.CC.repeat] == 10
+    assert plausibility.repeat_limit(q, 0.0) == 0 and plausibility.repeat_limit(0.0, 0.5) == 1
+    r = plausibility.plausibility_params(load_scene("rig-randomized"))  # noise x0.5, 2 ticks of sensor delay
+    assert r.ch[0, plausibility.CC.repeat] == plausibility.repeat_limit(q, 0.25) + 2
 
 
 RAIL_SEED = 3284  # rig-randomized under thesis-rig: a false alarm of the stuck check before it knew the rail
@@ -189,12 +190,12 @@ def rail(tmp_path_factory):
     d = tmp_path_factory.mktemp("rail") / "c"
     write_c(pol, scene, d)
     cp = parity.CPolicy(parity.build_shared(d, d / "lib.so"))
-    return run, run.run(RAIL_SEED), PL.plausibility_params(scene), cp, pol, scene
+    return run, run.run(RAIL_SEED), plausibility.plausibility_params(scene), cp, pol, scene
 
 
 def _rail_ticks(readings, p) -> np.ndarray:
     """The ticks of the longest run of potentiometer readings at its converter's lowest code."""
-    at = np.flatnonzero(readings[:, 2] == p.ch[2, PL.CC.lo])
+    at = np.flatnonzero(readings[:, 2] == p.ch[2, plausibility.CC.lo])
     runs = np.split(at, np.flatnonzero(np.diff(at) != 1) + 1)
     return max(runs, key=len)
 
@@ -205,9 +206,9 @@ def test_a_reading_at_the_converters_limit_is_not_stuck(rail):
     flagged, in the numba tick and in the C tick alike."""
     run, d, p, cp, pol, scene = rail
     held = _rail_ticks(d.readings, p)
-    assert len(d.force) == RAIL_TICKS and len(held) > 2 * p.ch[2, PL.CC.repeat], len(held)
+    assert len(d.force) == RAIL_TICKS and len(held) > 2 * p.ch[2, plausibility.CC.repeat], len(held)
     assert np.all(d.status[held[0]:] & TRAVEL) and np.all(d.force[held[0]:] == 0.0)
-    assert not np.any(d.status & PL.SENSOR_BITS), hex(int(d.status[first_flag(d.status, PL.SENSOR_BITS)]))
+    assert not np.any(d.status & plausibility.SENSOR_BITS), hex(int(d.status[first_flag(d.status, plausibility.SENSOR_BITS)]))
     got = parity.c_sequence(cp, [d.readings], [])[0]
     assert _bits_equal(got.force, d.force) and np.array_equal(got.status, d.status)
 
@@ -219,13 +220,13 @@ def test_one_code_inside_the_limit_is_still_stuck(rail):
     run, d, p, cp, pol, scene = rail
     held = _rail_ticks(d.readings, p)
     readings = d.readings.copy()
-    readings[held, 2] = p.ch[2, PL.CC.lo] + scene.effects.sensors.potentiometer.quantum
-    assert np.all(readings[held, 2] > p.ch[2, PL.CC.lo]) and readings[held[0] - 1, 2] != readings[held[0], 2]
+    readings[held, 2] = p.ch[2, plausibility.CC.lo] + scene.effects.sensors.potentiometer.quantum
+    assert np.all(readings[held, 2] > p.ch[2, plausibility.CC.lo]) and readings[held[0] - 1, 2] != readings[held[0], 2]
     ours = parity.numba_sequence(pol, scene, [readings], [])[0]
-    hit = first_flag(ours.status, PL.SENSOR_FAULT)
-    assert hit == held[0] + int(p.ch[2, PL.CC.repeat]), (hit, held[0])
-    assert ours.status[hit] & PL.SENSOR_POTENTIOMETER and not ours.status[hit] & (PL.SENSOR_ACCELEROMETER
-                                                                                  | PL.SENSOR_FORCE)
+    hit = first_flag(ours.status, plausibility.SENSOR_FAULT)
+    assert hit == held[0] + int(p.ch[2, plausibility.CC.repeat]), (hit, held[0])
+    assert ours.status[hit] & plausibility.SENSOR_POTENTIOMETER and not ours.status[hit] & (plausibility.SENSOR_ACCELEROMETER
+                                                                                  | plausibility.SENSOR_FORCE)
     got = parity.c_sequence(cp, [readings], [])[0]
     assert _bits_equal(got.force, ours.force) and np.array_equal(got.status, ours.status)
 
@@ -237,12 +238,12 @@ def test_a_channel_stuck_mid_range_is_flagged(ch, rail):
     later, 0 N."""
     run, clean, p, cp, pol, scene = rail
     k = STUCK_TICK
-    assert p.ch[ch, PL.CC.lo] < clean.readings[k - 1, ch] < p.ch[ch, PL.CC.hi]
+    assert p.ch[ch, plausibility.CC.lo] < clean.readings[k - 1, ch] < p.ch[ch, plausibility.CC.hi]
     assert clean.readings[k - 2, ch] != clean.readings[k - 1, ch]
     d = run.run(RAIL_SEED, Fault(ch, "stuck", k))
-    hit = first_flag(d.status, PL.SENSOR_FAULT)
-    assert hit == k + int(p.ch[ch, PL.CC.repeat]) - 1 and d.status[hit] & PL.CHANNEL_BITS[ch]
-    assert np.all(d.force[np.flatnonzero(d.status & PL.SENSOR_FAULT)] == 0.0)
+    hit = first_flag(d.status, plausibility.SENSOR_FAULT)
+    assert hit == k + int(p.ch[ch, plausibility.CC.repeat]) - 1 and d.status[hit] & plausibility.CHANNEL_BITS[ch]
+    assert np.all(d.force[np.flatnonzero(d.status & plausibility.SENSOR_FAULT)] == 0.0)
 
 
 @pytest.mark.parametrize("ch,limit", [(2, "lo"), (2, "hi"), (0, "lo"), (1, "lo")])
@@ -253,11 +254,11 @@ def test_a_channel_stuck_at_its_limit_is_caught_by_another_check(ch, limit, rig)
     and the force transducer at their lowest code fail the top part's Newton on that tick and
     every tick after.  0 N from the fault on, in the numba tick and the C tick alike."""
     run, clean, p, cp = rig
-    value = p.ch[ch, PL.CC.lo if limit == "lo" else PL.CC.hi]
+    value = p.ch[ch, plausibility.CC.lo if limit == "lo" else plausibility.CC.hi]
     d = run.run(SEED, Fault(ch, "stuck_at", PRE_TOUCH, value))
     assert np.all(d.readings[PRE_TOUCH:, ch] == value)
-    assert first_flag(d.status, PL.SENSOR_FAULT) == PRE_TOUCH
-    assert first_flag(d.status, PL.SENSOR_TIMEOUT) == PRE_TOUCH + int(p.limit_ticks)
+    assert first_flag(d.status, plausibility.SENSOR_FAULT) == PRE_TOUCH
+    assert first_flag(d.status, plausibility.SENSOR_TIMEOUT) == PRE_TOUCH + int(p.limit_ticks)
     assert np.all(d.force[PRE_TOUCH:] == 0.0) and np.any(clean.force[PRE_TOUCH:] != 0.0)
     got = parity.c_sequence(cp, [d.readings], [])[0]
     assert _bits_equal(got.force, d.force) and np.array_equal(got.status, d.status)

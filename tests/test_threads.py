@@ -18,7 +18,7 @@ from numba import prange
 
 import impact_env._threads as threads_module
 import impact_env.eval.rollout as rollout_module
-import impact_env.sim.simulator as SIM
+import impact_env.sim.simulator as simulator_module
 from impact_env._jit import jit
 from impact_env._threads import (
     check_threads,
@@ -44,7 +44,7 @@ THREADS = (1, 2, 3)  # 3: more threads than the test machine's cores is fine
 
 @pytest.fixture
 def small_blocks(monkeypatch):
-    monkeypatch.setattr(SIM, "MIN_BLOCK_ENVS", 1)
+    monkeypatch.setattr(simulator_module, "MIN_BLOCK_ENVS", 1)
     monkeypatch.setattr(rollout_module, "MIN_BLOCK_EPISODES", 1)
 
 

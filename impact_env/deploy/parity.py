@@ -24,11 +24,11 @@ from impact_env.config import ConfigError
 from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.deploy.c_export import HEADER_NAME, SOURCE_NAME, float32_refusal
-from impact_env.hardware import stage as HS
+from impact_env.hardware import stage as hardware_stage
 from impact_env.hardware.batch import Hardware
 from impact_env.rig.controller import Controller
 from impact_env.rig.driver import VirtualRig
-from impact_env.sim import records as R
+from impact_env.sim import records as sim_records
 from impact_env.sim.metrics import EpisodeMetrics
 
 CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off")
@@ -185,16 +185,16 @@ class Recording:
 def _true_record(drv, m: int, u: float) -> np.ndarray:
     """The virtual rig's true record of tick m (:mod:`impact_env.sim.records`), after ``apply``."""
 
-    r = np.zeros(R.N_REC)
+    r = np.zeros(sim_records.N_REC)
     info = drv.last_info
-    r[R.REC.t] = (m + 1.0) / drv.scene.control_rate
-    r[R.REC.x1:R.REC.v2 + 1] = drv.truth()
-    r[R.REC.u] = u
-    r[R.REC.f_demand] = info[HS.INFO_F_DEMAND]
-    r[R.REC.f_applied] = info[HS.INFO_F_APPLIED]
-    r[R.REC.saturated] = info[HS.INFO_SATURATED]
-    r[R.REC.contact_force] = info[HS.INFO_CONTACT_FORCE]
-    r[R.REC.status] = info[HS.INFO_STATUS]
+    r[sim_records.REC.t] = (m + 1.0) / drv.scene.control_rate
+    r[sim_records.REC.x1:sim_records.REC.v2 + 1] = drv.truth()
+    r[sim_records.REC.u] = u
+    r[sim_records.REC.f_demand] = info[hardware_stage.INFO_F_DEMAND]
+    r[sim_records.REC.f_applied] = info[hardware_stage.INFO_F_APPLIED]
+    r[sim_records.REC.saturated] = info[hardware_stage.INFO_SATURATED]
+    r[sim_records.REC.contact_force] = info[hardware_stage.INFO_CONTACT_FORCE]
+    r[sim_records.REC.status] = info[hardware_stage.INFO_STATUS]
     return r
 
 
@@ -210,7 +210,7 @@ def episode_metrics(scene, seed: int, records: np.ndarray) -> dict[str, float]:
     m.start(hw.t_touch, hw.impact_speed, hw.impact_energy, hw.Y[:, 0] - hw.Y[:, 2] > 0.0)
     m.step(records[None, :, :], hw.P)
 
-    failed = np.array([bool(np.any(records[:, R.REC.status] != 0.0))])
+    failed = np.array([bool(np.any(records[:, sim_records.REC.status] != 0.0))])
     return {k: float(v[0]) for k, v in m.finish(failed).items()}
 
 

@@ -24,17 +24,40 @@ position the controller needs).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.config import ConfigError, check_choice, check_range, doc_field
 from impact_env.effects.effect import CONTROLLER, Effect
 from impact_env.effects.sensors import CHANNELS, N_CHANNELS
 
 KINDS = ("bandpass", "lowpass", "none")
-IDENTITY_SECTION = (1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+
+
+class SectionSlots(NamedTuple):
+    """One second-order section's coefficients, in scipy's ``sos`` layout (float64[6], a0 = 1)."""
+
+    b0: float  # numerator
+    b1: float
+    b2: float
+    a0: float  # denominator
+    a1: float
+    a2: float
+
+
+class DelaySlots(NamedTuple):
+    """One section's state (float64[2]): the two delays of the transposed direct form II."""
+
+    z1: float
+    z2: float
+
+
+SECTION = positions(SectionSlots)
+DELAY = positions(DelaySlots)
+IDENTITY_SECTION = SectionSlots(b0=1.0, b1=0.0, b2=0.0, a0=1.0, a1=0.0, a2=0.0)
 
 
 _f = doc_field
@@ -250,9 +273,9 @@ def filter_step(sos, zi, x, out):
     for c in range(sos.shape[0]):
         v = x[c]
         for s in range(sos.shape[1]):
-            y = sos[c, s, 0] * v + zi[c, s, 0]
-            zi[c, s, 0] = sos[c, s, 1] * v - sos[c, s, 4] * y + zi[c, s, 1]
-            zi[c, s, 1] = sos[c, s, 2] * v - sos[c, s, 5] * y
+            y = sos[c, s, SECTION.b0] * v + zi[c, s, DELAY.z1]
+            zi[c, s, DELAY.z1] = sos[c, s, SECTION.b1] * v - sos[c, s, SECTION.a1] * y + zi[c, s, DELAY.z2]
+            zi[c, s, DELAY.z2] = sos[c, s, SECTION.b2] * v - sos[c, s, SECTION.a2] * y
             v = y
         out[c] = v
     return out

@@ -105,7 +105,7 @@ from impact_env.effects.registry import READINGS_ONLY
 from impact_env.eval.rollout import rollout
 from impact_env.hardware.stage import INFO_F_APPLIED
 from impact_env.plant.energy import catch_energy_at
-from impact_env.plant.layout import M1, C, G
+from impact_env.plant.layout import PARAM, STATE
 from impact_env.policy.registry import make_policy
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.simulator import Simulator
@@ -260,7 +260,8 @@ def _replay_steps(k0, k1, U, p, s, e0, acc):
     for i in range(Y.shape[0]):
         for k in range(k0, k1):
             env_step(i, U[k, i], p, s)
-            acc[i] += catch_energy_at(Y[i, 0], Y[i, 1], Y[i, 2], P[i, M1], P[i, C], P[i, G]) / e0[i]
+            acc[i] += catch_energy_at(Y[i, STATE.x1], Y[i, STATE.v1], Y[i, STATE.x2],
+                                          P[i, PARAM.m1], P[i, PARAM.c], P[i, PARAM.g]) / e0[i]
 
 
 # -- parameterisation ---------------------------------------------------------------------------------

@@ -53,7 +53,7 @@ from impact_env._threads import BlockRunner, check_threads, env_blocks, resolve_
 from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.control.policy import CompiledPolicy, PolicyArrays, act
 from impact_env.plant.energy import catch_energy_at
-from impact_env.plant.layout import M1, C, G
+from impact_env.plant.layout import PARAM, STATE
 from impact_env.policy.export import export_policy
 from impact_env.scene import Scene
 from impact_env.sim.metrics import AC, EPISODE_METRICS, ST, EpisodeMetrics, MetricArrays, update
@@ -121,7 +121,8 @@ class RolloutResult:
 @jit
 def _energies(Y, P, out):
     for i in range(Y.shape[0]):
-        out[i] = catch_energy_at(Y[i, 0], Y[i, 1], Y[i, 2], P[i, M1], P[i, C], P[i, G])
+        out[i] = catch_energy_at(Y[i, STATE.x1], Y[i, STATE.v1], Y[i, STATE.x2],
+                                 P[i, PARAM.m1], P[i, PARAM.c], P[i, PARAM.g])
     return out
 
 

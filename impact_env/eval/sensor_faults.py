@@ -19,11 +19,13 @@ transducer, 2 potentiometer):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from gymnasium.utils import seeding
 
 from impact_env._jit import jit
+from impact_env._packed import positions
 from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.effects.sensors import N_CHANNELS
@@ -34,6 +36,19 @@ from impact_env.rig.controller import Controller, HostCommand, act_tick, observe
 KINDS = ("spike", "step", "stuck", "stuck_at", "dropout")
 NO_FAULT = -1
 NAN4 = np.full(4, np.nan)
+
+
+class FaultSlots(NamedTuple):
+    """The entries of a fault's float64 vector (:meth:`Fault.array`), as the compiled tick reads them."""
+
+    channel: float  # 0 accelerometer, 1 force transducer, 2 potentiometer
+    kind: float  # index in KINDS, or NO_FAULT
+    first_tick: float  # the first tick it acts on
+    size: float  # the channel's unit
+    end_tick: float  # the last tick it acts on + 1
+
+
+FAULT = positions(FaultSlots)
 
 
 @dataclass(frozen=True)
@@ -55,29 +70,30 @@ class Fault:
             raise ValueError(f"fault tick {self.tick}: from 1 (tick 0's readings start the front end)")
 
     def array(self) -> np.ndarray:
-        """float64[5]: channel, kind index, first tick, size, last tick + 1."""
+        """float64[len(FAULT)]: its entries by name (:class:`FaultSlots`)."""
         length = 1 if self.kind == "spike" else (self.length if self.kind == "dropout" else 1 << 40)
-        return np.array([self.channel, KINDS.index(self.kind), self.tick, self.size, self.tick + length],
-                        dtype=np.float64)
+        return np.array(FaultSlots(channel=self.channel, kind=KINDS.index(self.kind), first_tick=self.tick,
+                                   size=self.size, end_tick=self.tick + length), dtype=np.float64)
 
 
-NONE = np.array([0.0, NO_FAULT, 0.0, 0.0, 0.0])
+NONE = np.array(FaultSlots(channel=0.0, kind=NO_FAULT, first_tick=0.0, size=0.0, end_tick=0.0),
+                dtype=np.float64)
 
 
 @jit(inline="always")
 def _inject(m, reading, fault, before):
     """The controller's reading of tick m with the fault applied (``reading``: float64[4], in
     place); ``before``: the channel's reading just before the fault (stuck)."""
-    c = int(fault[0])
-    kind = int(fault[1])
-    if kind == NO_FAULT or m < fault[2] or m >= fault[4]:
+    c = int(fault[FAULT.channel])
+    kind = int(fault[FAULT.kind])
+    if kind == NO_FAULT or m < fault[FAULT.first_tick] or m >= fault[FAULT.end_tick]:
         return
     if kind == 0 or kind == 1:  # spike, step
-        reading[c] += fault[3]
+        reading[c] += fault[FAULT.size]
     elif kind == 2:  # stuck
         reading[c] = before[0]
     elif kind == 3:  # stuck at a value
-        reading[c] = fault[3]
+        reading[c] = fault[FAULT.size]
     else:  # dropout
         reading[c] = 0.0
 
@@ -89,13 +105,13 @@ def run_ticks(m0, m1, p, s, hw_p, hw_s, fault, before, readings, force, status):
     the force it demanded (N) and its status.  Returns the next tick (m1, or the tick after
     the one whose simulation failed)."""
     truth = np.full(4, np.nan)
-    c = int(fault[0])
+    c = int(fault[FAULT.channel])
     for m in range(m0, m1):
         r = readings[m]
         raw = hw_s.out.raw[0]
         for j in range(r.shape[0]):
             r[j] = raw[j]
-        if m == fault[2]:
+        if m == fault[FAULT.first_tick]:
             before[0] = readings[m - 1, c]
         _inject(m, r, fault, before)
         observe_tick(m, r, truth, p, s)

@@ -42,6 +42,7 @@ from impact_env.plant.layout import (
     DIVERGED,
     DOPRI5,
     EULER,
+    EVENT,
     EVENT_OVERFLOW,
     FREE,
     M1,
@@ -119,29 +120,29 @@ def _fixed_step(method, z, mode, f2, h, pc):
     # W_ext' = -f2 v2 with f2 constant over the step, so every method's W_ext update is
     # exactly -f2 times its x2 update: computed that way, off the stages' dependency chain
     if method == EULER:
-        nx2 = x2 + h * k1[2]
-        return (x1 + h * k1[0], v1 + h * k1[1], nx2, v2 + h * k1[3],
-                we - f2 * (nx2 - x2), wd + h * k1[5])
+        nx2 = x2 + h * k1[X2]
+        return (x1 + h * k1[X1], v1 + h * k1[V1], nx2, v2 + h * k1[V2],
+                we - f2 * (nx2 - x2), wd + h * k1[W_DISS])
     if method == SYMPLECTIC_EULER:
-        nv1 = v1 + h * k1[1]
-        nv2 = v2 + h * k1[3]
+        nv1 = v1 + h * k1[V1]
+        nv2 = v2 + h * k1[V2]
         nx2 = x2 + h * nv2
-        return x1 + h * nv1, nv1, nx2, nv2, we - f2 * (nx2 - x2), wd + h * k1[5]
+        return x1 + h * nv1, nv1, nx2, nv2, we - f2 * (nx2 - x2), wd + h * k1[W_DISS]
     hh = 0.5 * h
-    k2_ = deriv(x1 + hh * k1[0], v1 + hh * k1[1], x2 + hh * k1[2], v2 + hh * k1[3],
+    k2_ = deriv(x1 + hh * k1[X1], v1 + hh * k1[V1], x2 + hh * k1[X2], v2 + hh * k1[V2],
                 mode, f2, pc)
-    k3 = deriv(x1 + hh * k2_[0], v1 + hh * k2_[1], x2 + hh * k2_[2], v2 + hh * k2_[3],
+    k3 = deriv(x1 + hh * k2_[X1], v1 + hh * k2_[V1], x2 + hh * k2_[X2], v2 + hh * k2_[V2],
                mode, f2, pc)
-    k4 = deriv(x1 + h * k3[0], v1 + h * k3[1], x2 + h * k3[2], v2 + h * k3[3],
+    k4 = deriv(x1 + h * k3[X1], v1 + h * k3[V1], x2 + h * k3[X2], v2 + h * k3[V2],
                mode, f2, pc)
     h6 = h / 6.0
-    nx2 = x2 + h6 * (k1[2] + 2.0 * (k2_[2] + k3[2]) + k4[2])
-    return (x1 + h6 * (k1[0] + 2.0 * (k2_[0] + k3[0]) + k4[0]),
-            v1 + h6 * (k1[1] + 2.0 * (k2_[1] + k3[1]) + k4[1]),
+    nx2 = x2 + h6 * (k1[X2] + 2.0 * (k2_[X2] + k3[X2]) + k4[X2])
+    return (x1 + h6 * (k1[X1] + 2.0 * (k2_[X1] + k3[X1]) + k4[X1]),
+            v1 + h6 * (k1[V1] + 2.0 * (k2_[V1] + k3[V1]) + k4[V1]),
             nx2,
-            v2 + h6 * (k1[3] + 2.0 * (k2_[3] + k3[3]) + k4[3]),
+            v2 + h6 * (k1[V2] + 2.0 * (k2_[V2] + k3[V2]) + k4[V2]),
             we - f2 * (nx2 - x2),
-            wd + h6 * (k1[5] + 2.0 * (k2_[5] + k3[5]) + k4[5]))
+            wd + h6 * (k1[W_DISS] + 2.0 * (k2_[W_DISS] + k3[W_DISS]) + k4[W_DISS]))
 
 
 # Dormand-Prince 5(4) tableau
@@ -221,7 +222,7 @@ def _dense_top(which, y, k, h, tmp, mode, f2, pc):
     _dense(y, k, h, 1.0, tmp)
     r = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the state's derivative, which only the force's rate needs
     if which == TOP_FORCE:
-        r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, pc)
+        r = deriv(tmp[X1], tmp[V1], tmp[X2], tmp[V2], mode, f2, pc)
     fhi = _rate(which, tmp, r, pc)
     side = 0
     th = 1.0
@@ -233,7 +234,7 @@ def _dense_top(which, y, k, h, tmp, mode, f2, pc):
         if which == TOP_FORCE:
             if not (tmp[X1] > tmp[X2]):
                 break
-            r = deriv(tmp[0], tmp[1], tmp[2], tmp[3], mode, f2, pc)
+            r = deriv(tmp[X1], tmp[V1], tmp[X2], tmp[V2], mode, f2, pc)
         fm = _rate(which, tmp, r, pc)
         if (fm > 0.0) == (flo > 0.0):
             lo, flo = th, fm
@@ -260,7 +261,7 @@ def _dopri_step(y, out, err, k, mode, f2, h, pc):
     error estimate to ``err`` (both length 6) and the seven stages (the last one at ``out``)
     to ``k[:7]`` (k: float64[8, 6], its last row scratch), which the dense output
     (:func:`_dense`) needs."""
-    r = deriv(y[0], y[1], y[2], y[3], mode, f2, pc)
+    r = deriv(y[X1], y[V1], y[X2], y[V2], mode, f2, pc)
     for j in range(6):
         k[0, j] = r[j]
     t = k[7]
@@ -282,7 +283,7 @@ def _dopri_step(y, out, err, k, mode, f2, h, pc):
         if s == 6:
             for j in range(6):
                 out[j] = t[j]
-        r = deriv(t[0], t[1], t[2], t[3], mode, f2, pc)
+        r = deriv(t[X1], t[V1], t[X2], t[V2], mode, f2, pc)
         for j in range(6):
             k[s, j] = r[j]
     for j in range(6):
@@ -296,7 +297,7 @@ def _trial(method, y, out, scratch, mode, f2, h, pc):
     if method == DOPRI5:
         _dopri_step(y, out, scratch, np.empty((8, 6)), mode, f2, h, pc)
     else:
-        r = _fixed_step(method, (y[0], y[1], y[2], y[3], y[4], y[5]), mode, f2, h, pc)
+        r = _fixed_step(method, (y[X1], y[V1], y[X2], y[V2], y[W_EXT], y[W_DISS]), mode, f2, h, pc)
         for j in range(6):
             out[j] = r[j]
 
@@ -311,10 +312,10 @@ def _locate(method, y, out, scratch, mode, f2, h, pc):
     """Find the step length in (0, h] that lands on the switch; writes the state at the far
     side of the final bracket into ``out`` and returns that step length."""
     lo = 0.0
-    glo = event_value(y[0], y[1], y[2], y[3], pc.c, pc.b)
+    glo = event_value(y[X1], y[V1], y[X2], y[V2], pc.c, pc.b)
     hi = h
     _trial(method, y, out, scratch, mode, f2, hi, pc)
-    ghi = event_value(out[0], out[1], out[2], out[3], pc.c, pc.b)
+    ghi = event_value(out[X1], out[V1], out[X2], out[V2], pc.c, pc.b)
     trial = np.empty(6)
     side = 0
     tol = EVENT_TOL * h
@@ -330,7 +331,7 @@ def _locate(method, y, out, scratch, mode, f2, h, pc):
         if not (lo + 0.01 * w < hm < hi - 0.01 * w):
             hm = min(max(hm, lo + 0.01 * w), hi - 0.01 * w)
         _trial(method, y, trial, scratch, mode, f2, hm, pc)
-        gm = event_value(trial[0], trial[1], trial[2], trial[3], pc.c, pc.b)
+        gm = event_value(trial[X1], trial[V1], trial[X2], trial[V2], pc.c, pc.b)
         if _crossed(mode, gm) or gm == 0.0:
             hi = hm
             ghi = gm
@@ -352,12 +353,12 @@ def _locate(method, y, out, scratch, mode, f2, h, pc):
 def _log_event(ev, evn, t, kind, y):
     n = evn[0]
     if n < ev.shape[0]:
-        ev[n, 0] = t
-        ev[n, 1] = kind
-        ev[n, 2] = y[X1]
-        ev[n, 3] = y[V1]
-        ev[n, 4] = y[X2]
-        ev[n, 5] = y[V2]
+        ev[n, EVENT.t] = t
+        ev[n, EVENT.kind] = kind
+        ev[n, EVENT.x1] = y[X1]
+        ev[n, EVENT.v1] = y[V1]
+        ev[n, EVENT.x2] = y[X2]
+        ev[n, EVENT.v2] = y[V2]
     evn[0] = n + 1
 
 
@@ -465,7 +466,7 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
     grade = method == RK4 and pc.b != 0.0 and GRADE_STEPS > 0
     zone_len = GRADE_STEPS * dt
     zone = hstate[0] if grade and mode == CONTACT else 0.0  # time left in the graded zone, s
-    x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
+    x1, v1, x2, v2, we, wd = y[X1], y[V1], y[X2], y[V2], y[W_EXT], y[W_DISS]
     pk = peak[0]
     track = peak.shape[0] > 1  # peak[1]: the largest penetration, tracked when the caller asks
     pkd = peak[1] if track else 0.0
@@ -483,20 +484,20 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
             if mode != AUTO:
                 # the crossing test needs only the sign of event_value: for d > 0 that is the
                 # sign of the damped force f = c d^0.25 q, which the peak tracking needs anyway
-                side = r[0] - r[2]
+                side = r[X1] - r[X2]
                 if side > 0.0:
                     sd = sqrt(side)
                     fnew = pc.c * side * sd
                     if pc.b != 0.0:
-                        fnew += pc.b * sqrt(sd) * (r[1] - r[3])
+                        fnew += pc.b * sqrt(sd) * (r[V1] - r[V2])
                     if fnew <= 0.0:
                         side = fnew
         else:
             r = (x1, v1, x2, v2, we, wd)
         if mode == AUTO:
-            if (x1 - x2 > 0.0) != (r[0] - r[2] > 0.0):
-                y[0], y[1], y[2], y[3], y[4], y[5] = r
-                _log_event(ev, evn, t0 + (i + 1) * dt, 1.0 if r[0] - r[2] > 0.0 else -1.0, y)
+            if (x1 - x2 > 0.0) != (r[X1] - r[X2] > 0.0):
+                y[X1], y[V1], y[X2], y[V2], y[W_EXT], y[W_DISS] = r
+                _log_event(ev, evn, t0 + (i + 1) * dt, 1.0 if r[X1] - r[X2] > 0.0 else -1.0, y)
             x1, v1, x2, v2, we, wd = r
         elif zone <= 0.0 and not _crossed(mode, side):
             x1, v1, x2, v2, we, wd = r
@@ -504,14 +505,14 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
             # a switch within this step, or a step in the graded zone: piece by piece
             fnew = -1.0
             pieces = True
-            y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+            y[X1], y[V1], y[X2], y[V2], y[W_EXT], y[W_DISS] = x1, v1, x2, v2, we, wd
             out = np.empty(6)  # allocated only here: a switch is rare, a step is not
             scratch = np.empty(6)
             rem = dt
             tt = t0 + i * dt
             have = zone <= 0.0  # the whole step is already taken (in r) and crosses
             if have:
-                out[0], out[1], out[2], out[3], out[4], out[5] = r
+                out[X1], out[V1], out[X2], out[V2], out[W_EXT], out[W_DISS] = r
             n_ev = 0
             for _piece in range((MAX_EVENTS_PER_STEP + 1) * (GRADE_PIECES + 2)):
                 piece = rem
@@ -520,12 +521,12 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
                 if not have:
                     _trial(method, y, out, scratch, mode, f2, piece, pc)
                 have = False
-                if _crossed(mode, event_value(out[0], out[1], out[2], out[3], pc.c, pc.b)):
+                if _crossed(mode, event_value(out[X1], out[V1], out[X2], out[V2], pc.c, pc.b)):
                     if n_ev == MAX_EVENTS_PER_STEP:
                         break
                     hs = _locate(method, y, out, scratch, mode, f2, piece, pc)
-                    q += 0.5 * hs * (_catch_part(y[0], y[1], y[2], pc)
-                                     + _catch_part(out[0], out[1], out[2], pc))
+                    q += 0.5 * hs * (_catch_part(y[X1], y[V1], y[X2], pc)
+                                     + _catch_part(out[X1], out[V1], out[X2], pc))
                     for j in range(6):
                         y[j] = out[j]
                     tt += hs
@@ -535,8 +536,8 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
                     zone = zone_len if grade and mode == CONTACT else 0.0
                     n_ev += 1
                 else:
-                    q += 0.5 * piece * (_catch_part(y[0], y[1], y[2], pc)
-                                        + _catch_part(out[0], out[1], out[2], pc))
+                    q += 0.5 * piece * (_catch_part(y[X1], y[V1], y[X2], pc)
+                                        + _catch_part(out[X1], out[V1], out[X2], pc))
                     for j in range(6):
                         y[j] = out[j]
                     rem -= piece
@@ -553,7 +554,7 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
                     peak[1] = pkd
                 carry.integral[0] += q
                 return EVENT_OVERFLOW, mode
-            x1, v1, x2, v2, we, wd = y[0], y[1], y[2], y[3], y[4], y[5]
+            x1, v1, x2, v2, we, wd = y[X1], y[V1], y[X2], y[V2], y[W_EXT], y[W_DISS]
             e_prev = _catch_part(x1, v1, x2, pc)  # (the pieces' integral is in q)
         if not pieces:
             e_new = _catch_part(x1, v1, x2, pc)
@@ -565,7 +566,7 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
         else:
             size = 0.0
         if not (size < DIVERGENCE_BOUND):
-            y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+            y[X1], y[V1], y[X2], y[V2], y[W_EXT], y[W_DISS] = x1, v1, x2, v2, we, wd
             hstate[0] = zone
             peak[0] = pk
             if track:
@@ -581,7 +582,7 @@ def _advance_fixed(mode, f2, t0, span, consts, carry):
                 pk = f
         if track:
             pkd = _penetration_peak(pkd, d0, s0, x1 - x2, v1 - v2, dt)
-    y[0], y[1], y[2], y[3], y[4], y[5] = x1, v1, x2, v2, we, wd
+    y[X1], y[V1], y[X2], y[V2], y[W_EXT], y[W_DISS] = x1, v1, x2, v2, we, wd
     hstate[0] = zone
     peak[0] = pk
     if track:
@@ -755,7 +756,7 @@ def _advance_split(mode, f2, t0, span, consts, carry):
             if status != OK:
                 return status, mode
             continue
-        x1, v1, x2, v2 = y[0], y[1], y[2], y[3]
+        x1, v1, x2, v2 = y[X1], y[V1], y[X2], y[V2]
         h = min(span - t, cap)
         tau, a1, b1, a2, b2 = touch_and_end(x1, v1, x2, v2, h, f2, pc)
         step = h
@@ -774,9 +775,9 @@ def _advance_split(mode, f2, t0, span, consts, carry):
         # the shaker's work; the damper took it less body 2's stored energy, and a pad let go
         # while still pressed (FREE with d > 0) releases its elastic energy as dissipated (as deriv)
         w = -f2 * (a2 - x2)
-        y[0], y[1], y[2], y[3] = a1, b1, a2, b2
-        y[4] += w
-        y[5] += (w - 0.5 * (pc.m2 * (b2 - v2) * (b2 + v2) + pc.k2 * (a2 - x2) * (a2 + x2))
+        y[X1], y[V1], y[X2], y[V2] = a1, b1, a2, b2
+        y[W_EXT] += w
+        y[W_DISS] += (w - 0.5 * (pc.m2 * (b2 - v2) * (b2 + v2) + pc.k2 * (a2 - x2) * (a2 + x2))
                  - _pad_energy(a1 - a2, pc.c) + _pad_energy(x1 - x2, pc.c))
         t += step
         if _diverged(y):
@@ -880,7 +881,7 @@ def _dopri_span(mode, f2, t0, t, span, consts, carry, rec, stop_free, work):
         if en <= 1.0:
             d0 = y[X1] - y[X2]
             s0 = y[V1] - y[V2]
-            gv = event_sign(out[0], out[1], out[2], out[3], pc.c, pc.b)  # (only its sign is used here)
+            gv = event_sign(out[X1], out[V1], out[X2], out[V2], pc.c, pc.b)  # (only its sign is used here)
             step = h
             new_mode = mode
             if mode != AUTO and _crossed(mode, gv):
@@ -904,8 +905,8 @@ def _dopri_span(mode, f2, t0, t, span, consts, carry, rec, stop_free, work):
             # O(step^5) per step as dopri5's own); the step's start values come from the last
             # step's end when the mode did not change
             if not have_start:
-                e_a, r_a = _catch_rate(y[0], y[1], y[2], y[3], mode, pc)
-            e_b, r_b = _catch_rate(out[0], out[1], out[2], out[3], mode, pc)
+                e_a, r_a = _catch_rate(y[X1], y[V1], y[X2], y[V2], mode, pc)
+            e_b, r_b = _catch_rate(out[X1], out[V1], out[X2], out[V2], mode, pc)
             integral[0] += _hermite(step, e_a, r_a, e_b, r_b)
             e_a, r_a = e_b, r_b
             have_start = new_mode == mode

@@ -62,5 +62,18 @@ DIVERGED = 1
 STEP_UNDERFLOW = 2
 EVENT_OVERFLOW = 3
 
-# event buffer columns: t, kind (+1 onset, -1 separation), x1, v1, x2, v2
-N_EVENT_COLS = 6
+
+
+class EventSlots(NamedTuple):
+    """The columns of the plant's event log (float64[E, N_EVENT_COLS]): one row per contact event."""
+
+    t: float  # the event's time, s
+    kind: float  # +1 onset, -1 separation
+    x1: float  # the state at the event: body 1 position, m
+    v1: float  # body 1 velocity, m/s
+    x2: float  # body 2 position, m
+    v2: float  # body 2 velocity, m/s
+
+
+EVENT = positions(EventSlots)
+N_EVENT_COLS = len(EVENT)

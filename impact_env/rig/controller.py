@@ -58,8 +58,9 @@ from impact_env.control.residual import (
     residual_arrays,
     start_residual,
 )
-from impact_env.effects.sensors import POT
+from impact_env.effects.sensors import ACCEL, FORCE, POT
 from impact_env.hardware.stage import INFO_CONTACT_FORCE, INFO_F_APPLIED, INFO_F_DEMAND, INFO_SATURATED
+from impact_env.plant.layout import STATE
 from impact_env.rig import log as tick_log
 from impact_env.rig import safety as rig_safety
 from impact_env.rig.safety import SafetyConfig, safety_step
@@ -188,9 +189,9 @@ def act_tick(m, ticks_armed, cmd, p, s, raw):
         row = rows[i]
         row[tick_log.COL.tick] = m
         row[tick_log.COL.t_s] = m / p.rate
-        row[tick_log.COL.accelerometer_mps2] = raw[0]
-        row[tick_log.COL.force_N] = raw[1]
-        row[tick_log.COL.potentiometer_m] = raw[2]
+        row[tick_log.COL.accelerometer_mps2] = raw[ACCEL]
+        row[tick_log.COL.force_N] = raw[FORCE]
+        row[tick_log.COL.potentiometer_m] = raw[POT]
         row[tick_log.COL.action] = u
         row[tick_log.COL.force_demand_N] = f
         row[tick_log.COL.command_age_ticks] = log_age
@@ -389,10 +390,10 @@ def true_record(trec, m, Y, info, u, detected, ok, rate):
     """The virtual rig's true record of tick m (:mod:`impact_env.sim.records`)."""
     r = trec[m]
     r[records.REC.t] = (m + 1.0) / rate
-    r[records.REC.x1] = Y[0, 0]
-    r[records.REC.v1] = Y[0, 1]
-    r[records.REC.x2] = Y[0, 2]
-    r[records.REC.v2] = Y[0, 3]
+    r[records.REC.x1] = Y[0, STATE.x1]
+    r[records.REC.v1] = Y[0, STATE.v1]
+    r[records.REC.x2] = Y[0, STATE.x2]
+    r[records.REC.v2] = Y[0, STATE.v2]
     r[records.REC.u] = u
     r[records.REC.f_demand] = info[0, INFO_F_DEMAND]
     r[records.REC.f_applied] = info[0, INFO_F_APPLIED]

@@ -39,7 +39,7 @@ from impact_env.hardware.stage import (
     hardware_tick,
     state_ok,
 )
-from impact_env.plant.layout import STATE
+from impact_env.plant.layout import EVENT, STATE
 from impact_env.sim.records import PREC, REC
 
 
@@ -68,9 +68,9 @@ def _first_separation(pr, events, n0, n1, t_start):
     pr[PREC.t_separation] = np.nan
     pr[PREC.v1_separation] = np.nan
     for e in range(n0, min(n1, events.shape[0])):
-        if events[e, 1] < 0.0:
-            pr[PREC.t_separation] = t_start + events[e, 0]
-            pr[PREC.v1_separation] = events[e, 3]
+        if events[e, EVENT.kind] < 0.0:
+            pr[PREC.t_separation] = t_start + events[e, EVENT.t]
+            pr[PREC.v1_separation] = events[e, EVENT.v1]
             return
 
 

@@ -39,7 +39,21 @@ import numpy as np
 from impact_env._jit import jit
 from impact_env._packed import positions
 
-NX = 7  # state size: x1, v1, x2, v2 and the shaker's three states
+
+class ModelState(NamedTuple):
+    """The entries of the model's state vector (float64[NX]), read by name: ``s[STATE.x1]``."""
+
+    x1: float  # m, body 1 (down positive)
+    v1: float  # m/s
+    x2: float  # m, body 2
+    v2: float  # m/s
+    z0: float  # the shaker's state (scaled to about 1 N each: shaker_realisation)
+    z1: float
+    z2: float
+
+
+STATE = positions(ModelState)
+NX = len(STATE)  # state size: x1, v1, x2, v2 and the shaker's three states
 NZ = 3  # the shaker model's order (the coil model of effects.shaker: band-pass and coil pole)
 
 
@@ -137,11 +151,11 @@ def contact(d, dd, k):
 @jit
 def step(s, u, k, out):
     """One control period from the state ``s`` (float64[NX]) under the demand u (N) into ``out``."""
-    x1 = s[0]
-    v1 = s[1]
-    x2 = s[2]
-    v2 = s[3]
-    f2 = k[K.c0] * s[4] + k[K.c1] * s[5] + k[K.cz2] * s[6] + k[K.dz] * u
+    x1 = s[STATE.x1]
+    v1 = s[STATE.v1]
+    x2 = s[STATE.x2]
+    v2 = s[STATE.v2]
+    f2 = k[K.c0] * s[STATE.z0] + k[K.c1] * s[STATE.z1] + k[K.cz2] * s[STATE.z2] + k[K.dz] * u
     n = int(k[K.substeps]) if k[K.substeps] >= 1.0 else 1
     h = k[K.h] / n
     for _ in range(n):
@@ -150,16 +164,16 @@ def step(s, u, k, out):
         v2 = v2 + h * (f - f2 - k[K.k2] * x2 - k[K.c2] * v2) / k[K.m2]
         x1 = x1 + h * v1
         x2 = x2 + h * v2
-    z0 = k[K.a00] * s[4] + k[K.a01] * s[5] + k[K.a02] * s[6] + k[K.b0] * u
-    z1 = k[K.a10] * s[4] + k[K.a11] * s[5] + k[K.a12] * s[6] + k[K.b1] * u
-    z2 = k[K.a20] * s[4] + k[K.a21] * s[5] + k[K.a22] * s[6] + k[K.b2] * u
-    out[0] = x1
-    out[1] = v1
-    out[2] = x2
-    out[3] = v2
-    out[4] = z0
-    out[5] = z1
-    out[6] = z2
+    z0 = k[K.a00] * s[STATE.z0] + k[K.a01] * s[STATE.z1] + k[K.a02] * s[STATE.z2] + k[K.b0] * u
+    z1 = k[K.a10] * s[STATE.z0] + k[K.a11] * s[STATE.z1] + k[K.a12] * s[STATE.z2] + k[K.b1] * u
+    z2 = k[K.a20] * s[STATE.z0] + k[K.a21] * s[STATE.z1] + k[K.a22] * s[STATE.z2] + k[K.b2] * u
+    out[STATE.x1] = x1
+    out[STATE.v1] = v1
+    out[STATE.x2] = x2
+    out[STATE.v2] = v2
+    out[STATE.z0] = z0
+    out[STATE.z1] = z1
+    out[STATE.z2] = z2
 
 
 @jit
@@ -171,11 +185,11 @@ def jacobian(s, u, k, A, B):
     for i in range(4):
         A[i * NX + i] = 1.0  # the plant block starts as the identity; the shaker rows follow
         B[i] = 0.0
-    x1 = s[0]
-    v1 = s[1]
-    x2 = s[2]
-    v2 = s[3]
-    f2 = k[K.c0] * s[4] + k[K.c1] * s[5] + k[K.cz2] * s[6] + k[K.dz] * u
+    x1 = s[STATE.x1]
+    v1 = s[STATE.v1]
+    x2 = s[STATE.x2]
+    v2 = s[STATE.v2]
+    f2 = k[K.c0] * s[STATE.z0] + k[K.c1] * s[STATE.z1] + k[K.cz2] * s[STATE.z2] + k[K.dz] * u
     n = int(k[K.substeps]) if k[K.substeps] >= 1.0 else 1
     h = k[K.h] / n
     m1 = k[K.m1]
@@ -196,79 +210,80 @@ def jacobian(s, u, k, A, B):
         # new rows = substep Jacobian times the accumulated rows (A's plant rows, B's plant
         # entries, and f2's dependence on z and u, which does not change within the period)
         for j in range(NX):
-            r0 = A[0 * NX + j]
-            r1 = A[1 * NX + j]
-            r2 = A[2 * NX + j]
-            r3 = A[3 * NX + j]
+            r0 = A[STATE.x1 * NX + j]
+            r1 = A[STATE.v1 * NX + j]
+            r2 = A[STATE.x2 * NX + j]
+            r3 = A[STATE.v2 * NX + j]
             fz = 0.0
-            if j == 4:
+            if j == STATE.z0:
                 fz = k[K.c0]
-            elif j == 5:
+            elif j == STATE.z1:
                 fz = k[K.c1]
-            elif j == 6:
+            elif j == STATE.z2:
                 fz = k[K.cz2]
             n1 = p10 * r0 + p11 * r1 + p12 * r2 + p13 * r3
             n3 = p30 * r0 + p31 * r1 + p32 * r2 + p33 * r3 + p3f * fz
-            A[1 * NX + j] = n1
-            A[3 * NX + j] = n3
-            A[0 * NX + j] = r0 + h * n1
-            A[2 * NX + j] = r2 + h * n3
-        r0 = B[0]
-        r1 = B[1]
-        r2 = B[2]
-        r3 = B[3]
+            A[STATE.v1 * NX + j] = n1
+            A[STATE.v2 * NX + j] = n3
+            A[STATE.x1 * NX + j] = r0 + h * n1
+            A[STATE.x2 * NX + j] = r2 + h * n3
+        r0 = B[STATE.x1]
+        r1 = B[STATE.v1]
+        r2 = B[STATE.x2]
+        r3 = B[STATE.v2]
         n1 = p10 * r0 + p11 * r1 + p12 * r2 + p13 * r3
         n3 = p30 * r0 + p31 * r1 + p32 * r2 + p33 * r3 + p3f * k[K.dz]
-        B[1] = n1
-        B[3] = n3
-        B[0] = r0 + h * n1
-        B[2] = r2 + h * n3
+        B[STATE.v1] = n1
+        B[STATE.v2] = n3
+        B[STATE.x1] = r0 + h * n1
+        B[STATE.x2] = r2 + h * n3
         v1 = v1 + h * (k[K.g] - f / m1)
         v2 = v2 + h * (f - f2 - k[K.k2] * x2 - k[K.c2] * v2) / m2
         x1 = x1 + h * v1
         x2 = x2 + h * v2
-    A[4 * NX + 4] = k[K.a00]
-    A[4 * NX + 5] = k[K.a01]
-    A[4 * NX + 6] = k[K.a02]
-    A[5 * NX + 4] = k[K.a10]
-    A[5 * NX + 5] = k[K.a11]
-    A[5 * NX + 6] = k[K.a12]
-    A[6 * NX + 4] = k[K.a20]
-    A[6 * NX + 5] = k[K.a21]
-    A[6 * NX + 6] = k[K.a22]
-    B[4] = k[K.b0]
-    B[5] = k[K.b1]
-    B[6] = k[K.b2]
+    A[STATE.z0 * NX + STATE.z0] = k[K.a00]
+    A[STATE.z0 * NX + STATE.z1] = k[K.a01]
+    A[STATE.z0 * NX + STATE.z2] = k[K.a02]
+    A[STATE.z1 * NX + STATE.z0] = k[K.a10]
+    A[STATE.z1 * NX + STATE.z1] = k[K.a11]
+    A[STATE.z1 * NX + STATE.z2] = k[K.a12]
+    A[STATE.z2 * NX + STATE.z0] = k[K.a20]
+    A[STATE.z2 * NX + STATE.z1] = k[K.a21]
+    A[STATE.z2 * NX + STATE.z2] = k[K.a22]
+    B[STATE.z0] = k[K.b0]
+    B[STATE.z1] = k[K.b1]
+    B[STATE.z2] = k[K.b2]
 
 
 @jit
 def state_cost(s, k):
     """Body 1's catch energy (J) plus w2 times body 2's energy at the state ``s``."""
-    d = s[0] - s[2]
-    e = 0.5 * k[K.m1] * s[1] * s[1] + k[K.m1] * k[K.g] * (0.6 * k[K.ds] - d)
+    d = s[STATE.x1] - s[STATE.x2]
+    e = 0.5 * k[K.m1] * s[STATE.v1] * s[STATE.v1] + k[K.m1] * k[K.g] * (0.6 * k[K.ds] - d)
     if d > 0.0:
         e += 0.4 * k[K.c] * d * d * sqrt(d)
-    return e + k[K.w2] * (0.5 * k[K.m2] * s[3] * s[3] + 0.5 * k[K.k2] * s[2] * s[2])
+    return e + k[K.w2] * (0.5 * k[K.m2] * s[STATE.v2] * s[STATE.v2]
+                          + 0.5 * k[K.k2] * s[STATE.x2] * s[STATE.x2])
 
 
 @jit
 def add_state_cost_derivatives(s, k, w, gx, Hx):
     """Add w times :func:`state_cost`'s gradient to ``gx`` (float64[NX]) and its Hessian to ``Hx``
     (float64[NX * NX], row-major)."""
-    d = s[0] - s[2]
+    d = s[STATE.x1] - s[STATE.x2]
     gd = -k[K.m1] * k[K.g]
     hdd = 0.0
     if d > 0.0:
         sd = sqrt(d)
         gd += k[K.c] * d * sd
         hdd = 1.5 * k[K.c] * sd
-    gx[0] += w * gd
-    gx[2] += w * (k[K.w2] * k[K.k2] * s[2] - gd)
-    gx[1] += w * (k[K.m1] * s[1])
-    gx[3] += w * (k[K.w2] * k[K.m2] * s[3])
-    Hx[0 * NX + 0] += w * hdd
-    Hx[0 * NX + 2] -= w * hdd
-    Hx[2 * NX + 0] -= w * hdd
-    Hx[2 * NX + 2] += w * (hdd + k[K.w2] * k[K.k2])
-    Hx[1 * NX + 1] += w * k[K.m1]
-    Hx[3 * NX + 3] += w * (k[K.w2] * k[K.m2])
+    gx[STATE.x1] += w * gd
+    gx[STATE.x2] += w * (k[K.w2] * k[K.k2] * s[STATE.x2] - gd)
+    gx[STATE.v1] += w * (k[K.m1] * s[STATE.v1])
+    gx[STATE.v2] += w * (k[K.w2] * k[K.m2] * s[STATE.v2])
+    Hx[STATE.x1 * NX + STATE.x1] += w * hdd
+    Hx[STATE.x1 * NX + STATE.x2] -= w * hdd
+    Hx[STATE.x2 * NX + STATE.x1] -= w * hdd
+    Hx[STATE.x2 * NX + STATE.x2] += w * (hdd + k[K.w2] * k[K.k2])
+    Hx[STATE.v1 * NX + STATE.v1] += w * k[K.m1]
+    Hx[STATE.v2 * NX + STATE.v2] += w * (k[K.w2] * k[K.m2])
