@@ -36,15 +36,15 @@ from pathlib import Path
 import numpy as np
 
 from impact_env.config import ConfigError
-from impact_env.control import laws as LW
+from impact_env.control import laws
 from impact_env.control import mlp as MLP
-from impact_env.control import plausibility as PL
+from impact_env.control import plausibility
 from impact_env.control.front_end import F_DETECTOR, F_FILTERS, FrontEnd
 from impact_env.control.observation import OBS_LIMIT
 from impact_env.control.policy import CompiledPolicy
-from impact_env.effects import detector as DT
+from impact_env.effects import detector as contact_detector
 from impact_env.effects.filters import tpt_sections
-from impact_env.rig import safety as SF
+from impact_env.rig import safety as rig_safety
 
 HEADER_NAME = "impact_policy.h"
 SOURCE_NAME = "impact_policy.c"
@@ -83,15 +83,15 @@ def _ident(name: str) -> str:
 
 def _memory(pol) -> int:
     """The floats of memory a policy's classic law keeps (at least 1: C has no empty array)."""
-    return max(LW.BY_NAME[pol.law["name"]].memory, 1)
+    return max(laws.BY_NAME[pol.law["name"]].memory, 1)
 
 
 def float32_refusal(policy: CompiledPolicy) -> str:
     """Why ``policy``'s C file has no float32 build (a law's ``c_double_only``, naming the law),
     or "" when it has one."""
     for pol in (policy, policy.residual_policy()):
-        if pol is not None and pol.law is not None and LW.BY_NAME[pol.law["name"]].c_double_only:
-            return f"{pol.law['name']} has no float32 build: {LW.BY_NAME[pol.law['name']].c_double_only}"
+        if pol is not None and pol.law is not None and laws.BY_NAME[pol.law["name"]].c_double_only:
+            return f"{pol.law['name']} has no float32 build: {laws.BY_NAME[pol.law['name']].c_double_only}"
     return ""
 
 
@@ -120,7 +120,7 @@ class CArtifact:
     rms_window: int
 
 
-def generate_c(policy: CompiledPolicy, scene, safety: SF.SafetyConfig | None = None,
+def generate_c(policy: CompiledPolicy, scene, safety: rig_safety.SafetyConfig | None = None,
                spec: str = "") -> CArtifact:
     """The C header and source of ``policy`` on ``scene`` with the target's ``safety`` limits.
     ConfigError for what C cannot express here: a privileged observation (a rig measures no
@@ -139,20 +139,20 @@ def generate_c(policy: CompiledPolicy, scene, safety: SF.SafetyConfig | None = N
     pol_sha = policy.sha256()
     fe = FrontEnd(scene, policy.layout, 1)
     rfe = FrontEnd(scene, residual.layout, 1) if residual is not None else None
-    cfg = safety or SF.SafetyConfig()
+    cfg = safety or rig_safety.SafetyConfig()
     # the drive command's newtons are the rig's (the amplifier's calibration, the scene's
     # effects.command_scale), as the numba target's Controller has them; a policy made at another
     # scale keeps its own inside its law (f / its scale), as impact_env.control.policy.act does
-    sp = SF.safety_params(cfg, float(scene.effects.command_scale), policy.control_rate, policy.hold_ticks,
+    sp = rig_safety.safety_params(cfg, float(scene.effects.command_scale), policy.control_rate, policy.hold_ticks,
                           "onboard")
-    plaus = PL.plausibility_params(scene)
+    plaus = plausibility.plausibility_params(scene)
     g = _Gen(policy, residual, scene, fe, rfe, sp, cfg, scene_sha, pol_sha, spec, plaus)
     return CArtifact(g.header(), g.source(), scene_sha, pol_sha, policy.layout.size, policy.hold_ticks,
-                     int(sp[SF.P_WINDOW]))
+                     int(sp[rig_safety.P_WINDOW]))
 
 
 def write_c(policy: CompiledPolicy, scene, out_dir, force: bool = False,
-            safety: SF.SafetyConfig | None = None, spec: str = "") -> tuple[Path, Path]:
+            safety: rig_safety.SafetyConfig | None = None, spec: str = "") -> tuple[Path, Path]:
     """Write ``impact_policy.h`` and ``impact_policy.c`` into ``out_dir`` (created; an existing
     folder only with ``force``)."""
     out = Path(out_dir)
@@ -179,8 +179,8 @@ class _Gen:
         lay = pol.layout
         self.F, self.H, self.size = lay.frame_size, lay.history, lay.size
         self.nsec = fe.sos.shape[1]
-        self.window = int(sp[SF.P_WINDOW])
-        self.scale = float(sp[SF.P_SCALE])  # the scene's: see generate_c
+        self.window = int(sp[rig_safety.P_WINDOW])
+        self.scale = float(sp[rig_safety.P_SCALE])  # the scene's: see generate_c
         self.widest = 1
         if pol.mlp is not None:
             _, _, self.widest = MLP.pack_mlp(pol.mlp["layers"])
@@ -216,7 +216,7 @@ class _Gen:
         f32 = (f"no float32 build ({why})" if why else
                "define IMPACT_FLOAT32 for float (MCUs without a double FPU; within the bound of\n"
                " * docs/rig/c-export.md)")
-        body1 = ("checked like the others" if self.plaus.ch[3, PL.CC.on] else
+        body1 = ("checked like the others" if self.plaus.ch[3, plausibility.CC.on] else
                  "(disabled in the scene, as on the rig: pass NaN; not read)")
         return f"""/*
  * Generated by impact-env export{(' ' + self.spec) if self.spec else ''} --c: do not edit; regenerate.
@@ -284,18 +284,18 @@ typedef double impact_real;
 #define IMPACT_RMS_WINDOW_TICKS {self.window}
 
 /* status bits (impact_env.rig.safety): bits 0-15 the safety layer */
-#define IMPACT_STATUS_NONFINITE   0x{SF.NONFINITE:04x}u  /* the command was NaN or infinite: 0 N */
-#define IMPACT_STATUS_CLAMP_PEAK  0x{SF.CLAMP_PEAK:04x}u  /* |f| cut to the peak rating */
-#define IMPACT_STATUS_CLAMP_RMS   0x{SF.CLAMP_RMS:04x}u  /* cut by the continuous (RMS) rating */
-#define IMPACT_STATUS_TRAVEL      0x{SF.TRAVEL:04x}u  /* latched: |x2| beyond the travel limit, 0 N */
-#define IMPACT_STATUS_SENSOR_FAULT 0x{SF.SENSOR_FAULT:04x}u  /* a reading implausible this tick: 0 N, held */
-#define IMPACT_STATUS_SENSOR_ACCELEROMETER 0x{SF.SENSOR_ACCELEROMETER:04x}u  /* ... readings[0] */
-#define IMPACT_STATUS_SENSOR_FORCE 0x{SF.SENSOR_FORCE:04x}u  /* ... readings[1] */
-#define IMPACT_STATUS_SENSOR_POTENTIOMETER 0x{SF.SENSOR_POTENTIOMETER:04x}u  /* ... readings[2] */
-#define IMPACT_STATUS_SENSOR_BODY1 0x{SF.SENSOR_BODY1:04x}u  /* ... readings[3] */
-#define IMPACT_STATUS_SENSOR_TIMEOUT 0x{SF.SENSOR_TIMEOUT:04x}u  /* latched: faults too long: 0 N, end it */
+#define IMPACT_STATUS_NONFINITE   0x{rig_safety.NONFINITE:04x}u  /* the command was NaN or infinite: 0 N */
+#define IMPACT_STATUS_CLAMP_PEAK  0x{rig_safety.CLAMP_PEAK:04x}u  /* |f| cut to the peak rating */
+#define IMPACT_STATUS_CLAMP_RMS   0x{rig_safety.CLAMP_RMS:04x}u  /* cut by the continuous (RMS) rating */
+#define IMPACT_STATUS_TRAVEL      0x{rig_safety.TRAVEL:04x}u  /* latched: |x2| beyond the travel limit, 0 N */
+#define IMPACT_STATUS_SENSOR_FAULT 0x{rig_safety.SENSOR_FAULT:04x}u  /* a reading implausible this tick: 0 N, held */
+#define IMPACT_STATUS_SENSOR_ACCELEROMETER 0x{rig_safety.SENSOR_ACCELEROMETER:04x}u  /* ... readings[0] */
+#define IMPACT_STATUS_SENSOR_FORCE 0x{rig_safety.SENSOR_FORCE:04x}u  /* ... readings[1] */
+#define IMPACT_STATUS_SENSOR_POTENTIOMETER 0x{rig_safety.SENSOR_POTENTIOMETER:04x}u  /* ... readings[2] */
+#define IMPACT_STATUS_SENSOR_BODY1 0x{rig_safety.SENSOR_BODY1:04x}u  /* ... readings[3] */
+#define IMPACT_STATUS_SENSOR_TIMEOUT 0x{rig_safety.SENSOR_TIMEOUT:04x}u  /* latched: faults too long: 0 N, end it */
 
-#define IMPACT_PL_DEMAND_TICKS {PL.DEMAND_TICKS}  /* force demands the armature check remembers */
+#define IMPACT_PL_DEMAND_TICKS {plausibility.DEMAND_TICKS}  /* force demands the armature check remembers */
 
 typedef struct {{
     int64_t tick;                               /* ticks since the episode's release */
@@ -385,7 +385,7 @@ static const impact_real COMMAND_SCALE_N = {_r(self.scale)};"""
     def _plausibility(self) -> str:
         ch = self.plaus.ch
         ph = self.plaus.phys
-        P = PL.PH
+        P = plausibility.PH
         return f"""/* ---- sensor plausibility (impact_env.control.plausibility; docs/rig/faults.md): every
  * reading checked before the filters; compared in double in both builds ---- */
 
@@ -393,14 +393,14 @@ static const impact_real COMMAND_SCALE_N = {_r(self.scale)};"""
  * largest change per tick (max_step |gain|, 0: no jump check), the noise allowance, the exact
  * repeats that flag it stuck (0: no stuck check), 1 / gain and the declared offset, from the
  * scene's effects.sensors */
-static const double PL_ON[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.on])};
-static const double PL_LO[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.lo])};
-static const double PL_HI[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.hi])};
-static const double PL_STEP[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.max_jump])};
-static const double PL_TOL[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.tol])};
-static const double PL_REPEAT[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.repeat])};
-static const double PL_SCALE[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.scale])};
-static const double PL_OFFSET[IMPACT_N_READINGS] = {_arr(ch[:, PL.CC.offset])};
+static const double PL_ON[IMPACT_N_READINGS] = {_arr(ch[:, plausibility.CC.on])};
+static const double PL_LO[IMPACT_N_READINGS] = {_arr(ch[:, plausibility.CC.lo])};
+static const double PL_HI[IMPACT_N_READINGS] = {_arr(ch[:, plausibility.CC.hi])};
+static const double PL_STEP[IMPACT_N_READINGS] = {_arr(ch[:, plausibility.CC.max_jump])};
+static const double PL_TOL[IMPACT_N_READINGS] = {_arr(ch[:, plausibility.CC.tol])};
+static const double PL_REPEAT[IMPACT_N_READINGS] = {_arr(ch[:, plausibility.CC.repeat])};
+static const double PL_SCALE[IMPACT_N_READINGS] = {_arr(ch[:, plausibility.CC.scale])};
+static const double PL_OFFSET[IMPACT_N_READINGS] = {_arr(ch[:, plausibility.CC.offset])};
 /* faulty ticks in a row allowed (effects.sensors.fault_limit_s at the control rate) */
 static const double PL_LIMIT_TICKS = {_r(self.plaus.limit_ticks)};
 /* the cross-channel checks: on, m2' (kg), m2 - m2' (kg), k2 (N/m), the sign check's allowance
@@ -579,7 +579,7 @@ static uint32_t plausible(impact_state *s, const impact_real readings[IMPACT_N_R
     }""" if filters else "\n    /* the scene has no filters effect: the readings pass as they are */"
         if not detector:
             det_code = "\n    s->detected = 0.0;  /* the scene has no detector effect */"
-        elif dp[DT.DP.use_derivative] == 0.0:
+        elif dp[contact_detector.DP.use_derivative] == 0.0:
             det_code = """
     /* thesis eq 4.4: the contact force is m2' a2 + T; contact while it exceeds the threshold */
     impact_real sig = DET_TOP_MASS_KG * s->cond[0] + s->cond[1];
@@ -615,10 +615,10 @@ static const impact_real TPT[IMPACT_N_READINGS][N_SECTIONS][6] = {{
         return f"""/* ---- front end: the scene's filters and the contact detector (impact_env.control.front_end) ---- */
 
 {tables}/* the contact detector (effects.detector): m2' (kg), threshold (N), derivative threshold (N/s), rate */
-static const impact_real DET_TOP_MASS_KG = {_r(dp[DT.DP.top_mass])};
-static const impact_real DET_THRESHOLD_N = {_r(dp[DT.DP.threshold])};
-static const impact_real DET_DTHRESHOLD_N_PER_S = {_r(dp[DT.DP.derivative_threshold])};
-static const impact_real DET_RATE_HZ = {_r(dp[DT.DP.rate])};
+static const impact_real DET_TOP_MASS_KG = {_r(dp[contact_detector.DP.top_mass])};
+static const impact_real DET_THRESHOLD_N = {_r(dp[contact_detector.DP.threshold])};
+static const impact_real DET_DTHRESHOLD_N_PER_S = {_r(dp[contact_detector.DP.derivative_threshold])};
+static const impact_real DET_RATE_HZ = {_r(dp[contact_detector.DP.rate])};
 
 /* the readings of a tick through the filters, then the detector */
 static void condition(impact_state *s, const impact_real readings[IMPACT_N_READINGS])
@@ -680,7 +680,7 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
         for pol in (self.pol, self.res):
             if pol is None or pol.law is None:
                 continue
-            law = LW.BY_NAME[pol.law["name"]]
+            law = laws.BY_NAME[pol.law["name"]]
             if law.c_prelude is not None:
                 text = f"/* ---- {law.name}'s functions ({law.c_prelude.__module__}) ---- */\n\n{law.c_prelude()}"
                 if text not in out:
@@ -694,15 +694,15 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
 
     def _law(self, which: str, pol) -> str:
         """A classic law's C function, ``policy_act`` or ``residual_act`` (obs row, memory)."""
-        kind, slots, k = LW.pack_law(pol.law["name"], pol.law["constants"], pol.layout.names)
+        kind, slots, k = laws.pack_law(pol.law["name"], pol.law["constants"], pol.layout.names)
         name = pol.law["name"]
         lay = pol.layout
-        consts = LW.CONSTANTS[name]
+        consts = laws.CONSTANTS[name]
         P = _ident(which)
         cdefs = "\n".join(f"static const impact_real {P}_{_ident(c)} = {_r(v)};"
                           for c, v in zip(consts, k, strict=True))
-        sl = {s: int(slots[i]) for i, s in enumerate(LW.READS[name])}
-        law = LW.BY_NAME[name]
+        sl = {s: int(slots[i]) for i, s in enumerate(laws.READS[name])}
+        law = laws.BY_NAME[name]
         if law.c_body is None:
             raise ConfigError(f"law {name!r} cannot be deployed from the sensors")
         body = law.c_body(P, sl)
@@ -780,7 +780,7 @@ static impact_real policy_act(const float *obs, impact_real *mem)
 
     def _safety(self) -> str:
         sp = self.sp
-        budget = sp[SF.P_BUDGET]
+        budget = sp[rig_safety.P_BUDGET]
         rms = "" if budget < 0 else """
     /* RMS clamp: the squares of the last RMS_WINDOW ticks' forces, in whole quanta, stay within
      * the budget n (continuous_n / sqrt 2)^2 */
@@ -803,9 +803,9 @@ static impact_real policy_act(const float *obs, impact_real *mem)
         return f"""/* ---- the safety layer (impact_env.rig.safety, onboard mode): non-finite commands, the
  * latched travel limit, the peak and RMS clamps ---- */
 
-static const impact_real SAFETY_PEAK_N = {_r(sp[SF.P_PEAK])};          /* peak rating (thesis sec 4.3) */
-static const impact_real SAFETY_TRAVEL_LIMIT_M = {_r(sp[SF.P_TRAVEL])};  /* |x2| beyond it: 0 N, latched */
-static const double RMS_QUANTUM_N2 = {_r(sp[SF.P_QUANTUM])};        /* N^2 per quantum */
+static const impact_real SAFETY_PEAK_N = {_r(sp[rig_safety.P_PEAK])};          /* peak rating (thesis sec 4.3) */
+static const impact_real SAFETY_TRAVEL_LIMIT_M = {_r(sp[rig_safety.P_TRAVEL])};  /* |x2| beyond it: 0 N, latched */
+static const double RMS_QUANTUM_N2 = {_r(sp[rig_safety.P_QUANTUM])};        /* N^2 per quantum */
 static const double RMS_BUDGET_QUANTA = {_r(budget)};  /* {'no RMS clamp' if budget < 0 else 'continuous rating'} */
 
 #define MODIFIED (IMPACT_STATUS_NONFINITE | IMPACT_STATUS_CLAMP_PEAK | IMPACT_STATUS_CLAMP_RMS \\
