@@ -234,8 +234,9 @@ def jit(func=None, **options):
 
     ``inline="always"`` (numba inlines the callee's typed IR into each caller) is for the small
     kernels of the per-env step (the plant, the effects, the stage, the task): measured against
-    plain calls, it keeps the vector env's step several times faster, since LLVM leaves many of
-    those calls out of line.  Never for a large kernel that many callers reach, as the
+    plain calls, it makes the vector env's step faster (LLVM leaves many of those calls out of
+    line) and ``compare``'s rollout slower (docs/architecture.md, "Compiled kernels").  Never for
+    a large kernel that many callers reach, as the
     model-predictive laws' solver and estimator: every caller would type and compile its own
     copy (docs/architecture.md, "Compiled kernels").
     """

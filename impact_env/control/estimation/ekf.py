@@ -60,6 +60,7 @@ from impact_env.control.estimation.layout import (
     IM1,
     MAX_Z,
     N_MEAS,
+    N_PLANT,
     N_STATE,
     SHAKER_BLOCK,
     V1,
@@ -350,6 +351,24 @@ def _white_acceleration(p, ix, iv, q, dt):
 
 
 @jit
+def _finite(a, n):
+    for i in range(n):
+        if not isfinite(a[i]):
+            return False
+    return True
+
+
+@jit
+def _block(i, blocks):
+    """The columns [lo, hi) of Phi's row i that may be non-zero (all of them unless ``blocks``)."""
+    if not blocks:
+        return 0, N
+    if i < N_PLANT:
+        return 0, N_PLANT
+    return i, i + 1
+
+
+@jit
 def ekf_predict(k, mem, f2):
     """The estimate at the next tick: the plant under the applied force f2 (N, up) held over
     the period (mean by RK4, covariance by ``Phi = I + J dt + (J dt)^2 / 2`` at the updated
@@ -376,10 +395,18 @@ def ekf_predict(k, mem, f2):
     phi[V2 * N + V1] = fdd / m2
     phi[V2 * N + X2] = (-fd - k[EK.k2]) / m2
     phi[V2 * N + V2] = (-fdd - k[EK.c2]) / m2
-    for i in range(N):  # J^2 into the scratch
+    # Phi is block-diagonal (the plant's N_PLANT states, then the drifts' diagonal), so the
+    # products below skip the terms whose Phi factor is an exact zero; with finite factors a
+    # skipped term is +-0, which leaves a sum started at +0 unchanged: the same numbers as the
+    # full sums, which non-finite factors still take (0 * inf is NaN)
+    blocks = _finite(phi, N * N) and _finite(p, N * N)
+    for i in range(N):  # J^2 into the scratch (J lies in the plant block)
         for j in range(N):
+            hi = N
+            if blocks:
+                hi = N_PLANT if i < N_PLANT and j < N_PLANT else 0
             acc = 0.0
-            for m in range(N):
+            for m in range(hi):
                 acc += phi[i * N + m] * phi[m * N + j]
             mm[i * N + j] = acc
     h2 = 0.5 * dt * dt
@@ -392,15 +419,18 @@ def ekf_predict(k, mem, f2):
     plant_step(k, x, f2)
     mem[M.f_applied] = f2
     for i in range(N):  # Phi P
+        lo, hi = _block(i, blocks)
         for j in range(N):
             acc = 0.0
-            for m in range(N):
+            for m in range(lo, hi):
                 acc += phi[i * N + m] * p[m * N + j]
             mm[i * N + j] = acc
+    blocks = blocks and _finite(mm, N * N)
     for i in range(N):  # (Phi P) Phi', symmetric: the upper triangle, mirrored
         for j in range(i, N):
+            lo, hi = _block(j, blocks)
             acc = 0.0
-            for m in range(N):
+            for m in range(lo, hi):
                 acc += mm[i * N + m] * phi[j * N + m]
             p[i * N + j] = acc
             p[j * N + i] = acc

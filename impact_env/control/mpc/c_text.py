@@ -17,7 +17,7 @@ def _defines() -> str:
     k = [f"#define MPC_K_{name.upper()} {i}" for i, name in enumerate(model.Constants._fields)]
     m = [f"#define MPC_M_{name.upper()} {i}" for i, name in enumerate(solver.Memory._fields)]
     names = ("STATE", "PLAN", "XS", "GAINS", "FEED", "VX", "VXX", "JA", "JB", "VA", "QX", "QUX", "VB", "SCUR",
-             "SNEXT", "VN", "MEMORY", "NMAX")
+             "SNEXT", "VN", "TRIAL", "MEMORY", "NMAX")
     off = {name: getattr(solver, name) for name in names}
     o = [f"#define MPC_{name} {v}" for name, v in off.items()]
     return "\n".join([f"#define MPC_NX {model.NX}", *k, *m, *o])
@@ -193,6 +193,8 @@ static impact_real mpc_forward(const impact_real *k, impact_real *mem, int n, im
         if (write) {
             for (int i = 0; i < MPC_NX; i++) mem[MPC_XS + j * MPC_NX + i] = mem[MPC_SCUR + i];
             mem[MPC_PLAN + j] = u;
+        } else {
+            mem[MPC_TRIAL + j] = u;
         }
         mpc_step(mem + MPC_SCUR, u, k, mem + MPC_SNEXT);
         for (int i = 0; i < MPC_NX; i++) mem[MPC_SCUR + i] = mem[MPC_SNEXT + i];
@@ -289,14 +291,19 @@ static impact_real mpc_solve(const impact_real *k, impact_real *mem)
     impact_real cost = mpc_forward(k, mem, n, 0.0, 1);
     for (int it = 0; it < iters; it++) {
         if (!mpc_backward(k, mem, n)) { mem[MPC_M_NO_DESCENT] += 1.0; break; }
-        impact_real alpha = 1.0, taken = 0.0;
+        impact_real alpha = 1.0, taken = 0.0, trial = 0.0;
         for (int t = 0; t < halvings; t++) {
-            impact_real trial = mpc_forward(k, mem, n, alpha, 0);
+            trial = mpc_forward(k, mem, n, alpha, 0);
             if (trial < cost) { taken = alpha; break; }
             alpha = 0.5 * alpha;
         }
         if (taken == 0.0) { mem[MPC_M_NO_DESCENT] += 1.0; break; }
-        cost = mpc_forward(k, mem, n, taken, 1);
+        if (it < iters - 1) {
+            cost = mpc_forward(k, mem, n, taken, 1);
+        } else {
+            for (int j = 0; j < n; j++) mem[MPC_PLAN + j] = mem[MPC_TRIAL + j];
+            cost = trial;
+        }
     }
     mem[MPC_M_COST] = cost;
     impact_real lo, hi;

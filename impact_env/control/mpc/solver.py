@@ -68,6 +68,9 @@ SCUR = VB + NX  # the forward pass's state [NX]
 SNEXT = SCUR + NX  # ... and the next [NX]
 VN = SNEXT + NX  # the new value Hessian's upper triangle [NX * NX]
 MEMORY = VN + NX * NX  # floats
+# the last trial's plan [NMAX]: VA's space, which only the backward pass uses
+TRIAL = VA
+assert NMAX <= NX * NX
 
 
 @jit
@@ -96,7 +99,8 @@ def clip(u, lo, hi):
 @jit
 def forward(k, mem, n, alpha, write):
     """Roll the plan out with step ``alpha`` (0: the plan itself, projected) and the gains from
-    the stored states; the predicted cost (J).  ``write``: the new plan and states replace them."""
+    the stored states; the predicted cost (J).  ``write``: the new plan and states replace them;
+    otherwise (a trial) the new plan goes to TRIAL."""
     for i in range(NX):
         mem[SCUR + i] = mem[STATE + i]
     u_before = mem[MEM.u_prev]
@@ -114,6 +118,8 @@ def forward(k, mem, n, alpha, write):
             for i in range(NX):
                 mem[XS + j * NX + i] = mem[SCUR + i]
             mem[PLAN + j] = u
+        else:
+            mem[TRIAL + j] = u
         step(mem[SCUR:SCUR + NX], u, k, mem[SNEXT:SNEXT + NX])
         for i in range(NX):
             mem[SCUR + i] = mem[SNEXT + i]
@@ -216,7 +222,7 @@ def solve(k, mem):
     iters = int(k[K.iterations]) if k[K.iterations] >= 0.0 else 0
     halvings = int(k[K.line_search]) if k[K.line_search] >= 1.0 else 1
     cost = forward(k, mem, n, 0.0, True)
-    for _ in range(iters):
+    for iteration in range(iters):
         if not backward(k, mem, n):
             mem[MEM.no_descent] += 1.0
             break
@@ -231,7 +237,14 @@ def solve(k, mem):
         if taken == 0.0:
             mem[MEM.no_descent] += 1.0
             break
-        cost = forward(k, mem, n, taken, True)
+        if iteration < iters - 1:
+            cost = forward(k, mem, n, taken, True)  # the next backward pass needs its states
+        else:
+            # the last iteration: the accepted trial is the plan (forward(k, mem, n, taken, True)
+            # would repeat its operations; only its states, which nothing reads now, are not kept)
+            for j in range(n):
+                mem[PLAN + j] = mem[TRIAL + j]
+            cost = trial
     mem[MEM.cost] = cost
     lo, hi = bounds(k, mem[MEM.u_prev])
     return clip(mem[PLAN], lo, hi)
