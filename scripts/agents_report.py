@@ -460,7 +460,7 @@ def report_text(infos, all_stats, shipped, settings, walls, data=None, best=None
         lines += [check, ""]
     diag = Path(settings.get("_dir", settings["results"])) / "diag26"
     if diag.is_dir():
-        lines += ["### Issue 26's diagnostic runs", "",
+        lines += ["### Diagnostic runs of the shipped agent's recipe", "",
                   f"One change at a time, seed 0, `{settings['results']}/diag26/run.sh NAME \"OPTIONS\"` "
                   f"(each run's figures kept in `{settings['results']}/diag26/NAME.json` by its "
                   "`collect.py`, "
@@ -468,7 +468,7 @@ def report_text(infos, all_stats, shipped, settings, walls, data=None, best=None
                   "`pd-penetration` scores -13.04 on `rig-randomized`.", "", diag_table(diag), ""]
     goals = goal_lines(all_stats, infos, shipped, best)
     if goals:
-        lines += ["### Issue 26's goals", ""] + goals + [""]
+        lines += ["### The shipped agent's goals", ""] + goals + [""]
     for scene, st in all_stats.items():
         o = st["_oracle"]
         lines += [f"### `{scene}`, {o['episodes']} held-out drops", "", scene_table(st), ""]
@@ -510,7 +510,7 @@ def report_text(infos, all_stats, shipped, settings, walls, data=None, best=None
 
 
 def diag_table(folder: Path) -> str:
-    """Issue 26's diagnostic runs (``RESULTS/diag26/NAME.json``, kept by its ``collect.py``): what each
+    """The diagnostic runs (``RESULTS/diag26/NAME.json``, kept by its ``collect.py``): what each
     changed (its options) and what it reached on the validation drops, how fast."""
     rows = ["| run | options | validation return: first, best (step, training s), last | first beats "
             "pd-penetration: step, s | steps/s | env share | load |",
@@ -591,7 +591,7 @@ def decomposition(d: dict, st: dict, infos: list[dict], best: str, args,
 
 
 def goal_lines(all_stats: dict, infos: list[dict], shipped: str, best: str | None = None) -> list[str]:
-    """Issue 26's goals, each with its measured figure and met or not (for the shipped agent; the best
+    """The shipped agent's goals, each with its measured figure and met or not (for the shipped agent; the best
     sensor policy, where it is not the one shipped, with what it would give)."""
     lines = []
     sac = [i["label"] for i in infos if i["algo"] == "sac" and not i.get("privileged")]

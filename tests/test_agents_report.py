@@ -53,7 +53,7 @@ def test_the_report_states_the_goals_and_the_decomposition():
     for run in rep["runs"]:
         assert f"| {run['label']} |" in section
         assert run["meta"]["env_share"] is not None and run["meta"]["validation_history"]
-    assert "### Issue 26's goals" in section and section.count("**met**") + section.count("**NOT met**") >= 3
+    assert "### The shipped agent's goals" in section and section.count("**met**") + section.count("**NOT met**") >= 3
     if rep["settings"]["oracle"] != "none" and any(r["privileged"] for r in rep["runs"]):
         assert section.count("the information's share") == len(rep["settings"]["scenes"])
 
