@@ -43,17 +43,15 @@ from pathlib import Path
 
 import numpy as np
 
+from impact_env.policy.export import export_policy
+from impact_env.rig import loopback
+from impact_env.rig.host import RigClient, RigEnv
+from impact_env.rig.log import list_episodes, read_episode
+from impact_env.rig.placement import loop_cpu_of
+from impact_env.rig.transport import RigTimeout
+from impact_env.scene import load_scene
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from rig_helpers import FLOOD, start_target, stop  # noqa: E402
-
-from impact_env.policy.export import export_policy  # noqa: E402
-from impact_env.rig.host import RigClient, RigEnv  # noqa: E402
-from impact_env.rig.log import list_episodes, read_episode  # noqa: E402
-from impact_env.rig.placement import loop_cpu_of  # noqa: E402
-from impact_env.rig.transport import RigTimeout  # noqa: E402
-from impact_env.scene import load_scene  # noqa: E402
 
 
 def _load() -> str:
@@ -190,7 +188,7 @@ def _flood_row(addr: str, log_dir: Path, episodes: int, cpus: list[int]) -> tupl
         hello = _recorded_hello(env)
         host, port = re.match(r"udp://([^:]+):(\d+)", addr).groups()
         go = log_dir / "go"
-        flood = subprocess.Popen([sys.executable, "-c", FLOOD, host, port, hello.hex(), str(go),
+        flood = subprocess.Popen([sys.executable, "-c", loopback.FLOOD, host, port, hello.hex(), str(go),
                                   str(10**9), str(1.0 * episodes)], stdout=subprocess.PIPE, text=True)
         os.sched_setaffinity(flood.pid, {cpus[0]})  # an attacker on the network, not a load on the loop
         os.setpriority(os.PRIO_PROCESS, flood.pid, 19)
@@ -213,7 +211,7 @@ def first_episodes(n: int, serve: list[str]) -> dict:
     ends: dict[str, int] = {}
     rng = np.random.default_rng(1)
     for k in range(n):
-        proc, addr = start_target(*serve)
+        proc, addr = loopback.serve(*serve)
         env = None
         try:
             env = _env(addr, 4)
@@ -228,7 +226,7 @@ def first_episodes(n: int, serve: list[str]) -> dict:
         finally:
             if env is not None:
                 env.close()
-            stop(proc)
+            loopback.stop(proc)
         ends[why] = ends.get(why, 0) + 1
     return {"targets": n, "horizon": ends.get("HORIZON", 0), "ends": ends}
 
@@ -355,7 +353,7 @@ def main() -> int:
                  "serve": serve, "loadavg_before": [round(x, 2) for x in load_before], "host": []}
     with tempfile.TemporaryDirectory() as tmp:
         log_dir = Path(tmp)
-        rt, addr = start_target(*serve, "--log-dir", str(log_dir))
+        rt, addr = loopback.serve(*serve, "--log-dir", str(log_dir))
         hog = None
         try:
             print("## 1. Onboard, real time, pd-penetration, episodes of 0.4 s\n")
@@ -396,7 +394,7 @@ def main() -> int:
             if hog is not None:
                 hog.kill()
                 hog.wait()
-            stop(rt)
+            loopback.stop(rt)
         text, err = rt.stdout.read(), rt.stderr.read()
         rec["applied"] = re.findall(r"impact-env rig: applied: (.*)", err)
         rec["not_applied"] = re.findall(r"impact-env rig: not applied: (.*)", err)

@@ -7,76 +7,15 @@ import os
 import random
 import re
 import select
-import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from impact_env.rig.loopback import FLOOD, serve, stop  # noqa: F401  (the tests import them from here)
 
-# a flood at a target (tests/test_rig_flood.py, scripts/bench_rig.py): ``python -c FLOOD HOST PORT
-# HELLO_HEX GO_FILE N_MAX MAX_S`` sends, once GO_FILE exists, as fast as it can until N_MAX datagrams
-# or MAX_S seconds, a quarter each: the host's HELLO replayed, a COMMAND-shaped frame with a bad
-# tag, junk (bad magic), truncated frames; it prints "ready", then a JSON line of what it sent
-FLOOD = r"""
-import json, os, random, socket, sys, time
-host, port, hello_hex, go_file, n_max, max_s = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4], \
-    int(sys.argv[5]), float(sys.argv[6])
-hello = bytes.fromhex(hello_hex)
-s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-s.bind(("127.0.0.1", 0))
-s.setblocking(False)
-rng = random.Random(7)
-# a COMMAND-shaped frame (valid magic, version, length) under a tag nobody's key makes
-frame = bytearray(hello[:42])
-frame[6] = 7
-frame[40:42] = (18).to_bytes(2, "little")
-bad_tag = bytes(frame) + bytes(18) + bytes(16)
-kinds = ("replayed_hello", "bad_tag", "malformed", "truncated")
-sent = dict.fromkeys(kinds, 0)
-not_sent = replies = reply_bytes = 0
-print("ready", flush=True)
-while not os.path.exists(go_file):
-    time.sleep(0.001)
-t0 = time.perf_counter()
-k = 0
-while k < n_max and time.perf_counter() - t0 < max_s:
-    kind = kinds[k % 4]
-    if kind == "replayed_hello":
-        data = hello
-    elif kind == "bad_tag":
-        data = bad_tag[:-16] + rng.randbytes(16)
-    elif kind == "malformed":
-        data = b"JUNK" + rng.randbytes(rng.randint(60, 400))
-    else:
-        data = hello[:rng.randint(0, 57)]
-    k += 1
-    try:
-        s.sendto(data, (host, port))
-        sent[kind] += 1
-    except BlockingIOError:
-        not_sent += 1
-    if k % 64 == 0:
-        while True:
-            try:
-                reply_bytes += len(s.recv(70000))
-                replies += 1
-            except BlockingIOError:
-                break
-elapsed = time.perf_counter() - t0
-time.sleep(0.3)
-while True:
-    try:
-        reply_bytes += len(s.recv(70000))
-        replies += 1
-    except BlockingIOError:
-        break
-print(json.dumps({"sent": sent, "not_sent": not_sent, "replies": replies, "reply_bytes": reply_bytes,
-                  "elapsed_s": elapsed}), flush=True)
-"""
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def slow_rate_args(rate_hz: float) -> tuple[str, ...]:
@@ -90,15 +29,12 @@ def slow_rate_args(rate_hz: float) -> tuple[str, ...]:
 
 def start_target(*args: str, timeout_s: float = 300.0,
                  driver: str | None = None) -> tuple[subprocess.Popen, str]:
-    """``impact-env rig serve --virtual --port 0 ARGS`` (``--driver DRIVER`` instead of
-    ``--virtual`` if given, with the repository on PYTHONPATH so that ``tests.rig_drivers``
-    imports; ``--max-gap 1000`` (ms) unless ARGS give one: the 1 ms default would end episodes
-    OVERRUN whenever this shared machine preempts the loop, which is not what most tests test);
-    returns (process, address) once it listens (its first run may compile the
-    kernels: up to ``timeout_s``)."""
+    """:func:`impact_env.rig.loopback.serve` with the tests' defaults: the repository on
+    PYTHONPATH (so that ``tests.rig_drivers`` imports for ``driver``); ``--max-gap 1000`` (ms)
+    unless ARGS give one (the 1 ms default would end episodes OVERRUN whenever this shared
+    machine preempts the loop, which is not what most tests test); ``--loop-fifo 0`` unless ARGS
+    give one."""
     path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
-    env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=path)
-    which = ["--virtual"] if driver is None else ["--driver", driver]
     if "--max-gap" not in args:  # a shared, loaded machine preempts the loop for ms: only the tests
         args = (*args, "--max-gap", "1000")  # of the gap limit itself (a driver's injected stall) keep 1 ms
     if "--loop-fifo" not in args:  # a real-time target's default is a SCHED_FIFO spinner where
@@ -106,16 +42,7 @@ def start_target(*args: str, timeout_s: float = 300.0,
         # one CPU would starve each other and the tests' own processes; the tests inject lateness
         # instead, and tests/test_rig_check.py tests the placement with fakes
         args = (*args, "--loop-fifo", "0")
-    cmd = [sys.executable, "-m", "impact_env.cli.main", "rig", "serve", *which, "--port", "0", *args]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env)
-    deadline = time.monotonic() + timeout_s
-    line = ""
-    while "listening" not in line:
-        if proc.poll() is not None or time.monotonic() > deadline:
-            stop(proc)
-            raise RuntimeError(f"target did not start: {proc.stderr.read()[-2000:]}")
-        line = proc.stdout.readline()
-    return proc, re.search(r"udp://\S+", line).group(0)
+    return serve(*args, timeout_s=timeout_s, driver=driver, cwd=ROOT, env=dict(os.environ, PYTHONPATH=path))
 
 
 def streamed_ticks(folder: Path) -> int:
@@ -132,17 +59,6 @@ def streamed_ticks(folder: Path) -> int:
         except (OSError, KeyError, ValueError):
             continue
     return most
-
-
-def stop(proc: subprocess.Popen, sig=signal.SIGTERM, timeout_s: float = 20.0) -> int:
-    if proc.poll() is None:
-        proc.send_signal(sig)
-        try:
-            proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-    return proc.returncode
 
 
 class LossyProxy:
