@@ -19,6 +19,7 @@ import by name (``pythonpath`` in pyproject.toml).
 from __future__ import annotations
 
 import functools
+import os
 import time
 from pathlib import Path
 
@@ -64,3 +65,43 @@ def warm_kernels():
 def rig_runs(warm_kernels):
     return compare(load_scene("rig"), list(RIG_RUN_SPECS), episodes=3, seed=0, horizon=0.05, workers=1,
                    progress=False)
+
+
+# IMPACT_ENV_COMPILE_LOG=FILE: every numba compile of a project kernel in this run, one JSON line
+# each (the test that caused it, the kernel, its argument types, seconds, nesting depth, the
+# worker's pid), for finding where a cold-cache suite spends its time (.ci/compile_report.py)
+_COMPILE_LOG = os.environ.get("IMPACT_ENV_COMPILE_LOG")
+_CURRENT_TEST = {"nodeid": "(collection)"}
+
+
+def pytest_runtest_protocol(item, nextitem):
+    _CURRENT_TEST["nodeid"] = item.nodeid
+
+
+if _COMPILE_LOG:
+    import json
+
+    from numba.core import event
+
+    from impact_env import _jit
+
+    class _CompileLog(event.Listener):
+        def __init__(self):
+            self.started: list[float] = []
+
+        def on_start(self, ev):
+            self.started.append(time.perf_counter())
+
+        def on_end(self, ev):
+            t0 = self.started.pop()
+            dispatcher = ev.data.get("dispatcher")
+            func = getattr(dispatcher, "py_func", None)
+            if func is None or id(func) not in _jit._KERNELS:
+                return
+            row = {"test": _CURRENT_TEST["nodeid"], "kernel": _jit._kernel_name(func),
+                   "args": str(ev.data.get("args")), "s": round(time.perf_counter() - t0, 3),
+                   "depth": len(self.started), "pid": os.getpid()}
+            with open(_COMPILE_LOG, "a") as log:
+                log.write(json.dumps(row) + "\n")
+
+    event.register("numba:compile", _CompileLog())
