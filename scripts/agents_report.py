@@ -1,4 +1,4 @@
-"""The agents' results (issue 11, item 4): trained runs next to the classic laws and the oracle on
+"""The agents' results: trained runs next to the classic laws and the oracle on
 held-out drops of ``rig`` and ``rig-randomized``, with bootstrap 95 % intervals; writes the
 results of ``docs/agents-results.md``, a figure, and ships the best agent.
 
@@ -711,7 +711,9 @@ def build(results: Path, doc: Path, figure_path: Path, resamples_override=None,
     text += f"\n![results]({figure_path.relative_to(doc.parent)})\n"
     write_doc(doc, text)
     if readme is not None:
-        extra = goal_lines(all_stats, infos, shipped, best)
+        # the card gives the figures and what limits the agent; the goals and their verdicts are in
+        # the doc's section (report_text)
+        extra: list[str] = []
         boot = argparse.Namespace(resamples=settings["resamples"], boot_seed=settings["boot_seed"])
         for scene in settings["scenes"]:
             dec = decomposition(data[scene], all_stats[scene], infos, best, boot, shipped=shipped)
