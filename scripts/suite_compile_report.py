@@ -4,7 +4,7 @@ when ``IMPACT_ENV_COMPILE_LOG`` is set.
     IMPACT_ENV_COMPILE_LOG=/tmp/compile.jsonl NUMBA_CACHE_DIR=$(mktemp -d) python -m pytest -q -n auto
     python scripts/suite_compile_report.py /tmp/compile.jsonl [--top 30]
 
-Prints the outermost compiles' seconds (a kernel's callees compile inside it) per worker and in
+Prints the outermost compiles' CPU seconds (a kernel's callees compile inside it) per worker and in
 all, the tests that compiled most, the kernels compiled most often (each signature is a compile
 of its own), and the compiles repeated in more than one worker (each worker has its own process,
 so a kernel that two workers first need at the same time is compiled twice).
@@ -24,7 +24,11 @@ def main() -> int:
     ap.add_argument("log", type=Path)
     ap.add_argument("--top", type=int, default=30)
     args = ap.parse_args()
-    rows = [json.loads(line) for line in args.log.read_text().splitlines() if line.strip()]
+    lines = [json.loads(line) for line in args.log.read_text().splitlines() if line.strip()]
+    rows = [r for r in lines if r.get("kind", "compile") == "compile"]
+    tests = [r for r in lines if r.get("kind") == "test"]
+    for r in rows:  # CPU seconds where the log has them (they move less with the load than wall seconds)
+        r["s"] = r.get("cpu_s", r["s"])
     outer = [r for r in rows if r["depth"] == 0]
     per_pid: Counter = Counter()
     per_test: Counter = Counter()
@@ -35,9 +39,18 @@ def main() -> int:
           f"{len(per_pid)} processes")
     for pid, s in per_pid.most_common():
         print(f"  pid {pid}: {s:.0f} s")
-    print(f"\nthe {args.top} tests that compiled most (outermost compiles' seconds):")
+    test_cpu = {r["test"]: r["cpu_s"] for r in tests}
+    if tests:
+        total = sum(test_cpu.values())
+        print(f"{len(tests)} tests, {total:.0f} CPU s in the workers' processes, of which compiling "
+              f"{sum(per_pid.values()):.0f} s ({100 * sum(per_pid.values()) / max(total, 1e-9):.0f} %)")
+    print(f"\nthe {args.top} tests that compiled most (outermost compiles' seconds; the test's own CPU s):")
     for test, s in per_test.most_common(args.top):
-        print(f"  {s:7.1f} s  {test}")
+        print(f"  {s:7.1f} s  {test_cpu.get(test, float('nan')):7.1f} s  {test}")
+    if tests:
+        print(f"\nthe {args.top} tests with the most CPU s (compiling included):")
+        for test, s in sorted(test_cpu.items(), key=lambda kv: -kv[1])[:args.top]:
+            print(f"  {s:7.1f} s  {per_test.get(test, 0.0):7.1f} s compiling  {test}")
     per_kernel: dict[str, list] = defaultdict(list)
     for r in rows:
         per_kernel[r["kernel"]].append(r)

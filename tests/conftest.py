@@ -68,14 +68,32 @@ def rig_runs(warm_kernels):
 
 
 # IMPACT_ENV_COMPILE_LOG=FILE: every numba compile of a project kernel in this run, one JSON line
-# each (the test that caused it, the kernel, its argument types, seconds, nesting depth, the
-# worker's pid), for finding where a cold-cache suite spends its time (.ci/compile_report.py)
+# each (the test that caused it, the kernel, its argument types, wall and CPU seconds (numba
+# compiles in the calling thread, so its CPU time moves little with the machine's load), nesting
+# depth, the worker's pid), for finding where a cold-cache suite spends its time (.ci/compile_report.py)
 _COMPILE_LOG = os.environ.get("IMPACT_ENV_COMPILE_LOG")
 _CURRENT_TEST = {"nodeid": "(collection)"}
 
 
+@pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     _CURRENT_TEST["nodeid"] = item.nodeid
+    if not _COMPILE_LOG:
+        yield
+        return
+    import json
+    import resource
+
+    def cpu():  # this process and the children it has waited for
+        own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+        return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+    t0, cpu0 = time.perf_counter(), cpu()
+    yield
+    row = {"test": item.nodeid, "kind": "test", "s": round(time.perf_counter() - t0, 3),
+           "cpu_s": round(cpu() - cpu0, 3), "pid": os.getpid()}
+    with open(_COMPILE_LOG, "a") as log:
+        log.write(json.dumps(row) + "\n")
 
 
 if _COMPILE_LOG:
@@ -87,19 +105,20 @@ if _COMPILE_LOG:
 
     class _CompileLog(event.Listener):
         def __init__(self):
-            self.started: list[float] = []
+            self.started: list[tuple[float, float]] = []
 
         def on_start(self, ev):
-            self.started.append(time.perf_counter())
+            self.started.append((time.perf_counter(), time.thread_time()))
 
         def on_end(self, ev):
-            t0 = self.started.pop()
+            t0, cpu0 = self.started.pop()
             dispatcher = ev.data.get("dispatcher")
             func = getattr(dispatcher, "py_func", None)
             if func is None or id(func) not in _jit._KERNELS:
                 return
-            row = {"test": _CURRENT_TEST["nodeid"], "kernel": _jit._kernel_name(func),
+            row = {"test": _CURRENT_TEST["nodeid"], "kind": "compile", "kernel": _jit._kernel_name(func),
                    "args": str(ev.data.get("args")), "s": round(time.perf_counter() - t0, 3),
+                   "cpu_s": round(time.thread_time() - cpu0, 3),
                    "depth": len(self.started), "pid": os.getpid()}
             with open(_COMPILE_LOG, "a") as log:
                 log.write(json.dumps(row) + "\n")
