@@ -88,7 +88,8 @@ def _recipe_text(root, heading: str) -> str:
 
 def test_each_recipe_trial_still_applies_and_touches_only_what_its_recipe_names(root):
     """The three changes made again from the recipes (scripts/recipe_trial.py) are kept as patches:
-    each still applies to the tree as it is (``git apply --check``: no compile), and every file
+    each still applies to the tree as it is (``git apply --check``, or is in it already: the
+    trial's own worktree; no compile), and every file
     it writes by hand is named in its recipe (a change that needs a file the recipe does not
     name fails here)."""
     import subprocess
@@ -100,7 +101,9 @@ def test_each_recipe_trial_still_applies_and_touches_only_what_its_recipe_names(
         patch = recipe_trial.patch_of(change)
         run = subprocess.run(["git", "apply", "--check", str(patch)], cwd=root, capture_output=True,
                              text=True)
-        assert run.returncode == 0, f"{patch.name} no longer applies: {run.stderr}"
+        applied = subprocess.run(["git", "apply", "--check", "--reverse", str(patch)], cwd=root,
+                                 capture_output=True, text=True)  # (the trial's own tree has it)
+        assert run.returncode == 0 or applied.returncode == 0, f"{patch.name} no longer applies: {run.stderr}"
         text = _recipe_text(root, heading)
         named = set(re.findall(r"`([\w./-]+\.(?:py|md))`", text))
         files = recipe_trial.patch_files(patch)
