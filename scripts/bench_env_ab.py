@@ -20,7 +20,10 @@ Per process (``PYTHONPATH`` = the checkout), the figures a user feels:
 laws, after a first call that compiles), a few minutes a round.
 
 Reported: per checkout, the median over rounds of every figure, and the ratio this / other.
-``--threads`` is the vector env's ``threads`` (1: serial, the default of the env).
+``--threads`` is the vector env's ``threads`` (1: serial, the default of the env).  ``--json
+FILE`` also writes the record: every round's figures, the medians, and where and how it was
+made (command, versions, git commit, CPU, date: :func:`impact_env.eval.benchmark.run_meta`, as
+every other benchmark's record has it).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,6 +121,18 @@ def _median(rows: list[dict], key: str) -> float:
     return sorted(x[key] for x in rows)[len(rows) // 2]
 
 
+def record(argv: list[str], other: Path, threads: int, quick: bool, rows: dict[str, list[dict]],
+           wall: float) -> dict:
+    """The run's record: its settings, every round's figures per side, each side's medians, and
+    ``meta`` (run_meta: command, versions, git, CPU, date, the run's wall time in s)."""
+    from impact_env.eval.benchmark import run_meta
+
+    figures = QUICK_FIGURES if quick else FIGURES
+    return {"other": str(other), "threads": threads, "quick": quick, "rounds": rows,
+            "median": {k: {f: _median(v, f) for f in figures} for k, v in rows.items()},
+            "meta": run_meta("python scripts/bench_env_ab.py " + " ".join(argv), wall, 0, 0.0)}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--other", required=True, type=Path, help="another checkout of the project")
@@ -129,13 +145,15 @@ def main() -> int:
     sides = {"this": ROOT, "other": args.other.resolve()}
     rows: dict[str, list[dict]] = {k: [] for k in sides}
     order = list(sides)
+    t0 = time.perf_counter()
     for r in range(args.rounds):
         # which side runs first alternates: the first of a pair may run on a colder machine
         for k in order if r % 2 == 0 else order[::-1]:
             rows[k].append(probe(sides[k], args.threads, args.quick))
             print(k, json.dumps(rows[k][-1]), file=sys.stderr, flush=True)
     if args.json:
-        args.json.write_text(json.dumps({"command": sys.argv, "rounds": rows}, indent=1) + "\n")
+        out = record(sys.argv[1:], sides["other"], args.threads, args.quick, rows, time.perf_counter() - t0)
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
     print("| figure | " + " | ".join(f"{k} ({d})" for k, d in sides.items()) + " | this / other |")
     print("|---|---|---|---|")
     for f in QUICK_FIGURES if args.quick else FIGURES:

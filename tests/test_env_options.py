@@ -131,7 +131,7 @@ def test_task_options_derive_the_evaluation_and_the_docs():
     them) and the env's documented option list."""
     from dataclasses import fields
 
-    from impact_env.env.task import EVALUATION_OPTIONS, TaskConfig, TaskParams
+    from impact_env.env.task import EVALUATION_OPTIONS, REWARD_FORMULA, TaskConfig, TaskParams
 
     cfg = TaskConfig()
     p = cfg.params(RIG)
@@ -139,7 +139,9 @@ def test_task_options_derive_the_evaluation_and_the_docs():
         assert (f.name in TaskParams._fields) == f.metadata["kernel"], f.name
         if f.metadata["kernel"]:
             assert getattr(p, f.name) == float(getattr(cfg, f.name))
-        if f.name.endswith("_weight"):  # a reward penalty: off when an agent is evaluated
+        if f.name.endswith("_weight"):  # a reward penalty: off when an agent is evaluated, in the formula
             assert EVALUATION_OPTIONS[f.name] == 0.0, f.name
+            assert f" {f.name} " in REWARD_FORMULA, f"task.REWARD_FORMULA lacks its term in {f.name}"
         assert f"``{f.name}=" in ImpactCatchEnv.__doc__, f.name
     assert EVALUATION_OPTIONS["terminate_on_catch"] is False
+    assert REWARD_FORMULA in ImpactCatchEnv.__doc__

@@ -1,7 +1,8 @@
 """docs/architecture.md's "How to add an effect, a law, a task option": the files each recipe
 names are where the code has those things, and each registry picks up every module of its kind
 (a new effect or law module without its registry line fails here, as does a task option the
-kernel reads without saying so)."""
+kernel reads without saying so); and the three changes made again from the recipes
+(scripts/recipe_trial.py's patches) still apply and touch only files their recipes name."""
 
 from __future__ import annotations
 
@@ -77,3 +78,45 @@ def test_every_option_the_kernel_reads_says_so():
     options = {f.name: f.metadata["kernel"] for f in fields(task.TaskConfig)}
     assert read <= set(task.TaskParams._fields), read - set(task.TaskParams._fields)
     assert {name for name, kernel in options.items() if kernel} == read & set(options)
+
+
+def _recipe_text(root, heading: str) -> str:
+    doc = (root / "docs" / "architecture.md").read_text()
+    section = doc.split("## How to add an effect, a law, a task option", 1)[1].split("\n## ", 1)[0]
+    return section.split(f"**{heading}**", 1)[1].split("\n**", 1)[0]
+
+
+def test_each_recipe_trial_still_applies_and_touches_only_what_its_recipe_names(root):
+    """The three changes made again from the recipes (scripts/recipe_trial.py) are kept as patches:
+    each still applies to the tree as it is (``git apply --check``, or is in it already: the
+    trial's own worktree; no compile), and every file
+    it writes by hand is named in its recipe (a change that needs a file the recipe does not
+    name fails here)."""
+    import subprocess
+
+    import recipe_trial
+
+    assert set(recipe_trial.TRIALS) == {"effect", "law", "option"}
+    for change, (heading, _what, named_tests) in recipe_trial.TRIALS.items():
+        patch = recipe_trial.patch_of(change)
+        run = subprocess.run(["git", "apply", "--check", str(patch)], cwd=root, capture_output=True,
+                             text=True)
+        applied = subprocess.run(["git", "apply", "--check", "--reverse", str(patch)], cwd=root,
+                                 capture_output=True, text=True)  # (the trial's own tree has it)
+        assert run.returncode == 0 or applied.returncode == 0, f"{patch.name} no longer applies: {run.stderr}"
+        text = _recipe_text(root, heading)
+        named = set(re.findall(r"`([\w./-]+\.(?:py|md))`", text))
+        files = recipe_trial.patch_files(patch)
+        assert files and set(files) <= named, f"{change}: the recipe does not name {set(files) - named}"
+        assert set(named_tests) <= set(files), change  # (its test is in the patch)
+
+
+def test_the_effect_recipe_names_every_text_that_spells_the_path_out(root):
+    """The texts ``tests/test_signal_path.py`` holds to the code's order are the ones the effect
+    recipe says to edit (no more, no fewer)."""
+    import test_signal_path
+
+    texts = {where for where, _text, _names in test_signal_path._docs(root)}
+    named = set(re.findall(r"`([\w./-]+\.(?:py|md))`", _recipe_text(root, "An effect")))
+    assert texts <= named, texts - named
+    assert "README.md" not in named  # (it spells no path out)

@@ -114,14 +114,14 @@ def observe(i, push, action, truth, fe, op, os):
     frames = os.frames
     past_actions = os.past_actions
     obs = os.obs
-    H = frames.shape[1]
-    F = frames.shape[2]
-    if push and H > 1:
-        for h in range(H - 1, 0, -1):
+    history = frames.shape[1]
+    frame_size = frames.shape[2]
+    if push and history > 1:
+        for h in range(history - 1, 0, -1):
             past_actions[i, h] = past_actions[i, h - 1]
         past_actions[i, 0] = action
-    for h in range(H - 1, 0, -1):
-        for j in range(F):
+    for h in range(history - 1, 0, -1):
+        for j in range(frame_size):
             frames[i, h, j] = frames[i, h - 1, j]
     j = 0
     for k in range(channels.shape[0]):
@@ -133,19 +133,19 @@ def observe(i, push, action, truth, fe, op, os):
     if op.privileged:
         for k in range(4):
             frames[i, 0, j + k] = truth[k]
-    for j in range(F):
+    for j in range(frame_size):
         v = frames[i, 0, j] / scales[j]
         if v > limit:
             v = limit
         elif v < -limit:
             v = -limit
         frames[i, 0, j] = v
-    for h in range(H):
-        for j in range(F):
-            obs[i, h * F + j] = frames[i, h, j]
-    if H > 1:
-        for h in range(H):
-            obs[i, H * F + h] = past_actions[i, h]
+    for h in range(history):
+        for j in range(frame_size):
+            obs[i, h * frame_size + j] = frames[i, h, j]
+    if history > 1:
+        for h in range(history):
+            obs[i, history * frame_size + h] = past_actions[i, h]
 
 
 @jit

@@ -90,8 +90,8 @@ def act(pi, pf, obs, mem):
     (float32 or float64[obs size]); ``mem`` (float64[memory size]) is its memory and scratch,
     zeroed by the caller at the episode start."""
     kind = pi[PI.kind]
-    F = pi[PI.frame]
-    body = PF_SCALES + F
+    frame_size = pi[PI.frame]
+    body = PF_SCALES + frame_size
     if kind == KIND_SEQUENCE:
         k = int(mem[0])
         mem[0] = k + 1.0
@@ -101,8 +101,8 @@ def act(pi, pf, obs, mem):
         layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
         out = MLP.mlp_forward(layers, pf[body:], obs, mem)
         return MLP.output_transform(pi[PI.output], out[0], pf[PF.low], pf[PF.high])
-    v = mem[laws.MEMORY:laws.MEMORY + F]
-    for j in range(F):
+    v = mem[laws.MEMORY:laws.MEMORY + frame_size]
+    for j in range(frame_size):
         v[j] = float(obs[j]) * pf[PF_SCALES + j]
     f = laws.law_force(kind, pi[PI_SLOTS:PI_LAYERS], pf[body:], v, mem[:laws.MEMORY])
     u = f / pf[PF.command_scale]

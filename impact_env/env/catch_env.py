@@ -9,7 +9,14 @@ import numpy as np
 from gymnasium import spaces
 
 from impact_env.control.observation import OBS_LIMIT
-from impact_env.env.task import REWARD_TIME_UNIT, TaskConfig, info_from_row, make_catch_task, options_doc
+from impact_env.env.task import (
+    REWARD_FORMULA,
+    REWARD_TIME_UNIT,
+    TaskConfig,
+    info_from_row,
+    make_catch_task,
+    options_doc,
+)
 from impact_env.scene import Scene
 
 
@@ -54,10 +61,12 @@ class ImpactCatchEnv(gym.Env):
 
     ## Rewards
 
-    ``r = -(E/E0 + effort_weight (f/F_cmd)^2 + limit_weight [saturated]) * T / 1 ms`` per step,
-    E body 1's catch energy (kinetic + gravitational relative to resting on body 2 + elastic pad
-    energy, J), E0 its value at the start, T the control period: the return is minus the time
-    integral of the normalised energy in ms (rate independent).  Weights default to 0.
+    ``REWARD_FORMULA_DOC``
+
+    per step, E body 1's catch energy (kinetic + gravitational relative to resting on body 2 +
+    elastic pad energy, J), E0 its value at the start, F_cmd the scene's command scale (N), T the
+    control period, t_unit = 1 ms: the return is minus the time integral of the normalised
+    energy in ms (rate independent).  Weights default to 0.
 
     ## Starting State
 
@@ -154,4 +163,5 @@ TASK_OPTIONS_DOC
             self._viewer = None
 
 
-ImpactCatchEnv.__doc__ = (ImpactCatchEnv.__doc__ or "").replace("TASK_OPTIONS_DOC", options_doc("    "))
+ImpactCatchEnv.__doc__ = ((ImpactCatchEnv.__doc__ or "").replace("TASK_OPTIONS_DOC", options_doc("    "))
+                          .replace("REWARD_FORMULA_DOC", REWARD_FORMULA))

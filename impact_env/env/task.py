@@ -9,16 +9,16 @@ step's ticks.  The single env
 :class:`~impact_env.sim.simulator.Simulator` (one numba call for the whole batch), so the vector env
 is the single env's physics batched, not a copy of it.
 
-Reward (per control step, per env)::
+Reward (per control step, per env; :data:`REWARD_FORMULA`, which every env's docs print)::
 
-    r = -(E / E0 + w_effort (f_applied / F_cmd)^2 + w_limit [saturated]) * T / t_unit
+    REWARD_FORMULA_DOC
 
 E is body 1's catch energy after the step (kinetic + gravitational relative to resting on body 2
 + elastic pad energy, J, :func:`impact_env.plant.energy.catch_energy`), E0 its value at the
 episode start (the impact energy), F_cmd the scene's ``effects.command_scale`` (N), T the control
 period (s) and ``t_unit = 1 ms``.  The factor T / t_unit makes the return independent of the
 control rate: an episode's return is minus the time integral of the normalised energy in
-milliseconds (about -48 for an uncontrolled drop on ``rig``).  ``w_effort`` and ``w_limit`` are 0
+milliseconds (about -48 for an uncontrolled drop on ``rig``).  The ``*_weight`` options are 0
 by default (the thesis's objective is the energy alone).
 
 Episode end: ``terminated`` when body 1 is caught (E / E0 below ``catch_threshold`` for at least
@@ -50,6 +50,12 @@ _INFO_SCALARS = tuple((key, j, key in task_kernel.BOOL_KEYS) for j, key in enume
                       if not task_kernel.INFO.x1 <= j <= task_kernel.INFO.v2)
 
 REWARD_TIME_UNIT = 1e-3  # s
+#: the reward per control step and env, as the task kernel computes it (:func:`task_kernel.task_env`):
+#: every ``*_weight`` option is a term here (tests/test_env_options.py), and the docs of every env
+#: of the task print this line
+REWARD_FORMULA = ("r = -(E/E0 + effort_weight (f_applied/F_cmd)^2 + limit_weight [saturated]) "
+                  "* T / t_unit")
+__doc__ = (__doc__ or "").replace("REWARD_FORMULA_DOC", REWARD_FORMULA)
 
 
 def _option(default: Any, doc: str, unit: str = "", *, bounds: tuple | None = None, kernel: bool = False,

@@ -88,7 +88,7 @@ def task_env(i, on, records, d, p, s, out):
     0, no flags, its row kept): :func:`task_step`'s arithmetic for one env."""
     rewards, terminated, truncated = out.rewards, out.terminated, out.truncated
     steps, below, diverged, energy = s.steps, s.below, s.diverged, s.energy
-    P = d.plant_parameters
+    plant_params = d.plant_parameters
     if not on:
         rewards[i] = 0.0
         terminated[i] = False
@@ -106,7 +106,8 @@ def task_env(i, on, records, d, p, s, out):
             below[i] = 0
             cost = 1.0
         else:
-            e = catch_energy_at(r[REC.x1], r[REC.v1], r[REC.x2], P[i, PARAM.m1], P[i, PARAM.c], P[i, PARAM.g])
+            e = catch_energy_at(r[REC.x1], r[REC.v1], r[REC.x2], plant_params[i, PARAM.m1],
+                                plant_params[i, PARAM.c], plant_params[i, PARAM.g])
             energy[i] = e
             ratio = e / e0
             cost = ratio
@@ -131,7 +132,8 @@ def task_step(active, records, d, p, s, out):
     env gets reward 0 and no flags, and keeps its row).  ``d``: Drop, ``p``: TaskParams (the
     options the kernel reads, by their names, and what the task derives from them:
     :mod:`impact_env.env.task`), ``s``: TaskState, ``out``: TaskOut."""
-    active, records, d, p, s, out = borrow(active), borrow(records), borrow(d), borrow(p), borrow(s), borrow(out)
+    active, records, d = borrow(active), borrow(records), borrow(d)
+    p, s, out = borrow(p), borrow(s), borrow(out)
     for i in range(records.shape[0]):
         task_env(i, active[i], records, d, p, s, out)
 
@@ -189,10 +191,10 @@ def reset_task(s, i, d):
     s.steps[i] = 0
     s.below[i] = 0
     s.diverged[i] = False
-    Y, P = d.plant_state, d.plant_parameters
-    s.energy[i] = catch_energy_at(Y[i, STATE.x1], Y[i, STATE.v1], Y[i, STATE.x2], P[i, PARAM.m1], P[i,
-                                                                                                    PARAM.c],
-                                  P[i, PARAM.g])
+    plant_states, plant_params = d.plant_state, d.plant_parameters
+    s.energy[i] = catch_energy_at(plant_states[i, STATE.x1], plant_states[i, STATE.v1],
+                                  plant_states[i, STATE.x2], plant_params[i, PARAM.m1],
+                                  plant_params[i, PARAM.c], plant_params[i, PARAM.g])
 
 
 @jit

@@ -250,18 +250,19 @@ class _Rig:
 
 
 @jit(nogil=True)
-def _replay_steps(k0, k1, U, p, s, e0, acc):
-    """Steps k0 .. k1 - 1 of the commands ``U[k, i]`` on every env i of the simulator (SimParams
-    ``p``, SimState ``s``; its noise for them drawn), adding each step's catch-energy ratio (its
+def _replay_steps(k0, k1, commands, p, s, e0, acc):
+    """Steps k0 .. k1 - 1 of the commands ``commands[k, i]`` on every env i of the simulator
+    (SimParams ``p``, SimState ``s``; its noise for them drawn), adding each step's catch-energy ratio (its
     catch energy over ``e0[i]``) to ``acc[i]``."""
-    U, p, s, e0, acc = borrow(U), borrow(p), borrow(s), borrow(e0), borrow(acc)
-    Y = s.hw.plant.y
-    P = p.hw.plant.p
-    for i in range(Y.shape[0]):
+    commands, p, s, e0, acc = borrow(commands), borrow(p), borrow(s), borrow(e0), borrow(acc)
+    plant_states = s.hw.plant.y
+    plant_params = p.hw.plant.p
+    for i in range(plant_states.shape[0]):
         for k in range(k0, k1):
-            env_step(i, U[k, i], p, s)
-            acc[i] += catch_energy_at(Y[i, STATE.x1], Y[i, STATE.v1], Y[i, STATE.x2],
-                                          P[i, PARAM.m1], P[i, PARAM.c], P[i, PARAM.g]) / e0[i]
+            env_step(i, commands[k, i], p, s)
+            acc[i] += catch_energy_at(plant_states[i, STATE.x1], plant_states[i, STATE.v1],
+                                      plant_states[i, STATE.x2], plant_params[i, PARAM.m1],
+                                      plant_params[i, PARAM.c], plant_params[i, PARAM.g]) / e0[i]
 
 
 # -- parameterisation ---------------------------------------------------------------------------------

@@ -119,15 +119,16 @@ class RolloutResult:
 
 
 @jit
-def _energies(Y, P, out):
-    for i in range(Y.shape[0]):
-        out[i] = catch_energy_at(Y[i, STATE.x1], Y[i, STATE.v1], Y[i, STATE.x2],
-                                 P[i, PARAM.m1], P[i, PARAM.c], P[i, PARAM.g])
+def _energies(plant_states, plant_params, out):
+    for i in range(plant_states.shape[0]):
+        out[i] = catch_energy_at(plant_states[i, STATE.x1], plant_states[i, STATE.v1],
+                                 plant_states[i, STATE.x2], plant_params[i, PARAM.m1],
+                                 plant_params[i, PARAM.c], plant_params[i, PARAM.g])
     return out
 
 
 @jit(inline="always")
-def _trace_env(row, energy_row, slot, i, Y, records, acc_energy, detected):
+def _trace_env(row, energy_row, slot, i, plant_states, records, acc_energy, detected):
     """Env i's trace sample: its catch energy in ``energy_row[i]``, and, where it has a slot
     (``slot[i] >= 0``: it is one of the traced episodes), every column of TRACE_KEYS in
     ``row[slot[i]]``: the state as ``ImpactCatch-v0``'s info gives it (non-finite entries read 0)
@@ -137,7 +138,7 @@ def _trace_env(row, energy_row, slot, i, Y, records, acc_energy, detected):
     if r < 0:
         return
     for j in range(4):
-        v = Y[i, j]
+        v = plant_states[i, j]
         row[r, TR.x1 + j] = v if np.isfinite(v) else 0.0
     last = records[i, records.shape[1] - 1]
     row[r, TR.force_demand] = last[REC.f_demand]
@@ -149,12 +150,13 @@ def _trace_env(row, energy_row, slot, i, Y, records, acc_energy, detected):
 
 
 @jit
-def _trace_row(row, energy_row, slot, Y, records, acc_energy, detected):
+def _trace_row(row, energy_row, slot, plant_states, records, acc_energy, detected):
     """One trace sample of every env (:func:`_trace_env`)."""
     row, energy_row, slot = borrow(row), borrow(energy_row), borrow(slot)
-    Y, records, acc_energy, detected = borrow(Y), borrow(records), borrow(acc_energy), borrow(detected)
-    for i in range(Y.shape[0]):
-        _trace_env(row, energy_row, slot, i, Y, records, acc_energy, detected)
+    plant_states, records = borrow(plant_states), borrow(records)
+    acc_energy, detected = borrow(acc_energy), borrow(detected)
+    for i in range(plant_states.shape[0]):
+        _trace_env(row, energy_row, slot, i, plant_states, records, acc_energy, detected)
 
 
 class Failures(NamedTuple):
@@ -204,8 +206,8 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
     memory, state, records, metrics, failure marks and trace column), so the order of envs, and
     blocks of envs run in threads at once (the GIL is released), give the same numbers."""
     pol, p, s, out = borrow(pol), borrow(p), borrow(s), borrow(out)  # no reference counting inside
-    Y = s.hw.plant.y
-    P = p.hw.plant.p
+    plant_states = s.hw.plant.y
+    plant_params = p.hw.plant.p
     obs = s.obs.obs
     records = s.records
     plant_records = s.plant_records
@@ -229,14 +231,15 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
                 else:
                     ok = env_step(i, u, p, s)
                     for j in range(hold):
-                        update(acc[i], records[i, j], plant_records[i, j], consts[i], P[i], settings)
+                        update(acc[i], records[i, j], plant_records[i, j], consts[i], plant_params[i],
+                               settings)
                     if not ok:
                         failed[i] = True
                         fails.t[i] = k * period
                         fails.code[i] = FAIL_DIVERGED
             if k % stride == 0:  # (a failed env's sample too: its last state, as before)
-                _trace_env(traces[k // stride], etrace[k // stride], slot, i, Y, records, energy,
-                           detected)
+                _trace_env(traces[k // stride], etrace[k // stride], slot, i, plant_states, records,
+                           energy, detected)
 
 
 @jit(nogil=True)

@@ -386,14 +386,14 @@ class DropConstants(NamedTuple):
 
 
 @jit(inline="always")
-def true_record(trec, m, Y, info, u, detected, ok, rate):
+def true_record(trec, m, plant_states, info, u, detected, ok, rate):
     """The virtual rig's true record of tick m (:mod:`impact_env.sim.records`)."""
     r = trec[m]
     r[records.REC.t] = (m + 1.0) / rate
-    r[records.REC.x1] = Y[0, STATE.x1]
-    r[records.REC.v1] = Y[0, STATE.v1]
-    r[records.REC.x2] = Y[0, STATE.x2]
-    r[records.REC.v2] = Y[0, STATE.v2]
+    r[records.REC.x1] = plant_states[0, STATE.x1]
+    r[records.REC.v1] = plant_states[0, STATE.v1]
+    r[records.REC.x2] = plant_states[0, STATE.x2]
+    r[records.REC.v2] = plant_states[0, STATE.v2]
     r[records.REC.u] = u
     r[records.REC.f_demand] = info[0, INFO_F_DEMAND]
     r[records.REC.f_applied] = info[0, INFO_F_APPLIED]

@@ -48,6 +48,7 @@ from impact_env.hardware.stage import (
     hardware_tick,
     state_ok,
 )
+from impact_env.plant.layout import STATE
 from impact_env.rig import log as tick_log
 from impact_env.rig import ring, safety, wire
 from impact_env.rig.cfunc import call_apply, call_read, call_usleep, call_write, fence
@@ -193,16 +194,16 @@ def _ov_apply(io, m, out, f, row, rows, detected, rate):
             hardware_tick(0, out, io.hw, hw_s)
             ok = state_ok(0, hw_s)
             info = hw_s.out.info
-            Y = hw_s.plant.y
+            plant_states = hw_s.plant.y
             if row >= 0:
                 r = rows[row]
                 tc = io.truth
                 r[tick_log.COL.force_applied_N] = info[0, INFO_F_APPLIED]
                 r[tc.command] = out
-                r[tc.x1] = Y[0, 0]
-                r[tc.v1] = Y[0, 1]
-                r[tc.x2] = Y[0, 2]
-                r[tc.v2] = Y[0, 3]
+                r[tc.x1] = plant_states[0, STATE.x1]
+                r[tc.v1] = plant_states[0, STATE.v1]
+                r[tc.x2] = plant_states[0, STATE.x2]
+                r[tc.v2] = plant_states[0, STATE.v2]
                 r[tc.force_demand] = info[0, INFO_F_DEMAND]
                 r[tc.force_applied] = info[0, INFO_F_APPLIED]
                 r[tc.saturated] = info[0, INFO_SATURATED]
@@ -212,7 +213,7 @@ def _ov_apply(io, m, out, f, row, rows, detected, rate):
                 r[tc.impact_speed] = io.drop.impact_speed
                 r[tc.t_touch] = io.drop.t_touch
                 r[io.t_col] = (m + 1.0) / rate
-            true_record(io.records, m, Y, info, out, detected, ok, rate)
+            true_record(io.records, m, plant_states, info, out, detected, ok, rate)
             return 0 if ok else -1
         return impl
     if _is(io, CIO):

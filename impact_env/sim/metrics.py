@@ -163,10 +163,10 @@ N_SETTINGS = len(ST)
 
 
 @jit(inline="always")
-def update(acc, rec, prec, k_env, P_row, settings):
+def update(acc, rec, prec, k_env, plant_row, settings):
     """Advance one env's accumulator ``acc`` by the tick record ``rec`` and its plant record
     ``prec`` (read only with ``settings``' plant_records; its constants ``k_env`` = t_touch s,
-    impact speed m/s, impact energy J; its plant row ``P_row``)."""
+    impact speed m/s, impact energy J; its plant parameters ``plant_row``)."""
     acc[AC.ticks] += 1.0
     period = settings[ST.period]
     t = acc[AC.ticks] * period
@@ -192,7 +192,7 @@ def update(acc, rec, prec, k_env, P_row, settings):
         acc[AC.after] += 1.0
         if contact:
             acc[AC.contact] += 1.0
-    m1, c, g = P_row[M1], P_row[C], P_row[G]
+    m1, c, g = plant_row[M1], plant_row[C], plant_row[G]
     e0 = k_env[EC.impact_energy]
     e = catch_energy_at(x1, v1, x2, m1, c, g)
     acc[AC.energy] = e
@@ -232,15 +232,16 @@ def update(acc, rec, prec, k_env, P_row, settings):
 
 
 @jit
-def update_batch(active, records, plant_records, consts, P, settings, acc):
+def update_batch(active, records, plant_records, consts, plant_params, settings, acc):
     """:func:`update` with every tick of the last step's records (and plant records), for every
     active env."""
     active, records, plant_records = borrow(active), borrow(records), borrow(plant_records)
-    consts, P, settings, acc = borrow(consts), borrow(P), borrow(settings), borrow(acc)  # (_borrow)
+    consts, plant_params = borrow(consts), borrow(plant_params)
+    settings, acc = borrow(settings), borrow(acc)  # (_borrow)
     for i in range(records.shape[0]):
         if active[i]:
             for k in range(records.shape[1]):
-                update(acc[i], records[i, k], plant_records[i, k], consts[i], P[i], settings)
+                update(acc[i], records[i, k], plant_records[i, k], consts[i], plant_params[i], settings)
 
 
 class MetricArrays(NamedTuple):

@@ -78,7 +78,7 @@ def _first_separation(pr, events, n0, n1, t_start):
 def env_step(i, a, p, s):
     """Env i: ``p.hold`` ticks under the action ``a`` (and the residual law), then its
     observation.  Returns False if the plant failed (its observation is then left as it was)."""
-    Y = s.hw.plant.y
+    plant_states = s.hw.plant.y
     t = s.hw.plant.t
     n_events = s.hw.plant.n_events
     events = s.hw.plant.events
@@ -97,13 +97,13 @@ def env_step(i, a, p, s):
             condition(i, s.hw.out.raw, p.fe, s.fe)
             ok = state_ok(i, s.hw)
             if ok and law_on:
-                observe_residual(i, Y[i], s.fe, p.law, s.law)
+                observe_residual(i, plant_states[i], s.fe, p.law, s.law)
         r = s.records[i, k]
         r[REC.t] = t[i]
-        r[REC.x1] = Y[i, STATE.x1]
-        r[REC.v1] = Y[i, STATE.v1]
-        r[REC.x2] = Y[i, STATE.x2]
-        r[REC.v2] = Y[i, STATE.v2]
+        r[REC.x1] = plant_states[i, STATE.x1]
+        r[REC.v1] = plant_states[i, STATE.v1]
+        r[REC.x2] = plant_states[i, STATE.x2]
+        r[REC.v2] = plant_states[i, STATE.v2]
         r[REC.u] = u
         r[REC.f_demand] = info[i, HW_INFO.f_demand]
         r[REC.f_applied] = info[i, HW_INFO.f_applied]
@@ -115,7 +115,7 @@ def env_step(i, a, p, s):
         plant_record[PREC.catch_integral] = info[i, HW_INFO.catch_integral]
         _first_separation(plant_record, events[i], n0, n_events[i, 0], t[i] - period)
     if ok:
-        observe(i, True, a, Y[i], s.fe, p.obs, s.obs)
+        observe(i, True, a, plant_states[i], s.fe, p.obs, s.obs)
     return ok
 
 

@@ -67,12 +67,12 @@ def law_force(kind, slots, k, v, mem):
 
 
 @jit
-def law_forces(kind, slots, K, V, mem, out):
-    """:func:`law_force` for every row i (constants ``K[i]``, frame values ``V[i]`` in SI units,
-    memory ``mem[i]`` of at least the law's ``memory`` floats) into ``out[i]``: the Python policies'
-    (:mod:`impact_env.policy.laws`) face of the same kernel."""
-    for i in range(V.shape[0]):
-        out[i] = law_force(kind, slots, K[i], V[i], mem[i])
+def law_forces(kind, slots, constants, values, mem, out):
+    """:func:`law_force` for every row i (constants ``constants[i]``, frame values ``values[i]`` in
+    SI units, memory ``mem[i]`` of at least the law's ``memory`` floats) into ``out[i]``: the
+    Python policies' (:mod:`impact_env.policy.laws`) face of the same kernel."""
+    for i in range(values.shape[0]):
+        out[i] = law_force(kind, slots, constants[i], values[i], mem[i])
     return out
 
 
