@@ -29,6 +29,11 @@ a residual law, the teacher's command less that law's), and the run is judged ag
 itself on the validation drops.  ``--student-observation both`` gives the student the true state
 too, which separates what the sensors cannot see (the information) from what DAgger does not
 learn.  ``python -m agents.train --quick --teacher law:NAME`` is this with a one-minute budget.
+A law whose memory models its own demands' effect (``mpc-state``'s shaker model) is told the
+command each env applied (:meth:`agents.law_teacher.LawTeacher.applied`), so that its labels
+hold where the student or ``--teacher-noise`` acted.  ``--mixing M`` sets ``beta = M **
+iteration`` (1 with ``--teacher-noise``: DART, the teacher always in control); ``--ignore
+CHANNEL`` gives a sensor channel weight 0, as the past commands below.
 
 The student reads the sensor frames, not its own past commands (which the observation's history
 also holds: their first-layer weights are 0, unless ``--past-commands``): with them, a float32
