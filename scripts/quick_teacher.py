@@ -180,6 +180,10 @@ def block(rec: dict) -> str:
              f"{c['max_same']:.2e})")
     q = rec["quick"]
     compiled = " (a first run: that includes compiling the numba kernels)" if q.get("compiled") else ""
+    budget = rec["budget"]
+    noise = (f", the teacher's applied command perturbed by {budget['teacher_noise']} of full scale"
+             if budget.get("teacher_noise") else "")
+    ignored = f" without the {', '.join(budget['ignore'])}" if budget.get("ignore") else ""
     return "\n".join([
         BEGIN,
         f"*Written by `python scripts/quick_teacher.py --docs` from `docs/results/agents/quick_teacher.json` "
@@ -187,8 +191,9 @@ def block(rec: dict) -> str:
         "",
         f"`python -m agents.train --quick --teacher {rec['teacher']}`: DAgger, {rec['budget']['iterations']} "
         f"iterations of {rec['budget']['envs']} envs of `{rec['scene_trained']}`, "
-        f"{rec['budget']['train_horizon']} s episodes, a student on the last {rec['budget']['history']} "
-        f"sensor frames acting every control period: {q['wall_s']:.0f} s of wall time for the whole command"
+        f"{budget['train_horizon']} s episodes{noise}, a student on the last {budget['history']} "
+        f"sensor frames{ignored} acting every control period: {q['wall_s']:.0f} s of wall time for the whole "
+        f"command"
         f"{compiled} ({q['cpu_s']:.0f} s of CPU; the training alone {rec['training_wall_s']:.0f} s, "
         f"{rec['training_cpu_s']:.0f} s of CPU), on a machine whose load the record keeps.  {drops}; "
         f"{oracle_text}, its mean: {oracle}.",
