@@ -29,6 +29,11 @@ a residual law, the teacher's command less that law's), and the run is judged ag
 itself on the validation drops.  ``--student-observation both`` gives the student the true state
 too, which separates what the sensors cannot see (the information) from what DAgger does not
 learn.  ``python -m agents.train --quick --teacher law:NAME`` is this with a one-minute budget.
+A law whose memory models its own demands' effect (``mpc-state``'s shaker model) is told the
+command each env applied (:meth:`agents.law_teacher.LawTeacher.applied`), so that its labels
+hold where the student or ``--teacher-noise`` acted.  ``--mixing M`` sets ``beta = M **
+iteration`` (1 with ``--teacher-noise``: DART, the teacher always in control); ``--ignore
+CHANNEL`` gives a sensor channel weight 0, as the past commands below.
 
 The student reads the sensor frames, not its own past commands (which the observation's history
 also holds: their first-layer weights are 0, unless ``--past-commands``): with them, a float32
@@ -112,6 +117,9 @@ class _ModelTeacher:
     def start(self, rows) -> None:
         pass
 
+    def applied(self, commands) -> None:  # no memory
+        pass
+
     def act(self, obs: np.ndarray) -> np.ndarray:
         a, _ = self.model.predict(obs[:, self.columns], deterministic=True)
         return np.clip(a, self.low, self.high)
@@ -122,7 +130,8 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
             batch_size: int = 4096, torch_threads: int = 1, past_commands: bool = False,
             scene: str | None = None, env_kwargs: dict | None = None, train_horizon: float | None = None,
             fit_samples: int | None = None, eval_every: int = 1, student_observation: str = "sensors",
-            teacher_noise: float = 0.0, per_tick: bool = False,
+            teacher_noise: float = 0.0, per_tick: bool = False, ignore: tuple[str, ...] = (),
+            mixing: float = 0.5,
             log=sys.stderr) -> dict:
     """Distil ``teacher`` into a student in ``out``; returns the student's ``model.json`` content.
 
@@ -169,6 +178,9 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     if fit_samples is not None and (isinstance(fit_samples, bool) or not isinstance(fit_samples, int)
                                     or fit_samples < 1):
         raise ConfigError(f"fit_samples = {fit_samples!r} must be an integer >= 1 (samples per fit) or None")
+    if not (isinstance(mixing, (int, float)) and 0.0 <= mixing <= 1.0):
+        raise ConfigError(f"mixing = {mixing!r} must be in [0, 1] (the teacher acts with probability "
+                          "mixing ** iteration)")
     if student_observation not in ("sensors", "both"):
         raise ConfigError(f"student_observation = {student_observation!r}; expected 'sensors' (what a rig "
                           "gives) or 'both' (the sensors and the true state)")
@@ -188,6 +200,10 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     sensors = make_layout(scene_obj, "sensors", 1)
     F, S = both.frame_size, sensors.frame_size
     reads = S if student_observation == "sensors" else F
+    unknown = [c for c in ignore if c not in sensors.names]
+    if unknown:
+        raise ConfigError(f"ignore = {', '.join(map(repr, unknown))}: not a sensor channel of "
+                          f"{scene_name!r}; choose among {', '.join(sensors.names)}")
     student_idx = np.asarray(actor_indices(F, reads, history))
     hold = int(kw.get("hold_ticks", 1))
     horizon = float(kw.get("horizon", scene_obj.episode.horizon))
@@ -222,8 +238,10 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     mask = torch.ones(len(student_idx))
     if history > 1 and not past_commands:
         mask[history * reads:] = 0.0
-        with torch.no_grad():
-            pol.mlp_extractor.policy_net[0].weight[:, history * reads:] = 0.0
+    for name in ignore:
+        mask[[h * reads + both.names.index(name) for h in range(history)]] = 0.0
+    with torch.no_grad():
+        pol.mlp_extractor.policy_net[0].weight[:, mask == 0] = 0.0
     params = list(pol.mlp_extractor.policy_net.parameters()) + list(pol.action_net.parameters())
     opt = torch.optim.Adam(params, lr=lr)
 
@@ -274,7 +292,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     last_loss = float("nan")
     errors: list[float] = []  # per iteration: the student's mean squared error on its new data, unfitted
     for it in range(iterations):
-        beta = 0.5 ** it
+        beta = mixing ** it
         use_teacher = (rng.random(envs) < beta)[:, None]
         if it:
             t = time.perf_counter()
@@ -293,7 +311,9 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
                 applied = np.clip(a_t + teacher_noise * rng.standard_normal(a_t.shape), low, high)
             if per_tick:  # the mixing drawn every tick, not every episode
                 use_teacher = (rng.random(envs) < beta)[:, None]
-            obs, _ = env_step(venv, np.where(use_teacher, applied, a_s))
+            command = np.where(use_teacher, applied, a_s)
+            teach.applied(command)  # a teacher whose memory models its own output follows the env's
+            obs, _ = env_step(venv, command)
         with torch.inference_mode():  # DAgger's own measure: the student against its labels on the new data
             error = float(torch.mean((actor(torch.from_numpy(xs.reshape(-1, xs.shape[-1])))
                                       - torch.from_numpy(ys.reshape(-1, 1))) ** 2))
@@ -376,7 +396,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
                                 "past_commands": past_commands,
                                 "train_horizon_s": train_horizon, "fit_samples": fit_samples,
                                 "eval_every": eval_every, "teacher_noise": teacher_noise,
-                                "per_tick": per_tick},
+                                "per_tick": per_tick, "mixing": mixing, "ignore": list(ignore)},
             "distilled_from": source,
             "validation": {"seeds": best["drops"], "best": best, "history": history_log},
             "imitation_error": errors, "versions": _versions(), "interrupted": False}
@@ -437,6 +457,12 @@ def main(argv=None) -> int:
     p.add_argument("--teacher-noise", type=float, default=0.0, metavar="SIGMA",
                    help="std of Gaussian noise on the teacher's applied command (fraction of the command "
                         "scale; its label stays clean: DART); default 0")
+    p.add_argument("--mixing", type=float, default=0.5, metavar="M",
+                   help="the teacher acts in an env with probability M ** iteration (default 0.5: DAgger; "
+                        "1 with --teacher-noise: DART, the teacher always in control)")
+    p.add_argument("--ignore", action="append", default=[], metavar="CHANNEL",
+                   help="a sensor channel the student does not read (its first-layer weights 0, as the "
+                        "past commands'); repeatable")
     p.add_argument("--per-tick", action="store_true",
                    help="draw who acts (teacher or student) every tick instead of every episode")
     p.add_argument("--torch-threads", type=int, default=1)
@@ -454,7 +480,7 @@ def main(argv=None) -> int:
                        env_kwargs=_pairs(a.env_kwargs, "--env-kwargs") or None, train_horizon=a.train_horizon,
                        fit_samples=a.fit_samples, eval_every=a.eval_every,
                        student_observation=a.student_observation, teacher_noise=a.teacher_noise,
-                       per_tick=a.per_tick)
+                       per_tick=a.per_tick, mixing=a.mixing, ignore=tuple(a.ignore))
     except ConfigError as exc:
         print(f"agents.distill: {exc}", file=sys.stderr)
         return 2

@@ -88,6 +88,18 @@ class LawTeacher:
         self.command_scale = float(scene.effects.command_scale)
         self._forces = np.empty(n)
         self._law_forces = laws.law_forces
+        self._own = np.zeros(n)  # N, the demands of the last act (the ones its memory assumes applied)
+        self._shaker_input = None
+        if self.name == "mpc-state":  # its memory drives a model of the shaker with its own demands
+            from impact_env.control.mpc.model import NZ, STATE, K
+            from impact_env.control.mpc.solver import MEM
+            from impact_env.control.mpc.solver import STATE as SOLVER_STATE
+
+            row = self.constants[0]
+            self._shaker_input = np.array([row[K.b0], row[K.b1], row[K.b2]])
+            self._shaker_slots = SOLVER_STATE + STATE.z0 + np.arange(NZ)
+            self._last_demand_slot = MEM.u_prev
+            self._umax = float(row[K.umax])
 
     def start(self, rows: np.ndarray) -> None:
         """Episode start of envs ``rows`` (bool[n] or indices): their memory zeroed, as the
@@ -99,7 +111,22 @@ class LawTeacher:
         frames ``frames[n, >= frame_size]`` (scaled as the env gives them)."""
         values = np.ascontiguousarray(frames[:, self.columns] * self.scales)
         f = self._law_forces(self.kind, self.slots, self.constants, values, self.memory, self._forces)
+        self._own[:] = f
         return np.clip(f / self.command_scale, -1.0, 1.0)[:, None]
+
+    def applied(self, commands: np.ndarray) -> None:
+        """The commands (float[n, 1], fractions of the command scale) the envs applied after the last
+        :meth:`act`.  A law whose memory models the effect of its own demands (``mpc-state``: the
+        shaker's three states, driven linearly by the demand, and the slew limit's last demand)
+        is moved onto the applied ones, so that its next labels are for the shaker the env has,
+        not for the one its own commands would have made; other laws' memories do not depend on
+        their output."""
+        if self._shaker_input is None:
+            return
+        u = np.asarray(commands, dtype=np.float64)[:, 0] * self.command_scale
+        u = np.clip(u, -self._umax, self._umax)
+        self.memory[:, self._shaker_slots] += (u - self._own)[:, None] * self._shaker_input
+        self.memory[:, self._last_demand_slot] = u
 
 
 class ResidualLabel:
@@ -117,4 +144,10 @@ class ResidualLabel:
         self.residual.start(rows)
 
     def act(self, frames: np.ndarray) -> np.ndarray:
-        return np.clip(self.teacher.act(frames) - self.residual.act(frames), -1.0, 1.0)
+        self._residual = self.residual.act(frames)
+        return np.clip(self.teacher.act(frames) - self._residual, -1.0, 1.0)
+
+    def applied(self, commands: np.ndarray) -> None:
+        """The actions applied (over the residual law's command, as the env adds them)."""
+        self.teacher.applied(np.clip(commands + self._residual, -1.0, 1.0))
+        self.residual.applied(self._residual)

@@ -93,8 +93,10 @@ QUICK_STEPS = {"ppo": 1_000_000, "sac": 250_000}
 QUICK_EVAL_EVERY = {"ppo": 256_000, "sac": 50_000}
 # --quick --teacher law:NAME: DAgger from a compiled classic law (agents.distill), no RL; the budget
 # (scripts/quick_teacher.py measures it and the student's ratio to the oracle)
+# (the student does not read the accelerometer, which carries its own last command, and the teacher's
+# applied command is perturbed, DART: without either, docs/agents-distillation.md)
 QUICK_DAGGER = {"history": 48, "iterations": 4, "envs": 64, "train_horizon": 0.05, "fit_samples": 400_000,
-                "eval_every": 1}
+                "eval_every": 1, "teacher_noise": 0.3, "ignore": ("accelerometer",)}
 
 
 @dataclass

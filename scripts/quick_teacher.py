@@ -2,7 +2,8 @@
 energy integral on the held-out drops against the oracle's, what limits it, and whether it ships.
 
     python scripts/quick_teacher.py [--teacher law:mpc-state] [--out runs/quick_teacher] \\
-        [--record docs/results/agents/quick_teacher.json] [--workers 1]
+        [--record docs/results/agents/quick_teacher.json] [--workers 1] [--episodes 100] \\
+        [--scenes rig,rig-randomized] [--oracle kept|run]
     python scripts/quick_teacher.py --docs [--record ...]  # its block in docs/agents-distillation.md
 
 What it runs and records (JSON: figures, commands, versions, CPU, date, load):
@@ -10,16 +11,20 @@ What it runs and records (JSON: figures, commands, versions, CPU, date, load):
 * **the quick run**: ``python -m agents.train --quick --teacher T --out OUT/sensors``, as a user
   types it, in a child process: its wall time and its CPU time (user + system, from
   ``resource.getrusage(RUSAGE_CHILDREN)``) with the machine's 1-minute load average at its start
-  and end (a loaded machine stretches the wall time, not the CPU time);
+  and end (a loaded machine stretches the wall time, not the CPU time), and whether it compiled
+  numba kernels (a first run in a checkout does, and its wall time holds that compile);
 * **the information**: the same DAgger budget (:data:`agents.train.QUICK_DAGGER`) with a student
   that reads the true state too (``agents.distill --student-observation both``): what the sensors
   cost, learning apart;
-* **the drops**: ``compare`` on drops 1000..1099 of ``rig`` and ``rig-randomized`` (the held-out
-  drops of docs/agents-results.md): ``pd-penetration``, the teacher, the privileged student and
-  the sensor student; the oracle's per-drop energy integrals are the ones kept in
-  ``docs/results/agents/SCENE.npz`` (``scripts/agents_report.py``'s ``oracle:warm=given``), and the
-  ``pd-penetration`` row here must equal the one kept there drop by drop (the same drops, checked);
-  the ratio is the mean energy integral over the oracle's, as docs/agents-results.md gives it;
+* **the drops**: ``compare`` on drops 1000..1000 + episodes - 1 of ``rig`` and ``rig-randomized``
+  (the held-out drops of docs/agents-results.md): ``pd-penetration``, the teacher, the privileged
+  student and the sensor student; with ``--oracle kept`` the oracle's per-drop energy integrals
+  are the ones kept in ``docs/results/agents/SCENE.npz`` (``scripts/agents_report.py``'s
+  ``oracle:warm=given``), and the ``pd-penetration`` row here must equal the one kept there drop by
+  drop (the same drops and simulator, checked); with ``--oracle run`` the oracle
+  (``oracle:warm=given``, warm-started from the other rows' commands, as there) runs in the same
+  comparison (seconds of CPU per drop: ``--episodes 20`` on a loaded machine); the ratio is the
+  mean energy integral over the oracle's, as docs/agents-results.md gives it;
 * **shipping**: the sensor student's compiled policy in the C export's float32 build against the
   double target on drops 0..9 of each scene (``scripts/agents_report.py``'s check, the bound of
   docs/rig.md).
@@ -48,6 +53,7 @@ BEGIN, END = "<!-- quick_teacher:begin -->", "<!-- quick_teacher:end -->"
 DEFAULT_RECORD = ROOT / "docs" / "results" / "agents" / "quick_teacher.json"
 SCENES = ("rig", "rig-randomized")
 TEST_SEED, EPISODES = 1000, 100
+ORACLE = "oracle:warm=given"  # scripts/agents_report.py's
 
 
 def _child_run(cmd: list[str], log: Path) -> dict:
@@ -63,25 +69,33 @@ def _child_run(cmd: list[str], log: Path) -> dict:
     if rc != 0:
         raise SystemExit(f"quick_teacher: {' '.join(cmd)} exited {rc}; see {log}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    text = log.read_text()
     return {"command": " ".join(cmd), "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
             "user_s": round(after.ru_utime - before.ru_utime, 1),
             "load_average": [round(load0, 2), round(os.getloadavg()[0], 2)],
-            "last_lines": log.read_text().strip().splitlines()[-3:]}
+            "compiled": "impact_env: compiled" in text,  # numba kernels: the wall time holds their compile
+            "last_lines": text.strip().splitlines()[-3:]}
 
 
-def _evaluate(scene: str, specs: dict[str, str], workers: int) -> dict:
-    """Per-drop energy integrals of every spec on the held-out drops, with the kept oracle's."""
+def _evaluate(scene: str, specs: dict[str, str], workers: int, episodes: int, oracle_source: str) -> dict:
+    """Per-drop energy integrals of every spec on the held-out drops, with the oracle's (the kept
+    record's, or run here)."""
     from impact_env.eval.compare import compare
 
-    kept = np.load(ROOT / "docs" / "results" / "agents" / f"{scene}.npz", allow_pickle=True)
-    runs = compare(scene, ["pd-penetration", *specs.values()], episodes=EPISODES, seed=TEST_SEED,
+    extra = [ORACLE] if oracle_source == "run" else []
+    runs = compare(scene, ["pd-penetration", *specs.values(), *extra], episodes=episodes, seed=TEST_SEED,
                    workers=workers, progress=False)
     pd_now = np.asarray(runs["pd-penetration"].metrics["energy_integral_ms"])
-    pd_kept = kept["pd-penetration|energy_integral_ms"]
-    if not np.allclose(pd_now, pd_kept, rtol=1e-9, atol=0):
-        raise SystemExit(f"quick_teacher: pd-penetration on {scene}'s drops {TEST_SEED}.. differs from the "
-                         "kept record: the drops (or the simulator) changed; rerun scripts/agents_report.py")
-    oracle = kept["oracle|energy_integral_ms"]
+    if oracle_source == "run":
+        oracle = np.asarray(runs[ORACLE].metrics["energy_integral_ms"])
+    else:
+        kept = np.load(ROOT / "docs" / "results" / "agents" / f"{scene}.npz", allow_pickle=True)
+        pd_kept = kept["pd-penetration|energy_integral_ms"][:episodes]
+        if not np.allclose(pd_now, pd_kept, rtol=1e-9, atol=0):
+            raise SystemExit(f"quick_teacher: pd-penetration on {scene}'s drops {TEST_SEED}.. differs from "
+                             "the kept record: the drops (or the simulator) changed; rerun "
+                             "scripts/agents_report.py, or use --oracle run")
+        oracle = kept["oracle|energy_integral_ms"][:episodes]
     rows = {"pd-penetration": pd_now, **{name: np.asarray(runs[spec].metrics["energy_integral_ms"])
                                          for name, spec in specs.items()}}
     out = {"oracle_mean_ms": round(float(oracle.mean()), 4)}
@@ -105,22 +119,28 @@ def measure(args) -> dict:
     priv_cmd = [py, "-m", "agents.distill", "--teacher", args.teacher, "--out", str(out / "privileged"),
                 "--student-observation", "both"]
     for key, value in QUICK_DAGGER.items():
-        priv_cmd += [f"--{key.replace('_', '-')}", str(value)]
+        for one in (value if isinstance(value, tuple) else (value,)):  # a tuple: the option repeated
+            priv_cmd += [f"--{key.replace('_', '-')}", str(one)]
     privileged = _child_run(priv_cmd, out / "privileged.log")
     law = args.teacher.split(":", 1)[1]
     sensors_model = out / "sensors" / "best_model.zip"
     specs = {"teacher": law, "privileged student": f"ppo:{out / 'privileged' / 'best_model.zip'}",
              "sensor student": f"ppo:{sensors_model}"}
-    scenes = {scene: _evaluate(scene, specs, args.workers) for scene in SCENES}
+    scene_names = args.scenes.split(",")
+    scenes = {scene: _evaluate(scene, specs, args.workers, args.episodes, args.oracle)
+              for scene in scene_names}
     meta = json.loads((out / "sensors" / "model.json").read_text())
     priv_meta = json.loads((out / "privileged" / "model.json").read_text())
     from scripts.agents_report import c_float32_check
 
     c_check = c_float32_check({"algo": "ppo", "model": sensors_model, "meta": meta, "dir": out / "sensors"},
-                              list(SCENES))
+                              scene_names)
+    options = "" if (args.episodes, args.scenes, args.oracle) == (EPISODES, ",".join(SCENES), "kept") else (
+        f" --episodes {args.episodes} --scenes {args.scenes} --oracle {args.oracle}")
     return {
         "teacher": args.teacher,
-        "command": f"python scripts/quick_teacher.py --teacher {args.teacher} --out {args.out}",
+        "command": f"python scripts/quick_teacher.py --teacher {args.teacher} --out {args.out}{options}",
+        "episodes": args.episodes, "oracle_source": args.oracle,
         "quick": quick, "privileged_run": privileged,
         "budget": QUICK_DAGGER, "scene_trained": meta["scene"],
         "training_wall_s": meta["wall_time_s"], "training_cpu_s": meta["cpu_time_s"],
@@ -137,22 +157,33 @@ def measure(args) -> dict:
 def block(rec: dict) -> str:
     """The generated block of docs/agents-distillation.md (no dates, loads or CPU models: those stay in
     the record)."""
-    rows = ["| policy | reads | rig: energy integral ms, / oracle's | rig-randomized: ms, / oracle's |",
-            "| --- | --- | --- | --- |"]
+    scenes = list(rec["held_out"])
+    rows = [f"| policy | reads | {scenes[0]}: energy integral ms, / oracle's |"
+            + "".join(f" {s}: ms, / oracle's |" for s in scenes[1:]),
+            "| --- | --- |" + " --- |" * len(scenes)]
     reads = {"pd-penetration": "the sensors (classic law)", "teacher": "the true state (the teacher)",
              "privileged student": "the sensors and the true state",
              "sensor student": "the sensors (what ships)"}
     for name in ("pd-penetration", "teacher", "privileged student", "sensor student"):
         cells = [f"{rec['held_out'][s][name]['mean_ms']:.2f}, "
-                 f"x{rec['held_out'][s][name]['ratio_to_oracle']:.2f}" for s in SCENES]
-        rows.append(f"| {name} | {reads[name]} | {cells[0]} | {cells[1]} |")
-    oracle = ", ".join(f"{s} {rec['held_out'][s]['oracle_mean_ms']:.2f} ms" for s in SCENES)
+                 f"x{rec['held_out'][s][name]['ratio_to_oracle']:.2f}" for s in scenes]
+        rows.append(f"| {name} | {reads[name]} | " + " | ".join(cells) + " |")
+    oracle = ", ".join(f"{s} {rec['held_out'][s]['oracle_mean_ms']:.2f} ms" for s in scenes)
+    episodes = rec.get("episodes", EPISODES)
+    drops = f"Held-out drops {TEST_SEED}..{TEST_SEED + episodes - 1}"
+    oracle_text = ("the oracle (`oracle:warm=given`) run in the same comparison"
+                   if rec.get("oracle_source") == "run" else "the oracle's kept per-drop results")
     c = rec["c_float32"]
     ships = ("not checked (no C compiler)" if c is None else
              f"{'yes' if not c['failed'] else 'no'}: the float32 C build within {c['bound']:.0e} of full "
              f"scale on {c['drops'] - len(c['failed'])} of {c['drops']} drops (largest difference "
              f"{c['max_same']:.2e})")
     q = rec["quick"]
+    compiled = " (a first run: that includes compiling the numba kernels)" if q.get("compiled") else ""
+    budget = rec["budget"]
+    noise = (f", the teacher's applied command perturbed by {budget['teacher_noise']} of full scale"
+             if budget.get("teacher_noise") else "")
+    ignored = f" without the {', '.join(budget['ignore'])}" if budget.get("ignore") else ""
     return "\n".join([
         BEGIN,
         f"*Written by `python scripts/quick_teacher.py --docs` from `docs/results/agents/quick_teacher.json` "
@@ -160,10 +191,12 @@ def block(rec: dict) -> str:
         "",
         f"`python -m agents.train --quick --teacher {rec['teacher']}`: DAgger, {rec['budget']['iterations']} "
         f"iterations of {rec['budget']['envs']} envs of `{rec['scene_trained']}`, "
-        f"{rec['budget']['train_horizon']} s episodes, a student on the last {rec['budget']['history']} "
-        f"sensor frames acting every control period: {q['wall_s']:.0f} s of wall time for the whole command "
-        f"({q['cpu_s']:.0f} s of CPU; the training alone {rec['training_wall_s']:.0f} s, "
-        f"{rec['training_cpu_s']:.0f} s of CPU).  Held-out drops 1000..1099; the oracle's mean: {oracle}.",
+        f"{budget['train_horizon']} s episodes{noise}, a student on the last {budget['history']} "
+        f"sensor frames{ignored} acting every control period: {q['wall_s']:.0f} s of wall time for the whole "
+        f"command"
+        f"{compiled} ({q['cpu_s']:.0f} s of CPU; the training alone {rec['training_wall_s']:.0f} s, "
+        f"{rec['training_cpu_s']:.0f} s of CPU), on a machine whose load the record keeps.  {drops}; "
+        f"{oracle_text}, its mean: {oracle}.",
         "",
         *rows,
         "",
@@ -187,6 +220,12 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="runs/quick_teacher")
     p.add_argument("--record", default=str(DEFAULT_RECORD))
     p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--episodes", type=int, default=EPISODES,
+                   help=f"held-out drops per scene (default {EPISODES})")
+    p.add_argument("--scenes", default=",".join(SCENES), help="the scenes of the held-out drops")
+    p.add_argument("--oracle", choices=("kept", "run"), default="kept",
+                   help="the oracle's per-drop results: kept (docs/results/agents/SCENE.npz, checked to be "
+                        "for the same drops) or run (in the comparison; seconds of CPU per drop)")
     p.add_argument("--docs", action="store_true",
                    help="only write the record's block into docs/agents-distillation.md")
     p.add_argument("--doc", default=str(ROOT / "docs" / "agents-distillation.md"))

@@ -111,3 +111,36 @@ def test_quick_with_a_teacher_refuses_rl_options_and_bad_names_before_any_work(t
     assert train_main(["--teacher", "law:thesis-ideal"]) == 2
     assert "goes with --quick" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()
+
+
+def test_an_mpc_teacher_follows_the_commands_the_envs_applied():
+    """mpc-state's memory drives its model of the shaker with its own demands; told the commands
+    the envs applied (a student's, a perturbed teacher's), its shaker states are the model's
+    driven by those, and its slew reference is the last one applied, whatever it demanded."""
+    from impact_env.control.mpc.model import NZ, STATE, K
+    from impact_env.control.mpc.solver import MEM
+    from impact_env.control.mpc.solver import STATE as SOLVER_STATE
+    from impact_env.control.observation import make_layout
+    from impact_env.scene import load_scene
+
+    scene = load_scene("rig")
+    both = make_layout(scene, "both", 1)
+    frames = np.zeros((2, both.frame_size), np.float32)
+    frames[:, 4:] = [-0.5, 0.9, 0.0, 0.0]  # x1, v1, x2, v2 (scaled): body 1 falling towards body 2
+    teacher = LawTeacher("law:mpc-state", scene, both.names, both.scales, 2)
+    k = teacher.constants[0]
+    A = np.array([[k[K.a00], k[K.a01], k[K.a02]], [k[K.a10], k[K.a11], k[K.a12]],
+                  [k[K.a20], k[K.a21], k[K.a22]]])
+    B = np.array([k[K.b0], k[K.b1], k[K.b2]])
+    scale = float(scene.effects.command_scale)
+    z = np.zeros((2, NZ))
+    own = []
+    for applied in ([[0.3], [-2.0]], [[-1.0], [0.25]], [[0.5], [0.5]]):
+        own.append(teacher.act(frames)[:, 0])
+        teacher.applied(np.array(applied))
+        u = np.clip(np.array(applied)[:, 0] * scale, -k[K.umax], k[K.umax])
+        z = z @ A.T + u[:, None] * B
+        zs = teacher.memory[:, SOLVER_STATE + STATE.z0:SOLVER_STATE + STATE.z0 + NZ]
+        np.testing.assert_allclose(zs, z, rtol=1e-12, atol=1e-9 * np.abs(z).max())
+        np.testing.assert_array_equal(teacher.memory[:, MEM.u_prev], u)
+    assert not np.allclose(np.array(own)[:, 0], [0.3, -1.0, 0.5])  # it demanded something else
