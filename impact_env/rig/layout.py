@@ -139,35 +139,21 @@ class Field:
             except UnicodeEncodeError as exc:
                 raise ValueError(f"{name} is not encodable as UTF-8: {exc}") from None
 
-    def checker(self) -> Callable[[Any], None]:
-        """:meth:`check`, with an integer's or a choice's common case first (a payload checks every
-        field)."""
-        k = self.kind
-        if k in ("choice", "enum"):
-            choices = dict(self.choices or {})
-
-            def check_choice(value: Any) -> None:
-                if value not in choices:
-                    self.check(value)
-            return check_choice
-        if k in ("bytes", "bool", "floats"):
-            size, lo, hi = self.size, int(self.low), int(self.top)
-
-            def check_common(value: Any) -> None:
-                if not ((k == "bytes" and type(value) is bytes and len(value) == size)
-                        or (k == "bool" and type(value) is bool)
-                        or (k == "floats" and type(value) is tuple and lo <= len(value) <= hi
-                            and all(type(v) is float for v in value))):
-                    self.check(value)
-            return check_common
-        if k not in _INTS:
-            return self.check
-        name, lo, hi, unit = self.name, int(self.low), int(self.top), self.unit
-
-        def check_int(value: Any) -> None:
-            if type(value) is not int or not lo <= value <= hi:
-                check_uint(name, value, hi, lo, unit)
-        return check_int
+    def fits(self) -> Callable[[Any], bool]:
+        """Whether a value fits, the common case first and fast (every field of every payload
+        made is checked); :meth:`check` says why one does not."""
+        lo, hi, size, choices = self.low, self.top, self.size, dict(self.choices or {})
+        if self.kind in _INTS:
+            return lambda v: type(v) is int and lo <= v <= hi
+        return {"f64": lambda v: type(v) is float and v > lo and math.isfinite(v),
+                "bool": lambda v: type(v) is bool,
+                "enum": lambda v: v in choices,
+                "choice": lambda v: v in choices,
+                "bytes": lambda v: type(v) is bytes and len(v) == size,
+                "floats": lambda v: (type(v) is tuple and lo <= len(v) <= hi
+                                     and all(type(x) is float for x in v)),
+                "data": lambda v: type(v) is bytes and len(v) <= hi,
+                }.get(self.kind, lambda v: False)
 
     def decoder(self, mtype: Any) -> Callable[[Any], Any]:
         """The value of a decoded field from its wire value, checked (a field :meth:`checked_on_decode`)."""
@@ -187,18 +173,13 @@ class Field:
                     raise ValueError(f"{self.name} byte {v} is not 0 or 1")
                 return bool(v)
             return boolean
-        if self.kind == "floats":  # decoded entries are floats: their count is what to check
-            lo, hi = int(self.low), int(self.top)
-
-            def count_checked(v: Any) -> Any:
-                if not lo <= len(v) <= hi:
-                    self.check_count(v)
-                return v
-            return count_checked
-        check = self.checker()
+        lo, hi = self.low, self.top
+        # decoded floats are floats: their count is what to check
+        fits = (lambda v: lo <= len(v) <= hi) if self.kind == "floats" else self.fits()
 
         def checked(v: Any) -> Any:
-            check(v)
+            if not fits(v):
+                self.check(v)
             return v
         return checked
 
@@ -264,10 +245,10 @@ class Body:
     FIELDS: ClassVar[tuple[Field, ...]]
     FMT: ClassVar[struct.Struct]
     OFFSETS: ClassVar[dict[str, int]]
-    # derived by message(): the field names; each field's check; the decoded fields' (name, decoder);
+    # derived by message(): the field names; each field's fits(); the decoded fields' (name, decoder);
     # whether any field is variable; whether the fixed part packs the attributes as they are
     _NAMES: ClassVar[tuple[str, ...]]
-    _CHECKS: ClassVar[tuple[Callable[[Any], None], ...]]
+    _FITS: ClassVar[tuple[Callable[[Any], bool], ...]]
     _DECODERS: ClassVar[tuple[tuple[str, Callable[[Any], Any]], ...]]
     _VARIABLE: ClassVar[bool]
     _PLAIN: ClassVar[bool]
@@ -276,8 +257,10 @@ class Body:
     _VARS: ClassVar[tuple[tuple[int, str, str, Callable[[Any], None]], ...]]
 
     def __post_init__(self) -> None:
-        for check, name in zip(self._CHECKS, self._NAMES, strict=True):
-            check(getattr(self, name))
+        for fits, f in zip(self._FITS, self.FIELDS, strict=True):
+            value = getattr(self, f.name)
+            if not fits(value):
+                f.check(value)
         self.check()
 
     def check(self) -> None:
@@ -350,11 +333,11 @@ def message(cls: BodyClass) -> BodyClass:
     cls.FMT = fmt_of(decl, cls.PAD)
     cls.OFFSETS = offsets_of(decl)
     cls._NAMES = tuple(f.name for f in decl)
-    cls._CHECKS = tuple(f.checker() for f in decl)
+    cls._FITS = tuple(f.fits() for f in decl)
     cls._DECODERS = tuple((f.name, f.decoder(cls.TYPE)) for f in decl if f.checked_on_decode())
     cls._VARIABLE = any(f.kind in VARIABLE for f in decl)
     cls._PLAIN = not cls._VARIABLE and not any(f.kind == "enum" for f in decl)
     cls._ENUMS = tuple((i, dict(f.choices or {})) for i, f in enumerate(decl) if f.kind == "enum")
-    cls._VARS = tuple((i, f.kind, f.elem, cls.declared(f.elem).checker() if f.elem else f.check)
+    cls._VARS = tuple((i, f.kind, f.elem, cls.declared(f.elem).check if f.elem else f.check)
                       for i, f in enumerate(decl) if f.kind in VARIABLE)
     return cls
