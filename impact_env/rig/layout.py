@@ -117,7 +117,8 @@ class Field:
                 raise ValueError(f"{name} must be a bool, got {value!r}")
         elif k in ("enum", "choice"):
             if value not in self.choices:  # type: ignore[operator]
-                raise ValueError(f"{name} = {value!r} must be one of {self.range_text()}")
+                one_of = ", ".join(self.choices or {}) if k == "enum" else self.range_text()
+                raise ValueError(f"{name} = {value!r} must be one of {one_of}")
         elif k == "bytes":
             if not isinstance(value, bytes) or len(value) != self.size:
                 raise ValueError(f"{name} must be {self.size} bytes ({self.meaning}), got {value!r:.80}")
