@@ -21,7 +21,6 @@ from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, TypeVar
 
 U8, U16, U32, U64 = 0xFF, 0xFFFF, 0xFFFF_FFFF, 0xFFFF_FFFF_FFFF_FFFF
-_FLT_MAX = 3.4028234663852886e38  # the largest float32
 # the wire types: struct code, and the largest value of the integer ones
 _INTS = {"u8": ("B", U8), "u16": ("H", U16), "u32": ("I", U32), "u64": ("Q", U64)}
 _CODES = {**{k: code for k, (code, _) in _INTS.items()}, "f64": "d", "bool": "B", "enum": "B", "choice": "B",

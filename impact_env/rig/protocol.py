@@ -74,7 +74,6 @@ from impact_env.rig import handshake
 
 # the integer limits, Body and the errors of layout are this module's too (protocol.U64, protocol.Body, ...)
 from impact_env.rig.layout import (  # noqa: F401
-    _FLT_MAX,
     U8,
     U16,
     U32,
@@ -113,6 +112,8 @@ ARM_KIND_SHIFT = 1  # options bits 1-2: the episode kind (EpisodeKind)
 ARM_KIND_MASK = 0b110
 # the other bits are reserved: an ARM with one is refused
 ARM_OPTIONS_MAX = ARM_TERMINATE_ON_CATCH | ARM_KIND_MASK
+
+_FLT_MAX = 3.4028234663852886e38  # the largest float32
 
 # the first telemetry values of an OBSERVATION (then a virtual rig's tick records, see OBSERVATION)
 TELEMETRY_FIELDS = ("force_demand_N", "force_applied_N", "command_age_ticks")
