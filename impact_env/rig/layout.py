@@ -122,7 +122,11 @@ class Field:
             if not isinstance(value, bytes) or len(value) != self.size:
                 raise ValueError(f"{name} must be {self.size} bytes ({self.meaning}), got {value!r:.80}")
         elif k == "floats":
-            self.check_count(value)
+            lo, hi = int(self.low), int(self.top)
+            if not isinstance(value, tuple) or not lo <= len(value) <= hi:
+                n = len(value) if hasattr(value, "__len__") else "?"
+                raise FieldError(f"{name} must be a tuple of {lo} to {hi} floats, got "
+                                 f"{type(value).__name__} of length {n}", name, f"n={n} [{lo},{hi}]")
             for v in value:
                 if type(v) is not float:
                     raise ValueError(f"{name} must hold Python floats, got {v!r} ({type(v).__name__})")
@@ -182,15 +186,6 @@ class Field:
                 self.check(v)
             return v
         return checked
-
-    def check_count(self, value: Any) -> None:
-        """A ``floats`` field's: a tuple of low..high entries."""
-        lo, hi = int(self.low), int(self.top)
-        if not isinstance(value, tuple) or not lo <= len(value) <= hi:
-            n = len(value) if hasattr(value, "__len__") else "?"
-            raise FieldError(f"{self.name} must be a tuple of {lo} to {hi} floats, got "
-                             f"{type(value).__name__} "
-                             f"of length {n}", self.name, f"n={n} [{lo},{hi}]")
 
     def checked_on_decode(self) -> bool:
         """Whether a decoded value can be out of range (else the wire type holds only good ones)."""
