@@ -8,8 +8,8 @@ Each page under ``docs/reference/generated/`` comes from the one definition the 
   the ``rig`` preset;
 * ``effects.md`` and ``laws.md``: the effect and law registries' tables;
 * ``task.md``: the catch task's options (:class:`impact_env.env.task.TaskConfig`'s fields);
-* ``protocol.md``: the wire protocol's message types and their fixed payloads, from the message
-  classes of :mod:`impact_env.rig.protocol` (offsets from their ``struct`` formats).
+* ``protocol.md``: the wire protocol's header and message types, each field's offset, type,
+  range, unit and meaning, from the declarations of :mod:`impact_env.rig.protocol`.
 
 The pages are not committed (.gitignore): the site cannot show a table the code no longer has.
 """
@@ -120,29 +120,26 @@ def task_page() -> str:
     return "\n".join(rows) + "\n"
 
 
-_STRUCT = re.compile(r"(\d*)([xcbB?hHiIlLqQnNefdspP])")
-_TYPES = {"B": "u8", "b": "i8", "?": "bool", "H": "u16", "h": "i16", "I": "u32", "i": "i32", "Q": "u64",
-          "q": "i64", "f": "f32", "d": "f64", "e": "f16"}
-
-
-def _layout(body) -> list[tuple[int, str, str]]:
-    """(offset, type, field) of a message class's fixed part, from its struct format and fields."""
-    fmt = body.FMT.format.lstrip("<>=!@")
-    names = iter(f.name for f in dataclasses.fields(body))
-    out, offset = [], 0
-    for count, code in _STRUCT.findall(fmt):
-        n = int(count) if count else 1
-        if code == "x":
-            out.append((offset, f"{n} B", "(zero padding)"))
-            offset += n
-        elif code == "s":
-            out.append((offset, f"{n}s", next(names)))
-            offset += n
+def _fields_table(fields, fixed: int | None = None) -> list[str]:
+    """The rows of a declared layout (:mod:`impact_env.rig.layout`): each field's offset, wire type,
+    range, unit and meaning; a variable field's count in the fixed part, its contents after it."""
+    rows = ["| offset | type | field | range | unit | meaning |", "| --- | --- | --- | --- | --- | --- |"]
+    at, tail = 0, []
+    for f in fields:
+        size = struct.calcsize("<" + f.code)
+        kind = {"bytes": f"{f.size} bytes", "bool": "u8", "enum": "u8", "choice": "u8"}.get(f.kind, f.kind)
+        if f.kind in ("floats", "data", "text"):
+            elem = {"floats": f"f32/f64 (`{f.elem}`)" if f.elem else "f64", "data": "bytes",
+                    "text": "UTF-8 bytes"}[f.kind]
+            rows.append(f"| {at} | u16 | `{f.name}` count | {f.range_text().removeprefix('count ')} | | |")
+            tail.append(f"| then | {elem} | `{f.name}` | | {_cell(f.unit)} | {_cell(f.meaning)} |")
         else:
-            for _ in range(n):
-                out.append((offset, _TYPES.get(code, code), next(names)))
-                offset += struct.calcsize("<" + code)
-    return out
+            rows.append(f"| {at} | {kind} | `{f.name}` | {_cell(f.range_text())} | {_cell(f.unit)} | "
+                        f"{_cell(f.meaning)} |")
+        at += size
+    if fixed is not None and fixed > at:
+        rows.append(f"| {at} | {fixed - at} bytes | (zero padding) | 0 | | no reply is larger |")
+    return rows + tail
 
 
 def protocol_page() -> str:
@@ -155,23 +152,24 @@ def protocol_page() -> str:
     rows = ["# Wire protocol", "",
             f"Version {P.VERSION_MAJOR}.{P.VERSION_MINOR}: UDP datagrams of a {P.HEADER_SIZE}-byte header, "
             f"a payload and a {P.TAG_SIZE}-byte HMAC-SHA256 tag; integers unsigned little-endian, floats "
-            "IEEE-754 "
-            "little-endian.  The header's layout, the versioning rules and the handshake are in the module's "
-            "documentation (`impact_env/rig/protocol.py`); the tables below are generated from its message "
-            "classes.", "",
-            "## Message types", "", "| code | type | direction | fixed payload, B | what |",
-            "| --- | --- | --- | --- | --- |"]
+            "IEEE-754 little-endian.  The versioning rules and the handshake are in the module's "
+            "documentation (`impact_env/rig/protocol.py`); the tables below are generated from its "
+            "declarations (each field's wire type, range, unit and meaning, declared once: "
+            "`impact_env/rig/layout.py`), from which the encoding, the decoding and the checks follow too.  "
+            "A variable part (actions, observations, data, text) follows the fixed fields in their order, "
+            "its count a u16 among them.", "",
+            "## Header", ""]
+    rows += _fields_table(P.HEADER_FIELDS)
+    rows += ["", "## Message types", "", "| code | type | direction | fixed payload, B | what |",
+             "| --- | --- | --- | --- | --- |"]
     for code, body in sorted(P.BODIES.items()):
         what = re.sub(r"\s+", " ", (body.__doc__ or "").strip().split("\n\n")[0]).replace("``", "`")
-        what = "" if what.startswith(body.__name__ + "(") else what  # dataclass's generated signature
         name = P.MsgType(code).name
         rows.append(f"| {int(code)} | {name} | {direction(code)} | {body.FMT.size} | {_cell(what)} |")
     rows += [""]
     for code, body in sorted(P.BODIES.items()):
-        rows += [f"## {P.MsgType(code).name} ({int(code)})", "", "| offset | type | field |",
-                 "| --- | --- | --- |"]
-        for offset, kind, field in _layout(body):
-            rows.append(f"| {offset} | {kind} | {field if field.startswith('(') else f'`{field}`'} |")
+        rows += [f"## {P.MsgType(code).name} ({int(code)})", ""]
+        rows += _fields_table(body.FIELDS, body.FMT.size)
         rows.append("")
     for enum in (P.EndReason, P.ErrorCode, P.EpisodeKind, P.TargetState):
         rows += [f"## `{enum.__name__}`", "", "| value | name |", "| --- | --- |"]

@@ -22,8 +22,6 @@ from impact_env.rig.cfunc import call_poll, call_recvfrom
 # what exchange() returns: the newest OBSERVATION is in Wire.out; Python has a queued datagram to
 # look at (none observed yet); the time ran out
 OBSERVED, QUEUED, TIMEOUT = 1, 2, 3
-OBS_FIXED = 17  # bytes of an OBSERVATION's fixed payload fields (protocol.Observation.FMT)
-assert protocol.Observation.FMT.size == OBS_FIXED and protocol.Command.FMT.size == 10
 
 
 @jit
@@ -53,16 +51,16 @@ def classify_observation(w, n, episode, min_step):
         return
     newer = d[o + wire.H_MINOR] > protocol.VERSION_MINOR
     pl = o + protocol.HEADER_SIZE
-    if plen < OBS_FIXED:
+    if plen < wire.O_FIXED:
         c.corrupt[0] += 1
         return
-    dtype = d[pl + 12]
-    n_obs = wire.get_uint(d, pl + 13, 2)
-    m = wire.get_uint(d, pl + 15, 2)
+    dtype = d[pl + wire.O_DTYPE]
+    n_obs = wire.get_uint(d, pl + wire.O_COUNT, 2)
+    m = wire.get_uint(d, pl + wire.O_TELEMETRY, 2)
     if (dtype != 4 and dtype != 8) or m > protocol.MAX_VALUES or n_obs > protocol.MAX_VALUES:
         c.corrupt[0] += 1
         return
-    need = OBS_FIXED + dtype * n_obs + 8 * m
+    need = wire.O_FIXED + dtype * n_obs + 8 * m
     if plen < need or (not newer and plen != need):
         c.corrupt[0] += 1
         return
@@ -79,10 +77,11 @@ def classify_observation(w, n, episode, min_step):
         return
     c.accepted[0] += 1
     st = w.st
-    step = wire.get_uint(d, pl + 4, 4)
-    if wire.get_uint(d, pl, 4) != episode or step < min_step or (st.got[0] and step <= st.out_step[0]):
+    step = wire.get_uint(d, pl + wire.O_STEP, 4)
+    ep = wire.get_uint(d, pl + wire.O_EPISODE, 4)
+    if ep != episode or step < min_step or (st.got[0] and step <= st.out_step[0]):
         return
-    q = pl + OBS_FIXED
+    q = pl + wire.O_FIXED
     out = w.out
     for i in range(n_obs):
         out[i] = wire.get_f32(d, q, w) if dtype == 4 else wire.get_f64(d, q, w)
@@ -92,7 +91,7 @@ def classify_observation(w, n, episode, min_step):
         q += 8
     st.got[0] = 1
     st.out_step[0] = step
-    st.out_status[0] = wire.get_uint(d, pl + 8, 4)
+    st.out_status[0] = wire.get_uint(d, pl + wire.O_STATUS, 4)
     st.out_dtype[0] = dtype
     st.out_n[0] = n_obs
     st.out_m[0] = m
@@ -113,13 +112,13 @@ def send_command(w, episode, step, action, seq, host_ns):
     wire.put_uint(t, o + wire.H_TICK, 8, 0)
     wire.put_uint(t, o + wire.H_HOST_NS, 8, host_ns)
     wire.put_uint(t, o + wire.H_TARGET_NS, 8, 0)
-    wire.put_uint(t, o + wire.H_PLEN, 2, 18)
+    wire.put_uint(t, o + wire.H_PLEN, 2, wire.C_FIXED + 8)
     pl = o + protocol.HEADER_SIZE
-    wire.put_uint(t, pl, 4, episode)
-    wire.put_uint(t, pl + 4, 4, step)
-    wire.put_uint(t, pl + 8, 2, 1)
-    wire.put_f64(t, pl + 10, action, w)
-    wire.send_frame(w, protocol.HEADER_SIZE + 18)
+    wire.put_uint(t, pl + wire.C_EPISODE, 4, episode)
+    wire.put_uint(t, pl + wire.C_STEP, 4, step)
+    wire.put_uint(t, pl + wire.C_COUNT, 2, 1)
+    wire.put_f64(t, pl + wire.C_FIXED, action, w)
+    wire.send_frame(w, protocol.HEADER_SIZE + wire.C_FIXED + 8)
 
 
 @jit(nogil=True)

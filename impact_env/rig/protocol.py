@@ -1,107 +1,23 @@
 """The rig's wire protocol: UDP datagrams in a fixed little-endian binary layout (version 4.0).
 
-Every datagram is one message: a 42-byte header, a payload whose layout the message type fixes,
-and a 16-byte tag (HMAC-SHA256, :func:`tag`).  Version 2.0 replaced 1.0's CRC-32 trailer with
-the tag and appended session_nonce and keyed to INFO; 2.1 gave ARM's options bits 1-2, the
-episode kind (:class:`EpisodeKind`: drops, or identification episodes with body 1 held); 3.0
-opens a session by challenge and response (HELLO -> CHALLENGE, RESPONSE -> INFO, 128-bit
-nonces from both sides), so that no recorded datagram opens one again; 4.0 gives each session a
-socket of its own at the target, named in INFO (``session_port``), to which the host sends
-everything after the handshake.  Integers are unsigned
-little-endian, floats IEEE-754 little-endian.
+Every datagram is one message: a 42-byte header (``HEADER_FIELDS``), a payload whose layout the
+message type fixes (its class below), and a 16-byte tag (HMAC-SHA256, :func:`tag`).  Version 2.0
+replaced 1.0's CRC-32 trailer with the tag and appended session_nonce and keyed to INFO; 2.1 gave
+ARM's options bits 1-2, the episode kind (:class:`EpisodeKind`: drops, or identification
+episodes with body 1 held); 3.0 opens a session by challenge and response (HELLO -> CHALLENGE,
+RESPONSE -> INFO, 128-bit nonces from both sides), so that no recorded datagram opens one again;
+4.0 gives each session a socket of its own at the target, named in INFO (``session_port``), to
+which the host sends everything after the handshake.  Integers are unsigned little-endian, floats
+IEEE-754 little-endian.
 
-Header (42 bytes) and trailer
-=============================
-
-======  ====  ==========  =================================================================
-offset  size  type        field
-======  ====  ==========  =================================================================
-0       4     bytes       magic ``b"IMPR"``
-4       1     u8          major version (4): a receiver drops any other major
-5       1     u8          minor version (0): see *Versioning*
-6       1     u8          message type (table below)
-7       1     u8          flags: bit 0 ``FLAG_RETRY`` (a request sent again); others reserved
-8       4     u32         session id, chosen by the host in HELLO (never 0 once a session is open)
-12      4     u32         sequence number: one counter per sender and session, +1 per datagram
-                          (a retry gets a new number)
-16      8     u64         target tick: the target's tick counter (its only clock) when it sent
-                          the message; host->target: the tick of the message being answered
-24      8     u64         host timestamp, ns (host's ``perf_counter_ns`` at sending; echoed back
-                          by the target in replies, so the host measures round trips)
-32      8     u64         target timestamp, ns (target's ``perf_counter_ns`` at sending; echoed
-                          by the host in COMMANDs answering an OBSERVATION)
-40      2     u16         payload length L, bytes (at most ``MAX_PAYLOAD``)
-42      L     bytes       payload
-42+L    16    bytes       tag: HMAC-SHA256(key, nonce u64 LE + bytes 0 .. 42+L-1)[:16]; key the
-                          shared key (b"" without one), nonce the session's (from INFO; 0 for
-                          HELLO, CHALLENGE, RESPONSE, INFO and ERROR)
-======  ====  ==========  =================================================================
-
-Message types and payloads (offsets from the payload start; ``H`` host, ``T`` target)
-====================================================================================
-
-=====  ============  =====  ===========================================================================
-code   type          dir    payload (offset type field [unit])
-=====  ============  =====  ===========================================================================
-1      HELLO         H->T   0 16s nonce (the host's, fresh per handshake); 16 64 zero bytes (padding:
-                            no reply to a HELLO is larger).  Asks for a CHALLENGE; opens nothing.
-                            = 80 B
-15     CHALLENGE     T->H   0 16s nonce (the HELLO's); 16 16s target_nonce (fresh, ``secrets``).
-                            In the HELLO's session id.  = 32 B
-16     RESPONSE      H->T   0 16s nonce; 16 16s target_nonce (the CHALLENGE's); 32 48 zero bytes
-                            (padding).  Its tag covers both nonces: it opens the header's session
-                            (or confirms the open one) if it answers a live challenge sent to
-                            its sender, once.  = 80 B
-2      INFO          T->H   0 16s nonce (the RESPONSE's); 16 f64 control_rate_hz [Hz]; 24 u8 state
-                            (0 idle, 1 armed, 2 running, 3 fault); 25 u8 driver (0 virtual, 1
-                            hardware); 26 u8 lockstep (0/1); 27 u32 scene_size [B] (resource SCENE);
-                            31 32s scene_sha256; 63 u64 session_nonce (drawn per session; in every
-                            later tag); 71 u8 keyed; 72 u16 session_port (the session's own socket
-                            at the target, 0: none; the host sends the session's datagrams there;
-                            4.0).  = 74 B
-3      ARM           H->T   0 u8 mode (1 host, 2 onboard); 1 u8 observation (0 sensors, 1 privileged,
-                            2 both); 2 u8 history [frames, 1..64]; 3 u8 options (bit 0
-                            ``ARM_TERMINATE_ON_CATCH``; bits 1-2 the ``EpisodeKind``: 0 drop, 1
-                            identification drop, 2 shaker only, 3 quiet; 2.1); 4 u16 hold_ticks
-                            [ticks per policy step, >= 1]; 6 u64 seed; 14 u32 horizon_ticks [ticks,
-                            >= 1]; 18 u32
-                            first_command_timeout_ticks [ticks; host mode; 0: the target's
-                            safety.first_command_timeout_s]; 22 u32 link_timeout_ms [ms; 0 = none];
-                            26 u32 policy_size [B; onboard, else 0]; 30 32s policy_sha256
-                            (onboard: of the uploaded file; host mode: zeros).  = 62 B
-4      ARMED         T->H   0 u32 episode; 4 u64 start_tick; 12 u16 obs_size [entries]; 14 u16
-                            action_size; 16 u8 obs_dtype (4 float32, 8 float64); 17 u8 telemetry_size
-                            [entries]; 18 u16 hold_ticks; 20 f64 control_rate_hz [Hz]; 28 32s
-                            scene_sha256.  = 60 B
-5      POLICY_CHUNK  H->T   0 u64 upload_id (first 8 bytes of the file's sha256, little-endian); 8 u32
-                            total [B]; 12 u32 offset [B]; 16 u16 n [B]; 18 n bytes data.  Answered by ACK
-                            (value = offset + n).  = 18 + n B
-6      ACK           both   0 u8 acked_type; 1 u8 code (0 ok, else an ``ErrorCode``); 2 u32 acked_seq;
-                            6 u64 value (type-specific).  = 14 B
-7      COMMAND       H->T   0 u32 episode; 4 u32 step (policy step the action is for); 8 u16 n; 10 n x
-                            f64 action [dimensionless, 1.0 = effects.command_scale N].  = 10 + 8n B
-8      OBSERVATION   T->H   0 u32 episode; 4 u32 step; 8 u32 status (bits of :mod:`impact_env.rig.safety`);
-                            12 u8 dtype (4 float32 / 8 float64); 13 u16 n; 15 u16 m; 17 n x dtype
-                            observation [scaled units of :mod:`impact_env.control.observation`]; then m x
-                            f64 telemetry: the ``TELEMETRY_FIELDS`` (force_demand_N, force_applied_N,
-                            command_age_ticks), then, from a virtual rig, the true records of the step's
-                            ticks (hold_ticks x N_REC, :mod:`impact_env.sim.records`).
-                            = 17 + n dtype + 8m B
-9      EPISODE_END   T->H   0 u32 episode; 4 u8 reason (``EndReason``); 5 u32 status (OR of the ticks'
-                            status bits); 9 u64 n_ticks; 17 u32 n_steps; 21 u32 data_size [B] (resource
-                            EPISODE); 25 32s data_sha256.  = 57 B
-10     FETCH         H->T   0 u8 resource (1 SCENE, 2 EPISODE); 1 u32 item (episode number; 0 for
-                            SCENE); 5 u32 offset [B]; 9 u16 max_len [B].  = 11 B
-11     CHUNK         T->H   0 u8 resource; 1 u32 item; 5 u32 total [B]; 9 u32 offset [B]; 13 u16 n [B];
-                            15 n bytes data.  = 15 + n B
-12     DISARM        H->T   0 u8 reason (0 user, 1 host closing, 2 host error, 3 caught: the host's
-                            task ended the episode, whose end reason is then CAUGHT).  Answered by
-                            ACK.  = 1 B
-13     HEARTBEAT     both   0 u8 state; 1 u32 episode; 5 u32 step; 9 u32 peer_seq (newest sequence
-                            number accepted from the peer).  = 13 B
-14     ERROR         both   0 u16 code (``ErrorCode``); 2 u32 ref_seq (the message it answers, or 0);
-                            6 u16 n; 8 n bytes UTF-8 text (at most 1024).  = 8 + n B
-=====  ============  =====  ===========================================================================
+Layouts.  The header's fields and each payload's are declared once, as data (wire type, range,
+unit, meaning: :mod:`impact_env.rig.layout`); their ``struct`` formats, checks, encoding and
+decoding, the offsets the compiled wire reads and the docs' tables
+(docs/reference/generated/protocol.md) all follow from those declarations.  After the payload
+of L bytes comes the tag: HMAC-SHA256(key, nonce u64 LE + bytes 0 .. 42+L-1)[:16], key the
+shared key (b"" without one), nonce the session's (from INFO; 0 for ``OPEN_TYPES``: HELLO,
+CHALLENGE, RESPONSE, INFO and ERROR).  A variable part (COMMAND's actions, OBSERVATION's values,
+a chunk's data, ERROR's text) follows the fixed fields, its count a u16 among them.
 
 Sizes.  ``MAX_PAYLOAD`` (65449 B) fills the largest UDP datagram over IPv4.  Datagrams up to
 ``MTU_DATAGRAM`` (1472 B, an Ethernet frame) are never fragmented by IP; POLICY_CHUNK and CHUNK
@@ -148,26 +64,36 @@ from __future__ import annotations
 
 import builtins
 import enum
-import functools
 import hmac
 import math
 import struct
-from collections.abc import Hashable
-from dataclasses import dataclass, field, fields
-from typing import Any, ClassVar, TypeVar, cast
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, TypeVar
 
 from impact_env.rig import handshake
+
+# the integer limits, Body and the errors of layout are this module's too (protocol.U64, protocol.Body, ...)
+from impact_env.rig.layout import (  # noqa: F401
+    U8,
+    U16,
+    U32,
+    U64,
+    Body,
+    CorruptDatagram,
+    Field,
+    FieldError,
+    ProtocolError,
+    check_uint,
+    fmt_of,
+    message,
+    offsets_of,
+    wire,
+)
 
 MAGIC = b"IMPR"
 VERSION_MAJOR = 4
 VERSION_MINOR = 0
 
-HEADER = struct.Struct("<4sBBBBIIQQQH")
-TAG_SIZE = 16  # bytes of HMAC-SHA256 kept (128 bits)
-HEADER_SIZE = HEADER.size  # 42
-OVERHEAD = HEADER_SIZE + TAG_SIZE  # 58
-MAX_DATAGRAM = 65507  # largest UDP payload over IPv4, B
-MAX_PAYLOAD = MAX_DATAGRAM - OVERHEAD  # 65449 B
 MIN_KEY = 16  # bytes of a shared key, at least
 # the types tagged with nonce 0: those sent before the session's nonce is known to both sides
 OPEN_TYPES = frozenset({1, 2, 14, 15, 16})  # HELLO, INFO, ERROR, CHALLENGE, RESPONSE
@@ -187,8 +113,7 @@ ARM_KIND_MASK = 0b110
 # the other bits are reserved: an ARM with one is refused
 ARM_OPTIONS_MAX = ARM_TERMINATE_ON_CATCH | ARM_KIND_MASK
 
-U8, U16, U32, U64 = 0xFF, 0xFFFF, 0xFFFF_FFFF, 0xFFFF_FFFF_FFFF_FFFF
-_FLT_MAX = 3.4028234663852886e38
+_FLT_MAX = 3.4028234663852886e38  # the largest float32
 
 # the first telemetry values of an OBSERVATION (then a virtual rig's tick records, see OBSERVATION)
 TELEMETRY_FIELDS = ("force_demand_N", "force_applied_N", "command_age_ticks")
@@ -279,22 +204,7 @@ _MODE_NAMES = {v: k for k, v in MODES.items()}
 _OBS_NAMES = {v: k for k, v in OBSERVATIONS.items()}
 
 
-# -- errors ------------------------------------------------------------------------------------------
-class ProtocolError(ValueError):
-    """A datagram that cannot be decoded; ``reason`` is the :class:`DatagramFilter` counter it
-    goes to, ``detail`` says why."""
-
-    reason = "corrupt"
-
-    def __init__(self, detail: str, message: str):
-        super().__init__(message)
-        self.detail = detail
-
-
-class CorruptDatagram(ProtocolError):
-    """Bad magic, length or payload (``detail``: truncated, magic, length, payload)."""
-
-
+# -- errors (ProtocolError, CorruptDatagram and FieldError: impact_env.rig.layout) -------------------
 class FieldOutOfRange(CorruptDatagram):
     """An authenticated datagram with a field out of its range (``detail`` "field"): ``field``
     names it, ``refusal`` is the terse text of the ERROR that answers it (``field=value [range]``),
@@ -305,14 +215,6 @@ class FieldOutOfRange(CorruptDatagram):
         super().__init__("field", message)
         self.field, self.refusal = field, refusal
         self.mtype, self.session, self.seq = mtype, session, seq
-
-
-class FieldError(ValueError):
-    """A field out of its range: ``field`` and the terse ``refusal`` (``field=value [range]``)."""
-
-    def __init__(self, message: str, field: str, refusal: str):
-        super().__init__(message)
-        self.field, self.refusal = field, refusal
 
 
 class WrongVersion(ProtocolError):
@@ -330,471 +232,308 @@ class UnknownType(ProtocolError):
     reason = "unexpected"
 
 
-# -- field checks -------------------------------------------------------------------------------------
-def _uint(name: str, value, hi: int, lo: int = 0) -> None:
-    if type(value) is int and lo <= value <= hi:  # the common case, first: decoding runs it per field
-        return
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise FieldError(f"{name} = {value!r} must be an integer in [{lo}, {hi}]", name,
-                         f"{name}={value!r:.24} [{lo},{hi}]")
+def _named(codes: type[enum.IntEnum]) -> str:
+    return ", ".join(f"{int(c)} {c.name.lower()}" for c in codes)
 
 
-def _digest(name: str, value) -> None:
-    if not isinstance(value, bytes) or len(value) != 32:
-        raise ValueError(f"{name} must be 32 bytes (a sha256 digest), got {value!r:.80}")
-
-
-def _floats(name: str, values, limit: int, lo: int = 0) -> None:
-    if not isinstance(values, tuple) or not lo <= len(values) <= limit:
-        n = len(values) if hasattr(values, '__len__') else '?'
-        raise FieldError(f"{name} must be a tuple of {lo} to {limit} floats, got {type(values).__name__} "
-                         f"of length {n}", name, f"n={n} [{lo},{limit}]")
-    for v in values:
-        if type(v) is not float:
-            raise ValueError(f"{name} must hold Python floats, got {v!r} ({type(v).__name__})")
-
-
-def _nonce(name: str, value) -> None:
-    if not isinstance(value, bytes) or len(value) != NONCE_SIZE:
-        raise ValueError(f"{name} must be {NONCE_SIZE} bytes (secrets.token_bytes), got {value!r:.80}")
-
-
-def _data(name: str, value, limit: int) -> None:
-    if not isinstance(value, bytes) or len(value) > limit:
-        raise ValueError(f"{name} must be bytes of at most {limit} B, got {type(value).__name__}"
-                         f"{'' if not isinstance(value, bytes) else f' of {len(value)} B'}")
+# -- the header ---------------------------------------------------------------------------------------
+HEADER_FIELDS = (
+    Field("magic", "bytes", size=4, meaning='b"IMPR"'),
+    Field("major", "u8", meaning=f"major version ({VERSION_MAJOR}): a receiver drops any other major"),
+    Field("minor", "u8", meaning=f"minor version ({VERSION_MINOR}): a newer one only appends (Versioning)"),
+    Field("type", "u8", meaning="message type (the tables below)"),
+    Field("flags", "u8", meaning="bit 0 FLAG_RETRY (a request sent again); others reserved"),
+    Field("session", "u32", meaning="session id, chosen by the host in HELLO (never 0 once a session is "
+          "open)"),
+    Field("seq", "u32", meaning="sequence number: one counter per sender and session, +1 per datagram "
+          "(a retry gets a new number); the receiver checks it per (session, type) stream"),
+    Field("tick", "u64", unit="ticks", meaning="the target's tick counter (its only clock) when it sent the "
+          "message; host->target: the tick of the message being answered"),
+    Field("host_ns", "u64", unit="ns", meaning="the host's perf_counter_ns at sending; echoed back by the "
+          "target in replies, so that the host measures round trips"),
+    Field("target_ns", "u64", unit="ns", meaning="the target's perf_counter_ns at sending; echoed by the "
+          "host in COMMANDs answering an OBSERVATION"),
+    Field("length", "u16", unit="B", meaning="payload length L (at most MAX_PAYLOAD); the payload, then the "
+          "16-byte tag, follow"),
+)
+HEADER = fmt_of(HEADER_FIELDS)
+HEADER_OFFSETS = offsets_of(HEADER_FIELDS)
+TAG_SIZE = 16  # bytes of HMAC-SHA256 kept (128 bits)
+HEADER_SIZE = HEADER.size  # 42
+OVERHEAD = HEADER_SIZE + TAG_SIZE  # 58
+MAX_DATAGRAM = 65507  # largest UDP payload over IPv4, B
+MAX_PAYLOAD = MAX_DATAGRAM - OVERHEAD  # 65449 B
+# the header fields a Message holds (the others: the frame's, set by encode)
+_MESSAGE_FIELDS = tuple(f for f in HEADER_FIELDS if f.name in ("flags", "session", "seq", "tick", "host_ns",
+                                                                "target_ns"))
 
 
 # -- payloads -----------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Body:
-    """A message payload.  Subclasses fix ``TYPE`` and the fixed-size part ``FMT``."""
-
-    TYPE: ClassVar[MsgType]
-    FMT: ClassVar[struct.Struct]
-
-    def pack(self) -> bytes:
-        return self.FMT.pack(*self._fixed())
-
-    def _fixed(self) -> tuple:
-        cls = cast(Hashable, type(self))  # a class is hashable (mypy reads the eq dataclass's instances)
-        return tuple(getattr(self, name) for name in _names(cls))
-
-    @classmethod
-    def unpack(cls, payload: bytes | memoryview, newer: bool) -> Body:
-        """Decode ``payload``; ``newer``: the sender's minor is newer (trailing bytes allowed)."""
-        n = cls.FMT.size
-        _need(payload, n, newer, exact=True)
-        return cls(*cls.FMT.unpack_from(payload))
+def _nonce(default_meaning: str) -> Any:
+    return wire("bytes", bytes(NONCE_SIZE), size=NONCE_SIZE, meaning=default_meaning)
 
 
-
-B = TypeVar("B", bound=Body)  # a payload class
-
-@functools.cache
-def _names(cls: Any) -> tuple[str, ...]:
-    return tuple(f.name for f in fields(cls))
+def _sha256(meaning: str) -> Any:
+    return wire("bytes", bytes(32), size=32, meaning=f"a sha256 digest: {meaning}")
 
 
-def _need(payload, n: int, newer: bool, exact: bool) -> None:
-    if len(payload) < n or (exact and not newer and len(payload) != n):
-        raise CorruptDatagram("payload", f"payload of {len(payload)} B where {n} B are needed")
+_RATE = "the target's control (tick) rate"
+_DTYPES = {4: "float32", 8: "float64"}
 
 
+@message
 @dataclass(frozen=True)
 class Hello(Body):
-    """The host's nonce, then ``HELLO_PAD`` zero bytes (the CHALLENGE or ERROR answering it is
-    never larger)."""
+    """Asks for a CHALLENGE; opens nothing.  The host's nonce, then ``HELLO_PAD`` zero bytes (the
+    CHALLENGE or ERROR answering it is never larger)."""
 
     TYPE: ClassVar = MsgType.HELLO
-    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}s{HELLO_PAD}x")
-    nonce: bytes = bytes(NONCE_SIZE)
-
-    def __post_init__(self):
-        _nonce("nonce", self.nonce)
+    PAD: ClassVar = HELLO_PAD
+    nonce: bytes = _nonce("the host's, fresh per handshake (secrets.token_bytes)")
 
 
+@message
 @dataclass(frozen=True)
 class Challenge(Body):
-    """The target's answer to a HELLO: its nonce echoed, and a fresh one of the target's."""
+    """The target's answer to a HELLO, in its session id: its nonce echoed, and a fresh one of the
+    target's."""
 
     TYPE: ClassVar = MsgType.CHALLENGE
-    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}s{NONCE_SIZE}s")
-    nonce: bytes = bytes(NONCE_SIZE)
-    target_nonce: bytes = bytes(NONCE_SIZE)
-
-    def __post_init__(self):
-        _nonce("nonce", self.nonce)
-        _nonce("target_nonce", self.target_nonce)
+    nonce: bytes = _nonce("the HELLO's")
+    target_nonce: bytes = _nonce("the target's, fresh (secrets.token_bytes)")
 
 
+@message
 @dataclass(frozen=True)
 class Response(Body):
     """The host's answer to a CHALLENGE: both nonces (so its tag is over both), then
-    ``RESPONSE_PAD`` zero bytes (the INFO answering it is never larger)."""
+    ``RESPONSE_PAD`` zero bytes (the INFO answering it is never larger).  It opens the header's
+    session (or confirms the open one) if it answers a live challenge sent to its sender, once."""
 
     TYPE: ClassVar = MsgType.RESPONSE
-    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}s{NONCE_SIZE}s{RESPONSE_PAD}x")
-    nonce: bytes = bytes(NONCE_SIZE)
-    target_nonce: bytes = bytes(NONCE_SIZE)
-
-    def __post_init__(self):
-        _nonce("nonce", self.nonce)
-        _nonce("target_nonce", self.target_nonce)
+    PAD: ClassVar = RESPONSE_PAD
+    nonce: bytes = _nonce("the host's, as in its HELLO")
+    target_nonce: bytes = _nonce("the CHALLENGE's")
 
 
+@message
 @dataclass(frozen=True)
 class Info(Body):
+    """The target's answer to a RESPONSE: what it is, and the session's nonce and socket."""
+
     TYPE: ClassVar = MsgType.INFO
-    FMT: ClassVar = struct.Struct(f"<{NONCE_SIZE}sdBBBI32sQBH")
-    nonce: bytes = bytes(NONCE_SIZE)
-    control_rate_hz: float = 1.0e4
-    state: int = TargetState.IDLE
-    driver: int = 0
-    lockstep: bool = False
-    scene_size: int = 0
-    scene_sha256: bytes = bytes(32)
-    session_nonce: int = 0
-    keyed: bool = False
-    session_port: int = 0  # the session's own socket at the target (0: none, use the target's address)
-
-    def __post_init__(self):
-        _nonce("nonce", self.nonce)
-        if not (isinstance(self.control_rate_hz, float) and self.control_rate_hz > 0
-                and math.isfinite(self.control_rate_hz)):
-            raise ValueError(f"control_rate_hz = {self.control_rate_hz!r} Hz must be a finite float > 0 Hz")
-        _uint("state", self.state, max(TargetState))
-        _uint("driver", self.driver, 1)
-        if not isinstance(self.lockstep, bool):
-            raise ValueError(f"lockstep must be a bool, got {self.lockstep!r}")
-        _uint("scene_size", self.scene_size, U32)
-        _digest("scene_sha256", self.scene_sha256)
-        _uint("session_nonce", self.session_nonce, U64)
-        if not isinstance(self.keyed, bool):
-            raise ValueError(f"keyed must be a bool, got {self.keyed!r}")
-        _uint("session_port", self.session_port, U16)
-
-    @classmethod
-    def unpack(cls, payload, newer):
-        _need(payload, cls.FMT.size, newer, exact=True)
-        nonce, rate, state, driver, lock, size, sha, snonce, keyed, port = cls.FMT.unpack_from(payload)
-        if lock > 1 or keyed > 1:
-            raise CorruptDatagram("payload", f"INFO lockstep/keyed byte {lock}/{keyed} is not 0 or 1")
-        return cls(nonce, rate, state, driver, bool(lock), size, sha, snonce, bool(keyed), port)
+    nonce: bytes = _nonce("the RESPONSE's")
+    control_rate_hz: float = wire("f64", 1.0e4, unit="Hz", meaning=_RATE)
+    state: int = wire("u8", TargetState.IDLE, high=max(TargetState), meaning=_named(TargetState))
+    driver: int = wire("u8", 0, high=1, meaning="0 virtual, 1 hardware")
+    lockstep: bool = wire("bool", False, meaning="the target waits for each step's command")
+    scene_size: int = wire("u32", 0, unit="B", meaning="the scene's TOML (resource SCENE)")
+    scene_sha256: bytes = _sha256("of the scene's TOML")
+    session_nonce: int = wire("u64", 0, meaning="drawn per session; in every later tag")
+    keyed: bool = wire("bool", False, meaning="the target holds a key")
+    session_port: int = wire("u16", 0, meaning="the session's own socket at the target, to which the host "
+                             "sends the session's datagrams (0: none, the target's address; 4.0)")
 
 
+@message
 @dataclass(frozen=True)
 class Arm(Body):
+    """Arms an episode (answered by ARMED, or by an ERROR naming the field out of range)."""
+
     TYPE: ClassVar = MsgType.ARM
-    FMT: ClassVar = struct.Struct("<BBBBHQIIII32s")
-    mode: str = "host"
-    observation: str = "sensors"
-    history: int = 1
-    options: int = 0
-    hold_ticks: int = 1
-    seed: int = 0
-    horizon_ticks: int = 1
-    first_command_timeout_ticks: int = 1000
-    link_timeout_ms: int = 0
-    policy_size: int = 0
-    policy_sha256: bytes = bytes(32)
-
-    def __post_init__(self):
-        if self.mode not in MODES:
-            raise ValueError(f"mode = {self.mode!r} must be one of {', '.join(MODES)}")
-        if self.observation not in OBSERVATIONS:
-            raise ValueError(f"observation = {self.observation!r} must be one of {', '.join(OBSERVATIONS)}")
-        _uint("history", self.history, 64, 1)
-        _uint("options", self.options, U8)
-        _uint("hold_ticks", self.hold_ticks, U16, 1)
-        _uint("seed", self.seed, U64)
-        _uint("horizon_ticks", self.horizon_ticks, U32, 1)
-        _uint("first_command_timeout_ticks", self.first_command_timeout_ticks, U32)
-        _uint("link_timeout_ms", self.link_timeout_ms, U32)
-        _uint("policy_size", self.policy_size, U32)
-        _digest("policy_sha256", self.policy_sha256)
-
-    def _fixed(self):
-        v = super()._fixed()
-        return (MODES[self.mode], OBSERVATIONS[self.observation]) + v[2:]
+    mode: str = wire("enum", "host", choices=MODES, meaning="who acts: the host's COMMANDs, or the "
+                     "uploaded policy")
+    observation: str = wire("enum", "sensors", choices=OBSERVATIONS, meaning="what an observation holds")
+    history: int = wire("u8", 1, 1, 64, "frames", "observations stacked")
+    options: int = wire("u8", 0, meaning="bit 0 ARM_TERMINATE_ON_CATCH; bits 1-2 the EpisodeKind (2.1); "
+                        "the others reserved (refused)")
+    hold_ticks: int = wire("u16", 1, 1, unit="ticks", meaning="ticks per policy step")
+    seed: int = wire("u64", 0, meaning="draws the episode's drop")
+    horizon_ticks: int = wire("u32", 1, 1, unit="ticks", meaning="the episode's length")
+    first_command_timeout_ticks: int = wire("u32", 1000, unit="ticks", meaning="host mode: the first "
+                                            "command's deadline (0: the target's "
+                                            "safety.first_command_timeout_s)")
+    link_timeout_ms: int = wire("u32", 0, unit="ms", meaning="the episode ends LINK_LOST when nothing "
+                                "authentic came from the host for that long (0: none)")
+    policy_size: int = wire("u32", 0, unit="B", meaning="onboard: the uploaded policy file's size (else 0)")
+    policy_sha256: bytes = _sha256("onboard: of the uploaded file; host mode: zeros")
 
     @property
     def kind(self) -> EpisodeKind:
         return EpisodeKind((self.options & ARM_KIND_MASK) >> ARM_KIND_SHIFT)
 
-    @classmethod
-    def unpack(cls, payload, newer):
-        _need(payload, cls.FMT.size, newer, exact=True)
-        mode, obs, *rest = cls.FMT.unpack_from(payload)
-        if mode not in _MODE_NAMES:
-            raise FieldError(f"ARM mode {mode} unknown: 1 host, 2 onboard", "mode", f"mode={mode} [1,2]")
-        if obs not in _OBS_NAMES:
-            raise FieldError(f"ARM observation {obs} unknown: 0 sensors, 1 privileged, 2 both", "observation",
-                             f"observation={obs} [0,2]")
-        return cls(_MODE_NAMES[mode], _OBS_NAMES[obs], *rest)
 
-
+@message
 @dataclass(frozen=True)
 class Armed(Body):
+    """The target's answer to an ARM: the episode, and the sizes of its observations and actions."""
+
     TYPE: ClassVar = MsgType.ARMED
-    FMT: ClassVar = struct.Struct("<IQHHBBHd32s")
-    episode: int = 0
-    start_tick: int = 0
-    obs_size: int = 1
-    action_size: int = 1
-    obs_dtype: int = 4
-    telemetry_size: int = 0
-    hold_ticks: int = 1
-    control_rate_hz: float = 1.0e4
-    scene_sha256: bytes = bytes(32)
-
-    def __post_init__(self):
-        _uint("episode", self.episode, U32)
-        _uint("start_tick", self.start_tick, U64)
-        _uint("obs_size", self.obs_size, MAX_VALUES)
-        _uint("action_size", self.action_size, MAX_VALUES)
-        if self.obs_dtype not in (4, 8):
-            raise ValueError(f"obs_dtype = {self.obs_dtype!r} must be 4 (float32) or 8 (float64)")
-        _uint("telemetry_size", self.telemetry_size, U8)
-        _uint("hold_ticks", self.hold_ticks, U16, 1)
-        if not (isinstance(self.control_rate_hz, float) and self.control_rate_hz > 0
-                and math.isfinite(self.control_rate_hz)):
-            raise ValueError(f"control_rate_hz = {self.control_rate_hz!r} Hz must be a finite float > 0 Hz")
-        _digest("scene_sha256", self.scene_sha256)
+    episode: int = wire("u32", 0, meaning="the episode's number")
+    start_tick: int = wire("u64", 0, unit="ticks", meaning="the target's tick at arming")
+    obs_size: int = wire("u16", 1, high=MAX_VALUES, unit="entries", meaning="an observation's")
+    action_size: int = wire("u16", 1, high=MAX_VALUES, unit="entries", meaning="a COMMAND's")
+    obs_dtype: int = wire("choice", 4, choices=_DTYPES, unit="B", meaning="an observation entry's size")
+    telemetry_size: int = wire("u8", 0, unit="entries", meaning="an OBSERVATION's telemetry "
+                               "(TELEMETRY_FIELDS)")
+    hold_ticks: int = wire("u16", 1, 1, unit="ticks", meaning="ticks per policy step")
+    control_rate_hz: float = wire("f64", 1.0e4, unit="Hz", meaning=_RATE)
+    scene_sha256: bytes = _sha256("of the scene's TOML")
 
 
-def _check_window(chunk) -> None:
-    """A chunk's ``total``, ``offset`` and ``data`` (POLICY_CHUNK, CHUNK): the piece fits in one
-    datagram and lies within the transfer."""
-    _uint("total", chunk.total, MAX_TRANSFER)
-    _uint("offset", chunk.offset, chunk.total)
-    _data("data", chunk.data, min(U16, MAX_PAYLOAD - chunk.FMT.size))
-    if chunk.offset + len(chunk.data) > chunk.total:
-        raise ValueError(f"chunk [{chunk.offset}, {chunk.offset + len(chunk.data)}) B runs past the "
-                         f"total {chunk.total} B")
+class _Window(Body):
+    """A piece of a transfer (POLICY_CHUNK, CHUNK): it lies within the transfer."""
+
+    offset: int
+    total: int
+    data: bytes
+
+    def check(self) -> None:
+        check_uint("offset", self.offset, self.total, unit="B")
+        if self.offset + len(self.data) > self.total:
+            raise ValueError(f"chunk [{self.offset}, {self.offset + len(self.data)}) B runs past the "
+                             f"total {self.total} B")
 
 
+def _total() -> Any:
+    return wire("u32", 0, high=MAX_TRANSFER, unit="B", meaning="the whole file's or resource's size")
+
+
+@message
 @dataclass(frozen=True)
-class PolicyChunk(Body):
+class PolicyChunk(_Window):
+    """A piece of the policy file to upload; answered by ACK (value = offset + n)."""
+
     TYPE: ClassVar = MsgType.POLICY_CHUNK
-    FMT: ClassVar = struct.Struct("<QIIH")
-    upload_id: int = 0
-    total: int = 0
-    offset: int = 0
-    data: bytes = b""
-
-    def __post_init__(self):
-        _uint("upload_id", self.upload_id, U64)
-        _check_window(self)
-
-    def pack(self):
-        return self.FMT.pack(self.upload_id, self.total, self.offset, len(self.data)) + self.data
-
-    @classmethod
-    def unpack(cls, payload, newer):
-        _need(payload, cls.FMT.size, newer, exact=False)
-        uid, total, off, n = cls.FMT.unpack_from(payload)
-        _need(payload, cls.FMT.size + n, newer, exact=True)
-        return cls(uid, total, off, bytes(payload[cls.FMT.size:cls.FMT.size + n]))
+    upload_id: int = wire("u64", 0, meaning="the first 8 bytes of the file's sha256, little-endian")
+    total: int = _total()
+    offset: int = wire("u32", 0, unit="B", meaning="of the piece in the file, <= total")
+    data: bytes = wire("data", b"", unit="B", meaning="the piece (at most CHUNK_DATA)")
 
 
+@message
 @dataclass(frozen=True)
 class Ack(Body):
+    """A request's answer: its type and sequence number, a code, a type-specific value."""
+
     TYPE: ClassVar = MsgType.ACK
-    FMT: ClassVar = struct.Struct("<BBIQ")
-    acked_type: int = MsgType.HELLO
-    code: int = ErrorCode.OK
-    acked_seq: int = 0
-    value: int = 0
-
-    def __post_init__(self):
-        _uint("acked_type", self.acked_type, U8)
-        _uint("code", self.code, U8)
-        _uint("acked_seq", self.acked_seq, U32)
-        _uint("value", self.value, U64)
+    acked_type: int = wire("u8", MsgType.HELLO, meaning="the request's message type")
+    code: int = wire("u8", ErrorCode.OK, meaning="0 ok, else an ErrorCode")
+    acked_seq: int = wire("u32", 0, meaning="the request's sequence number")
+    value: int = wire("u64", 0, meaning="type-specific (POLICY_CHUNK: bytes received)")
 
 
+@message
 @dataclass(frozen=True)
 class Command(Body):
+    """The host's action for a policy step."""
+
     TYPE: ClassVar = MsgType.COMMAND
-    FMT: ClassVar = struct.Struct("<IIH")
-    episode: int = 0
-    step: int = 0
-    action: tuple[float, ...] = (0.0,)
-
-    def __post_init__(self):
-        _uint("episode", self.episode, U32)
-        _uint("step", self.step, U32)
-        _floats("action", self.action, MAX_VALUES, lo=1)
-
-    def pack(self):
-        n = len(self.action)
-        return self.FMT.pack(self.episode, self.step, n) + struct.pack(f"<{n}d", *self.action)
-
-    @classmethod
-    def unpack(cls, payload, newer):
-        _need(payload, cls.FMT.size, newer, exact=False)
-        ep, step, n = cls.FMT.unpack_from(payload)
-        _need(payload, cls.FMT.size + 8 * n, newer, exact=True)
-        return cls(ep, step, struct.unpack_from(f"<{n}d", payload, cls.FMT.size))
+    episode: int = wire("u32", 0, meaning="ARMED's")
+    step: int = wire("u32", 0, meaning="the policy step the action is for")
+    action: tuple[float, ...] = wire("floats", (0.0,), 1, MAX_VALUES, "1.0 = effects.command_scale N",
+                                     "dimensionless; ARMED's action_size of them, as f64")
 
 
+@message
 @dataclass(frozen=True)
 class Observation(Body):
-    """``obs`` values are encoded as float32 when ``dtype = 4`` (rounded to nearest; decoding
-    gives the rounded values), as float64 when 8; ``telemetry`` always as float64."""
+    """A policy step's observation.  ``obs`` values are encoded as float32 when ``dtype = 4``
+    (rounded to nearest; decoding gives the rounded values), as float64 when 8; ``telemetry``
+    always as float64."""
 
     TYPE: ClassVar = MsgType.OBSERVATION
-    FMT: ClassVar = struct.Struct("<IIIBHH")
-    episode: int = 0
-    step: int = 0
-    status: int = 0
-    dtype: int = 4
-    obs: tuple[float, ...] = ()
-    telemetry: tuple[float, ...] = ()
+    episode: int = wire("u32", 0, meaning="ARMED's")
+    step: int = wire("u32", 0, meaning="the policy step")
+    status: int = wire("u32", 0, meaning="bits of impact_env.rig.safety")
+    dtype: int = wire("choice", 4, choices=_DTYPES, unit="B", meaning="an obs entry's size")
+    obs: tuple[float, ...] = wire("floats", (), high=MAX_VALUES, elem="dtype", unit="scaled units of "
+                                  "impact_env.control.observation", meaning="the observation, dtype each")
+    telemetry: tuple[float, ...] = wire("floats", (), high=MAX_VALUES, meaning="f64: the TELEMETRY_FIELDS "
+                                        "(force_demand_N, force_applied_N, command_age_ticks), then, from a "
+                                        "virtual rig, the true records of the step's ticks (hold_ticks x "
+                                        "N_REC, impact_env.sim.records)")
 
-    def __post_init__(self):
-        _uint("episode", self.episode, U32)
-        _uint("step", self.step, U32)
-        _uint("status", self.status, U32)
-        if self.dtype not in (4, 8):
-            raise ValueError(f"dtype = {self.dtype!r} must be 4 (float32) or 8 (float64)")
-        _floats("obs", self.obs, MAX_VALUES)
-        _floats("telemetry", self.telemetry, MAX_VALUES)
+    def __post_init__(self) -> None:
+        super().__post_init__()
         if self.dtype == 4:
             for v in self.obs:
                 if math.isfinite(v) and abs(v) > _FLT_MAX:
                     raise ValueError(f"obs value {v!r} overflows float32 (dtype 4)")
 
-    def pack(self):
-        n, m = len(self.obs), len(self.telemetry)
-        code = "f" if self.dtype == 4 else "d"
-        return (self.FMT.pack(self.episode, self.step, self.status, self.dtype, n, m)
-                + struct.pack(f"<{n}{code}{m}d", *self.obs, *self.telemetry))
 
-    @classmethod
-    def unpack(cls, payload, newer):
-        _need(payload, cls.FMT.size, newer, exact=False)
-        ep, step, status, dtype, n, m = cls.FMT.unpack_from(payload)
-        if dtype not in (4, 8) or m > MAX_VALUES or n > MAX_VALUES:
-            raise CorruptDatagram("payload", f"OBSERVATION dtype {dtype}, size {n} or telemetry size {m} invalid")
-        _need(payload, cls.FMT.size + dtype * n + 8 * m, newer, exact=True)
-        vals = struct.unpack_from(f"<{n}{'f' if dtype == 4 else 'd'}{m}d", payload, cls.FMT.size)
-        # every field is in range by construction (struct): skip the checks of __post_init__, the
-        # larger part of a host's decoding time (one per policy step)
-        out = object.__new__(cls)
-        out.__dict__.update(episode=ep, step=step, status=status, dtype=dtype, obs=vals[:n],
-                            telemetry=vals[n:])
-        return out
-
-
+@message
 @dataclass(frozen=True)
 class EpisodeEnd(Body):
+    """The end of an episode: why, and its log's size and digest (resource EPISODE)."""
+
     TYPE: ClassVar = MsgType.EPISODE_END
-    FMT: ClassVar = struct.Struct("<IBIQII32s")
-    episode: int = 0
-    reason: int = EndReason.HORIZON
-    status: int = 0
-    n_ticks: int = 0
-    n_steps: int = 0
-    data_size: int = 0
-    data_sha256: bytes = bytes(32)
-
-    def __post_init__(self):
-        _uint("episode", self.episode, U32)
-        _uint("reason", self.reason, U8)
-        _uint("status", self.status, U32)
-        _uint("n_ticks", self.n_ticks, U64)
-        _uint("n_steps", self.n_steps, U32)
-        _uint("data_size", self.data_size, U32)
-        _digest("data_sha256", self.data_sha256)
+    episode: int = wire("u32", 0, meaning="ARMED's")
+    reason: int = wire("u8", EndReason.HORIZON, meaning="an EndReason")
+    status: int = wire("u32", 0, meaning="the OR of the ticks' status bits")
+    n_ticks: int = wire("u64", 0, unit="ticks", meaning="ticks run")
+    n_steps: int = wire("u32", 0, unit="steps", meaning="policy steps run")
+    data_size: int = wire("u32", 0, unit="B", meaning="the episode's log (resource EPISODE)")
+    data_sha256: bytes = _sha256("of the episode's log")
 
 
+@message
 @dataclass(frozen=True)
 class Fetch(Body):
+    """Asks for a piece of a resource; answered by CHUNK."""
+
     TYPE: ClassVar = MsgType.FETCH
-    FMT: ClassVar = struct.Struct("<BIIH")
-    resource: int = Resource.SCENE
-    item: int = 0
-    offset: int = 0
-    max_len: int = CHUNK_DATA
-
-    def __post_init__(self):
-        _uint("resource", self.resource, U8)
-        _uint("item", self.item, U32)
-        _uint("offset", self.offset, U32)
-        _uint("max_len", self.max_len, U16, 1)
+    resource: int = wire("u8", Resource.SCENE, meaning=_named(Resource))
+    item: int = wire("u32", 0, meaning="the episode's number (0 for SCENE)")
+    offset: int = wire("u32", 0, unit="B", meaning="of the piece in the resource")
+    max_len: int = wire("u16", CHUNK_DATA, 1, unit="B", meaning="the piece's size, at most")
 
 
+@message
 @dataclass(frozen=True)
-class Chunk(Body):
+class Chunk(_Window):
+    """A piece of a resource, answering a FETCH."""
+
     TYPE: ClassVar = MsgType.CHUNK
-    FMT: ClassVar = struct.Struct("<BIIIH")
-    resource: int = Resource.SCENE
-    item: int = 0
-    total: int = 0
-    offset: int = 0
-    data: bytes = b""
-
-    def __post_init__(self):
-        _uint("resource", self.resource, U8)
-        _uint("item", self.item, U32)
-        _check_window(self)
-
-    def pack(self):
-        return self.FMT.pack(self.resource, self.item, self.total, self.offset, len(self.data)) + self.data
-
-    @classmethod
-    def unpack(cls, payload, newer):
-        _need(payload, cls.FMT.size, newer, exact=False)
-        res, item, total, off, n = cls.FMT.unpack_from(payload)
-        _need(payload, cls.FMT.size + n, newer, exact=True)
-        return cls(res, item, total, off, bytes(payload[cls.FMT.size:cls.FMT.size + n]))
+    resource: int = wire("u8", Resource.SCENE, meaning=_named(Resource))
+    item: int = wire("u32", 0, meaning="the FETCH's")
+    total: int = _total()
+    offset: int = wire("u32", 0, unit="B", meaning="of the piece in the resource, <= total")
+    data: bytes = wire("data", b"", unit="B", meaning="the piece")
 
 
+@message
 @dataclass(frozen=True)
 class Disarm(Body):
+    """Ends the episode (answered by ACK)."""
+
     TYPE: ClassVar = MsgType.DISARM
-    FMT: ClassVar = struct.Struct("<B")
-    reason: int = 0  # DISARM_USER, DISARM_CLOSING, DISARM_ERROR, DISARM_CAUGHT
-
-    def __post_init__(self):
-        _uint("reason", self.reason, DISARM_CAUGHT)
+    reason: int = wire("u8", DISARM_USER, high=DISARM_CAUGHT, meaning="0 user, 1 host closing (the session "
+                       "ends too), 2 host error, 3 caught: the host's task ended the episode, whose end "
+                       "reason is then CAUGHT")
 
 
+@message
 @dataclass(frozen=True)
 class Heartbeat(Body):
+    """Either side's sign of life."""
+
     TYPE: ClassVar = MsgType.HEARTBEAT
-    FMT: ClassVar = struct.Struct("<BIII")
-    state: int = TargetState.IDLE
-    episode: int = 0
-    step: int = 0
-    peer_seq: int = 0
-
-    def __post_init__(self):
-        _uint("state", self.state, U8)
-        _uint("episode", self.episode, U32)
-        _uint("step", self.step, U32)
-        _uint("peer_seq", self.peer_seq, U32)
+    state: int = wire("u8", TargetState.IDLE, meaning="a TargetState")
+    episode: int = wire("u32", 0, meaning="the current episode")
+    step: int = wire("u32", 0, meaning="the current policy step")
+    peer_seq: int = wire("u32", 0, meaning="the newest sequence number accepted from the peer")
 
 
+@message
 @dataclass(frozen=True)
 class Error(Body):
-    TYPE: ClassVar = MsgType.ERROR
-    FMT: ClassVar = struct.Struct("<HIH")
-    code: int = ErrorCode.BAD_REQUEST
-    ref_seq: int = 0
-    text: str = ""
+    """A refusal or a failure, answering the message ``ref_seq``."""
 
-    def __post_init__(self):
-        _uint("code", self.code, U16)
-        _uint("ref_seq", self.ref_seq, U32)
-        if not isinstance(self.text, str) or len(self.text.encode("utf-8", "surrogatepass")) > MAX_TEXT:
-            raise ValueError(f"text must be a str of at most {MAX_TEXT} UTF-8 bytes")
-        try:
-            self.text.encode("utf-8")
-        except UnicodeEncodeError as exc:
-            raise ValueError(f"text is not encodable as UTF-8: {exc}") from None
+    TYPE: ClassVar = MsgType.ERROR
+    code: int = wire("u16", ErrorCode.BAD_REQUEST, meaning="an ErrorCode")
+    ref_seq: int = wire("u32", 0, meaning="the sequence number of the message it answers, or 0")
+    text: str = wire("text", "", high=MAX_TEXT, unit="B", meaning="UTF-8")
 
     @classmethod
     def shorten(cls, code: int, ref_seq: int, text: str) -> Error:
@@ -812,27 +551,11 @@ class Error(Body):
             return None
         return cls(code, ref_seq, text.encode("utf-8", "replace")[:room].decode("utf-8", "ignore"))
 
-    def pack(self):
-        raw = self.text.encode("utf-8")
-        return self.FMT.pack(self.code, self.ref_seq, len(raw)) + raw
-
-    @classmethod
-    def unpack(cls, payload, newer):
-        _need(payload, cls.FMT.size, newer, exact=False)
-        code, ref, n = cls.FMT.unpack_from(payload)
-        if n > MAX_TEXT:
-            raise CorruptDatagram("payload", f"ERROR text of {n} B exceeds {MAX_TEXT} B")
-        _need(payload, cls.FMT.size + n, newer, exact=True)
-        try:
-            text = bytes(payload[cls.FMT.size:cls.FMT.size + n]).decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise CorruptDatagram("payload", f"ERROR text is not UTF-8: {exc}") from None
-        return cls(code, ref, text)
-
 
 BODIES: dict[int, type[Body]] = {cls.TYPE: cls for cls in (
     Hello, Info, Arm, Armed, PolicyChunk, Ack, Command, Observation, EpisodeEnd, Fetch, Chunk, Disarm,
     Heartbeat, Error, Challenge, Response)}
+BodyType = TypeVar("BodyType", bound=Body)  # a payload class
 
 
 # -- messages -----------------------------------------------------------------------------------------
@@ -851,18 +574,14 @@ class Message:
     def __post_init__(self):
         if not isinstance(self.body, Body) or type(self.body) not in BODIES.values():
             raise ValueError(f"body must be one of the payload classes of this module, got {self.body!r:.80}")
-        _uint("session", self.session, U32)
-        _uint("seq", self.seq, U32)
-        _uint("tick", self.tick, U64)
-        _uint("host_ns", self.host_ns, U64)
-        _uint("target_ns", self.target_ns, U64)
-        _uint("flags", self.flags, U8)
+        for f in _MESSAGE_FIELDS:
+            f.check(getattr(self, f.name))
 
     @property
     def type(self) -> MsgType:
         return self.body.TYPE
 
-    def payload(self, cls: builtins.type[B]) -> B:
+    def payload(self, cls: builtins.type[BodyType]) -> BodyType:
         """The body as ``cls``, for code that has checked the type code (``msg.type``): a
         message of another type is a TypeError, not a missing attribute later."""
         body = self.body
@@ -1056,7 +775,7 @@ class DatagramFilter:
 
     def __setattr__(self, name, value):
         if name == "session" and value is not None:
-            _uint("session", value, U32)
+            check_uint("session", value, U32)
         super().__setattr__(name, value)
         if name == "key" and value and len(value) < MIN_KEY:
             raise ValueError(f"a key of {len(value)} B is too short: at least {MIN_KEY} B")

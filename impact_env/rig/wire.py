@@ -59,9 +59,22 @@ N_Q = 256  # datagrams the loop can hand the network thread before it has read t
 MSG_DONTWAIT = 0x40  # Linux
 CLOCK_MONOTONIC = 1  # Linux: what time.perf_counter_ns reads
 NONCE = 8  # bytes of the session nonce in front of every tagged frame
-# header offsets (protocol.HEADER, "<4sBBBBIIQQQH")
+# offsets in the header and in the COMMAND and OBSERVATION payloads: the protocol's declarations'
+# (protocol.HEADER_FIELDS, protocol.Command, protocol.Observation), whose wire types the reads
+# below assume (asserted: a changed declaration stops the import, not the loop)
+_H = protocol.HEADER_OFFSETS
 H_MAJOR, H_MINOR, H_TYPE, H_FLAGS, H_SESSION, H_SEQ, H_TICK, H_HOST_NS, H_TARGET_NS, H_PLEN = (
-    4, 5, 6, 7, 8, 12, 16, 24, 32, 40)
+    _H[name] for name in ("major", "minor", "type", "flags", "session", "seq", "tick", "host_ns", "target_ns",
+                          "length"))
+C_EPISODE, C_STEP, C_COUNT = (protocol.Command.OFFSETS[name] for name in ("episode", "step", "action"))
+C_FIXED = protocol.Command.FMT.size  # the actions (f64) follow
+O_EPISODE, O_STEP, O_STATUS, O_DTYPE, O_COUNT, O_TELEMETRY = (
+    protocol.Observation.OFFSETS[name] for name in ("episode", "step", "status", "dtype", "obs", "telemetry"))
+O_FIXED = protocol.Observation.FMT.size  # the obs (dtype each), then the telemetry (f64) follow
+assert [f.kind for f in protocol.HEADER_FIELDS] == ["bytes"] + ["u8"] * 4 + ["u32"] * 2 + ["u64"] * 3 + [
+    "u16"]
+assert [f.kind for f in protocol.Command.FIELDS] == ["u32", "u32", "floats"]
+assert [f.kind for f in protocol.Observation.FIELDS] == ["u32"] * 3 + ["choice", "floats", "floats"]
 T_COMMAND = int(protocol.MsgType.COMMAND)
 T_OBSERVATION = int(protocol.MsgType.OBSERVATION)
 MAGIC = np.frombuffer(protocol.MAGIC, np.uint8)
@@ -341,11 +354,11 @@ def classify(w, n, cur_step):
         return READ
     newer = d[o + H_MINOR] > protocol.VERSION_MINOR
     pl = o + protocol.HEADER_SIZE
-    if plen < 10:
+    if plen < C_FIXED:
         c.corrupt[0] += 1
         return READ
-    n_act = get_uint(d, pl + 8, 2)
-    need = 10 + 8 * n_act
+    n_act = get_uint(d, pl + C_COUNT, 2)
+    need = C_FIXED + 8 * n_act
     if plen < need or (not newer and plen != need):
         c.corrupt[0] += 1
         return READ
@@ -363,8 +376,8 @@ def classify(w, n, cur_step):
     if new < 0:
         c.out_of_order[0] += 1
         return READ
-    ep = get_uint(d, pl, 4)
-    step = get_uint(d, pl + 4, 4)
+    ep = get_uint(d, pl + C_EPISODE, 4)
+    step = get_uint(d, pl + C_STEP, 4)
     if ep < w.episode or (ep == w.episode and step < cur_step):
         c.late[0] += 1
         return READ
@@ -373,7 +386,7 @@ def classify(w, n, cur_step):
         c.commands[0] += 1
         w.st.host_ns[0] = get_uint(d, o + H_HOST_NS, 8)
         w.st.cmd_step[0] = step
-        w.st.cmd_val[0] = get_f64(d, pl + 10, w)
+        w.st.cmd_val[0] = get_f64(d, pl + C_FIXED, w)
         return COMMAND
     return READ
 
@@ -407,8 +420,8 @@ def send_observation(w, tick, step, status, obs, telem, records, r0, r1):
     nrec = 0
     if r1 > r0:
         ok = (
-            obs.shape[0] * 4 + (telem.shape[0] + (r1 - r0) * records.shape[1]) * 8 + 17 + protocol.OVERHEAD
-            <= protocol.MAX_DATAGRAM
+            obs.shape[0] * 4 + (telem.shape[0] + (r1 - r0) * records.shape[1]) * 8 + O_FIXED
+            + protocol.OVERHEAD <= protocol.MAX_DATAGRAM
         ) and telem.shape[0] + (r1 - r0) * records.shape[1] <= protocol.MAX_VALUES
         if ok:
             for i in range(r0, r1):
@@ -419,7 +432,7 @@ def send_observation(w, tick, step, status, obs, telem, records, r0, r1):
             nrec = (r1 - r0) * records.shape[1]
     n_obs = obs.shape[0]
     m = telem.shape[0] + nrec
-    plen = 17 + 4 * n_obs + 8 * m
+    plen = O_FIXED + 4 * n_obs + 8 * m
     for k in range(4):
         t[o + k] = MAGIC[k]
     t[o + H_MAJOR] = protocol.VERSION_MAJOR
@@ -434,13 +447,13 @@ def send_observation(w, tick, step, status, obs, telem, records, r0, r1):
     put_uint(t, o + H_TARGET_NS, 8, now_ns(w))
     put_uint(t, o + H_PLEN, 2, plen)
     p = o + protocol.HEADER_SIZE
-    put_uint(t, p, 4, w.episode)
-    put_uint(t, p + 4, 4, step)
-    put_uint(t, p + 8, 4, status & _U32)
-    t[p + 12] = 4
-    put_uint(t, p + 13, 2, n_obs)
-    put_uint(t, p + 15, 2, m)
-    q = p + 17
+    put_uint(t, p + O_EPISODE, 4, w.episode)
+    put_uint(t, p + O_STEP, 4, step)
+    put_uint(t, p + O_STATUS, 4, status & _U32)
+    t[p + O_DTYPE] = 4
+    put_uint(t, p + O_COUNT, 2, n_obs)
+    put_uint(t, p + O_TELEMETRY, 2, m)
+    q = p + O_FIXED
     for i in range(n_obs):
         put_f32(t, q, obs[i], w)
         q += 4
