@@ -158,6 +158,17 @@ def test_a_fifo_loop_rests_within_the_kernels_real_time_allowance(monkeypatch):
     assert slept == [] and pl.sleep_margin_for(60.0) == 0.0
 
 
+def test_two_cpus_say_that_a_host_here_has_no_cpu_of_its_own(monkeypatch):
+    """With the loop pinned on a machine of two CPUs a host on it shares the other one with
+    everything else: rig serve says so among what it could not apply; with three it is not said."""
+    for cpus, said in (([0, 1], True), ([0, 1, 2], False)):
+        monkeypatch.setattr(placement, "_allowed", lambda cpus=cpus: cpus)
+        pl = placement.Placement(None, 0, 0)
+        assert pl.pinned and pl.loop_cpu == cpus[-1]
+        named = any(line.startswith("a CPU for a host on this machine") for line in pl.missing)
+        assert named == said, pl.missing
+
+
 def test_fifo_asked_by_name_is_refused_up_front_where_not_permitted(monkeypatch):
     monkeypatch.setattr(placement, "_may_fifo", lambda prio: "Operation not permitted")
     with pytest.raises(ValueError, match="loop_fifo = 50 needs root or CAP_SYS_NICE"):

@@ -4,18 +4,29 @@ the link's watch started with the loop, so that a first episode does not end at 
 (FIRST_COMMAND_TIMEOUT, OVERRUN, LINK_LOST) with the host's step-0 command counted after its end.
 Fresh target processes on loopback, in lock-step and in real time with a host delayed by a fixed
 time (a 1 kHz target at hold 10: 10 ms steps, the host answering 2 ms after each observation);
-every wait bounded."""
+every wait bounded.  And the causes found of first steps that failed on a loaded machine, each
+shown to happen and to be gone with a host made late on purpose (in-process targets):
+
+* a host whose COMMANDs all came after their step (hold 1 on a loaded machine: a round trip
+  longer than the tick's wait) was disarmed FIRST_COMMAND_TIMEOUT, though it was answering: the
+  allowance is for the host to answer, and a late host is treated as one is later in an episode;
+* a host whose reset returned an observation after step 0 (it reached it late) sent its first
+  COMMAND for step 0, which could only be late: it answers the step it observed."""
 
 from __future__ import annotations
 
 import re
+import threading
 import time
 
 import numpy as np
 import pytest
 from rig_helpers import slow_rate_args, start_target, stop
 
-from impact_env.rig.host import RigEnv
+from impact_env.rig import protocol, ring, safety
+from impact_env.rig.driver import VirtualRig
+from impact_env.rig.host import RigClient, RigEnv
+from impact_env.rig.target import Target, TargetConfig
 
 pytestmark = pytest.mark.slow
 N_TARGETS = 2  # fresh processes per mode
@@ -55,3 +66,98 @@ def test_each_fresh_targets_first_episode_reaches_its_horizon(lockstep):
         # its cost, measured as the loop runs)
         assert re.search(r"impact-env rig: (not )?applied: ", err), err[-2000:]
         assert lockstep or "paced as the loop" in err, err[-2000:]
+
+
+def _serve_in_process():
+    """A real-time virtual target in this process (10 kHz, the normal scheduling policy, no gap
+    limit to meet on a loaded machine)."""
+    target = Target(VirtualRig("rig"), config=TargetConfig(max_gap_s=10.0))
+    th = threading.Thread(target=target.serve, daemon=True)
+    th.start()
+    return target, th
+
+
+def _late_host_episode(target, first_ticks: int, answer: bool):
+    """One host-mode episode (hold 4, 800 ticks) with a host that answers every OBSERVATION with
+    the COMMAND of the step before it (over by then, whatever this machine's load: each one
+    late), or (``answer`` False) sends none; returns (EPISODE_END, log)."""
+    c = RigClient(target.address, timeout_s=0.2, retries=25)
+    try:
+        c.arm("host", 7, 800, hold_ticks=4, first_command_timeout_ticks=first_ticks)
+        want, deadline = 0, time.monotonic() + 60.0
+        while time.monotonic() < deadline:
+            got = c.observation(want, 0.2)
+            if isinstance(got, protocol.EpisodeEnd):
+                break
+            if got is None:
+                continue
+            if answer and got.step >= 1:
+                c.command(got.step - 1, 0.1)
+            want = got.step + 1
+        end = c.wait_end(10.0)
+        return end, c.fetch_log(c.episode)
+    finally:
+        c.close()
+
+
+def test_a_host_answering_late_is_not_disarmed_for_its_first_command():
+    """First-command allowance 40 ticks (4 ms): a host that sends nothing is disarmed
+    FIRST_COMMAND_TIMEOUT, as before; a host whose every COMMAND comes after its step (the fault:
+    counted late, none acted, the allowance passed) runs to its horizon at 0 N (NO_COMMAND), as a
+    late host does later in an episode."""
+    target, th = _serve_in_process()
+    try:
+        end, log = _late_host_episode(target, 40, answer=False)
+        assert end.reason == protocol.EndReason.FIRST_COMMAND_TIMEOUT
+        end, log = _late_host_episode(target, 40, answer=True)
+    finally:
+        target.stop()
+        th.join(10)
+    c = log.meta.counters
+    assert c["commands_late"] >= 10 and c["commands_acted"] == 0, c  # the fault: every command late
+    tick = log["tick"].astype(np.int64)
+    status = log["status"].astype(np.int64)[:-1]
+    assert tick[-1] == 800 and end.reason == protocol.EndReason.HORIZON, (end, c)
+    assert np.all(status & safety.NO_COMMAND) and not np.any(status & safety.FIRST_COMMAND_TIMEOUT)
+    assert np.all(log["force_demand_N"][:-1] == 0.0)
+
+
+def test_a_host_that_reaches_its_first_observation_late_answers_that_step():
+    """Real time, hold 1 (one tick a step): the host arms, then is late (it waits until the loop
+    is at tick 20) before it reads its first OBSERVATION; reset returns the newest one, of a later
+    step, and the first COMMAND answers that step (before: step 0, over long before)."""
+    target, th = _serve_in_process()
+    env = None
+    try:
+        env = RigEnv(target.address, hold_ticks=1, terminate_on_catch=False, timeout_s=0.2, retries=25,
+                     first_command_timeout_s=1.0)
+        client, arm = env.client, env.client.arm
+
+        def late_arm(*args, **kwargs):
+            armed = arm(*args, **kwargs)
+            deadline = time.monotonic() + 30.0
+            while time.monotonic() < deadline:
+                hl = target.running_link
+                if hl is not None and hl.shared[ring.SH.tick] >= 20:
+                    break
+                time.sleep(0.001)
+            return armed
+
+        sent: list[int] = []
+        exchange = client._exchange
+
+        def recording(*args):
+            if args[1]:  # a COMMAND sent in this call: its step
+                sent.append(int(args[3]))
+            return exchange(*args)
+
+        client.arm, client._exchange = late_arm, recording
+        _obs, info = env.reset(seed=5)
+        assert info["step"] >= 20  # the fault: the host reached its first observation late
+        env.step(np.array([0.0], np.float32))
+        assert sent[0] == info["step"], (sent[:3], info["step"])
+    finally:
+        if env is not None:
+            env.close()
+        target.stop()
+        th.join(10)

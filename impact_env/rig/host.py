@@ -491,6 +491,10 @@ TASK_OPTIONS_DOC
         if isinstance(obs, protocol.EpisodeEnd):
             raise RuntimeError(f"the target ended episode {obs.episode} at once: "
                                f"{protocol.EndReason(obs.reason).name}")
+        # in real time the newest OBSERVATION that has come: a host that reached it late (its
+        # reset slower than the target's first steps) answers that step, as step() does, not step
+        # 0, whose command could only come late
+        self._n = int(obs.step)
         return np.asarray(obs.obs, dtype=np.float32), self._info(obs)
 
     def _start_drop(self, ep_seed: int, state: task_kernel.TaskState, rows: np.ndarray) -> None:

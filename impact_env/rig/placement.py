@@ -179,6 +179,13 @@ class Placement:
         if self.pinned:
             self.applied.append(f"the loop pinned to CPU {self.loop_cpu}, the target's Python threads to "
                                 f"{sorted(self.others)}")
+            if len(allowed) < 3:
+                rest = ", ".join(map(str, sorted(self.others)))
+                self.missing.append(
+                    f"a CPU for a host on this machine (only {len(allowed)} CPUs, the loop's being the "
+                    f"loop's): a host here shares CPU {rest} with the target's Python threads and every "
+                    "other process, and its COMMANDs come late whenever they are busy (the host on another "
+                    "machine, or a third CPU, gives it one of its own)")
         elif self.loop_cpu == -1 and len(allowed) >= 2:
             self.missing.append("pinning (--loop-cpu -1): the target's own threads share the loop's CPU")
         else:

@@ -164,7 +164,7 @@ class EndReason(enum.IntEnum):
     HORIZON = 1  # horizon_ticks reached
     CAUGHT = 2  # caught, with ARM_TERMINATE_ON_CATCH
     DISARMED = 3  # the host sent DISARM
-    FIRST_COMMAND_TIMEOUT = 4  # host mode: no first command within first_command_timeout_ticks
+    FIRST_COMMAND_TIMEOUT = 4  # host mode: no COMMAND (late ones count) within first_command_timeout_ticks
     SAFETY = 5  # a latched safety trip (travel limit, sensor fault)
     LINK_LOST = 6  # nothing authentic heard from the host within link_timeout_ms (late commands count)
     FAULT = 7  # the driver reported an error

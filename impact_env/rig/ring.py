@@ -70,6 +70,7 @@ class CommandState(NamedTuple):
     cur_acted: int  # 1 once it has acted on a tick
     n_cmd: int  # commands taken into use
     heard_step: int  # the latest step an accepted command was for (-1: none yet)
+    late_heard: int  # 1 once a COMMAND of this episode came after its step was over
 
 
 CS = positions(CommandState)

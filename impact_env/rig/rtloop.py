@@ -279,6 +279,8 @@ def _poll(w, hl, step):
     r = wire.read_one(w, step)
     if r == wire.COMMAND:
         _offer(hl, w.st.cmd_step[0], w.st.cmd_val[0])
+    elif r == wire.LATE:
+        hl.cs[ring.CS.late_heard] = 1.0
     return r
 
 
@@ -453,6 +455,11 @@ def run_episode(m1, p, s, io, tm, acct, hl, w):
                             break
         cmd = HostCommand(cs[ring.CS.cur_val], int(cs[ring.CS.cur_step]), int(cs[ring.CS.cur_id]))
         out, f, status, row = act_tick(m, clock_tick, cmd, p, s, io_raw(io))
+        if host and status & safety.FIRST_COMMAND_TIMEOUT and cs[ring.CS.late_heard] != 0.0:
+            # the allowance is for the host to answer: one whose COMMANDs come, but each after its
+            # step, is answering late, and is treated as a late host is later in an episode (0 N,
+            # NO_COMMAND, until one acts), not disarmed
+            status &= ~safety.FIRST_COMMAND_TIMEOUT
         if realtime and late >= cpt:
             status |= safety.OVERRUN
         if acct[ACCT.unreported] > 0:

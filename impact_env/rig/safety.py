@@ -23,7 +23,9 @@ Rules, in the order applied (host mode = ``mode="host"``; H = hold_ticks):
    Each start of a watchdog stretch counts one trip.
 2. **First command.**  Before the first command the force is 0 (``NO_COMMAND``); once
    ``ticks_armed`` reaches ``first_command_timeout_s`` (in ticks, rounded up) with none,
-   ``FIRST_COMMAND_TIMEOUT`` is set: the target disarms.
+   ``FIRST_COMMAND_TIMEOUT`` is set: the target disarms, unless a COMMAND of the episode came
+   after its step was over (the real-time loop clears the bit then, :mod:`impact_env.rig.rtloop`:
+   the host answers, late, and its ticks stay at 0 N until one of its commands acts).
 3. **Non-finite** demand (NaN, inf, or a product with the command scale that overflows):
    0 N for this tick, ``NONFINITE``.
 4. **Implausible readings** (:mod:`impact_env.control.plausibility`): any ``sensor_bits``
@@ -66,7 +68,7 @@ bit   name                       meaning
 0     ``NO_COMMAND``             host mode, no command yet this episode: 0 N
 1     ``REPEATED``               the command is in its repeat period (age in [H, 2H))
 2     ``WATCHDOG``               the command is older than 2 periods: 0 N
-3     ``FIRST_COMMAND_TIMEOUT``  no first command within the timeout: disarm
+3     ``FIRST_COMMAND_TIMEOUT``  no command (on time or late) within the timeout: disarm
 4     ``NONFINITE``              the demand was NaN or infinite: 0 N
 5     ``CLAMP_PEAK``             the peak clamp cut the force
 6     ``CLAMP_RMS``              the continuous (RMS) clamp cut the force

@@ -306,7 +306,9 @@ def fresh(w, seq):
     return -1
 
 
-NONE, READ, COMMAND = 0, 1, 2  # what read_one did: nothing waiting; a datagram read; a COMMAND taken
+# what read_one did: nothing waiting; a datagram read; a COMMAND taken; a COMMAND of this episode
+# whose step was over (counted late: the host is answering, too late to act)
+NONE, READ, COMMAND, LATE = 0, 1, 2, 3
 
 
 @jit
@@ -314,7 +316,7 @@ def read_one(w, cur_step):
     """Read one waiting datagram, if any.  A COMMAND of the session's host is classified here;
     an accepted one of this episode returns COMMAND with its step and action in
     ``w.st.cmd_step``, ``w.st.cmd_val``; any other datagram goes to the network thread's queue
-    (:func:`_queue`).  Returns NONE, READ or COMMAND."""
+    (:func:`_queue`).  Returns NONE, READ, COMMAND or LATE."""
     if w.fd < 0:
         return NONE
     w.srclen[0] = SOCKADDR
@@ -328,7 +330,8 @@ def read_one(w, cur_step):
 @jit
 def classify(w, n, cur_step):
     """What :func:`read_one` does with the datagram of ``n`` bytes in ``w.rx`` (after the nonce)
-    from ``w.src``: READ (counted, or queued) or COMMAND (accepted for this episode)."""
+    from ``w.src``: READ (counted, or queued), COMMAND (accepted for this episode) or LATE (a
+    COMMAND of this episode for a step already over, counted ``late``)."""
     c = w.c
     d = w.rx
     o = NONCE
@@ -380,7 +383,7 @@ def classify(w, n, cur_step):
     step = get_uint(d, pl + C_STEP, 4)
     if ep < w.episode or (ep == w.episode and step < cur_step):
         c.late[0] += 1
-        return READ
+        return LATE if ep == w.episode else READ
     c.accepted[0] += 1
     if ep == w.episode:
         c.commands[0] += 1
