@@ -112,25 +112,28 @@ def main() -> int:
     if not args.render:
         from impact_env.eval.benchmark import run_meta
 
-        plan = [False] * args.runs + [True] * args.fast_runs  # the whole suite first: it compiles what it needs
+        # the whole suite first: it compiles what it needs
+        plan = [False] * args.runs + [True] * args.fast_runs
         spinner = None
         if args.beside_cpu_bound:
             spinner = multiprocessing.get_context("spawn").Process(target=_spin, daemon=True)
             spinner.start()
         t0 = time.perf_counter()
-        rows = []
+        rows: list[dict] = []
+        RECORD.parent.mkdir(parents=True, exist_ok=True)
         try:
             for fast in plan:
                 rows.append(run_once(fast))
                 print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+                # after every run, so that a long series stopped early keeps what it measured
+                record = {"runs": rows, "planned_runs": len(plan), "beside_cpu_bound": args.beside_cpu_bound,
+                          "cpus": os.cpu_count(),
+                          "meta": run_meta("python scripts/suite_record.py " + " ".join(sys.argv[1:]),
+                                           time.perf_counter() - t0, 0, 0.0)}
+                RECORD.write_text(json.dumps(record, indent=1) + "\n")
         finally:
             if spinner is not None:
                 spinner.terminate()
-        record = {"runs": rows, "beside_cpu_bound": args.beside_cpu_bound, "cpus": os.cpu_count(),
-                  "meta": run_meta("python scripts/suite_record.py " + " ".join(sys.argv[1:]),
-                                   time.perf_counter() - t0, 0, 0.0)}
-        RECORD.parent.mkdir(parents=True, exist_ok=True)
-        RECORD.write_text(json.dumps(record, indent=1) + "\n")
     record = json.loads(RECORD.read_text())
     print(block(record))
     if args.doc or args.render:
