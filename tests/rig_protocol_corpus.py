@@ -22,7 +22,7 @@ import string
 import struct
 from pathlib import Path
 
-from impact_env.rig import protocol as P
+from impact_env.rig import protocol
 
 GOLDEN = Path(__file__).parent / "golden" / "rig_protocol_corpus.json"
 N_BODIES, N_MUTANTS = 8, 16
@@ -47,42 +47,42 @@ def _floats(r: random.Random, n: int, f32: bool = False) -> tuple[float, ...]:
 
 
 def _window(r: random.Random) -> tuple[int, int, bytes]:
-    data = r.randbytes(r.choice([0, 1, r.randint(0, P.CHUNK_DATA)]))
-    total = r.choice([len(data), r.randint(len(data), P.MAX_TRANSFER)])
+    data = r.randbytes(r.choice([0, 1, r.randint(0, protocol.CHUNK_DATA)]))
+    total = r.choice([len(data), r.randint(len(data), protocol.MAX_TRANSFER)])
     offset = r.randint(0, total - len(data))
     return total, offset, data
 
 
-def bodies(r: random.Random) -> list[P.Body]:
+def bodies(r: random.Random) -> list[protocol.Body]:
     """One valid payload of every message type, its fields drawn within their ranges."""
-    nonce = lambda: r.randbytes(P.NONCE_SIZE)  # noqa: E731
+    nonce = lambda: r.randbytes(protocol.NONCE_SIZE)  # noqa: E731
     sha = lambda: r.randbytes(32)  # noqa: E731
     rate = lambda: r.choice([1e4, 0.5, r.uniform(1.0, 1e6)])  # noqa: E731
-    out: list[P.Body] = [
-        P.Hello(nonce()),
-        P.Challenge(nonce(), nonce()),
-        P.Response(nonce(), nonce()),
-        P.Info(nonce(), rate(), r.randint(0, 3), r.randint(0, 1), r.random() < 0.5, _uint(r, 32), sha(),
+    out: list[protocol.Body] = [
+        protocol.Hello(nonce()),
+        protocol.Challenge(nonce(), nonce()),
+        protocol.Response(nonce(), nonce()),
+        protocol.Info(nonce(), rate(), r.randint(0, 3), r.randint(0, 1), r.random() < 0.5, _uint(r, 32), sha(),
                _uint(r, 64), r.random() < 0.5, _uint(r, 16)),
-        P.Arm(r.choice(["host", "onboard"]), r.choice(["sensors", "privileged", "both"]), _uint(r, 8, 1, 64),
+        protocol.Arm(r.choice(["host", "onboard"]), r.choice(["sensors", "privileged", "both"]), _uint(r, 8, 1, 64),
               _uint(r, 8), _uint(r, 16, 1), _uint(r, 64), _uint(r, 32, 1), _uint(r, 32), _uint(r, 32),
               _uint(r, 32), sha()),
-        P.Armed(_uint(r, 32), _uint(r, 64), _uint(r, 13, 0, P.MAX_VALUES), _uint(r, 13, 0, P.MAX_VALUES),
+        protocol.Armed(_uint(r, 32), _uint(r, 64), _uint(r, 13, 0, protocol.MAX_VALUES), _uint(r, 13, 0, protocol.MAX_VALUES),
                 r.choice([4, 8]), _uint(r, 8), _uint(r, 16, 1), rate(), sha()),
-        P.PolicyChunk(_uint(r, 64), *_window(r)),
-        P.Ack(_uint(r, 8), _uint(r, 8), _uint(r, 32), _uint(r, 64)),
-        P.Command(_uint(r, 32), _uint(r, 32), _floats(r, r.choice([1, 1, 2, r.randint(1, 40)]))),
-        P.EpisodeEnd(_uint(r, 32), _uint(r, 8), _uint(r, 32), _uint(r, 64), _uint(r, 32), _uint(r, 32),
+        protocol.PolicyChunk(_uint(r, 64), *_window(r)),
+        protocol.Ack(_uint(r, 8), _uint(r, 8), _uint(r, 32), _uint(r, 64)),
+        protocol.Command(_uint(r, 32), _uint(r, 32), _floats(r, r.choice([1, 1, 2, r.randint(1, 40)]))),
+        protocol.EpisodeEnd(_uint(r, 32), _uint(r, 8), _uint(r, 32), _uint(r, 64), _uint(r, 32), _uint(r, 32),
                      sha()),
-        P.Fetch(_uint(r, 8), _uint(r, 32), _uint(r, 32), _uint(r, 16, 1)),
-        P.Chunk(_uint(r, 8), _uint(r, 32), *_window(r)),
-        P.Disarm(r.randint(0, 3)),
-        P.Heartbeat(_uint(r, 8), _uint(r, 32), _uint(r, 32), _uint(r, 32)),
-        P.Error(_uint(r, 16), _uint(r, 32), "".join(r.choice(string.printable + "éß漢") for _ in
+        protocol.Fetch(_uint(r, 8), _uint(r, 32), _uint(r, 32), _uint(r, 16, 1)),
+        protocol.Chunk(_uint(r, 8), _uint(r, 32), *_window(r)),
+        protocol.Disarm(r.randint(0, 3)),
+        protocol.Heartbeat(_uint(r, 8), _uint(r, 32), _uint(r, 32), _uint(r, 32)),
+        protocol.Error(_uint(r, 16), _uint(r, 32), "".join(r.choice(string.printable + "éß漢") for _ in
                                                      range(r.choice([0, 5, r.randint(0, 300)])))),
     ]
     dtype = r.choice([4, 8])
-    out.append(P.Observation(_uint(r, 32), _uint(r, 32), _uint(r, 32), dtype,
+    out.append(protocol.Observation(_uint(r, 32), _uint(r, 32), _uint(r, 32), dtype,
                              _floats(r, r.randint(0, 30), f32=dtype == 4), _floats(r, r.randint(0, 8))))
     return out
 
@@ -113,8 +113,8 @@ def _digest(text: str | bytes) -> str:
 
 def _outcome(data: bytes, full: bool) -> list:
     try:
-        msg = P.decode(data)
-    except P.ProtocolError as exc:
+        msg = protocol.decode(data)
+    except protocol.ProtocolError as exc:
         return [type(exc).__name__, exc.reason, exc.detail, getattr(exc, "field", ""),
                 getattr(exc, "refusal", "")] + ([str(exc)] if full else [])
     except Exception as exc:  # decode must raise nothing else: recorded, so the golden shows it
@@ -128,19 +128,19 @@ def records(full: bool = False) -> dict:
     encoded, decoded = [], []
     for _ in range(N_BODIES):
         for body in bodies(r):
-            msg = P.Message(body, session=_uint(r, 32), seq=_uint(r, 32), tick=_uint(r, 64),
+            msg = protocol.Message(body, session=_uint(r, 32), seq=_uint(r, 32), tick=_uint(r, 64),
                             host_ns=_uint(r, 64), target_ns=_uint(r, 64), flags=_uint(r, 8))
-            data = P.encode(msg, KEY, NONCE)
+            data = protocol.encode(msg, KEY, NONCE)
             encoded.append(data.hex() if full else _digest(data))
-            assert P.decode(data, KEY, NONCE) == msg
-            payload = data[P.HEADER_SIZE:-P.TAG_SIZE]
+            assert protocol.decode(data, KEY, NONCE) == msg
+            payload = data[protocol.HEADER_SIZE:-protocol.TAG_SIZE]
             for _ in range(N_MUTANTS):
                 mutant = _mutate(r, payload)
-                minor = P.VERSION_MINOR + (1 if r.random() < 0.15 else 0)
-                head = P.HEADER.pack(P.MAGIC, P.VERSION_MAJOR, minor, body.TYPE, 0, msg.session, msg.seq, 0,
+                minor = protocol.VERSION_MINOR + (1 if r.random() < 0.15 else 0)
+                head = protocol.HEADER.pack(protocol.MAGIC, protocol.VERSION_MAJOR, minor, body.TYPE, 0, msg.session, msg.seq, 0,
                                      0, 0, len(mutant))
                 frame = head + mutant
-                data = frame + P.tag(b"", 0, frame)
+                data = frame + protocol.tag(b"", 0, frame)
                 decoded.append([body.TYPE.name] + ([data.hex()] if full else []) + _outcome(data, full))
     return {"encoded": encoded, "decoded": decoded}
 

@@ -1,6 +1,7 @@
 """The package's layers: no import cycles between modules, and the import-linter layers contract
 of ``pyproject.toml`` (each layer imports only those below it; ``impact_env`` never imports
-``baselines`` or ``agents``)."""
+``baselines`` or ``agents``); scripts and tests share helpers through the package; and no project
+module is imported under a one- or two-letter alias (counted by scripts/count_aliases.py)."""
 
 from __future__ import annotations
 
@@ -69,3 +70,12 @@ def test_tests_import_only_the_scripts_they_test():
                 if name in scripts and name not in test.stem and f"scripts/{name}.py" not in doc:
                     bad.append(f"{test.name} imports {name}")
     assert not bad, bad
+
+
+def test_no_project_module_has_a_one_or_two_letter_alias():
+    """``import impact_env.rig.protocol as P``: one letter that means the protocol here and the
+    plant's parameters elsewhere; the project's modules are imported by their own names
+    (scripts/count_aliases.py counts them)."""
+    from count_aliases import count
+
+    assert count()["module_aliases"]["project"] == 0, "python scripts/count_aliases.py --list names them"
