@@ -107,6 +107,11 @@ def rewritten(text: str, name: str, table: str) -> str:
     return pattern.sub(lambda _m: f"{start}\n{table}\n{end}", text, count=1)
 
 
+def write_block(doc: Path, name: str, table: str) -> None:
+    """Rewrite the block ``name`` of the page ``doc`` with ``table`` (the scripts that make records)."""
+    doc.write_text(rewritten(doc.read_text(), name, table))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--check", action="store_true", help="fail if a table is stale")

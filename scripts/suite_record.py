@@ -29,6 +29,8 @@ import time
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
+from docs_tables import write_block
+
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = ROOT / "docs" / "results" / "suite.json"
 DOC = ROOT / "docs" / "getting-started.md"
@@ -90,12 +92,6 @@ def block(record: dict) -> str:
     return "\n".join(lines)
 
 
-def write_doc(record: dict) -> None:
-    sys.path.insert(0, str(ROOT / "scripts"))
-    from docs_tables import rewritten
-
-    DOC.write_text(rewritten(DOC.read_text(), BLOCK, block(record)))
-
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -137,7 +133,7 @@ def main() -> int:
     record = json.loads(RECORD.read_text())
     print(block(record))
     if args.doc or args.render:
-        write_doc(record)
+        write_block(DOC, BLOCK, block(record))
     return 0
 
 
