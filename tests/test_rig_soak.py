@@ -100,12 +100,14 @@ def run_episode(env, seed: int, rng, after_reset=None) -> tuple[dict[int, float]
     """One episode to its end (no RigTimeout may escape): the actions sent by step, and the end
     reason the env returned (the horizon, at max_steps, or the one the target ended it for).
     ``after_reset()`` is called once the episode is armed."""
-    env.reset(seed=seed)
+    _obs, info = env.reset(seed=seed)
     if after_reset is not None:
         after_reset()
     actions = {}
-    step = 0  # the step the next command is for: the last observation's (a host slower than real
-    for n in range(env.max_steps):  # time skips the steps whose observations it never took)
+    # the step the next command is for: the last observation's, from reset's on (a host slower
+    # than real time skips the steps whose observations it never took, the first ones too)
+    step = int(info["step"])
+    for n in range(env.max_steps):
         a = float(np.float32(rng.uniform(-0.3, 0.3)))
         actions[step] = a
         _o, _r, te, tr, info = env.step(np.array([a], np.float32))
