@@ -11,8 +11,9 @@ warm-up compiles about 150 s of kernels of its own.
 
 * ``env``: the env's step, compare's Python-policy loop with the laws (mpc's solver and filter),
   the oracle's search and replay;
-* ``loops``: the compiled-policy loop (one signature for every exported law or agent) and the
-  rig target's controller and real-time loop (a lock-step virtual rig's warm-up).
+* ``loops``: the rig target's controller and real-time loop (a lock-step virtual rig's warm-up),
+  then the compiled-policy loop (one signature for every exported law or agent), serial and in
+  threads.
 """
 
 import sys
@@ -34,15 +35,21 @@ def env() -> None:
 
 
 def loops() -> None:
-    from impact_env.eval.rollout import rollout
+    from impact_env.eval.rollout import MIN_BLOCK_EPISODES, rollout
     from impact_env.policy.export import export_policy
     from impact_env.rig.driver import VirtualRig
     from impact_env.rig.target import Target, TargetConfig
 
-    scene = load_scene("rig")
-    rollout(scene, export_policy("pd-penetration", scene), [0, 1], horizon=2 * scene.control_period,
-            trace_rate=0.0)
+    # the rig's kernels first: the env part compiles the per-env step (sim.step.step_env) and the
+    # laws that the rollout below calls, and by then has them in the cache
     Target(VirtualRig("rig"), config=TargetConfig(lockstep=True)).close()  # it warms up as it starts
+    scene = load_scene("rig")
+    policy = export_policy("pd-penetration", scene)
+    rollout(scene, policy, [0, 1], horizon=2 * scene.control_period, trace_rate=0.0)
+    # the threaded loop (one compiled parallel region over blocks of episodes): compare --threads,
+    # tests/test_threads.py and the TBB layer's check
+    rollout(scene, policy, list(range(2 * MIN_BLOCK_EPISODES)), horizon=2 * scene.control_period,
+            trace_rate=0.0, threads=2)
 
 
 if __name__ == "__main__":

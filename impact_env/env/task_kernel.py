@@ -21,7 +21,7 @@ from impact_env._packed import positions
 from impact_env.plant.energy import catch_energy_at
 from impact_env.plant.layout import PARAM, STATE
 from impact_env.sim.records import REC
-from impact_env.sim.step import env_step
+from impact_env.sim.step import sim_step
 
 
 class TaskState(NamedTuple):
@@ -140,23 +140,22 @@ def task_step(active, records, d, p, s, out):
 
 @jit(nogil=True)
 def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out, cols):
-    """The env's whole step for envs ``i0 .. i1 - 1``, env by env: the simulator's step
-    (:func:`impact_env.sim.step.env_step`, as :func:`~impact_env.sim.step.sim_step` runs it) and
-    then the task's (:func:`task_env`), in one call (``sp``, ``ss``: SimParams, SimState; the
-    rest as :func:`task_step`'s).  Env i reads and writes only its own rows, so the results are
-    those of the two calls one after the other, bitwise, and blocks of envs may run at once
-    (:class:`impact_env._threads.BlockRunner`).  ``cols``: float64[N_COL, N], every env's info
-    row also written as a column (the vector env's info arrays, without a transposing copy after
-    the step), or float64[N_COL, 0]: not written."""
+    """The env's whole step for envs ``i0 .. i1 - 1``: the simulator's step
+    (:func:`impact_env.sim.step.sim_step`) and then the task's (:func:`task_env`), in one call
+    from Python (``sp``, ``ss``: SimParams, SimState; the rest as :func:`task_step`'s).  Env i
+    reads and writes only its own rows, so blocks of envs may run at once
+    (:class:`impact_env._threads.BlockRunner`).  ``sim_step`` is called, not inlined here: it
+    is compiled once for both (the simulator's step inlined in a second kernel took about 80 s
+    of a core of a first run), for one call per step of the block.  ``cols``: float64[N_COL, N],
+    every env's info row also written as a column (the vector env's info arrays, without a
+    transposing copy after the step), or float64[N_COL, 0]: not written."""
     actions, active, sp, ss = borrow(actions), borrow(active), borrow(sp), borrow(ss)  # (impact_env._borrow)
     d, p, s, out, cols = borrow(d), borrow(p), borrow(s), borrow(out), borrow(cols)
+    sim_step(i0, i1, actions, active, sp, ss)
     records = ss.records
     rows = out.rows
     for i in range(i0, i1):
-        on = active[i]
-        if on:
-            env_step(i, actions[i], sp, ss)
-        task_env(i, on, records, d, p, s, out)
+        task_env(i, active[i], records, d, p, s, out)
         if cols.shape[1] > 0:
             for j in range(cols.shape[0]):
                 cols[j, i] = rows[i, j]

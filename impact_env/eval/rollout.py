@@ -59,7 +59,7 @@ from impact_env.scene import Scene
 from impact_env.sim.metrics import AC, EPISODE_METRICS, ST, EpisodeMetrics, MetricArrays, update
 from impact_env.sim.records import REC
 from impact_env.sim.simulator import Simulator
-from impact_env.sim.step import SimParams, SimState, env_step
+from impact_env.sim.step import SimParams, SimState, step_env
 
 __all__ = ["EPISODE_METRICS", "TRACE_KEYS", "RolloutResult", "rollout"]
 
@@ -229,7 +229,7 @@ def _run_compiled(i0, i1, steps, pol, p, s, out):
                     fails.t[i] = (k - 1) * period
                     fails.code[i] = FAIL_ACTION
                 else:
-                    ok = env_step(i, u, p, s)
+                    ok = step_env(i, u, p, s)
                     for j in range(hold):
                         update(acc[i], records[i, j], plant_records[i, j], consts[i], plant_params[i],
                                settings)

@@ -30,7 +30,7 @@ from impact_env.control.observation import make_layout
 from impact_env.control.policy import CompiledPolicy
 from impact_env.effects.sensors import N_CHANNELS
 from impact_env.hardware.batch import Hardware
-from impact_env.hardware.stage import hardware_tick, state_ok
+from impact_env.hardware.stage import state_ok, tick
 from impact_env.rig.controller import Controller, HostCommand, act_tick, observe_tick
 
 KINDS = ("spike", "step", "stuck", "stuck_at", "dropout")
@@ -118,7 +118,7 @@ def run_ticks(m0, m1, p, s, hw_p, hw_s, fault, before, readings, force, status):
         out, f, st, _row = act_tick(m, m, HostCommand(0.0, -1, -1), p, s, r)
         force[m] = f
         status[m] = st
-        hardware_tick(0, out, hw_p, hw_s)
+        tick(0, out, hw_p, hw_s)
         if not state_ok(0, hw_s):
             return m + 1
     return m1
@@ -159,7 +159,7 @@ class DropRunner:
         ctl = self.ctl
         ctl.start(readings[0].copy(), None)
         _cmd, f, st, _row = ctl.act(0, 0.0, -1, -1, 0, readings[0])
-        hardware_tick(0, _cmd, hw.params, hw.state)
+        tick(0, _cmd, hw.params, hw.state)
         force[0], status[0] = f, st
         fa = NONE if fault is None else fault.array()
         before = np.zeros(1)

@@ -25,7 +25,7 @@ from impact_env.hardware.stage import (
     PlantState,
     Readings,
     StageConfig,
-    hardware_tick,
+    tick,
 )
 
 
@@ -68,7 +68,7 @@ def _replay_env(i, commands, p, s, readings):
     for c in range(raw.shape[1]):
         readings[i, 0, c] = raw[i, c]
     for m in range(n - 1):
-        hardware_tick(i, commands[i, m], p, s)
+        tick(i, commands[i, m], p, s)
         ok = info[i, HW_INFO.status] == 0.0
         for k in range(4):
             if not np.isfinite(plant_states[i, k]):

@@ -239,10 +239,20 @@ def hardware_tick(i, u, p, s):
 
 
 @jit
+def tick(i, u, p, s):
+    """:func:`hardware_tick` as a called kernel.  numba types and compiles an inlined kernel
+    again at each call site; the loops whose speed does not hang on one call per tick (the rig
+    target's virtual hardware, the hardware replay, the sensor-fault runs,
+    :func:`hardware_step`) call this one copy instead.  The simulator's per-env step
+    (:func:`impact_env.sim.step.env_step`) keeps it inlined."""
+    hardware_tick(i, u, p, s)
+
+
+@jit
 def hardware_step(u, p, s):
     """One tick of every env i under the drive command u[i] (float64[N])."""
     for i in range(u.shape[0]):
-        hardware_tick(i, u[i], p, s)
+        tick(i, u[i], p, s)
 
 
 @jit(inline="always")

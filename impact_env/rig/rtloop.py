@@ -45,8 +45,8 @@ from impact_env.hardware.stage import (
     INFO_SATURATED,
     HardwareParams,
     HardwareState,
-    hardware_tick,
     state_ok,
+    tick,
 )
 from impact_env.plant.layout import STATE
 from impact_env.rig import log as tick_log
@@ -191,7 +191,7 @@ def _ov_apply(io, m, out, f, row, rows, detected, rate):
     if _is(io, VirtualIO):
         def impl(io, m, out, f, row, rows, detected, rate):
             hw_s = io.state
-            hardware_tick(0, out, io.hw, hw_s)
+            tick(0, out, io.hw, hw_s)
             ok = state_ok(0, hw_s)
             info = hw_s.out.info
             plant_states = hw_s.plant.y
@@ -233,7 +233,7 @@ def _ov_skip(io, m, k, u, detected, rate):
         def impl(io, m, k, u, detected, rate):
             hw_s = io.state
             for i in range(k):
-                hardware_tick(0, u, io.hw, hw_s)
+                tick(0, u, io.hw, hw_s)
                 ok = state_ok(0, hw_s)
                 true_record(io.records, m + i, hw_s.plant.y, hw_s.out.info, u, detected, ok, rate)
         return impl

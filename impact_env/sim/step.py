@@ -119,6 +119,16 @@ def env_step(i, a, p, s):
     return ok
 
 
+@jit
+def step_env(i, a, p, s):
+    """:func:`env_step` as a called kernel: the loops that step one env at a time and are not the
+    vector env's (compare's compiled-policy loop, the oracle's replay) call it, so that numba
+    types and compiles the inlined step once here, not again inside each of them (about 50 s of
+    a core each on a first run).  The call costs those loops a few percent; :func:`sim_step`,
+    the vector env's loop, keeps the step inlined."""
+    return env_step(i, a, p, s)
+
+
 @jit(nogil=True)
 def sim_step(i0, i1, actions, active, p, s):
     """:func:`env_step` for every env i of ``i0 .. i1 - 1`` with ``active[i]`` under ``actions[i]``
