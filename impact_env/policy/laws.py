@@ -62,6 +62,7 @@ class Policy:
     PARAMS: ClassVar[dict[str, Param]] = {}
     reads: ClassVar[tuple[str, ...]] = ()  # the observation entries it needs
     law: ClassVar[Law | None] = None  # the compiled law it runs, if any
+    _constants: dict[str, Any] | None = None  # law_constants(), once derived (force())
 
     def __init__(self, scene: Scene | str | dict, **params):
         self.scene = load_scene(scene)
@@ -90,7 +91,11 @@ class Policy:
         if self.name not in laws.KIND:
             raise NotImplementedError(f"{type(self).__name__} is not a compiled law: override force()")
         n = values.shape[0]
-        K = laws.constants_rows(self.name, self.law_constants(), n)
+        if self._constants is None:
+            # they follow from the scene and the parameters, both fixed at construction; a filter's
+            # (mpc's) take milliseconds to derive, which once per step was most of compare's time
+            self._constants = self.law_constants()
+        K = laws.constants_rows(self.name, self._constants, n)
         # a law's kernel reads only its own memory (law.memory floats), not the widest law's
         wide = memory is not None and memory.shape[1] >= self.memory_size
         mem = memory if wide else np.zeros((n, laws.MEMORY))
