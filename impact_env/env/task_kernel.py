@@ -145,8 +145,8 @@ def catch_step(i0, i1, actions, active, sp, ss, d, p, s, out, cols):
     from Python (``sp``, ``ss``: SimParams, SimState; the rest as :func:`task_step`'s).  Env i
     reads and writes only its own rows, so blocks of envs may run at once
     (:class:`impact_env._threads.BlockRunner`).  ``sim_step`` is called, not inlined here: it
-    is compiled once for both (the simulator's step inlined in a second kernel took about 80 s
-    of a core of a first run), for one call per step of the block.  ``cols``: float64[N_COL, N],
+    is compiled once for both (inlined here too, the simulator's step took about 40 s more of a
+    core of a first run), for one call per step of the block.  ``cols``: float64[N_COL, N],
     every env's info row also written as a column (the vector env's info arrays, without a
     transposing copy after the step), or float64[N_COL, 0]: not written."""
     actions, active, sp, ss = borrow(actions), borrow(active), borrow(sp), borrow(ss)  # (impact_env._borrow)
