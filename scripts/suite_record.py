@@ -59,14 +59,20 @@ def run_once(fast: bool) -> dict:
         suite = ElementTree.parse(report).getroot()
         suite = suite if suite.tag == "testsuite" else suite.find("testsuite")
         assert suite is not None
-    failed = [case.get("classname", "") + "::" + case.get("name", "")
-              for case in suite.iter("testcase")
-              if case.find("failure") is not None or case.find("error") is not None]
+    failed, why = [], {}
+    for case in suite.iter("testcase"):
+        fault = case.find("failure") if case.find("failure") is not None else case.find("error")
+        if fault is not None:
+            name = case.get("classname", "") + "::" + case.get("name", "")
+            failed.append(name)
+            # the assertion's own line, so that a failure seen once can be diagnosed from the record
+            why[name] = (fault.get("message") or "").strip()[:500]
     skipped = sum(1 for case in suite.iter("testcase") if case.find("skipped") is not None)
     total = int(suite.get("tests", 0))
     compiled = sum(int(n) for n in COMPILED.findall(run.stdout + run.stderr))
     return {"subset": "fast" if fast else "whole", "exit": run.returncode, "wall_s": round(wall, 1),
-            "tests": total, "failed": len(failed), "failed_tests": failed, "skipped_or_xfailed": skipped,
+            "tests": total, "failed": len(failed), "failed_tests": failed, "failure_messages": why,
+            "skipped_or_xfailed": skipped,
             "passed": total - len(failed) - skipped, "kernels_compiled": compiled}
 
 

@@ -200,7 +200,9 @@ def test_host_mode_with_a_slow_driver_every_tick_and_command_accounted(replay, t
     c = RigClient(target.address, timeout_s=2.0, retries=5)
     sent = 0
     try:
-        c.arm("host", 2, HORIZON, hold_ticks=hold, first_command_timeout_ticks=HORIZON * 10)
+        # the host's own pauses (a loaded machine descheduling this Python process) are not the
+        # fault under test: 10 s for the first command and between datagrams, as max_gap_s
+        c.arm("host", 2, HORIZON, hold_ticks=hold, first_command_timeout_ticks=100_000, link_timeout_ms=10_000)
         step = 0
         while True:
             obs = c.observation(step, 5.0)
@@ -214,11 +216,12 @@ def test_host_mode_with_a_slow_driver_every_tick_and_command_accounted(replay, t
     finally:
         c.close()
         _stop(target, th)
-    assert end.reason == 1  # HORIZON
+    assert end.reason == 1, (end, log.meta.counters)  # HORIZON
     tick = log["tick"].astype(np.int64)
     status = log["status"].astype(np.int64)
     skipped = log["skipped_ticks"].astype(np.int64)
-    assert tick[-1] == HORIZON and np.array_equal(np.diff(tick) - 1, skipped[1:]) and skipped[0] == 0
+    assert tick[-1] == HORIZON and np.array_equal(np.diff(tick) - 1, skipped[1:]) and skipped[0] == 0, \
+        (tick[-5:], skipped.sum())
     assert np.all(status[1:][skipped[1:] > 0] & safety.OVERRUN)
     if hold == 1:
         # none skipped: the loop falls behind instead (half a period a tick), its rows flagged late

@@ -48,7 +48,8 @@ def main(argv: list[str]) -> int:
         venv = Path(tmp) / "venv"
         subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
         python = venv / "bin" / "python"
-        subprocess.run([str(python), "-m", "pip", "install", "-q", str(wheel)], check=True)
+        # --no-compile: Python byte-compiles what it imports, on import (.ci/run installs the same way)
+        subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-compile", str(wheel)], check=True)
         installed = time.perf_counter()
         work = Path(tmp) / "elsewhere"
         work.mkdir()
