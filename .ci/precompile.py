@@ -1,7 +1,7 @@
 """The kernels most of the suite needs, compiled once before pytest's workers start (run by
 .ci/run; the cache in ``NUMBA_CACHE_DIR`` is shared by every venv of the run).
 
-    python .ci/precompile.py core|rig|oracle
+    python .ci/precompile.py core|rig|rig-rest|oracle
 
 On a cold cache each worker (and each rig target a test starts) would otherwise compile the same
 kernels at once on the same cores: a compile log of the suite (``IMPACT_ENV_COMPILE_LOG``,
@@ -15,6 +15,10 @@ warm-up compiles about 150 s of kernels of its own.
   signature for every exported law or agent), serial and in threads;
 * ``rig``: the rig target's controller and real-time loop (a lock-step virtual rig's warm-up;
   h5py, the extra 'rig');
+* ``rig-rest``: what the suite's tests still compiled themselves (the cache's files written
+  during a CI run's suite): the real-time loop for a driver called by address (a Python driver
+  here, as tests/rig_drivers.py's), the host's compiled exchange, and the hardware replay of the
+  identification, with and without the delay effects;
 * ``oracle``: the oracle's search and replay (cma, the extra 'oracle'), after ``core``: its replay
   calls the per-env step that ``core`` compiles.
 """
@@ -52,6 +56,35 @@ def rig() -> None:
     Target(VirtualRig("rig"), config=TargetConfig(lockstep=True)).close()  # it warms up as it starts
 
 
+def rig_rest() -> None:
+    import threading
+
+    import numpy as np
+
+    from impact_env.hardware.batch import Hardware
+    from impact_env.hardware.replay import replay
+    from impact_env.rig.driver import VirtualRig
+    from impact_env.rig.host import RigClient
+    from impact_env.rig.target import Target, TargetConfig
+
+    sys.path.insert(0, "tests")
+    from rig_drivers import BlindRig  # a Python driver, which the loop calls through ctypes callbacks
+
+    Target(BlindRig("rig"), config=TargetConfig(lockstep=True)).close()
+    target = Target(VirtualRig("rig"), config=TargetConfig(lockstep=True))
+    serving = threading.Thread(target=target.serve, daemon=True)
+    serving.start()
+    RigClient(target.address).close()  # the client compiles its exchange as it connects
+    target.stop()
+    serving.join(10)
+    # a replay's drops are fixed: no drawn mass or height
+    base = load_scene("rig").with_overrides({"randomize.m1": [], "randomize.drop_height": []})
+    delayed = base.with_overrides({"effects.active": [*base.effects.active, "actuator_delay", "sensor_delay"],
+                                   "effects.delay.actuator_s": 2e-4, "effects.delay.sensor_s": 3e-4})
+    for scene in (base, delayed):
+        replay(Hardware(scene, 1), np.zeros(8))
+
+
 def oracle() -> None:
     from impact_env.eval.compare import compare
 
@@ -60,7 +93,7 @@ def oracle() -> None:
 
 
 if __name__ == "__main__":
-    parts = {"core": core, "rig": rig, "oracle": oracle}
+    parts = {"core": core, "rig": rig, "rig-rest": rig_rest, "oracle": oracle}
     if len(sys.argv) != 2 or sys.argv[1] not in parts:
         raise SystemExit(f"usage: python .ci/precompile.py {'|'.join(parts)}")
     parts[sys.argv[1]]()
