@@ -1,7 +1,10 @@
 """The kernels most of the suite needs, compiled once before pytest's workers start (run by
 .ci/run; the cache in ``NUMBA_CACHE_DIR`` is shared by every venv of the run).
 
-    python .ci/precompile.py core|rig|rig-rest|oracle
+    python .ci/precompile.py PART [PART ...]     (plant, core, rig, rig-rest, oracle)
+
+Each part, once compiled, leaves the marker file ``.ci/out/precompiled-PART``, which the other
+lanes of .ci/run wait for.
 
 On a cold cache each worker (and each rig target a test starts) would otherwise compile the same
 kernels at once on the same cores: a compile log of the suite (``IMPACT_ENV_COMPILE_LOG``,
@@ -9,6 +12,11 @@ scripts/suite_compile_report.py) showed the compiled-policy loop and the oracle'
 compiled in two processes each, about 130 s and 70 s of a core every time, and a rig target's
 warm-up compiles about 150 s of kernels of its own.
 
+* ``plant``: the hardware tick (``hardware.stage.hardware_step``) and the plant's integrators it
+  calls (``plant.integrators.advance``, about 55 s of a core), first: the env's step calls the
+  same ``advance`` and the rig target's virtual hardware the same tick, so the other parts load
+  them instead of compiling a copy each at the same time (the core and rig lanes both compiled
+  them when they started together);
 * ``core``: what the core install runs, so .ci/run compiles it in the core venv while the
   development venv is still installing: the env's step, compare's Python-policy loop with the
   laws (mpc's solver and filter), then the compiled-policy loop (``sim.step.step_env``, one
@@ -24,8 +32,21 @@ warm-up compiles about 150 s of kernels of its own.
 """
 
 import sys
+from pathlib import Path
 
 from impact_env.scene import load_scene
+
+MARKERS = Path(__file__).resolve().parent / "out"
+
+
+def plant() -> None:
+    import numpy as np
+
+    from impact_env.hardware.batch import Hardware
+
+    hardware = Hardware(load_scene("rig"), 1)
+    hardware.reset([np.random.default_rng(0)])
+    hardware.step(np.zeros(1))
 
 
 def core() -> None:
@@ -93,7 +114,10 @@ def oracle() -> None:
 
 
 if __name__ == "__main__":
-    parts = {"core": core, "rig": rig, "rig-rest": rig_rest, "oracle": oracle}
-    if len(sys.argv) != 2 or sys.argv[1] not in parts:
-        raise SystemExit(f"usage: python .ci/precompile.py {'|'.join(parts)}")
-    parts[sys.argv[1]]()
+    parts = {"plant": plant, "core": core, "rig": rig, "rig-rest": rig_rest, "oracle": oracle}
+    if len(sys.argv) < 2 or not set(sys.argv[1:]) <= set(parts):
+        raise SystemExit(f"usage: python .ci/precompile.py PART [PART ...] (parts: {', '.join(parts)})")
+    MARKERS.mkdir(exist_ok=True)
+    for name in sys.argv[1:]:
+        parts[name]()
+        (MARKERS / f"precompiled-{name}").touch()

@@ -108,6 +108,25 @@ def test_replay_with_shifted_delays_is_the_delay_effects_bitwise():
         assert np.array_equal(ref, shift_readings(got, 3))
 
 
+def test_the_fits_damping_table_delivers_each_restitution_over_its_range():
+    """The model's pad damping comes from a table over the fit's restitutions (base / 4 to 1): the
+    collision with the table's damping delivers the restitution asked for to within 1e-11, the
+    size of the polynomial's error in e(zeta) over solves of rtol 1e-12, and the damping is the
+    exact solve's to 1e-10 relative where it is not tiny (near e = 1 the error in zeta is absolute)."""
+    from impact_env.ident.model import BOUND, Model
+    from impact_env.plant.restitution import restitution_of_zeta, zeta_for_restitution
+
+    model = Model(load_scene("rig"))
+    e0 = model.base.plant.restitution
+    for e in [*np.linspace(e0 * math.exp(-BOUND), 0.999, 7), 0.9999]:
+        zeta = model.zeta(float(e))
+        assert abs(restitution_of_zeta(zeta) - e) <= 1e-11, e
+        if e <= 0.9:
+            exact = zeta_for_restitution(float(e))
+            assert abs(zeta - exact) <= 1e-10 * exact, e
+    assert model.zeta(1.0) == 0.0
+
+
 # -- the target's identification episodes --------------------------------------------------------------
 def test_the_targets_identification_episodes(tmp_path):
     target, th = _serve(log_dir=tmp_path)

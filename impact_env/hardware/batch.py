@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from collections.abc import Callable
 
 import numpy as np
 
@@ -125,10 +126,14 @@ class Hardware:
                                    float(scene.integrator.rtol), float(self.period))
 
     # -- arrays from a scene ----------------------------------------------------------------
-    def _env_arrays(self, scene: Scene, exact: bool = False) -> dict:
-        """One env's parameter blocks and start values for the fixed ``scene``."""
+    def _env_arrays(self, scene: Scene, exact: bool = False,
+                    zeta_of: Callable[[float], float] | None = None) -> dict:
+        """One env's parameter blocks and start values for the fixed ``scene`` (the pad's damping:
+        by ``zeta_of`` if given, else the exact solve if ``exact`` or the batch has no table)."""
         fx = scene.effects
-        p = plant_params(scene, None if exact or self._zeta is None else self._zeta)
+        if zeta_of is None and not exact:
+            zeta_of = self._zeta
+        p = plant_params(scene, zeta_of)
         y0, t_touch = initial_state(scene)
         e0 = float(catch_energy(y0[STATE.x1], y0[STATE.v1], y0[STATE.x2], p[PARAM.m1], p[PARAM.c],
                                 p[PARAM.g]))
@@ -178,12 +183,14 @@ class Hardware:
         self.mode0[i] = arrays["mode0"]
         self.impact_energy[i] = arrays["impact_energy"]
 
-    def set_scene(self, i: int, scene: Scene) -> None:
+    def set_scene(self, i: int, scene: Scene, zeta_of: Callable[[float], float] | None = None) -> None:
         """Give env i the fixed ``scene``'s hardware (its plant row, drop, command scale, shaker,
         sensors, delays), as a randomised draw would: the scene must keep the effects, the shaker's
         model order and delay lengths this batch was built for.  Kept until the next draw (a
-        randomised scene draws anew at each reset; a fixed one keeps it)."""
-        self._set_env(int(i), self._env_arrays(scene, exact=True))
+        randomised scene draws anew at each reset; a fixed one keeps it).  ``zeta_of``: the pad's
+        scaled damping for the scene's restitution (default: the exact solve; the identification
+        passes a :class:`~impact_env.plant.restitution.ZetaTable` over its range)."""
+        self._set_env(int(i), self._env_arrays(scene, exact=zeta_of is None, zeta_of=zeta_of))
 
     def param_block(self, name: str) -> np.ndarray:
         """The parameter block ``name`` of every env (a view: float64[N, size])."""

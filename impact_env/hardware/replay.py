@@ -53,7 +53,9 @@ def replay_kernel(commands, p, s, readings):
                             EffectParams(rows, offsets, state_offsets))
         hs = HardwareState(PlantState(y, mode, h, events, n_events, t), st, Noise(z, cursor),
                            Readings(raw, info))
-        failed[i] = _replay_env(i, commands, hp, hs, readings)
+        # the parallel loop's index is unsigned, the loop typed before it a signed one: one type
+        # for both, or numba compiles this env's replay and the hardware tick for each
+        failed[i] = _replay_env(np.int64(i), commands, hp, hs, readings)
     return failed
 
 

@@ -35,11 +35,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from impact_env.ident.experiments import Experiment
-from impact_env.ident.model import INDEX, NAMES, PARAMS, SENSOR_CHANNELS, STAGE, Model
+from impact_env.ident.model import BOUND, INDEX, NAMES, PARAMS, SENSOR_CHANNELS, STAGE, Model
 
 IDENTIFIED_REL = 0.1  # a parameter with a larger relative standard uncertainty is not identified
 FIX_COST = 5.0  # reduced chi-squares a fit may lose when a parameter is fixed at its base value
-BOUND = math.log(4.0)  # the fit looks within a factor 4 of the base value either way
 FD_STEP = 1e-5  # forward-difference step in log-ratio (a relative 1e-5; truncation error about as small)
 # a contact's force rises as b v d^0.25 at its onset (the damped pad, Tsuji): a reading taken just
 # after an onset is not differentiable in the onset's time, and its derivative can be any size.
