@@ -1,7 +1,7 @@
 """The kernels most of the suite needs, compiled once before pytest's workers start (run by
 .ci/run; the cache in ``NUMBA_CACHE_DIR`` is shared by every venv of the run).
 
-    python .ci/precompile.py PART [PART ...]     (plant, core, rig, rig-rest, oracle)
+    python .ci/precompile.py PART [PART ...]     (shared, env, rollout, rig, rig-rest, oracle)
 
 Each part, once compiled, leaves the marker file ``.ci/out/precompiled-PART``, which the other
 lanes of .ci/run wait for.
@@ -10,25 +10,28 @@ On a cold cache each worker (and each rig target a test starts) would otherwise 
 kernels at once on the same cores: a compile log of the suite (``IMPACT_ENV_COMPILE_LOG``,
 scripts/suite_compile_report.py) showed the compiled-policy loop and the oracle's replay
 compiled in two processes each, about 130 s and 70 s of a core every time, and a rig target's
-warm-up compiles about 150 s of kernels of its own.
+warm-up compiles about 150 s of kernels of its own.  The parts after ``shared`` compile in
+separate processes at once, so they share no kernel that ``shared`` has not compiled first.
 
-* ``plant``: the hardware tick (``hardware.stage.hardware_step``) and the plant's integrators it
-  calls (``plant.integrators.advance``, about 55 s of a core), first: the env's step calls the
-  same ``advance`` and the rig target's virtual hardware the same tick, so the other parts load
-  them instead of compiling a copy each at the same time (the core and rig lanes both compiled
-  them when they started together);
-* ``core``: what the core install runs, so .ci/run compiles it in the core venv while the
-  development venv is still installing: the env's step, compare's Python-policy loop with the
-  laws (mpc's solver and filter), then the compiled-policy loop (``sim.step.step_env``, one
-  signature for every exported law or agent), serial and in threads;
+* ``shared``: what the later parts all call, first: the hardware tick
+  (``hardware.stage.hardware_step``) with the plant's integrators it calls
+  (``plant.integrators.advance``, about 55 s of a core), which the env's step calls too, and the
+  classic laws' kernels (``control.laws.law_forces``: the model-predictive laws' solver and
+  estimator, about 30 s), which the env's step, the compiled-policy loop and the rig target's
+  tick call;
+* ``env``: what the core install runs, in the core venv while the development venv is still
+  installing: the env's step and compare's Python-policy loop with the laws;
+* ``rollout``: the compiled-policy loop (``sim.step.step_env``, one signature for every exported
+  law or agent), serial and in threads (``compare --threads``, tests/test_threads.py, the TBB
+  layer's check);
 * ``rig``: the rig target's controller and real-time loop (a lock-step virtual rig's warm-up;
   h5py, the extra 'rig');
 * ``rig-rest``: what the suite's tests still compiled themselves (the cache's files written
   during a CI run's suite): the real-time loop for a driver called by address (a Python driver
   here, as tests/rig_drivers.py's), the host's compiled exchange, and the hardware replay of the
   identification, with and without the delay effects;
-* ``oracle``: the oracle's search and replay (cma, the extra 'oracle'), after ``core``: its replay
-  calls the per-env step that ``core`` compiles.
+* ``oracle``: the oracle's search and replay (cma, the extra 'oracle'), after ``rollout``: its
+  replay calls the per-env step that ``rollout`` compiles.
 """
 
 import sys
@@ -39,35 +42,45 @@ from impact_env.scene import load_scene
 MARKERS = Path(__file__).resolve().parent / "out"
 
 
-def plant() -> None:
+def shared() -> None:
     import numpy as np
 
+    from impact_env.control.laws import LAWS, MEMORY, N_SLOTS, law_forces
     from impact_env.hardware.batch import Hardware
 
     hardware = Hardware(load_scene("rig"), 1)
     hardware.reset([np.random.default_rng(0)])
     hardware.step(np.zeros(1))
+    # passive (kind 0) computes nothing; the call compiles every law's branch, for rows of
+    # C-contiguous float64 arrays as the env's step and the policies pass them
+    law_forces(LAWS.index("passive"), np.zeros(N_SLOTS, dtype=np.int64), np.zeros((1, 64)),
+               np.zeros((1, 64)), np.zeros((1, MEMORY)), np.zeros(1))
 
 
-def core() -> None:
+def env() -> None:
     import gymnasium as gym
 
     import impact_env  # noqa: F401  (registers the env)
     from impact_env.eval.compare import compare
-    from impact_env.eval.rollout import MIN_BLOCK_EPISODES, rollout
-    from impact_env.policy.export import export_policy
 
     environment = gym.make("ImpactCatch-v0")
     environment.reset(seed=0)
     environment.step(environment.action_space.sample())
+    compare(load_scene("rig"), ["passive", "mpc"], episodes=2, seed=0, horizon=0.015, workers=1,
+            progress=False)
+
+
+def rollout() -> None:
+    from impact_env.eval.rollout import MIN_BLOCK_EPISODES
+    from impact_env.eval.rollout import rollout as run
+    from impact_env.policy.export import export_policy
+
     scene = load_scene("rig")
-    compare(scene, ["passive", "mpc"], episodes=2, seed=0, horizon=0.015, workers=1, progress=False)
     policy = export_policy("pd-penetration", scene)
-    rollout(scene, policy, [0, 1], horizon=2 * scene.control_period, trace_rate=0.0)
-    # the threaded loop (one compiled parallel region over blocks of episodes): compare --threads,
-    # tests/test_threads.py and the TBB layer's check
-    rollout(scene, policy, list(range(2 * MIN_BLOCK_EPISODES)), horizon=2 * scene.control_period,
-            trace_rate=0.0, threads=2)
+    run(scene, policy, [0, 1], horizon=2 * scene.control_period, trace_rate=0.0)
+    # the threaded loop (one compiled parallel region over blocks of episodes)
+    run(scene, policy, list(range(2 * MIN_BLOCK_EPISODES)), horizon=2 * scene.control_period,
+        trace_rate=0.0, threads=2)
 
 
 def rig() -> None:
@@ -114,7 +127,8 @@ def oracle() -> None:
 
 
 if __name__ == "__main__":
-    parts = {"plant": plant, "core": core, "rig": rig, "rig-rest": rig_rest, "oracle": oracle}
+    parts = {"shared": shared, "env": env, "rollout": rollout, "rig": rig, "rig-rest": rig_rest,
+             "oracle": oracle}
     if len(sys.argv) < 2 or not set(sys.argv[1:]) <= set(parts):
         raise SystemExit(f"usage: python .ci/precompile.py PART [PART ...] (parts: {', '.join(parts)})")
     MARKERS.mkdir(exist_ok=True)

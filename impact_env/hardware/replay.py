@@ -91,8 +91,10 @@ def replay(hw, commands: np.ndarray, held: bool = False) -> tuple[np.ndarray, np
     for all); returns (readings float64[n_envs, n, 4], first failed tick int64[n_envs]).  Noise-free: the
     sensors' noise draws are zeros (give the candidate scenes noise_std = 0 anyway)."""
     n_envs = hw.n
-    commands_rows = np.ascontiguousarray(np.broadcast_to(np.asarray(commands, dtype=np.float64),
-                                                         (n_envs, np.shape(commands)[-1])))
+    # always a writable copy: a one-env broadcast is a read-only view, for which numba would
+    # compile a second copy of the kernel
+    commands_rows = np.array(np.broadcast_to(np.asarray(commands, dtype=np.float64),
+                                             (n_envs, np.shape(commands)[-1])), order="C")
     n = commands_rows.shape[1]
     hw.reset([None] * n_envs)
     if held:
