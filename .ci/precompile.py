@@ -10,8 +10,9 @@ On a cold cache each worker (and each rig target a test starts) would otherwise 
 kernels at once on the same cores: a compile log of the suite (``IMPACT_ENV_COMPILE_LOG``,
 scripts/suite_compile_report.py) showed the compiled-policy loop and the oracle's replay
 compiled in two processes each, about 130 s and 70 s of a core every time, and a rig target's
-warm-up compiles about 150 s of kernels of its own.  The parts after ``shared`` compile in
-separate processes at once, so they share no kernel that ``shared`` has not compiled first.
+warm-up compiles about 150 s of kernels of its own.  .ci/run compiles ``env`` then ``rollout``
+in one process and ``rig`` then ``rig-rest`` in another at once, after ``shared``, so no two
+processes compile the same kernel.
 
 * ``shared``: what the later parts all call, first: the hardware tick
   (``hardware.stage.hardware_step``) with the plant's integrators it calls
@@ -21,9 +22,9 @@ separate processes at once, so they share no kernel that ``shared`` has not comp
   tick call;
 * ``env``: what the core install runs, in the core venv while the development venv is still
   installing: the env's step and compare's Python-policy loop with the laws;
-* ``rollout``: the compiled-policy loop (``sim.step.step_env``, one signature for every exported
-  law or agent), serial and in threads (``compare --threads``, tests/test_threads.py, the TBB
-  layer's check);
+* ``rollout``: the compiled-policy loop (one signature for every exported law or agent), serial
+  and in threads (``compare --threads``, tests/test_threads.py, the TBB layer's check), after
+  ``env``: it calls the env's step (``sim.step.sim_step``) that ``env`` compiles;
 * ``rig``: the rig target's controller and real-time loop (a lock-step virtual rig's warm-up;
   h5py, the extra 'rig');
 * ``rig-rest``: what the suite's tests still compiled themselves (the cache's files written
@@ -31,7 +32,7 @@ separate processes at once, so they share no kernel that ``shared`` has not comp
   here, as tests/rig_drivers.py's), the host's compiled exchange, and the hardware replay of the
   identification, with and without the delay effects;
 * ``oracle``: the oracle's search and replay (cma, the extra 'oracle'), after ``rollout``: its
-  replay calls the per-env step that ``rollout`` compiles.
+  search rolls out the classic laws in the compiled-policy loop.
 """
 
 import sys

@@ -109,7 +109,7 @@ from impact_env.plant.layout import PARAM, STATE
 from impact_env.policy.registry import make_policy
 from impact_env.scene import Scene, load_scene
 from impact_env.sim.simulator import Simulator
-from impact_env.sim.step import step_env
+from impact_env.sim.step import sim_step
 
 SENSOR_SIDE = READINGS_ONLY  # effects that only compute readings (impact_env.effects.registry)
 WARM_POLICIES = ("pd-penetration", "thesis-rig", "passive")  # the classic laws the oracle rolls out itself
@@ -257,9 +257,12 @@ def _replay_steps(k0, k1, commands, p, s, e0, acc):
     commands, p, s, e0, acc = borrow(commands), borrow(p), borrow(s), borrow(e0), borrow(acc)
     plant_states = s.hw.plant.y
     plant_params = p.hw.plant.p
+    actions = np.zeros(plant_states.shape[0])  # the vector env's step on one env at a time
+    active = np.ones(plant_states.shape[0], dtype=np.bool_)
     for i in range(plant_states.shape[0]):
         for k in range(k0, k1):
-            step_env(i, commands[k, i], p, s)
+            actions[i] = commands[k, i]
+            sim_step(i, i + 1, actions, active, p, s)
             acc[i] += catch_energy_at(plant_states[i, STATE.x1], plant_states[i, STATE.v1],
                                       plant_states[i, STATE.x2], plant_params[i, PARAM.m1],
                                       plant_params[i, PARAM.c], plant_params[i, PARAM.g]) / e0[i]

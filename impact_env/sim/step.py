@@ -119,21 +119,16 @@ def env_step(i, a, p, s):
     return ok
 
 
-@jit
-def step_env(i, a, p, s):
-    """:func:`env_step` as a called kernel: the loops that step one env at a time and are not the
-    vector env's (compare's compiled-policy loop, the oracle's replay) call it, so that numba
-    types and compiles the inlined step once here, not again inside each of them (about 50 s of
-    a core each on a first run).  The call costs those loops a few percent; :func:`sim_step`,
-    the vector env's loop, keeps the step inlined."""
-    return env_step(i, a, p, s)
-
-
 @jit(nogil=True)
 def sim_step(i0, i1, actions, active, p, s):
     """:func:`env_step` for every env i of ``i0 .. i1 - 1`` with ``active[i]`` under ``actions[i]``
     (the whole batch: 0, N).  Env i touches only its own rows, and the GIL is released, so blocks
-    of envs may run in threads at once (:mod:`impact_env._threads`) with the same results."""
+    of envs may run in threads at once (:mod:`impact_env._threads`) with the same results.
+
+    The one compiled copy of the env's step: the loops that step one env at a time (compare's
+    compiled-policy loop, the oracle's replay) call it on envs ``i .. i + 1``, so numba types
+    and compiles the inlined step once, not again inside each (about 55 s of a core on a first
+    run); a step's plant status is its last tick's record (``REC.status``)."""
     actions, active, p, s = borrow(actions), borrow(active), borrow(p), borrow(s)  # (impact_env._borrow)
     for i in range(i0, i1):
         if active[i]:
