@@ -64,6 +64,10 @@ def add_arguments(p) -> None:
                    help="measure on the rig behind this target (impact-env rig serve): classic and compiled "
                         "policies onboard, SB3 models in host mode; with --scene too, the simulation "
                         "beside it")
+    p.add_argument("--on-host", action="store_true",
+                   help="with --rig: run every policy on this host, compiled (SB3 models exported as impact-env "
+                        "export does), in host mode: one COMMAND per policy step, each observation answered "
+                        "in compiled code (fast enough for hold 1 in real time)")
     p.add_argument("--key", metavar="FILE",
                    help="with --rig: the session key file the target was started with (rig serve --key FILE)")
     p.add_argument("--allow-overruns", action="store_true",
@@ -116,6 +120,8 @@ def cmd_compare(args) -> int:
 
     if args.key and not args.rig:
         raise ConfigError("--key FILE is the rig's session key: it goes with --rig udp://HOST:PORT")
+    if args.on_host and not args.rig:
+        raise ConfigError("--on-host runs the policies on this host against a rig: it goes with --rig udp://HOST:PORT")
     if args.allow_overruns and not args.rig:
         raise ConfigError("--allow-overruns goes with --rig udp://HOST:PORT")
     if args.seed < 0:
@@ -195,7 +201,8 @@ def _compare_rig(args, specs) -> int:
     try:
         progress = not args.no_progress and not args.json
         rig_scene, rig_runs = rig_compare.rig_compare(args.rig, specs, episodes=args.episodes, seed=args.seed,
-                                          horizon=args.horizon, progress=progress, key=key)
+                                          horizon=args.horizon, progress=progress, key=key,
+                                          on_host=args.on_host)
     except RigError as exc:  # a key on one side only, or another: the refusal names the option, no traceback
         if exc.code == protocol.ErrorCode.UNAUTHENTICATED:
             raise ConfigError(str(exc)) from None
@@ -207,7 +214,7 @@ def _compare_rig(args, specs) -> int:
         with tempfile.TemporaryDirectory() as tmp:  # classic laws as the compiled policies the rig ran
             sim_specs = {}
             for k, spec in enumerate(specs):
-                if is_model_spec(spec):
+                if is_model_spec(spec) and not args.on_host:  # --on-host: the rig ran its export
                     sim_specs[spec] = spec
                 else:
                     path = export_policy(spec, scene).save(Path(tmp) / f"p{k}.policy.json")

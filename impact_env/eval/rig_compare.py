@@ -6,7 +6,10 @@ Every policy runs the same episodes as in simulation (episode j seeded ``seed + 
   (:func:`impact_env.policy.export.export_policy`), uploaded at arm time and acts inside the
   target's tick; the host waits for the episode's end and fetches its log;
 * saved stable-baselines3 models run in **host mode**: the host steps the model on the
-  target's observations, one COMMAND per policy step, then fetches the log.
+  target's observations, one COMMAND per policy step, then fetches the log;
+* with ``on_host`` (``compare --rig ... --on-host``) every policy, SB3 models included, is
+  exported and runs in host mode **compiled on the host** (:meth:`RigClient.run_policy`): each
+  OBSERVATION answered in the compiled call that read it, fast enough for hold 1 in real time.
 
 The metrics come from each episode's log (:mod:`impact_env.rig.log_metrics`): exact from a
 virtual rig's true columns, estimated from body 2's sensors on a physical rig (thesis eq 4.5).
@@ -42,9 +45,10 @@ TRACE_MAP = {"x1": "true_x1_m", "v1": "true_v1_mps", "x2": "true_x2_m", "v2": "t
 
 def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 0,
                 horizon: float | None = None, progress: bool = True,
-                key=None) -> tuple[Any, dict[str, PolicyRun]]:
+                key=None, on_host: bool = False) -> tuple[Any, dict[str, PolicyRun]]:
     """(the target's scene, spec -> PolicyRun) measured on the rig at ``address`` (``key``: the
-    session key file the target was started with, or None)."""
+    session key file the target was started with, or None; ``on_host``: every policy compiled on
+    this host, in host mode)."""
 
     try:
         client = RigClient(address, key=key)
@@ -58,7 +62,9 @@ def rig_compare(address: str, specs: list[str], episodes: int = 10, seed: int = 
     try:
         prepared = {}
         for spec in specs:  # validate every policy before anything runs
-            if is_model_spec(spec):
+            if on_host:
+                prepared[spec] = ("on-host", export_policy(spec, scene))
+            elif is_model_spec(spec):
                 prepared[spec] = ("host", make_policy(spec, scene))
             else:
                 prepared[spec] = ("onboard", export_policy(spec, scene))
@@ -103,6 +109,9 @@ def _episode(client, mode: str, pol, seed: int, horizon: float, scene):
         client.arm("onboard", seed, n_ticks, pol.observation, pol.history, hold, pol)
         end = client.wait_end(timeout_s=30.0 + 20.0 * n_ticks / scene.control_rate)
         return client.fetch_log(end.episode, end.data_sha256)
+    if mode == "on-host":
+        run = client.run_policy(pol, seed, int(round(horizon / (scene.control_period * pol.hold_ticks))))
+        return client.fetch_log(run.end.episode, run.end.data_sha256)
     hold = int(getattr(pol, "hold_ticks", 1))
     residual = None
     if getattr(pol, "residual", None):

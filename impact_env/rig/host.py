@@ -37,7 +37,7 @@ import math
 import os
 import secrets
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -69,6 +69,13 @@ N_TEL = len(protocol.TELEMETRY_FIELDS)
 # this many steps in a row on which the target acted on none of the host's recent COMMANDs (the
 # watchdog had zeroed the force) and the host warns, once per episode (RigCommandsUnheard)
 UNHEARD_WARN_STEPS = 3
+
+
+class HostRun(NamedTuple):
+    """A host-mode episode run by :meth:`RigClient.run_policy`."""
+
+    end: protocol.EpisodeEnd  # how the target ended it
+    actions: np.ndarray  # float64[n_steps]: the command sent for each step, NaN where none was
 
 
 class RigCommandsUnheard(UserWarning):
@@ -278,6 +285,64 @@ class RigClient:
             if code == host_wire.TIMEOUT:
                 return None
         return None
+
+    def run_policy(self, policy: CompiledPolicy, seed: int, n_steps: int, spin_s: float | None = None,
+                   **arm: Any) -> HostRun:
+        """One host-mode episode of ``n_steps`` policy steps, ``policy`` acting on this host in
+        compiled code (:func:`impact_env.rig.host_wire.run_policy`): each OBSERVATION is answered
+        by its COMMAND within the same compiled call that read it, with no Python in between, so
+        that a host in real time answers within the target's command wait at hold 1 too, where a
+        Python policy step (``ImpactCatchRig-v0``) does not (docs/rig/timing.md).  The policy's
+        residual law, if it has one, is uploaded at ARM and runs under the commands in the
+        target's tick, as onboard.  ``spin_s``: poll for
+        each OBSERVATION this long before sleeping (None: 4 policy periods against a real-time
+        target, as ``ImpactCatchRig-v0``; 0 in lock-step); ``arm``: more of
+        :meth:`arm`'s options (``first_command_timeout_ticks``, ``link_timeout_ms``).  Returns the
+        episode's end and the command sent for each step (NaN: the step's OBSERVATION was
+        superseded by a newer one before this host read it, or lost)."""
+        pi, pf, mem_size = policy.arrays()
+        if self._policy_loop is None:
+            # compile (or load) the loop before any episode waits on it: one call in an episode no
+            # OBSERVATION has (0), sending nothing and waiting for nothing, then bound
+            args = (self.wire, pi, pf, np.zeros(mem_size), 0, 0, False, 1, 0, 0, 0, np.zeros(1))
+            host_wire.run_policy(*args)
+            self._policy_loop = entry_point(host_wire.run_policy, args)
+            self._take_wire()
+        hold = int(policy.hold_ticks)
+        self.arm("host", seed, n_steps * hold, policy.observation, policy.layout.history, hold,
+                 policy.residual_policy(), **arm)
+        actions = np.full(n_steps + 1, np.nan)
+        mem = np.zeros(mem_size)
+        first = self.observation(0, (self.retries + 1) * self.timeout_s)
+        if not isinstance(first, protocol.Observation):
+            raise RigTimeout("the episode's first OBSERVATION", (self.retries + 1) * self.timeout_s, self.address)
+        w = self.wire
+        w.out[:len(first.obs)] = first.obs  # the loop acts on what w.out holds
+        w.st.out_n[0] = len(first.obs)
+        if spin_s is None:
+            spin_s = 0.0 if self.lockstep else SPIN_STEPS * hold / self.scene.control_rate
+        spin_ns, timeout_ns = int(spin_s * 1e9), int(self.timeout_s * 1e9)
+        step, send, tries, waited = int(first.step), True, 0, -1
+        while step < n_steps:
+            seq = self.link.seq
+            code, step, self.link.seq = self._policy_loop(w, pi, pf, mem, self.episode, step, send, n_steps, seq,
+                                                          spin_ns, timeout_ns, actions)
+            self._take_wire()
+            end = self.last_end
+            if code == host_wire.LAST or (end is not None and end.episode == self.episode
+                                          and not self._has_last_obs(end, step + 1)):
+                break
+            send = False  # QUEUED or TIMEOUT: the step's COMMAND is out; wait on
+            if code == host_wire.TIMEOUT:
+                tries = tries + 1 if step == waited else 1  # the tries of this step's wait
+                waited = step
+                if tries > self.retries:
+                    raise RigTimeout(f"OBSERVATION of step {step + 1}", tries * self.timeout_s, self.address, tries)
+                if self.lockstep:  # the target waits with its observation: the COMMAND again
+                    self.command(step, float(actions[step]))
+        return HostRun(self.wait_end(timeout_s=10.0), actions[:n_steps])
+
+    _policy_loop = None
 
     def _take_wire(self) -> None:
         """The compiled path's datagrams for Python through the link's filter (an EPISODE_END is

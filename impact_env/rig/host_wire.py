@@ -10,18 +10,23 @@ episode and is of the step awaited or later, its values are copied to ``Wire.out
 one wins: a host slower than the target's steps answers the newest); every other datagram (an
 EPISODE_END, an ERROR, a stranger's) is queued for Python, which puts it through the filter.
 While it waits the call polls the socket for ``spin`` ns, then sleeps in ``poll()``.
+
+:func:`run_policy` is a whole host-mode episode in one call: a compiled policy
+(:func:`impact_env.control.policy.act`) answers each OBSERVATION as it comes, so that nothing of
+Python's stands between an observation and its COMMAND (``RigClient.run_policy``).
 """
 
 from __future__ import annotations
 
 from impact_env._borrow import borrow
 from impact_env._jit import jit
+from impact_env.control.policy import act
 from impact_env.rig import protocol, wire
 from impact_env.rig.cfunc import call_poll, call_recvfrom
 
 # what exchange() returns: the newest OBSERVATION is in Wire.out; Python has a queued datagram to
-# look at (none observed yet); the time ran out
-OBSERVED, QUEUED, TIMEOUT = 1, 2, 3
+# look at (none observed yet); the time ran out; (run_policy) the episode's last OBSERVATION came
+OBSERVED, QUEUED, TIMEOUT, LAST = 1, 2, 3, 4
 
 
 @jit
@@ -152,3 +157,31 @@ def exchange(w, send, episode, step, action, seq, min_step, spin_ns, timeout_ns)
             return TIMEOUT
         if waited >= spin_ns:
             call_poll(w.calls.poll, w.pfd, 1, min(5, 1 + (timeout_ns - waited) // 1_000_000))
+
+
+@jit(nogil=True)
+def run_policy(w, pi, pf, mem, episode, step, send, last_step, seq, spin_ns, timeout_ns, actions):
+    """Host mode with the policy compiled here: the OBSERVATION of ``step`` is in ``w.out``; act
+    on it (the packed policy ``pi``, ``pf``, its memory ``mem``), send that COMMAND (sequence
+    number ``seq``, then the next ones), await the next OBSERVATION (:func:`exchange`) and answer
+    it the same way, until the OBSERVATION of ``last_step`` has come (LAST), or :func:`exchange`
+    returns QUEUED or TIMEOUT for Python to look at.  ``send`` False: the COMMAND of ``step`` was
+    sent already (its action in ``actions[step]``); only wait.  Each answered step's command goes
+    to ``actions[step]``.  Returns (code, the step of the newest OBSERVATION, the next sequence
+    number)."""
+    st = w.st
+    while True:
+        if send:
+            a = act(pi, pf, w.out[:st.out_n[0]], mem)
+            actions[step] = a
+        else:
+            a = actions[step]
+        code = exchange(w, send, episode, step, a, seq, step + 1, spin_ns, timeout_ns)
+        if send:
+            seq = (seq + 1) & protocol.U32
+        send = True
+        if code != OBSERVED:
+            return code, step, seq
+        step = st.out_step[0]
+        if step >= last_step:
+            return LAST, step, seq
