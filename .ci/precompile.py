@@ -29,7 +29,8 @@ processes compile the same kernel.
   h5py, the extra 'rig');
 * ``rig-rest``: what the suite's tests still compiled themselves (the cache's files written
   during a CI run's suite): the real-time loop for a driver called by address (a Python driver
-  here, as tests/rig_drivers.py's), the host's compiled exchange, and the hardware replay of the
+  here, as tests/rig_drivers.py's), the host's compiled exchange and its loop for a policy on the
+  host (``RigClient.run_policy``), and the hardware replay of the
   identification, with and without the delay effects;
 * ``oracle``: the oracle's search and replay (cma, the extra 'oracle'), after ``rollout``: its
   search rolls out the classic laws in the compiled-policy loop.
@@ -98,6 +99,7 @@ def rig_rest() -> None:
 
     from impact_env.hardware.batch import Hardware
     from impact_env.hardware.replay import replay
+    from impact_env.policy.export import export_policy
     from impact_env.rig.driver import VirtualRig
     from impact_env.rig.host import RigClient
     from impact_env.rig.target import Target, TargetConfig
@@ -109,7 +111,9 @@ def rig_rest() -> None:
     target = Target(VirtualRig("rig"), config=TargetConfig(lockstep=True))
     serving = threading.Thread(target=target.serve, daemon=True)
     serving.start()
-    RigClient(target.address).close()  # the client compiles its exchange as it connects
+    client = RigClient(target.address)  # the client compiles its exchange as it connects
+    client.run_policy(export_policy("pd-penetration", target.scene), seed=0, n_steps=2)  # a policy on the host
+    client.close()
     target.stop()
     serving.join(10)
     # a replay's drops are fixed: no drawn mass or height

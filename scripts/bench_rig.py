@@ -13,11 +13,12 @@ record keeps those lines.  The figures come from the episodes' logs.
 1. Onboard, real time: the compiled pd-penetration law in episodes of 0.4 s until
    ``--onboard-ticks`` ticks: tick lateness (start minus deadline) p50 / p99 / p99.9 / max,
    overruns per 10^5 ticks, runs of 1 ms or more without a tick, how the episodes ended.
-2. Host mode, real time: ``ImpactCatchRig-v0`` (pd-penetration residual, actions drawn at
-   random), ``--episodes`` episodes a row: hold 4 and hold 1 alone, then with a CPU-bound process
-   pinned to the loop's CPU (beside the loop), then hold 4 under a flood of junk datagrams from a
-   second process.  Per row: of the commands the host sent, the share that acted within their
-   own step; the steps the host did not answer (a host slower than the steps answers the newest
+2. Host mode, real time, ``--episodes`` episodes a row, two hosts: ``ImpactCatchRig-v0`` stepped
+   from Python (pd-penetration residual, actions drawn at random), and the pd-penetration law
+   compiled on the host (``RigClient.run_policy``: each observation answered in the compiled call
+   that read it); each at hold 4 and hold 1 alone, then with a CPU-bound process pinned to the
+   loop's CPU (beside the loop), then under a flood of junk datagrams from a second process.
+   Per row: of the commands the host sent, the share that acted within their own step; the steps the host did not answer (a host slower than the steps answers the newest
    observation); commands lost (sent, and in no episode's counters); RigTimeouts; the ends.
 3. First episodes: ``--fresh`` targets started afresh, each one host-mode episode at hold 4: how
    many reached their horizon.
@@ -99,14 +100,36 @@ def onboard(addr: str, log_dir: Path, ticks: int, horizon: int) -> dict:
             "work": np.percentile(w, [50, 99]), "ends": ends, "episodes": seed - 1, "long_gaps": long_gaps}
 
 
+def _count(tot: dict, log, hold: int, sent: int) -> None:
+    """Add one episode's figures (from its log) to ``tot``."""
+    c = log.meta.counters
+    tot["sent"] += sent
+    tot["accounted"] += c["commands_accepted"] + c["commands_late"]
+    tot["unanswered"] += int(log["step"][-1]) - sent  # the steps the target observed, less those answered
+    tick = log["tick"].astype(np.int64)[:-1]
+    cstep = log["command_step"].astype(np.int64)[:-1]
+    tot["own_step"] += np.unique(cstep[(cstep >= 0) & (tick // hold == cstep)]).size
+    tot["late_ns"].append(log["lateness_ns"][1:-1])
+    tot["ends"][log.meta.end_reason] = tot["ends"].get(log.meta.end_reason, 0) + 1
+
+
+def _totals() -> dict:
+    return {"sent": 0, "accounted": 0, "own_step": 0, "unanswered": 0, "timeouts": 0, "late_ns": [],
+            "ends": {}}
+
+
+def _finish(tot: dict) -> dict:
+    lat = np.concatenate(tot.pop("late_ns")) / 1e3 if tot["late_ns"] else np.zeros(1)
+    tot["lateness"] = np.percentile(lat, [50, 99, 99.9])
+    return tot
+
+
 def host_realtime(env: RigEnv, log_dir: Path, hold: int, episodes: int, seed0: int = 1000) -> dict:
     """``episodes`` episodes of ``env`` (hold ``hold``) with random actions; the figures of section 2."""
     rng = np.random.default_rng(0)
-    tot = {"sent": 0, "accounted": 0, "own_step": 0, "unanswered": 0, "timeouts": 0}
-    late_ns, wall, ends = [], [], {}
+    tot = _totals()
     for k in range(episodes):
         sent = 0
-        t0 = time.perf_counter()
         try:
             env.reset(seed=seed0 + k)
             while True:
@@ -116,30 +139,37 @@ def host_realtime(env: RigEnv, log_dir: Path, hold: int, episodes: int, seed0: i
                     break
         except RigTimeout:
             tot["timeouts"] += 1
-            ends["RigTimeout"] = ends.get("RigTimeout", 0) + 1
+            tot["ends"]["RigTimeout"] = tot["ends"].get("RigTimeout", 0) + 1
             continue
-        wall.append(time.perf_counter() - t0)
-        why = info.get("end_reason", "?")
-        ends[why] = ends.get(why, 0) + 1
-        log = read_episode(_file(log_dir, env.client.episode))
-        c = log.meta.counters
-        tot["sent"] += sent
-        tot["accounted"] += c["commands_accepted"] + c["commands_late"]
-        tot["unanswered"] += int(log["step"][-1]) - sent  # the steps the target observed, less those answered
-        tick = log["tick"].astype(np.int64)[:-1]
-        cstep = log["command_step"].astype(np.int64)[:-1]
-        tot["own_step"] += np.unique(cstep[(cstep >= 0) & (tick // hold == cstep)]).size
-        late_ns.append(log["lateness_ns"][1:-1])
-    lat = np.concatenate(late_ns) / 1e3 if late_ns else np.zeros(1)
-    tot["lateness"] = np.percentile(lat, [50, 99, 99.9])
-    tot["wall"] = np.percentile(wall, [50, 100]) if wall else np.zeros(2)
-    tot["ends"] = ends
-    return tot
+        _count(tot, read_episode(_file(log_dir, env.client.episode)), hold, sent)
+    return _finish(tot)
 
 
-def _host_row(what: str, hold: int, h: dict) -> dict:
-    """One host-mode row of the record."""
-    return {"what": what, "hold": hold, "sent": h["sent"], "own_step": h["own_step"],
+def host_compiled(client: RigClient, log_dir: Path, hold: int, episodes: int, seed0: int = 1000) -> dict:
+    """The figures of section 2 for ``episodes`` episodes of the pd-penetration law compiled on
+    the host (``RigClient.run_policy``), held ``hold`` ticks."""
+    import dataclasses
+
+    policy = dataclasses.replace(export_policy("pd-penetration", client.scene), hold_ticks=hold)
+    n_steps = int(round(0.3 * client.scene.control_rate / hold))  # the scene's horizon, as the env's
+    tot = _totals()
+    for k in range(episodes):
+        try:
+            run = client.run_policy(policy, seed0 + k, n_steps)
+        except RigTimeout:
+            tot["timeouts"] += 1
+            tot["ends"]["RigTimeout"] = tot["ends"].get("RigTimeout", 0) + 1
+            continue
+        _count(tot, read_episode(_file(log_dir, run.end.episode)), hold, int(np.isfinite(run.actions).sum()))
+    return _finish(tot)
+
+
+HOSTS = {"python": "ImpactCatchRig-v0, stepped from Python", "compiled": "the policy compiled on the host"}
+
+
+def _host_row(host: str, what: str, hold: int, h: dict) -> dict:
+    """One host-mode row of the record (``host``: a key of HOSTS)."""
+    return {"host": host, "what": what, "hold": hold, "sent": h["sent"], "own_step": h["own_step"],
             "own_step_share": h["own_step"] / max(1, h["sent"]), "unanswered": h["unanswered"],
             "lost": h["sent"] - h["accounted"], "timeouts": h["timeouts"], "ends": h["ends"],
             "lateness_us": [round(float(x), 1) for x in h["lateness"]], "load": os.getloadavg()[0]}
@@ -148,14 +178,14 @@ def _host_row(what: str, hold: int, h: dict) -> dict:
 def _print_host(r: dict) -> None:
     lp = r["lateness_us"]
     share = 100 * r["own_step_share"]
-    print(f"| {r['hold']} | {r['what']} | {r['sent']} | {r['own_step']} ({share:.1f} %) | "
+    print(f"| {r['host']} | {r['hold']} | {r['what']} | {r['sent']} | {r['own_step']} ({share:.1f} %) | "
           f"{r['unanswered']} | {r['lost']} | {r['timeouts']} | {lp[0]:.0f} / {lp[1]:.0f} / {lp[2]:.0f} | "
           f"{r['ends']} | {r['load']:.1f} |", flush=True)
 
 
-def _recorded_hello(env: RigEnv) -> bytes:
+def _recorded_hello(client: RigClient) -> bytes:
     """The host's HELLO as a sniffer on the wire would have it."""
-    ep = env.client.endpoint
+    ep = client.endpoint
     sent: list[bytes] = []
     real = ep.send
 
@@ -165,7 +195,7 @@ def _recorded_hello(env: RigEnv) -> bytes:
 
     ep.send = send
     try:
-        env.client.hello()
+        client.hello()
     finally:
         ep.send = real
     return [d for d in sent if d[6] == 1][-1]
@@ -181,26 +211,61 @@ def _env(addr: str, hold: int) -> RigEnv:
                   retries=20)
 
 
-def _flood_row(addr: str, log_dir: Path, episodes: int, cpus: list[int]) -> tuple[dict, dict]:
-    env = _env(addr, 4)
-    flood = None
+def host_row(host: str, what: str, addr: str, log_dir: Path, hold: int, episodes: int,
+             seed0: int = 1000, started=None) -> dict:
+    """One row of section 2 by ``host`` (a key of HOSTS); ``started(client)`` runs once its
+    session is open (the flood's start)."""
+    if host == "python":
+        env = _env(addr, hold)
+        try:
+            if started is not None:
+                started(env.client)
+            return _host_row(host, what, hold, host_realtime(env, log_dir, hold, episodes, seed0))
+        finally:
+            env.close()
+    client = RigClient(addr, timeout_s=0.1, retries=20)
     try:
-        hello = _recorded_hello(env)
+        if started is not None:
+            started(client)
+        return _host_row(host, what, hold, host_compiled(client, log_dir, hold, episodes, seed0))
+    finally:
+        client.close()
+
+
+def _flood_rows(addr: str, log_dir: Path, episodes: int, cpus: list[int]) -> tuple[list[dict], dict]:
+    """Section 2's rows under a flood of junk datagrams (each host at hold 4 and hold 1), and the
+    flood's own report."""
+    FLOOD_WHAT = "a flood of junk datagrams"
+    rows: list[dict] = []
+    flood = None
+    go = log_dir / "go"
+
+    def start(client: RigClient) -> None:
+        nonlocal flood
+        if flood is not None:
+            return
+        hello = _recorded_hello(client)
         host, port = re.match(r"udp://([^:]+):(\d+)", addr).groups()
-        go = log_dir / "go"
         flood = subprocess.Popen([sys.executable, "-c", loopback.FLOOD, host, port, hello.hex(), str(go),
-                                  str(10**9), str(1.0 * episodes)], stdout=subprocess.PIPE, text=True)
+                                  str(10**9), "600"], stdout=subprocess.PIPE, text=True)
         os.sched_setaffinity(flood.pid, {cpus[0]})  # an attacker on the network, not a load on the loop
         os.setpriority(os.PRIO_PROCESS, flood.pid, 19)
         assert flood.stdout.readline().strip() == "ready"
         go.touch()
         time.sleep(0.2)
-        h = host_realtime(env, log_dir, 4, episodes, seed0=2000)
+
+    try:
+        for host in HOSTS:
+            for hold in (4, 1):
+                rows.append(host_row(host, FLOOD_WHAT, addr, log_dir, hold, episodes, seed0=2000,
+                                     started=start))
+                _print_host(rows[-1])
+        assert flood is not None
+        go.unlink()  # the flood stops
         out, _ = flood.communicate(timeout=60)
         flood = None
-        return _host_row("a flood of junk datagrams", 4, h), json.loads(out)
+        return rows, json.loads(out)
     finally:
-        env.close()
         if flood is not None:
             flood.kill()
             flood.wait()
@@ -241,32 +306,34 @@ def kernel_settings() -> dict:
             "clocksource": f.clocksource, "virtual_machine": f.hypervisor, "kernel": f.release}
 
 
-GOALS = [("hold 4, alone: commands acting in their own step", ">= 99 %"),
-         ("hold 1, alone: commands acting in their own step", ">= 95 %"),
-         ("hold 4, a flood: commands acting in their own step", ">= 95 %"),
-         ("commands lost (after the ones that came after their episode), all rows", "0"),
+TIMING_GOALS = [("alone", 4, 0.99), ("alone", 1, 0.95), ("a flood of junk datagrams", 4, 0.95)]
+GOALS = [("commands lost (after the ones that came after their episode), all rows", "0"),
          ("RigTimeouts, all rows", "0"),
          ("first episodes reaching their horizon", "100 %")]
 
 
 def goals(rec: dict) -> list[tuple[str, str, str, bool]]:
-    """(goal, target, measured, met) for each of the rig's goals (GOALS)."""
-    rows = {(r["what"], r["hold"]): r for r in rec["host"]}
-    alone4, alone1 = rows.get(("alone", 4)), rows.get(("alone", 1))
-    flood = rows.get(("a flood of junk datagrams", 4))
+    """(goal, target, measured, met) for each of the rig's goals: the share of commands acting in
+    their own step (TIMING_GOALS) for each host, then GOALS."""
+    rows = {(r.get("host", "python"), r["what"], r["hold"]): r for r in rec["host"]}
     out = []
-    for (name, target), r, goal in zip(GOALS[:3], (alone4, alone1, flood), (0.99, 0.95, 0.95), strict=True):
-        if r is not None:
-            out.append((name, target, f"{100 * r['own_step_share']:.1f} %", r["own_step_share"] >= goal))
+    for host in HOSTS:
+        for what, hold, goal in TIMING_GOALS:
+            r = rows.get((host, what, hold))
+            if r is not None:
+                where = "alone" if what == "alone" else "a flood"
+                out.append((f"{HOSTS[host]}: hold {hold}, {where}: commands acting in their own step",
+                            f">= {100 * goal:g} %", f"{100 * r['own_step_share']:.1f} %",
+                            r["own_step_share"] >= goal))
     # a command that came after its episode had ended is in no episode's counters but in the
     # target's commands_after_end (printed when it stops): accounted for, not lost
     lost = sum(r["lost"] for r in rec["host"]) - rec.get("since_start", {}).get("commands_after_end", 0)
     timeouts = sum(r["timeouts"] for r in rec["host"])
-    out.append((GOALS[3][0], GOALS[3][1], str(lost), lost == 0))
-    out.append((GOALS[4][0], GOALS[4][1], str(timeouts), timeouts == 0))
+    out.append((GOALS[0][0], GOALS[0][1], str(lost), lost == 0))
+    out.append((GOALS[1][0], GOALS[1][1], str(timeouts), timeouts == 0))
     fe = rec.get("first_episodes")
     if fe and fe["targets"]:
-        out.append((GOALS[5][0], GOALS[5][1], f"{fe['horizon']} of {fe['targets']}",
+        out.append((GOALS[2][0], GOALS[2][1], f"{fe['horizon']} of {fe['targets']}",
                     fe["horizon"] == fe["targets"]))
     return out
 
@@ -294,10 +361,11 @@ def render(records: list[dict]) -> str:
                   f"| {o['ticks']} | {o['p50_us']:.1f} / {o['p99_us']:.1f} / {o['p999_us']:.1f} / "
                   f"{o['max_us']:.0f} | "
                   f"{o['overruns_per_1e5']:.0f} | {o['long_gaps']} | {o['ends']} |", "",
-                  "| hold | beside the loop | commands sent | acted in their own step | steps not answered "
-                  "| in no episode's counters | RigTimeouts | ends |", "|---|---|---|---|---|---|---|---|"]
+                  "| host | hold | beside the loop | commands sent | acted in their own step "
+                  "| steps not answered | in no episode's counters | RigTimeouts | ends |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for r in rec["host"]:
-            lines.append(f"| {r['hold']} | {r['what']} | {r['sent']} | {100 * r['own_step_share']:.1f} % | "
+            lines.append(f"| {HOSTS[r.get('host', 'python')]} | {r['hold']} | {r['what']} | {r['sent']} | {100 * r['own_step_share']:.1f} % | "
                          f"{r['unanswered']} | {r['lost']} | {r['timeouts']} | {r['ends']} |")
         lines += ["", "| goal | target | measured | met |", "|---|---|---|---|"]
         for name, target, measured, met in goals(rec):
@@ -364,31 +432,25 @@ def main() -> int:
                               "longest_skip": r["longest_skip"], "long_gaps": r["long_gaps"],
                               "ends": r["ends"]}
             print(json.dumps(rec["onboard"]), flush=True)
-            print(f"\n## 2. Host mode, real time: ImpactCatchRig-v0, pd-penetration residual, {episodes} "
-                  "episodes a row\n")
-            print("| hold | beside the loop | commands sent | acted in their own step | steps not answered | "
+            print(f"\n## 2. Host mode, real time, two hosts, {episodes} episodes a row\n")
+            print("| host | hold | beside the loop | commands sent | acted in their own step | steps not answered | "
                   "lost | RigTimeouts | lateness p50/p99/p99.9 us | ends | load |\n"
-                  "|---|---|---|---|---|---|---|---|---|---|")
+                  "|---|---|---|---|---|---|---|---|---|---|---|")
             loop_cpu = loop_cpu_of("127.0.0.1", int(addr.rsplit(":", 1)[1]))
             for what in ("alone", "a CPU-bound process on the loop's CPU"):
                 if what != "alone":
                     hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
                     os.sched_setaffinity(hog.pid, {cpus[-1] if loop_cpu is None else loop_cpu})
-                for hold in (4, 1):
-                    env = _env(addr, hold)
-                    try:
-                        h = host_realtime(env, log_dir, hold, episodes)
-                    finally:
-                        env.close()
-                    rec["host"].append(_host_row(what, hold, h))
-                    _print_host(rec["host"][-1])
+                for host in HOSTS:
+                    for hold in (4, 1):
+                        rec["host"].append(host_row(host, what, addr, log_dir, hold, episodes))
+                        _print_host(rec["host"][-1])
                 if hog is not None:
                     hog.kill()
                     hog.wait()
                     hog = None
-            row, report = _flood_row(addr, log_dir, episodes, cpus)
-            rec["host"].append(row)
-            _print_host(row)
+            rows, report = _flood_rows(addr, log_dir, episodes, cpus)
+            rec["host"] += rows
             rec["flood"] = report
         finally:
             if hog is not None:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 # a flood at a target (the rig's flood test and benchmark): ``python -c FLOOD HOST PORT
 # HELLO_HEX GO_FILE N_MAX MAX_S`` sends, once GO_FILE exists, as fast as it can until N_MAX datagrams
-# or MAX_S seconds, a quarter each: the host's HELLO replayed, a COMMAND-shaped frame with a bad
+# or MAX_S seconds or until GO_FILE is removed, a quarter each: the host's HELLO replayed, a COMMAND-shaped frame with a bad
 # tag, junk (bad magic), truncated frames; it prints "ready", then a JSON line of what it sent
 FLOOD = r"""
 import json, os, random, socket, sys, time
@@ -57,6 +57,8 @@ while k < n_max and time.perf_counter() - t0 < max_s:
     except BlockingIOError:
         not_sent += 1
     if k % 64 == 0:
+        if k % 4096 == 0 and not os.path.exists(go_file):  # told to stop
+            break
         while True:
             try:
                 reply_bytes += len(s.recv(70000))
