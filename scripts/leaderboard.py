@@ -84,15 +84,21 @@ def render(records: list[tuple[Path, dict]], root: Path = ROOT) -> str:
     ref = suite["reference"]
     ranked = sorted(rows.items(), key=lambda kv: _rank_key(kv[1][0]))
     head = ["rank", "policy", "score* [95 % CI]", "score IQM [95 % CI]", f"P(better than {ref}) [95 % CI]",
-            *(f"{n}: int E ms" for n in set_names), "caught"]
+            *(f"{n}: int E ms [95 % CI], x oracle" for n in set_names), "caught"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for rank, (spec, (st, record, _path)) in enumerate(ranked, start=1):
         per_set = []
         for name in set_names:
             pol = record["sets"].get(name, {}).get("policies", {}).get(spec)
             summary = pol["summary"] if pol is not None else {}
-            per_set.append("n/a" if pol is None else _ci(summary.get("energy_integral_ms"),
-                                                         summary.get("energy_integral_ms_ci95"), "{:.2f}"))
+            cell = "n/a" if pol is None else _ci(summary.get("energy_integral_ms"),
+                                                 summary.get("energy_integral_ms_ci95"), "{:.2f}")
+            oracle = record["sets"].get(name, {}).get("policies", {}).get("oracle")
+            mean = summary.get("energy_integral_ms")
+            best = None if oracle is None else oracle["summary"].get("energy_integral_ms")
+            if pol is not None and mean is not None and best:
+                cell += f", {mean / best:.2f}x"
+            per_set.append(cell)
         caught = st.get("caught_fraction")
         lines.append("| " + " | ".join([
             str(rank), f"`{spec}`", _ci(st.get("score"), st.get("score_ci95")),
@@ -118,7 +124,8 @@ def render(records: list[tuple[Path, dict]], root: Path = ROOT) -> str:
         "\\* score: `100 (passive - policy) / (passive - oracle)` per drop on the energy integral, mean over "
         "every drop of the suite (0 = doing nothing, 100 = the per-drop oracle); intervals: 95 % stratified "
         f"bootstrap over the drops (the sets as strata); P(better than {ref}): the share of drops on which "
-        "the policy's energy integral is lower than the reference's, ties half.", "",
+        "the policy's energy integral is lower than the reference's, ties half; x oracle: the set's mean "
+        "energy integral over the oracle's.", "",
         "Records:", "", *(f"* {s}" for s in sources)])
 
 

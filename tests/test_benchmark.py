@@ -170,6 +170,7 @@ def test_the_leaderboard_is_generated_from_the_records_and_checked(record, tmp_p
     rows = [ln for ln in text.splitlines() if ln.startswith("| ") and ln[2].isdigit()]
     assert [r.split("|")[2].strip() for r in rows][-1] == "`passive`"
     assert "| 1 |" in rows[0] and "100.0 [100.0, 100.0]" in text
+    assert rows[0].count(", 1.00x") == len(record["sets"]), "the oracle is 1.00x of itself on every set"
     # a changed record makes the page stale again
     rec = json.loads((records / "tiny-v1.json").read_text())
     rec["overall"]["thesis-rig"]["score"] = 1.0
