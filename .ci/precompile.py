@@ -112,7 +112,8 @@ def rig_rest() -> None:
     serving = threading.Thread(target=target.serve, daemon=True)
     serving.start()
     client = RigClient(target.address)  # the client compiles its exchange as it connects
-    client.run_policy(export_policy("pd-penetration", target.scene), seed=0, n_steps=2)  # a policy on the host
+    # a policy compiled on the host
+    client.run_policy(export_policy("pd-penetration", target.scene), seed=0, n_steps=2)
     client.close()
     target.stop()
     serving.join(10)

@@ -18,8 +18,9 @@ record keeps those lines.  The figures come from the episodes' logs.
    compiled on the host (``RigClient.run_policy``: each observation answered in the compiled call
    that read it); each at hold 4 and hold 1 alone, then with a CPU-bound process pinned to the
    loop's CPU (beside the loop), then under a flood of junk datagrams from a second process.
-   Per row: of the commands the host sent, the share that acted within their own step; the steps the host did not answer (a host slower than the steps answers the newest
-   observation); commands lost (sent, and in no episode's counters); RigTimeouts; the ends.
+   Per row: of the commands the host sent, the share that acted within their own step; the steps
+   the host did not answer (a host slower than the steps answers the newest observation); commands
+   lost (sent, and in no episode's counters); RigTimeouts; the ends.
 3. First episodes: ``--fresh`` targets started afresh, each one host-mode episode at hold 4: how
    many reached their horizon.
 
@@ -365,7 +366,8 @@ def render(records: list[dict]) -> str:
                   "| steps not answered | in no episode's counters | RigTimeouts | ends |",
                   "|---|---|---|---|---|---|---|---|---|"]
         for r in rec["host"]:
-            lines.append(f"| {HOSTS[r.get('host', 'python')]} | {r['hold']} | {r['what']} | {r['sent']} | {100 * r['own_step_share']:.1f} % | "
+            lines.append(f"| {HOSTS[r.get('host', 'python')]} | {r['hold']} | {r['what']} | {r['sent']} | "
+                         f"{100 * r['own_step_share']:.1f} % | "
                          f"{r['unanswered']} | {r['lost']} | {r['timeouts']} | {r['ends']} |")
         lines += ["", "| goal | target | measured | met |", "|---|---|---|---|"]
         for name, target, measured, met in goals(rec):
@@ -433,8 +435,8 @@ def main() -> int:
                               "ends": r["ends"]}
             print(json.dumps(rec["onboard"]), flush=True)
             print(f"\n## 2. Host mode, real time, two hosts, {episodes} episodes a row\n")
-            print("| host | hold | beside the loop | commands sent | acted in their own step | steps not answered | "
-                  "lost | RigTimeouts | lateness p50/p99/p99.9 us | ends | load |\n"
+            print("| host | hold | beside the loop | commands sent | acted in their own step | "
+                  "steps not answered | lost | RigTimeouts | lateness p50/p99/p99.9 us | ends | load |\n"
                   "|---|---|---|---|---|---|---|---|---|---|---|")
             loop_cpu = loop_cpu_of("127.0.0.1", int(addr.rsplit(":", 1)[1]))
             for what in ("alone", "a CPU-bound process on the loop's CPU"):

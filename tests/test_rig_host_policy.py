@@ -32,7 +32,7 @@ def test_a_policy_on_the_host_acts_as_it_does_onboard_in_lockstep(tmp_path, spec
     try:
         policy = export_policy(spec, client.scene)
         hold = policy.hold_ticks
-        n_steps = int(round(0.1 * client.scene.control_rate / hold))  # through the touch and the first bounces
+        n_steps = int(round(0.1 * client.scene.control_rate / hold))  # the touch and the first bounces
         run = client.run_policy(policy, seed=7, n_steps=n_steps)
         host = client.fetch_log(run.end.episode, run.end.data_sha256)
         end, onboard = _onboard(client, policy, 7, n_steps)

@@ -65,9 +65,9 @@ def add_arguments(p) -> None:
                         "policies onboard, SB3 models in host mode; with --scene too, the simulation "
                         "beside it")
     p.add_argument("--on-host", action="store_true",
-                   help="with --rig: run every policy on this host, compiled (SB3 models exported as impact-env "
-                        "export does), in host mode: one COMMAND per policy step, each observation answered "
-                        "in compiled code (fast enough for hold 1 in real time)")
+                   help="with --rig: run every policy on this host, compiled (SB3 models exported as "
+                        "impact-env export does), in host mode: one COMMAND per policy step, each "
+                        "observation answered in compiled code (fast enough for hold 1 in real time)")
     p.add_argument("--key", metavar="FILE",
                    help="with --rig: the session key file the target was started with (rig serve --key FILE)")
     p.add_argument("--allow-overruns", action="store_true",
@@ -121,7 +121,8 @@ def cmd_compare(args) -> int:
     if args.key and not args.rig:
         raise ConfigError("--key FILE is the rig's session key: it goes with --rig udp://HOST:PORT")
     if args.on_host and not args.rig:
-        raise ConfigError("--on-host runs the policies on this host against a rig: it goes with --rig udp://HOST:PORT")
+        raise ConfigError("--on-host runs the policies on this host against a rig: it goes with --rig "
+                          "udp://HOST:PORT")
     if args.allow_overruns and not args.rig:
         raise ConfigError("--allow-overruns goes with --rig udp://HOST:PORT")
     if args.seed < 0:

@@ -301,12 +301,13 @@ class RigClient:
         episode's end and the command sent for each step (NaN: the step's OBSERVATION was
         superseded by a newer one before this host read it, or lost)."""
         pi, pf, mem_size = policy.arrays()
-        if self._policy_loop is None:
+        loop = self._policy_loop
+        if loop is None:
             # compile (or load) the loop before any episode waits on it: one call in an episode no
             # OBSERVATION has (0), sending nothing and waiting for nothing, then bound
             args = (self.wire, pi, pf, np.zeros(mem_size), 0, 0, False, 1, 0, 0, 0, np.zeros(1))
             host_wire.run_policy(*args)
-            self._policy_loop = entry_point(host_wire.run_policy, args)
+            loop = self._policy_loop = entry_point(host_wire.run_policy, args)
             self._take_wire()
         hold = int(policy.hold_ticks)
         self.arm("host", seed, n_steps * hold, policy.observation, policy.layout.history, hold,
@@ -315,7 +316,8 @@ class RigClient:
         mem = np.zeros(mem_size)
         first = self.observation(0, (self.retries + 1) * self.timeout_s)
         if not isinstance(first, protocol.Observation):
-            raise RigTimeout("the episode's first OBSERVATION", (self.retries + 1) * self.timeout_s, self.address)
+            raise RigTimeout("the episode's first OBSERVATION", (self.retries + 1) * self.timeout_s,
+                             self.address)
         w = self.wire
         w.out[:len(first.obs)] = first.obs  # the loop acts on what w.out holds
         w.st.out_n[0] = len(first.obs)
@@ -325,8 +327,8 @@ class RigClient:
         step, send, tries, waited = int(first.step), True, 0, -1
         while step < n_steps:
             seq = self.link.seq
-            code, step, self.link.seq = self._policy_loop(w, pi, pf, mem, self.episode, step, send, n_steps, seq,
-                                                          spin_ns, timeout_ns, actions)
+            code, step, self.link.seq = loop(w, pi, pf, mem, self.episode, step, send, n_steps, seq, spin_ns,
+                                             timeout_ns, actions)
             self._take_wire()
             end = self.last_end
             if code == host_wire.LAST or (end is not None and end.episode == self.episode
@@ -337,12 +339,13 @@ class RigClient:
                 tries = tries + 1 if step == waited else 1  # the tries of this step's wait
                 waited = step
                 if tries > self.retries:
-                    raise RigTimeout(f"OBSERVATION of step {step + 1}", tries * self.timeout_s, self.address, tries)
+                    raise RigTimeout(f"OBSERVATION of step {step + 1}", tries * self.timeout_s, self.address,
+                                     tries)
                 if self.lockstep:  # the target waits with its observation: the COMMAND again
                     self.command(step, float(actions[step]))
         return HostRun(self.wait_end(timeout_s=10.0), actions[:n_steps])
 
-    _policy_loop = None
+    _policy_loop: Any = None  # host_wire.run_policy's entry point, bound at the first run_policy
 
     def _take_wire(self) -> None:
         """The compiled path's datagrams for Python through the link's filter (an EPISODE_END is
