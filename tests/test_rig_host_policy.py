@@ -4,6 +4,8 @@ in the episode's counters.  Targets run as processes on loopback, every wait bou
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from rig_helpers import LossyProxy, slow_rate_args, start_target, stop
@@ -106,11 +108,14 @@ def test_compare_rig_on_host_equals_the_simulation_of_the_exports(tmp_path):
 def test_in_real_time_every_command_the_host_sends_is_accounted_for(tmp_path):
     """At 1 kHz (a delayed or loaded host still answers within its step's 0.8 ms most of the
     time; the test asserts the accounting, not the timing): the episode runs to its horizon and
-    each COMMAND sent is accepted or counted late by the target."""
+    each COMMAND sent is accepted or counted late by the target.  The policy commands 0 N, as
+    tests/test_rig_first_episode.py's host commands a small constant: on a loaded machine a law's
+    late commands at a rate it was not tuned for could trip the sensor checks, which are not what
+    this test is about."""
     proc, addr = start_target("--scene", "rig", "--log-dir", str(tmp_path), *slow_rate_args(1000.0))
     client = RigClient(addr, timeout_s=0.5)
     try:
-        policy = export_policy("pd-penetration", client.scene)
+        policy = export_policy("passive", client.scene)
         n_steps = 200
         run = client.run_policy(policy, seed=3, n_steps=n_steps)
         log = client.fetch_log(run.end.episode, run.end.data_sha256)
@@ -119,6 +124,11 @@ def test_in_real_time_every_command_the_host_sends_is_accounted_for(tmp_path):
         assert stop(proc) == 0
     sent = int(np.isfinite(run.actions).sum())
     counters = log.meta.counters
+    # a COMMAND that came after the episode's end (the last step's, from a host made late) is in
+    # no episode's counters: the target counts it and prints the count when it stops
+    after = re.search(r"commands_after_end (\d+)", proc.stdout.read())
+    after_end = int(after.group(1)) if after else 0
     assert log.meta.end_reason == "HORIZON", (log.meta.end_reason, counters)
-    assert sent >= 1
-    assert counters["commands_accepted"] + counters["commands_late"] == sent, (sent, counters)
+    assert sent >= 1 and after_end <= 1
+    assert counters["commands_accepted"] + counters["commands_late"] + after_end == sent, (sent, after_end,
+                                                                                           counters)
