@@ -347,12 +347,13 @@ def render(records: list[dict]) -> str:
         setup = ("only what the project sets (no setting made by hand)" if not rec["by_hand"] else
                  "with settings made by hand: " + ", ".join(f"`{s}`" for s in rec["by_hand"]))
         k = rec["kernel"]
-        lines += [f"**{rec['label']}**: {setup}.  Written by `{rec['command']}` ({rec['date_utc']} UTC, "
-                  f"{rec['cpu']}, {rec['cores']} CPUs, kernel {k['kernel']} ({k['preempt']} preemption"
+        # the date, the CPU and the machine's load stay in the record, not on the page
+        lines += [f"**{rec['label']}**: {setup}.  Written by `{rec['command']}` ({rec['cores']} CPUs, "
+                  f"kernel {k['kernel']} ({k['preempt']} preemption"
                   f"{', a virtual machine' if k['virtual_machine'] else ''}), `sched_rt_runtime_us` "
                   f"{k['sched_rt_runtime_us']}, autogroup {'on' if k['sched_autogroup_enabled'] else 'off'}; "
-                  f"load average {rec['loadavg_before'][0]:g} before and {rec['loadavg_after'][0]:g} after, "
-                  f"from other jobs on the same CPUs; `{rec['json']}`).  The target applied: "
+                  f"the record `{rec['json']}` keeps the date, the CPU and the machine's load before and "
+                  "after).  The target applied: "
                   + "; ".join(rec["applied"] or ["nothing"])
                   + (".  Not applied: " + "; ".join(rec["not_applied"]) if rec["not_applied"] else "")
                   + ".", "",

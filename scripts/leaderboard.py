@@ -113,9 +113,9 @@ def render(records: list[tuple[Path, dict]], root: Path = ROOT) -> str:
         git = meta["git"]
         commit = (git.get("commit") or "unknown")[:12] + (" with changes" if git.get("dirty") else "")
         where = path.relative_to(root) if path.is_relative_to(root) else path
+        # the CPU and the date stay in the record, not on the page
         sources.append(f"`{where}`: `{meta['command']}` (commit {commit}, "
-                       f"impact_env {meta['versions'].get('impact_env')}, on a CPU that LLVM calls "
-                       f"`{meta['cpu'].get('llvm')}`, {meta['wall_time_s']:.0f} s"
+                       f"impact_env {meta['versions'].get('impact_env')}, {meta['wall_time_s']:.0f} s"
                        + _oracle_note(meta) + ")")
     return "\n".join([
         f"*Written by `python scripts/leaderboard.py` from the records below; suite `{suite['name']}` "
