@@ -65,13 +65,14 @@ class LossyProxy:
     """A UDP relay between a host and a target: datagrams from the host go to the target and back,
     each dropped with probability ``loss`` (in bursts of ``burst`` datagrams), duplicated with
     ``dup``, and held back to be sent after the next one with ``reorder``; with ``cut`` set, every
-    datagram from the host is dropped (counted ``cut``).  The host sees the proxy at 127.0.0.2
+    datagram from the host is dropped (counted ``cut``); ``drop_first``: message type -> how many
+    of the target's first datagrams of that type to drop (counted ``dropped_by_type``).  The host sees the proxy at 127.0.0.2
     (``address``), the target on 127.0.0.1: once the target's INFO names its session's port, the
     proxy listens on 127.0.0.2 at that port too and relays it to the target's session socket (as
     a router that forwards the session's port).  Runs in a thread until ``close`` (or ``max_s``)."""
 
     def __init__(self, target: str, loss: float = 0.0, dup: float = 0.0, reorder: float = 0.0, burst: int = 1,
-                 seed: int = 0, max_s: float = 120.0):
+                 seed: int = 0, max_s: float = 120.0, drop_first: dict[int, int] | None = None):
         host, port = re.match(r"udp://([^:]+):(\d+)", target).groups()
         self.target = (host, int(port))
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -84,6 +85,8 @@ class LossyProxy:
         self.rng = random.Random(seed)
         self.client = None
         self.counts = {"forwarded": 0, "dropped": 0, "duplicated": 0, "reordered": 0, "cut": 0}
+        self.drop_first = dict(drop_first or {})
+        self.dropped_by_type: dict[int, int] = {}
         self._dropping = 0
         self._held = {}
         # the target's session ports: the proxy's listener for each, and back
@@ -134,6 +137,11 @@ class LossyProxy:
                     return
                 if s is self.up:  # from the target: back to the host, from the matching address
                     self._listen(data)
+                    kind = data[6] if len(data) > 6 and data[:4] == b"IMPR" else -1
+                    if self.drop_first.get(kind, 0) > 0:
+                        self.drop_first[kind] -= 1
+                        self.dropped_by_type[kind] = self.dropped_by_type.get(kind, 0) + 1
+                        continue
                     back = self._listeners.get(addr[1], self.sock)
                     if self.client is not None:
                         self._pass(back, data, self.client)

@@ -79,6 +79,27 @@ def test_a_lossy_link_costs_the_host_policy_time_not_the_episode(tmp_path):
     assert counters["commands_accepted"] >= 300, counters  # each step's, and its re-sent copies
 
 
+def test_a_lost_episode_end_is_asked_for_again(tmp_path):
+    """The link loses the target's first two EPISODE_ENDs: the host's end wait re-sends the last
+    COMMAND, the ended target answers with its last OBSERVATION and EPISODE_END again, and the
+    episode's end comes (not a RigTimeout)."""
+    from impact_env.rig import protocol
+
+    proc, addr = start_target("--scene", "rig", "--lockstep", "--log-dir", str(tmp_path))
+    proxy = LossyProxy(addr, drop_first={int(protocol.MsgType.EPISODE_END): 2})
+    try:
+        client = RigClient(proxy.address, timeout_s=0.2, retries=5)
+        try:
+            run = client.run_policy(export_policy("pd-penetration", client.scene), seed=11, n_steps=40)
+        finally:
+            client.close()
+    finally:
+        proxy.close()
+        assert stop(proc) == 0
+    assert proxy.dropped_by_type == {int(protocol.MsgType.EPISODE_END): 2}, "the link lost two ends"
+    assert run.end.reason == protocol.EndReason.HORIZON and run.end.n_steps == 40
+
+
 def test_compare_rig_on_host_equals_the_simulation_of_the_exports(tmp_path):
     """``compare --rig ADDR --on-host``: every policy, the SB3 model too, runs compiled on the
     host; in lock-step each gives the simulator's numbers for its compiled export, bitwise."""

@@ -343,7 +343,20 @@ class RigClient:
                                      tries)
                 if self.lockstep:  # the target waits with its observation: the COMMAND again
                     self.command(step, float(actions[step]))
-        return HostRun(self.wait_end(timeout_s=10.0), actions[:n_steps])
+        last = float(actions[n_steps - 1])
+        end = self._wait_end_resending(n_steps - 1, last if np.isfinite(last) else 0.0)
+        return HostRun(end, actions[:n_steps])
+
+    def _wait_end_resending(self, step: int, action: float) -> protocol.EpisodeEnd:
+        """The EPISODE_END of a host-mode episode whose last COMMAND (``action`` of ``step``) is
+        out: each ``timeout_s`` without it, that COMMAND again, to which a target whose episode has
+        ended answers with its last OBSERVATION and EPISODE_END again (a lossy link lost them)."""
+        for _ in range(self.retries):
+            try:
+                return self.wait_end(timeout_s=self.timeout_s)
+            except RigTimeout:
+                self.command(step, action)
+        return self.wait_end(timeout_s=10.0)
 
     _policy_loop: Any = None  # host_wire.run_policy's entry point, bound at the first run_policy
 

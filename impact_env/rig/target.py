@@ -450,8 +450,11 @@ class Target:
         elif t == protocol.MsgType.COMMAND:
             self.counters["commands_after_end"] += 1  # for an episode already over: never applied
             if self._last_obs is not None and msg.payload(protocol.Command).episode == self._last_obs.episode:
-                # a host still stepping the episode that ended: its last OBSERVATION was lost, send it again
+                # a host still stepping the episode that ended: its last OBSERVATION or the
+                # EPISODE_END was lost, send them again
                 self.link.send(self._last_obs, addr=self.link.last_sender)
+                if self.last_end is not None and self.last_end.episode == self._last_obs.episode:
+                    self.link.send(self.last_end, addr=self.link.last_sender)
         elif t == protocol.MsgType.HEARTBEAT:
             self.reply(protocol.Heartbeat(int(self.state), self.episode, 0, msg.seq), msg)
 
