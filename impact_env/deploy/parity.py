@@ -180,6 +180,7 @@ class Recording:
     status: np.ndarray
     records: np.ndarray | None = None  # the virtual rig's true records (float64[n, N_REC]), closed loops
     detected: np.ndarray | None = None  # int64[n]: the front end's contact detector bit of each tick
+    memory: np.ndarray | None = None  # the numba target's policy memory row after the last tick (recorded)
 
 
 def _true_record(drv, m: int, u: float) -> np.ndarray:
@@ -233,7 +234,8 @@ def record(policy: CompiledPolicy, scene, seed: int, ticks: int) -> Recording:
         det[m] = int(ctl.fe.detected[0] != 0.0)
         drv.apply(cmd)
     drv.shutdown()
-    return Recording(raw, out[0], out[1], out[2].astype(np.int64), detected=det)
+    return Recording(raw, out[0], out[1], out[2].astype(np.int64), detected=det,
+                     memory=ctl.state.memory[0].copy())
 
 
 def readings_from_log(log) -> np.ndarray:

@@ -13,10 +13,25 @@ Before the touch the sensors say nothing about body 1: the estimate is the scene
 drop-height range), so the plan positions body 2 for the mean drop; the filter takes body 1 up
 at the first contact force.  That is the information ``mpc-state`` has and this law lacks.
 
-The estimator and the solver are part of the policy: both live in the law's memory row (the
-solver's first, then the filter's), so the law runs wherever a law runs; the filter's
-lost-track bit and count (:class:`impact_env.control.estimation.layout.EkfMemory`) and the
-solver's fallback counters (``mem[solver.MEM.fallbacks]``) are there too.
+A plan is only as good as the model under it.  Where the plant is not the scene's nominal one
+(``rig-randomized``'s drawn delays, pad, shaker gain and noise), the filter's innovations are
+tens of thousands of times their predicted variance from the first ticks, and a plan on that
+estimate drives the shaker into body 1 at full scale.  So the law checks its model every tick and
+hands over to a law that needs none: once the filter reports lost track (its windowed test) or one
+tick's normalised innovation squared exceeds ``nis_gate``, it drives ``pd-penetration`` on the
+same sensors for the rest of the episode (latched: a plan switched back in mid-contact would start
+from an estimate it has just shown to be wrong).  The hand-over is counted in the memory row
+(``FALLBACK_ON``, ``FALLBACK_TICKS``).  ``nis_gate``'s default, 1e3, is three times the largest
+one-tick NIS met on ``rig``'s held-out drops (301, at a contact's onset, where the linearisation
+about a near-zero penetration is poorest), while a consistent filter's 3-channel NIS, chi-square
+with 3 degrees of freedom, exceeds 44 once in 1e9 ticks; on the suite's ``rig-randomized`` drops
+the smallest maximum before the touch is 2.1e3 (docs/mpc.md).
+
+The estimator, the solver and the fallback are part of the policy: all live in the law's memory
+row (the solver's first, then the filter's, then the fallback's), so the law runs wherever a law
+runs; the filter's lost-track bit and count
+(:class:`impact_env.control.estimation.layout.EkfMemory`) and the solver's fallback counters
+(``mem[solver.MEM.fallbacks]``) are there too.
 """
 
 from __future__ import annotations
@@ -29,23 +44,39 @@ from impact_env.control.estimation.ekf import ekf_measure, ekf_tick
 from impact_env.control.estimation.layout import MEMORY as EKF_MEMORY
 from impact_env.control.estimation.layout import V1, V2, X1, X2, EkfConstants, EkfMemory
 from impact_env.control.estimation.model import SETTINGS, ekf_constants
-from impact_env.control.laws import mpc_state
-from impact_env.control.laws.estimate import SensorReads
+from impact_env.control.laws import mpc_state, pd_penetration
+from impact_env.control.laws.estimate import MEMORY as ESTIMATE_MEMORY
+from impact_env.control.laws.estimate import SensorReads, top_mass_of
 from impact_env.control.laws.law import Law, Param
 from impact_env.control.mpc import model, solver
 from impact_env.control.mpc.c_text import solver_c
 
-#: the solver's constants first (prefixed ``solver_``: both name the masses), then the filter's
+#: the solver's constants first (prefixed ``solver_``: both name the masses), then the filter's,
+#: then the fallback law's (prefixed ``fallback_``), then the gate
 SOLVER_FIELDS = tuple(f"solver_{name}" for name in model.Constants._fields)
-Constants = namedtuple("Constants", SOLVER_FIELDS + EkfConstants._fields)  # type: ignore[misc]
+FALLBACK_FIELDS = tuple(f"fallback_{name}" for name in pd_penetration.Constants._fields)
+Constants = namedtuple("Constants", SOLVER_FIELDS + EkfConstants._fields + FALLBACK_FIELDS  # type: ignore[misc]
+                       + ("nis_gate",))
 EKF_CONSTANTS_START = len(SOLVER_FIELDS)
-#: the solver's memory first, then the filter's
+FALLBACK_CONSTANTS_START = EKF_CONSTANTS_START + len(EkfConstants._fields)
+NIS_GATE = FALLBACK_CONSTANTS_START + len(FALLBACK_FIELDS)
+#: the solver's memory first, then the filter's, then the fallback law's, then the hand-over's
+#: flag (1 once the fallback drives) and its count of ticks
 EKF_MEMORY_START = solver.MEMORY
+FALLBACK_MEMORY_START = EKF_MEMORY_START + EKF_MEMORY
+FALLBACK_ON = FALLBACK_MEMORY_START + ESTIMATE_MEMORY
+FALLBACK_TICKS = FALLBACK_ON + 1
 
 PARAMS = {key: value for key, value in mpc_state.PARAMS.items() if key != "m1"}
 PARAMS.update({
     "q_a1": Param(SETTINGS["q_a1"], "m/s^2", "estimator: white acceleration on body 1", lo=0.0),
     "q_a2": Param(SETTINGS["q_a2"], "m/s^2", "estimator: white acceleration on body 2", lo=0.0),
+    "nis_gate": Param(1e3, "", "one tick's normalised innovation squared (3 channels) above which the "
+                      "model is taken as wrong: pd-penetration drives for the rest of the episode", lo=0.0),
+    "fallback_kp": Param(pd_penetration.PARAMS["kp"].default, "1/s^2", "the fallback pd-penetration's kp",
+                         lo=0.0),
+    "fallback_kd": Param(pd_penetration.PARAMS["kd"].default, "1/s", "the fallback pd-penetration's kd",
+                         lo=0.0),
 })
 
 
@@ -54,6 +85,10 @@ def constants_of(scene, P: dict) -> dict:
     solver_gains["m1"] = scene.plant.m1  # the scene's nominal mass (the filter estimates the drop's)
     out = {f"solver_{name}": value for name, value in mpc_state.solver_constants(scene, solver_gains).items()}
     out.update(ekf_constants(scene, {"q_a1": P["q_a1"], "q_a2": P["q_a2"]}))
+    fallback = pd_penetration.constants_of(scene, {"kp": P["fallback_kp"], "kd": P["fallback_kd"], "dref": 0.0,
+                                                   "top_mass": top_mass_of(scene)})
+    out.update({f"fallback_{name}": value for name, value in fallback.items()})
+    out["nis_gate"] = P["nis_gate"]
     return out
 
 
@@ -66,8 +101,16 @@ def force(slots, k, v, mem):
     frame[1] = v[slots[1]]
     frame[2] = v[slots[2]]
     ekf_measure(ekf_k, ekf_mem, frame)
-    x = ekf_mem[EkfMemory.x:EkfMemory.x + 4]
-    f = solver.mpc_tick(x[X1], x[V1], x[X2], x[V2], k[:EKF_CONSTANTS_START], mem[:EKF_MEMORY_START])
+    # the fallback's estimate runs every tick, so that it takes over with its differences warm
+    f_fallback = pd_penetration.force(slots, k[FALLBACK_CONSTANTS_START:NIS_GATE], v, mem[FALLBACK_MEMORY_START:])
+    if ekf_mem[EkfMemory.lost_count] > 0.0 or ekf_mem[EkfMemory.nis_last] > k[NIS_GATE]:
+        mem[FALLBACK_ON] = 1.0
+    if mem[FALLBACK_ON] > 0.0:
+        mem[FALLBACK_TICKS] += 1.0
+        f = f_fallback
+    else:
+        x = ekf_mem[EkfMemory.x:EkfMemory.x + 4]
+        f = solver.mpc_tick(x[X1], x[V1], x[X2], x[V2], k[:EKF_CONSTANTS_START], mem[:EKF_MEMORY_START])
     ekf_tick(ekf_k, ekf_mem, frame, f)
     return f
 
@@ -78,8 +121,9 @@ def c_prelude() -> str:
 
 
 def c_body(P: str, sl: dict[str, int]) -> str:
-    """:func:`force` in C: the filter's measurement half, the solver on its estimate, the
-    filter's prediction with the demand."""
+    """:func:`force` in C: the filter's measurement half, the fallback law, the solver on the
+    estimate unless the gate has handed over, the filter's prediction with the demand.  The
+    fallback's body sees its own memory as ``mem`` (a pointer shadowing the law's, in a block)."""
     return f"""
     /* the filter's frame (a2 m/s^2, T N, x2 m as filtered), kept in its memory as force() keeps it */
     const impact_real *ekf_k = {P}_CONSTANTS + {EKF_CONSTANTS_START};
@@ -89,15 +133,37 @@ def c_body(P: str, sl: dict[str, int]) -> str:
     frame[1] = v[{sl["force"]}];
     frame[2] = v[{sl["potentiometer"]}];
     ekf_measure(ekf_k, ekf_mem, frame);
-    const impact_real *x = ekf_mem + EKF_M_X;
-    f = mpc_tick(x[EKF_X1], x[EKF_V1], x[EKF_X2], x[EKF_V2], {P}_CONSTANTS, mem);
+    /* the fallback's estimate runs every tick, so that it takes over with its differences warm */
+    impact_real f_fallback;
+    {{
+        impact_real *fallback_mem = mem + {FALLBACK_MEMORY_START};
+        {{
+            impact_real *mem = fallback_mem;
+            impact_real f;{_indent(pd_penetration.c_body(f"{P}_FALLBACK", sl))}
+            f_fallback = f;
+        }}
+    }}
+    if (ekf_mem[EKF_M_LOST_COUNT] > 0.0 || ekf_mem[EKF_M_NIS_LAST] > {P}_NIS_GATE) mem[{FALLBACK_ON}] = 1.0;
+    if (mem[{FALLBACK_ON}] > 0.0) {{
+        mem[{FALLBACK_TICKS}] += 1.0;
+        f = f_fallback;
+    }} else {{
+        const impact_real *x = ekf_mem + EKF_M_X;
+        f = mpc_tick(x[EKF_X1], x[EKF_V1], x[EKF_X2], x[EKF_V2], {P}_CONSTANTS, mem);
+    }}
     ekf_tick(ekf_k, ekf_mem, frame, f);"""
+
+
+def _indent(text: str) -> str:
+    """A law body's C text, indented two levels deeper (it sits in nested blocks)."""
+    return text.replace("\n    ", "\n            ")
 
 
 LAW = Law("mpc", "sensors", "model-predictive control (the `mpc-state` solver) on an extended Kalman "
           "filter's estimate: the scene's model (both bodies, m1, the shaker, the limit, the filters "
-          "inverted) fed by the accelerometer, transducer and potentiometer",
-          SensorReads, Constants, constants_of, memory=solver.MEMORY + EKF_MEMORY, params=PARAMS,
+          "inverted) fed by the accelerometer, transducer and potentiometer; pd-penetration once the filter's "
+          "innovations show the model wrong",
+          SensorReads, Constants, constants_of, memory=FALLBACK_TICKS + 1, params=PARAMS,
           c_body=c_body, c_prelude=c_prelude,
           c_double_only="its command jumps by full scale within a tick where the plan switches "
           "(the force box's active set, the line search's accepted step), so the float32 front end's "
