@@ -16,6 +16,13 @@ held-out drops, and its tick cost, as JSON and as the generated block of docs/mp
    start as in an episode).
 3. The block between ``<!-- mpc-record:start -->`` and ``<!-- mpc-record:end -->`` of
    docs/mpc.md, written from the two records.
+4. The block between the ``mpc-robustness`` markers of docs/mpc.md, from the benchmark record
+   ``docs/results/benchmark/mpc/catch-v1.json`` (``impact-env benchmark mpc-state mpc
+   pd-penetration --out docs/results/benchmark/mpc``): per held-out set, ``mpc``'s and
+   ``pd-penetration``'s mean energy integral over the oracle's, and their paired difference
+   (``mpc`` minus ``pd-penetration``, per drop) with its 95 % paired bootstrap interval
+   (:func:`impact_env.eval.paired.paired_difference`); ``mpc`` is better where the whole
+   interval is below 0.
 """
 
 from __future__ import annotations
@@ -33,6 +40,8 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "results" / "mpc"
 DOC = ROOT / "docs" / "mpc.md"
 START, END = "<!-- mpc-record:start -->", "<!-- mpc-record:end -->"
+ROBUSTNESS = ("<!-- mpc-robustness:start -->", "<!-- mpc-robustness:end -->")
+BENCHMARK = ROOT / "docs" / "results" / "benchmark" / "mpc" / "catch-v1.json"
 POLICIES = "mpc-state,mpc,pd-penetration,thesis-rig,oracle"
 
 
@@ -114,10 +123,36 @@ def render(compare: dict | None, tick: dict | None) -> str:
     return "\n".join(lines)
 
 
-def write_block(text: str) -> None:
+def render_robustness(record: dict) -> str:
+    """Per set of the benchmark record: mpc and pd-penetration over the oracle, and their paired
+    difference on the energy integral."""
+    from impact_env.eval.paired import paired_difference
+
+    drops = ", ".join(f"{name} {st['drops']}" for name, st in record["sets"].items())
+    lines = [f"`{record['meta']['command']}` ({drops} "
+             "drops; x oracle: the set's mean energy integral over the oracle's; paired: `mpc` minus "
+             "`pd-penetration` per drop, mean and its 95 % paired bootstrap interval):", "",
+             "| set | `mpc`, x oracle | `pd-penetration`, x oracle | `mpc` - `pd-penetration`, paired, ms "
+             "[95 % CI] | `mpc` better |",
+             "| --- | --- | --- | --- | --- |"]
+    for name, st in record["sets"].items():
+        pols = st["policies"]
+        best = pols["oracle"]["summary"]["energy_integral_ms"]
+        a = pols["mpc"]["metrics"]["energy_integral_ms"]
+        b = pols["pd-penetration"]["metrics"]["energy_integral_ms"]
+        d = paired_difference(a, b)
+        verdict = "yes" if d.high < 0 else ("no: worse" if d.low > 0 else "not separated")
+        lines.append(f"| {name} | {pols['mpc']['summary']['energy_integral_ms'] / best:.2f}x | "
+                     f"{pols['pd-penetration']['summary']['energy_integral_ms'] / best:.2f}x | "
+                     f"{d.difference:.2f} [{d.low:.2f}, {d.high:.2f}] | {verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_block(text: str, markers: tuple[str, str] = (START, END)) -> None:
+    start, end = markers
     page = DOC.read_text()
-    i, j = page.index(START), page.index(END)
-    DOC.write_text(page[:i] + START + "\n" + text + page[j:])
+    i, j = page.index(start), page.index(end)
+    DOC.write_text(page[:i] + start + "\n" + text + page[j:])
 
 
 def main() -> int:
@@ -140,6 +175,10 @@ def main() -> int:
     tick = json.loads(tpath.read_text()) if tpath.exists() else None
     write_block(render(compare, tick))
     print(render(compare, tick))
+    if BENCHMARK.exists():
+        text = render_robustness(json.loads(BENCHMARK.read_text()))
+        write_block(text, ROBUSTNESS)
+        print(text)
     return 0
 
 
