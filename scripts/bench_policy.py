@@ -78,8 +78,11 @@ def timed_empty(n, out):
         out[k] = t1 - t0
 
 
-def episode_obs(scene, observation: str, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """Observations and episode starts of pd-penetration rig drops (thesis-ideal for privileged)."""
+def episode_obs(scene, observation: str, n_rows: int, driver: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Observations and episode starts of rig drops driven by ``driver`` (default pd-penetration,
+    thesis-ideal for privileged).  ``mpc`` is timed on its own closed loop: its filter replays its
+    own demands, so on drops another law drove it would see forces it did not command, report
+    its model wrong and hand over to pd-penetration, whose cost is not the one asked for."""
     from gymnasium.vector import AutoresetMode
 
     from impact_env.env.vector import ImpactCatchVectorEnv
@@ -87,7 +90,7 @@ def episode_obs(scene, observation: str, n_rows: int) -> tuple[np.ndarray, np.nd
     n_env = 8
     venv = ImpactCatchVectorEnv(n_env, scene, autoreset_mode=AutoresetMode.SAME_STEP, observation=observation,
                                 horizon=0.1)
-    drv = make_policy("pd-penetration" if observation == "sensors" else "thesis-ideal", scene)
+    drv = make_policy(driver or ("pd-penetration" if observation == "sensors" else "thesis-ideal"), scene)
     obs, _ = venv.reset(seed=100)
     starts = np.ones(n_env, dtype=bool)
     out, st = [], []
@@ -135,7 +138,7 @@ def main() -> int:
                     "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()), "ns_per_cycle": nspc,
                     "laws": {}}
     for spec, observation in cases:
-        obs_ep, starts = episode_obs(scene, observation, n_rows)
+        obs_ep, starts = episode_obs(scene, observation, n_rows, driver="mpc" if spec == "mpc" else None)
         comp = export_policy(spec, scene)
         pi, pf, m = comp.arrays()
         flat = np.ascontiguousarray(obs_ep.reshape(-1, obs_ep.shape[-1]))
@@ -182,7 +185,9 @@ def main() -> int:
         import json
         import platform
 
-        record.update(cpu=platform.processor() or platform.machine(), python=platform.python_version())
+        from impact_env.eval.benchmark import cpu_name
+
+        record.update(cpu=cpu_name(), python=platform.python_version())
         Path(args.json).write_text(json.dumps(record, indent=1) + "\n")
     if args.laws:
         return 0

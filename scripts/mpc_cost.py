@@ -169,7 +169,8 @@ def block(bench: dict | None, m7: dict | None) -> str:
     out = []
     if bench:
         out.append(f"* `{bench['command']}`: {calls} ticks per law, the observations of rig drops driven by "
-                   "pd-penetration (thesis-ideal for the privileged law), each drop in order from its start;")
+                   "`mpc` itself (its filter replays its own demands; thesis-ideal for the privileged law), each drop "
+                   "in order from its start;")
     if m7:
         out.append(f"* `{m7['command']}`: the M7 rows, counted by qemu-arm, not timed on a board "
                    "(the script's doc says how).")
