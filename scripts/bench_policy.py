@@ -78,7 +78,8 @@ def timed_empty(n, out):
         out[k] = t1 - t0
 
 
-def episode_obs(scene, observation: str, n_rows: int, driver: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+def episode_obs(scene, observation: str, n_rows: int,
+                driver: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Observations and episode starts of rig drops driven by ``driver`` (default pd-penetration,
     thesis-ideal for privileged).  ``mpc`` is timed on its own closed loop: its filter replays its
     own demands, so on drops another law drove it would see forces it did not command, report

@@ -52,8 +52,8 @@ def test_off_its_model_mpc_hands_over_to_pd_penetration_counted_and_bitwise():
         np.testing.assert_array_equal(commands[i, first:], fallback_commands[i, first:])
         assert mem[i, mpc.FALLBACK_TICKS] == TICKS - first
     # before the hand-over the plan acted: mpc's commands are not pd's
-    assert any(np.any(commands[i, :np.flatnonzero(on[i])[0]] != fallback_commands[i, :np.flatnonzero(on[i])[0]])
-               for i in range(N_DROPS))
+    firsts = [np.flatnonzero(on[i])[0] for i in range(N_DROPS)]
+    assert any(np.any(commands[i, :first] != fallback_commands[i, :first]) for i, first in enumerate(firsts))
 
 
 def test_on_its_model_mpc_keeps_planning_through_the_first_contact():

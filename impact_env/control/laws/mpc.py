@@ -85,8 +85,8 @@ def constants_of(scene, P: dict) -> dict:
     solver_gains["m1"] = scene.plant.m1  # the scene's nominal mass (the filter estimates the drop's)
     out = {f"solver_{name}": value for name, value in mpc_state.solver_constants(scene, solver_gains).items()}
     out.update(ekf_constants(scene, {"q_a1": P["q_a1"], "q_a2": P["q_a2"]}))
-    fallback = pd_penetration.constants_of(scene, {"kp": P["fallback_kp"], "kd": P["fallback_kd"], "dref": 0.0,
-                                                   "top_mass": top_mass_of(scene)})
+    gains = {"kp": P["fallback_kp"], "kd": P["fallback_kd"], "dref": 0.0, "top_mass": top_mass_of(scene)}
+    fallback = pd_penetration.constants_of(scene, gains)
     out.update({f"fallback_{name}": value for name, value in fallback.items()})
     out["nis_gate"] = P["nis_gate"]
     return out
@@ -102,7 +102,8 @@ def force(slots, k, v, mem):
     frame[2] = v[slots[2]]
     ekf_measure(ekf_k, ekf_mem, frame)
     # the fallback's estimate runs every tick, so that it takes over with its differences warm
-    f_fallback = pd_penetration.force(slots, k[FALLBACK_CONSTANTS_START:NIS_GATE], v, mem[FALLBACK_MEMORY_START:])
+    fallback_k = k[FALLBACK_CONSTANTS_START:NIS_GATE]
+    f_fallback = pd_penetration.force(slots, fallback_k, v, mem[FALLBACK_MEMORY_START:])
     if ekf_mem[EkfMemory.lost_count] > 0.0 or ekf_mem[EkfMemory.nis_last] > k[NIS_GATE]:
         mem[FALLBACK_ON] = 1.0
     if mem[FALLBACK_ON] > 0.0:
@@ -161,8 +162,8 @@ def _indent(text: str) -> str:
 
 LAW = Law("mpc", "sensors", "model-predictive control (the `mpc-state` solver) on an extended Kalman "
           "filter's estimate: the scene's model (both bodies, m1, the shaker, the limit, the filters "
-          "inverted) fed by the accelerometer, transducer and potentiometer; pd-penetration once the filter's "
-          "innovations show the model wrong",
+          "inverted) fed by the accelerometer, transducer and potentiometer; pd-penetration once the "
+          "filter's innovations show the model wrong",
           SensorReads, Constants, constants_of, memory=FALLBACK_TICKS + 1, params=PARAMS,
           c_body=c_body, c_prelude=c_prelude,
           c_double_only="its command jumps by full scale within a tick where the plan switches "
