@@ -79,18 +79,23 @@ def test_a_lossy_link_costs_the_host_policy_time_not_the_episode(tmp_path):
     assert counters["commands_accepted"] >= 300, counters  # each step's, and its re-sent copies
 
 
-def test_a_lost_episode_end_is_asked_for_again(tmp_path):
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_lost_episode_end_is_asked_for_again(tmp_path, mode):
     """The link loses the target's first two EPISODE_ENDs: the host's end wait re-sends the last
     COMMAND, the ended target answers with its last OBSERVATION and EPISODE_END again, and the
-    episode's end comes (not a RigTimeout)."""
+    episode's end comes (not a RigTimeout).  In lock-step and in real time (1 kHz, the policy
+    commanding 0 N, as the accounting test below says why); the target sends one EPISODE_END per
+    episode unasked, so a third to reach the proxy is the re-sent one."""
     from impact_env.rig import protocol
 
-    proc, addr = start_target("--scene", "rig", "--lockstep", "--log-dir", str(tmp_path))
+    timing = ("--lockstep",) if mode == "lockstep" else slow_rate_args(1000.0)
+    spec = "pd-penetration" if mode == "lockstep" else "passive"
+    proc, addr = start_target("--scene", "rig", *timing, "--log-dir", str(tmp_path))
     proxy = LossyProxy(addr, drop_first={int(protocol.MsgType.EPISODE_END): 2})
     try:
         client = RigClient(proxy.address, timeout_s=0.2, retries=5)
         try:
-            run = client.run_policy(export_policy("pd-penetration", client.scene), seed=11, n_steps=40)
+            run = client.run_policy(export_policy(spec, client.scene), seed=11, n_steps=40)
         finally:
             client.close()
     finally:
