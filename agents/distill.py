@@ -102,6 +102,36 @@ def _law_settings(spec: str, scene, env_kwargs) -> dict:
     return {"scene": name, "overrides": {}, "env_kwargs": kw, "observation": "privileged", "history": 1}
 
 
+def _extended(space, n):
+    """``space`` (a Box) with ``n`` unbounded entries after it: the filter's estimate."""
+    from gymnasium import spaces
+
+    low = np.concatenate([space.low, np.full(n, -np.inf, np.float32)])
+    high = np.concatenate([space.high, np.full(n, np.inf, np.float32)])
+    return spaces.Box(low, high, dtype=np.float32)
+
+
+class _StudentInputs:
+    """What the student reads from an observation batch: its entries ``columns`` and, with a
+    ``estimator`` (:class:`agents.estimate_input.StudentEstimator`), the filter's estimate after
+    them; :meth:`applied` tells the filter the commands the envs applied."""
+
+    def __init__(self, columns: np.ndarray, estimator):
+        self.columns, self.estimator = columns, estimator
+
+    def start(self) -> None:
+        if self.estimator is not None:
+            self.estimator.start()
+
+    def read(self, obs: np.ndarray) -> np.ndarray:
+        x = obs[:, self.columns]
+        return x if self.estimator is None else np.concatenate([x, self.estimator.read(obs)], axis=1)
+
+    def applied(self, commands: np.ndarray) -> None:
+        if self.estimator is not None:
+            self.estimator.applied(commands)
+
+
 class _ModelTeacher:
     """A PPO model on the privileged observation (history 1): its deterministic action on the
     true state of the newest frame."""
@@ -142,8 +172,10 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     the DAgger episodes' length (default the run's horizon; validation always runs the whole
     horizon).  ``fit_samples``: after each iteration, fit on that many samples drawn from all the
     data so far (default: ``epochs`` passes over all of it).  ``eval_every``: validate every that
-    many iterations, and after the last.  ``student_observation``: ``"sensors"`` (what a rig gives;
-    the student that ships) or ``"both"`` (the sensors and the true state: how much the
+    many iterations, and after the last.  ``student_observation``: ``"sensors"`` (what a rig gives),
+    ``"estimate"`` (the sensors, then the scene's extended Kalman filter's estimate from them:
+    :mod:`agents.estimate_input`; the model is saved with ``"estimator": "ekf"`` and runs with
+    its filter wherever it runs) or ``"both"`` (the sensors and the true state: how much the
     information limits the student)."""
     import torch
     from gymnasium.vector import AutoresetMode
@@ -181,9 +213,10 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     if not (isinstance(mixing, (int, float)) and 0.0 <= mixing <= 1.0):
         raise ConfigError(f"mixing = {mixing!r} must be in [0, 1] (the teacher acts with probability "
                           "mixing ** iteration)")
-    if student_observation not in ("sensors", "both"):
+    if student_observation not in ("sensors", "both", "estimate"):
         raise ConfigError(f"student_observation = {student_observation!r}; expected 'sensors' (what a rig "
-                          "gives) or 'both' (the sensors and the true state)")
+                          "gives), 'estimate' (the sensors and the scene's filter's estimate from them) or "
+                          "'both' (the sensors and the true state)")
     if train_horizon is not None and not (isinstance(train_horizon, (int, float))
                                           and 0 < train_horizon < 1e4):
         raise ConfigError(f"train_horizon = {train_horizon!r} s must be a time in (0, 1e4) s, or None")
@@ -199,7 +232,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     both = make_layout(scene_obj, "both", history)
     sensors = make_layout(scene_obj, "sensors", 1)
     F, S = both.frame_size, sensors.frame_size
-    reads = S if student_observation == "sensors" else F
+    reads = F if student_observation == "both" else S
     unknown = [c for c in ignore if c not in sensors.names]
     if unknown:
         raise ConfigError(f"ignore = {', '.join(map(repr, unknown))}: not a sensor channel of "
@@ -222,12 +255,29 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
         teach = _ModelTeacher(teacher, np.arange(S, F))  # the true state of the newest frame
         low, high = teach.low, teach.high
     # the student: a PPO MlpPolicy on its observation, built from that env's spaces
+    estimating = student_observation == "estimate"
+
+    def estimator(n):
+        return StudentEstimator(scene_obj, both.names, both.scales, n) if estimating else None
+
+    if estimating:  # the filter's constants now: a scene it does not model is refused before any work
+        from agents.estimate_input import StudentEstimator
+        from impact_env.control.estimation.features import N_FEATURES
+        if hold != 1 or kw.get("residual") is not None:
+            raise ConfigError("student_observation = 'estimate': the filter is told every tick's command, so the "
+                              f"student acts every control period (hold_ticks 1, got {hold}) with no residual law "
+                              f"(got {kw.get('residual')!r})")
+        estimator(1)
     sensor_env = make_sb3_vec_env(scene_name, num_envs=1, monitor=False, overrides=overrides,
-                                  **{**kw, "observation": student_observation, "history": history})
+                                  **{**kw, "observation": "sensors" if estimating else student_observation,
+                                     "history": history})
+    n_extra = N_FEATURES if estimating else 0
+    if estimating:
+        sensor_env.observation_space = _extended(sensor_env.observation_space, n_extra)
     student = PPO("MlpPolicy", sensor_env, device="cpu", seed=seed, n_steps=8, batch_size=8,
                   policy_kwargs={"net_arch": {"pi": [64, 64], "vf": [64, 64]}, "log_std_init": -2.5})
     sensor_env.close()
-    if student.observation_space.shape[0] != len(student_idx):
+    if student.observation_space.shape[0] != len(student_idx) + n_extra:
         raise ConfigError(f"the student's observation has {student.observation_space.shape[0]} entries, the "
                           f"layout {len(student_idx)}")
     pol = student.policy
@@ -235,7 +285,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     # student's first layer gives them weight 0 (set here, and the inputs are masked while it learns,
     # so they stay 0): its command is then a function of the frames alone, with no loop from its own
     # output back to its input, in which a float32 build's rounding would accumulate
-    mask = torch.ones(len(student_idx))
+    mask = torch.ones(len(student_idx) + n_extra)
     if history > 1 and not past_commands:
         mask[history * reads:] = 0.0
     for name in ignore:
@@ -271,8 +321,17 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
         env_seconds[0] += time.perf_counter() - t
         return o, r
 
+    inputs = _StudentInputs(student_idx, estimator(envs))
+    eval_inputs = _StudentInputs(student_idx, estimator(eval_episodes))
+
+    def eval_student(o):
+        a = act_student(eval_inputs.read(o))
+        eval_inputs.applied(a)
+        return a
+
     def episode_return(policy) -> float:
         """Mean return of ``policy`` on the validation drops (the same drops at every call)."""
+        eval_inputs.start()
         o, _ = eval_env.reset(seed=eval_seed)
         total = np.zeros(eval_episodes)
         for _ in range(eval_steps):
@@ -299,11 +358,12 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
             obs, _ = venv.reset()  # each env's next drop, from its own Generator
             env_seconds[0] += time.perf_counter() - t
         teach.start(np.ones(envs, dtype=bool))
-        xs = np.empty((steps_per_episode, envs, len(student_idx)), np.float32)
+        inputs.start()
+        xs = np.empty((steps_per_episode, envs, len(student_idx) + n_extra), np.float32)
         ys = np.empty((steps_per_episode, envs, 1), np.float32)
         for k in range(steps_per_episode):
             a_t = teach.act(obs)
-            x = obs[:, student_idx]
+            x = inputs.read(obs)
             a_s = act_student(x)
             xs[k], ys[k] = x, a_t
             applied = a_t
@@ -313,6 +373,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
                 use_teacher = (rng.random(envs) < beta)[:, None]
             command = np.where(use_teacher, applied, a_s)
             teach.applied(command)  # a teacher whose memory models its own output follows the env's
+            inputs.applied(command)
             obs, _ = env_step(venv, command)
         with torch.inference_mode():  # DAgger's own measure: the student against its labels on the new data
             error = float(torch.mean((actor(torch.from_numpy(xs.reshape(-1, xs.shape[-1])))
@@ -339,7 +400,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
             log.flush()
             continue
         t_eval = time.perf_counter()
-        ret = episode_return(lambda o: act_student(o[:, student_idx]))
+        ret = episode_return(eval_student)
         eval_time += time.perf_counter() - t_eval
         history_log.append({"step": step, "wall_s": round(wall, 3), "env_s": round(env_seconds[0], 3),
                             "return": round(ret, 4), "beta": beta, "loss": round(last_loss, 6)})
@@ -373,10 +434,11 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     best["drops"] = [eval_seed, eval_seed + eval_episodes - 1]
     best["evaluations"] = len(history_log)
     steps = iterations * steps_per_episode * envs
-    env_kwargs_out = {**kw, "observation": student_observation, "history": history}
+    observation_out = "sensors" if estimating else student_observation
+    env_kwargs_out = {**kw, "observation": observation_out, "history": history}
     if is_law:
         label = (f"dagger-{law_teacher.parse_teacher(teacher)[0]}-h{history}{'pc' if past_commands else ''}"
-                 f"{'-priv' if student_observation == 'both' else ''}-s{seed}")
+                 f"{'-priv' if student_observation == 'both' else ''}{'-est' if estimating else ''}-s{seed}")
         source = {"teacher": teacher, "teacher_observation": "the law's own entries of the true frame",
                   "method": "DAgger, beta = 0.5 ** iteration, labels: the law's command every control period"}
     else:
@@ -384,7 +446,8 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
         source = {"teacher": str(teacher), "teacher_observation": "privileged",
                   "method": "DAgger, beta = 0.5 ** iteration"}
     source["note"] = "the critic is not trained (the student only acts)"
-    meta = {"algo": "ppo", "label": label, "observation": student_observation, "history": history,
+    meta = {"algo": "ppo", "label": label, "observation": observation_out, "history": history,
+            "estimator": "ekf" if estimating else None,
             "scene": scene_name, "overrides": meta_t.get("overrides") or {}, "env_kwargs": env_kwargs_out,
             "hold_ticks": hold, "residual": kw.get("residual"), "steps": steps, "ticks": steps * hold,
             "envs": envs, "seed": seed, "wall_time_s": round(wall, 2), "steps_per_s": round(steps / wall, 1),
@@ -451,9 +514,11 @@ def main(argv=None) -> int:
     p.add_argument("--train-horizon", type=float, default=None, metavar="S",
                    help="length of the DAgger episodes, s (default: the run's horizon; validation runs "
                         "the whole horizon)")
-    p.add_argument("--student-observation", choices=("sensors", "both"), default="sensors",
-                   help="sensors (what a rig gives, default) or both (the sensors and the true state: "
-                        "how much the information limits the student)")
+    p.add_argument("--student-observation", choices=("sensors", "estimate", "both"), default="sensors",
+                   help="sensors (what a rig gives, default), estimate (the sensors and the scene's extended "
+                        "Kalman filter's estimate from them, the filter part of the policy wherever it runs; "
+                        "hold 1, no residual) or both (the sensors and the true state: how much the "
+                        "information limits the student)")
     p.add_argument("--teacher-noise", type=float, default=0.0, metavar="SIGMA",
                    help="std of Gaussian noise on the teacher's applied command (fraction of the command "
                         "scale; its label stays clean: DART); default 0")

@@ -10,6 +10,10 @@ A policy file (JSON, ``*.policy.json``; :data:`FORMAT`, version :data:`VERSION`)
 * either ``law`` (a classic law by name with its gains and the scene constants it uses,
   :mod:`impact_env.control.laws`) or ``mlp`` (the actor network's layers and SB3's output
   transform, :mod:`impact_env.control.mlp`);
+* optionally ``estimator`` (with ``mlp`` only): the constants of the extended Kalman filter
+  that runs before the network every tick, on the frame's accelerometer, transducer and
+  potentiometer, told the command the policy returns; the network reads the observation row and
+  then the filter's scaled estimate (:mod:`impact_env.control.estimation.features`);
 * optionally ``residual``: a whole law policy (as its own file would hold it) that runs every
   tick under the network, the command of a tick being ``clip(network + law, -1, 1)``, the
   network's output held for ``hold_ticks`` ticks (the env's ``residual`` option);
@@ -37,6 +41,9 @@ from impact_env._packed import positions
 from impact_env.config import ConfigError, check_hold_ticks
 from impact_env.control import laws
 from impact_env.control import mlp as MLP
+from impact_env.control.estimation import features as estimate
+from impact_env.control.estimation.features import READS as FEATURE_READS
+from impact_env.control.estimation.layout import MEMORY as FILTER_MEMORY
 from impact_env.control.observation import OBSERVATIONS, ObservationLayout, References, make_layout
 
 FORMAT = "impact-env-policy"
@@ -47,6 +54,11 @@ KIND_MLP = -1
 # an open-loop command sequence (an identification excitation, impact_env.rig.excitation): the
 # observation is not read; pf's body holds the commands, memory[0] counts the calls
 KIND_SEQUENCE = -2
+# an MLP behind the extended Kalman filter (impact_env.control.estimation.features): pi's slots hold
+# the frame positions of the filter's three readings and where its constants start after the
+# weights; the memory row is the MLP's scratch, the network's input, the filter's frame and memory
+KIND_MLP_ESTIMATE = -3
+ESTIMATE_WEIGHTS_END = len(FEATURE_READS)  # the slot that says where the filter's constants start
 
 
 
@@ -96,6 +108,8 @@ def act(pi, pf, obs, mem):
         k = int(mem[0])
         mem[0] = k + 1.0
         return pf[body + k] if body + k < pf.shape[0] else 0.0
+    if kind == KIND_MLP_ESTIMATE:
+        return _act_estimate(pi, pf, obs, mem)
     if kind == KIND_MLP:
         nl = pi[PI.n_layers]
         layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
@@ -110,6 +124,33 @@ def act(pi, pf, obs, mem):
         return -1.0
     if u > 1.0:
         return 1.0
+    return u
+
+
+@jit(inline="always")
+def _act_estimate(pi, pf, obs, mem):
+    """:func:`act` of an MLP behind the filter: the filter's measurement half on this frame, the
+    network on ``[obs, estimate]``, the filter's prediction with the command's force."""
+    frame_size = pi[PI.frame]
+    body = PF_SCALES + frame_size
+    nl = pi[PI.n_layers]
+    layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
+    k = pf[body + pi[PI_SLOTS + ESTIMATE_WEIGHTS_END]:]
+    obs_size = pi[PI.obs_size]
+    n_in = obs_size + estimate.N_FEATURES
+    scratch_size = pi[PI.memory] - n_in - 3 - FILTER_MEMORY
+    x_in = mem[scratch_size:scratch_size + n_in]
+    frame = mem[scratch_size + n_in:scratch_size + n_in + 3]
+    filter_mem = mem[scratch_size + n_in + 3:]
+    for j in range(obs_size):
+        x_in[j] = obs[j]
+    for c in range(3):
+        slot = pi[PI_SLOTS + c]
+        frame[c] = float(obs[slot]) * pf[PF_SCALES + slot]
+    estimate.features(k, filter_mem, frame, x_in[obs_size:])
+    out = MLP.mlp_forward(layers, pf[body:], x_in, mem[:scratch_size])
+    u = MLP.output_transform(pi[PI.output], out[0], pf[PF.low], pf[PF.high])
+    estimate.applied(k, filter_mem, frame, u * pf[PF.command_scale])
     return u
 
 
@@ -164,6 +205,7 @@ class CompiledPolicy:
     law: dict | None = None
     mlp: dict | None = None
     residual: dict | None = None
+    estimator: dict | None = None
     scene: dict = field(default_factory=dict)
     source: dict = field(default_factory=dict)
 
@@ -176,6 +218,10 @@ class CompiledPolicy:
         if not (self.command_scale > 0 and np.isfinite(self.command_scale)):
             raise ConfigError(f"command_scale_N = {self.command_scale!r} N must be finite and > 0")
         check_hold_ticks(self.hold_ticks)
+        if self.estimator is not None and (self.mlp is None or self.hold_ticks != 1 or self.residual is not None):
+            raise ConfigError(f"policy {self.name!r}: a filter before the network ('estimator') needs an MLP "
+                              "that acts every control period (hold_ticks 1) with no residual law: the filter "
+                              "is told the command of every tick")
         self._packed = None
         self._state = None
         self.arrays()  # validates the law or the network now, not at the first act
@@ -209,9 +255,10 @@ class CompiledPolicy:
     @classmethod
     def from_mlp(cls, name: str, layers: list[dict], output: str, low: float, high: float, scene,
                  observation: str, history: int, hold_ticks: int = 1, residual: CompiledPolicy | None = None,
-                 source=None):
+                 source=None, estimator: bool = False):
         """An actor network (``layers`` as :func:`impact_env.control.mlp.pack_mlp` takes them) with
-        SB3's ``output`` transform to ``[low, high]``."""
+        SB3's ``output`` transform to ``[low, high]``; with ``estimator``, behind the scene's
+        filter (:mod:`impact_env.control.estimation.features`)."""
         if output not in MLP.OUT:
             raise ConfigError(f"MLP output {output!r} is not one of {', '.join(MLP.OUTPUTS)}")
         layout = make_layout(scene, observation, history)
@@ -223,7 +270,8 @@ class CompiledPolicy:
         return cls(name=name, observation=observation, layout=layout,
                    command_scale=float(scene.effects.command_scale), control_rate=float(scene.control_rate),
                    hold_ticks=int(hold_ticks), mlp=mlp, scene=scene_stamp(scene), source=dict(source or {}),
-                   residual=None if residual is None else residual.to_dict())
+                   residual=None if residual is None else residual.to_dict(),
+                   estimator=estimator_of(scene) if estimator else None)
 
     # -- packing ---------------------------------------------------------------------------------
     def arrays(self) -> tuple[np.ndarray, np.ndarray, int]:
@@ -240,15 +288,27 @@ class CompiledPolicy:
         else:
             mlp = typing.cast(dict, self.mlp)  # exactly one of law and mlp (__post_init__)
             table2, body, widest = MLP.pack_mlp(mlp["layers"])
-            if table2[0, MLP.LI.n_in] != lay.size:
+            n_in = lay.size + (estimate.N_FEATURES if self.estimator is not None else 0)
+            if table2[0, MLP.LI.n_in] != n_in:
+                extra = f" and the filter's {estimate.N_FEATURES} estimates" if self.estimator is not None else ""
                 raise ConfigError(f"the network takes {table2[0, MLP.LI.n_in]} inputs but the observation "
-                                  f"({self.observation}, history {lay.history}) has {lay.size}")
+                                  f"({self.observation}, history {lay.history}) has {lay.size}{extra}")
             if table2[-1, MLP.LI.n_out] != 1:
                 raise ConfigError(f"the network gives {table2[-1, MLP.LI.n_out]} outputs; the shaker takes "
                                   "one")
             kind, n_layers, out, table, mem = KIND_MLP, table2.shape[0], MLP.OUT[mlp["output"]], \
                 table2.ravel(), 2 * widest
             head_f[PF.low], head_f[PF.high] = mlp["low"], mlp["high"]
+            if self.estimator is not None:
+                k = estimator_vector(self.estimator)
+                missing = [r for r in FEATURE_READS if r not in lay.names]
+                if missing:
+                    raise ConfigError(f"policy {self.name!r}: its filter reads {', '.join(missing)}, which the "
+                                      f"observation ({', '.join(lay.names)}) does not hold")
+                slots[:len(FEATURE_READS)] = [lay.names.index(r) for r in FEATURE_READS]
+                slots[ESTIMATE_WEIGHTS_END] = len(body)
+                body = np.concatenate([body, k])
+                kind, mem = KIND_MLP_ESTIMATE, 2 * widest + n_in + 3 + FILTER_MEMORY
         head = IntsHead(kind=kind, obs_size=lay.size, frame=F, memory=mem, n_layers=n_layers, output=out)
         pi = np.concatenate([np.array(head, dtype=np.int64), slots, table])
         pf = np.concatenate([np.array(head_f, dtype=np.float64), body])
@@ -267,6 +327,8 @@ class CompiledPolicy:
             d["mlp"] = self.mlp
         if self.residual is not None:
             d["residual"] = self.residual
+        if self.estimator is not None:
+            d["estimator"] = self.estimator
         return d
 
     def save(self, path) -> Path:
@@ -297,7 +359,8 @@ class CompiledPolicy:
             return cls(name=d["name"], observation=obs["kind"], layout=_layout_from(obs),
                        command_scale=float(d["command_scale_N"]), control_rate=float(d["control_rate_Hz"]),
                        hold_ticks=int(d.get("hold_ticks", 1)), law=d.get("law"), mlp=d.get("mlp"),
-                       residual=d.get("residual"), scene=d.get("scene", {}), source=d.get("source", {}))
+                       residual=d.get("residual"), estimator=d.get("estimator"), scene=d.get("scene", {}),
+                       source=d.get("source", {}))
         except KeyError as exc:
             raise ConfigError(f"{where} misses the key {exc}") from None
 
@@ -344,6 +407,31 @@ class CompiledPolicy:
         u = act_batch(pi, pf, np.ascontiguousarray(x), mem, np.empty(n))
         a = u.reshape(n, 1)
         return (a[0] if single else a), mem
+
+
+ESTIMATOR_SCALES = ("reference_length_m", "reference_speed_m_s", "nominal_m1_kg")
+
+
+def estimator_of(scene) -> dict:
+    """The ``estimator`` entry of a policy file: the filter's constants for ``scene`` by name (the
+    filter's own, then the features' three scales)."""
+    from impact_env.control.estimation.layout import EkfConstants
+
+    k = estimate.estimator_constants(scene)
+    return {"filter": "ekf", "constants": dict(zip(EkfConstants._fields + ESTIMATOR_SCALES,
+                                                   (float(v) for v in k), strict=True))}
+
+
+def estimator_vector(d: dict) -> np.ndarray:
+    """float64[features.SIZE]: an ``estimator`` entry's constants in the order the kernels read."""
+    from impact_env.control.estimation.layout import EkfConstants
+
+    names = EkfConstants._fields + ESTIMATOR_SCALES
+    consts = d.get("constants") if isinstance(d, dict) else None
+    if d.get("filter") != "ekf" or not isinstance(consts, dict) or set(consts) != set(names):
+        raise ConfigError("a policy's 'estimator' must be {'filter': 'ekf', 'constants': {...}} with the "
+                          f"filter's {len(names)} constants by name (impact_env.control.policy.estimator_of)")
+    return np.array([float(consts[n]) for n in names], dtype=np.float64)
 
 
 def scene_stamp(scene) -> dict:

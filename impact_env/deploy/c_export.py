@@ -40,8 +40,11 @@ from impact_env.control import laws
 from impact_env.control import mlp as MLP
 from impact_env.control import plausibility
 from impact_env.control.front_end import F_DETECTOR, F_FILTERS, FrontEnd
+from impact_env.control.estimation import features as estimate
+from impact_env.control.estimation.c_text import ekf_c
+from impact_env.control.estimation.layout import MEMORY as FILTER_MEMORY
 from impact_env.control.observation import OBS_LIMIT
-from impact_env.control.policy import CompiledPolicy
+from impact_env.control.policy import CompiledPolicy, estimator_vector
 from impact_env.effects import detector as contact_detector
 from impact_env.effects.filters import tpt_sections
 from impact_env.rig import safety as rig_safety
@@ -82,13 +85,24 @@ def _ident(name: str) -> str:
 
 
 def _memory(pol) -> int:
-    """The floats of memory a policy's classic law keeps (at least 1: C has no empty array)."""
+    """The floats of memory a policy's classic law, or the filter before its network, keeps (at
+    least 1: C has no empty array)."""
+    if pol.estimator is not None:
+        return FILTER_MEMORY
     return max(laws.BY_NAME[pol.law["name"]].memory, 1)
 
 
+def _has_memory(pol) -> bool:
+    return pol.law is not None or pol.estimator is not None
+
+
 def float32_refusal(policy: CompiledPolicy) -> str:
-    """Why ``policy``'s C file has no float32 build (a law's ``c_double_only``, naming the law),
-    or "" when it has one."""
+    """Why ``policy``'s C file has no float32 build (a law's ``c_double_only``, naming the law, or
+    the filter before a network), or "" when it has one."""
+    if policy.estimator is not None:
+        return ("the filter before its network has no float32 build: its inverse filters sum the float32 "
+                "front end's rounding instead of damping it, and its estimate, then the command, drift from "
+                "the double build's (docs/agents-distillation.md)")
     for pol in (policy, policy.residual_policy()):
         if pol is not None and pol.law is not None and laws.BY_NAME[pol.law["name"]].c_double_only:
             return f"{pol.law['name']} has no float32 build: {laws.BY_NAME[pol.law['name']].c_double_only}"
@@ -260,8 +274,11 @@ class _Gen:
     impact_real res_frame[{rl.frame_size}];
     float res_obs[{rl.size}];
     impact_real res_mem[{_memory(self.res)}];"""
-        law_mem = (f"\n    impact_real law_mem[{_memory(self.pol)}];  /* the law's memory, 0 at release */"
-                   if self.pol.law is not None else "")
+        law_mem = ""
+        if self.pol.law is not None:
+            law_mem = f"\n    impact_real law_mem[{_memory(self.pol)}];  /* the law's memory, 0 at release */"
+        elif self.pol.estimator is not None:
+            law_mem = f"\n    impact_real law_mem[{_memory(self.pol)}];  /* the filter's memory, 0 at release */"
         return f"""{self._banner()}
 #ifndef IMPACT_POLICY_H
 #define IMPACT_POLICY_H
@@ -677,6 +694,9 @@ static const impact_real {pref}_SCALES[{lay.frame_size}] = {_arr(lay.scales)};
     def _law_preludes(self) -> list[str]:
         """The file-scope C text (static functions) of the classic laws in the file, each once."""
         out: list[str] = []
+        if self.pol.estimator is not None:
+            out.append("/* ---- the filter before the network (impact_env.control.estimation.c_text) ---- */\n\n"
+                       + ekf_c())
         for pol in (self.pol, self.res):
             if pol is None or pol.law is None:
                 continue
@@ -761,21 +781,52 @@ static impact_real {fn}(const float *obs, impact_real *mem)
         else:
             out = f"return a < RL({low}) ? RL({low}) : (a > RL({high}) ? RL({high}) : a);"
             what = "clipped to [low, high] (SB3's predict for a Box action)"
+        if self.pol.estimator is None:
+            inputs, before, after, mem_use, mem_type = "", "", "", "\n    (void)mem;", "impact_real"
+        else:
+            lay = self.pol.layout
+            k = estimator_vector(self.pol.estimator)
+            slots = [lay.names.index(r) for r in estimate.READS]
+            inputs = (f"""
+
+/* the filter before the network (impact_env.control.estimation.features): its constants (the
+ * EKF's, then the reference length m, the reference speed m/s and the nominal m1 kg), and the
+ * observation's entries it reads (accelerometer, force, potentiometer) with their scales */
+static const impact_real EST_K[{len(k)}] = {{
+""" + "\n".join(f"    {_r(v)},  /* [{i}] */" for i, v in enumerate(k)) + f"""
+}};
+static const int EST_SLOTS[3] = {{{', '.join(map(str, slots))}}};
+static const impact_real EST_SCALES[3] = {{{', '.join(_r(lay.scales[j]) for j in slots)}}};""")
+            before = f"""
+    /* the filter's measurement half on this frame; its estimate, scaled, after the observation */
+    impact_real frame[3];
+    for (int c = 0; c < 3; c++) frame[c] = (impact_real)obs[EST_SLOTS[c]] * EST_SCALES[c];
+    ekf_measure(EST_K, mem, frame);
+    x[IMPACT_OBS_SIZE + 0] = mem[EKF_M_X + EKF_X1] / EST_K[{estimate.REFS}];
+    x[IMPACT_OBS_SIZE + 1] = mem[EKF_M_X + EKF_V1] / EST_K[{estimate.REFS + 1}];
+    x[IMPACT_OBS_SIZE + 2] = mem[EKF_M_X + EKF_X2] / EST_K[{estimate.REFS}];
+    x[IMPACT_OBS_SIZE + 3] = mem[EKF_M_X + EKF_V2] / EST_K[{estimate.REFS + 1}];
+    x[IMPACT_OBS_SIZE + 4] = mem[EKF_M_X + EKF_IM1] * EST_K[{estimate.REFS + 2}] - 1.0;"""
+            after = """
+    /* the filter's prediction with the command's force */
+    ekf_tick(EST_K, mem, frame, u * COMMAND_SCALE_N);
+    return u;"""
+            mem_use, mem_type = "", "impact_real"
+            out = out.replace("return ", "impact_real u = ", 1)
         return f"""/* ---- the policy: an MLP actor (impact_env.control.mlp), each output summed b + W[o][0] x0 + ... in
  * input order, as the numba kernel does; output {what} ---- */
 
-{chr(10).join(decl)}
+{chr(10).join(decl)}{inputs}
 
 #define MLP_WIDEST {self.widest}
 
-static impact_real policy_act(const float *obs, impact_real *mem)
+static impact_real policy_act(const float *obs, {mem_type} *mem)
 {{
-    impact_real x[MLP_WIDEST], y[MLP_WIDEST];
-    (void)mem;
-    for (int i = 0; i < IMPACT_OBS_SIZE; i++) x[i] = (impact_real)obs[i];
+    impact_real x[MLP_WIDEST], y[MLP_WIDEST];{mem_use}
+    for (int i = 0; i < IMPACT_OBS_SIZE; i++) x[i] = (impact_real)obs[i];{before}
 {chr(10).join(calls)}
     impact_real a = x[0];
-    {out}
+    {out}{after}
 }}"""
 
     def _safety(self) -> str:
@@ -860,8 +911,8 @@ static impact_real safety(impact_state *s, impact_real u, impact_real x2, uint32
         add_res = """
     u = u + residual_act(s->res_obs, s->res_mem);
     u = u < -1.0 ? -1.0 : (u > 1.0 ? 1.0 : u);""" if res else ""
-        mem = "s->law_mem" if self.pol.law is not None else "NULL"
-        clear_mem = "\n    memset(s->law_mem, 0, sizeof s->law_mem);" if self.pol.law is not None else ""
+        mem = "s->law_mem" if _has_memory(self.pol) else "NULL"
+        clear_mem = "\n    memset(s->law_mem, 0, sizeof s->law_mem);" if _has_memory(self.pol) else ""
         return f"""/* ---- the tick (impact_env.rig.controller: observe_tick, then act_tick) ---- */
 
 /* the release: the front end starts from these readings, unfiltered (as the simulator's reset) */

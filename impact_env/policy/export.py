@@ -38,6 +38,8 @@ def export_policy(spec: str, scene) -> CompiledPolicy:
         pol.check_scene(scene)
         return pol
     policy = make_policy(spec, scene)
+    if isinstance(policy, CompiledPolicy):  # a model behind the filter is loaded compiled already
+        return policy
     if is_model_spec(spec):
         return export_sb3(policy, scene, spec=spec)
     if not hasattr(policy, "compiled"):
@@ -122,7 +124,8 @@ def export_sb3(policy, scene, spec: str = "") -> CompiledPolicy:
     source = {"spec": spec, "algo": type(model).__name__.lower()}
     residual = None if policy.residual is None else export_policy(policy.residual, scene)
     return CompiledPolicy.from_mlp(name, layers, output, low, high, scene, policy.observation, policy.history,
-                                   hold_ticks=policy.hold_ticks, residual=residual, source=source)
+                                   hold_ticks=policy.hold_ticks, residual=residual, source=source,
+                                   estimator=getattr(policy, "estimator", False))
 
 
 def onnx_metadata(pol: CompiledPolicy) -> dict[str, str]:

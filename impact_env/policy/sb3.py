@@ -11,6 +11,11 @@ writes beside every model it saves: ``model``, ``best_model``, each checkpoint, 
 run's), the spec overriding it key by key.  Nothing is guessed: without the file, the spec
 must give all four (``residual=none`` for none), and a model whose observation space does not
 have the size those settings give is refused.
+
+A model whose settings file says ``"estimator": "ekf"`` reads the scene's extended Kalman filter's
+estimate after its observation row (``agents.distill --student-observation estimate``): the filter
+has memory and is told every command, which SB3's ``predict`` has no place for, so such a model
+is loaded as its compiled policy (:func:`impact_env.policy.export.export_sb3`), the filter inside.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import json
 from pathlib import Path
 
 from impact_env.config import ConfigError
+from impact_env.control.policy import CompiledPolicy
 from impact_env.control.observation import OBSERVATIONS, make_layout
 from impact_env.scene import load_scene
 
@@ -67,8 +73,9 @@ class ModelPolicy:
     actions add to, or None), the last two from the env kwargs in its ``model.json``."""
 
     def __init__(self, model, observation: str, history: int, name: str, hold_ticks: int = 1,
-                 residual: str | None = None):
+                 residual: str | None = None, estimator: bool = False):
         self.model = model
+        self.estimator = bool(estimator)
         self.observation = observation
         self.history = history
         self.name = name
@@ -121,7 +128,8 @@ def model_settings(path: Path, opts: dict, spec: str) -> dict:
         env_kwargs = meta.get("env_kwargs") or {}
         settings = {"observation": meta.get("observation", "sensors"), "history": int(meta.get("history", 1)),
                     "hold_ticks": int(meta.get("hold_ticks", env_kwargs.get("hold_ticks", 1))),
-                    "residual": meta.get("residual", env_kwargs.get("residual"))}
+                    "residual": meta.get("residual", env_kwargs.get("residual")),
+                    "estimator": meta.get("estimator")}
     settings.update(opts)
     missing = [k for k in SETTINGS if k not in settings]
     if missing:
@@ -138,19 +146,35 @@ def model_settings(path: Path, opts: dict, spec: str) -> dict:
     return settings
 
 
-def load_model_policy(spec: str, scene) -> ModelPolicy:
+def load_model_policy(spec: str, scene) -> ModelPolicy | CompiledPolicy:
+    """The model of ``spec`` with its env settings (see the module doc)."""
     scene = load_scene(scene)
     algo, path, opts = parse_model_spec(spec)
     st = model_settings(path, opts, spec)
     model = _load(algo, path)
+    estimator = st.get("estimator")
+    if estimator not in (None, "ekf"):
+        raise ConfigError(f"model {str(path)!r}: estimator {estimator!r} in its settings file is not 'ekf' or "
+                          "absent")
     size = int(model.observation_space.shape[0])
     want = _size(scene, st["observation"], st["history"])
+    extra = ""
+    if estimator and want is not None:
+        from impact_env.control.estimation.features import N_FEATURES
+
+        want += N_FEATURES
+        extra = f" and the filter's {N_FEATURES} estimates"
     if want != size:
         raise ConfigError(f"model {str(path)!r} takes {size} observation entries, but observation "
-                          f"{st['observation']!r} with history {st['history']} on scene {scene.name!r} gives "
-                          f"{want}: the settings are not the ones it was trained with")
-    return ModelPolicy(model, st["observation"], st["history"], spec, hold_ticks=int(st["hold_ticks"]),
-                       residual=st["residual"])
+                          f"{st['observation']!r} with history {st['history']} on scene {scene.name!r}{extra} "
+                          f"gives {want}: the settings are not the ones it was trained with")
+    policy = ModelPolicy(model, st["observation"], st["history"], spec, hold_ticks=int(st["hold_ticks"]),
+                         residual=st["residual"], estimator=bool(estimator))
+    if estimator:
+        from impact_env.policy.export import export_sb3
+
+        return export_sb3(policy, scene, spec=spec)
+    return policy
 
 
 def _size(scene, observation, history) -> int | None:
