@@ -106,8 +106,45 @@ def _evaluate(scene: str, specs: dict[str, str], workers: int, episodes: int, or
     return out
 
 
+def c_builds_check(model: Path, scenes: list[str], drops: int = 10, ticks: int = 2000) -> dict | None:
+    """The student's C export against the double target (the numba kernels) on drops ``0 .. drops -
+    1`` of each scene (:func:`impact_env.deploy.parity.check`, the bounds of docs/rig/c-export.md):
+    the double build's drops that are not bitwise, and the float32 build's failures or the reason
+    it has none; None without a C compiler."""
+    import tempfile
+
+    from impact_env.config import ConfigError
+    from impact_env.deploy import parity
+    from impact_env.deploy.c_export import float32_refusal, write_c
+    from impact_env.policy.export import export_policy
+    from impact_env.scene import load_scene
+
+    try:
+        parity.find_cc()
+    except ConfigError:
+        return None
+    out: dict = {"bound": parity.F32_BOUND, "drops": 0, "double_failed": [], "failed": [], "max_same": 0.0,
+                 "float32_refused": ""}
+    for name in scenes:
+        scene = load_scene(name)
+        pol = export_policy(f"ppo:{model}", scene)
+        out["float32_refused"] = float32_refusal(pol)
+        with tempfile.TemporaryDirectory(prefix="quick-teacher-c-") as tmp:
+            write_c(pol, scene, Path(tmp), force=True)
+            builds = (False,) if out["float32_refused"] else (False, True)
+            for float32 in builds:
+                reports = parity.check(pol, scene, Path(tmp), seeds=range(drops), ticks=ticks, float32=float32)
+                for seed, r in enumerate(reports):
+                    if not r.verdict(float32)[0]:
+                        out["failed" if float32 else "double_failed"].append(f"{name}:{seed}")
+                    if float32:
+                        out["max_same"] = max(out["max_same"], r.max_abs_same)
+        out["drops"] += drops
+    return out
+
+
 def measure(args) -> dict:
-    from agents.train import QUICK_DAGGER, _versions
+    from agents.train import QUICK_DAGGER, QUICK_SCENE, _versions
 
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
@@ -117,8 +154,10 @@ def measure(args) -> dict:
     quick = _child_run([py, "-m", "agents.train", "--quick", "--teacher", args.teacher, "--out",
                         str(out / "sensors")], out / "sensors.log")
     priv_cmd = [py, "-m", "agents.distill", "--teacher", args.teacher, "--out", str(out / "privileged"),
-                "--student-observation", "both"]
+                "--student-observation", "both", "--scene", QUICK_SCENE]
     for key, value in QUICK_DAGGER.items():
+        if key == "student_observation":
+            continue
         for one in (value if isinstance(value, tuple) else (value,)):  # a tuple: the option repeated
             priv_cmd += [f"--{key.replace('_', '-')}", str(one)]
     privileged = _child_run(priv_cmd, out / "privileged.log")
@@ -131,10 +170,7 @@ def measure(args) -> dict:
               for scene in scene_names}
     meta = json.loads((out / "sensors" / "model.json").read_text())
     priv_meta = json.loads((out / "privileged" / "model.json").read_text())
-    from scripts.agents_report import c_float32_check
-
-    c_check = c_float32_check({"algo": "ppo", "model": sensors_model, "meta": meta, "dir": out / "sensors"},
-                              scene_names)
+    c_check = c_builds_check(sensors_model, scene_names)
     options = "" if (args.episodes, args.scenes, args.oracle) == (EPISODES, ",".join(SCENES), "kept") else (
         f" --episodes {args.episodes} --scenes {args.scenes} --oracle {args.oracle}")
     return {
@@ -161,9 +197,11 @@ def block(rec: dict) -> str:
     rows = [f"| policy | reads | {scenes[0]}: energy integral ms, / oracle's |"
             + "".join(f" {s}: ms, / oracle's |" for s in scenes[1:]),
             "| --- | --- |" + " --- |" * len(scenes)]
+    estimate = rec["budget"].get("student_observation") == "estimate"
     reads = {"pd-penetration": "the sensors (classic law)", "teacher": "the true state (the teacher)",
              "privileged student": "the sensors and the true state",
-             "sensor student": "the sensors (what ships)"}
+             "sensor student": ("the sensors and the filter's estimate from them" if estimate
+                                else "the sensors (what ships)")}
     for name in ("pd-penetration", "teacher", "privileged student", "sensor student"):
         cells = [f"{rec['held_out'][s][name]['mean_ms']:.2f}, "
                  f"x{rec['held_out'][s][name]['ratio_to_oracle']:.2f}" for s in scenes]
@@ -174,10 +212,21 @@ def block(rec: dict) -> str:
     oracle_text = ("the oracle (`oracle:warm=given`) run in the same comparison"
                    if rec.get("oracle_source") == "run" else "the oracle's kept per-drop results")
     c = rec["c_float32"]
-    ships = ("not checked (no C compiler)" if c is None else
-             f"{'yes' if not c['failed'] else 'no'}: the float32 C build within {c['bound']:.0e} of full "
-             f"scale on {c['drops'] - len(c['failed'])} of {c['drops']} drops (largest difference "
-             f"{c['max_same']:.2e})")
+    if c is None:
+        ships = "not checked (no C compiler)"
+    elif "double_failed" not in c:  # a record of the float32 check alone
+        ships = (f"{'yes' if not c['failed'] else 'no'}: the float32 C build within {c['bound']:.0e} of full "
+                 f"scale on {c['drops'] - len(c['failed'])} of {c['drops']} drops (largest difference "
+                 f"{c['max_same']:.2e})")
+    else:
+        double = (f"the double C build bitwise the simulator's kernels on {c['drops'] - len(c['double_failed'])} "
+                  f"of {c['drops']} drops")
+        if c["float32_refused"]:
+            ships = f"in double only: {double}; no float32 build ({c['float32_refused']})"
+        else:
+            ships = (f"{'yes' if not c['failed'] and not c['double_failed'] else 'no'}: {double}; the float32 "
+                     f"build within {c['bound']:.0e} of full scale on {c['drops'] - len(c['failed'])} of "
+                     f"{c['drops']} drops (largest difference {c['max_same']:.2e})")
     q = rec["quick"]
     compiled = " (a first run: that includes compiling the numba kernels)" if q.get("compiled") else ""
     budget = rec["budget"]
@@ -191,8 +240,10 @@ def block(rec: dict) -> str:
         "",
         f"`python -m agents.train --quick --teacher {rec['teacher']}`: DAgger, {rec['budget']['iterations']} "
         f"iterations of {rec['budget']['envs']} envs of `{rec['scene_trained']}`, "
-        f"{budget['train_horizon']} s episodes{noise}, a student on the last {budget['history']} "
-        f"sensor frames{ignored} acting every control period: {q['wall_s']:.0f} s of wall time for the whole "
+        f"{budget['train_horizon']} s episodes{noise}, a student on "
+        + (f"its sensor frame{ignored} and the filter's estimate" if estimate else
+           f"the last {budget['history']} sensor frames{ignored}")
+        + f" acting every control period: {q['wall_s']:.0f} s of wall time for the whole "
         f"command"
         f"{compiled} ({q['cpu_s']:.0f} s of CPU; the training alone {rec['training_wall_s']:.0f} s, "
         f"{rec['training_cpu_s']:.0f} s of CPU), on a machine whose load the record keeps.  {drops}; "

@@ -43,7 +43,8 @@ def estimator_constants(scene) -> np.ndarray:
 
     k = ekf_constants(scene)
     refs = References.of(scene)
-    return np.array([k[f] for f in EkfConstants._fields] + [refs.length, refs.speed, scene.plant.m1],
+    names: tuple[str, ...] = EkfConstants._fields
+    return np.array([k[name] for name in names] + [refs.length, refs.speed, scene.plant.m1],
                     dtype=np.float64)
 
 
