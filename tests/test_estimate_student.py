@@ -85,6 +85,35 @@ def test_the_compiled_filter_is_the_one_the_student_was_trained_with():
     assert np.all(np.isfinite(x)) and np.all(trained.memory[:, EkfMemory.lost_count] == 0.0)
 
 
+def test_off_its_model_the_filter_hands_over_to_pd_penetration():
+    """On ``rig-randomized`` (drawn delays, pad and shaker gain: the filter's model is ``rig``'s)
+    every drop hands over, latched, and from then on the policy's command is ``pd-penetration``'s
+    compiled law's on the same observations, bit for bit (the fallback ran from the episode's
+    start, as that law does); the count is the ticks since.  On ``rig`` the network drives."""
+    from impact_env.policy.export import export_policy
+
+    rig = load_scene("rig")
+    pol = _policy(rig)
+    pd = export_policy("pd-penetration", rig)
+    for scene_name, hands_over in (("rig-randomized", True), ("rig", False)):
+        env = ImpactCatchVectorEnv(N_ENVS, scene_name, None, autoreset_mode=AutoresetMode.DISABLED,
+                                   observation="sensors", history=1, terminate_on_catch=False)
+        obs, _ = env.reset(seed=1000)
+        memory, pd_memory = pol.new_memory(N_ENVS), pd.new_memory(N_ENVS)
+        flag = memory.shape[1] - FILTER_MEMORY - 2
+        since = np.zeros(N_ENVS)
+        for _ in range(STEPS):
+            a, memory = pol.predict(obs, state=memory)
+            b, pd_memory = pd.predict(obs, state=pd_memory)
+            on = memory[:, flag] > 0.0
+            since += on
+            assert np.array_equal(a[on], b[on])
+            assert np.array_equal(memory[:, flag + 1], since)
+            obs, *_ = env.step_arrays(a, infos=False)
+        env.close()
+        assert np.all(memory[:, flag] > 0.0) if hands_over else np.all(memory[:, flag] == 0.0)
+
+
 def test_a_policy_file_keeps_its_filter_and_acts_the_same_after_loading(tmp_path):
     scene = load_scene("rig")
     pol = _policy(scene)
@@ -103,7 +132,7 @@ def test_what_a_filter_before_the_network_cannot_do_is_refused():
         _policy(scene, hold_ticks=4)
     d = _policy(scene).to_dict()
     d["estimator"] = {"filter": "ekf", "constants": {"c": 1.0}}
-    with pytest.raises(ConfigError, match="constants by name"):
+    with pytest.raises(ConfigError, match="every constant by name"):
         CompiledPolicy.from_dict(d)
     without = [{**_network(scene)[0], "weight": np.zeros((16, make_layout(scene, "sensors", 1).size))},
                _network(scene)[1]]
@@ -120,13 +149,14 @@ def test_the_c_export_replays_it_bitwise_in_double_and_has_no_float32_build(tmp_
     pol = _policy(scene)
     write_c(pol, scene, tmp_path / "c", force=True)
     src = (tmp_path / "c" / "impact_policy.c").read_text()
-    assert "static void ekf_measure(" in src and "ekf_tick(EST_K, mem, frame, u * COMMAND_SCALE_N);" in src
+    assert "static void ekf_measure(" in src and "ekf_tick(EST_K, filter_mem, frame, u * COMMAND_SCALE_N);" in src
     cp = parity.CPolicy(parity.build_shared(tmp_path / "c", tmp_path / "lib.so", False), False)
-    rec = parity.record(pol, scene, 0, 2000)
-    got = parity.replay(cp, rec)
-    assert np.array_equal(got.command, rec.command), parity.compare_runs(rec, got)
-    assert np.array_equal(got.status, rec.status)
-    assert np.ptp(rec.command) > 0.5
+    for scene_name in ("rig", "rig-randomized"):  # the network drives; the fallback takes over
+        rec = parity.record(pol, load_scene(scene_name), 0, 2000)
+        got = parity.replay(cp, rec)
+        assert np.array_equal(got.command, rec.command), parity.compare_runs(rec, got)
+        assert np.array_equal(got.status, rec.status)
+        assert np.ptp(rec.command) > 0.5
     with pytest.raises(ConfigError, match="#error.*the filter before its network has no float32 build"):
         parity.build_shared(tmp_path / "c", tmp_path / "f32.so", float32=True)
 

@@ -12,8 +12,9 @@ A policy file (JSON, ``*.policy.json``; :data:`FORMAT`, version :data:`VERSION`)
   transform, :mod:`impact_env.control.mlp`);
 * optionally ``estimator`` (with ``mlp`` only): the constants of the extended Kalman filter
   that runs before the network every tick, on the frame's accelerometer, transducer and
-  potentiometer, told the command the policy returns; the network reads the observation row and
-  then the filter's scaled estimate (:mod:`impact_env.control.estimation.features`);
+  potentiometer, told the command the policy returns, and of the law that takes over when the
+  filter shows its model wrong; the network reads the observation row and then the filter's
+  scaled estimate (:mod:`impact_env.control.behind_filter`);
 * optionally ``residual``: a whole law policy (as its own file would hold it) that runs every
   tick under the network, the command of a tick being ``clip(network + law, -1, 1)``, the
   network's output held for ``hold_ticks`` ticks (the env's ``residual`` option);
@@ -39,11 +40,10 @@ import numpy as np
 from impact_env._jit import jit
 from impact_env._packed import positions
 from impact_env.config import ConfigError, check_hold_ticks
-from impact_env.control import laws
+from impact_env.control import behind_filter, laws
 from impact_env.control import mlp as MLP
 from impact_env.control.estimation import features as estimate
-from impact_env.control.estimation.features import READS as FEATURE_READS
-from impact_env.control.estimation.layout import MEMORY as FILTER_MEMORY
+from impact_env.control.laws.estimate import SensorReads
 from impact_env.control.observation import OBSERVATIONS, ObservationLayout, References, make_layout
 
 FORMAT = "impact-env-policy"
@@ -54,11 +54,10 @@ KIND_MLP = -1
 # an open-loop command sequence (an identification excitation, impact_env.rig.excitation): the
 # observation is not read; pf's body holds the commands, memory[0] counts the calls
 KIND_SEQUENCE = -2
-# an MLP behind the extended Kalman filter (impact_env.control.estimation.features): pi's slots hold
-# the frame positions of the filter's three readings and where its constants start after the
-# weights; the memory row is the MLP's scratch, the network's input, the filter's frame and memory
+# an MLP behind the extended Kalman filter (impact_env.control.behind_filter): pi's slots hold the
+# frame positions of the sensors its filter and fallback law read, and after the layer table where
+# the weights end in pf's body (the constants follow them)
 KIND_MLP_ESTIMATE = -3
-ESTIMATE_WEIGHTS_END = len(FEATURE_READS)  # the slot that says where the filter's constants start
 
 
 
@@ -109,7 +108,7 @@ def act(pi, pf, obs, mem):
         mem[0] = k + 1.0
         return pf[body + k] if body + k < pf.shape[0] else 0.0
     if kind == KIND_MLP_ESTIMATE:
-        return _act_estimate(pi, pf, obs, mem)
+        return _act_behind_filter(pi, pf, obs, mem)
     if kind == KIND_MLP:
         nl = pi[PI.n_layers]
         layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
@@ -128,30 +127,16 @@ def act(pi, pf, obs, mem):
 
 
 @jit(inline="always")
-def _act_estimate(pi, pf, obs, mem):
-    """:func:`act` of an MLP behind the filter: the filter's measurement half on this frame, the
-    network on ``[obs, estimate]``, the filter's prediction with the command's force."""
+def _act_behind_filter(pi, pf, obs, mem):
     frame_size = pi[PI.frame]
     body = PF_SCALES + frame_size
     nl = pi[PI.n_layers]
-    layers = pi[PI_LAYERS:PI_LAYERS + nl * MLP.N_LAYER_INTS].reshape((nl, MLP.N_LAYER_INTS))
-    k = pf[body + pi[PI_SLOTS + ESTIMATE_WEIGHTS_END]:]
-    obs_size = pi[PI.obs_size]
-    n_in = obs_size + estimate.N_FEATURES
-    scratch_size = pi[PI.memory] - n_in - 3 - FILTER_MEMORY
-    x_in = mem[scratch_size:scratch_size + n_in]
-    frame = mem[scratch_size + n_in:scratch_size + n_in + 3]
-    filter_mem = mem[scratch_size + n_in + 3:]
-    for j in range(obs_size):
-        x_in[j] = obs[j]
-    for c in range(3):
-        slot = pi[PI_SLOTS + c]
-        frame[c] = float(obs[slot]) * pf[PF_SCALES + slot]
-    estimate.features(k, filter_mem, frame, x_in[obs_size:])
-    out = MLP.mlp_forward(layers, pf[body:], x_in, mem[:scratch_size])
-    u = MLP.output_transform(pi[PI.output], out[0], pf[PF.low], pf[PF.high])
-    estimate.applied(k, filter_mem, frame, u * pf[PF.command_scale])
-    return u
+    table_end = PI_LAYERS + nl * MLP.N_LAYER_INTS
+    layers = pi[PI_LAYERS:table_end].reshape((nl, MLP.N_LAYER_INTS))
+    weights_end = body + pi[table_end]
+    return behind_filter.act(layers, pf[body:weights_end], pf[weights_end:], pi[PI.output], pf[PF.low],
+                             pf[PF.high], pf[PF.command_scale], pi[PI_SLOTS:PI_LAYERS],
+                             pf[PF_SCALES:body], obs[:pi[PI.obs_size]], mem[:pi[PI.memory]])
 
 
 @jit
@@ -271,7 +256,7 @@ class CompiledPolicy:
                    command_scale=float(scene.effects.command_scale), control_rate=float(scene.control_rate),
                    hold_ticks=int(hold_ticks), mlp=mlp, scene=scene_stamp(scene), source=dict(source or {}),
                    residual=None if residual is None else residual.to_dict(),
-                   estimator=estimator_of(scene) if estimator else None)
+                   estimator=behind_filter.estimator_of(scene) if estimator else None)
 
     # -- packing ---------------------------------------------------------------------------------
     def arrays(self) -> tuple[np.ndarray, np.ndarray, int]:
@@ -300,15 +285,15 @@ class CompiledPolicy:
                 table2.ravel(), 2 * widest
             head_f[PF.low], head_f[PF.high] = mlp["low"], mlp["high"]
             if self.estimator is not None:
-                k = estimator_vector(self.estimator)
-                missing = [r for r in FEATURE_READS if r not in lay.names]
+                k = behind_filter.estimator_vector(self.estimator)
+                missing = [r for r in estimate.READS if r not in lay.names]
                 if missing:
                     raise ConfigError(f"policy {self.name!r}: its filter reads {', '.join(missing)}, which the "
                                       f"observation ({', '.join(lay.names)}) does not hold")
-                slots[:len(FEATURE_READS)] = [lay.names.index(r) for r in FEATURE_READS]
-                slots[ESTIMATE_WEIGHTS_END] = len(body)
+                slots[:] = [lay.names.index(r) if r in lay.names else -1 for r in SensorReads._fields]
+                table = np.concatenate([table, [len(body)]])
                 body = np.concatenate([body, k])
-                kind, mem = KIND_MLP_ESTIMATE, 2 * widest + n_in + 3 + FILTER_MEMORY
+                kind, mem = KIND_MLP_ESTIMATE, behind_filter.memory_size(widest, n_in, F)
         head = IntsHead(kind=kind, obs_size=lay.size, frame=F, memory=mem, n_layers=n_layers, output=out)
         pi = np.concatenate([np.array(head, dtype=np.int64), slots, table])
         pf = np.concatenate([np.array(head_f, dtype=np.float64), body])
@@ -407,31 +392,6 @@ class CompiledPolicy:
         u = act_batch(pi, pf, np.ascontiguousarray(x), mem, np.empty(n))
         a = u.reshape(n, 1)
         return (a[0] if single else a), mem
-
-
-ESTIMATOR_SCALES = ("reference_length_m", "reference_speed_m_s", "nominal_m1_kg")
-
-
-def estimator_of(scene) -> dict:
-    """The ``estimator`` entry of a policy file: the filter's constants for ``scene`` by name (the
-    filter's own, then the features' three scales)."""
-    from impact_env.control.estimation.layout import EkfConstants
-
-    k = estimate.estimator_constants(scene)
-    return {"filter": "ekf", "constants": dict(zip(EkfConstants._fields + ESTIMATOR_SCALES,
-                                                   (float(v) for v in k), strict=True))}
-
-
-def estimator_vector(d: dict) -> np.ndarray:
-    """float64[features.SIZE]: an ``estimator`` entry's constants in the order the kernels read."""
-    from impact_env.control.estimation.layout import EkfConstants
-
-    names = EkfConstants._fields + ESTIMATOR_SCALES
-    consts = d.get("constants") if isinstance(d, dict) else None
-    if d.get("filter") != "ekf" or not isinstance(consts, dict) or set(consts) != set(names):
-        raise ConfigError("a policy's 'estimator' must be {'filter': 'ekf', 'constants': {...}} with the "
-                          f"filter's {len(names)} constants by name (impact_env.control.policy.estimator_of)")
-    return np.array([float(consts[n]) for n in names], dtype=np.float64)
 
 
 def scene_stamp(scene) -> dict:

@@ -36,15 +36,16 @@ from pathlib import Path
 import numpy as np
 
 from impact_env.config import ConfigError
-from impact_env.control import laws
+from impact_env.control import behind_filter, laws, plausibility
 from impact_env.control import mlp as MLP
-from impact_env.control import plausibility
-from impact_env.control.front_end import F_DETECTOR, F_FILTERS, FrontEnd
 from impact_env.control.estimation import features as estimate
 from impact_env.control.estimation.c_text import ekf_c
-from impact_env.control.estimation.layout import MEMORY as FILTER_MEMORY
+from impact_env.control.front_end import F_DETECTOR, F_FILTERS, FrontEnd
+from impact_env.control.laws import pd_penetration
+from impact_env.control.laws.estimate import MEMORY as FALLBACK_MEMORY
+from impact_env.control.laws.estimate import SensorReads
 from impact_env.control.observation import OBS_LIMIT
-from impact_env.control.policy import CompiledPolicy, estimator_vector
+from impact_env.control.policy import CompiledPolicy
 from impact_env.effects import detector as contact_detector
 from impact_env.effects.filters import tpt_sections
 from impact_env.rig import safety as rig_safety
@@ -88,7 +89,7 @@ def _memory(pol) -> int:
     """The floats of memory a policy's classic law, or the filter before its network, keeps (at
     least 1: C has no empty array)."""
     if pol.estimator is not None:
-        return FILTER_MEMORY
+        return behind_filter.TAIL
     return max(laws.BY_NAME[pol.law["name"]].memory, 1)
 
 
@@ -785,34 +786,60 @@ static impact_real {fn}(const float *obs, impact_real *mem)
             inputs, before, after, mem_use, mem_type = "", "", "", "\n    (void)mem;", "impact_real"
         else:
             lay = self.pol.layout
-            k = estimator_vector(self.pol.estimator)
-            slots = [lay.names.index(r) for r in estimate.READS]
+            k = behind_filter.estimator_vector(self.pol.estimator)
+            sl = {r: (lay.names.index(r) if r in lay.names else -1) for r in SensorReads._fields}
+            fallback_k = k[behind_filter.FALLBACK:]
+            fallback_defs = "\n".join(f"static const impact_real EST_FALLBACK_{_ident(n)} = {_r(v)};"
+                                       for n, v in zip(behind_filter.FALLBACK_NAMES, fallback_k, strict=True))
             inputs = (f"""
 
-/* the filter before the network (impact_env.control.estimation.features): its constants (the
- * EKF's, then the reference length m, the reference speed m/s and the nominal m1 kg), and the
- * observation's entries it reads (accelerometer, force, potentiometer) with their scales */
-static const impact_real EST_K[{len(k)}] = {{
-""" + "\n".join(f"    {_r(v)},  /* [{i}] */" for i, v in enumerate(k)) + f"""
+/* the filter before the network (impact_env.control.behind_filter): its constants (the EKF's, then
+ * the reference length m, the reference speed m/s and the nominal m1 kg, then nis_gate), and the
+ * constants of pd-penetration, which drives once the filter shows its model wrong */
+static const impact_real EST_K[{behind_filter.FALLBACK}] = {{
+""" + "\n".join(f"    {_r(v)},  /* [{i}] */" for i, v in enumerate(k[:behind_filter.FALLBACK])) + f"""
 }};
-static const int EST_SLOTS[3] = {{{', '.join(map(str, slots))}}};
-static const impact_real EST_SCALES[3] = {{{', '.join(_r(lay.scales[j]) for j in slots)}}};""")
+{fallback_defs}
+static const impact_real EST_SCALES[IMPACT_FRAME_SIZE] = {_arr(lay.scales)};
+/* the memory: the fallback's, its flag and count of ticks, then the filter's */
+#define EST_FALLBACK_ON {FALLBACK_MEMORY}
+#define EST_FALLBACK_TICKS {FALLBACK_MEMORY + 1}
+#define EST_FILTER {FALLBACK_MEMORY + 2}""")
             before = f"""
-    /* the filter's measurement half on this frame; its estimate, scaled, after the observation */
-    impact_real frame[3];
-    for (int c = 0; c < 3; c++) frame[c] = (impact_real)obs[EST_SLOTS[c]] * EST_SCALES[c];
-    ekf_measure(EST_K, mem, frame);
-    x[IMPACT_OBS_SIZE + 0] = mem[EKF_M_X + EKF_X1] / EST_K[{estimate.REFS}];
-    x[IMPACT_OBS_SIZE + 1] = mem[EKF_M_X + EKF_V1] / EST_K[{estimate.REFS + 1}];
-    x[IMPACT_OBS_SIZE + 2] = mem[EKF_M_X + EKF_X2] / EST_K[{estimate.REFS}];
-    x[IMPACT_OBS_SIZE + 3] = mem[EKF_M_X + EKF_V2] / EST_K[{estimate.REFS + 1}];
-    x[IMPACT_OBS_SIZE + 4] = mem[EKF_M_X + EKF_IM1] * EST_K[{estimate.REFS + 2}] - 1.0;"""
+    /* the frame in SI; the filter's measurement half on it */
+    impact_real v[IMPACT_FRAME_SIZE], frame[3];
+    impact_real *filter_mem = mem + EST_FILTER;
+    for (int j = 0; j < IMPACT_FRAME_SIZE; j++) v[j] = (impact_real)obs[j] * EST_SCALES[j];
+    frame[0] = v[{sl["accelerometer"]}];
+    frame[1] = v[{sl["force"]}];
+    frame[2] = v[{sl["potentiometer"]}];
+    ekf_measure(EST_K, filter_mem, frame);
+    x[IMPACT_OBS_SIZE + 0] = filter_mem[EKF_M_X + EKF_X1] / EST_K[{estimate.REFS}];
+    x[IMPACT_OBS_SIZE + 1] = filter_mem[EKF_M_X + EKF_V1] / EST_K[{estimate.REFS + 1}];
+    x[IMPACT_OBS_SIZE + 2] = filter_mem[EKF_M_X + EKF_X2] / EST_K[{estimate.REFS}];
+    x[IMPACT_OBS_SIZE + 3] = filter_mem[EKF_M_X + EKF_V2] / EST_K[{estimate.REFS + 1}];
+    x[IMPACT_OBS_SIZE + 4] = filter_mem[EKF_M_X + EKF_IM1] * EST_K[{estimate.REFS + 2}] - 1.0;
+    /* the fallback law runs every tick, so that it takes over with its differences warm */
+    impact_real f_fallback;
+    {{
+        impact_real f;{pd_penetration.c_body("EST_FALLBACK", sl).replace(chr(10) + "    ", chr(10) + "        ")}
+        f_fallback = f;
+    }}
+    if (filter_mem[EKF_M_LOST_COUNT] > 0.0 || filter_mem[EKF_M_NIS_LAST] > EST_K[{behind_filter.GATE}])
+        mem[EST_FALLBACK_ON] = 1.0;
+    impact_real u;
+    if (mem[EST_FALLBACK_ON] > 0.0) {{
+        mem[EST_FALLBACK_TICKS] += 1.0;
+        u = f_fallback / COMMAND_SCALE_N;
+        u = u < -1.0 ? -1.0 : (u > 1.0 ? 1.0 : u);
+    }} else {{"""
             after = """
+    }
     /* the filter's prediction with the command's force */
-    ekf_tick(EST_K, mem, frame, u * COMMAND_SCALE_N);
+    ekf_tick(EST_K, filter_mem, frame, u * COMMAND_SCALE_N);
     return u;"""
             mem_use, mem_type = "", "impact_real"
-            out = out.replace("return ", "impact_real u = ", 1)
+            out = out.replace("return ", "u = ", 1)
         return f"""/* ---- the policy: an MLP actor (impact_env.control.mlp), each output summed b + W[o][0] x0 + ... in
  * input order, as the numba kernel does; output {what} ---- */
 
