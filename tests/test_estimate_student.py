@@ -138,6 +138,10 @@ def test_what_a_filter_before_the_network_cannot_do_is_refused():
                _network(scene)[1]]
     with pytest.raises(ConfigError, match="the filter's 5 estimates"):
         CompiledPolicy.from_mlp("x", without, "clip", -1.0, 1.0, scene, "sensors", 1, estimator=True)
+    from impact_env.policy.export import write_onnx
+
+    with pytest.raises(ConfigError, match="Kalman filter before its network"):
+        write_onnx(_policy(scene), "never.onnx")
 
 
 @pytest.mark.slow

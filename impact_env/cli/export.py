@@ -50,6 +50,9 @@ def cmd_export(args) -> int:
     pol = export_policy(args.spec, scene)
     if args.onnx and pol.mlp is None:
         raise ConfigError(f"--onnx: {args.spec!r} is a classic law; only MLP policies are exported to ONNX")
+    if args.onnx and pol.estimator is not None:
+        raise ConfigError(f"--onnx: {args.spec!r} runs a Kalman filter before its network, which ONNX would "
+                          "leave out; use the policy file (--out) or the C export (--c)")
     mlp: dict = pol.mlp or {}
     what = f"law {pol.law['name']}" if pol.law is not None else \
         f"MLP {' x '.join(str(len(ly['bias'])) for ly in mlp['layers'])} ({mlp['output']})"

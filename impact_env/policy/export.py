@@ -5,7 +5,7 @@
   (the law's ``compiled()``).
 * A saved stable-baselines3 model (``ppo:PATH.zip``, ``sac:PATH.zip``, ...) becomes an MLP: the
   actor's ``Linear`` layers and activations, read from the torch modules, and the output
-  transform SB3's ``predict(deterministic=True)`` applies (:func:`sb3_layers` says which).
+  transform SB3's ``predict(deterministic=True)`` applies (:func:`impact_env.policy.sb3.sb3_layers` says which).
   No ``VecNormalize`` is involved: the env's observations are already of order one, and
   ``agents.train`` does not normalise.
 * ``compiled:FILE`` is loaded and written again.
@@ -26,6 +26,7 @@ from impact_env.config import ConfigError
 from impact_env.control.observation import OBS_LIMIT
 from impact_env.control.policy import CompiledPolicy
 from impact_env.policy.registry import is_model_spec, make_policy
+from impact_env.policy.sb3 import path_stem, sb3_layers
 from impact_env.scene import load_scene
 
 
@@ -48,69 +49,6 @@ def export_policy(spec: str, scene) -> CompiledPolicy:
     return policy.compiled()
 
 
-def sb3_layers(model) -> tuple[list[dict], str]:
-    """(layers, output transform) of an SB3 model's deterministic actor."""
-    import torch.nn as nn
-
-    pol = model.policy
-    if hasattr(pol, "mlp_extractor") and hasattr(pol, "action_net"):  # PPO, A2C
-        if type(pol.features_extractor).__name__ != "FlattenExtractor":
-            raise ConfigError("only the default FlattenExtractor can be exported")
-        modules = list(pol.mlp_extractor.policy_net) + [pol.action_net]
-        output = "squash" if pol.squash_output else "clip"
-    elif hasattr(pol, "actor") and hasattr(pol.actor, "latent_pi"):  # SAC
-        modules = list(pol.actor.latent_pi) + _flat(pol.actor.mu)
-        output = "squash"
-    elif hasattr(pol, "actor") and hasattr(pol.actor, "mu"):  # TD3, DDPG: mu ends in a Tanh
-        modules = _flat(pol.actor.mu)
-        if not isinstance(modules[-1], nn.Tanh):
-            raise ConfigError("the TD3/DDPG actor should end in a Tanh")
-        modules = modules[:-1]
-        output = "squash"  # that tanh, then unscaled
-    else:
-        raise ConfigError(f"cannot read the actor of {type(model).__name__}'s policy {type(pol).__name__}")
-    layers: list[dict] = []
-    for m in modules:
-        if isinstance(m, nn.Linear):
-            layers.append({"weight": m.weight.detach().cpu().double().numpy(),
-                           "bias": (m.bias.detach().cpu().double().numpy() if m.bias is not None
-                                    else np.zeros(m.out_features)),
-                           "activation": "identity", "params": [0.0, 0.0]})
-            continue
-        if not layers:
-            raise ConfigError(f"the actor starts with {type(m).__name__}, not a Linear layer")
-        act, params = _activation(m)
-        if layers[-1]["activation"] != "identity":
-            raise ConfigError(f"two activations in a row in the actor ({type(m).__name__})")
-        layers[-1]["activation"], layers[-1]["params"] = act, params
-    return layers, output
-
-
-def _flat(module):
-    import torch.nn as nn
-
-    return list(module) if isinstance(module, nn.Sequential) else [module]
-
-
-def _activation(m) -> tuple[str, list[float]]:
-    import torch.nn as nn
-
-    if isinstance(m, nn.Tanh):
-        return "tanh", [0.0, 0.0]
-    if isinstance(m, nn.ReLU):
-        return "relu", [0.0, 0.0]
-    if isinstance(m, nn.Hardtanh):
-        return "hardtanh", [float(m.min_val), float(m.max_val)]
-    if isinstance(m, nn.LeakyReLU):
-        return "leaky_relu", [float(m.negative_slope), 0.0]
-    if isinstance(m, nn.ELU):
-        return "elu", [float(m.alpha), 0.0]
-    if isinstance(m, nn.Identity):
-        return "identity", [0.0, 0.0]
-    raise ConfigError(f"activation {type(m).__name__} cannot be exported (supported: Tanh, ReLU, Hardtanh, "
-                      "LeakyReLU, ELU)")
-
-
 def export_sb3(policy, scene, spec: str = "") -> CompiledPolicy:
     """A loaded :class:`~impact_env.policy.sb3.ModelPolicy` as a compiled MLP, with the hold and
     the residual law it was trained with (its ``model.json``)."""
@@ -120,12 +58,10 @@ def export_sb3(policy, scene, spec: str = "") -> CompiledPolicy:
         raise ConfigError(f"the model's action space {space} is not the shaker's one command")
     layers, output = sb3_layers(model)
     low, high = float(space.low[0]), float(space.high[0])
-    name = Path(spec.split(":")[-1]).stem if spec else "mlp"
     source = {"spec": spec, "algo": type(model).__name__.lower()}
     residual = None if policy.residual is None else export_policy(policy.residual, scene)
-    return CompiledPolicy.from_mlp(name, layers, output, low, high, scene, policy.observation, policy.history,
-                                   hold_ticks=policy.hold_ticks, residual=residual, source=source,
-                                   estimator=getattr(policy, "estimator", False))
+    return CompiledPolicy.from_mlp(path_stem(spec), layers, output, low, high, scene, policy.observation,
+                                   policy.history, hold_ticks=policy.hold_ticks, residual=residual, source=source)
 
 
 def onnx_metadata(pol: CompiledPolicy) -> dict[str, str]:
@@ -164,13 +100,17 @@ def onnx_metadata(pol: CompiledPolicy) -> dict[str, str]:
 def write_onnx(pol: CompiledPolicy, path) -> Path:
     """The compiled MLP ``pol`` as an ONNX model: input ``obs`` float32[N, obs size], output
     ``action`` float32[N, 1] (the command in [-1, 1])."""
-    import onnx
-    from onnx import TensorProto, helper, numpy_helper
-
     if pol.mlp is None:
         law = typing.cast(dict, pol.law)
         raise ConfigError(f"policy {pol.name!r} is a classic law ({law['name']}): only MLP policies are "
                           "exported to ONNX (a law keeps memory between calls)")
+    if pol.estimator is not None:
+        raise ConfigError(f"policy {pol.name!r} runs a Kalman filter before its network: ONNX would hold the "
+                          "network alone, whose last inputs are the filter's estimate (the filter keeps memory "
+                          "between calls); deploy it with the compiled policy file or the C export")
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
     nodes, inits = [], []
     x = "obs"
     for j, ly in enumerate(pol.mlp["layers"]):

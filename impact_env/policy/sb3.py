@@ -23,9 +23,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from impact_env.config import ConfigError
-from impact_env.control.policy import CompiledPolicy
 from impact_env.control.observation import OBSERVATIONS, make_layout
+from impact_env.control.policy import CompiledPolicy
 from impact_env.scene import load_scene
 
 ALGOS = ("ppo", "sac", "td3", "a2c", "ddpg")
@@ -171,10 +173,91 @@ def load_model_policy(spec: str, scene) -> ModelPolicy | CompiledPolicy:
     policy = ModelPolicy(model, st["observation"], st["history"], spec, hold_ticks=int(st["hold_ticks"]),
                          residual=st["residual"], estimator=bool(estimator))
     if estimator:
-        from impact_env.policy.export import export_sb3
-
-        return export_sb3(policy, scene, spec=spec)
+        return compiled_behind_filter(policy, scene, spec)
     return policy
+
+
+def compiled_behind_filter(policy: ModelPolicy, scene, spec: str) -> CompiledPolicy:
+    """A model trained behind the scene's filter as its compiled policy, the filter inside
+    (as :func:`impact_env.policy.export.export_sb3` exports any model; such a model has no
+    residual law and acts every control period)."""
+    model = policy.model
+    space = model.action_space
+    if space.shape != (1,):
+        raise ConfigError(f"the model's action space {space} is not the shaker's one command")
+    layers, output = sb3_layers(model)
+    return CompiledPolicy.from_mlp(path_stem(spec), layers, output, float(space.low[0]), float(space.high[0]),
+                                   scene, policy.observation, policy.history, hold_ticks=policy.hold_ticks,
+                                   source={"spec": spec, "algo": type(model).__name__.lower()}, estimator=True)
+
+
+def path_stem(spec: str) -> str:
+    """The name a compiled model takes: its file's stem."""
+    return Path(spec.split(":")[-1]).stem if spec else "mlp"
+
+
+def sb3_layers(model) -> tuple[list[dict], str]:
+    """(layers, output transform) of an SB3 model's deterministic actor."""
+    import torch.nn as nn
+
+    pol = model.policy
+    if hasattr(pol, "mlp_extractor") and hasattr(pol, "action_net"):  # PPO, A2C
+        if type(pol.features_extractor).__name__ != "FlattenExtractor":
+            raise ConfigError("only the default FlattenExtractor can be exported")
+        modules = list(pol.mlp_extractor.policy_net) + [pol.action_net]
+        output = "squash" if pol.squash_output else "clip"
+    elif hasattr(pol, "actor") and hasattr(pol.actor, "latent_pi"):  # SAC
+        modules = list(pol.actor.latent_pi) + _flat(pol.actor.mu)
+        output = "squash"
+    elif hasattr(pol, "actor") and hasattr(pol.actor, "mu"):  # TD3, DDPG: mu ends in a Tanh
+        modules = _flat(pol.actor.mu)
+        if not isinstance(modules[-1], nn.Tanh):
+            raise ConfigError("the TD3/DDPG actor should end in a Tanh")
+        modules = modules[:-1]
+        output = "squash"  # that tanh, then unscaled
+    else:
+        raise ConfigError(f"cannot read the actor of {type(model).__name__}'s policy {type(pol).__name__}")
+    layers: list[dict] = []
+    for m in modules:
+        if isinstance(m, nn.Linear):
+            layers.append({"weight": m.weight.detach().cpu().double().numpy(),
+                           "bias": (m.bias.detach().cpu().double().numpy() if m.bias is not None
+                                    else np.zeros(m.out_features)),
+                           "activation": "identity", "params": [0.0, 0.0]})
+            continue
+        if not layers:
+            raise ConfigError(f"the actor starts with {type(m).__name__}, not a Linear layer")
+        act, params = _activation(m)
+        if layers[-1]["activation"] != "identity":
+            raise ConfigError(f"two activations in a row in the actor ({type(m).__name__})")
+        layers[-1]["activation"], layers[-1]["params"] = act, params
+    return layers, output
+
+
+def _flat(module):
+    import torch.nn as nn
+
+    return list(module) if isinstance(module, nn.Sequential) else [module]
+
+
+def _activation(m) -> tuple[str, list[float]]:
+    import torch.nn as nn
+
+    if isinstance(m, nn.Tanh):
+        return "tanh", [0.0, 0.0]
+    if isinstance(m, nn.ReLU):
+        return "relu", [0.0, 0.0]
+    if isinstance(m, nn.Hardtanh):
+        return "hardtanh", [float(m.min_val), float(m.max_val)]
+    if isinstance(m, nn.LeakyReLU):
+        return "leaky_relu", [float(m.negative_slope), 0.0]
+    if isinstance(m, nn.ELU):
+        return "elu", [float(m.alpha), 0.0]
+    if isinstance(m, nn.Identity):
+        return "identity", [0.0, 0.0]
+    raise ConfigError(f"activation {type(m).__name__} cannot be exported (supported: Tanh, ReLU, Hardtanh, "
+                      "LeakyReLU, ELU)")
+
 
 
 def _size(scene, observation, history) -> int | None:
