@@ -95,14 +95,17 @@ def test_off_its_model_the_filter_hands_over_to_pd_penetration():
     rig = load_scene("rig")
     pol = _policy(rig)
     pd = export_policy("pd-penetration", rig)
-    for scene_name, hands_over in (("rig-randomized", True), ("rig", False)):
+    # (the random network drives wildly: on rig its filter is consistent for the first 40 ms, the
+    # fall, the touch and the first contact; on rig-randomized the last of these drops hands over
+    # at 51 ms)
+    for scene_name, hands_over, steps in (("rig-randomized", True, 600), ("rig", False, STEPS)):
         env = ImpactCatchVectorEnv(N_ENVS, scene_name, None, autoreset_mode=AutoresetMode.DISABLED,
                                    observation="sensors", history=1, terminate_on_catch=False)
         obs, _ = env.reset(seed=1000)
         memory, pd_memory = pol.new_memory(N_ENVS), pd.new_memory(N_ENVS)
         flag = memory.shape[1] - FILTER_MEMORY - 2
         since = np.zeros(N_ENVS)
-        for _ in range(STEPS):
+        for _ in range(steps):
             a, memory = pol.predict(obs, state=memory)
             b, pd_memory = pd.predict(obs, state=pd_memory)
             on = memory[:, flag] > 0.0

@@ -825,7 +825,7 @@ static const impact_real EST_SCALES[IMPACT_FRAME_SIZE] = {_arr(lay.scales)};
         impact_real f;{pd_penetration.c_body("EST_FALLBACK", sl).replace(chr(10) + "    ", chr(10) + "        ")}
         f_fallback = f;
     }}
-    if (filter_mem[EKF_M_LOST_COUNT] > 0.0 || filter_mem[EKF_M_NIS_LAST] > EST_K[{behind_filter.GATE}])
+    if (filter_mem[EKF_M_NIS_LAST] > EST_K[{behind_filter.GATE}])
         mem[EST_FALLBACK_ON] = 1.0;
     impact_real u;
     if (mem[EST_FALLBACK_ON] > 0.0) {{
