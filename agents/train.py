@@ -604,8 +604,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "--algo defaults to ppo and --out to the first free runs/quick[-N]; at the end "
                         "the run says whether it beats pd-penetration on the validation drops")
     p.add_argument("--teacher", default=None, metavar="law:NAME",
-                   help="with --quick: no RL, a sensor student imitating this compiled classic law by DAgger "
-                        "(agents.distill; e.g. law:mpc-state), with the budget QUICK_DAGGER")
+                   help="with --quick: no RL, a student on its sensor frame and the scene's Kalman filter's "
+                        "estimate, imitating this compiled classic law by DAgger on rig (agents.distill; e.g. "
+                        "law:mpc-state), with the budget QUICK_DAGGER")
     p.add_argument("--conf-file", default=None, metavar="YML",
                    help="RL-Zoo-style hyperparameters (default agents/hyperparams/ALGO.yml)")
     p.add_argument("--env", default=ENV_ID, help=f"entry of the YAML file (default {ENV_ID})")
@@ -762,7 +763,8 @@ def _missing_extra() -> list[str]:
 
 
 def quick_dagger(args) -> int:
-    """``--quick --teacher law:NAME``: a sensor student distilled from the law by DAgger
+    """``--quick --teacher law:NAME``: a student on its sensor frame and the filter's estimate,
+    distilled from the law by DAgger on :data:`QUICK_SCENE` (unless ``--scene``)
     (:func:`agents.distill.distill` with :data:`QUICK_DAGGER`) into ``--out`` or the first free
     ``runs/quick[-N]``; its last line names the model to evaluate and the command that does."""
     from agents import law_teacher
