@@ -160,3 +160,27 @@ class LossyProxy:
         self.up.close()
         for s in self._listeners.values():
             s.close()
+
+
+
+def udp_receive_queue(port: int) -> int | None:
+    """Bytes waiting in the receive queue of the UDP socket bound to local ``port``, from Linux's
+    ``/proc/net/udp``; None where there is no such file or socket."""
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            lines = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            if int(fields[1].rsplit(":", 1)[1], 16) == port:
+                return int(fields[4].split(":")[1], 16)
+    return None
+
+
+def wait_read(port: int, timeout_s: float = 10.0) -> None:
+    """Wait until the target has read every datagram waiting for it on ``port`` (its socket's
+    receive queue is empty), so that a count it prints when stopped holds them all."""
+    deadline = time.monotonic() + timeout_s
+    while (udp_receive_queue(port) or 0) > 0 and time.monotonic() < deadline:
+        time.sleep(0.01)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rig_helpers import start_target, stop
+from rig_helpers import start_target, stop, wait_read
 
 from impact_env.rig import safety
 from impact_env.rig.auth import write_key
@@ -224,12 +224,16 @@ def test_a_stranger_without_the_key_changes_nothing(tmp_path):
     finally:
         stop_file.write_text("")
         out, _ = stranger.communicate(timeout=30)
+        wait_read(int(port))  # what the target has not read yet, read before it stops
         assert stop(proc) == 0
     sent = int(re.search(r"sent (\d+)", out).group(1))
     counts = _since_start(proc.stdout.read())
     assert sent > 1000
-    # every stranger's datagram was counted, by its reason (and none was anything but unauthenticated)
-    assert counts["dropped_unauthenticated"] == sent
+    # every stranger's datagram was counted, by its reason (and none was anything but
+    # unauthenticated), except those the kernel dropped before the target could read them (a full
+    # receive buffer while a loaded machine kept the target from its socket), which it counts too
+    kernel = counts.get("dropped_kernel", 0)  # (the target prints only the counters above 0)
+    assert counts["dropped_unauthenticated"] <= sent <= counts["dropped_unauthenticated"] + kernel
     assert counts["datagrams_received"] == counts["datagrams_accepted"] + sum(
         v for k, v in counts.items() if k.startswith("dropped_"))
 
