@@ -182,12 +182,15 @@ def test_a_host_whose_commands_all_come_late_is_alive_not_lost():
     target, th = _serve()
     c = RigClient(target.address)
     try:
-        # 0.4 s episode, 0.2 s link timeout; no first-command allowance within the episode: under
-        # load even the first datagram can miss step 0 (0.4 ms), and a host that never commanded in
-        # time ends FIRST_COMMAND_TIMEOUT, which is not what this test is about (CI saw it)
-        c.arm("host", 1, 4000, hold_ticks=4, link_timeout_ms=200, first_command_timeout_ticks=8000)
+        # a 2 s episode, twice the 1 s link timeout: were late datagrams not heard, the link would
+        # be lost halfway.  The timeout is far above the host's 20 ms cadence, so that a loaded
+        # machine starving this host's thread (the suite beside a CPU-bound process) does not cut
+        # it off; no first-command allowance within the episode: under load even the first
+        # datagram can miss step 0 (0.4 ms), and a host that never commanded in time ends
+        # FIRST_COMMAND_TIMEOUT, which is not what this test is about (CI saw it)
+        c.arm("host", 1, 20000, hold_ticks=4, link_timeout_ms=1000, first_command_timeout_ticks=40000)
         t0 = time.monotonic()
-        while target.last_end is None and time.monotonic() - t0 < 10.0:
+        while target.last_end is None and time.monotonic() - t0 < 30.0:
             c.command(0, 0.1)  # step 0's command, over and over: late from 0.4 ms on
             time.sleep(0.02)
         assert target.last_end is not None and target.last_end.reason == 1  # HORIZON, not LINK_LOST (6)
