@@ -69,18 +69,10 @@ def between_markers(readme: str, body: str) -> str:
     return pattern.sub(lambda _m: f"{START}\n{body}\n{END}", readme, count=1)
 
 
-def host_cpu() -> str:
-    """The CPU name numba compiles for (LLVM's, e.g. ``znver4``): a closed loop with thresholds
-    can switch by a bounce on the last bits of another CPU's code (README says which row)."""
-    import llvmlite.binding as llvm
-
-    return str(llvm.get_host_cpu_name())
-
-
-def render(command: list[str], printed: str, cpu: str) -> str:
+def render(command: list[str], printed: str) -> str:
     cmd = " ".join(shlex.quote(w) for w in ["impact-env", *command])
-    return (f"`{cmd}` prints (written by `python scripts/readme_table.py`, which runs it; on a CPU "
-            f"that LLVM calls `{cpu}`):\n\n```\n{printed}\n```")
+    return (f"`{cmd}` prints (written by `python scripts/readme_table.py`, which runs it; a row whose "
+            f"command saturates can differ in its last digits on another CPU):\n\n```\n{printed}\n```")
 
 
 def table_of(readme: str) -> str:
@@ -97,8 +89,8 @@ def main(argv=None) -> int:
     command = main_command(readme)
     with tempfile.TemporaryDirectory() as tmp:
         printed = run(command, Path(tmp))
-        new = between_markers(readme, render(command, printed, host_cpu()))
-        if args.check:  # the table only: the CPU named beside it may be another one's
+        new = between_markers(readme, render(command, printed))
+        if args.check:  # the table only
             if table_of(new) != table_of(readme):
                 print("README.md's table differs from what its command prints", file=sys.stderr)
                 return 1
