@@ -96,14 +96,19 @@ def run_tick(quick: bool) -> dict:
     return json.loads((OUT / "tick.json").read_text())
 
 
+def _table_head(intro: str, columns: list[str]) -> list[str]:
+    """A generated table's opening: its sentence, a blank line, the header row and the rule."""
+    return [intro, "", "| " + " | ".join(columns) + " |", "|" + " --- |" * len(columns)]
+
+
 def render(compare: dict | None, tick: dict | None) -> str:
     lines = []
     if compare is not None:
-        lines += [f"`{compare['command']}` ({compare['episodes']} drops; energy integral: mean and its 95 % "
-                  "bootstrap interval over the drops; ratio: the mean over the oracle's mean):", "",
-                  "| policy | energy integral, ms [95 % CI] | ratio to the oracle | caught "
-                  "| catch, median s |",
-                  "| --- | --- | --- | --- | --- |"]
+        lines += _table_head(f"`{compare['command']}` ({compare['episodes']} drops; energy integral: mean "
+                             "and its 95 % bootstrap interval over the drops; ratio: the mean over the "
+                             "oracle's mean):",
+                             ["policy", "energy integral, ms [95 % CI]", "ratio to the oracle", "caught",
+                              "catch, median s"])
         for name, r in compare["policies"].items():
             ci = r["energy_integral_ms_ci95"]
             ci_text = f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else ""
@@ -129,12 +134,11 @@ def render_robustness(record: dict) -> str:
     from impact_env.eval.paired import paired_difference
 
     drops = ", ".join(f"{name} {st['drops']}" for name, st in record["sets"].items())
-    lines = [f"`{record['meta']['command']}` ({drops} "
-             "drops; x oracle: the set's mean energy integral over the oracle's; paired: `mpc` minus "
-             "`pd-penetration` per drop, mean and its 95 % paired bootstrap interval):", "",
-             "| set | `mpc`, x oracle | `pd-penetration`, x oracle | `mpc` - `pd-penetration`, paired, ms "
-             "[95 % CI] | `mpc` better |",
-             "| --- | --- | --- | --- | --- |"]
+    lines = _table_head(f"`{record['meta']['command']}` ({drops} drops; x oracle: the set's mean energy "
+                        "integral over the oracle's; paired: `mpc` minus `pd-penetration` per drop, mean and "
+                        "its 95 % paired bootstrap interval):",
+                        ["set", "`mpc`, x oracle", "`pd-penetration`, x oracle",
+                         "`mpc` - `pd-penetration`, paired, ms [95 % CI]", "`mpc` better"])
     for name, st in record["sets"].items():
         pols = st["policies"]
         best = pols["oracle"]["summary"]["energy_integral_ms"]

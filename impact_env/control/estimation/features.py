@@ -82,4 +82,4 @@ def features_batch(k, mem, frames, out):
 def applied_batch(k, mem, frames, forces):
     """:func:`applied` for every row (``forces`` float64[N], N)."""
     for i in range(frames.shape[0]):
-        ekf_tick(k, mem[i], frames[i], forces[i])
+        applied(k, mem[i], frames[i], forces[i])
