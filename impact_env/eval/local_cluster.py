@@ -66,12 +66,16 @@ def local_cluster(workers: int = 2, threads: int = 1, lifetime_s: float = 600.0)
             sched = start(["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
                            "--scheduler-file", str(sched_file)], logs[0])
             deadline = time.monotonic() + START_TIMEOUT_S
-            while not sched_file.exists():
+            address = None
+            while address is None:  # the file appears before the scheduler has written it whole
                 if sched.poll() is not None or time.monotonic() > deadline:
                     raise RuntimeError("the Dask scheduler did not start:\n"
                                        + _tail(Path(tmp) / "scheduler.log"))
                 time.sleep(0.1)
-            address = json.loads(sched_file.read_text())["address"]
+                try:
+                    address = json.loads(sched_file.read_text())["address"]
+                except (OSError, ValueError, KeyError):  # absent, empty or half written: wait
+                    address = None
             logs.append(open(Path(tmp) / "workers.log", "w"))  # noqa: SIM115
             start(["worker", address, "--nworkers", str(workers), "--nthreads", str(threads),
                    "--host", "127.0.0.1", "--no-dashboard", "--death-timeout", "60",
