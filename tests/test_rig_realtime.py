@@ -206,11 +206,13 @@ def test_a_host_whose_commands_all_come_late_is_alive_not_lost():
 RATE_HZ, DELAY_S, STEPS = 10.0, 0.01, 10  # a 10 Hz target; the host answers 10 ms after each observation
 
 
-def _own_step_share(wait_ms: float) -> tuple[int, int, dict]:
+def _own_step_share(wait_ms: float) -> tuple[int, int, int, dict]:
     """A 10 Hz target (``rig serve --command-wait WAIT_MS``, its own process) and this process as
     its host at hold 1 for 10 steps, answering each OBSERVATION DELAY_S after it came (a delayed
     host: its round trip is the delay, not this machine's speed): (commands acting in their own
-    step, commands sent, the episode's counters)."""
+    step, commands sent, steps this host missed, the episode's counters).  A host thread starved
+    by the machine's load past a whole period reads a later OBSERVATION than its last one's next
+    (``info["step"]``), or the episode's end: the steps between had no command from it."""
     proc, addr = start_target("--scene", "rig", *slow_rate_args(RATE_HZ), "--command-wait", str(wait_ms))
     # the target's loop spins on the last CPU (impact_env.rig.placement); a host on the same machine
     # keeps off it (as docs/rig/loop.md says: taskset), or the two share a core in scheduler slices of ms
@@ -219,14 +221,17 @@ def _own_step_share(wait_ms: float) -> tuple[int, int, dict]:
     env = RigEnv(addr, hold_ticks=1, horizon=STEPS / RATE_HZ, terminate_on_catch=False, timeout_s=0.5,
                  retries=25, spin_s=0.0, first_command_timeout_s=1.0, link_timeout_s=10.0)
     try:
-        env.reset(seed=4)
-        sent = 0
+        _o, info = env.reset(seed=4)
+        answered = []  # the steps whose OBSERVATION this host answered with a COMMAND
         while True:
             time.sleep(DELAY_S)
-            _o, _r, te, tr, _info = env.step(np.array([0.05], np.float32))
-            sent += 1
+            answered.append(int(info["step"]))
+            _o, _r, te, tr, info = env.step(np.array([0.05], np.float32))
             if te or tr:
                 break
+        assert info["end_reason"] == "HORIZON", info  # not the link, nor a fault
+        assert answered == sorted(set(answered)) and answered[-1] < STEPS, answered
+        sent, missed = len(answered), STEPS - len(answered)
         log = _episode_log(env)
     finally:
         env.close()
@@ -235,7 +240,7 @@ def _own_step_share(wait_ms: float) -> tuple[int, int, dict]:
     tick = log["tick"].astype(np.int64)[:-1]
     cstep = log["command_step"].astype(np.int64)[:-1]
     own = np.unique(cstep[(cstep >= 0) & (tick == cstep)]).size  # hold 1: a step is its tick
-    return own, sent, log.meta.counters
+    return own, sent, missed, log.meta.counters
 
 
 @pytest.mark.skipif(len(getattr(__import__("os"), "sched_getaffinity", lambda _: [0])(0)) < 2,
@@ -246,10 +251,13 @@ def test_a_tick_waits_for_its_steps_command_within_the_command_wait():
     has acted by then and the command is late (the fault, shown); with a wait of 90 ms (of the
     100 ms period) the tick waits for it and the command acts in its own step.  The margins (a
     command 10 ms into a 90 ms wait; one that cannot come before its observation) are the
-    delay's, not this machine's speed: a stall of 80 ms would be needed to move one."""
-    own, sent, c = _own_step_share(90.0)
-    assert sent == STEPS and c["commands_accepted"] + c["commands_late"] >= sent - 1  # each one accounted for
-    assert own >= sent - 1, (own, sent, c)  # the last step's command may find the episode over
-    own0, sent0, c0 = _own_step_share(0.0)
+    delay's, not this machine's speed: a stall of 80 ms would be needed to move one.  A host
+    stalled past a whole period by the machine's load misses that step (counted, and each such
+    stall may make the next command late too); the test needs most steps answered."""
+    own, sent, missed, c = _own_step_share(90.0)
+    assert sent >= STEPS // 2, (sent, missed)  # enough commands to show the wait
+    assert c["commands_accepted"] + c["commands_late"] >= sent - 1  # each one accounted for
+    assert own >= sent - 1 - missed, (own, sent, missed, c)  # the last step's command may find the episode over
+    own0, sent0, _missed0, c0 = _own_step_share(0.0)
     assert c0["commands_late"] >= sent0 - 1, c0  # they came, one step late
     assert own0 == 0, (own0, sent0, c0)
