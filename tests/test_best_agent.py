@@ -1,4 +1,5 @@
-"""The shipped agents (agents/models/best: PPO on the sensors; agents/models/sac: SAC's actor as a
+"""The shipped agents (agents/models/best: PPO on the sensors; agents/models/candidate: its
+stronger-teacher successor; agents/models/sac: SAC's actor as a
 plain sensor model, whose squashed output is bounded to +-0.25 by its action space): each one's
 compiled policy file and ONNX graph are its SB3 model, and it joins ``impact-env compare`` as a
 model spec and as a compiled policy, with its history, hold and residual law.
@@ -21,7 +22,8 @@ from impact_env.policy.registry import make_policy
 from impact_env.scene import load_scene
 
 MODELS = Path(__file__).resolve().parents[1] / "agents" / "models"
-AGENTS = [(MODELS / "best", "best"), (MODELS / "sac", "sac")]  # (folder, file stem)
+# (folder, file stem); the candidate: docs/agents-stronger-teacher.md
+AGENTS = [(MODELS / "best", "best"), (MODELS / "sac", "sac"), (MODELS / "candidate", "best")]
 
 
 def _agent(folder: Path, stem: str):
