@@ -167,7 +167,13 @@ def test_the_cached_oracle_is_the_oracle_searched_again(tmp_path, scene, warm_ke
     assert runs["oracle"].summary["score"] == 100.0 and runs["passive"].summary["score"] == 0.0
 
 
-def test_the_cache_key_follows_the_scene_horizon_and_budget(tmp_path, scene):
+def test_the_cache_key_follows_the_scene_horizon_budget_and_warm_start_laws(tmp_path, scene, monkeypatch):
+    """A law added to the classic laws (whose commands join every cached search), or a law's
+    default changed, moves the key: a search made without it could be beaten by it."""
+    import dataclasses
+
+    from impact_env.control import laws
+
     rig = scene("rig")
     a = OracleCache.of(rig, H, root=tmp_path).folder
     assert OracleCache.of(rig, H, root=tmp_path).folder == a
@@ -176,6 +182,17 @@ def test_the_cache_key_follows_the_scene_horizon_and_budget(tmp_path, scene):
     assert OracleCache.of(rig.with_overrides({"plant.m1": 0.11}), H, root=tmp_path).folder != a
     with pytest.raises(ConfigError, match="warm"):
         OracleCache.of(rig, H, {"warm": "given"}, root=tmp_path)
+    registry = list(laws.REGISTRY)
+    assert set(OracleCache.of(rig, H, root=tmp_path).what["warm_start_laws"]) == {law.name for law in registry}
+    monkeypatch.setattr(laws, "REGISTRY", registry[:-1])  # a registry without its last law
+    assert OracleCache.of(rig, H, root=tmp_path).folder != a
+    pd = next(law for law in registry if law.name == "pd-penetration")
+    kp = dataclasses.replace(pd.params["kp"], default=2 * pd.params["kp"].default)
+    monkeypatch.setattr(laws, "REGISTRY", [dataclasses.replace(law, params={**law.params, "kp": kp})
+                                           if law is pd else law for law in registry])
+    assert OracleCache.of(rig, H, root=tmp_path).folder != a
+    monkeypatch.setattr(laws, "REGISTRY", registry)
+    assert OracleCache.of(rig, H, root=tmp_path).folder == a
 
 
 # -- limits ----------------------------------------------------------------------------------------------

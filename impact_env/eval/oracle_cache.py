@@ -10,7 +10,9 @@ reproduces the bodies' motion bitwise), and the metrics of the oracle's row are 
 the code that runs the replay.
 
 Where: ``<root>/oracle/<scene name>-<key>/<seed>.npz``, ``key`` a hash of the scene (every
-field), the horizon, the oracle's budget and the package version; ``root`` is ``--oracle-cache
+field), the horizon, the oracle's budget, the classic laws whose commands join its search with
+their default parameters (a law added, or a default changed, searches again: a cached search
+without it could be beaten by it), and the package version; ``root`` is ``--oracle-cache
 DIR``, else ``$IMPACT_ENV_CACHE``, else ``$XDG_CACHE_HOME/impact_env`` (``~/.cache/impact_env``).
 Each folder holds ``meta.json`` (what the key hashes, in words).  Deleting a folder is always
 safe: its drops are searched again when asked.  The cache never lives in the repository (the
@@ -79,9 +81,11 @@ class OracleCache:
 
     @property
     def what(self) -> dict:
-        """What the key hashes: the scene, the horizon, the budget and the package version."""
+        """What the key hashes: the scene, the horizon, the budget, the warm-start laws and the
+        package version."""
         return {"scene": self.scene.to_dict(), "horizon_s": self.horizon,
-                "budget": _budget_params(dict(self.params)), "version": __version__}
+                "budget": _budget_params(dict(self.params)), "warm_start_laws": _warm_start_laws(),
+                "version": __version__}
 
     @property
     def folder(self) -> Path:
@@ -132,6 +136,17 @@ class OracleCache:
         for seed, (commands, stats) in zip(todo, outs, strict=True):
             self.store(seed, commands, stats)
         return len(todo)
+
+
+def _warm_start_laws() -> dict[str, dict[str, str]]:
+    """Every classic law whose commands join a cached search (its own bases and
+    :func:`law_warm_starts`'), with its default parameters (a default taken from the scene is
+    named so: the scene is in the key already)."""
+    from impact_env.control import laws
+
+    return {law.name: {name: "from the scene" if p.from_scene is not None else repr(p.default)
+                       for name, p in law.params.items()}
+            for law in laws.REGISTRY}
 
 
 def law_warm_starts(scene: Scene, seed: int, horizon: float) -> dict[str, np.ndarray]:
