@@ -41,6 +41,7 @@ import argparse
 import dataclasses
 import json
 import math
+import shlex
 import shutil
 import sys
 import time
@@ -781,8 +782,8 @@ def main(argv=None) -> int:
                         f"max |diff| {c['max_same']:.3g}, over the bound on {len(c['failed'])} of "
                         f"{c['drops']} drops")
                 print(f"== {info['label']}: float32 C build {what}", flush=True)
-        command = " ".join(a for a in (sys.argv[1:] if argv is None else list(argv))
-                           if a not in ("--no-ship", "--reuse"))
+        command = shlex.join(a for a in (sys.argv[1:] if argv is None else list(argv))
+                             if a not in ("--no-ship", "--reuse"))  # quoted: --readme '' stays a word
         settings = {"results": str(results), "command": command, "episodes": args.episodes, "seed": args.seed,
                     "scenes": args.scenes.split(","), "oracle": args.oracle, "resamples": args.resamples,
                     "boot_seed": args.boot_seed}
