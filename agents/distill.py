@@ -161,7 +161,7 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
             scene: str | None = None, env_kwargs: dict | None = None, train_horizon: float | None = None,
             fit_samples: int | None = None, eval_every: int = 1, student_observation: str = "sensors",
             teacher_noise: float = 0.0, per_tick: bool = False, ignore: tuple[str, ...] = (),
-            mixing: float = 0.5,
+            mixing: float = 0.5, label: str | None = None,
             log=sys.stderr) -> dict:
     """Distil ``teacher`` into a student in ``out``; returns the student's ``model.json`` content.
 
@@ -176,7 +176,11 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     ``"estimate"`` (the sensors, then the scene's extended Kalman filter's estimate from them:
     :mod:`agents.estimate_input`; the model is saved with ``"estimator": "ekf"`` and runs with
     its filter wherever it runs) or ``"both"`` (the sensors and the true state: how much the
-    information limits the student)."""
+    information limits the student).  ``label``: the student's name in reports (``model.json``;
+    default derived from the teacher, history and seed)."""
+    from agents.run_facts import check_label
+
+    check_label(label)  # before any work
     import torch
     from gymnasium.vector import AutoresetMode
     from stable_baselines3 import PPO
@@ -437,16 +441,16 @@ def distill(teacher, out, *, history: int = 4, iterations: int = 50, envs: int =
     observation_out = "sensors" if estimating else student_observation
     env_kwargs_out = {**kw, "observation": observation_out, "history": history}
     if is_law:
-        label = (f"dagger-{law_teacher.parse_teacher(teacher)[0]}-h{history}{'pc' if past_commands else ''}"
+        derived = (f"dagger-{law_teacher.parse_teacher(teacher)[0]}-h{history}{'pc' if past_commands else ''}"
                  f"{'-priv' if student_observation == 'both' else ''}{'-est' if estimating else ''}-s{seed}")
         source = {"teacher": teacher, "teacher_observation": "the law's own entries of the true frame",
                   "method": "DAgger, beta = 0.5 ** iteration, labels: the law's command every control period"}
     else:
-        label = f"distill-h{history}{'pc' if past_commands else ''}-s{seed}"
+        derived = f"distill-h{history}{'pc' if past_commands else ''}-s{seed}"
         source = {"teacher": str(teacher), "teacher_observation": "privileged",
                   "method": "DAgger, beta = 0.5 ** iteration"}
     source["note"] = "the critic is not trained (the student only acts)"
-    meta = {"algo": "ppo", "label": label, "observation": observation_out, "history": history,
+    meta = {"algo": "ppo", "label": label or derived, "observation": observation_out, "history": history,
             "estimator": "ekf" if estimating else None,
             "scene": scene_name, "overrides": meta_t.get("overrides") or {}, "env_kwargs": env_kwargs_out,
             "hold_ticks": hold, "residual": kw.get("residual"), "steps": steps, "ticks": steps * hold,
@@ -504,6 +508,9 @@ def main(argv=None) -> int:
                    help="instead of --epochs passes, fit on N samples drawn from all the data after each "
                         "iteration")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--label", default=None, metavar="NAME",
+                   help="the student's name in reports (model.json; default derived from the teacher, "
+                        "history and seed, e.g. distill-h4pc-s0)")
     p.add_argument("--eval-episodes", type=int, default=16)
     p.add_argument("--eval-every", type=int, default=1, metavar="K",
                    help="validate every K iterations and after the last (default 1)")
@@ -545,7 +552,8 @@ def main(argv=None) -> int:
                        env_kwargs=_pairs(a.env_kwargs, "--env-kwargs") or None, train_horizon=a.train_horizon,
                        fit_samples=a.fit_samples, eval_every=a.eval_every,
                        student_observation=a.student_observation, teacher_noise=a.teacher_noise,
-                       per_tick=a.per_tick, mixing=a.mixing, ignore=tuple(a.ignore))
+                       per_tick=a.per_tick, mixing=a.mixing, ignore=tuple(a.ignore),
+                       label=a.label)
     except ConfigError as exc:
         print(f"agents.distill: {exc}", file=sys.stderr)
         return 2

@@ -13,6 +13,20 @@ TEST_SEED = 1000  # the README's held-out drops (compare --seed 1000)
 TEST_EPISODES = 100
 
 
+LABEL_MAX = 64  # characters of a run's label
+
+
+def check_label(label: str | None) -> None:
+    """A run's ``--label``, its name in reports (``model.json``'s ``label``; agents_report keys its
+    per-drop results by it as ``LABEL|METRIC``): 1 to LABEL_MAX characters, no white space, ``|``
+    or path separators.  ConfigError before any work."""
+    if label is None:
+        return
+    if not (0 < len(label) <= LABEL_MAX) or any(c.isspace() or c in "|/\\" for c in label):
+        raise ConfigError(f"--label {label!r}: a run's name in reports, 1 to {LABEL_MAX} characters "
+                          "without spaces, '|', '/' or '\\'")
+
+
 def _load_average() -> float | None:
     """The 1-minute load average (None where the OS has none): wall times on a shared machine are
     read with it."""

@@ -180,8 +180,12 @@ class Tooling:
     eval_every: int | None = 100_000  # policy steps; None: no evaluation callback
     eval_episodes: int = 16
     eval_seed: int = EVAL_SEED
+    label: str | None = None  # the run's name in reports (model.json); None: ALGO[-priv]-sSEED there
 
     def check(self, cfg: RunConfig, resumes: int = 0) -> None:
+        from agents.run_facts import check_label
+
+        check_label(self.label)
         for name, v, lo in (("checkpoint_every", self.checkpoint_every, 1),
                             ("keep_checkpoints", self.keep_checkpoints, 1),
                             ("eval_every", self.eval_every, 1), ("eval_episodes", self.eval_episodes, 1),
@@ -204,7 +208,7 @@ class Tooling:
     def to_dict(self) -> dict:
         return {"tensorboard": self.tensorboard, "checkpoint_every": self.checkpoint_every,
                 "keep_checkpoints": self.keep_checkpoints, "eval_every": self.eval_every,
-                "eval_episodes": self.eval_episodes, "eval_seed": self.eval_seed}
+                "eval_episodes": self.eval_episodes, "eval_seed": self.eval_seed, "label": self.label}
 
 
 # -- building -----------------------------------------------------------------------------------
@@ -428,7 +432,8 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
     if history:
         at_best = [h for h in history if h["step"] == best.get("step")]
         best["wall_s"] = at_best[-1]["wall_s"] if at_best else None
-    meta = {"algo": cfg.algo, "observation": cfg.observation, "history": cfg.history, "scene": cfg.scene,
+    meta = {"algo": cfg.algo, **({"label": tooling.label} if tooling.label else {}),
+            "observation": cfg.observation, "history": cfg.history, "scene": cfg.scene,
             "overrides": dict(cfg.overrides), "env_kwargs": dict(cfg.env_kwargs),
             "hold_ticks": cfg.hold_ticks, "residual": cfg.residual, "steps": done_steps, "ticks": ticks_total,
             "envs": cfg.n_envs, "seed": cfg.seed, "wall_time_s": round(wall_total, 2),
@@ -617,6 +622,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--envs", type=int, default=None, help="rigs stepped together (default: n_envs)")
     p.add_argument("--seed", type=int, default=0, help="model seed; env i starts from seed + i (default 0)")
     p.add_argument("--out", metavar="DIR", help="run folder (required unless --resume)")
+    p.add_argument("--label", default=None, metavar="NAME",
+                   help="the run's name in reports (model.json; default ALGO[-priv]-sSEED)")
     p.add_argument("--policy", default=None,
                    help="MlpPolicy, or with --observation both the asymmetric actor-critic: "
                         "agents.policies.AsymmetricActorCriticPolicy (ppo) or "
@@ -658,7 +665,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 SETTING_FLAGS = ("algo", "policy", "conf_file", "scene", "set", "envs", "observation", "history", "horizon",
-                 "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out", "action_limit")
+                 "env_kwargs", "hp", "tensorboard", "checkpoint_every", "out", "action_limit", "label")
 
 
 def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
@@ -708,7 +715,7 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
     tooling = Tooling(tensorboard=args.tensorboard, checkpoint_every=args.checkpoint_every or None,
                       keep_checkpoints=args.keep_checkpoints or None,
                       eval_every=args.eval_every or None, eval_episodes=args.eval_episodes,
-                      eval_seed=args.eval_seed)
+                      eval_seed=args.eval_seed, label=args.label)
     return cfg, Path(args.out), tooling, False
 
 

@@ -26,9 +26,10 @@ def test_ppo_trains_saves_and_joins_the_comparison(tmp_path):
     out = tmp_path / "ppo"
     result = train("ppo", "rig", steps=256, envs=4, seed=3, out=out, observation="sensors", history=2,
                    env_kwargs={"horizon": HORIZON}, hyperparameters=TINY_PPO, conf_file=PLAIN,
-                   tooling=Tooling(eval_every=None))
+                   tooling=Tooling(eval_every=None, label="ppo-tiny"))
     assert result.steps >= 256 and result.episodes >= 4  # 4 envs x 64+ steps of 50-step episodes
     meta = json.loads((out / "model.json").read_text())
+    assert meta["label"] == "ppo-tiny"  # --label: the run's name in reports
     assert (meta["algo"], meta["observation"], meta["history"], meta["scene"], meta["seed"]) == \
         ("ppo", "sensors", 2, "rig", 3)
     assert meta["steps"] == result.steps == meta["ticks"] and meta["wall_time_s"] > 0
@@ -114,6 +115,8 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     (["--eval-seed", "5"], ["validation seeds 5..20"]),
     (["--action-limit", "1.5"], ["vec_env_wrapper limit", "<= 1"]),
     (["--action-limit", "0"], ["vec_env_wrapper limit", "> 0"]),
+    (["--label", "ppo s0"], ["--label 'ppo s0'", "without spaces"]),
+    (["--label", "a|b"], ["--label 'a|b'", "'|'"]),
 ])
 def test_bad_arguments_exit_2_naming_the_value_and_create_nothing(tmp_path, capsys, argv, names):
     out, tb = tmp_path / "out", tmp_path / "tb"
@@ -420,3 +423,9 @@ def test_distill_a_privileged_teacher_into_a_sensor_student_with_history(tmp_pat
                                runs[compiled].metrics["energy_integral_ms"], rtol=1e-3)
     with pytest.raises(ConfigError, match="privileged"):
         distill(outs[0] / "best_model.zip", tmp_path / "bad", history=2, iterations=1, envs=2)
+    named = distill(teacher / "model.zip", tmp_path / "named", history=2, iterations=1, envs=2, epochs=1,
+                    eval_episodes=1, label="student-x")
+    assert named["label"] == "student-x"
+    with pytest.raises(ConfigError, match="--label 'a b'"):
+        distill(teacher / "model.zip", tmp_path / "bad_label", history=2, iterations=1, envs=2, label="a b")
+    assert not (tmp_path / "bad_label").exists()
