@@ -292,8 +292,8 @@ def _what(m: dict) -> str:
 
 def training_table(infos: list[dict]) -> str:
     rows = ["| run | actor reads, hold, envs | policy steps | wall s (CPU s) | steps/s | env share | first "
-            "beats pd-penetration on validation: step, s | best validation (step, s) | load |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+            "beats pd-penetration on validation: step, s | best validation (step, s) |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for i in infos:
         m = i["meta"]
         first = m.get("first_beats_law")
@@ -303,7 +303,7 @@ def training_table(infos: list[dict]) -> str:
         cpu = f" ({m['cpu_time_s']:.0f})" if m.get("cpu_time_s") is not None else ""
         rows.append(f"| {i['label']} | {_what(m)} | {m['steps']:,} | {m['wall_time_s']:.0f}{cpu} | "
                     f"{m['steps'] / m['wall_time_s']:.0f} | {share} | {beats} | "
-                    f"{i['val_best']:.2f} ({i['val_best_step'] or 0:,}{at}) | {m.get('load') or ''} |")
+                    f"{i['val_best']:.2f} ({i['val_best_step'] or 0:,}{at}) |")
     return "\n".join(rows)
 
 
@@ -449,8 +449,8 @@ def report_text(infos, all_stats, shipped, settings, walls, data=None, best=None
     lines += ["### Training runs", "", training_table(infos), "",
               "Wall times are each run's own (`model.json`: the training, evaluations excluded, until the "
               "evaluation that first beat `pd-penetration`'s validation return and until the best one; "
-              "the env share is the time inside the vector env's reset and step), on the machine and at "
-              "the load (1-minute load average at the run's start and end) it ran at.", "",
+              "the env share is the time inside the vector env's reset and step); the record "
+              "(`report.json`) keeps the machine's state each ran in.", "",
               (f"Best validation return among the sensor runs: **{shipped}** (shipped)."
                if best in (None, shipped) else
                f"Best validation return among the sensor runs: **{best}**, not shipped: its float32 C "
@@ -514,8 +514,8 @@ def diag_table(folder: Path) -> str:
     """The diagnostic runs (``RESULTS/diag26/NAME.json``, kept by its ``collect.py``): what each
     changed (its options) and what it reached on the validation drops, how fast."""
     rows = ["| run | options | validation return: first, best (step, training s), last | first beats "
-            "pd-penetration: step, s | steps/s | env share | load |",
-            "| --- | --- | --- | --- | --- | --- | --- |"]
+            "pd-penetration: step, s | steps/s | env share |",
+            "| --- | --- | --- | --- | --- | --- |"]
     for path in sorted(folder.glob("*.json"), key=lambda q: (json.loads(q.read_text())["algo"], q.stem)):
         r = json.loads(path.read_text())
         val = r.get("validation") or {}
@@ -525,13 +525,11 @@ def diag_table(folder: Path) -> str:
         b = max(hist, key=lambda h: h["return"])
         first = best.get("first_beats_law")
         beats = f"{first['step']:,}, {first['wall_s']:.0f}" if first else "never"
-        la = r.get("load_average") or [None, None]
-        load = f"{la[0]:.1f}-{la[1]:.1f}" if None not in la else ""
         opts = (r.get("options") or "").replace("--checkpoint-every 0 ", "")
         rows.append(f"| {r['name']} | `{opts}` | {hist[0]['return']:.2f}, **{b['return']:.2f}** "
                     f"({b['step']:,}, {b['wall_s']:.0f}), {hist[-1]['return']:.2f} ({hist[-1]['step']:,}) | "
                     f"{beats} | "
-                    f"{r['steps_per_s']:.0f} | {100 * r['env_share']:.0f} % | {load} |")
+                    f"{r['steps_per_s']:.0f} | {100 * r['env_share']:.0f} % |")
     return "\n".join(rows)
 
 
