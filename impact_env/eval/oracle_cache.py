@@ -27,6 +27,7 @@ no half file.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
@@ -87,7 +88,7 @@ class OracleCache:
                 "budget": _budget_params(dict(self.params)), "warm_start_laws": _warm_start_laws(),
                 "version": __version__}
 
-    @property
+    @functools.cached_property  # hashed once per cache, not once per drop's path
     def folder(self) -> Path:
         text = json.dumps(self.what, sort_keys=True, default=str)
         key = hashlib.sha256(text.encode()).hexdigest()[:16]
