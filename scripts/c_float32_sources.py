@@ -2,8 +2,14 @@
 the same build with only the policy's MLP in double (its weights, sums and activations), each
 against the numba double target on the readings of drops ``0 .. N-1`` (the check of
 ``export --c --check``: the largest command difference, in full scale, on ticks where both builds
-take the same discrete decisions).  When the two rows agree, the MLP's own float32 arithmetic is
-not the cause: the observation the float32 front end computes is, amplified by the network's gain.
+take the same discrete decisions, and the first tick past the bound).  When the two rows agree,
+the MLP's own float32 arithmetic is not the cause: the observation the float32 front end
+computes is, amplified by the network's gain.
+
+A policy with the scene's Kalman filter before its network has no float32 build (the export
+refuses it); for one, the rows are the float32 build made anyway (its refusal taken out), the
+same with the filter in double (its functions, constants and memory), and with the filter and
+the MLP in double: only the front end in float32.
 
     python scripts/c_float32_sources.py ppo:agents/models/best/model.zip [--scene rig-randomized] [--drops 10]
 """
@@ -11,6 +17,7 @@ not the cause: the observation the float32 front end computes is, amplified by t
 from __future__ import annotations
 
 import argparse
+import re
 import tempfile
 from pathlib import Path
 
@@ -37,14 +44,50 @@ def mlp_in_double(source: str) -> str:
     return source[:a] + part + source[b:]
 
 
-def worst(pol, scene, c_dir: Path, drops: int) -> list[float]:
+def filter_in_double(source: str) -> str:
+    """The generated C with the filter before the network computed in double: its functions and
+    constants, the frame it reads and its memory (the network, the front end and the fallback law
+    stay in float32)."""
+    a = source.index("/* ---- the filter before the network")
+    b = source.index("/* ---- the policy: an MLP actor", a)
+    part = re.sub(r"\bimpact_real\b", "double", source[a:b])
+    rest = source[b:]
+    for old, new in (("static const impact_real EST_K[", "static const double EST_K["),
+                     ("static const impact_real EST_SCALES[", "static const double EST_SCALES["),
+                     ("static impact_real policy_act(const float *obs, impact_real *mem)",
+                      "static impact_real policy_act(const float *obs, double *mem)"),
+                     ("impact_real v[IMPACT_FRAME_SIZE], frame[3];", "double v[IMPACT_FRAME_SIZE], frame[3];"),
+                     ("impact_real *filter_mem", "double *filter_mem"),
+                     ("v[j] = (impact_real)obs[j] * EST_SCALES[j];", "v[j] = (double)obs[j] * EST_SCALES[j];"),
+                     ("frame, u * COMMAND_SCALE_N);", "frame, (double)u * COMMAND_SCALE_N);")):
+        if old not in rest:
+            raise SystemExit(f"the generated C has changed: {old!r} not found; update filter_in_double")
+        rest = rest.replace(old, new)
+    return source[:a] + part + rest
+
+
+def header_for_filter_in_double(header: str) -> str:
+    """The header without the float32 refusal, the filter's memory in double."""
+    return re.sub(r"impact_real law_mem\[(\d+)\];  /\* the filter's", r"double law_mem[\1];  /* the filter's",
+                  without_refusal(header))
+
+
+def without_refusal(header: str) -> str:
+    return re.sub(r'#ifdef IMPACT_FLOAT32\n#error "[^\n]*"\n#endif\n', "", header)
+
+
+def worst(pol, scene, c_dir: Path, drops: int) -> list[tuple[float, int]]:
+    """Per drop: the largest command difference where the builds decide alike, and the first such
+    tick past the bound (-1: none)."""
     cp = parity.CPolicy(parity.build_shared(c_dir, c_dir / "lib.so", True), True)
     out = []
     for seed in range(drops):
         rec = parity.record(pol, scene, seed, TICKS)
         got = parity.replay(cp, rec)
         same = ~parity.decisions_differ(rec, got, pol.hold_ticks)
-        out.append(float(np.abs(got.command - rec.command)[same].max()))
+        diff = np.where(same, np.abs(got.command - rec.command), 0.0)
+        past = np.nonzero(diff > parity.F32_BOUND)[0]
+        out.append((float(diff.max()), int(past[0]) if past.size else -1))
     return out
 
 
@@ -60,15 +103,25 @@ def main() -> None:
         raise SystemExit(f"{args.policy} has no MLP: nothing to compare")
     print(f"{args.policy} on {args.scene}, drops 0..{args.drops - 1}: the largest command difference "
           f"where the builds decide alike, full scale (bound {parity.F32_BOUND:g})")
-    for name, edit in (("float32 build", None), ("float32 build, MLP in double", mlp_in_double)):
+    if pol.estimator is None:
+        rows = (("float32 build", None, None), ("float32 build, MLP in double", mlp_in_double, None))
+    else:
+        rows = (("float32 build", None, without_refusal),
+                ("float32 build, filter in double", filter_in_double, header_for_filter_in_double),
+                ("float32 build, filter and MLP in double", lambda c: mlp_in_double(filter_in_double(c)),
+                 header_for_filter_in_double))
+    for name, edit, edit_header in rows:
         with tempfile.TemporaryDirectory(prefix="c-f32-") as tmp:
             d = Path(tmp)
             write_c(pol, scene, d, force=True)
-            if edit is not None:
-                src = next(d.glob("*.c"))
-                src.write_text(edit(src.read_text()))
+            for pattern, change in (("*.c", edit), ("*.h", edit_header)):
+                if change is not None:
+                    path = next(d.glob(pattern))
+                    path.write_text(change(path.read_text()))
             w = worst(pol, scene, d, args.drops)
-        print(f"{name:30s} max {max(w):.3g}  per drop " + " ".join(f"{x:.2e}" for x in w))
+        first = [t for _, t in w if t >= 0]
+        print(f"{name:40s} max {max(x for x, _ in w):.3g}, first past the bound at tick "
+              f"{min(first) if first else 'none'}; per drop " + " ".join(f"{x:.2e}" for x, _ in w))
 
 
 if __name__ == "__main__":

@@ -168,6 +168,39 @@ def test_the_c_export_replays_it_bitwise_in_double_and_has_no_float32_build(tmp_
         parity.build_shared(tmp_path / "c", tmp_path / "f32.so", float32=True)
 
 
+def test_the_float32_diagnostic_builds_the_refused_build_with_its_filter_in_double(tmp_path):
+    """scripts/c_float32_sources.py measures why the float32 build is refused by making it anyway:
+    its edits of the generated C compile under -Werror with the refusal taken out, and with all
+    but the front end in double the commands of the fall agree with the double build's within
+    the float32 bound (the edits keep the policy's arithmetic; only the front end's precision
+    moves)."""
+    import importlib.util
+    from pathlib import Path
+
+    from impact_env.deploy import parity
+    from impact_env.deploy.c_export import write_c
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "c_float32_sources.py"
+    spec = importlib.util.spec_from_file_location("c_float32_sources", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    scene = load_scene("rig")
+    pol = _policy(scene)
+    c_dir = tmp_path / "c"
+    write_c(pol, scene, c_dir, force=True)
+    source, header = c_dir / "impact_policy.c", c_dir / "impact_policy.h"
+    source.write_text(script.mlp_in_double(script.filter_in_double(source.read_text())))
+    header.write_text(script.header_for_filter_in_double(header.read_text()))
+    assert "#error" not in header.read_text() and "double law_mem[" in header.read_text()
+    cp = parity.CPolicy(parity.build_shared(c_dir, tmp_path / "f32.so", True), True)
+    rec = parity.record(pol, scene, 0, 2000)
+    got = parity.replay(cp, rec)
+    touch = int(np.argmax(rec.detected > 0))
+    assert touch > 10
+    assert np.max(np.abs(got.command[:touch] - rec.command[:touch])) < parity.F32_BOUND
+    assert np.ptp(rec.command[:touch]) > 1e-3  # the network drives in the fall: there is a command to compare
+
+
 @pytest.mark.training
 def test_a_student_of_the_estimate_is_saved_and_loaded_with_its_filter(tmp_path):
     """A tiny DAgger run with ``student_observation="estimate"``: its settings say so, and
