@@ -56,9 +56,11 @@ def filter_in_double(source: str) -> str:
                      ("static const impact_real EST_SCALES[", "static const double EST_SCALES["),
                      ("static impact_real policy_act(const float *obs, impact_real *mem)",
                       "static impact_real policy_act(const float *obs, double *mem)"),
-                     ("impact_real v[IMPACT_FRAME_SIZE], frame[3];", "double v[IMPACT_FRAME_SIZE], frame[3];"),
+                     ("impact_real v[IMPACT_FRAME_SIZE], frame[3];",
+                      "double v[IMPACT_FRAME_SIZE], frame[3];"),
                      ("impact_real *filter_mem", "double *filter_mem"),
-                     ("v[j] = (impact_real)obs[j] * EST_SCALES[j];", "v[j] = (double)obs[j] * EST_SCALES[j];"),
+                     ("v[j] = (impact_real)obs[j] * EST_SCALES[j];",
+                      "v[j] = (double)obs[j] * EST_SCALES[j];"),
                      ("frame, u * COMMAND_SCALE_N);", "frame, (double)u * COMMAND_SCALE_N);")):
         if old not in rest:
             raise SystemExit(f"the generated C has changed: {old!r} not found; update filter_in_double")
