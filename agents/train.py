@@ -68,7 +68,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from agents.run_config import (
@@ -315,6 +315,7 @@ def run(cfg: RunConfig, out, tooling: Tooling = Tooling(), *, progress: bool = F
         state = {"config": cfg.to_dict(), "tooling": tooling.to_dict(), "segments": []}
     else:
         state["config"]["n_timesteps"] = cfg.n_timesteps
+        state["tooling"]["label"] = tooling.label  # a new name given with --resume, for the next one too
     (out / "run.json").write_text(json.dumps(state, indent=2) + "\n")
 
     raw = _vec_env(cfg, cfg.n_envs)
@@ -673,11 +674,12 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
 
     if args.resume is not None:
         given = [f"--{k.replace('_', '-')}" for k in SETTING_FLAGS if getattr(args, k) not in (None, [])
+                 and k != "label"
                  and not (k == "checkpoint_every" and args.checkpoint_every == CHECKPOINT_EVERY)]
         if given:
             raise ConfigError(f"--resume takes the run's settings from {args.resume}/run.json; drop "
-                              f"{', '.join(given)} (only --steps, --progress, --torch-threads, --verbose go "
-                              "with it)")
+                              f"{', '.join(given)} (only --steps, --label, --progress, --torch-threads, "
+                              "--verbose go with it)")
         out = Path(args.resume)
         if not (out / "run.json").is_file():
             raise ConfigError(f"--resume {args.resume!r}: no run.json there (not a run folder of "
@@ -688,7 +690,12 @@ def _from_args(args) -> tuple[RunConfig, Path, Tooling, bool]:
             if args.steps < 1:
                 raise ConfigError(f"--steps {args.steps} must be >= 1")
             cfg.n_timesteps = args.steps
-        return cfg, out, Tooling(**state["tooling"]), True
+        tooling = Tooling(**state["tooling"])
+        if args.label is not None:
+            # a run continued to a longer budget is another run in reports (a copy of the folder
+            # extended, say): it may take a new name; its settings stay the run's
+            tooling = replace(tooling, label=args.label)
+        return cfg, out, tooling, True
     if args.quick:
         args.algo = args.algo or "ppo"
         args.out = args.out or str(_free_folder(Path("runs") / "quick"))

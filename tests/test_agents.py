@@ -81,9 +81,12 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     # resume from the 128-step checkpoint, as after a crash: the step counter goes on from 128
     (out / "checkpoints" / "model_256_steps.zip").unlink()
     state = json.loads((out / "run.json").read_text())
-    assert main(["--resume", str(out), "--steps", "384"]) == 0
+    # with a new name: a run continued to a longer budget is another run in reports
+    assert main(["--resume", str(out), "--steps", "384", "--label", "ppo-tiny-384"]) == 0
     meta2 = json.loads((out / "model.json").read_text())
     assert meta2["steps"] == 384
+    assert meta2["label"] == json.loads((out / "best_model.json").read_text())["label"] == "ppo-tiny-384"
+    assert json.loads((out / "run.json").read_text())["tooling"]["label"] == "ppo-tiny-384"
     assert meta2["hyperparameters"] == meta["hyperparameters"]
     segs = json.loads((out / "run.json").read_text())["segments"]
     assert len(segs) == 2 and segs[1]["start_step"] == 128 and segs[1]["env_seed"] == 2 + 4
@@ -95,6 +98,10 @@ def test_tensorboard_eval_callback_checkpoints_and_resume(tmp_path, capsys):
     # resuming with other settings is refused
     assert main(["--resume", str(out), "--hp", "gamma=0.9"]) == 2
     assert "--hp" in capsys.readouterr().err
+    # a new name is checked as a new run's is, before any step
+    assert main(["--resume", str(out), "--steps", "512", "--label", "a b"]) == 2
+    assert "without spaces" in capsys.readouterr().err
+    assert json.loads((out / "model.json").read_text())["steps"] == 384
 
 
 @pytest.mark.parametrize("argv, names", [
