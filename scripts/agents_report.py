@@ -56,6 +56,7 @@ from impact_env.eval.paired import PairedDifference, paired_difference  # noqa: 
 from impact_env.figstyle import DPI, FORMATS, output_figure, save_figure  # noqa: E402
 
 BASELINES = ("passive", "thesis-rig", "pd-penetration")
+METRICS = ("energy_integral_ms", "time_to_catch_s", "bounces", "rms_force_N", "peak_force_N")  # kept per drop
 BEGIN, END = "<!-- agents_report:begin -->", "<!-- agents_report:end -->"
 DEFAULT_FIGURE = Path("docs/figures/agents_results.png")
 
@@ -167,14 +168,58 @@ def evaluate_scene(scene_name: str, infos: list[dict], args) -> dict:
     out = {"labels": list(specs), "specs": list(specs.values()), "wall_time_s": wall}
     for label, spec in specs.items():
         r = runs[spec]
-        for key in ("energy_integral_ms", "time_to_catch_s", "bounces", "rms_force_N", "peak_force_N"):
+        for key in METRICS:
             out[f"{label}|{key}"] = np.asarray(r.metrics[key], dtype=np.float64)
         out[f"{label}|failed"] = np.array(len(r.failures))
     if "oracle" in specs:
+        from impact_env.eval.oracle import classic_law_names
+
         st = runs[args.oracle].stats
         out["oracle|source"] = np.asarray(st.get("source", []), dtype=str)
         out["oracle|cpu_seconds"] = np.asarray(st.get("cpu_seconds", []), dtype=np.float64)
+        out["oracle|joined"] = np.asarray(classic_law_names(), dtype=str)  # its final choice saw them all
     return out
+
+
+
+def unseen_laws(d: dict) -> list[str]:
+    """The classic laws a kept oracle row's final choice did not see (none without an oracle row)."""
+    from impact_env.eval.oracle import classic_law_names
+
+    if "oracle" not in d["labels"]:
+        return []
+    seen = {str(x) for x in d.get("oracle|joined", [])} | set(d["labels"])
+    return [name for name in classic_law_names() if name not in seen]
+
+
+def join_classic_laws(d: dict, scene_name: str, episodes: int, seed: int, workers: int) -> list[str]:
+    """Bring a kept oracle row to the oracle of today, whose final choice on each drop includes every
+    classic law's commands (:func:`impact_env.eval.oracle.classic_law_names`): the laws that row's
+    choice did not see (neither in its comparison nor joined before) run on the same drops, and on
+    a drop where one is strictly better it becomes the oracle's sequence there, the first such law
+    in the registry's order on a tie.  That is the choice the oracle makes itself, exactly: its
+    search (its bases) is unchanged, these laws come after every earlier candidate, and a recorded
+    sequence replays its episode bitwise, so the law's own episode is what the choice scores.
+    Returns the laws run; ``d`` is changed in place."""
+    from impact_env.eval.compare import compare
+    from impact_env.eval.oracle import classic_law_names
+    from impact_env.scene import load_scene
+
+    missing = unseen_laws(d)
+    if missing:
+        runs = compare(load_scene(scene_name), missing, episodes=episodes, seed=seed, workers=workers,
+                       progress=False, trace_rate=2000.0)
+        source = np.array([str(x) for x in d["oracle|source"]], dtype=object)
+        for name in missing:
+            law = {key: np.asarray(runs[name].metrics[key], dtype=np.float64) for key in METRICS}
+            energy = np.where(np.isnan(law["energy_integral_ms"]), np.inf, law["energy_integral_ms"])
+            better = energy < d["oracle|energy_integral_ms"]
+            for key in METRICS:
+                d[f"oracle|{key}"] = np.where(better, law[key], d[f"oracle|{key}"])
+            source[better] = name
+        d["oracle|source"] = source.astype(str)
+    d["oracle|joined"] = np.asarray(classic_law_names(), dtype=str)
+    return missing
 
 
 def save(path: Path, data: dict) -> None:
@@ -443,8 +488,11 @@ def report_text(infos, all_stats, shipped, settings, walls, data=None, best=None
               f"(`numpy.random.default_rng({settings['boot_seed']})`), the same resamples for every policy; "
               "paired differences: `scipy.stats.bootstrap(paired=True)` (:mod:`impact_env.eval.paired`), "
               "\"better\" when the whole interval is below 0. "
-              + (f"Oracle: `{oracle}`." if oracle != "none"
-                 else "No oracle in this evaluation (`--oracle none`)."),
+              + (f"Oracle: `{oracle}`; its final choice on each drop includes every classic law's "
+                 "commands, whether or not the table has the law"
+                 + (f" (the laws outside this comparison joined by `python scripts/agents_report.py "
+                    f"{settings['laws_joined_by']}`)." if settings.get("laws_joined_by") else ".")
+                 if oracle != "none" else "No oracle in this evaluation (`--oracle none`)."),
               ""]
     lines += ["### Training runs", "", training_table(infos), "",
               "Wall times are each run's own (`model.json`: the training, evaluations excluded, until the "
@@ -700,6 +748,11 @@ def build(results: Path, doc: Path, figure_path: Path, resamples_override=None,
     all_stats, walls, data = {}, {}, {}
     for scene in settings["scenes"]:
         d = load(results / f"{scene}.npz")
+        unseen = unseen_laws(d)
+        if unseen:
+            raise SystemExit(f"{results / scene}.npz: its oracle's final choice did not see {', '.join(unseen)}; "
+                             "bring it to today's oracle with python scripts/agents_report.py --join-laws "
+                             f"--results {results}")
         walls[scene] = d["wall_time_s"]
         data[scene] = d
         all_stats[scene] = scene_stats(d, args)
@@ -752,7 +805,13 @@ def main(argv=None) -> int:
                    help="with --runs: read the per-drop results already in --results for these runs (the "
                         "same labels) instead of evaluating again; the command recorded is the one "
                         "without it")
+    p.add_argument("--join-laws", action="store_true",
+                   help="without --runs: bring the kept oracle rows in --results to today's oracle, whose "
+                        "final choice includes every classic law (the laws its comparison lacked run on the "
+                        "same drops; no run folders needed), then rebuild")
     args = p.parse_args(argv)
+    if args.join_laws and args.runs:
+        p.error("--join-laws updates kept results; with --runs the oracle run already joins every law")
     try:  # checked before the evaluation, which takes minutes
         args.figure = output_figure(args.figure or DEFAULT_FIGURE.with_suffix(f".{args.format or 'png'}"),
                                     args.format if args.figure else None, "--figure")
@@ -795,6 +854,18 @@ def main(argv=None) -> int:
                 ship(max(sac, key=lambda i: i["val_best"]), Path(args.ship_sac), stem="sac")
     elif not (results / "report.json").is_file():
         p.error(f"no --runs and no {results / 'report.json'} to rebuild from")
+    elif args.join_laws:
+        rep = json.loads((results / "report.json").read_text())
+        settings = rep["settings"]
+        for scene in settings["scenes"]:
+            d = load(results / f"{scene}.npz")
+            if "oracle" not in d["labels"]:
+                p.error(f"--join-laws: {results / scene}.npz has no oracle row")
+            ran = join_classic_laws(d, scene, settings["episodes"], settings["seed"], args.workers)
+            save(results / f"{scene}.npz", d)
+            print(f"== {scene}: the oracle row joined {', '.join(ran) or 'nothing new'}", flush=True)
+        settings["laws_joined_by"] = shlex.join(a for a in (sys.argv[1:] if argv is None else list(argv)))
+        (results / "report.json").write_text(json.dumps(rep, indent=1) + "\n")
     readme = Path(args.readme) if args.readme else None
     if args.readme is None:
         readme = Path(args.doc).resolve().parent.parent / "README.md"

@@ -6,6 +6,8 @@ import importlib.util
 import shutil
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results" / "agents"
 
@@ -79,3 +81,29 @@ def test_only_a_run_within_the_float32_bound_ships():
     assert shipped["c_float32"] is not None and not shipped["c_float32"]["failed"]
     meta = json.loads((ROOT / "agents" / "models" / "best" / "model.json").read_text())
     assert meta["shipped_from"]["label"] == shipped["label"]
+
+
+def test_joining_the_laws_into_a_kept_oracle_row_gives_todays_oracle_bitwise(monkeypatch):
+    """A kept oracle row whose final choice saw only its comparison's laws, brought up to date by
+    ``--join-laws``, is the row today's oracle gives on the same drops: every metric bitwise and
+    the same source per drop; and a kept row that has not been brought up to date is refused."""
+    from impact_env.eval import oracle
+    from impact_env.eval.compare import compare
+
+    mod = _report()
+    spec = "oracle:generations=2,popsize=4,warm=given"  # a weak search: the laws win drops
+    kw = dict(episodes=2, seed=1000, workers=1, progress=False, trace_rate=2000.0)
+    today = compare("rig", ["pd-penetration", spec], **kw)[spec]
+    monkeypatch.setattr(oracle, "classic_law_names", lambda: list(oracle.WARM_POLICIES))  # its choice before
+    before = compare("rig", ["pd-penetration", spec], **kw)[spec]
+    monkeypatch.undo()
+    assert not np.array_equal(before.metrics["energy_integral_ms"], today.metrics["energy_integral_ms"])
+    kept = {"labels": ["pd-penetration", "oracle"], "oracle|source": np.asarray(before.stats["source"], str),
+            **{f"oracle|{key}": np.asarray(before.metrics[key], float) for key in mod.METRICS}}
+    assert set(mod.unseen_laws(kept)) == set(oracle.classic_law_names()) - {"pd-penetration"}
+    mod.join_classic_laws(kept, "rig", 2, 1000, 1)
+    assert mod.unseen_laws(kept) == []
+    for key in mod.METRICS:
+        np.testing.assert_array_equal(kept[f"oracle|{key}"], today.metrics[key], err_msg=key)
+    assert list(kept["oracle|source"]) == list(today.stats["source"])
+    assert set(today.stats["source"]) & {"mpc-state", "mpc"}
