@@ -200,15 +200,26 @@ def join_classic_laws(d: dict, scene_name: str, episodes: int, seed: int, worker
     in the registry's order on a tie.  That is the choice the oracle makes itself, exactly: its
     search (its bases) is unchanged, these laws come after every earlier candidate, and a recorded
     sequence replays its episode bitwise, so the law's own episode is what the choice scores.
-    Returns the laws run; ``d`` is changed in place."""
+    Returns the laws run; ``d`` is changed in place.  ValueError (before anything is changed) when a
+    classic law the row holds no longer scores as kept: the row was made by another simulator or
+    metric, and joining today's laws into it would mix the two."""
     from impact_env.eval.compare import compare
     from impact_env.eval.oracle import classic_law_names
     from impact_env.scene import load_scene
 
     missing = unseen_laws(d)
     if missing:
-        runs = compare(load_scene(scene_name), missing, episodes=episodes, seed=seed, workers=workers,
-                       progress=False, trace_rate=2000.0)
+        # exact only on the simulator and metrics the row was made with: a kept law row must come
+        # out again drop for drop, bitwise
+        check = next(label for label in d["labels"] if label in classic_law_names())
+        runs = compare(load_scene(scene_name), [check, *missing], episodes=episodes, seed=seed,
+                       workers=workers, progress=False, trace_rate=2000.0)
+        again = np.asarray(runs[check].metrics["energy_integral_ms"], dtype=np.float64)
+        if not np.array_equal(again, d[f"{check}|energy_integral_ms"]):
+            worst = float(np.max(np.abs(again - d[f"{check}|energy_integral_ms"])))
+            raise ValueError(f"{scene_name}: {check} on the kept drops differs from the kept row (by up to "
+                             f"{worst:.3g} ms): the results were made by another simulator or metric, so "
+                             "the laws cannot be joined; evaluate the runs again (--runs)")
         source = np.array([str(x) for x in d["oracle|source"]], dtype=object)
         for name in missing:
             law = {key: np.asarray(runs[name].metrics[key], dtype=np.float64) for key in METRICS}
@@ -474,6 +485,25 @@ def write_doc(doc: Path, text: str) -> None:
     doc.write_text(head + BEGIN + "\n" + text.strip() + "\n" + END + tail)
 
 
+def oracle_scope(settings: dict) -> str:
+    """Which classic laws the oracle's final choice saw: every one, or (kept results made before
+    it joined them all) the comparison's only, naming those it lacked."""
+    unseen = sorted({law for laws in settings.get("_unseen", {}).values() for law in laws})
+    if not unseen:
+        return ("its final choice on each drop includes every classic law's commands, whether or not "
+                "the table has the law" + (f" (the laws outside this comparison joined by `python "
+                                           f"scripts/agents_report.py {settings['laws_joined_by']}`)."
+                                           if settings.get("laws_joined_by") else "."))
+    text = ("**an older oracle**: its final choice saw only this comparison's policies, not "
+            + ", ".join(f"`{law}`" for law in unseen) + "'s commands (today's oracle joins every classic "
+            "law), so its ratios are lower than today's oracle would give.")
+    if settings.get("join_refused"):
+        return (text + f"  `--join-laws` cannot bring these kept results up to date: "
+                f"{settings['join_refused']}")
+    return text + (f"  `python scripts/agents_report.py --join-laws --results {settings['results']}` brings "
+                   "them up to date.")
+
+
 def report_text(infos, all_stats, shipped, settings, walls, data=None, best=None) -> str:
     """The results section, from the kept per-drop results alone (``settings``: the evaluation's
     settings and the command that made it, from ``RESULTS/report.json``)."""
@@ -488,11 +518,8 @@ def report_text(infos, all_stats, shipped, settings, walls, data=None, best=None
               f"(`numpy.random.default_rng({settings['boot_seed']})`), the same resamples for every policy; "
               "paired differences: `scipy.stats.bootstrap(paired=True)` (:mod:`impact_env.eval.paired`), "
               "\"better\" when the whole interval is below 0. "
-              + (f"Oracle: `{oracle}`; its final choice on each drop includes every classic law's "
-                 "commands, whether or not the table has the law"
-                 + (f" (the laws outside this comparison joined by `python scripts/agents_report.py "
-                    f"{settings['laws_joined_by']}`)." if settings.get("laws_joined_by") else ".")
-                 if oracle != "none" else "No oracle in this evaluation (`--oracle none`)."),
+              + (f"Oracle: `{oracle}`; " + oracle_scope(settings) if oracle != "none"
+                 else "No oracle in this evaluation (`--oracle none`)."),
               ""]
     lines += ["### Training runs", "", training_table(infos), "",
               "Wall times are each run's own (`model.json`: the training, evaluations excluded, until the "
@@ -703,6 +730,8 @@ def readme_table(all_stats: dict, infos: list[dict], shipped: str, settings: dic
             f"`python scripts/agents_report.py {settings['command']}`); 100 held-out drops per scene "
             f"(seeds {settings['seed']}..{settings['seed'] + settings['episodes'] - 1}), bootstrap 95 % "
             "intervals; the paired comparisons and every run are in docs/agents-results.md.*")
+    if any(settings.get("_unseen", {}).values()):
+        head += "  \n*The oracle of this table is " + oracle_scope(settings).replace("**", "") + "*"
     return head + "\n\n" + "\n".join(rows) + ("\n\n" + "\n".join(extra) if extra else "")
 
 
@@ -748,11 +777,7 @@ def build(results: Path, doc: Path, figure_path: Path, resamples_override=None,
     all_stats, walls, data = {}, {}, {}
     for scene in settings["scenes"]:
         d = load(results / f"{scene}.npz")
-        unseen = unseen_laws(d)
-        if unseen:
-            raise SystemExit(f"{results / scene}.npz: its oracle's final choice did not see {', '.join(unseen)}; "
-                             "bring it to today's oracle with python scripts/agents_report.py --join-laws "
-                             f"--results {results}")
+        settings.setdefault("_unseen", {})[scene] = unseen_laws(d)
         walls[scene] = d["wall_time_s"]
         data[scene] = d
         all_stats[scene] = scene_stats(d, args)
@@ -857,14 +882,24 @@ def main(argv=None) -> int:
     elif args.join_laws:
         rep = json.loads((results / "report.json").read_text())
         settings = rep["settings"]
-        for scene in settings["scenes"]:
-            d = load(results / f"{scene}.npz")
-            if "oracle" not in d["labels"]:
-                p.error(f"--join-laws: {results / scene}.npz has no oracle row")
-            ran = join_classic_laws(d, scene, settings["episodes"], settings["seed"], args.workers)
-            save(results / f"{scene}.npz", d)
-            print(f"== {scene}: the oracle row joined {', '.join(ran) or 'nothing new'}", flush=True)
-        settings["laws_joined_by"] = shlex.join(a for a in (sys.argv[1:] if argv is None else list(argv)))
+        joined = {}
+        try:  # every scene checked before any is written
+            for scene in settings["scenes"]:
+                d = load(results / f"{scene}.npz")
+                if "oracle" not in d["labels"]:
+                    p.error(f"--join-laws: {results / scene}.npz has no oracle row")
+                ran = join_classic_laws(d, scene, settings["episodes"], settings["seed"], args.workers)
+                joined[scene] = d
+                print(f"== {scene}: the oracle row joined {', '.join(ran) or 'nothing new'}", flush=True)
+        except ValueError as exc:
+            # recorded, so that the docs say why these rows keep their older oracle
+            settings["join_refused"] = str(exc)
+            print(f"--join-laws: not joined: {exc}", flush=True)
+        else:
+            for scene, d in joined.items():
+                save(results / f"{scene}.npz", d)
+            settings["laws_joined_by"] = shlex.join(a for a in (sys.argv[1:] if argv is None else list(argv)))
+            settings.pop("join_refused", None)
         (results / "report.json").write_text(json.dumps(rep, indent=1) + "\n")
     readme = Path(args.readme) if args.readme else None
     if args.readme is None:

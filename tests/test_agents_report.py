@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results" / "agents"
@@ -95,12 +96,19 @@ def test_joining_the_laws_into_a_kept_oracle_row_gives_todays_oracle_bitwise(mon
     kw = dict(episodes=2, seed=1000, workers=1, progress=False, trace_rate=2000.0)
     today = compare("rig", ["pd-penetration", spec], **kw)[spec]
     monkeypatch.setattr(oracle, "classic_law_names", lambda: list(oracle.WARM_POLICIES))  # its choice before
-    before = compare("rig", ["pd-penetration", spec], **kw)[spec]
+    runs = compare("rig", ["pd-penetration", spec], **kw)
     monkeypatch.undo()
+    before = runs[spec]
     assert not np.array_equal(before.metrics["energy_integral_ms"], today.metrics["energy_integral_ms"])
     kept = {"labels": ["pd-penetration", "oracle"], "oracle|source": np.asarray(before.stats["source"], str),
-            **{f"oracle|{key}": np.asarray(before.metrics[key], float) for key in mod.METRICS}}
+            **{f"{label}|{key}": np.asarray(runs[s].metrics[key], float) for key in mod.METRICS
+               for label, s in (("pd-penetration", "pd-penetration"), ("oracle", spec))}}
     assert set(mod.unseen_laws(kept)) == set(oracle.classic_law_names()) - {"pd-penetration"}
+    # rows made by another simulator or metric (here: one drop's pd-penetration off by 1e-9 ms) are refused
+    other = {**kept, "pd-penetration|energy_integral_ms": kept["pd-penetration|energy_integral_ms"] + [1e-9, 0.0]}
+    with pytest.raises(ValueError, match="pd-penetration on the kept drops differs"):
+        mod.join_classic_laws(other, "rig", 2, 1000, 1)
+    assert "oracle|joined" not in other and other["oracle|energy_integral_ms"] is kept["oracle|energy_integral_ms"]
     mod.join_classic_laws(kept, "rig", 2, 1000, 1)
     assert mod.unseen_laws(kept) == []
     for key in mod.METRICS:
