@@ -730,8 +730,12 @@ def readme_table(all_stats: dict, infos: list[dict], shipped: str, settings: dic
             f"`python scripts/agents_report.py {settings['command']}`); 100 held-out drops per scene "
             f"(seeds {settings['seed']}..{settings['seed'] + settings['episodes'] - 1}), bootstrap 95 % "
             "intervals; the paired comparisons and every run are in docs/agents-results.md.*")
-    if any(settings.get("_unseen", {}).values()):
-        head += "  \n*The oracle of this table is " + oracle_scope(settings).replace("**", "") + "*"
+    unseen = sorted({law for laws in settings.get("_unseen", {}).values() for law in laws})
+    if unseen:
+        head += ("  \n*This table's oracle saw only its comparison's policies, not "
+                 + ", ".join(f"`{law}`" for law in unseen) + "'s commands, so the ratios to it are lower "
+                 "than to today's oracle (docs/agents-results.md says why these kept results cannot be re-based); the "
+                 "[leaderboard](docs/leaderboard.md) ranks the shipped agents against today's oracle.*")
     return head + "\n\n" + "\n".join(rows) + ("\n\n" + "\n".join(extra) if extra else "")
 
 
