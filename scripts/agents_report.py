@@ -181,7 +181,6 @@ def evaluate_scene(scene_name: str, infos: list[dict], args) -> dict:
     return out
 
 
-
 def unseen_laws(d: dict) -> list[str]:
     """The classic laws a kept oracle row's final choice did not see (none without an oracle row)."""
     from impact_env.eval.oracle import classic_law_names
@@ -485,10 +484,16 @@ def write_doc(doc: Path, text: str) -> None:
     doc.write_text(head + BEGIN + "\n" + text.strip() + "\n" + END + tail)
 
 
+def unseen_in_report(settings: dict) -> list[str]:
+    """The classic laws the oracle of any of the report's scenes did not see (``build`` keeps
+    each scene's :func:`unseen_laws` in ``settings['_unseen']``)."""
+    return sorted({law for laws in settings.get("_unseen", {}).values() for law in laws})
+
+
 def oracle_scope(settings: dict) -> str:
     """Which classic laws the oracle's final choice saw: every one, or (kept results made before
     it joined them all) the comparison's only, naming those it lacked."""
-    unseen = sorted({law for laws in settings.get("_unseen", {}).values() for law in laws})
+    unseen = unseen_in_report(settings)
     if not unseen:
         return ("its final choice on each drop includes every classic law's commands, whether or not "
                 "the table has the law" + (f" (the laws outside this comparison joined by `python "
@@ -730,7 +735,7 @@ def readme_table(all_stats: dict, infos: list[dict], shipped: str, settings: dic
             f"`python scripts/agents_report.py {settings['command']}`); 100 held-out drops per scene "
             f"(seeds {settings['seed']}..{settings['seed'] + settings['episodes'] - 1}), bootstrap 95 % "
             "intervals; the paired comparisons and every run are in docs/agents-results.md.*")
-    unseen = sorted({law for laws in settings.get("_unseen", {}).values() for law in laws})
+    unseen = unseen_in_report(settings)
     if unseen:
         head += ("  \n*This table's oracle saw only its comparison's policies, not "
                  + ", ".join(f"`{law}`" for law in unseen) + "'s commands, so the ratios to it are lower "

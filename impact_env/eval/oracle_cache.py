@@ -151,14 +151,14 @@ def _warm_start_laws() -> dict[str, dict[str, str]]:
 
 
 def law_warm_starts(scene: Scene, seed: int, horizon: float) -> dict[str, np.ndarray]:
-    """The commands of the classic laws the oracle does not roll out itself (``thesis-ideal``),
-    on the drop: given to it as warm starts, they join its final choice, so that no classic law
-    beats the cached oracle on any drop (on ``ideal``, ``thesis-ideal`` is far better than the
-    oracle's own bases)."""
-    from impact_env.eval.oracle import WARM_POLICIES, classic_warm_starts
-    from impact_env.policy.laws import LAW_POLICIES
+    """The commands of the classic laws other than the oracle's own bases, on the drop.  The
+    oracle would roll them out itself (every classic law joins its final choice); given, they come
+    before its bases among the candidates, the order every cached search has had, which decides
+    a tie's source."""
+    from impact_env.eval.oracle import WARM_POLICIES, classic_law_names, classic_warm_starts
 
-    return classic_warm_starts(scene, [seed], horizon, [n for n in LAW_POLICIES if n not in WARM_POLICIES])
+    others = [name for name in classic_law_names() if name not in WARM_POLICIES]
+    return classic_warm_starts(scene, [seed], horizon, others)
 
 
 def _search(task) -> tuple[np.ndarray, dict]:
