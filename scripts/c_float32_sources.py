@@ -8,8 +8,11 @@ computes is, amplified by the network's gain.
 
 A policy with the scene's Kalman filter before its network has no float32 build (the export
 refuses it); for one, the rows are the float32 build made anyway (its refusal taken out), the
-same with the filter in double (its functions, constants and memory), and with the filter and
-the MLP in double: only the front end in float32.
+same with the filter in double (its functions, constants and memory), with the filter and the
+MLP in double (only the front end in float32), and that build with its filter told, each tick,
+the command the double build gave instead of its own: the loop from the command back through the
+filter's prediction cut, so that the row is the front end's readings through the filter and the
+network alone.
 
     python scripts/c_float32_sources.py ppo:agents/models/best/model.zip [--scene rig-randomized] [--drops 10]
 """
@@ -17,6 +20,7 @@ the MLP in double: only the front end in float32.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import re
 import tempfile
 from pathlib import Path
@@ -74,18 +78,66 @@ def header_for_filter_in_double(header: str) -> str:
                   without_refusal(header))
 
 
+TOLD = re.compile(r"ekf_tick\(EST_K, filter_mem, frame, (\(double\))?u \* COMMAND_SCALE_N\);")
+
+
+def told_given_command(source: str) -> str:
+    """The generated C with the filter before the network told the command in the global
+    ``impact_told_command`` (full scale), set by the caller before each tick, instead of its own."""
+    if len(TOLD.findall(source)) != 1:
+        raise SystemExit(f"the generated C has changed: {TOLD.pattern!r} not found once; "
+                         "update told_given_command")
+    a = source.index("/* ---- the policy: an MLP actor")
+    source = source[:a] + "double impact_told_command;\n\n" + source[a:]
+    return TOLD.sub("ekf_tick(EST_K, filter_mem, frame, impact_told_command * COMMAND_SCALE_N);", source)
+
+
+def replay_told(cp: parity.CPolicy, rec: parity.Recording) -> parity.Recording:
+    """:func:`impact_env.deploy.parity.replay` with the filter told the recording's command on
+    each tick (the library built with :func:`told_given_command`)."""
+    told = ctypes.c_double.in_dll(cp.lib, "impact_told_command")
+    cp.init()
+    cp.reset()
+    n = rec.readings.shape[0]
+    out = np.zeros((3, n))
+    det = np.zeros(n, np.int64)
+    for m in range(n):
+        told.value = rec.command[m]
+        out[:, m] = cp.step(rec.readings[m])
+        det[m] = cp.contact()
+    return parity.Recording(rec.readings, out[0], out[1], out[2].astype(np.int64), detected=det)
+
+
+def check_told_is_own(pol, scene, drops: int) -> None:
+    """The double build told the recording's commands is the double build, bit for bit: the
+    command the filter is told is the recorded one (no safety stage moved it on these drops)."""
+    with tempfile.TemporaryDirectory(prefix="c-told-") as tmp:
+        d = Path(tmp)
+        write_c(pol, scene, d, force=True)
+        path = d / "impact_policy.c"
+        path.write_text(told_given_command(path.read_text()))
+        cp = parity.CPolicy(parity.build_shared(d, d / "lib.so", False), False)
+        for seed in range(drops):
+            rec = parity.record(pol, scene, seed, TICKS)
+            got = replay_told(cp, rec)
+            if not np.array_equal(got.command, rec.command):
+                raise SystemExit(f"drop {seed}: the double build told its recorded commands departs from "
+                                 "the target: the told command is not the recorded one")
+
+
 def without_refusal(header: str) -> str:
     return re.sub(r'#ifdef IMPACT_FLOAT32\n#error "[^\n]*"\n#endif\n', "", header)
 
 
-def worst(pol, scene, c_dir: Path, drops: int) -> list[tuple[float, int]]:
+def worst(pol, scene, c_dir: Path, drops: int, told: bool = False) -> list[tuple[float, int]]:
     """Per drop: the largest command difference where the builds decide alike, and the first such
-    tick past the bound (-1: none)."""
+    tick past the bound (-1: none).  ``told``: the build's filter is told the double target's
+    commands (:func:`told_given_command`)."""
     cp = parity.CPolicy(parity.build_shared(c_dir, c_dir / "lib.so", True), True)
     out = []
     for seed in range(drops):
         rec = parity.record(pol, scene, seed, TICKS)
-        got = parity.replay(cp, rec)
+        got = replay_told(cp, rec) if told else parity.replay(cp, rec)
         same = ~parity.decisions_differ(rec, got, pol.hold_ticks)
         diff = np.where(same, np.abs(got.command - rec.command), 0.0)
         past = np.nonzero(diff > parity.F32_BOUND)[0]
@@ -106,13 +158,18 @@ def main() -> None:
     print(f"{args.policy} on {args.scene}, drops 0..{args.drops - 1}: the largest command difference "
           f"where the builds decide alike, full scale (bound {parity.F32_BOUND:g})")
     if pol.estimator is None:
-        rows = (("float32 build", None, None), ("float32 build, MLP in double", mlp_in_double, None))
+        rows = (("float32 build", None, None, False),
+                ("float32 build, MLP in double", mlp_in_double, None, False))
     else:
-        rows = (("float32 build", None, without_refusal),
-                ("float32 build, filter in double", filter_in_double, header_for_filter_in_double),
+        check_told_is_own(pol, scene, args.drops)
+        rows = (("float32 build", None, without_refusal, False),
+                ("float32 build, filter in double", filter_in_double, header_for_filter_in_double, False),
                 ("float32 build, filter and MLP in double", lambda c: mlp_in_double(filter_in_double(c)),
-                 header_for_filter_in_double))
-    for name, edit, edit_header in rows:
+                 header_for_filter_in_double, False),
+                ("  the same, filter told double's commands",
+                 lambda c: told_given_command(mlp_in_double(filter_in_double(c))),
+                 header_for_filter_in_double, True))
+    for name, edit, edit_header, told in rows:
         with tempfile.TemporaryDirectory(prefix="c-f32-") as tmp:
             d = Path(tmp)
             write_c(pol, scene, d, force=True)
@@ -120,7 +177,7 @@ def main() -> None:
                 if change is not None:
                     path = next(d.glob(pattern))
                     path.write_text(change(path.read_text()))
-            w = worst(pol, scene, d, args.drops)
+            w = worst(pol, scene, d, args.drops, told)
         first = [t for _, t in w if t >= 0]
         print(f"{name:40s} max {max(x for x, _ in w):.3g}, first past the bound at tick "
               f"{min(first) if first else 'none'}; per drop " + " ".join(f"{x:.2e}" for x, _ in w))

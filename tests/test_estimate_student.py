@@ -201,6 +201,35 @@ def test_the_float32_diagnostic_builds_the_refused_build_with_its_filter_in_doub
     assert np.ptp(rec.command[:touch]) > 1e-3  # the network drives in the fall: there is a command to compare
 
 
+def test_the_float32_diagnostic_cuts_the_filters_loop_without_changing_the_double_build(tmp_path):
+    """The script's last row tells the filter the double build's commands instead of its own.  That
+    edit, in the double build, replays the target bit for bit (so the told command is the one the
+    target's filter was told), and a build told commands other than its own departs from it (the
+    told command reaches the filter: the edit is not a no-op)."""
+    import importlib.util
+    from pathlib import Path
+
+    from impact_env.deploy import parity
+    from impact_env.deploy.c_export import write_c
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "c_float32_sources.py"
+    spec = importlib.util.spec_from_file_location("c_float32_sources", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    scene = load_scene("rig")
+    pol = _policy(scene)
+    script.check_told_is_own(pol, scene, 1)  # raises SystemExit on any difference
+    c_dir = tmp_path / "c"
+    write_c(pol, scene, c_dir, force=True)
+    source = c_dir / "impact_policy.c"
+    source.write_text(script.told_given_command(source.read_text()))
+    cp = parity.CPolicy(parity.build_shared(c_dir, tmp_path / "told.so", False), False)
+    rec = parity.record(pol, scene, 0, 600)
+    moved = parity.Recording(rec.readings, rec.command + 0.01, rec.force, rec.status, detected=rec.detected)
+    got = script.replay_told(cp, moved)
+    assert not np.array_equal(got.command, rec.command)
+
+
 @pytest.mark.training
 def test_a_student_of_the_estimate_is_saved_and_loaded_with_its_filter(tmp_path):
     """A tiny DAgger run with ``student_observation="estimate"``: its settings say so, and

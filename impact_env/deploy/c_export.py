@@ -101,11 +101,11 @@ def float32_refusal(policy: CompiledPolicy) -> str:
     """Why ``policy``'s C file has no float32 build (a law's ``c_double_only``, naming the law, or
     the filter before a network), or "" when it has one."""
     if policy.estimator is not None:
-        return ("the filter before its network has no float32 build: the student's command swings full "
-                "scale within a few ticks, as its teacher's plan switches, so the float32 front end's "
-                "readings, a few last places from the double build's, move it past the bound in the first "
-                "contact, also with the filter and the network computed in double "
-                "(scripts/c_float32_sources.py)")
+        return ("the filter before its network has no float32 build: the float32 front end's readings, a "
+                "few last places from the double build's, move the filter's estimate in the first contact, "
+                "the network turns that into 1e-3 to 1e-2 of full scale, and the filter, told the command "
+                "the network gave, feeds it back until it is full scale; also with the filter and the "
+                "network computed in double (scripts/c_float32_sources.py)")
     for pol in (policy, policy.residual_policy()):
         if pol is not None and pol.law is not None and laws.BY_NAME[pol.law["name"]].c_double_only:
             return f"{pol.law['name']} has no float32 build: {laws.BY_NAME[pol.law['name']].c_double_only}"
