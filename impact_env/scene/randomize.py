@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from impact_env.config import ConfigError
+from impact_env.config import ConfigError, replace_dotted
 from impact_env.effects.delay import delay_samples
 
 UNIFORM, LOG, SAMPLES = "uniform", "log-uniform", "samples"
@@ -197,6 +197,31 @@ def overrides_for(scene, values: dict[str, float]) -> dict[str, Any]:
         else:
             ov[_FIELDS[name].metadata["target"]] = v
     return ov
+
+
+#: the ranges of the drop itself; every other range is of the hardware
+DROP_FIELDS = ("m1", "drop_height", "impact_speed")
+
+
+def known_hardware(scene):
+    """``scene`` with the hardware it knows exactly: each one-point range (``[v, v]``) of a
+    hardware field (every field but :data:`DROP_FIELDS`) folded into the field it sets, as
+    :func:`overrides_for` sets it; every other range kept.  ``scene`` itself when it has none.
+
+    A calibrated scene file (``impact-env identify``) writes the identified values of the fields a
+    controller also reads (the pad's c, m2, the transducer's top mass, the command scale) as such
+    ranges, so that every policy keeps the observation scales and constants it was made for
+    while the simulated hardware is the identified one.  A law whose model is the plant
+    (``mpc``, ``mpc-state``, the filter before a network) takes its model from this scene: on a
+    calibrated rig, the rig's own numbers."""
+    rz = scene.randomize
+    known = {name: getattr(rz, name)[0] for name in rz.ranged()
+             if name not in DROP_FIELDS and getattr(rz, name)[0] == getattr(rz, name)[1]}
+    if not known:
+        return scene
+    ov = overrides_for(scene, known)
+    ov["randomize"] = {name: list(getattr(rz, name)) for name in rz.ranged() if name not in known}
+    return replace_dotted(scene, ov)
 
 
 def check_scene_ranges(scene) -> None:

@@ -193,7 +193,7 @@ static impact_real ekf_applied_force(const impact_real *k, impact_real *mem, imp
     impact_real u = f_law / cs;
     if (u < -1.0) u = -1.0;
     else if (u > 1.0) u = 1.0;
-    impact_real f = u * cs;
+    impact_real f = u * cs * k[EKF_K_COMMAND_GAIN];
     if (k[EKF_K_SH_ON] > 0.0)
         f = ekf_shaker(k + EKF_K_SH_0, mem + EKF_M_SHAKER, (int)k[EKF_K_SH_N], f, v2,
                        k[EKF_K_BACK_EMF] > 0.0);

@@ -164,16 +164,17 @@ def readings(k, x, f2, hy, hx):
 @jit
 def applied_force(k, mem, f_law, v2):
     """The force (N, up) the scene's hardware applies over this period for the law's demand
-    ``f_law`` (N): the policy's clip to +-command_scale, the shaker (back-EMF from the estimate's
-    v2, m/s) and the amplifier's limit, by the hardware stage's own kernels on a replica of their
-    state in ``mem``."""
+    ``f_law`` (N): the policy's clip to +-command_scale, the amplifier's gain on it
+    (``command_gain``: 1 unless the scene knows its hardware's), the shaker (back-EMF from the
+    estimate's v2, m/s) and the amplifier's limit, by the hardware stage's own kernels on a replica
+    of their state in ``mem``."""
     cs = k[EK.command_scale]
     u = f_law / cs
     if u < -1.0:
         u = -1.0
     elif u > 1.0:
         u = 1.0
-    f = u * cs
+    f = u * cs * k[EK.command_gain]
     if k[EK.sh_on] > 0.0:
         n = int(k[EK.sh_n])
         f = shaker_packed(k[EK.sh_0:EK.sh_0 + SHAKER_BLOCK], mem[M.shaker:M.shaker + 2 * n], f, v2,

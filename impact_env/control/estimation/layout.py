@@ -33,7 +33,7 @@ SHAKER_BLOCK = 1 + MAX_SHAKER * MAX_SHAKER + 3 * MAX_SHAKER  # the shaker's pack
 
 
 def _fields() -> list[str]:
-    f = ["m2", "c", "zeta", "g", "k2", "c2", "top_mass", "dt", "command_scale",
+    f = ["m2", "c", "zeta", "g", "k2", "c2", "top_mass", "dt", "command_scale", "command_gain",
          "sh_on", "sh_n", "back_emf"]
     f += [f"sh_{i}" for i in range(SHAKER_BLOCK)]
     f += ["sat_on", "sat_peak", "sat_rms2", "sat_alpha", "sat_slew"]

@@ -116,7 +116,15 @@ def ekf_constants(scene, settings: dict | None = None) -> dict[str, float]:
     """The EKF's constants (by :class:`~impact_env.control.estimation.layout.EkfConstants`
     name) for ``scene``; ``settings`` override :data:`SETTINGS`.  ConfigError for a scene the
     filter does not model: a measured (FIR) shaker, a filter of more than 4 states, a filter
-    without feedthrough, or a disabled accelerometer, transducer or potentiometer."""
+    without feedthrough, or a disabled accelerometer, transducer or potentiometer.
+
+    The model is the hardware the scene knows (:func:`impact_env.scene.randomize.known_hardware`:
+    a calibrated scene's identified c, m2, top mass and amplifier gain included); the policy's clip
+    is at the scene's own ``effects.command_scale``, which the amplifier's known gain then scales."""
+    from impact_env.scene.randomize import known_hardware
+
+    description = scene
+    scene = known_hardware(scene)
     s = dict(SETTINGS)
     s.update(settings or {})
     k: dict[str, float] = dict.fromkeys(EkfConstants._fields, 0.0)
@@ -124,7 +132,8 @@ def ekf_constants(scene, settings: dict | None = None) -> dict[str, float]:
     rate = float(scene.control_rate)
     k.update(m2=pl.m2, c=pl.c, g=pl.gravity, k2=pl.suspension_stiffness, c2=pl.suspension_damping,
              top_mass=scene.effects.sensors.force.top_mass, dt=1.0 / rate,
-             command_scale=scene.effects.command_scale)
+             command_scale=description.effects.command_scale,
+             command_gain=scene.effects.command_scale / description.effects.command_scale)
     k["zeta"] = 0.0 if pl.restitution >= 1.0 else zeta_for_restitution(pl.restitution)
     eff = scene.effects
     if eff.on("shaker"):

@@ -112,6 +112,7 @@ def force(slots, k, v, mem):
     else:
         x = ekf_mem[EkfMemory.x:EkfMemory.x + 4]
         f = solver.mpc_tick(x[X1], x[V1], x[X2], x[V2], k[:EKF_CONSTANTS_START], mem[:EKF_MEMORY_START])
+        f = f / k[model.K.command_gain]  # the demand that gives the planned force
     ekf_tick(ekf_k, ekf_mem, frame, f)
     return f
 
@@ -151,6 +152,7 @@ def c_body(P: str, sl: dict[str, int]) -> str:
     }} else {{
         const impact_real *x = ekf_mem + EKF_M_X;
         f = mpc_tick(x[EKF_X1], x[EKF_V1], x[EKF_X2], x[EKF_V2], {P}_CONSTANTS, mem);
+        f = f / {P}_CONSTANTS[MPC_K_COMMAND_GAIN];
     }}
     ekf_tick(ekf_k, ekf_mem, frame, f);"""
 

@@ -63,7 +63,16 @@ PARAMS = {
 
 def solver_constants(scene, P: dict) -> dict:
     """The solver's constants (:class:`impact_env.control.mpc.model.Constants`) for ``scene`` and
-    the gains ``P`` (horizon, iterations, line_search, r, w_terminal, w2, substeps, mu, m1)."""
+    the gains ``P`` (horizon, iterations, line_search, r, w_terminal, w2, substeps, mu, m1).
+
+    The model is the hardware the scene knows (:func:`impact_env.scene.randomize.known_hardware`:
+    on a calibrated scene, the identified pad, masses and amplifier gain); the force box is the
+    force that hardware applies at full command, and the law's demand is the planned force over
+    the amplifier's known gain (``command_gain``, 1 unless the scene knows it)."""
+    from impact_env.scene.randomize import known_hardware
+
+    description = scene
+    scene = known_hardware(scene)
     p = scene.plant
     fx = scene.effects
     for key in ("horizon", "iterations", "line_search", "substeps"):
@@ -91,7 +100,8 @@ def solver_constants(scene, P: dict) -> dict:
            "slew": slew, "h": scene.control_period, "substeps": float(P["substeps"]),
            "horizon": float(P["horizon"]), "iterations": float(P["iterations"]),
            "line_search": float(P["line_search"]), "r": float(P["r"]), "w_terminal": float(P["w_terminal"]),
-           "w2": float(P["w2"]), "mu": float(P["mu"]), "dmin": 1e-7, **shaker}
+           "w2": float(P["w2"]), "mu": float(P["mu"]), "dmin": 1e-7, **shaker,
+           "command_gain": float(fx.command_scale) / float(description.effects.command_scale)}
     missing = set(Constants._fields) ^ set(out)
     assert not missing, missing
     if not all(math.isfinite(v) for v in out.values()):
@@ -101,7 +111,8 @@ def solver_constants(scene, P: dict) -> dict:
 
 @jit
 def force(slots, k, v, mem):
-    return solver.mpc_tick(v[slots[RD.x1]], v[slots[RD.v1]], v[slots[RD.x2]], v[slots[RD.v2]], k, mem)
+    f = solver.mpc_tick(v[slots[RD.x1]], v[slots[RD.v1]], v[slots[RD.x2]], v[slots[RD.v2]], k, mem)
+    return f / k[model.K.command_gain]
 
 
 LAW = Law("mpc-state", "privileged", "model-predictive control on the true state: box-constrained iLQR "

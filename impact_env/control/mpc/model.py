@@ -96,6 +96,7 @@ class Constants(NamedTuple):
     c1: float
     cz2: float
     dz: float
+    command_gain: float  # the amplifier's known gain: the law's demand is its planned force over it
 
 
 K = positions(Constants)

@@ -1,0 +1,98 @@
+"""A model-based law on a calibrated scene: its model is the hardware the scene knows.
+
+A calibrated scene file (``impact-env identify``) keeps the fields a controller reads (c, m2,
+the transducer's top mass, the command scale) at the base's values and writes their identified
+values as one-point ``[randomize]`` ranges: the simulated hardware is the identified one.
+:func:`impact_env.scene.randomize.known_hardware` folds those into the fields, and ``mpc``,
+``mpc-state`` and the filter before a network take their model from it.  Without the fold the
+filter's model is the base rig's, its innovations exceed the hand-over gate before the touch, and
+``mpc`` never plans on a rig it has been calibrated for."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from impact_env.control.estimation.layout import EkfMemory
+from impact_env.control.laws import mpc
+from impact_env.control.policy import act_batch
+from impact_env.policy.export import export_policy
+from impact_env.scene import load_scene
+from impact_env.scene.randomize import known_hardware
+from impact_env.sim.simulator import Simulator
+
+SPEC = "mpc:horizon=8"  # the same code as the default horizon, cheaper
+# a rig calibrated far from the base: every controller-read field moved, as identify writes them
+CALIBRATED = {"randomize.c": [2.4e6, 2.4e6], "randomize.m2": [0.85, 0.85], "randomize.top_mass": [0.13, 0.13],
+              "randomize.command_gain": [1.15, 1.15]}
+# the same hardware, not known: ranges a hair wide are not one point, so the model stays the base's
+UNKNOWN = {key: [lo, lo * (1.0 + 1e-9)] for key, (lo, _) in CALIBRATED.items()}
+TICKS = 120  # the touch at tick 10, then the first contact
+N_DROPS = 4
+
+
+def test_known_hardware_folds_one_point_hardware_ranges_only():
+    base = load_scene("rig")
+    assert known_hardware(base) is base  # nothing known beyond the fields: the scene itself
+    assert known_hardware(load_scene("rig-randomized")) is not None
+    wide = load_scene("rig-randomized")
+    assert known_hardware(wide) is wide  # every hardware range there is wide
+    scene = load_scene("rig", {**CALIBRATED, "randomize.m1": [0.1, 0.1]})
+    hw = known_hardware(scene)
+    assert hw.plant.c == 2.4e6 and hw.plant.m2 == 0.85 and hw.effects.sensors.force.top_mass == 0.13
+    assert hw.effects.command_scale == pytest.approx(1.15 * base.effects.command_scale, rel=1e-15)
+    # the drop's own ranges stay ranges, a one-point m1 among them (the filter estimates m1 per drop)
+    assert hw.randomize.ranged() == ("m1", "drop_height")
+    assert hw.randomize.m1 == (0.1, 0.1) and hw.randomize.drop_height == base.randomize.drop_height
+    # the description the controller reads is unchanged
+    assert scene.plant.c == base.plant.c and scene.effects.command_scale == base.effects.command_scale
+
+
+def _nis_and_hand_over(overrides: dict):
+    """mpc on N_DROPS drops of rig with ``overrides``: the largest one-tick NIS before the touch
+    per drop, and whether it handed over."""
+    scene = load_scene("rig", overrides)
+    law = export_policy(SPEC, scene)
+    sim = Simulator(scene, N_DROPS, layout=law.layout)
+    sim.reset([np.random.default_rng(4000 + i) for i in range(N_DROPS)])
+    arrays, params, m = law.arrays()
+    mem = np.zeros((N_DROPS, m))
+    nis = np.zeros((TICKS, N_DROPS))
+    touched = np.full(N_DROPS, TICKS)
+    for t in range(TICKS):
+        u = act_batch(arrays, params, np.ascontiguousarray(sim.obs), mem, np.empty(N_DROPS))
+        nis[t] = mem[:, mpc.EKF_MEMORY_START + EkfMemory.nis_last]
+        d = sim.plant_state[:, 0] - sim.plant_state[:, 2]
+        touched = np.where((touched == TICKS) & (d > 0), t, touched)
+        sim.step(u)
+    before = np.array([nis[:touched[i], i].max() for i in range(N_DROPS)])
+    return before, mem[:, mpc.FALLBACK_ON] > 0
+
+
+def test_on_a_calibrated_rig_the_filter_holds_and_mpc_plans():
+    before, handed_over = _nis_and_hand_over(CALIBRATED)
+    # a consistent 3-channel filter: chi-square 3, whose 1 - 1e-9 quantile is 44
+    assert before.max() < 44.0, before
+    assert not handed_over.any()
+    before_unknown, handed_over_unknown = _nis_and_hand_over(UNKNOWN)
+    # the same hardware with the base rig's model: the gate sees it and hands over
+    assert before_unknown.min() > mpc.PARAMS["nis_gate"].default, before_unknown
+    assert handed_over_unknown.all()
+
+
+@pytest.mark.slow
+def test_the_c_export_of_mpc_on_a_calibrated_rig_replays_bitwise(tmp_path):
+    """The amplifier's known gain reaches the C file (the filter's replica and the demand over the
+    gain): the double build replays the target bit for bit on the calibrated rig."""
+    from impact_env.deploy import parity
+    from impact_env.deploy.c_export import write_c
+
+    scene = load_scene("rig", CALIBRATED)
+    policy = export_policy(SPEC, scene)
+    write_c(policy, scene, tmp_path / "c")
+    cp = parity.CPolicy(parity.build_shared(tmp_path / "c", tmp_path / "lib.so"), False)
+    rec = parity.record(policy, scene, 0, 400)
+    assert rec.memory[mpc.FALLBACK_ON] == 0.0, "it handed over: the plan would not be compared"
+    got = parity.replay(cp, rec)
+    np.testing.assert_array_equal(got.command, rec.command)
+    np.testing.assert_array_equal(got.status, rec.status)
