@@ -6,7 +6,12 @@ values as one-point ``[randomize]`` ranges: the simulated hardware is the identi
 :func:`impact_env.scene.randomize.known_hardware` folds those into the fields, and ``mpc``,
 ``mpc-state`` and the filter before a network take their model from it.  Without the fold the
 filter's model is the base rig's, its innovations exceed the hand-over gate before the touch, and
-``mpc`` never plans on a rig it has been calibrated for."""
+``mpc`` never plans on a rig it has been calibrated for.
+
+The identified delays (``effects.delay``, whole control periods) are the other half: ``mpc``'s
+filter then runs that many periods behind, told the demands that act over its period, and the
+plan starts from its estimate moved on to the tick the new demand acts
+(:func:`impact_env.control.estimation.ekf.ekf_ahead`)."""
 
 from __future__ import annotations
 
@@ -27,7 +32,7 @@ CALIBRATED = {"randomize.c": [2.4e6, 2.4e6], "randomize.m2": [0.85, 0.85], "rand
               "randomize.command_gain": [1.15, 1.15]}
 # the same hardware, not known: ranges a hair wide are not one point, so the model stays the base's
 UNKNOWN = {key: [lo, lo * (1.0 + 1e-9)] for key, (lo, _) in CALIBRATED.items()}
-TICKS = 120  # the touch at tick 10, then the first contact
+TICKS = 50  # the touch at tick 10, the first contact, up to the filter's first windowed test
 N_DROPS = 4
 
 
@@ -46,6 +51,11 @@ def test_known_hardware_folds_one_point_hardware_ranges_only():
     assert hw.randomize.m1 == (0.1, 0.1) and hw.randomize.drop_height == base.randomize.drop_height
     # the description the controller reads is unchanged
     assert scene.plant.c == base.plant.c and scene.effects.command_scale == base.effects.command_scale
+
+
+DELAYS = {"effects.active": ["shaker", "saturation", "sensors", "filters", "detector", "sensor_delay",
+                              "actuator_delay"],
+          "effects.delay.sensor_s": 2e-4, "effects.delay.actuator_s": 1e-4}  # 2 and 1 periods
 
 
 def _nis_and_hand_over(overrides: dict):
@@ -80,14 +90,54 @@ def test_on_a_calibrated_rig_the_filter_holds_and_mpc_plans():
     assert handed_over_unknown.all()
 
 
+def test_with_known_delays_the_filter_runs_behind_and_mpc_plans():
+    before, handed_over = _nis_and_hand_over({**CALIBRATED, **DELAYS})
+    assert before.max() < 44.0, before
+    assert not handed_over.any()
+    assert mpc.known_lag(load_scene("rig", DELAYS)) == 3 and mpc.known_lag(load_scene("rig")) == 0
+    # the delays of rig-randomized are drawn, not known: the law keeps no lag there
+    assert mpc.known_lag(load_scene("rig-randomized")) == 0
+
+
+def test_the_ahead_model_of_mpc_is_the_filters_own():
+    """With no readings between, the look-ahead over ``lag`` periods is the filter's own prediction
+    over those periods, bit for bit (the same model, applied force and RK4 step, on copies)."""
+    from impact_env.control.estimation.ekf import AHEAD_SCRATCH, ekf_ahead, ekf_measure, ekf_tick
+    from impact_env.control.estimation.layout import MEMORY, N_STATE
+    from impact_env.control.estimation.model import constants_vector, ekf_constants
+
+    scene = load_scene("rig", CALIBRATED)
+    k = constants_vector(ekf_constants(scene))
+    mem = np.zeros(MEMORY)
+    ekf_measure(k, mem, np.array([0.0, 0.0, 0.0]))  # the prior
+    demands = np.array([40.0, -120.0, 200.0, 15.0])
+    scratch = np.zeros(AHEAD_SCRATCH)
+    ekf_ahead(k, mem, demands, len(demands), scratch)
+    moved = scratch[EkfMemory.sat + 2:EkfMemory.sat + 2 + N_STATE].copy()
+    before = mem.copy()
+    for f in demands:
+        ekf_tick(k, mem, None, f)
+    assert np.array_equal(before[EkfMemory.x:EkfMemory.x + N_STATE], before[EkfMemory.x:EkfMemory.x + N_STATE])
+    np.testing.assert_array_equal(moved[:4], mem[EkfMemory.x:EkfMemory.x + 4])
+
+
+def test_more_delay_than_mpc_models_is_refused_naming_it():
+    from impact_env.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"at most 8 control periods.*effects.delay gives 9 \(0.0009 s\)"):
+        export_policy("mpc", load_scene("rig", {**DELAYS, "effects.delay.sensor_s": 9e-4,
+                                                "effects.delay.actuator_s": 0.0}))
+
+
 @pytest.mark.slow
-def test_the_c_export_of_mpc_on_a_calibrated_rig_replays_bitwise(tmp_path):
+@pytest.mark.parametrize("delays", [False, True], ids=["calibrated", "calibrated-with-delays"])
+def test_the_c_export_of_mpc_on_a_calibrated_rig_replays_bitwise(tmp_path, delays):
     """The amplifier's known gain reaches the C file (the filter's replica and the demand over the
     gain): the double build replays the target bit for bit on the calibrated rig."""
     from impact_env.deploy import parity
     from impact_env.deploy.c_export import write_c
 
-    scene = load_scene("rig", CALIBRATED)
+    scene = load_scene("rig", {**CALIBRATED, **(DELAYS if delays else {})})
     policy = export_policy(SPEC, scene)
     write_c(policy, scene, tmp_path / "c")
     cp = parity.CPolicy(parity.build_shared(tmp_path / "c", tmp_path / "lib.so"), False)

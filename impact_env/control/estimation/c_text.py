@@ -44,6 +44,25 @@ def _defines() -> str:
     return "\n".join([*(f"#define EKF_{name} {v}" for name, v in plain.items()), *ks, *ms])
 
 
+def ekf_ahead_c() -> str:
+    """:func:`impact_env.control.estimation.ekf.ekf_ahead` in C (after :func:`ekf_c`)."""
+    return """
+/* the plant lag periods after the estimate, under the demands given since (oldest first), by the
+ * filter's model on copies of its replicas; the state ends in scratch + EKF_M_SAT + 2 */
+static void ekf_ahead(const impact_real *k, const impact_real *mem, const impact_real *demands, int lag,
+                      impact_real *scratch)
+{
+    for (int i = EKF_M_SHAKER; i < EKF_M_SAT + 2; i++) scratch[i] = mem[i];
+    impact_real *x = scratch + EKF_M_SAT + 2;
+    for (int i = 0; i < EKF_N; i++) x[i] = mem[EKF_M_X + i];
+    for (int j = 0; j < lag; j++) {
+        impact_real f2 = ekf_applied_force(k, scratch, demands[j], x[EKF_V2]);
+        ekf_plant_step(k, x, f2);
+    }
+}
+"""
+
+
 def ekf_c() -> str:
     """The filter's C text (file scope; needs <math.h> and ``impact_real``)."""
     return _defines() + r"""

@@ -468,6 +468,27 @@ def ekf_tick(k, mem, y, f_law):
     return f2
 
 
+#: the scratch :func:`ekf_ahead` needs (floats): the memory row's replicas' region, then a state
+AHEAD_SCRATCH = M.sat + 2 + N
+
+
+@jit
+def ekf_ahead(k, mem, demands, lag, scratch):
+    """The plant ``lag`` periods after the filter's estimate, for a controller whose readings
+    arrive late and whose demands act late: the estimate moved by the filter's own model under the
+    demands ``demands[:lag]`` (N, oldest first, the first the one this tick's prediction applies),
+    each through copies of the hardware replicas (:func:`applied_force`) and the mean's RK4 step.
+    The state ends in ``scratch[M.sat + 2:]`` (N_STATE floats); ``mem`` is not changed."""
+    for i in range(M.shaker, M.sat + 2):
+        scratch[i] = mem[i]
+    x = scratch[M.sat + 2:M.sat + 2 + N]
+    for i in range(N):
+        x[i] = mem[M.x + i]
+    for j in range(lag):
+        f2 = applied_force(k, scratch, demands[j], x[V2])
+        plant_step(k, x, f2)
+
+
 @jit
 def ekf_run(k, mem, frames, forces, out_x, out_status):
     """Offline use (tests, figures): the filter over a recorded episode with the law's demands

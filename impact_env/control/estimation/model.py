@@ -185,9 +185,12 @@ def ekf_constants(scene, settings: dict | None = None) -> dict[str, float]:
             k[f"{ch}_c_{a}"] = float(Cf[a])
             for b in range(nz):
                 k[f"{ch}_a_{a * MAX_Z + b}"] = float(Af[a, b])
-    # the prior on body 1 from the drop's ranges
+    # the prior on body 1 from the drop's ranges, at the instant the first reading shows: a known
+    # sensor delay (whole periods) puts it that much before the episode's start
     g = pl.gravity
     tau = scene.initial.pre_contact_time
+    if eff.on("sensor_delay"):
+        tau += eff.delay.samples(rate)[0] / rate
     rnd = scene.randomize
 
     def start(v):

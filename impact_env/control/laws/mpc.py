@@ -39,8 +39,8 @@ from __future__ import annotations
 from collections import namedtuple
 
 from impact_env._jit import jit
-from impact_env.control.estimation.c_text import ekf_c
-from impact_env.control.estimation.ekf import ekf_measure, ekf_tick
+from impact_env.control.estimation.c_text import ekf_ahead_c, ekf_c
+from impact_env.control.estimation.ekf import AHEAD_SCRATCH, ekf_ahead, ekf_measure, ekf_tick
 from impact_env.control.estimation.layout import MEMORY as EKF_MEMORY
 from impact_env.control.estimation.layout import V1, V2, X1, X2, EkfConstants, EkfMemory
 from impact_env.control.estimation.model import SETTINGS, ekf_constants
@@ -56,16 +56,23 @@ from impact_env.control.mpc.c_text import solver_c
 SOLVER_FIELDS = tuple(f"solver_{name}" for name in model.Constants._fields)
 FALLBACK_FIELDS = tuple(f"fallback_{name}" for name in pd_penetration.Constants._fields)
 Constants = namedtuple("Constants", SOLVER_FIELDS + EkfConstants._fields + FALLBACK_FIELDS  # type: ignore[misc]
-                       + ("nis_gate",))
+                       + ("nis_gate", "lag"))
 EKF_CONSTANTS_START = len(SOLVER_FIELDS)
 FALLBACK_CONSTANTS_START = EKF_CONSTANTS_START + len(EkfConstants._fields)
 NIS_GATE = FALLBACK_CONSTANTS_START + len(FALLBACK_FIELDS)
+LAG = NIS_GATE + 1  # the known sensor and actuator delays, in control periods together
 #: the solver's memory first, then the filter's, then the fallback law's, then the hand-over's
 #: flag (1 once the fallback drives) and its count of ticks
 EKF_MEMORY_START = solver.MEMORY
 FALLBACK_MEMORY_START = EKF_MEMORY_START + EKF_MEMORY
 FALLBACK_ON = FALLBACK_MEMORY_START + ESTIMATE_MEMORY
 FALLBACK_TICKS = FALLBACK_ON + 1
+#: ... then the demands of the last ``lag`` ticks (N, oldest first) and the look-ahead's scratch
+MAX_LAG = 8
+DEMANDS = FALLBACK_TICKS + 1
+AHEAD = DEMANDS + MAX_LAG
+AHEAD_STATE = AHEAD + EkfMemory.sat + 2  # where ekf_ahead leaves the state
+MEMORY = AHEAD + AHEAD_SCRATCH
 
 PARAMS = {key: value for key, value in mpc_state.PARAMS.items() if key != "m1"}
 PARAMS.update({
@@ -89,7 +96,24 @@ def constants_of(scene, P: dict) -> dict:
     fallback = pd_penetration.constants_of(scene, gains)
     out.update({f"fallback_{name}": value for name, value in fallback.items()})
     out["nis_gate"] = P["nis_gate"]
+    out["lag"] = float(known_lag(scene))
     return out
+
+
+def known_lag(scene) -> int:
+    """The sensor and actuator delays the scene knows (its hardware's, where fixed:
+    :func:`impact_env.scene.randomize.known_hardware`), in control periods together.  The
+    filter's estimate is of the plant that many periods before the tick's demand takes effect."""
+    from impact_env.config import ConfigError
+    from impact_env.scene.randomize import known_hardware
+
+    hw = known_hardware(scene)
+    sensor, actuator = hw.effects.delay.samples(hw.control_rate)
+    lag = (sensor if hw.effects.on("sensor_delay") else 0) + (actuator if hw.effects.on("actuator_delay") else 0)
+    if lag > MAX_LAG:
+        raise ConfigError(f"mpc models at most {MAX_LAG} control periods of sensor and actuator delay together; "
+                          f"effects.delay gives {lag} ({lag / hw.control_rate:g} s)")
+    return lag
 
 
 @jit
@@ -106,20 +130,30 @@ def force(slots, k, v, mem):
     f_fallback = pd_penetration.force(slots, fallback_k, v, mem[FALLBACK_MEMORY_START:])
     if ekf_mem[EkfMemory.lost_count] > 0.0 or ekf_mem[EkfMemory.nis_last] > k[NIS_GATE]:
         mem[FALLBACK_ON] = 1.0
+    lag = int(k[LAG])
     if mem[FALLBACK_ON] > 0.0:
         mem[FALLBACK_TICKS] += 1.0
         f = f_fallback
     else:
         x = ekf_mem[EkfMemory.x:EkfMemory.x + 4]
+        if lag > 0:  # the estimate is of the plant lag periods before this demand acts: move it on
+            ekf_ahead(ekf_k, ekf_mem, mem[DEMANDS:DEMANDS + lag], lag, mem[AHEAD:MEMORY])
+            x = mem[AHEAD_STATE:AHEAD_STATE + 4]
         f = solver.mpc_tick(x[X1], x[V1], x[X2], x[V2], k[:EKF_CONSTANTS_START], mem[:EKF_MEMORY_START])
         f = f / k[model.K.command_gain]  # the demand that gives the planned force
-    ekf_tick(ekf_k, ekf_mem, frame, f)
+    told = f
+    if lag > 0:  # the filter's period is lag periods back: the demand that acts over it
+        told = mem[DEMANDS]
+        for j in range(lag - 1):
+            mem[DEMANDS + j] = mem[DEMANDS + j + 1]
+        mem[DEMANDS + lag - 1] = f
+    ekf_tick(ekf_k, ekf_mem, frame, told)
     return f
 
 
 def c_prelude() -> str:
     """The solver's and the filter's C text (file-scope static functions)."""
-    return solver_c() + "\n" + ekf_c()
+    return solver_c() + "\n" + ekf_c() + ekf_ahead_c()
 
 
 def c_body(P: str, sl: dict[str, int]) -> str:
@@ -146,15 +180,26 @@ def c_body(P: str, sl: dict[str, int]) -> str:
         }}
     }}
     if (ekf_mem[EKF_M_LOST_COUNT] > 0.0 || ekf_mem[EKF_M_NIS_LAST] > {P}_NIS_GATE) mem[{FALLBACK_ON}] = 1.0;
+    int lag = (int){P}_CONSTANTS[{LAG}];
     if (mem[{FALLBACK_ON}] > 0.0) {{
         mem[{FALLBACK_TICKS}] += 1.0;
         f = f_fallback;
     }} else {{
         const impact_real *x = ekf_mem + EKF_M_X;
+        if (lag > 0) {{  /* the estimate is of the plant lag periods before this demand acts */
+            ekf_ahead(ekf_k, ekf_mem, mem + {DEMANDS}, lag, mem + {AHEAD});
+            x = mem + {AHEAD_STATE};
+        }}
         f = mpc_tick(x[EKF_X1], x[EKF_V1], x[EKF_X2], x[EKF_V2], {P}_CONSTANTS, mem);
         f = f / {P}_CONSTANTS[MPC_K_COMMAND_GAIN];
     }}
-    ekf_tick(ekf_k, ekf_mem, frame, f);"""
+    impact_real told = f;
+    if (lag > 0) {{  /* the filter's period is lag periods back: the demand that acts over it */
+        told = mem[{DEMANDS}];
+        for (int j = 0; j < lag - 1; j++) mem[{DEMANDS} + j] = mem[{DEMANDS} + j + 1];
+        mem[{DEMANDS} + lag - 1] = f;
+    }}
+    ekf_tick(ekf_k, ekf_mem, frame, told);"""
 
 
 def _indent(text: str) -> str:
@@ -166,7 +211,7 @@ LAW = Law("mpc", "sensors", "model-predictive control (the `mpc-state` solver) o
           "filter's estimate: the scene's model (both bodies, m1, the shaker, the limit, the filters "
           "inverted) fed by the accelerometer, transducer and potentiometer; pd-penetration once the "
           "filter's innovations show the model wrong",
-          SensorReads, Constants, constants_of, memory=FALLBACK_TICKS + 1, params=PARAMS,
+          SensorReads, Constants, constants_of, memory=MEMORY, params=PARAMS,
           c_body=c_body, c_prelude=c_prelude,
           c_double_only="its command jumps by full scale within a tick where the plan switches "
           "(the force box's active set, the line search's accepted step), so the float32 front end's "
