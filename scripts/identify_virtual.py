@@ -47,12 +47,22 @@ def serve(physics):
     return target, th
 
 
-def one_rig(seed: int, delays: tuple[int, int], out: Path, quick: bool, gap: bool, episodes: int) -> dict:
-    physics, truth = perturbed_physics("rig", seed, 0.4, *delays)
+SPREAD = 0.4  # each hardware field moved by up to +-40 %
+
+
+def virtual_physics(seed: int, delays: tuple[int, int]):
+    """(physics, truth) of the virtual rig of ``seed`` with ``delays`` (actuator, sensor periods):
+    ``rig``'s hardware moved by up to :data:`SPREAD`, and ``rig``'s benchmark drops on it."""
+    physics, truth = perturbed_physics("rig", seed, SPREAD, *delays)
     base = load_scene("rig")
     # the benchmark's drops on this rig, as rig draws them (identification drops use its own body)
     physics = physics.with_overrides({"randomize.m1": list(base.randomize.m1),
                                       "randomize.drop_height": list(base.randomize.drop_height)})
+    return physics, truth
+
+
+def one_rig(seed: int, delays: tuple[int, int], out: Path, quick: bool, gap: bool, episodes: int) -> dict:
+    physics, truth = virtual_physics(seed, delays)
     d = out / f"seed{seed}"
     target, th = serve(physics)
     try:

@@ -53,9 +53,18 @@ def cluster(address):
 @pytest.fixture
 def nothing_runs(monkeypatch):
     """A rollout here fails the test: a refusal must come before anything is simulated."""
+    import importlib
+    import pkgutil
+
+    import impact_env.eval
+
     def refuse(*args, **kwargs):
         raise AssertionError("a rollout ran before the refusal")
 
+    # every module that binds rollout by name imported first, so that each binding is patched here
+    # and restored after: one imported while the patch stands would keep the refusal for later tests
+    for info in pkgutil.iter_modules(impact_env.eval.__path__, "impact_env.eval."):
+        importlib.import_module(info.name)
     real = rollout_module.rollout
     for module in [m for name, m in sys.modules.items() if name.startswith("impact_env")]:
         if getattr(module, "rollout", None) is real:  # every module that calls it by this name

@@ -201,6 +201,10 @@ def test_identification_recovers_a_rig_nobody_tuned_for(tmp_path, seed, delays):
     drawn = sc.with_draws(sc.randomize.values_at(0.5, sc.control_rate))
     assert drawn.plant.m2 == pytest.approx(rows["plant.m2"]["value"], rel=1e-15)
     assert drawn.effects.command_scale == pytest.approx(rows["effects.command_scale"]["value"], rel=1e-12)
+    # the one-point ranges are marked known: the model-based laws plan on them, nothing else changes
+    assert set(sc.control.known_hardware) == {"c", "m2", "top_mass", "command_gain"}
+    from impact_env.scene.randomize import known_hardware
+    assert known_hardware(sc).plant.c == rows["plant.c"]["value"]
     assert ((tmp_path / "report.md").read_text().count("|") > 50
             and (tmp_path / "fit_shaker.png").stat().st_size)
 
@@ -281,6 +285,7 @@ def test_the_identified_scene_file_says_where_each_value_came_from(short_logs, t
         assert str(f) in text
     sc = load_scene(_write(tmp_path / "s.toml", text))
     assert sc.randomize.ranged()[:2] == ("m1", "drop_height")  # the benchmark's drops kept
+    assert sc.control.known_hardware == ()  # widened by --ranges: not one value, so not known
     for r in report.field_table(fit):
         if r["status"] == "identified" and r["write"] != "report":
             assert f"{r['value']:.6g}" in text or repr(r["value"]) in text

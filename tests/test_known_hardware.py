@@ -2,11 +2,12 @@
 
 A calibrated scene file (``impact-env identify``) keeps the fields a controller reads (c, m2,
 the transducer's top mass, the command scale) at the base's values and writes their identified
-values as one-point ``[randomize]`` ranges: the simulated hardware is the identified one.
-:func:`impact_env.scene.randomize.known_hardware` folds those into the fields, and ``mpc``,
-``mpc-state`` and the filter before a network take their model from it.  Without the fold the
-filter's model is the base rig's, its innovations exceed the hand-over gate before the touch, and
-``mpc`` never plans on a rig it has been calibrated for.
+values as one-point ``[randomize]`` ranges, and lists them in ``control.known_hardware``: the
+simulated hardware is the identified one.  :func:`impact_env.scene.randomize.known_hardware`
+folds the listed ranges into the fields, and ``mpc``, ``mpc-state`` and the filter before a
+network take their model from it.  Without the list (the same hardware, as ``impact-env
+robustness`` moves it: a rig the controller is not told about) the filter's model is the base
+rig's, its innovations exceed the hand-over gate before the touch, and ``mpc`` hands over.
 
 The identified delays (``effects.delay``, whole control periods) are the other half: ``mpc``'s
 filter then runs that many periods behind, told the demands that act over its period, and the
@@ -28,10 +29,10 @@ from impact_env.sim.simulator import Simulator
 
 SPEC = "mpc:horizon=8"  # the same code as the default horizon, cheaper
 # a rig calibrated far from the base: every controller-read field moved, as identify writes them
-CALIBRATED = {"randomize.c": [2.4e6, 2.4e6], "randomize.m2": [0.85, 0.85], "randomize.top_mass": [0.13, 0.13],
-              "randomize.command_gain": [1.15, 1.15]}
-# the same hardware, not known: ranges a hair wide are not one point, so the model stays the base's
-UNKNOWN = {key: [lo, lo * (1.0 + 1e-9)] for key, (lo, _) in CALIBRATED.items()}
+UNKNOWN = {"randomize.c": [2.4e6, 2.4e6], "randomize.m2": [0.85, 0.85], "randomize.top_mass": [0.13, 0.13],
+           "randomize.command_gain": [1.15, 1.15]}
+# the same hardware, told to the controller
+CALIBRATED = {**UNKNOWN, "control.known_hardware": ["c", "m2", "top_mass", "command_gain"]}
 TICKS = 50  # the touch at tick 10, the first contact, up to the filter's first windowed test
 N_DROPS = 4
 
@@ -41,7 +42,9 @@ def test_known_hardware_folds_one_point_hardware_ranges_only():
     assert known_hardware(base) is base  # nothing known beyond the fields: the scene itself
     assert known_hardware(load_scene("rig-randomized")) is not None
     wide = load_scene("rig-randomized")
-    assert known_hardware(wide) is wide  # every hardware range there is wide
+    assert known_hardware(wide) is wide  # every hardware range there is wide, and none is known
+    untold = load_scene("rig", UNKNOWN)
+    assert known_hardware(untold) is untold  # one-point, but not listed: the controller is not told
     scene = load_scene("rig", {**CALIBRATED, "randomize.m1": [0.1, 0.1]})
     hw = known_hardware(scene)
     assert hw.plant.c == 2.4e6 and hw.plant.m2 == 0.85 and hw.effects.sensors.force.top_mass == 0.13
@@ -51,6 +54,17 @@ def test_known_hardware_folds_one_point_hardware_ranges_only():
     assert hw.randomize.m1 == (0.1, 0.1) and hw.randomize.drop_height == base.randomize.drop_height
     # the description the controller reads is unchanged
     assert scene.plant.c == base.plant.c and scene.effects.command_scale == base.effects.command_scale
+    assert hw.control.known_hardware == ()  # folded: nothing left to fold
+
+
+def test_a_known_field_must_be_one_point_hardware():
+    from impact_env.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"control.known_hardware lists 'c', but randomize.c = \[2400000.0, "
+                                          r"2500000.0\] is not one point"):
+        load_scene("rig", {"randomize.c": [2.4e6, 2.5e6], "control.known_hardware": ["c"]})
+    with pytest.raises(ConfigError, match="lists 'm1': not a hardware field"):
+        load_scene("rig", {"randomize.m1": [0.1, 0.1], "control.known_hardware": ["m1"]})
 
 
 DELAYS = {"effects.active": ["shaker", "saturation", "sensors", "filters", "detector", "sensor_delay",
@@ -85,7 +99,7 @@ def test_on_a_calibrated_rig_the_filter_holds_and_mpc_plans():
     assert before.max() < 44.0, before
     assert not handed_over.any()
     before_unknown, handed_over_unknown = _nis_and_hand_over(UNKNOWN)
-    # the same hardware with the base rig's model: the gate sees it and hands over
+    # the same hardware, not told: the base rig's model, the gate sees it and hands over
     assert before_unknown.min() > mpc.PARAMS["nis_gate"].default, before_unknown
     assert handed_over_unknown.all()
 

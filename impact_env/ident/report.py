@@ -178,7 +178,8 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
         "# value  +- standard uncertainty (1 sigma, from the fit's Jacobian scaled by its reduced",
         f"# chi-square {fit.chi2_red:.3g}), and whether the logs identified it.  Fields the controller reads",
         "# too (c, m2, m2', the command scale) are one-point ranges under [randomize]: the hardware",
-        "# is the identified one, policies keep the observation scales they were made for.",
+        "# is the identified one, policies keep the observation scales they were made for; and",
+        "# control.known_hardware lists them: the model-based laws (mpc) plan on the identified values.",
         *[f"# {n}" for n in notes],
         f"base = {json.dumps(base_ref)}",
         f"name = {json.dumps(name or base_name + '-identified')}",
@@ -187,6 +188,10 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
     ]
     if active != base_active:
         lines += ["", "[effects]", f"active = {json.dumps(active)}  # the identified delays switched on"]
+    known = [key for key, (val, _c) in rand.items() if _one_point(val)]
+    if known:
+        lines += ["", "[control]", f"known_hardware = {json.dumps(known)}  # the one-point ranges below: "
+                  "measured, so the model-based laws plan on them"]
     for table in sorted(fixed):
         lines += ["", f"[{table}]"]
         for key, (val, comment) in fixed[table].items():
@@ -196,6 +201,11 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
         for key, (val, comment) in rand.items():
             lines.append(f"{key} = {val}  # {comment}")
     return "\n".join(lines) + "\n"
+
+
+def _one_point(text: str) -> bool:
+    lo, hi = json.loads(text)
+    return lo == hi
 
 
 def markdown(fit: Fit, scene_file: str | None = None) -> str:

@@ -185,8 +185,11 @@ _FIELDS = {f.name: f for f in dataclasses.fields(RandomizeConfig)}
 
 
 def overrides_for(scene, values: dict[str, float]) -> dict[str, Any]:
-    """Dotted overrides that give ``scene`` the drawn ``values`` (and clear its ranges)."""
+    """Dotted overrides that give ``scene`` the drawn ``values`` (and clear its ranges, and with them
+    the list of the known ones: every value is then the scene's own)."""
     ov: dict[str, Any] = {"randomize": {}}
+    if scene.control.known_hardware:
+        ov["control.known_hardware"] = ()
     fx = scene.effects
     for name, v in values.items():
         if name == "noise_scale":
@@ -204,19 +207,20 @@ DROP_FIELDS = ("m1", "drop_height", "impact_speed")
 
 
 def known_hardware(scene):
-    """``scene`` with the hardware it knows exactly: each one-point range (``[v, v]``) of a
-    hardware field (every field but :data:`DROP_FIELDS`) folded into the field it sets, as
-    :func:`overrides_for` sets it; every other range kept.  ``scene`` itself when it has none.
+    """``scene`` with the hardware its controller is told: each field that
+    ``control.known_hardware`` lists, a one-point range ``[v, v]``, folded into the field it sets
+    (as :func:`overrides_for` sets it); every other range kept.  ``scene`` itself when it lists none.
 
     A calibrated scene file (``impact-env identify``) writes the identified values of the fields a
     controller also reads (the pad's c, m2, the transducer's top mass, the command scale) as such
     ranges, so that every policy keeps the observation scales and constants it was made for
-    while the simulated hardware is the identified one.  A law whose model is the plant
-    (``mpc``, ``mpc-state``, the filter before a network) takes its model from this scene: on a
-    calibrated rig, the rig's own numbers."""
+    while the simulated hardware is the identified one, and lists them as known.  A law whose
+    model is the plant (``mpc``, ``mpc-state``, the filter before a network) takes its model from
+    this scene: on a calibrated rig, the rig's own numbers.  A one-point range that is not listed
+    is a rig that departs from its description unbeknown to the controller (``impact-env
+    robustness`` moves the hardware so)."""
     rz = scene.randomize
-    known = {name: getattr(rz, name)[0] for name in rz.ranged()
-             if name not in DROP_FIELDS and getattr(rz, name)[0] == getattr(rz, name)[1]}
+    known = {name: getattr(rz, name)[0] for name in scene.control.known_hardware}
     if not known:
         return scene
     ov = overrides_for(scene, known)
