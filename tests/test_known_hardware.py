@@ -160,3 +160,32 @@ def test_the_c_export_of_mpc_on_a_calibrated_rig_replays_bitwise(tmp_path, delay
     got = parity.replay(cp, rec)
     np.testing.assert_array_equal(got.command, rec.command)
     np.testing.assert_array_equal(got.status, rec.status)
+
+
+@pytest.mark.slow
+def test_a_target_serving_the_calibrated_scene_runs_mpc_with_the_rigs_numbers():
+    """The deployment path: a virtual rig whose hardware is the calibrated one (its delays
+    included), served by a target in lock-step.  Serving the calibrated scene, ``mpc`` onboard
+    is built from it and plans; serving ``rig`` (the same hardware and drops) it plans on the
+    nominal rig and hands over.  The energy integral over the first 50 ms tells them apart."""
+    import threading
+
+    from impact_env.eval.rig_compare import rig_compare
+    from impact_env.rig.driver import VirtualRig
+    from impact_env.rig.target import Target, TargetConfig
+
+    physics = load_scene("rig", {**UNKNOWN, **DELAYS})
+    energy = {}
+    for name, served in (("calibrated", load_scene("rig", {**CALIBRATED, **DELAYS})), ("rig", load_scene("rig"))):
+        target = Target(VirtualRig(served, physics), config=TargetConfig(lockstep=True))
+        th = threading.Thread(target=target.serve, daemon=True)
+        th.start()
+        try:
+            _scene, runs = rig_compare(target.address, ["mpc"], episodes=3, seed=1000, horizon=0.05,
+                                       progress=False)
+        finally:
+            target.stop()
+            th.join(10)
+        assert not runs["mpc"].failures
+        energy[name] = np.asarray(runs["mpc"].metrics["energy_integral_ms"])
+    assert np.all(energy["calibrated"] < 0.6 * energy["rig"]), energy
