@@ -96,16 +96,11 @@ def replay_told(cp: parity.CPolicy, rec: parity.Recording) -> parity.Recording:
     """:func:`impact_env.deploy.parity.replay` with the filter told the recording's command on
     each tick (the library built with :func:`told_given_command`)."""
     told = ctypes.c_double.in_dll(cp.lib, "impact_told_command")
-    cp.init()
-    cp.reset()
-    n = rec.readings.shape[0]
-    out = np.zeros((3, n))
-    det = np.zeros(n, np.int64)
-    for m in range(n):
+
+    def tell(m: int) -> None:
         told.value = rec.command[m]
-        out[:, m] = cp.step(rec.readings[m])
-        det[m] = cp.contact()
-    return parity.Recording(rec.readings, out[0], out[1], out[2].astype(np.int64), detected=det)
+
+    return parity.replay(cp, rec, before_tick=tell)
 
 
 def check_told_is_own(pol, scene, drops: int) -> None:

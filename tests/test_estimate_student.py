@@ -168,22 +168,28 @@ def test_the_c_export_replays_it_bitwise_in_double_and_has_no_float32_build(tmp_
         parity.build_shared(tmp_path / "c", tmp_path / "f32.so", float32=True)
 
 
+def _float32_script():
+    """scripts/c_float32_sources.py as a module."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "c_float32_sources.py"
+    spec = importlib.util.spec_from_file_location("c_float32_sources", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    return script
+
+
 def test_the_float32_diagnostic_builds_the_refused_build_with_its_filter_in_double(tmp_path):
     """scripts/c_float32_sources.py measures why the float32 build is refused by making it anyway:
     its edits of the generated C compile under -Werror with the refusal taken out, and with all
     but the front end in double the commands of the fall agree with the double build's within
     the float32 bound (the edits keep the policy's arithmetic; only the front end's precision
     moves)."""
-    import importlib.util
-    from pathlib import Path
-
     from impact_env.deploy import parity
     from impact_env.deploy.c_export import write_c
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "c_float32_sources.py"
-    spec = importlib.util.spec_from_file_location("c_float32_sources", path)
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = _float32_script()
     scene = load_scene("rig")
     pol = _policy(scene)
     c_dir = tmp_path / "c"
@@ -206,16 +212,10 @@ def test_the_float32_diagnostic_cuts_the_filters_loop_without_changing_the_doubl
     edit, in the double build, replays the target bit for bit (so the told command is the one the
     target's filter was told), and a build told commands other than its own departs from it (the
     told command reaches the filter: the edit is not a no-op)."""
-    import importlib.util
-    from pathlib import Path
-
     from impact_env.deploy import parity
     from impact_env.deploy.c_export import write_c
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "c_float32_sources.py"
-    spec = importlib.util.spec_from_file_location("c_float32_sources", path)
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = _float32_script()
     scene = load_scene("rig")
     pol = _policy(scene)
     script.check_told_is_own(pol, scene, 1)  # raises SystemExit on any difference

@@ -259,15 +259,18 @@ def readings_from_log(log) -> np.ndarray:
     return out
 
 
-def replay(cp: CPolicy, rec: Recording) -> Recording:
+def replay(cp: CPolicy, rec: Recording, before_tick=None) -> Recording:
     """The C step on the recorded readings (open loop), from power-on as the recording's fresh
-    controller (a cool RMS window): its commands, forces and status."""
+    controller (a cool RMS window): its commands, forces and status.  ``before_tick(m)``, when
+    given, runs before tick m's step (a diagnostic that sets a global of the library)."""
     cp.init()
     cp.reset()
     n = rec.readings.shape[0]
     out = np.zeros((3, n))
     det = np.zeros(n, np.int64)
     for m in range(n):
+        if before_tick is not None:
+            before_tick(m)
         out[:, m] = cp.step(rec.readings[m])
         det[m] = cp.contact()
     return Recording(rec.readings, out[0], out[1], out[2].astype(np.int64), detected=det)
