@@ -117,7 +117,7 @@ def test_the_ahead_model_of_mpc_is_the_filters_own():
     """With no readings between, the look-ahead over ``lag`` periods is the filter's own prediction
     over those periods, bit for bit (the same model, applied force and RK4 step, on copies)."""
     from impact_env.control.estimation.ekf import AHEAD_SCRATCH, ekf_ahead, ekf_measure, ekf_tick
-    from impact_env.control.estimation.layout import MEMORY, N_STATE
+    from impact_env.control.estimation.layout import MEMORY, N_STATE, REPLICAS_END
     from impact_env.control.estimation.model import constants_vector, ekf_constants
 
     scene = load_scene("rig", CALIBRATED)
@@ -129,7 +129,7 @@ def test_the_ahead_model_of_mpc_is_the_filters_own():
     start = mem.copy()
     ekf_ahead(k, mem, demands, len(demands), scratch)
     np.testing.assert_array_equal(mem, start)  # the filter itself is not moved
-    moved = scratch[EkfMemory.sat + 2:EkfMemory.sat + 2 + N_STATE].copy()
+    moved = scratch[REPLICAS_END:REPLICAS_END + N_STATE].copy()
     for f in demands:
         ekf_tick(k, mem, None, f)
     np.testing.assert_array_equal(moved[:4], mem[EkfMemory.x:EkfMemory.x + 4])

@@ -62,6 +62,7 @@ from impact_env.control.estimation.layout import (
     N_MEAS,
     N_PLANT,
     N_STATE,
+    REPLICAS_END,
     SHAKER_BLOCK,
     V1,
     V2,
@@ -469,7 +470,7 @@ def ekf_tick(k, mem, y, f_law):
 
 
 #: the scratch :func:`ekf_ahead` needs (floats): the memory row's replicas' region, then a state
-AHEAD_SCRATCH = M.sat + 2 + N
+AHEAD_SCRATCH = REPLICAS_END + N
 
 
 @jit
@@ -478,10 +479,10 @@ def ekf_ahead(k, mem, demands, lag, scratch):
     arrive late and whose demands act late: the estimate moved by the filter's own model under the
     demands ``demands[:lag]`` (N, oldest first, the first the one this tick's prediction applies),
     each through copies of the hardware replicas (:func:`applied_force`) and the mean's RK4 step.
-    The state ends in ``scratch[M.sat + 2:]`` (N_STATE floats); ``mem`` is not changed."""
-    for i in range(M.shaker, M.sat + 2):
+    The state ends in ``scratch[REPLICAS_END:]`` (N_STATE floats); ``mem`` is not changed."""
+    for i in range(M.shaker, REPLICAS_END):
         scratch[i] = mem[i]
-    x = scratch[M.sat + 2:M.sat + 2 + N]
+    x = scratch[REPLICAS_END:REPLICAS_END + N]
     for i in range(N):
         x[i] = mem[M.x + i]
     for j in range(lag):

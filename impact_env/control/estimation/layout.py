@@ -93,3 +93,5 @@ _MEM_FIELDS = [f for f in vars(_Memory) if not f.startswith("_")]
 #: the memory row's positions by name (a namedtuple instance: numba reads it as constants)
 EkfMemory = namedtuple("EkfMemory", _MEM_FIELDS)(*(getattr(_Memory, f) for f in _MEM_FIELDS))  # type: ignore[misc]
 MEMORY = _Memory.size
+#: where the replicas' region of the memory row (the shaker's, then the limit's) ends
+REPLICAS_END = _Memory.sat + 2

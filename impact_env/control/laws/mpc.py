@@ -42,7 +42,7 @@ from impact_env._jit import jit
 from impact_env.control.estimation.c_text import ekf_ahead_c, ekf_c
 from impact_env.control.estimation.ekf import AHEAD_SCRATCH, ekf_ahead, ekf_measure, ekf_tick
 from impact_env.control.estimation.layout import MEMORY as EKF_MEMORY
-from impact_env.control.estimation.layout import V1, V2, X1, X2, EkfConstants, EkfMemory
+from impact_env.control.estimation.layout import REPLICAS_END, V1, V2, X1, X2, EkfConstants, EkfMemory
 from impact_env.control.estimation.model import SETTINGS, ekf_constants
 from impact_env.control.laws import mpc_state, pd_penetration
 from impact_env.control.laws.estimate import MEMORY as ESTIMATE_MEMORY
@@ -71,7 +71,7 @@ FALLBACK_TICKS = FALLBACK_ON + 1
 MAX_LAG = 8
 DEMANDS = FALLBACK_TICKS + 1
 AHEAD = DEMANDS + MAX_LAG
-AHEAD_STATE = AHEAD + EkfMemory.sat + 2  # where ekf_ahead leaves the state
+AHEAD_STATE = AHEAD + REPLICAS_END  # where ekf_ahead leaves the state
 MEMORY = AHEAD + AHEAD_SCRATCH
 
 PARAMS = {key: value for key, value in mpc_state.PARAMS.items() if key != "m1"}
@@ -109,10 +109,11 @@ def known_lag(scene) -> int:
 
     hw = known_hardware(scene)
     sensor, actuator = hw.effects.delay.samples(hw.control_rate)
-    lag = (sensor if hw.effects.on("sensor_delay") else 0) + (actuator if hw.effects.on("actuator_delay") else 0)
+    lag = ((sensor if hw.effects.on("sensor_delay") else 0)
+           + (actuator if hw.effects.on("actuator_delay") else 0))
     if lag > MAX_LAG:
-        raise ConfigError(f"mpc models at most {MAX_LAG} control periods of sensor and actuator delay together; "
-                          f"effects.delay gives {lag} ({lag / hw.control_rate:g} s)")
+        raise ConfigError(f"mpc models at most {MAX_LAG} control periods of sensor and actuator delay "
+                          f"together; effects.delay gives {lag} ({lag / hw.control_rate:g} s)")
     return lag
 
 
