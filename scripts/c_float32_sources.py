@@ -14,7 +14,13 @@ the command the double build gave instead of its own: the loop from the command 
 filter's prediction cut, so that the row is the front end's readings through the filter and the
 network alone.
 
+With ``--closed-loop N``, also the C export's closed-loop statement on drops ``0 .. N-1``: the
+float32 build (for a filter student, the refused one) in closed loop with the virtual rig against
+the double build, by compare's metrics, each against the bound a command error of 1e-4 of full
+scale implies (:func:`impact_env.deploy.parity.closed_loop_check`).
+
     python scripts/c_float32_sources.py ppo:agents/models/best/model.zip [--scene rig-randomized] [--drops 10]
+    python scripts/c_float32_sources.py ppo:runs/quick/best_model.zip --scene rig --closed-loop 6
 """
 
 from __future__ import annotations
@@ -140,11 +146,33 @@ def worst(pol, scene, c_dir: Path, drops: int, told: bool = False) -> list[tuple
     return out
 
 
+def closed_loop_rows(pol, scene, drops: int) -> None:
+    """Print the closed-loop statement per drop (module doc)."""
+    ticks = int(round(scene.episode.horizon * scene.control_rate))
+    with tempfile.TemporaryDirectory(prefix="c-closed-") as tmp:
+        builds = []
+        for float32 in (False, True):
+            d = Path(tmp) / ("c32" if float32 else "c64")
+            write_c(pol, scene, d, force=True)
+            header = next(d.glob("*.h"))
+            header.write_text(without_refusal(header.read_text()))
+            builds.append(parity.CPolicy(parity.build_shared(d, d / "lib.so", float32), float32))
+        print(f"closed loop with the virtual rig, {ticks} ticks: double -> float32 (bound), per metric")
+        for seed in range(drops):
+            checked = parity.closed_loop_check(builds[0], builds[1], scene, seed, ticks)
+            print(f"drop {seed}: " + "; ".join(
+                f"{k} {m.double:.5g} -> {m.float32:.5g} "
+                f"(bound {m.bound:.2g}: {'within' if m.within else 'PAST'})"
+                for k, m in checked.items()), flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("policy", help="a policy spec with an MLP, e.g. ppo:agents/models/best/model.zip")
     ap.add_argument("--scene", default="rig-randomized")
     ap.add_argument("--drops", type=int, default=10)
+    ap.add_argument("--closed-loop", type=int, default=0, metavar="N",
+                    help="also the closed-loop statement on drops 0..N-1 (module doc)")
     args = ap.parse_args()
     scene = load_scene(args.scene)
     pol = export_policy(args.policy, scene)
@@ -176,6 +204,8 @@ def main() -> None:
         first = [t for _, t in w if t >= 0]
         print(f"{name:40s} max {max(x for x, _ in w):.3g}, first past the bound at tick "
               f"{min(first) if first else 'none'}; per drop " + " ".join(f"{x:.2e}" for x, _ in w))
+    if args.closed_loop:
+        closed_loop_rows(pol, scene, args.closed_loop)
 
 
 if __name__ == "__main__":

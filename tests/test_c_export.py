@@ -281,31 +281,17 @@ def test_mpc_check_passes_in_double_and_has_no_float32_build(tmp_path, capsys):
         parity.check(export_policy(MPC_SPEC, scene), scene, out, seeds=(0,), ticks=10, float32=True)
 
 
-# the float32 closed loop against the double one, over the whole horizon (see the test's doc)
-ENSEMBLE = 8  # double closed loops with random command errors of the float32 build's size
-ENVELOPE_FACTOR = 2.0
-
-
-def _deviation(a: float, b: float) -> float:
-    """|a - b|, 0 when both are the same infinity (a drop not caught within the horizon)."""
-    return 0.0 if a == b else abs(a - b)
-
-
 @pytest.mark.parametrize("seed", [3, 8])
 @pytest.mark.parametrize("spec", ["pd-penetration", AGENT])
 def test_closed_loop_with_the_virtual_rig(spec, seed, tmp_path):
     """The C step in place of the numba tick, the virtual rig's hardware stage as the plant, over
     the scene's whole horizon.  The double build gives the very same episode (readings,
     commands) as the numba target.  The float32 build gives compare's metrics (energy integral,
-    time to catch, peak force) within a bound derived from its command error: float32 changes
-    each tick's command by at most F32_BOUND of full scale where the two builds decide alike
-    (test_float32_build_within_its_bound), and the contacts amplify such a change (a bounce moves
-    by a tick, the catch-energy ratio crosses 1 % at another time), so the bound is how far the
-    metrics move when the double loop's commands carry random errors of that size: the largest
-    deviation of ENSEMBLE such runs (uniform in +-F32_BOUND, seeded) times ENVELOPE_FACTOR (eight
-    draws understate the family's reach, and float32's errors are correlated along the
-    trajectory, not independent), plus each metric's resolution (one period for the catch time,
-    one F32_BOUND of full scale for the peak force, 1e-4 relative for the integral)."""
+    time to catch, peak force) within the bound its command error implies
+    (:func:`impact_env.deploy.parity.closed_loop_check`: float32 changes each tick's command by
+    at most F32_BOUND of full scale where the builds decide alike, test_float32_build_within_its_bound,
+    and the bound is how far the metrics move when the double loop's commands carry random errors
+    of that size)."""
     scene = load_scene("rig")
     ticks = int(round(scene.episode.horizon * scene.control_rate))
     pol = export_policy(spec, scene)
@@ -313,23 +299,13 @@ def test_closed_loop_with_the_virtual_rig(spec, seed, tmp_path):
     c64 = _build(pol, scene, tmp_path)
     d64 = parity.closed_loop(c64, scene, seed, ticks)
     assert np.array_equal(d64.readings, rec.readings) and np.array_equal(d64.command, rec.command)
-    d32 = parity.closed_loop(_build(pol, scene, tmp_path, float32=True), scene, seed, ticks)
+    c32 = _build(pol, scene, tmp_path, float32=True)
+    d32 = parity.closed_loop(c32, scene, seed, ticks)
     assert np.any(d32.command != d64.command)  # float32 is in use: not a vacuous comparison
-    m64 = parity.episode_metrics(scene, seed, d64.records)
-    m32 = parity.episode_metrics(scene, seed, d32.records)
-    rng = np.random.default_rng(1000 + seed)
-    keys = {"energy_integral_ms": 1e-4 * m64["energy_integral_ms"],  # metric -> its resolution
-            "time_to_catch_s": 1.0 / scene.control_rate,
-            "peak_force_N": F32_BOUND * scene.effects.command_scale}
-    reach = dict.fromkeys(keys, 0.0)
-    for _ in range(ENSEMBLE):
-        err = rng.uniform(-F32_BOUND, F32_BOUND, ticks)
-        mp = parity.episode_metrics(scene, seed, parity.closed_loop(c64, scene, seed, ticks, err).records)
-        for k in keys:
-            reach[k] = max(reach[k], _deviation(mp[k], m64[k]))
-    for k, floor in keys.items():
-        bound = ENVELOPE_FACTOR * reach[k] + floor
-        assert _deviation(m32[k], m64[k]) <= bound, (k, m64[k], m32[k], bound)
+    checked = parity.closed_loop_check(c64, c32, scene, seed, ticks)
+    for k, metric in checked.items():
+        assert metric.within, (k, metric)
+    m64 = {k: metric.double for k, metric in checked.items()}
     assert np.isfinite(m64["energy_integral_ms"]) and m64["peak_force_N"] > 0.0  # a real episode
 
 

@@ -301,6 +301,58 @@ def closed_loop(cp: CPolicy, scene, seed: int, ticks: int, perturb: np.ndarray |
     return Recording(raw, out[0], out[1], out[2].astype(np.int64), np.array(recs))
 
 
+#: double closed loops with random command errors of the float32 build's size, and the factor on
+#: their largest deviation (eight draws understate the family's reach, and float32's errors are
+#: correlated along the trajectory, not independent)
+ENSEMBLE = 8
+ENVELOPE_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class ClosedLoopMetric:
+    """One metric of a float32 closed loop against the double one, and its bound."""
+
+    double: float
+    float32: float
+    bound: float
+
+    @property
+    def deviation(self) -> float:
+        """|float32 - double|, 0 when both are the same infinity (not caught in the horizon)."""
+        return 0.0 if self.float32 == self.double else abs(self.float32 - self.double)
+
+    @property
+    def within(self) -> bool:
+        return self.deviation <= self.bound
+
+
+def closed_loop_check(c64: CPolicy, c32: CPolicy, scene, seed: int,
+                      ticks: int) -> dict[str, ClosedLoopMetric]:
+    """The float32 build's closed loop against the double build's, by compare's metrics (energy
+    integral, time to catch, peak force), each against the bound its command error implies: float32
+    changes each tick's command by at most :data:`F32_BOUND` of full scale where the builds decide
+    alike, and the contacts amplify such a change (a bounce moves by a tick, the catch-energy ratio
+    crosses 1 % at another time), so the bound is how far the metric moves when the double loop's
+    commands carry random errors of that size: the largest deviation of :data:`ENSEMBLE` such runs
+    (uniform in +-F32_BOUND, seeded by ``1000 + seed``) times :data:`ENVELOPE_FACTOR`, plus the
+    metric's resolution (1e-4 relative for the integral, one period for the catch time, one
+    F32_BOUND of full scale for the peak force)."""
+    m64 = episode_metrics(scene, seed, closed_loop(c64, scene, seed, ticks).records)
+    m32 = episode_metrics(scene, seed, closed_loop(c32, scene, seed, ticks).records)
+    floors = {"energy_integral_ms": 1e-4 * m64["energy_integral_ms"],
+              "time_to_catch_s": 1.0 / scene.control_rate,
+              "peak_force_N": F32_BOUND * scene.effects.command_scale}
+    rng = np.random.default_rng(1000 + seed)
+    reach = dict.fromkeys(floors, 0.0)
+    for _ in range(ENSEMBLE):
+        err = rng.uniform(-F32_BOUND, F32_BOUND, ticks)
+        mp = episode_metrics(scene, seed, closed_loop(c64, scene, seed, ticks, err).records)
+        for k in floors:
+            reach[k] = max(reach[k], ClosedLoopMetric(m64[k], mp[k], 0.0).deviation)
+    return {k: ClosedLoopMetric(m64[k], m32[k], ENVELOPE_FACTOR * reach[k] + floor)
+            for k, floor in floors.items()}
+
+
 def numba_sequence(policy: CompiledPolicy, scene, episodes, idle_ticks) -> list[Recording]:
     """The numba target over consecutive episodes on given readings (``episodes``: float64[n_k, 4]
     each), as one target process runs them: one :class:`~impact_env.rig.controller.Controller`
