@@ -337,8 +337,12 @@ def closed_loop_check(c64: CPolicy, c32: CPolicy, scene, seed: int,
     (uniform in +-F32_BOUND, seeded by ``1000 + seed``) times :data:`ENVELOPE_FACTOR`, plus the
     metric's resolution (1e-4 relative for the integral, one period for the catch time, one
     F32_BOUND of full scale for the peak force)."""
-    m64 = episode_metrics(scene, seed, closed_loop(c64, scene, seed, ticks).records)
-    m32 = episode_metrics(scene, seed, closed_loop(c32, scene, seed, ticks).records)
+    def metrics(cp: CPolicy, err: np.ndarray | None = None) -> dict[str, float]:
+        records = closed_loop(cp, scene, seed, ticks, err).records
+        assert records is not None  # a closed loop keeps the rig's true records
+        return episode_metrics(scene, seed, records)
+
+    m64, m32 = metrics(c64), metrics(c32)
     floors = {"energy_integral_ms": 1e-4 * m64["energy_integral_ms"],
               "time_to_catch_s": 1.0 / scene.control_rate,
               "peak_force_N": F32_BOUND * scene.effects.command_scale}
@@ -346,7 +350,7 @@ def closed_loop_check(c64: CPolicy, c32: CPolicy, scene, seed: int,
     reach = dict.fromkeys(floors, 0.0)
     for _ in range(ENSEMBLE):
         err = rng.uniform(-F32_BOUND, F32_BOUND, ticks)
-        mp = episode_metrics(scene, seed, closed_loop(c64, scene, seed, ticks, err).records)
+        mp = metrics(c64, err)
         for k in floors:
             reach[k] = max(reach[k], ClosedLoopMetric(m64[k], mp[k], 0.0).deviation)
     return {k: ClosedLoopMetric(m64[k], m32[k], ENVELOPE_FACTOR * reach[k] + floor)
