@@ -1,5 +1,5 @@
 """``mpc`` on rigs drawn from ``rig-randomized``'s hardware ranges, with and without their
-calibration: the record and the generated block of docs/mpc.md.
+calibration: the record and the generated block of docs/mpc-calibrated.md.
 
 ``rig-randomized`` draws a new rig's hardware for every drop and tells the controller none of
 it, so ``mpc``'s model is the nominal rig's and its filter hands over to ``pd-penetration``.  A
@@ -31,7 +31,7 @@ interval (drops resampled within their rig), and the paired difference ``mpc`` m
 ``pd-penetration`` (:mod:`impact_env.eval.paired`); ``mpc`` is better where the interval lies
 below 0.  Writes docs/results/mpc/calibrated.json (figures, per-drop values, each rig's hardware,
 the command, versions, CPU, date) and the block between the ``mpc-calibrated`` markers of
-docs/mpc.md.
+docs/mpc-calibrated.md.
 
     python scripts/mpc_calibrated.py [--rigs 10] [--drops 10] [--seed 0]
     python scripts/mpc_calibrated.py --render          # the block from the record
@@ -51,6 +51,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mpc_record import OUT, _table_head, meta, write_block  # noqa: E402
 
 MARKERS = ("<!-- mpc-calibrated:start -->", "<!-- mpc-calibrated:end -->")
+PAGE = OUT.parents[2] / "docs" / "mpc-calibrated.md"
 RECORD = OUT / "calibrated.json"
 POLICIES = ("mpc", "mpc-state", "pd-penetration")
 IDENTIFIED = sorted((OUT.parents[1] / "results" / "identification").glob("seed*/identified.toml"))
@@ -223,7 +224,7 @@ def main() -> int:
         rec = measure(args.rigs, args.drops, args.seed, args.identified_drops, args.rig_drops)
         RECORD.write_text(json.dumps(rec, indent=1) + "\n")
     text = render(json.loads(RECORD.read_text()))
-    write_block(text, MARKERS)
+    write_block(text, MARKERS, PAGE)
     print(text)
     return 0
 

@@ -152,11 +152,11 @@ def render_robustness(record: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_block(text: str, markers: tuple[str, str] = (START, END)) -> None:
+def write_block(text: str, markers: tuple[str, str] = (START, END), doc: Path = DOC) -> None:
     start, end = markers
-    page = DOC.read_text()
+    page = doc.read_text()
     i, j = page.index(start), page.index(end)
-    DOC.write_text(page[:i] + start + "\n" + text + page[j:])
+    doc.write_text(page[:i] + start + "\n" + text + page[j:])
 
 
 def main() -> int:

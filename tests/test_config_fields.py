@@ -7,7 +7,8 @@ observations (sensors, detector bit and true state), rewards, ends and info, or 
 the field is a check (``integrator.min_steps_per_contact``).  The rig's sensor plausibility check
 (``effects.sensors.<channel>.max_step``, ``effects.sensors.fault_limit_s``) runs in the target's
 tick and the C export, not in the env: its verdicts on fixed probe readings are part of the
-fingerprint too.  A field that nothing reads fails
+fingerprint too, and so is the model the model-based laws plan on (``mpc-state``'s solver
+constants: ``control.known_hardware`` acts there).  A field that nothing reads fails
 here: ``effects.shaker.enabled`` did, and is gone.
 """
 
@@ -70,6 +71,7 @@ SPECIAL = {
     "randomize.actuator_delay_s": ({}, [0.0, 2e-4]),
     "randomize.m2": ({}, [0.8, 1.2]),
     "randomize.top_mass": ({}, [0.08, 0.12]),
+    "control.known_hardware": ({"randomize.c": [2.4e6, 2.4e6]}, ["c"]),  # the measured pad, told
 }
 LABELS = ("name", "description")
 
@@ -125,7 +127,19 @@ def fingerprint(scene: Scene):
         probe = _plausibility_probe(scene)
     except ConfigError as exc:
         return ("refused", str(exc))
-    return ("ran", len(rows), np.concatenate([np.ravel(x) for x in rows] + [probe]))
+    return ("ran", len(rows), np.concatenate([np.ravel(x) for x in rows] + [probe, _model_probe(scene)]))
+
+
+def _model_probe(scene: Scene) -> np.ndarray:
+    """The constants of ``mpc-state``'s model for ``scene`` (empty where the law refuses it)."""
+    from impact_env.control.laws import mpc_state
+
+    gains = {name: p.default for name, p in mpc_state.PARAMS.items()}
+    gains["m1"] = scene.plant.m1
+    try:
+        return np.array(list(mpc_state.solver_constants(scene, gains).values()), dtype=np.float64)
+    except ConfigError:
+        return np.zeros(0)
 
 
 def _plausibility_probe(scene: Scene) -> np.ndarray:
