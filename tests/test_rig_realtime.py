@@ -133,6 +133,8 @@ def test_target_ended_episode_comes_back_as_terminated_with_its_reason(lockstep)
                 break
         assert te and not tr and info["end_reason"] == "SAFETY"
         assert "TRAVEL" in info["status_flags"] and info["reward_available"] is False
+        # the episode's counters come with the end too, as with every step's OBSERVATION
+        assert info["commands_unheard_steps"] >= 0
         assert target.last_end.reason == 5
     finally:
         env.close()

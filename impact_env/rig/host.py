@@ -712,7 +712,8 @@ TASK_OPTIONS_DOC
         obs = self._last_obs
         info: dict[str, Any] = self._info(obs) if obs is not None else {}
         info.update(end_reason=reason, reward_available=False, status=int(end.status),
-                    status_flags=status_names(end.status), ticks=int(end.n_ticks))
+                    status_flags=status_names(end.status), ticks=int(end.n_ticks),
+                    commands_unheard_steps=self._unheard)  # the episode's count, as on every step
         o = np.asarray(obs.obs if obs is not None else np.zeros(self.layout.size), dtype=np.float32)
         return o, 0.0, term, not term, info
 
