@@ -45,6 +45,10 @@ def test_known_hardware_folds_one_point_hardware_ranges_only():
     assert known_hardware(wide) is wide  # every hardware range there is wide, and none is known
     untold = load_scene("rig", UNKNOWN)
     assert known_hardware(untold) is untold  # one-point, but not listed: the controller is not told
+    from impact_env.eval.robustness import point_scene
+
+    moved = point_scene(base, {"c": 2.4e6, "actuator_delay_s": 1e-4})  # the mismatch map's rigs
+    assert known_hardware(moved) is moved and mpc.known_lag(moved) == 0
     scene = load_scene("rig", {**CALIBRATED, "randomize.m1": [0.1, 0.1]})
     hw = known_hardware(scene)
     assert hw.plant.c == 2.4e6 and hw.plant.m2 == 0.85 and hw.effects.sensors.force.top_mass == 0.13

@@ -3,9 +3,10 @@
 Each grid point moves one or two hardware parameters off their nominal values and runs every
 policy on the same seeded drops (``compare``'s episodes ``seed + j``).  A parameter is moved the
 way a rig departs from its description: through a one-point range of the scene's ``[randomize]``
-section (``c = [v, v]``), so the hardware runs with ``v`` while the controller side (the
-observation's reference scales, a law's constants, the detector) keeps the scene's fixed values,
-as a deployed policy and the target serving the scene do.  The parameters are the
+section (``c = [v, v]``), not listed in ``control.known_hardware``, so the hardware runs with
+``v`` while the controller side (the observation's reference scales, a law's constants and
+model, the detector) keeps the scene's fixed values, as a deployed policy and the target serving
+the scene do.  The parameters are the
 ``[randomize]`` fields (:data:`FIELDS`: the pad's c and restitution, the coil inductance, the
 sensor delay, the command gain, m1, the noise level, ...); a delay's effect is switched on (at
 its nominal 0 s) when the scene has it off.
