@@ -40,8 +40,10 @@ AGENT = "compiled:agents/models/best/best.policy.json"
 POLICIES = ("passive", "thesis-rig", "pd-penetration", AGENT)
 
 
-def serve(physics):
-    target = Target(VirtualRig("rig", physics), config=TargetConfig(lockstep=True))
+def serve(physics, scene="rig"):
+    """A lock-step target on loopback serving ``scene`` on a virtual rig whose hardware is
+    ``physics``, in a thread: (target, thread)."""
+    target = Target(VirtualRig(scene, physics), config=TargetConfig(lockstep=True))
     th = threading.Thread(target=target.serve, daemon=True)
     th.start()
     return target, th

@@ -99,13 +99,9 @@ def measure_identified(drops: int) -> dict:
 def measure_on_rigs(drops: int) -> dict:
     """Each identified virtual rig in lock-step: mpc and pd-penetration onboard, the target
     serving ``rig`` and then the identified scene."""
-    import threading
-
-    from identify_virtual import virtual_physics
+    from identify_virtual import serve, virtual_physics
 
     from impact_env.eval.rig_compare import rig_compare
-    from impact_env.rig.driver import VirtualRig
-    from impact_env.rig.target import Target, TargetConfig
 
     out = {}
     for path in IDENTIFIED:
@@ -113,10 +109,7 @@ def measure_on_rigs(drops: int) -> dict:
         physics, _truth = virtual_physics(int(res["seed"]), tuple(res["delays"]))
         rows = {}
         for served in ("rig", str(path.relative_to(OUT.parents[2]))):
-            target = Target(VirtualRig(OUT.parents[2] / served if served != "rig" else served, physics),
-                            config=TargetConfig(lockstep=True))
-            th = threading.Thread(target=target.serve, daemon=True)
-            th.start()
+            target, th = serve(physics, OUT.parents[2] / served if served != "rig" else served)
             try:
                 _scene, runs = rig_compare(target.address, ["mpc", "pd-penetration"], episodes=drops,
                                            seed=1000, progress=False)

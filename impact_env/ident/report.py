@@ -127,6 +127,7 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
     base_name = fit.model.base.name if fit.model is not None else "base"
     fixed: dict[str, dict[str, tuple[str, str]]] = {}
     rand: dict[str, tuple[str, str]] = {}
+    known: list[str] = []  # the one-point ranges: measured values, told to the model-based laws
     notes: list[str] = []
 
     def put(dotted: str, value, comment: str) -> None:
@@ -158,6 +159,8 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
             if ranges_k:
                 rc += f"; +-{ranges_k:g} sigma"
             rand[rz] = (f"[{_num(lo)}, {_num(hi)}]", rc)
+            if lo == hi:
+                known.append(rz)
     for ch, est in fit.sensors.items():
         put(f"effects.sensors.{ch}.offset", _num(est.offset),
             f"+- {est.offset_se:.2g} (quiet episodes, n = {est.n})")
@@ -188,7 +191,6 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
     ]
     if active != base_active:
         lines += ["", "[effects]", f"active = {json.dumps(active)}  # the identified delays switched on"]
-    known = [key for key, (val, _c) in rand.items() if _one_point(val)]
     if known:
         lines += ["", "[control]", f"known_hardware = {json.dumps(known)}  # the one-point ranges below: "
                   "measured, so the model-based laws plan on them"]
@@ -201,11 +203,6 @@ def scene_text(fit: Fit, base_ref: str, ranges_k: float | None = None, name: str
         for key, (val, comment) in rand.items():
             lines.append(f"{key} = {val}  # {comment}")
     return "\n".join(lines) + "\n"
-
-
-def _one_point(text: str) -> bool:
-    lo, hi = json.loads(text)
-    return lo == hi
 
 
 def markdown(fit: Fit, scene_file: str | None = None) -> str:

@@ -228,6 +228,12 @@ def known_hardware(scene):
     return replace_dotted(scene, ov)
 
 
+def known_command_gain(scene) -> float:
+    """The amplifier gain the controller is told (:func:`known_hardware`'s command scale over the
+    scene's own): 1 unless ``control.known_hardware`` lists ``command_gain``."""
+    return known_hardware(scene).effects.command_scale / scene.effects.command_scale
+
+
 def check_scene_ranges(scene) -> None:
     """Cross-field checks of ``scene.randomize`` against the rest of the scene (ConfigError)."""
 

@@ -136,20 +136,25 @@ class ControlConfig:
     rate: float | None = _f(None, "Hz", "control (and default recording) rate; none = every integration "
                             "step (fixed-step methods only); must divide the integration grid")
     known_hardware: tuple[str, ...] = field(default=(), metadata={
-        "unit": "", "doc": "[randomize] fields whose one-point range is the rig's measured value (a calibrated "
-                           "scene's identified fields, written by impact-env identify): the laws whose model is the plant "
-                           "(mpc, mpc-state, the filter before a network) plan on it; any other range is "
-                           "hardware the controller is not told"})
+        "unit": "", "doc": "[randomize] fields whose one-point range is the rig's measured value (a "
+                           "calibrated scene's identified fields, written by impact-env identify): the laws "
+                           "whose model is the plant (mpc, mpc-state, the filter before a network) plan on "
+                           "it; any other range is hardware the controller is not told"})
 
     def __post_init__(self):
         if self.rate is not None:
             check_range("control.rate", self.rate, "Hz", 1.0, 1e8)
+        if self.known_hardware:  # (a scene is built at every randomised reset: nothing to check, no work)
+            self._check_known_hardware()
+
+    def _check_known_hardware(self) -> None:
         from impact_env.scene.randomize import DROP_FIELDS, RandomizeConfig
 
         hardware = [f for f in RandomizeConfig.__dataclass_fields__ if f not in DROP_FIELDS]
         for name in self.known_hardware:
             if name not in hardware:
-                raise ConfigError(f"control.known_hardware lists {name!r}: not a hardware field of [randomize]; "
+                raise ConfigError(f"control.known_hardware lists {name!r}: not a hardware field of "
+                                  "[randomize]; "
                                   f"choose among {', '.join(hardware)}")
         if len(set(self.known_hardware)) != len(self.known_hardware):
             raise ConfigError(f"control.known_hardware lists a field twice: {list(self.known_hardware)}")
@@ -187,7 +192,8 @@ class Scene:
         for name in self.control.known_hardware:  # a known value is one value
             r = getattr(self.randomize, name)
             if len(r) != 2 or r[0] != r[1]:
-                raise ConfigError(f"control.known_hardware lists {name!r}, but randomize.{name} = {list(r)} is not "
+                raise ConfigError(f"control.known_hardware lists {name!r}, but randomize.{name} = {list(r)} "
+                                  "is not "
                                   "one point [v, v]: a value the controller knows is one value")
         if self.initial.drop_height is not None and self.initial.drop_height > 0 and self.plant.gravity == 0:
             raise ConfigError("initial.drop_height needs plant.gravity > 0; with no gravity give "

@@ -39,7 +39,8 @@ def _defines() -> str:
              "CO_B": layout.CO_B, "CO_C": layout.CO_C, "CH_BASE": layout.CH_BASE[0],
              "CH_STRIDE": layout.CH_STRIDE, "ACC": 0, "FORCE": 1, "POT": 2,
              "SAT_PEAK": SP.peak, "SAT_RMS2": SP.rms2, "SAT_ALPHA": SP.alpha, "SAT_SLEW": SP.slew_step,
-             "SAT_MS": ST.mean_square, "SAT_PREV": ST.prev, "SH_D": P_D}
+             "SAT_MS": ST.mean_square, "SAT_PREV": ST.prev, "SH_D": P_D,
+             "REPLICAS_END": layout.REPLICAS_END}
     assert all(b == layout.CH_BASE[0] + c * layout.CH_STRIDE for c, b in enumerate(layout.CH_BASE))
     return "\n".join([*(f"#define EKF_{name} {v}" for name, v in plain.items()), *ks, *ms])
 
@@ -48,12 +49,12 @@ def ekf_ahead_c() -> str:
     """:func:`impact_env.control.estimation.ekf.ekf_ahead` in C (after :func:`ekf_c`)."""
     return """
 /* the plant lag periods after the estimate, under the demands given since (oldest first), by the
- * filter's model on copies of its replicas; the state ends in scratch + EKF_M_SAT + 2 */
+ * filter's model on copies of its replicas; the state ends in scratch + EKF_REPLICAS_END */
 static void ekf_ahead(const impact_real *k, const impact_real *mem, const impact_real *demands, int lag,
                       impact_real *scratch)
 {
-    for (int i = EKF_M_SHAKER; i < EKF_M_SAT + 2; i++) scratch[i] = mem[i];
-    impact_real *x = scratch + EKF_M_SAT + 2;
+    for (int i = EKF_M_SHAKER; i < EKF_REPLICAS_END; i++) scratch[i] = mem[i];
+    impact_real *x = scratch + EKF_REPLICAS_END;
     for (int i = 0; i < EKF_N; i++) x[i] = mem[EKF_M_X + i];
     for (int j = 0; j < lag; j++) {
         impact_real f2 = ekf_applied_force(k, scratch, demands[j], x[EKF_V2]);

@@ -121,9 +121,9 @@ def ekf_constants(scene, settings: dict | None = None) -> dict[str, float]:
     The model is the hardware the scene knows (:func:`impact_env.scene.randomize.known_hardware`:
     a calibrated scene's identified c, m2, top mass and amplifier gain included); the policy's clip
     is at the scene's own ``effects.command_scale``, which the amplifier's known gain then scales."""
-    from impact_env.scene.randomize import known_hardware
+    from impact_env.scene.randomize import known_command_gain, known_hardware
 
-    description = scene
+    command_scale, command_gain = scene.effects.command_scale, known_command_gain(scene)
     scene = known_hardware(scene)
     s = dict(SETTINGS)
     s.update(settings or {})
@@ -132,8 +132,7 @@ def ekf_constants(scene, settings: dict | None = None) -> dict[str, float]:
     rate = float(scene.control_rate)
     k.update(m2=pl.m2, c=pl.c, g=pl.gravity, k2=pl.suspension_stiffness, c2=pl.suspension_damping,
              top_mass=scene.effects.sensors.force.top_mass, dt=1.0 / rate,
-             command_scale=description.effects.command_scale,
-             command_gain=scene.effects.command_scale / description.effects.command_scale)
+             command_scale=command_scale, command_gain=command_gain)
     k["zeta"] = 0.0 if pl.restitution >= 1.0 else zeta_for_restitution(pl.restitution)
     eff = scene.effects
     if eff.on("shaker"):

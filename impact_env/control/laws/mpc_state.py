@@ -69,9 +69,9 @@ def solver_constants(scene, P: dict) -> dict:
     on a calibrated scene, the identified pad, masses and amplifier gain); the force box is the
     force that hardware applies at full command, and the law's demand is the planned force over
     the amplifier's known gain (``command_gain``, 1 unless the scene knows it)."""
-    from impact_env.scene.randomize import known_hardware
+    from impact_env.scene.randomize import known_command_gain, known_hardware
 
-    description = scene
+    gain = known_command_gain(scene)
     scene = known_hardware(scene)
     p = scene.plant
     fx = scene.effects
@@ -101,7 +101,7 @@ def solver_constants(scene, P: dict) -> dict:
            "horizon": float(P["horizon"]), "iterations": float(P["iterations"]),
            "line_search": float(P["line_search"]), "r": float(P["r"]), "w_terminal": float(P["w_terminal"]),
            "w2": float(P["w2"]), "mu": float(P["mu"]), "dmin": 1e-7, **shaker,
-           "command_gain": float(fx.command_scale) / float(description.effects.command_scale)}
+           "command_gain": gain}
     missing = set(Constants._fields) ^ set(out)
     assert not missing, missing
     if not all(math.isfinite(v) for v in out.values()):
