@@ -15,6 +15,7 @@ which it was.
 from __future__ import annotations
 
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -23,6 +24,10 @@ import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+#: the free space the fresh venv needs: its dependencies take about 0.4 GB installed (llvmlite
+#: 0.17, scipy 0.1, numpy, numba, matplotlib and fonttools about 0.03 each) and pip unpacks each
+#: wheel beside its install; below this the check would fail midway with pip's "No space left"
+NEEDS_BYTES = 1.5e9
 
 
 def main_command() -> list[str]:
@@ -43,6 +48,10 @@ def main(argv: list[str]) -> int:
     names = top_level_names(wheel)
     extra = {n for n in names if n != "impact_env" and not n.endswith(".dist-info")}
     assert not extra, f"the wheel installs more than impact_env: {sorted(extra)}"
+    free = shutil.disk_usage(tempfile.gettempdir()).free
+    if free < NEEDS_BYTES:
+        raise SystemExit(f"the wheel check builds a fresh venv under {tempfile.gettempdir()} (TMPDIR): it needs "
+                         f"about {NEEDS_BYTES / 1e9:.1f} GB free there, and {free / 1e9:.2f} GB are")
     started = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="impact-wheel-") as tmp:
         venv = Path(tmp) / "venv"
