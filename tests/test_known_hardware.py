@@ -76,11 +76,11 @@ DELAYS = {"effects.active": ["shaker", "saturation", "sensors", "filters", "dete
           "effects.delay.sensor_s": 2e-4, "effects.delay.actuator_s": 1e-4}  # 2 and 1 periods
 
 
-def _nis_and_hand_over(overrides: dict):
-    """mpc on N_DROPS drops of rig with ``overrides``: the largest one-tick NIS before the touch
-    per drop, and whether it handed over."""
+def _nis_and_hand_over(overrides: dict, spec: str = SPEC):
+    """``spec`` on N_DROPS drops of rig with ``overrides``: the largest one-tick NIS before the
+    touch per drop, and whether it handed over."""
     scene = load_scene("rig", overrides)
-    law = export_policy(SPEC, scene)
+    law = export_policy(spec, scene)
     sim = Simulator(scene, N_DROPS, layout=law.layout)
     sim.reset([np.random.default_rng(4000 + i) for i in range(N_DROPS)])
     arrays, params, m = law.arrays()
@@ -102,10 +102,16 @@ def test_on_a_calibrated_rig_the_filter_holds_and_mpc_plans():
     # a consistent 3-channel filter: chi-square 3, whose 1 - 1e-9 quantile is 44
     assert before.max() < 44.0, before
     assert not handed_over.any()
+    # the same hardware, not told, and the base rig's model taken as exact: the gate sees it and
+    # hands over
+    before_exact, handed_over_exact = _nis_and_hand_over(UNKNOWN, SPEC + ",untold_error=0")
+    assert before_exact.min() > mpc.PARAMS["nis_gate"].default, before_exact
+    assert handed_over_exact.all()
+    # not told, with the model's error allowed for (the default where hardware is untold): the
+    # filter's innovations are within its predicted variance and the plan drives
     before_unknown, handed_over_unknown = _nis_and_hand_over(UNKNOWN)
-    # the same hardware, not told: the base rig's model, the gate sees it and hands over
-    assert before_unknown.min() > mpc.PARAMS["nis_gate"].default, before_unknown
-    assert handed_over_unknown.all()
+    assert before_unknown.max() < 44.0, before_unknown
+    assert not handed_over_unknown.any()
 
 
 def test_with_known_delays_the_filter_runs_behind_and_mpc_plans():

@@ -228,6 +228,33 @@ def known_hardware(scene):
     return replace_dotted(scene, ov)
 
 
+def untold_hardware(scene) -> tuple[str, ...]:
+    """The hardware ranges of ``scene`` that its controller is not told: every ranged field but the
+    drop's (:data:`DROP_FIELDS`) and those ``control.known_hardware`` lists, less the one-point
+    ranges that sit on the value the scene itself gives their field (those depart from nothing).
+    Empty on a nominal or a calibrated rig; on ``rig-randomized`` every hardware range."""
+    rz = scene.randomize
+    known = set(scene.control.known_hardware)
+    out = []
+    for name in rz.ranged():
+        if name in DROP_FIELDS or name in known:
+            continue
+        lo, hi = getattr(rz, name)[0], getattr(rz, name)[-1]
+        if lo == hi:
+            fields = {k: v for k, v in overrides_for(scene, {name: lo}).items()
+                      if k not in ("randomize", "control.known_hardware")}
+            if all(_dotted(scene, k) == v for k, v in fields.items()):
+                continue
+        out.append(name)
+    return tuple(out)
+
+
+def _dotted(obj, key: str):
+    for part in key.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
 def known_command_gain(scene) -> float:
     """The amplifier gain the controller is told (:func:`known_hardware`'s command scale over the
     scene's own): 1 unless ``control.known_hardware`` lists ``command_gain``."""

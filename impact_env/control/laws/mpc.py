@@ -36,13 +36,15 @@ runs; the filter's lost-track bit and count
 
 from __future__ import annotations
 
+import math
 from collections import namedtuple
 
 from impact_env._jit import jit
 from impact_env.control.estimation.c_text import ekf_ahead_c, ekf_c
 from impact_env.control.estimation.ekf import AHEAD_SCRATCH, ekf_ahead, ekf_measure, ekf_tick
 from impact_env.control.estimation.layout import MEMORY as EKF_MEMORY
-from impact_env.control.estimation.layout import REPLICAS_END, V1, V2, X1, X2, EkfConstants, EkfMemory
+from impact_env.control.estimation.layout import (CHANNEL_NAMES, REPLICAS_END, V1, V2, X1, X2, EkfConstants,
+                                                  EkfMemory)
 from impact_env.control.estimation.model import SETTINGS, ekf_constants
 from impact_env.control.laws import mpc_state, pd_penetration
 from impact_env.control.laws.estimate import MEMORY as ESTIMATE_MEMORY
@@ -74,10 +76,24 @@ AHEAD = DEMANDS + MAX_LAG
 AHEAD_STATE = AHEAD + REPLICAS_END  # where ekf_ahead leaves the state
 MEMORY = AHEAD + AHEAD_SCRATCH
 
+#: The model error the filter allows for where the scene leaves hardware untold
+#: (:func:`impact_env.scene.randomize.untold_hardware`), at ``untold_error = 1``: a standard deviation
+#: added to each reading's noise (m/s^2, N, m) and a white acceleration on body 2 (m/s^2) added to
+#: ``q_a2`` in quadrature.  Their sizes are those of ``rig-randomized``'s own spread: an untold sensor
+#: delay of 1-2 periods shifts a push that changes body 2's acceleration by 200 m/s^2 within a
+#: period (full scale on m2 = 1 kg), so the accelerometer's model error is of order 100 m/s^2; c
+#: known to 25 % moves a contact force of about 100 N by 20 N; two periods of body 2 moving at 0.5
+#: m/s are 1e-4 m on the potentiometer; and a 10 % amplifier gain at full scale is 20 m/s^2 on
+#: body 2, the order of ``q_a2``'s 30.  Chosen among 2-3 values each on validation drops of
+#: ``rig-randomized`` (seeds 900000 on; docs/mpc.md gives the search and the figures).
+MODEL_ERROR = {"acc": 100.0, "force": 20.0, "pot": 1e-4, "q_a2": 30.0}
+
 PARAMS = {key: value for key, value in mpc_state.PARAMS.items() if key != "m1"}
 PARAMS.update({
     "q_a1": Param(SETTINGS["q_a1"], "m/s^2", "estimator: white acceleration on body 1", lo=0.0),
     "q_a2": Param(SETTINGS["q_a2"], "m/s^2", "estimator: white acceleration on body 2", lo=0.0),
+    "untold_error": Param(1.0, "", "scale of the model error (MODEL_ERROR) the estimator allows for where "
+                          "the scene leaves hardware untold; 0: none", lo=0.0),
     "nis_gate": Param(1e3, "", "one tick's normalised innovation squared (3 channels) above which the "
                       "model is taken as wrong: pd-penetration drives for the rest of the episode", lo=0.0),
     "fallback_kp": Param(pd_penetration.PARAMS["kp"].default, "1/s^2", "the fallback pd-penetration's kp",
@@ -91,13 +107,28 @@ def constants_of(scene, P: dict) -> dict:
     solver_gains = {key: P[key] for key in mpc_state.PARAMS if key != "m1"}
     solver_gains["m1"] = scene.plant.m1  # the scene's nominal mass (the filter estimates the drop's)
     out = {f"solver_{name}": value for name, value in mpc_state.solver_constants(scene, solver_gains).items()}
-    out.update(ekf_constants(scene, {"q_a1": P["q_a1"], "q_a2": P["q_a2"]}))
+    out.update(estimator_constants(scene, P))
     gains = {"kp": P["fallback_kp"], "kd": P["fallback_kd"], "dref": 0.0, "top_mass": top_mass_of(scene)}
     fallback = pd_penetration.constants_of(scene, gains)
     out.update({f"fallback_{name}": value for name, value in fallback.items()})
     out["nis_gate"] = P["nis_gate"]
     out["lag"] = float(known_lag(scene))
     return out
+
+
+def estimator_constants(scene, P: dict) -> dict:
+    """The filter's constants: the scene's model, with :data:`MODEL_ERROR` (times ``untold_error``)
+    added where the scene leaves hardware untold.  A filter that takes the nominal rig's model as
+    exact, on a rig it has not been told, sees innovations thousands of times their predicted
+    variance and hands over to ``pd-penetration`` (or, with the hand-over off, plans on an estimate
+    that chases each reading); one that allows for the model's error as noise keeps planning."""
+    from impact_env.scene.randomize import untold_hardware
+
+    scale = P["untold_error"] if untold_hardware(scene) else 0.0
+    k = ekf_constants(scene, {"q_a1": P["q_a1"], "q_a2": math.hypot(P["q_a2"], scale * MODEL_ERROR["q_a2"])})
+    for channel in CHANNEL_NAMES:
+        k[f"{channel}_r"] += (scale * MODEL_ERROR[channel]) ** 2
+    return k
 
 
 def known_lag(scene) -> int:
