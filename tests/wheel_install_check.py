@@ -50,8 +50,8 @@ def main(argv: list[str]) -> int:
     assert not extra, f"the wheel installs more than impact_env: {sorted(extra)}"
     free = shutil.disk_usage(tempfile.gettempdir()).free
     if free < NEEDS_BYTES:
-        raise SystemExit(f"the wheel check builds a fresh venv under {tempfile.gettempdir()} (TMPDIR): it needs "
-                         f"about {NEEDS_BYTES / 1e9:.1f} GB free there, and {free / 1e9:.2f} GB are")
+        raise SystemExit(f"the wheel check builds a fresh venv under {tempfile.gettempdir()} (TMPDIR): it "
+                         f"needs about {NEEDS_BYTES / 1e9:.1f} GB free there, and {free / 1e9:.2f} GB are")
     started = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="impact-wheel-") as tmp:
         venv = Path(tmp) / "venv"

@@ -13,19 +13,21 @@ Before the touch the sensors say nothing about body 1: the estimate is the scene
 drop-height range), so the plan positions body 2 for the mean drop; the filter takes body 1 up
 at the first contact force.  That is the information ``mpc-state`` has and this law lacks.
 
-A plan is only as good as the model under it.  Where the plant is not the scene's nominal one
-(``rig-randomized``'s drawn delays, pad, shaker gain and noise), the filter's innovations are
-tens of thousands of times their predicted variance from the first ticks, and a plan on that
-estimate drives the shaker into body 1 at full scale.  So the law checks its model every tick and
-hands over to a law that needs none: once the filter reports lost track (its windowed test) or one
-tick's normalised innovation squared exceeds ``nis_gate``, it drives ``pd-penetration`` on the
-same sensors for the rest of the episode (latched: a plan switched back in mid-contact would start
-from an estimate it has just shown to be wrong).  The hand-over is counted in the memory row
-(``FALLBACK_ON``, ``FALLBACK_TICKS``).  ``nis_gate``'s default, 1e3, is three times the largest
-one-tick NIS met on ``rig``'s held-out drops (301, at a contact's onset, where the linearisation
-about a near-zero penetration is poorest), while a consistent filter's 3-channel NIS, chi-square
-with 3 degrees of freedom, exceeds 44 once in 1e9 ticks; on the suite's ``rig-randomized`` drops
-the smallest maximum before the touch is 2.1e3 (docs/mpc.md).
+A plan is only as good as the model under it.  Where the scene leaves hardware untold
+(``rig-randomized``'s drawn delays, pad, shaker gain and noise: ``untold_hardware``), a filter
+that takes the nominal model as exact sees innovations tens of thousands of times their predicted
+variance from the first ticks, and a plan on its estimate drives the shaker into body 1 at full
+scale.  So there the filter allows for the model's error (:data:`MODEL_ERROR`, times
+``untold_error``: :func:`estimator_constants`) and leans on each reading only as far as the model
+explains it.  And the law checks its model every tick and hands over to a law that needs none:
+once the filter reports lost track (its windowed test) or one tick's normalised innovation squared
+exceeds ``nis_gate``, it drives ``pd-penetration`` on the same sensors for the rest of the episode
+(latched: a plan switched back in mid-contact would start from an estimate it has just shown to
+be wrong).  The hand-over is counted in the memory row (``FALLBACK_ON``, ``FALLBACK_TICKS``).
+``nis_gate``'s default, 1e3, is three times the largest one-tick NIS met on ``rig``'s held-out
+drops (301, at a contact's onset, where the linearisation about a near-zero penetration is
+poorest), while a consistent filter's 3-channel NIS, chi-square with 3 degrees of freedom,
+exceeds 44 once in 1e9 ticks (docs/mpc.md).
 
 The estimator, the solver and the fallback are part of the policy: all live in the law's memory
 row (the solver's first, then the filter's, then the fallback's), so the law runs wherever a law
@@ -42,9 +44,17 @@ from collections import namedtuple
 from impact_env._jit import jit
 from impact_env.control.estimation.c_text import ekf_ahead_c, ekf_c
 from impact_env.control.estimation.ekf import AHEAD_SCRATCH, ekf_ahead, ekf_measure, ekf_tick
+from impact_env.control.estimation.layout import (
+    CHANNEL_NAMES,
+    REPLICAS_END,
+    V1,
+    V2,
+    X1,
+    X2,
+    EkfConstants,
+    EkfMemory,
+)
 from impact_env.control.estimation.layout import MEMORY as EKF_MEMORY
-from impact_env.control.estimation.layout import (CHANNEL_NAMES, REPLICAS_END, V1, V2, X1, X2, EkfConstants,
-                                                  EkfMemory)
 from impact_env.control.estimation.model import SETTINGS, ekf_constants
 from impact_env.control.laws import mpc_state, pd_penetration
 from impact_env.control.laws.estimate import MEMORY as ESTIMATE_MEMORY
