@@ -18,7 +18,7 @@ A plan is only as good as the model under it.  Where the scene leaves hardware u
 that takes the nominal model as exact sees innovations tens of thousands of times their predicted
 variance from the first ticks, and a plan on its estimate drives the shaker into body 1 at full
 scale.  So there the filter allows for the model's error (:data:`MODEL_ERROR`, times
-``untold_error``: :func:`estimator_constants`) and leans on each reading only as far as the model
+``untold_error``: :func:`filter_constants`) and leans on each reading only as far as the model
 explains it.  And the law checks its model every tick and hands over to a law that needs none:
 once the filter reports lost track (its windowed test) or one tick's normalised innovation squared
 exceeds ``nis_gate``, it drives ``pd-penetration`` on the same sensors for the rest of the episode
@@ -117,7 +117,7 @@ def constants_of(scene, P: dict) -> dict:
     solver_gains = {key: P[key] for key in mpc_state.PARAMS if key != "m1"}
     solver_gains["m1"] = scene.plant.m1  # the scene's nominal mass (the filter estimates the drop's)
     out = {f"solver_{name}": value for name, value in mpc_state.solver_constants(scene, solver_gains).items()}
-    out.update(estimator_constants(scene, P))
+    out.update(filter_constants(scene, P))
     gains = {"kp": P["fallback_kp"], "kd": P["fallback_kd"], "dref": 0.0, "top_mass": top_mass_of(scene)}
     fallback = pd_penetration.constants_of(scene, gains)
     out.update({f"fallback_{name}": value for name, value in fallback.items()})
@@ -126,7 +126,7 @@ def constants_of(scene, P: dict) -> dict:
     return out
 
 
-def estimator_constants(scene, P: dict) -> dict:
+def filter_constants(scene, P: dict) -> dict:
     """The filter's constants: the scene's model, with :data:`MODEL_ERROR` (times ``untold_error``)
     added where the scene leaves hardware untold.  A filter that takes the nominal rig's model as
     exact, on a rig it has not been told, sees innovations thousands of times their predicted
@@ -251,8 +251,9 @@ def _indent(text: str) -> str:
 
 LAW = Law("mpc", "sensors", "model-predictive control (the `mpc-state` solver) on an extended Kalman "
           "filter's estimate: the scene's model (both bodies, m1, the shaker, the limit, the filters "
-          "inverted) fed by the accelerometer, transducer and potentiometer; pd-penetration once the "
-          "filter's innovations show the model wrong",
+          "inverted) fed by the accelerometer, transducer and potentiometer, allowing for the model's "
+          "error where the scene leaves hardware untold; pd-penetration once the filter's innovations "
+          "show the model wrong",
           SensorReads, Constants, constants_of, memory=MEMORY, params=PARAMS,
           c_body=c_body, c_prelude=c_prelude,
           c_double_only="its command jumps by full scale within a tick where the plan switches "
