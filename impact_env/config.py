@@ -229,6 +229,13 @@ def with_overrides(obj, overrides: dict[str, Any], parse: bool = True):
     return from_dict(type(obj), data)
 
 
+def get_dotted(obj, key: str) -> Any:
+    """The value of config ``obj``'s dotted field ``key`` (``"plant.c"``)."""
+    for part in key.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
 def replace_dotted(obj, values: dict[str, Any]):
     """A copy of config ``obj`` with the dotted fields ``values`` set to typed values (coerced and
     checked as :func:`from_dict` does), by ``dataclasses.replace`` along each path: the replaced

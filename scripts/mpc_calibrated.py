@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mpc_record import OUT, _table_head, meta, write_block  # noqa: E402
+from mpc_record import OUT, _table_head, at_least_two, meta, record_and_block  # noqa: E402
 
 MARKERS = ("<!-- mpc-calibrated:start -->", "<!-- mpc-calibrated:end -->")
 PAGE = OUT.parents[2] / "docs" / "mpc-calibrated.md"
@@ -234,16 +234,10 @@ def main() -> int:
     ap.add_argument("--rig-drops", type=int, default=10, help="drops on each virtual rig, per served scene")
     ap.add_argument("--render", action="store_true", help="only rewrite the block from the record")
     args = ap.parse_args()
-    for name in ("rigs", "drops", "identified_drops", "rig_drops"):
-        if getattr(args, name) < 2:
-            ap.error(f"--{name.replace('_', '-')} = {getattr(args, name)} must be at least 2 (the intervals "
-                     "resample them)")
-    if not args.render:
-        OUT.mkdir(parents=True, exist_ok=True)
-        rec = measure(args.rigs, args.drops, args.seed, args.identified_drops, args.rig_drops)
-        RECORD.write_text(json.dumps(rec, indent=1) + "\n")
-    text = render(json.loads(RECORD.read_text()))
-    write_block(text, MARKERS, PAGE)
+    at_least_two(ap, args, ("rigs", "drops", "identified_drops", "rig_drops"))
+    run = None if args.render else lambda: measure(args.rigs, args.drops, args.seed, args.identified_drops,
+                                                   args.rig_drops)
+    text = record_and_block(RECORD, run, render, MARKERS, PAGE)
     print(text)
     return 0
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import sys
 import time
 from pathlib import Path
@@ -32,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mpc_record import OUT, _table_head, meta, write_block  # noqa: E402
+from mpc_record import OUT, _table_head, at_least_two, meta, record_and_block  # noqa: E402
 
 MARKERS = ("<!-- mpc-model-error:start -->", "<!-- mpc-model-error:end -->")
 PAGE = OUT.parents[2] / "docs" / "mpc-calibrated.md"
@@ -129,15 +128,9 @@ def main() -> int:
     ap.add_argument("--check-drops", type=int, default=80, help="further drops for the shipped values")
     ap.add_argument("--render", action="store_true", help="only rewrite the block from the record")
     args = ap.parse_args()
-    for name in ("drops", "check_drops"):
-        if getattr(args, name) < 2:
-            ap.error(f"--{name.replace('_', '-')} = {getattr(args, name)} must be at least 2 (the intervals "
-                     "resample them)")
-    if not args.render:
-        OUT.mkdir(parents=True, exist_ok=True)
-        RECORD.write_text(json.dumps(measure(args.drops, args.check_drops), indent=1) + "\n")
-    text = render(json.loads(RECORD.read_text()))
-    write_block(text, MARKERS, PAGE)
+    at_least_two(ap, args, ("drops", "check_drops"))
+    run = None if args.render else lambda: measure(args.drops, args.check_drops)
+    text = record_and_block(RECORD, run, render, MARKERS, PAGE)
     print(text)
     return 0
 

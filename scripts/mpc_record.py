@@ -159,6 +159,25 @@ def write_block(text: str, markers: tuple[str, str] = (START, END), doc: Path = 
     doc.write_text(page[:i] + start + "\n" + text + page[j:])
 
 
+def at_least_two(ap: argparse.ArgumentParser, args: argparse.Namespace, names: tuple[str, ...]) -> None:
+    """Refuse a count below 2, naming its flag: the records' intervals resample them."""
+    for name in names:
+        if getattr(args, name) < 2:
+            ap.error(f"--{name.replace('_', '-')} = {getattr(args, name)} must be at least 2 (the intervals "
+                     "resample them)")
+
+
+def record_and_block(record: Path, measure, render, markers: tuple[str, str], doc: Path) -> str:
+    """``measure()``'s record written to ``record`` (``measure`` None: the kept record), then
+    ``render`` of it written as the block between ``markers`` of ``doc``; returns the block."""
+    if measure is not None:
+        record.parent.mkdir(parents=True, exist_ok=True)
+        record.write_text(json.dumps(measure(), indent=1) + "\n")
+    text = render(json.loads(record.read_text()))
+    write_block(text, markers, doc)
+    return text
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--episodes", type=int, default=20, help="drops (episodes) of rig")

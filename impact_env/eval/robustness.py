@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from impact_env.config import ConfigError
+from impact_env.config import ConfigError, get_dotted
 from impact_env.eval.compare import (
     RolloutJob,
     check_cluster_specs,
@@ -94,11 +94,8 @@ def nominal(scene, name: str) -> float:
     """The scene's own value of a [randomize] field (1 for the factors)."""
     if name in ("noise_scale", "command_gain"):
         return 1.0
-    target = RandomizeConfig.__dataclass_fields__[name].metadata["target"]
-    obj = scene
-    for part in target.split("."):
-        obj = getattr(obj, part)
-    return float(obj) if obj is not None else float("nan")
+    value = get_dotted(scene, RandomizeConfig.__dataclass_fields__[name].metadata["target"])
+    return float(value) if value is not None else float("nan")
 
 
 def point_scene(scene, point: dict[str, float]):

@@ -19,11 +19,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from impact_env.config import with_overrides
+from impact_env.config import get_dotted, with_overrides
 from impact_env.effects.sensors import CHANNELS
 from impact_env.hardware.batch import Hardware
 from impact_env.hardware.replay import replay
@@ -82,10 +81,7 @@ FIELD_MAP = np.array([[1.0 if name in FIELDS[f] else 0.0 for name in NAMES] for 
 
 
 def get_field(scene: Scene, dotted: str) -> float:
-    obj: Any = scene
-    for part in dotted.split("."):
-        obj = getattr(obj, part)
-    return float(obj)
+    return float(get_dotted(scene, dotted))
 
 
 def model_base(scene: Scene, offsets: dict[str, float] | None = None) -> Scene:

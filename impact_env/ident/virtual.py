@@ -11,11 +11,10 @@ drop height).  The identification is tested and demonstrated on such rigs
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
-from impact_env.config import with_overrides
+from impact_env.config import get_dotted, with_overrides
 from impact_env.scene import Scene, load_scene
 
 # the fields moved, and the largest value each may take (the restitution stays a restitution)
@@ -29,13 +28,6 @@ CAP = {"plant.restitution": 0.97}
 OFFSET_STD = {"accelerometer": 0.3, "force": 0.2, "potentiometer": 2e-5}
 
 
-def _get(scene: Scene, dotted: str) -> float:
-    obj: Any = scene
-    for part in dotted.split("."):
-        obj = getattr(obj, part)
-    return float(obj)
-
-
 def perturbed_physics(base: Scene | str = "rig", seed: int = 0, spread: float = 0.4,
                       actuator_delay_ticks: int = 0, sensor_delay_ticks: int = 0) -> tuple[Scene, dict]:
     """(the physics scene, the true values of the moved fields) for ``seed`` (module doc)."""
@@ -44,7 +36,7 @@ def perturbed_physics(base: Scene | str = "rig", seed: int = 0, spread: float = 
     lo, hi = math.log(1.0 / (1.0 + spread)), math.log(1.0 + spread)
     truth: dict = {}
     for f in MOVED:
-        v = _get(base, f) * math.exp(rng.uniform(lo, hi))
+        v = float(get_dotted(base, f)) * math.exp(rng.uniform(lo, hi))
         truth[f] = min(v, CAP.get(f, math.inf))
     for ch, s in OFFSET_STD.items():
         truth[f"effects.sensors.{ch}.offset"] = float(s * rng.standard_normal())

@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from impact_env.config import ConfigError, replace_dotted
+from impact_env.config import ConfigError, get_dotted, replace_dotted
 from impact_env.effects.delay import delay_samples
 
 UNIFORM, LOG, SAMPLES = "uniform", "log-uniform", "samples"
@@ -243,16 +243,10 @@ def untold_hardware(scene) -> tuple[str, ...]:
         if lo == hi:
             fields = {k: v for k, v in overrides_for(scene, {name: lo}).items()
                       if k not in ("randomize", "control.known_hardware")}
-            if all(_dotted(scene, k) == v for k, v in fields.items()):
+            if all(get_dotted(scene, k) == v for k, v in fields.items()):
                 continue
         out.append(name)
     return tuple(out)
-
-
-def _dotted(obj, key: str):
-    for part in key.split("."):
-        obj = getattr(obj, part)
-    return obj
 
 
 def known_command_gain(scene) -> float:

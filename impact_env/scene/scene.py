@@ -154,8 +154,7 @@ class ControlConfig:
         for name in self.known_hardware:
             if name not in hardware:
                 raise ConfigError(f"control.known_hardware lists {name!r}: not a hardware field of "
-                                  "[randomize]; "
-                                  f"choose among {', '.join(hardware)}")
+                                  f"[randomize]; choose among {', '.join(hardware)}")
         if len(set(self.known_hardware)) != len(self.known_hardware):
             raise ConfigError(f"control.known_hardware lists a field twice: {list(self.known_hardware)}")
 
@@ -193,8 +192,7 @@ class Scene:
             r = getattr(self.randomize, name)
             if len(r) != 2 or r[0] != r[1]:
                 raise ConfigError(f"control.known_hardware lists {name!r}, but randomize.{name} = {list(r)} "
-                                  "is not "
-                                  "one point [v, v]: a value the controller knows is one value")
+                                  "is not one point [v, v]: a value the controller knows is one value")
         if self.initial.drop_height is not None and self.initial.drop_height > 0 and self.plant.gravity == 0:
             raise ConfigError("initial.drop_height needs plant.gravity > 0; with no gravity give "
                               "initial.impact_speed (m/s) instead")
